@@ -1,0 +1,278 @@
+# SPDX-License-Identifier: MIT
+"""Operators: thin wrappers over rig.py, simulation.py and results.py.
+
+Errors are reported with ``self.report({'ERROR'}, message)``; messages name
+the object (or scene) and the field.  Validation runs before any datablock is
+created, so a rejected run leaves the scene untouched.
+"""
+
+import bpy
+
+from . import engine, properties, results, rig, simulation
+from .engine import EngineMissing
+from .export import InputError
+
+# The job the modal operator is running (one at a time).
+_running = {"job": None}
+
+
+def running_job():
+    job = _running["job"]
+    return job if job is not None and not job.done else None
+
+
+def _redraw_sidebars(context):
+    screen = context.screen
+    if screen is None:
+        return
+    for area in screen.areas:
+        if area.type == "VIEW_3D":
+            area.tag_redraw()
+
+
+class ENDOPHOTON_OT_add_endoscope(bpy.types.Operator):
+    """Add an endoscope rig (head empty, two spot lights, camera) aimed at the 3D cursor"""
+
+    bl_idname = "endophoton.add_endoscope"
+    bl_label = "Add Endoscope"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        rig_obj = rig.create_rig(context, target=tuple(context.scene.cursor.location))
+        for obj in context.view_layer.objects:
+            obj.select_set(False)
+        rig_obj.select_set(True)
+        context.view_layer.objects.active = rig_obj
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_fluorophore_add(bpy.types.Operator):
+    """Add a fluorophore to the active object"""
+
+    bl_idname = "endophoton.fluorophore_add"
+    bl_label = "Add Fluorophore"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and context.object.type == "MESH"
+
+    def execute(self, context):
+        settings = context.object.endophoton
+        settings.fluorophores.add()
+        settings.active_fluorophore = len(settings.fluorophores) - 1
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_fluorophore_remove(bpy.types.Operator):
+    """Remove the selected fluorophore from the active object"""
+
+    bl_idname = "endophoton.fluorophore_remove"
+    bl_label = "Remove Fluorophore"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return (context.object is not None and context.object.type == "MESH"
+                and len(context.object.endophoton.fluorophores) > 0)
+
+    def execute(self, context):
+        settings = context.object.endophoton
+        index = settings.active_fluorophore
+        if not 0 <= index < len(settings.fluorophores):
+            self.report({"ERROR"}, f"Object '{context.object.name}': active_fluorophore = {index} "
+                                   "is not a fluorophore of this object")
+            return {"CANCELLED"}
+        settings.fluorophores.remove(index)
+        settings.active_fluorophore = max(0, index - 1)
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_role_defaults(bpy.types.Operator):
+    """Reload the role's default medium, priority and fluorophores"""
+
+    bl_idname = "endophoton.role_defaults"
+    bl_label = "Role Defaults"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and context.object.endophoton.role != "NONE"
+
+    def execute(self, context):
+        properties.apply_role_defaults(context.object.endophoton)
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_retry_engine_import(bpy.types.Operator):
+    """Look for the EndoPhoton package again"""
+
+    bl_idname = "endophoton.retry_engine_import"
+    bl_label = "Find Engine Again"
+
+    def execute(self, context):
+        engine.forget()
+        module, message = engine.status()
+        if module is None:
+            self.report({"ERROR"}, message)
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"EndoPhoton engine: {module.__file__}")
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_cancel_run(bpy.types.Operator):
+    """Cancel the running EndoPhoton simulation (same as Esc)"""
+
+    bl_idname = "endophoton.cancel_run"
+    bl_label = "Cancel Run"
+
+    @classmethod
+    def poll(cls, context):
+        return running_job() is not None
+
+    def execute(self, context):
+        job = running_job()
+        if job is not None:
+            job.cancel()
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_clear_results(bpy.types.Operator):
+    """Delete this scene's EndoPhoton result collections and their data"""
+
+    bl_idname = "endophoton.clear_results"
+    bl_label = "Clear Results"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        results.remove_results(context.scene)
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_run(bpy.types.Operator):
+    """Run the EndoPhoton simulation for this scene (Esc cancels)"""
+
+    bl_idname = "endophoton.run_simulation"
+    bl_label = "Run Simulation"
+    bl_options = {"REGISTER", "UNDO"}
+
+    _timer = None
+    _job = None
+    _area = None
+    _workspace = None
+
+    @classmethod
+    def poll(cls, context):
+        return running_job() is None
+
+    def _prepare(self, context):
+        try:
+            return simulation.prepare_job(context)
+        except (InputError, EngineMissing) as exc:
+            self.report({"ERROR"}, str(exc))
+            return None
+
+    def _finish(self, context, job):
+        try:
+            collection = simulation.finish_job(context, job)
+        except Exception as exc:  # engine failure or result import error
+            if job.error_traceback:
+                print(job.error_traceback)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if collection is None:
+            self.report({"WARNING"}, "EndoPhoton run cancelled; nothing was added")
+            return {"CANCELLED"}
+        summary = collection.get(results.SUMMARY_KEY, {})
+        self.report({"INFO"}, f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
+                              f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
+        return {"FINISHED"}
+
+    # Scripts and background mode: the same job, waited for in this thread.
+    def execute(self, context):
+        job = self._prepare(context)
+        if job is None:
+            return {"CANCELLED"}
+        _running["job"] = job
+        job.start()
+        job.wait()
+        return self._finish(context, job)
+
+    # Interactive: worker thread + timer; the UI keeps running.
+    def invoke(self, context, _event):
+        job = self._prepare(context)
+        if job is None:
+            return {"CANCELLED"}
+        self._job = job
+        self._area = context.area
+        self._workspace = context.workspace
+        _running["job"] = job
+        job.start()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.progress_begin(0, 1000)
+        wm.modal_handler_add(self)
+        self._status(context, job.progress().text())
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        job = self._job
+        if event.type == "ESC" and event.value == "PRESS":
+            job.cancel()
+            self._status(context, "EndoPhoton: cancelling…")
+            return {"RUNNING_MODAL"}
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"PASS_THROUGH"}
+        if not job.done:
+            progress = job.progress()
+            context.window_manager.progress_update(int(1000 * progress.fraction))
+            self._status(context, progress.text())
+            _redraw_sidebars(context)
+            return {"PASS_THROUGH"}
+        self._cleanup(context)
+        _redraw_sidebars(context)
+        return self._finish(context, job)
+
+    def cancel(self, context):
+        # Blender cancels modal operators when the file is closed.
+        if self._job is not None:
+            self._job.cancel()
+            self._job.wait(10.0)
+        self._cleanup(context)
+
+    def _status(self, _context, text):
+        if self._workspace is not None:
+            self._workspace.status_text_set(text)
+        if self._area is not None:
+            self._area.header_text_set(text)
+
+    def _cleanup(self, context):
+        wm = context.window_manager
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        self._status(context, None)
+        self._area = self._workspace = None
+
+
+CLASSES = (
+    ENDOPHOTON_OT_add_endoscope,
+    ENDOPHOTON_OT_fluorophore_add,
+    ENDOPHOTON_OT_fluorophore_remove,
+    ENDOPHOTON_OT_role_defaults,
+    ENDOPHOTON_OT_retry_engine_import,
+    ENDOPHOTON_OT_cancel_run,
+    ENDOPHOTON_OT_clear_results,
+    ENDOPHOTON_OT_run,
+)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

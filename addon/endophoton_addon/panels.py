@@ -1,0 +1,181 @@
+# SPDX-License-Identifier: MIT
+"""The "EndoPhoton" sidebar tab of the 3D viewport."""
+
+import bpy
+
+from . import engine, operators, results, rig
+from .utils import wrap_text
+
+
+class _EndoPhotonPanel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "EndoPhoton"
+
+
+class ENDOPHOTON_UL_fluorophores(bpy.types.UIList):
+    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index=0):
+        row = layout.row(align=True)
+        row.prop(item, "species", text="")
+        row.prop(item, "d")
+        row.prop(item, "c")
+
+
+class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
+    bl_label = "EndoPhoton"
+
+    def draw(self, context):
+        layout = self.layout
+        module, message = engine.status()
+        if module is None:
+            box = layout.box()
+            box.label(text="Engine package not found", icon="ERROR")
+            col = box.column(align=True)
+            for line in wrap_text(message, 40):
+                col.label(text=line)
+            box.operator("endophoton.retry_engine_import", icon="FILE_REFRESH")
+        else:
+            version = getattr(module, "__version__", "")
+            layout.label(text=f"Engine ready {version}".strip(), icon="CHECKMARK")
+        job = operators.running_job()
+        if job is not None:
+            box = layout.box()
+            progress = job.progress()
+            box.label(text=f"Running: {progress.done:,}/{progress.total:,}", icon="TIME")
+            box.label(text=f"{progress.rate:,.0f} packets/s")
+            box.operator("endophoton.cancel_run", icon="CANCEL")
+
+
+class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
+    bl_label = "Object"
+    bl_parent_id = "ENDOPHOTON_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        obj = context.object
+        if obj is None or obj.type != "MESH":
+            layout.label(text="Select a mesh to give it a role")
+            return
+        s = obj.endophoton
+        layout.label(text=obj.name, icon="OBJECT_DATA")
+        layout.prop(s, "role")
+        if s.role == "NONE":
+            return
+        col = layout.column(align=True)
+        col.label(text="Medium (μa, μs in cm⁻¹)")
+        col.prop(s.medium, "mua")
+        col.prop(s.medium, "mus")
+        col.prop(s.medium, "g")
+        col.prop(s.medium, "n")
+        layout.prop(s, "priority")
+        layout.label(text="Fluorophores (d, c)")
+        row = layout.row()
+        row.template_list("ENDOPHOTON_UL_fluorophores", "", s, "fluorophores", s, "active_fluorophore", rows=2)
+        col = row.column(align=True)
+        col.operator("endophoton.fluorophore_add", icon="ADD", text="")
+        col.operator("endophoton.fluorophore_remove", icon="REMOVE", text="")
+        layout.operator("endophoton.role_defaults", icon="LOOP_BACK")
+
+
+class ENDOPHOTON_PT_endoscope(_EndoPhotonPanel, bpy.types.Panel):
+    bl_label = "Endoscope"
+    bl_parent_id = "ENDOPHOTON_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.operator("endophoton.add_endoscope", icon="OUTLINER_OB_CAMERA")
+        settings = context.scene.endophoton
+        layout.prop(settings, "rig")
+        rig_obj = context.object if rig.is_rig(context.object) else settings.rig
+        if rig_obj is None:
+            return
+        s = rig_obj.endophoton_rig
+        layout.label(text=rig_obj.name, icon="EMPTY_AXIS")
+        col = layout.column(align=True)
+        col.prop(s, "beta")
+        col.prop(s, "distance")
+        col = layout.column(align=True)
+        col.prop(s, "target")
+        col = layout.column(align=True)
+        col.prop(s, "normal")
+        col = layout.column(align=True)
+        col.prop(s, "tilt_axis")
+        col = layout.column(align=True)
+        col.label(text="Tip")
+        col.prop(s, "head_diameter")
+        col.prop(s, "light_diameter")
+        col.prop(s, "light_offset")
+        col.prop(s, "cone_angle")
+        col.prop(s, "camera_fov")
+
+
+class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
+    bl_label = "Simulation"
+    bl_parent_id = "ENDOPHOTON_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        s = context.scene.endophoton
+        layout.prop(s, "quality")
+        layout.prop(s, "mode", expand=True)
+        if s.quality == "CUSTOM":
+            layout.prop(s, "store" if s.mode == "STORE" else "photons")
+        layout.prop(s, "fluorescent_only")
+        layout.prop(s, "fluorescence_rule")
+        row = layout.row(align=True)
+        row.prop(s, "seed")
+        row.prop(s, "threads")
+        col = layout.column(heading="Outputs")
+        col.prop(s, "output_points")
+        col.prop(s, "output_grids")
+        sub = col.column()
+        sub.active = s.output_grids
+        sub.prop(s, "voxel_size")
+        sub.prop(s, "grid_per_fluorophore")
+        sub.prop(s, "grid_dir")
+        row = layout.row()
+        row.scale_y = 1.5
+        row.enabled = engine.get() is not None
+        row.operator("endophoton.run_simulation", icon="PLAY")
+
+
+class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
+    bl_label = "Results"
+    bl_parent_id = "ENDOPHOTON_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        s = context.scene.endophoton
+        layout.prop(s, "color_by", expand=True)
+        layout.prop(s, "point_radius")
+        layout.prop(s, "volume_density")
+        collection = s.result_collection
+        if collection is None:
+            layout.label(text="No results yet")
+            return
+        box = layout.box()
+        box.label(text=collection.name, icon="OUTLINER_COLLECTION")
+        col = box.column(align=True)
+        for line in results.summary_lines(collection):
+            col.label(text=line)
+        layout.operator("endophoton.clear_results", icon="TRASH")
+
+
+CLASSES = (
+    ENDOPHOTON_UL_fluorophores,
+    ENDOPHOTON_PT_main,
+    ENDOPHOTON_PT_object,
+    ENDOPHOTON_PT_endoscope,
+    ENDOPHOTON_PT_simulation,
+    ENDOPHOTON_PT_results,
+)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,51 @@
+# SPDX-License-Identifier: MIT
+"""Add-on preferences: where to find the ``endophoton`` package."""
+
+import bpy
+from bpy.props import StringProperty
+
+from . import engine
+from .utils import wrap_text
+
+
+def _package_path_changed(_self, _context):
+    engine.forget()
+
+
+class EndoPhotonPreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+
+    package_path: StringProperty(
+        name="Package Folder",
+        description=(
+            "Folder that contains the 'endophoton' package (the folder holding "
+            "endophoton/__init__.py). Leave empty when the package is pip-installed "
+            "into a dist-packages folder Blender's Python sees"
+        ),
+        subtype="DIR_PATH",
+        default="",
+        update=_package_path_changed,
+    )
+
+    def draw(self, _context):
+        layout = self.layout
+        layout.prop(self, "package_path")
+        module, message = engine.status()
+        if module is None:
+            box = layout.box()
+            box.label(text="EndoPhoton engine not available", icon="ERROR")
+            for line in wrap_text(message, 90):
+                box.label(text=line)
+        else:
+            layout.label(
+                text=f"Engine: {getattr(module, '__file__', 'endophoton')}", icon="CHECKMARK"
+            )
+        layout.operator("endophoton.retry_engine_import", icon="FILE_REFRESH")
+
+
+def register():
+    bpy.utils.register_class(EndoPhotonPreferences)
+
+
+def unregister():
+    bpy.utils.unregister_class(EndoPhotonPreferences)

@@ -1,0 +1,70 @@
+# SPDX-License-Identifier: MIT
+"""Defaults that are plain data (no bpy): role defaults, rig geometry, quality presets."""
+
+from dataclasses import dataclass
+from typing import Optional
+
+# --- roles -----------------------------------------------------------------
+#
+# Choosing a role on an object loads these defaults (medium, priority,
+# fluorophores); the user edits them afterwards.  The optical constants are
+# illustrative colon-tissue values in cm^-1; the fluorophore d (probability
+# the interaction can fluoresce) and c (quantum-yield-like acceptance) follow
+# the issue: tissue collagen d=0.2 c=0.4; polyp collagen (same) + photofrin
+# d=0.1 c=0.33.
+
+ROLE_DEFAULTS = {
+    "TISSUE": {
+        "medium": {"mua": 10.0, "mus": 90.0, "g": 0.75, "n": 1.37},
+        "priority": 0,
+        "fluorophores": (("collagen", 0.2, 0.4),),
+    },
+    "POLYP": {
+        "medium": {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.37},
+        "priority": 1,
+        "fluorophores": (("collagen", 0.2, 0.4), ("photofrin", 0.1, 0.33)),
+    },
+}
+
+# Fluorophore names with a default excitation-emission matrix in the package
+# (data/eem/<name>.csv, ep.EEM.default(name)).
+FLUOROPHORE_NAMES = ("collagen", "photofrin")
+
+# --- endoscope tip (colonoscope-sized), millimetres / degrees -------------
+RIG_HEAD_DIAMETER_MM = 12.0
+RIG_LIGHT_DIAMETER_MM = 3.0
+RIG_LIGHT_OFFSET_MM = 3.5
+RIG_CONE_ANGLE_DEG = 15.0  # full apex angle of each light's cone
+RIG_CAMERA_FOV_DEG = 120.0
+RIG_DEFAULT_DISTANCE_MM = 10.0
+
+
+# --- quality presets ---------------------------------------------------------
+@dataclass(frozen=True)
+class QualityPreset:
+    label: str
+    packets: int                  # packets launched ("photons" mode) or records kept ("store" mode)
+    target_error: Optional[float]  # relative standard error goal; None until the engine supports it
+
+
+# HOOK: a later issue maps the presets to target errors (run until the
+# relative standard error of the diffuse reflectance drops below
+# target_error).  Until then only `packets` is used; `resolve_budget` is the one
+# place that turns a preset into run arguments, so that issue changes it here.
+QUALITY_PRESETS = {
+    "PREVIEW": QualityPreset("Preview", 20_000, None),
+    "STANDARD": QualityPreset("Standard", 200_000, None),
+    "REFERENCE": QualityPreset("Reference", 2_000_000, None),
+}
+
+
+def resolve_budget(quality, mode, photons, store):
+    """Turn the quality preset / custom counts into ``(kind, count)``.
+
+    ``kind`` is ``"photons"`` (packets launched) or ``"store"`` (records kept).
+    ``quality`` is a key of QUALITY_PRESETS or ``"CUSTOM"`` (use the explicit counts).
+    """
+    kind = "store" if mode == "STORE" else "photons"
+    if quality == "CUSTOM":
+        return kind, (store if kind == "store" else photons)
+    return kind, QUALITY_PRESETS[quality].packets

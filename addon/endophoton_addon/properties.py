@@ -1,0 +1,239 @@
+# SPDX-License-Identifier: MIT
+"""Property groups: per-object (role, medium, fluorophores), per-rig, per-scene."""
+
+import bpy
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
+
+from . import presets
+
+ROLE_ITEMS = (
+    ("NONE", "None", "Not part of the simulation"),
+    ("TISSUE", "Tissue", "Closed mesh of tissue (e.g. the colon wall)"),
+    ("POLYP", "Polyp", "Closed mesh of a polyp; give it a higher priority than the tissue it overlaps"),
+)
+
+FLUOROPHORE_ITEMS = tuple((name, name.capitalize(), f"Default {name} excitation-emission matrix")
+                          for name in presets.FLUOROPHORE_NAMES)
+
+
+# --- per object --------------------------------------------------------------
+class EndoPhotonFluorophore(bpy.types.PropertyGroup):
+    species: EnumProperty(name="Fluorophore", items=FLUOROPHORE_ITEMS, default="collagen")
+    d: FloatProperty(
+        name="d", description="Probability that an interaction can excite this fluorophore",
+        default=0.2, min=0.0, max=1.0, precision=3,
+    )
+    c: FloatProperty(
+        name="c", description="Probability that an excitation emits a fluorescence photon",
+        default=0.4, min=0.0, max=1.0, precision=3,
+    )
+
+
+class EndoPhotonMedium(bpy.types.PropertyGroup):
+    # Hard limits are left open on purpose: validation reports bad values
+    # (naming object and field) instead of Blender silently clamping them.
+    mua: FloatProperty(
+        name="μa [cm⁻¹]", description="Absorption coefficient in cm⁻¹",
+        default=10.0, soft_min=0.0, soft_max=1000.0, precision=3,
+    )
+    mus: FloatProperty(
+        name="μs [cm⁻¹]", description="Scattering coefficient in cm⁻¹",
+        default=90.0, soft_min=0.0, soft_max=10000.0, precision=3,
+    )
+    g: FloatProperty(
+        name="g", description="Scattering anisotropy (Henyey-Greenstein), -1..1",
+        default=0.75, soft_min=-1.0, soft_max=1.0, precision=3,
+    )
+    n: FloatProperty(
+        name="n", description="Refractive index (>= 1)",
+        default=1.37, soft_min=1.0, soft_max=3.0, precision=3,
+    )
+
+
+def _role_changed(self, _context):
+    apply_role_defaults(self)
+
+
+def apply_role_defaults(settings):
+    """Load the role's default medium, priority and fluorophores into ``settings``."""
+    defaults = presets.ROLE_DEFAULTS.get(settings.role)
+    if defaults is None:
+        return
+    for key, value in defaults["medium"].items():
+        setattr(settings.medium, key, value)
+    settings.priority = defaults["priority"]
+    settings.fluorophores.clear()
+    for species, d, c in defaults["fluorophores"]:
+        item = settings.fluorophores.add()
+        item.species, item.d, item.c = species, d, c
+    settings.active_fluorophore = 0
+
+
+class EndoPhotonObjectSettings(bpy.types.PropertyGroup):
+    role: EnumProperty(name="Role", items=ROLE_ITEMS, default="NONE", update=_role_changed)
+    medium: PointerProperty(type=EndoPhotonMedium)
+    priority: IntProperty(
+        name="Priority", default=0,
+        description="Where regions overlap, the higher priority owns the space",
+    )
+    fluorophores: CollectionProperty(type=EndoPhotonFluorophore)
+    active_fluorophore: IntProperty(default=0, min=0)
+
+
+# --- endoscope rig (on the rig's empty) --------------------------------------
+def _rig_changed(self, _context):
+    from . import rig
+
+    rig.update_rig(self.id_data)
+
+
+class EndoPhotonRigSettings(bpy.types.PropertyGroup):
+    is_rig: BoolProperty(default=False, options={"HIDDEN"})
+    beta: FloatProperty(
+        name="β", description="Tilt of the viewing axis from the surface normal at the target",
+        subtype="ANGLE", default=0.0, min=-1.5707963, max=1.5707963, update=_rig_changed,
+    )
+    distance: FloatProperty(
+        name="Distance", description="Distance from the target point to the tip along the viewing axis",
+        subtype="DISTANCE", unit="LENGTH", default=0.01, min=0.0, update=_rig_changed,
+    )
+    target: FloatVectorProperty(
+        name="Target", description="Point on the tissue surface the endoscope orbits around",
+        subtype="TRANSLATION", unit="LENGTH", size=3, default=(0.0, 0.0, 0.0), update=_rig_changed,
+    )
+    normal: FloatVectorProperty(
+        name="Surface Normal", description="Outward surface normal at the target (β = 0 looks along −normal)",
+        subtype="DIRECTION", size=3, default=(0.0, 0.0, 1.0), update=_rig_changed,
+    )
+    tilt_axis: FloatVectorProperty(
+        name="Tilt Axis", description="Axis β rotates about (made perpendicular to the normal)",
+        subtype="DIRECTION", size=3, default=(0.0, 1.0, 0.0), update=_rig_changed,
+    )
+    head_diameter: FloatProperty(
+        name="Head Diameter", subtype="DISTANCE", unit="LENGTH", default=0.012, min=0.0,
+        update=_rig_changed,
+    )
+    light_diameter: FloatProperty(
+        name="Light Guide Diameter", subtype="DISTANCE", unit="LENGTH", default=0.003, min=0.0,
+        update=_rig_changed,
+    )
+    light_offset: FloatProperty(
+        name="Light Offset", description="Distance of each light guide from the head's axis",
+        subtype="DISTANCE", unit="LENGTH", default=0.0035, min=0.0, update=_rig_changed,
+    )
+    cone_angle: FloatProperty(
+        name="Cone Angle", description="Full apex angle of each light's emission cone",
+        subtype="ANGLE", default=0.2617994, min=0.0, max=3.1415926, update=_rig_changed,
+    )
+    camera_fov: FloatProperty(
+        name="Camera FOV", subtype="ANGLE", default=2.0943951, min=0.0174533, max=3.0,
+        update=_rig_changed,
+    )
+
+
+# --- scene: simulation settings and result display ---------------------------
+def _is_rig(_self, obj):
+    return obj.type == "EMPTY" and obj.endophoton_rig.is_rig
+
+
+def _display_changed(self, _context):
+    from . import results
+
+    results.update_display(self.id_data)
+
+
+class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
+    rig: PointerProperty(name="Endoscope", type=bpy.types.Object, poll=_is_rig)
+
+    quality: EnumProperty(
+        name="Quality",
+        items=tuple((key, p.label, f"{p.packets:,} packets") for key, p in presets.QUALITY_PRESETS.items())
+        + (("CUSTOM", "Custom", "Use the packet / record count below"),),
+        default="PREVIEW",
+    )
+    mode: EnumProperty(
+        name="Budget",
+        items=(
+            ("PHOTONS", "Packets", "Launch a fixed number of packets"),
+            ("STORE", "Store N", "Run until N surface records are stored"),
+        ),
+        default="PHOTONS",
+    )
+    photons: IntProperty(name="Packets", default=100_000, min=0, soft_min=1)
+    store: IntProperty(name="Store N", default=100_000, min=0, soft_min=1)
+    fluorescent_only: BoolProperty(
+        name="Fluorescent Only", description="Keep only fluorescence records in the surface map",
+        default=False,
+    )
+    fluorescence_rule: EnumProperty(
+        name="Fluorescence Rule",
+        items=(("paper", "Paper", "ξ1 < d and ξ2 < c"),
+               ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η")),
+        default="paper",
+    )
+    seed: IntProperty(name="Seed", default=1, min=0)
+    threads: IntProperty(name="Threads", description="0 = all cores", default=0, min=0, max=1024)
+
+    output_points: BoolProperty(name="Surface Point Cloud", default=True)
+    output_grids: BoolProperty(name="Volume Grids", default=True)
+    voxel_size: FloatProperty(
+        name="Voxel Size", subtype="DISTANCE", unit="LENGTH", default=0.0005, min=0.0,
+        precision=5,
+    )
+    grid_per_fluorophore: BoolProperty(name="Grid per Fluorophore", default=False)
+    grid_dir: StringProperty(
+        name="Grid Folder",
+        description="Where .vdb files are written; empty = '//endophoton_cache' next to the "
+                    ".blend, or the temporary folder for an unsaved file",
+        subtype="DIR_PATH", default="",
+    )
+
+    point_radius: FloatProperty(
+        name="Point Radius", subtype="DISTANCE", unit="LENGTH", default=0.0001, min=0.0,
+        precision=5, update=_display_changed,
+    )
+    color_by: EnumProperty(
+        name="Colour By",
+        items=(("WAVELENGTH", "Wavelength", "Colour each photon by its wavelength"),
+               ("ENERGY", "Energy", "Colour each photon by its energy")),
+        default="WAVELENGTH", update=_display_changed,
+    )
+    volume_density: FloatProperty(
+        name="Volume Density", description="Scale of the volume density (grid values normalised to 1)",
+        default=50.0, min=0.0, soft_max=1000.0, update=_display_changed,
+    )
+    result_collection: PointerProperty(name="Result", type=bpy.types.Collection)
+
+
+CLASSES = (
+    EndoPhotonFluorophore,
+    EndoPhotonMedium,
+    EndoPhotonObjectSettings,
+    EndoPhotonRigSettings,
+    EndoPhotonSceneSettings,
+)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Object.endophoton = PointerProperty(type=EndoPhotonObjectSettings)
+    bpy.types.Object.endophoton_rig = PointerProperty(type=EndoPhotonRigSettings)
+    bpy.types.Scene.endophoton = PointerProperty(type=EndoPhotonSceneSettings)
+
+
+def unregister():
+    del bpy.types.Scene.endophoton
+    del bpy.types.Object.endophoton_rig
+    del bpy.types.Object.endophoton
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,420 @@
+# SPDX-License-Identifier: MIT
+"""Engine results -> Blender: one collection per run holding the surface
+photon map as a point cloud and the voxel grids as Volume objects.
+
+Point cloud: a mesh of vertices only, per-point data as named attributes
+written with ``foreach_set``; a Geometry Nodes "Mesh to Points" modifier turns
+it into a point cloud Cycles renders, with a material colouring the points by
+wavelength (Wavelength node) or by energy.
+
+Grids: the engine writes FOG_VOLUME grids to a .vdb; each grid becomes a
+Volume object loading that file, with a volume material whose density is the
+grid value normalised to its maximum times the scene's "Volume Density".
+
+Everything the run creates is tagged with the run id (ID property
+``endophoton_run``) so a re-run removes exactly that.
+"""
+
+import bpy
+import numpy as np
+
+RESULT_KEY = "endophoton_result"    # on the run's collection
+RUN_KEY = "endophoton_run"          # on every datablock the run created
+SUMMARY_KEY = "endophoton_summary"  # on the run's collection
+POINTS_GROUP = "EP Photon Points"
+COLOUR_MODE_NODE = "EP Colour Mode"
+DENSITY_NODE = "EP Density Scale"
+ENERGY_RANGE_NODE = "EP Energy Range"
+
+TOTAL_NAMES = (
+    "diffuse_reflectance",
+    "specular_reflectance",
+    "transmittance",
+    "absorbed",
+    "missed",
+    "cut",
+    "roulette",
+)
+
+# Escape-record column -> (attribute name, Blender attribute type, numpy dtype, width)
+POINT_ATTRIBUTES = (
+    ("weight", "weight", "FLOAT", np.float32, 1),
+    ("energy", "energy", "FLOAT", np.float32, 1),
+    ("wavelength", "wavelength", "FLOAT", np.float32, 1),
+    ("fluorescent", "fluorescent", "BOOLEAN", np.bool_, 1),
+    ("fluorophore", "fluorophore", "INT", np.int32, 1),
+    ("max_depth", "depth", "FLOAT", np.float32, 1),       # cm, as the engine reports it
+    ("direction", "direction", "FLOAT_VECTOR", np.float32, 3),
+    ("light", "light", "INT", np.int32, 1),
+    ("kind", "kind", "INT", np.int32, 1),
+    ("region", "region", "INT", np.int32, 1),
+    ("scatterings", "scatterings", "INT", np.int32, 1),
+)
+
+
+# --- pure numpy ----------------------------------------------------------------
+def point_cloud_arrays(escapes, scale_length):
+    """Validate escape records; return (positions in Blender units, {attr: (type, array)})."""
+    if "position" not in escapes:
+        raise ValueError("escape records have no 'position' column")
+    position = np.asarray(escapes["position"], dtype=np.float64).reshape(-1, 3)
+    count = len(position)
+    attrs = {}
+    for column, name, bl_type, dtype, width in POINT_ATTRIBUTES:
+        if column not in escapes:
+            continue
+        values = np.asarray(escapes[column])
+        if values.shape[0] != count or values.size != count * width:
+            raise ValueError(f"escape column '{column}' has shape {values.shape}, expected ({count}, {width})")
+        attrs[name] = (bl_type, np.ascontiguousarray(values.reshape(-1), dtype=dtype))
+    return (position / scale_length).astype(np.float32), attrs
+
+
+def summary_from_result(result, inputs, records):
+    """Plain dict of what the panel shows (stored on the collection as ID properties)."""
+    totals = {}
+    for name in TOTAL_NAMES:
+        value = getattr(result, name, None)
+        if value is None:
+            continue
+        stderr = getattr(result, f"{name}_stderr", 0.0) or 0.0
+        totals[name] = [float(value), float(stderr)]
+    regions = {}
+    by_region = getattr(result, "absorbed_by_region", None) or {}
+    by_region_se = getattr(result, "absorbed_by_region_stderr", None) or {}
+    for name, value in by_region.items():
+        regions[str(name)] = [float(value), float(by_region_se.get(name, 0.0))]
+    packets_traced = getattr(result, "packets_traced", None)
+    if packets_traced is None:
+        packets_traced = getattr(result, "photons", 0)
+    return {
+        "beta_deg": float(inputs.beta_deg),
+        "timestamp": inputs.timestamp,
+        "mode": inputs.kind,
+        "requested": int(inputs.count),
+        "photons": int(getattr(result, "photons", 0) or 0),
+        "packets_traced": int(packets_traced or 0),
+        "records": int(records),
+        "seconds": float(getattr(result, "seconds", 0.0) or 0.0),
+        "grid_path": str(getattr(result, "grid_path", None) or ""),
+        "totals": totals,
+        "absorbed_by_region": regions,
+    }
+
+
+# --- datablocks ----------------------------------------------------------------
+def _new_socket(group, in_out, socket_type, name):
+    """Group socket in 3.x (group.inputs/outputs) and 4.x (group.interface)."""
+    if hasattr(group, "interface"):
+        return group.interface.new_socket(name=name, in_out=in_out, socket_type=socket_type)
+    sockets = group.inputs if in_out == "INPUT" else group.outputs
+    return sockets.new(socket_type, name)
+
+
+def _points_group():
+    group = bpy.data.node_groups.get(POINTS_GROUP)
+    if group is not None and group.bl_idname == "GeometryNodeTree" and group.get("endophoton_version") == 1:
+        return group
+    group = bpy.data.node_groups.new(POINTS_GROUP, "GeometryNodeTree")
+    group["endophoton_version"] = 1
+    _new_socket(group, "INPUT", "NodeSocketGeometry", "Geometry")
+    radius = _new_socket(group, "INPUT", "NodeSocketFloat", "Radius")
+    radius.default_value = 0.0001
+    radius.min_value = 0.0
+    _new_socket(group, "INPUT", "NodeSocketMaterial", "Material")
+    _new_socket(group, "OUTPUT", "NodeSocketGeometry", "Geometry")
+    nodes, links = group.nodes, group.links
+    gin = nodes.new("NodeGroupInput")
+    gin.location = (-400, 0)
+    to_points = nodes.new("GeometryNodeMeshToPoints")
+    to_points.mode = "VERTICES"
+    to_points.location = (-150, 0)
+    set_mat = nodes.new("GeometryNodeSetMaterial")
+    set_mat.location = (100, 0)
+    gout = nodes.new("NodeGroupOutput")
+    gout.location = (320, 0)
+    links.new(gin.outputs["Geometry"], to_points.inputs["Mesh"])
+    links.new(gin.outputs["Radius"], to_points.inputs["Radius"])
+    links.new(to_points.outputs["Points"], set_mat.inputs["Geometry"])
+    links.new(gin.outputs["Material"], set_mat.inputs["Material"])
+    links.new(set_mat.outputs["Geometry"], gout.inputs["Geometry"])
+    return group
+
+
+def _group_input_identifiers(group):
+    if hasattr(group, "interface"):
+        return {item.name: item.identifier for item in group.interface.items_tree
+                if getattr(item, "in_out", None) == "INPUT"}
+    return {s.name: s.identifier for s in group.inputs}
+
+
+def _points_material(name, color_by, energy_max, run_id):
+    mat = bpy.data.materials.new(name)
+    mat[RUN_KEY] = run_id
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (700, 0)
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.location = (500, 0)
+    mode = nodes.new("ShaderNodeValue")
+    mode.name = mode.label = COLOUR_MODE_NODE
+    mode.outputs[0].default_value = 1.0 if color_by == "ENERGY" else 0.0
+    mode.location = (300, 200)
+
+    wl_attr = nodes.new("ShaderNodeAttribute")
+    wl_attr.attribute_type = "GEOMETRY"
+    wl_attr.attribute_name = "wavelength"
+    wl_attr.location = (-300, 100)
+    wavelength = nodes.new("ShaderNodeWavelength")
+    wavelength.location = (-80, 100)
+    wl_emit = nodes.new("ShaderNodeEmission")
+    wl_emit.inputs["Strength"].default_value = 2.0
+    wl_emit.location = (150, 100)
+    links.new(wl_attr.outputs["Fac"], wavelength.inputs["Wavelength"])
+    links.new(wavelength.outputs["Color"], wl_emit.inputs["Color"])
+
+    en_attr = nodes.new("ShaderNodeAttribute")
+    en_attr.attribute_type = "GEOMETRY"
+    en_attr.attribute_name = "energy"
+    en_attr.location = (-500, -150)
+    en_range = nodes.new("ShaderNodeMapRange")
+    en_range.name = en_range.label = ENERGY_RANGE_NODE
+    en_range.inputs["From Max"].default_value = energy_max if energy_max > 0 else 1.0
+    en_range.location = (-300, -150)
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.color_ramp.elements[0].color = (0.02, 0.02, 0.25, 1.0)
+    ramp.color_ramp.elements[1].color = (1.0, 0.9, 0.2, 1.0)
+    ramp.location = (-100, -150)
+    en_emit = nodes.new("ShaderNodeEmission")
+    en_emit.inputs["Strength"].default_value = 2.0
+    en_emit.location = (200, -150)
+    links.new(en_attr.outputs["Fac"], en_range.inputs["Value"])
+    links.new(en_range.outputs["Result"], ramp.inputs["Fac"])
+    links.new(ramp.outputs["Color"], en_emit.inputs["Color"])
+
+    links.new(mode.outputs[0], mix.inputs["Fac"])
+    links.new(wl_emit.outputs["Emission"], mix.inputs[1])
+    links.new(en_emit.outputs["Emission"], mix.inputs[2])
+    links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    return mat
+
+
+def create_point_cloud(name, positions, attrs, radius, material, run_id):
+    """Vertices-only mesh with named attributes + Mesh to Points modifier."""
+    mesh = bpy.data.meshes.new(name)
+    mesh[RUN_KEY] = run_id
+    mesh.vertices.add(len(positions))
+    mesh.vertices.foreach_set("co", positions.ravel())
+    for attr_name, (bl_type, values) in attrs.items():
+        attribute = mesh.attributes.new(attr_name, bl_type, "POINT")
+        key = "vector" if bl_type == "FLOAT_VECTOR" else "value"
+        attribute.data.foreach_set(key, values)
+    mesh.update()
+    obj = bpy.data.objects.new(name, mesh)
+    obj[RUN_KEY] = run_id
+    group = _points_group()
+    modifier = obj.modifiers.new("EP Mesh to Points", "NODES")
+    modifier.node_group = group
+    ids = _group_input_identifiers(group)
+    modifier[ids["Radius"]] = float(radius)
+    modifier[ids["Material"]] = material
+    obj.data.materials.append(material)
+    return obj
+
+
+def _volume_material(name, grid_name, vmax, density, run_id):
+    mat = bpy.data.materials.new(name)
+    mat[RUN_KEY] = run_id
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (600, 0)
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_type = "GEOMETRY"
+    attr.attribute_name = grid_name
+    attr.location = (-400, 0)
+    normalise = nodes.new("ShaderNodeMath")
+    normalise.operation = "MULTIPLY"
+    normalise.inputs[1].default_value = 1.0 / vmax if vmax > 0 else 1.0
+    normalise.label = "1 / grid max"
+    normalise.location = (-200, 0)
+    scale = nodes.new("ShaderNodeValue")
+    scale.name = scale.label = DENSITY_NODE
+    scale.outputs[0].default_value = density
+    scale.location = (-200, -200)
+    density_mul = nodes.new("ShaderNodeMath")
+    density_mul.operation = "MULTIPLY"
+    density_mul.location = (0, 0)
+    volume = nodes.new("ShaderNodeVolumePrincipled")
+    volume.inputs["Color"].default_value = (0.3, 0.9, 0.4, 1.0)
+    volume.inputs["Emission Color"].default_value = (0.2, 1.0, 0.3, 1.0)
+    volume.location = (250, 0)
+    links.new(attr.outputs["Fac"], normalise.inputs[0])
+    links.new(normalise.outputs[0], density_mul.inputs[0])
+    links.new(scale.outputs[0], density_mul.inputs[1])
+    links.new(density_mul.outputs[0], volume.inputs["Density"])
+    links.new(normalise.outputs[0], volume.inputs["Emission Strength"])
+    links.new(volume.outputs["Volume"], out.inputs["Volume"])
+    return mat
+
+
+def create_volume(name, path, grid_name, vmax, density, scale_length, run_id):
+    """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units)."""
+    volume = bpy.data.volumes.new(name)
+    volume[RUN_KEY] = run_id
+    volume.filepath = path
+    volume.materials.append(_volume_material(name, grid_name, vmax, density, run_id))
+    obj = bpy.data.objects.new(name, volume)
+    obj[RUN_KEY] = run_id
+    obj["endophoton_grid"] = grid_name
+    inv = 1.0 / scale_length
+    obj.scale = (inv, inv, inv)
+    return obj
+
+
+def result_collections(scene):
+    return [c for c in scene.collection.children_recursive if c.get(RESULT_KEY)]
+
+
+def remove_run(collection):
+    """Delete a run's collection and every datablock tagged with its run id."""
+    run_id = collection.get(RUN_KEY)
+    for obj in list(collection.all_objects):
+        if obj.get(RUN_KEY) == run_id:
+            bpy.data.objects.remove(obj)
+    for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials):
+        for block in list(datablocks):
+            if run_id is not None and block.get(RUN_KEY) == run_id and block.users == 0:
+                datablocks.remove(block)
+    bpy.data.collections.remove(collection)
+
+
+def remove_results(scene):
+    for collection in result_collections(scene):
+        remove_run(collection)
+
+
+def _unique_run_id(inputs):
+    base = f"{inputs.timestamp}-{inputs.rig_name}"
+    taken = {c.get(RUN_KEY) for c in bpy.data.collections}
+    run_id, i = base, 1
+    while run_id in taken:
+        i += 1
+        run_id = f"{base}-{i}"
+    return run_id
+
+
+def apply_result(context, inputs, result, grid_info=()):
+    """Build the run's collection from an engine Result (main thread only).
+
+    Everything is checked first; the previous run's collection is replaced
+    only once the new one can be built.
+    """
+    scene = bpy.data.scenes.get(inputs.scene_name) or context.scene
+    settings = scene.endophoton
+
+    escapes = getattr(result, "escapes", None) if inputs.output_points else None
+    positions = attrs = None
+    if inputs.output_points:
+        if escapes is None:
+            raise RuntimeError("the engine returned no escape records for the point cloud")
+        positions, attrs = point_cloud_arrays(escapes, inputs.scale_length)
+    grid_path = getattr(result, "grid_path", None)
+    grids = list(grid_info)
+    if grid_path and not grids:
+        grids = [(None, None, 0.0)]  # names unknown without pyopenvdb: read them from Blender
+    records = 0 if positions is None else len(positions)
+    summary = summary_from_result(result, inputs, records)
+
+    remove_results(scene)
+    run_id = _unique_run_id(inputs)
+    beta = f"β={inputs.beta_deg:+.1f}°"
+    collection = bpy.data.collections.new(f"EP {beta} {inputs.timestamp}")
+    collection[RESULT_KEY] = True
+    collection[RUN_KEY] = run_id
+    scene.collection.children.link(collection)
+    try:
+        if positions is not None:
+            energy = attrs.get("energy", (None, np.zeros(0)))[1]
+            energy_max = float(energy.max()) if energy.size else 1.0
+            material = _points_material(f"EP Photons {beta}", settings.color_by, energy_max, run_id)
+            obj = create_point_cloud(f"EP Photons {beta}", positions, attrs,
+                                     settings.point_radius, material, run_id)
+            collection.objects.link(obj)
+        for grid_name, _active, vmax in grids:
+            if grid_name is None:
+                grid_name = _first_grid_name(grid_path)
+            obj = create_volume(f"EP Grid {grid_name} {beta}", grid_path, grid_name, vmax,
+                                settings.volume_density, inputs.scale_length, run_id)
+            collection.objects.link(obj)
+        collection[SUMMARY_KEY] = summary
+    except Exception:
+        remove_run(collection)
+        raise
+    settings.result_collection = collection
+    return collection
+
+
+def _first_grid_name(path):
+    probe = bpy.data.volumes.new("EP probe")
+    try:
+        probe.filepath = path
+        probe.grids.load()
+        if not len(probe.grids):
+            raise RuntimeError(f"grid file '{path}' holds no grids")
+        return probe.grids[0].name
+    finally:
+        bpy.data.volumes.remove(probe)
+
+
+def update_display(scene):
+    """Apply point radius, colour mode and volume density to the scene's results."""
+    settings = scene.endophoton
+    for collection in result_collections(scene):
+        for obj in collection.all_objects:
+            for modifier in obj.modifiers:
+                if modifier.type == "NODES" and modifier.node_group is not None \
+                        and modifier.node_group.name.startswith(POINTS_GROUP):
+                    ids = _group_input_identifiers(modifier.node_group)
+                    modifier[ids["Radius"]] = float(settings.point_radius)
+                    obj.update_tag()
+            for slot in obj.material_slots:
+                mat = slot.material
+                if mat is None or not mat.use_nodes:
+                    continue
+                node = mat.node_tree.nodes.get(COLOUR_MODE_NODE)
+                if node is not None:
+                    node.outputs[0].default_value = 1.0 if settings.color_by == "ENERGY" else 0.0
+                node = mat.node_tree.nodes.get(DENSITY_NODE)
+                if node is not None:
+                    node.outputs[0].default_value = settings.volume_density
+
+
+def summary_lines(collection):
+    """Human-readable lines of a run's summary for the panel."""
+    summary = collection.get(SUMMARY_KEY)
+    if summary is None:
+        return []
+    s = summary.to_dict() if hasattr(summary, "to_dict") else dict(summary)
+    lines = [
+        f"β = {s['beta_deg']:+.2f}°   {s['timestamp']}",
+        f"Packets traced: {s['packets_traced']:,}   launched: {s['photons']:,}",
+        f"Surface records: {s['records']:,}   time: {s['seconds']:.2f} s",
+    ]
+    labels = {
+        "diffuse_reflectance": "Diffuse reflectance",
+        "specular_reflectance": "Specular reflectance",
+        "transmittance": "Transmittance",
+        "absorbed": "Absorbed",
+        "missed": "Missed",
+        "cut": "Cut",
+        "roulette": "Roulette",
+    }
+    for name, (value, stderr) in s.get("totals", {}).items():
+        lines.append(f"{labels.get(name, name)}: {value:.5g} ± {stderr:.2g}")
+    for name, (value, stderr) in s.get("absorbed_by_region", {}).items():
+        lines.append(f"  absorbed in {name}: {value:.5g} ± {stderr:.2g}")
+    return lines

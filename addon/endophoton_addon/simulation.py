@@ -1,0 +1,383 @@
+# SPDX-License-Identifier: MIT
+"""One simulation run: collect and validate inputs (main thread), run the
+engine in a worker thread, hand the result to :mod:`results` (main thread).
+
+The worker thread never touches ``bpy``: it gets numpy arrays and plain
+Python values in :class:`RunInputs`, the engine objects built from them, and
+returns the engine's Result.  The modal operator (operators.py), the blocking
+``execute`` path and the tests all drive the same :class:`SimulationJob`.
+"""
+
+import inspect
+import math
+import os
+import tempfile
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Optional
+
+import numpy as np
+
+from . import engine, export, presets, rig
+from .export import InputError
+
+_ACTIVE_JOBS = set()
+_ACTIVE_LOCK = threading.Lock()
+
+
+@dataclass
+class RunInputs:
+    """Everything a run needs, as plain values (no bpy objects)."""
+
+    scene_name: str
+    regions: list
+    rig_name: str
+    rig_matrix: np.ndarray          # 4x4 float64, head frame -> world, metres
+    rig_params: dict                # head_diameter_mm, ... (engine keyword units)
+    beta_deg: float                 # the rig's tilt from its surface normal, for naming
+    kind: str                       # "photons" or "store"
+    count: int
+    seed: int
+    threads: int
+    fluorescent_only: bool
+    fluorescence_rule: str
+    output_points: bool
+    grid_voxel_m: Optional[float]   # None = no grids
+    grid_path: Optional[str]
+    grid_per_fluorophore: bool
+    scale_length: float             # metres per Blender unit
+    timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
+
+
+def _grid_dir(settings):
+    import bpy
+
+    if settings.grid_dir.strip():
+        return bpy.path.abspath(settings.grid_dir.strip())
+    if bpy.data.filepath:
+        return bpy.path.abspath("//endophoton_cache")
+    return os.path.join(tempfile.gettempdir(), "endophoton_cache")
+
+
+def _pick_rig(scene):
+    chosen = scene.endophoton.rig
+    if chosen is not None:
+        if chosen.name not in scene.objects or not rig.is_rig(chosen):
+            raise InputError(
+                f"Scene '{scene.name}': simulation.rig '{chosen.name}' is not an endoscope rig "
+                "in this scene; pick another or use Add Endoscope"
+            )
+        return chosen
+    rigs = rig.find_rigs(scene)
+    if not rigs:
+        raise InputError(
+            f"Scene '{scene.name}': simulation.rig is not set and the scene has no endoscope rig; "
+            "use Add Endoscope"
+        )
+    if len(rigs) > 1:
+        raise InputError(
+            f"Scene '{scene.name}': simulation.rig is not set and the scene has {len(rigs)} rigs; "
+            "choose one in the Simulation panel"
+        )
+    return rigs[0]
+
+
+def _check_rig(obj, scale_length):
+    s = obj.endophoton_rig
+    who = f"Object '{obj.name}'"
+    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    if not np.all(np.isfinite(matrix)):
+        raise InputError(f"{who}: matrix_world is not finite")
+    if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
+        raise InputError(f"{who}: matrix_world is singular (zero scale)")
+    for name in ("beta", "distance", "head_diameter", "light_diameter", "light_offset",
+                 "cone_angle", "camera_fov"):
+        value = getattr(s, name)
+        if not math.isfinite(value):
+            raise InputError(f"{who}: endophoton_rig.{name} = {value:g} must be a finite number")
+    for name in ("target", "normal", "tilt_axis"):
+        value = tuple(getattr(s, name))
+        if not all(math.isfinite(v) for v in value):
+            raise InputError(f"{who}: endophoton_rig.{name} = {value} must be finite")
+    if np.linalg.norm(tuple(s.normal)) < 1e-12:
+        raise InputError(f"{who}: endophoton_rig.normal has zero length")
+    params = rig.rig_parameters(obj, scale_length)
+    if params["light_diameter_mm"] > params["head_diameter_mm"]:
+        raise InputError(f"{who}: endophoton_rig.light_diameter is larger than the head diameter")
+    # β as placed: angle between the viewing direction and −normal, signed like the property.
+    axis = np.array(rig.light_axis_world(obj))
+    normal = np.array(s.normal, dtype=np.float64)
+    normal /= np.linalg.norm(normal)
+    beta = math.degrees(math.acos(max(-1.0, min(1.0, float(-axis @ normal)))))
+    beta = math.copysign(beta, s.beta) if s.beta != 0.0 else beta
+    return rig.rigid_world_matrix(obj, scale_length), params, beta
+
+
+def collect_inputs(context):
+    """Read and validate everything from the scene.  Creates no datablock.
+
+    Raises InputError (message names the object/scene and field).
+    """
+    scene = context.scene
+    settings = scene.endophoton
+    who = f"Scene '{scene.name}'"
+    scale = scene.unit_settings.scale_length
+    if not math.isfinite(scale) or scale <= 0.0:
+        raise InputError(f"{who}: unit_settings.scale_length = {scale:g} must be > 0")
+
+    depsgraph = context.evaluated_depsgraph_get()
+    regions = export.export_regions(scene, context.view_layer, depsgraph)
+
+    rig_obj = _pick_rig(scene)
+    rig_matrix, rig_params, beta_deg = _check_rig(rig_obj, scale)
+
+    kind, count = presets.resolve_budget(settings.quality, settings.mode, settings.photons, settings.store)
+    if count <= 0:
+        field_name = "store" if kind == "store" else "photons"
+        raise InputError(f"{who}: simulation.{field_name} = {count} must be > 0")
+    if settings.threads < 0:
+        raise InputError(f"{who}: simulation.threads = {settings.threads} must be >= 0")
+
+    if not settings.output_points and not settings.output_grids:
+        raise InputError(f"{who}: simulation outputs are all off; enable the point cloud or the grids")
+
+    voxel_m = grid_path = None
+    if settings.output_grids:
+        voxel = settings.voxel_size
+        if not math.isfinite(voxel) or voxel <= 0.0:
+            raise InputError(f"{who}: simulation.voxel_size = {voxel:g} must be a finite number > 0")
+        voxel_m = voxel * scale
+        inputs_stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")
+        grid_path = os.path.join(_grid_dir(settings), f"endophoton_{inputs_stamp}.vdb")
+
+    return RunInputs(
+        scene_name=scene.name,
+        regions=regions,
+        rig_name=rig_obj.name,
+        rig_matrix=rig_matrix,
+        rig_params=rig_params,
+        beta_deg=beta_deg,
+        kind=kind,
+        count=int(count),
+        seed=int(settings.seed),
+        threads=int(settings.threads),
+        fluorescent_only=bool(settings.fluorescent_only),
+        fluorescence_rule=settings.fluorescence_rule,
+        output_points=bool(settings.output_points),
+        grid_voxel_m=voxel_m,
+        grid_path=grid_path,
+        grid_per_fluorophore=bool(settings.grid_per_fluorophore),
+        scale_length=float(scale),
+    )
+
+
+def _accepted_kwargs(func, kwargs):
+    """The subset of kwargs that ``func`` accepts (all of them if it takes **kwargs)."""
+    try:
+        params = inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        return dict(kwargs)
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return dict(kwargs)
+    return {k: v for k, v in kwargs.items() if k in params}
+
+
+def build_engine_call(ep, inputs):
+    """Engine scene, rig and ep.run keyword arguments for ``inputs``.
+
+    Runs in the main thread before the worker starts so that the engine's own
+    validation errors (ValueError naming region and field) surface as InputError
+    before anything runs.
+    """
+    try:
+        scene = ep.Scene(unit="m")
+        for region in inputs.regions:
+            fluorophores = [ep.Fluorophore(name, d, c) for name, d, c in region.fluorophores]
+            scene.add_mesh(
+                region.name,
+                region.vertices,
+                region.triangles,
+                ep.Medium(**region.medium),
+                priority=region.priority,
+                fluorophores=fluorophores,
+            )
+        rig_kwargs = _accepted_kwargs(ep.EndoscopeRig, dict(inputs.rig_params))
+        endoscope = ep.EndoscopeRig(transform=inputs.rig_matrix, unit="m", **rig_kwargs)
+        kwargs = {
+            inputs.kind: inputs.count,
+            "fluorescent_only": inputs.fluorescent_only,
+            "fluorescence_rule": inputs.fluorescence_rule,
+            "seed": inputs.seed,
+            "threads": inputs.threads,
+        }
+        if inputs.grid_path is not None:
+            kwargs["grids"] = ep.GridRequest(
+                voxel_size=inputs.grid_voxel_m,
+                path=inputs.grid_path,
+                per_fluorophore=inputs.grid_per_fluorophore,
+            )
+    except ValueError as exc:
+        raise InputError(f"Engine rejected the input: {exc}") from exc
+    return scene, endoscope, kwargs
+
+
+@dataclass
+class Progress:
+    done: int
+    total: int
+    elapsed: float
+    rate: float           # packets (or records) per second
+    eta: Optional[float]  # seconds, None when unknown
+
+    @property
+    def fraction(self):
+        return min(1.0, self.done / self.total) if self.total > 0 else 0.0
+
+    def text(self):
+        eta = "--" if self.eta is None else _format_seconds(self.eta)
+        return (f"EndoPhoton: {self.done:,}/{self.total:,} packets · {self.rate:,.0f} packets/s · "
+                f"ETA {eta} · Esc to cancel")
+
+
+def _format_seconds(seconds):
+    seconds = int(round(seconds))
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{(seconds % 3600) // 60:02d}m"
+    if seconds >= 60:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds}s"
+
+
+class SimulationJob:
+    """A run of the engine in a worker thread.  Only ``start``/``cancel``/``progress``
+    /``done`` are called from the main thread while it runs; the worker writes
+    ``result``/``error`` and sets the finished event."""
+
+    def __init__(self, ep, inputs):
+        self.ep = ep
+        self.inputs = inputs
+        self.engine_scene, self.engine_rig, self.run_kwargs = build_engine_call(ep, inputs)
+        self.token = ep.CancelToken()
+        self.result = None
+        self.error = None
+        self.error_traceback = None
+        self.grid_info = []  # [(name, active voxel count, max value)] read in the worker
+        self._lock = threading.Lock()
+        self._progress = (0, inputs.count)
+        self._t0 = None
+        self._finished = threading.Event()
+        self._thread = None
+
+    # --- main thread ------------------------------------------------------
+    def start(self):
+        self._t0 = time.monotonic()
+        self._thread = threading.Thread(target=self._work, name="endophoton-run", daemon=True)
+        with _ACTIVE_LOCK:
+            _ACTIVE_JOBS.add(self)
+        self._thread.start()
+
+    def cancel(self):
+        self.token.cancel()
+
+    @property
+    def cancelled(self):
+        return bool(self.token.cancelled) if hasattr(self.token, "cancelled") else False
+
+    @property
+    def done(self):
+        return self._finished.is_set()
+
+    def wait(self, timeout=None):
+        return self._finished.wait(timeout)
+
+    def progress(self):
+        with self._lock:
+            done, total = self._progress
+        elapsed = time.monotonic() - self._t0 if self._t0 else 0.0
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = (total - done) / rate if rate > 0 and total >= done else None
+        return Progress(done, total, elapsed, rate, eta)
+
+    # --- worker thread (no bpy here) ----------------------------------------
+    def _on_progress(self, done, total):
+        with self._lock:
+            self._progress = (int(done), int(total))
+
+    def _work(self):
+        try:
+            if self.inputs.grid_path:
+                os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
+            self.result = self.ep.run(
+                self.engine_scene, self.engine_rig,
+                progress=self._on_progress, cancel=self.token, **self.run_kwargs,
+            )
+            grid_path = getattr(self.result, "grid_path", None)
+            if grid_path and not getattr(self.result, "cancelled", False):
+                self.grid_info = read_grid_info(grid_path)
+        except BaseException as exc:  # reported by the main thread
+            self.error = exc
+            self.error_traceback = traceback.format_exc()
+        finally:
+            with _ACTIVE_LOCK:
+                _ACTIVE_JOBS.discard(self)
+            self._finished.set()
+
+
+def read_grid_info(path):
+    """[(grid name, active voxel count, max value)] of a .vdb, via pyopenvdb if present."""
+    try:
+        import pyopenvdb
+    except ImportError:
+        return []
+    info = []
+    for grid in pyopenvdb.readAllGridMetadata(path):
+        full = pyopenvdb.read(path, grid.name)
+        _lo, hi = full.evalMinMax()
+        info.append((grid.name, int(full.activeVoxelCount()), float(hi)))
+    return info
+
+
+def prepare_job(context):
+    """Validate the scene and build the engine call; raises InputError / EngineMissing."""
+    inputs = collect_inputs(context)
+    ep = engine.require()
+    return SimulationJob(ep, inputs)
+
+
+def finish_job(context, job):
+    """Turn a finished job into the result collection (main thread).
+
+    Returns the collection, or None when the run was cancelled (then nothing
+    is created).  Raises RuntimeError if the worker failed.
+    """
+    from . import results
+
+    if not job.done:
+        raise RuntimeError("finish_job called before the run finished")
+    if job.error is not None:
+        raise RuntimeError(f"EndoPhoton run failed: {type(job.error).__name__}: {job.error}")
+    if job.result is None or getattr(job.result, "cancelled", False):
+        return None
+    return results.apply_result(context, job.inputs, job.result, job.grid_info)
+
+
+def run_blocking(context, poll_interval=0.05):
+    """Run synchronously (scripts, tests, ``execute``): same job, waited for."""
+    job = prepare_job(context)
+    job.start()
+    while not job.wait(poll_interval):
+        pass
+    return finish_job(context, job)
+
+
+def cancel_all_jobs(timeout=10.0):
+    """Cancel running jobs and wait for their threads (add-on unregister)."""
+    with _ACTIVE_LOCK:
+        jobs = list(_ACTIVE_JOBS)
+    for job in jobs:
+        job.cancel()
+    for job in jobs:
+        job.wait(timeout)

@@ -1,0 +1,275 @@
+#include "engine.h"
+
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+#include "transport.h"
+#include "vdb_writer.h"
+#include "voxel_grid.h"
+
+namespace ep {
+
+std::string engine_version() {
+#ifdef ENDOPHOTON_VERSION
+    return ENDOPHOTON_VERSION;
+#else
+    return "dev";
+#endif
+}
+
+void finalize_estimates(RunResult& r, int batches) {
+    r.packets = 0;
+    for (const UnitTally& u : r.units) r.packets += u.packets;
+    for (int k = 0; k < kScalarTallies; ++k)
+        r.scalar[k] = batch_estimate(r.units, batches, [k](const UnitTally& u) { return u.scalar[k]; });
+    const size_t nreg = r.units.empty() ? 0 : r.units.front().absorbed_by_region.size();
+    r.absorbed_by_region.assign(nreg, Estimate{});
+    for (size_t k = 0; k < nreg; ++k)
+        r.absorbed_by_region[k] =
+            batch_estimate(r.units, batches, [k](const UnitTally& u) { return u.absorbed_by_region[k]; });
+}
+
+namespace {
+
+void validate_config(const RunConfig& c) {
+    auto bad = [](const std::string& field, double v, const char* rule) {
+        std::ostringstream os;
+        os.precision(17);
+        os << field << " = " << v << " " << rule;
+        throw std::invalid_argument(os.str());
+    };
+    const int modes = (c.photons > 0) + (c.store > 0) + (c.target_tally >= 0);
+    if (modes == 0) throw std::invalid_argument("photons = 0: give photons > 0, store > 0 or a target accuracy");
+    if (c.photons > 0 && c.store > 0) throw std::invalid_argument("photons and store are exclusive: give one");
+    if (!(c.roulette_threshold >= 0) || !std::isfinite(c.roulette_threshold))
+        bad("roulette_threshold", c.roulette_threshold, "must be a finite number >= 0");
+    if (!(c.roulette_chance > 0 && c.roulette_chance <= 1)) bad("roulette_chance", c.roulette_chance, "must be in (0, 1]");
+    if (!(c.max_path_cm >= 0) || !std::isfinite(c.max_path_cm)) bad("max_path_cm", c.max_path_cm, "must be >= 0");
+    if (!(c.grid_voxel_size >= 0) || !std::isfinite(c.grid_voxel_size))
+        bad("grids.voxel_size", c.grid_voxel_size, "must be a positive finite number");
+    if (c.grid_voxel_size > 0 && c.grid_path.empty()) throw std::invalid_argument("grids.path is empty");
+    if (c.target_tally >= kScalarTallies) bad("target.tally", c.target_tally, "is not a tally index");
+    if (c.target_tally >= 0 && !(c.target_rel_error > 0)) bad("target.rel_error", c.target_rel_error, "must be > 0");
+    if (c.threads < 0) bad("threads", c.threads, "must be >= 0");
+    if (c.batches < 2) bad("batches", c.batches, "must be >= 2");
+}
+
+std::unique_ptr<VoxelAccumulator> scaled(const VoxelAccumulator& a, double s) {
+    auto out = std::make_unique<VoxelAccumulator>(a.voxel_size());
+    for (const auto& [c, v] : a.sorted()) out->add_index(c, v * s);
+    return out;
+}
+
+}  // namespace
+
+RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in, const ProgressFn& progress,
+              std::atomic<bool>* cancel) {
+    RunConfig cfg = cfg_in;
+    validate_config(cfg);
+    const auto t_start = std::chrono::steady_clock::now();
+
+    const bool fixed = cfg.photons > 0;
+    uint64_t unit_size = cfg.unit_size;
+    if (unit_size == 0) {
+        // Depends only on the request, never on the thread count.
+        unit_size = fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536) : 1024;
+    }
+    uint64_t limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : UINT64_MAX / 2);
+    const uint64_t n_units_max = (limit + unit_size - 1) / unit_size;
+    int threads = cfg.threads > 0 ? cfg.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+    threads = int(std::min<uint64_t>(uint64_t(threads), n_units_max));
+
+    const Halton halton(cfg.seed);
+    RunResult result;
+    result.unit_size = unit_size;
+    result.threads = threads;
+    const size_t nreg = scene.region_count();
+    const size_t nfl = scene.fluorophore_count();
+    const bool grids = cfg.grid_voxel_size > 0;
+
+    // Merged state, guarded by `mu`.
+    std::mutex mu;
+    std::map<uint64_t, std::unique_ptr<UnitOutput>> pending;
+    uint64_t next_merge = 0;
+    std::atomic<uint64_t> next_unit{0};
+    std::atomic<bool> stop{false};
+    std::atomic<uint64_t> done_packets{0};
+    std::unique_ptr<VoxelAccumulator> g_abs, g_fl;
+    std::vector<std::unique_ptr<VoxelAccumulator>> g_per;
+    if (grids) {
+        g_abs = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
+        g_fl = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
+        if (cfg.grid_per_fluorophore)
+            for (size_t f = 0; f < nfl; ++f) g_per.push_back(std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size));
+    }
+    std::string error;
+    uint64_t record_count = 0;
+    std::atomic<bool> user_cancel{false};
+    auto cancelled = [&]() { return user_cancel.load() || (cancel && cancel->load()); };
+
+    auto stop_predicate = [&]() -> bool {
+        // Called with `mu` held, right after unit next_merge-1 was merged.
+        if (fixed) return next_merge >= n_units_max;
+        if (next_merge >= n_units_max) {
+            result.stop_reason = "max_photons";
+            return true;
+        }
+        if (cfg.store > 0 && record_count >= cfg.store) {
+            result.store_reached = true;
+            result.stop_reason = "store";
+            return true;
+        }
+        if (cfg.target_tally >= 0 && result.units.size() >= 20) {
+            const Estimate e = batch_estimate(result.units, cfg.batches,
+                                              [&](const UnitTally& u) { return u.scalar[cfg.target_tally]; });
+            if (e.mean != 0 && std::isfinite(e.stderr_) && e.stderr_ / std::fabs(e.mean) <= cfg.target_rel_error) {
+                result.target_reached = true;
+                result.stop_reason = "target";
+                return true;
+            }
+        }
+        if (cfg.time_budget_s > 0) {
+            const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+            if (el >= cfg.time_budget_s) {
+                result.stop_reason = "time";
+                return true;
+            }
+        }
+        return false;
+    };
+
+    auto merge_ready = [&]() {
+        // Merge every contiguous finished unit, in unit order.
+        while (!stop.load()) {
+            auto it = pending.find(next_merge);
+            if (it == pending.end()) break;
+            std::unique_ptr<UnitOutput> u = std::move(it->second);
+            pending.erase(it);
+            result.units.push_back(u->tally);
+            if (cfg.record_escapes) {
+                size_t take = u->records.size();
+                if (cfg.store > 0) take = std::min<uint64_t>(take, cfg.store - record_count);
+                if (record_count + take > cfg.max_records) {
+                    error = "escape records exceed max_records = " + std::to_string(cfg.max_records) +
+                            ": pass record_escapes=False, fluorescent_only=True or a larger max_records";
+                    stop.store(true);
+                    return;
+                }
+                result.records.append(u->records, take);
+                record_count += take;
+                result.peak_record_bytes = std::max(result.peak_record_bytes, result.records.memory_bytes());
+            }
+            if (grids) {
+                g_abs->merge_from(*u->absorbed_grid);
+                g_fl->merge_from(*u->fluorescence_grid);
+                for (size_t f = 0; f < g_per.size(); ++f) g_per[f]->merge_from(*u->per_fluorophore[f]);
+            }
+            ++next_merge;
+            if (stop_predicate()) stop.store(true);
+        }
+    };
+
+    auto worker = [&]() {
+        try {
+            Tracer tracer(scene, source, halton, cfg);
+            while (!stop.load()) {
+                if (cancelled()) return;
+                const uint64_t u = next_unit.fetch_add(1);
+                if (u >= n_units_max) return;
+                auto out = std::make_unique<UnitOutput>();
+                out->tally.reset(nreg);
+                out->first_packet = u * unit_size;
+                if (grids) {
+                    out->absorbed_grid = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
+                    out->fluorescence_grid = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
+                    if (cfg.grid_per_fluorophore)
+                        for (size_t f = 0; f < nfl; ++f)
+                            out->per_fluorophore.push_back(std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size));
+                }
+                const uint64_t end = std::min(limit, (u + 1) * unit_size);
+                for (uint64_t k = u * unit_size; k < end; ++k) {
+                    if (((k & 255) == 0) && (cancelled() || stop.load())) return;
+                    tracer.trace(k, *out);
+                }
+                done_packets.fetch_add(end - u * unit_size);
+                std::lock_guard<std::mutex> lock(mu);
+                pending.emplace(u, std::move(out));
+                merge_ready();
+            }
+        } catch (const std::exception& e) {
+            std::lock_guard<std::mutex> lock(mu);
+            if (error.empty()) error = e.what();
+            stop.store(true);
+        }
+    };
+
+    // Workers trace; the calling thread only watches: it reports progress and
+    // forwards cancellation, so a Python caller can release the GIL here.
+    std::atomic<int> active{threads};
+    std::vector<std::thread> pool;
+    for (int t = 0; t < threads; ++t)
+        pool.emplace_back([&]() {
+            worker();
+            active.fetch_sub(1);
+        });
+    const uint64_t total = fixed ? cfg.photons : 0;
+    auto last = std::chrono::steady_clock::now();
+    while (active.load() > 0) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        const auto now = std::chrono::steady_clock::now();
+        if (progress && std::chrono::duration<double>(now - last).count() >= 0.1) {
+            last = now;
+            if (!progress(done_packets.load(), total)) user_cancel.store(true);
+        }
+    }
+    for (auto& th : pool) th.join();
+    if (!error.empty()) throw std::runtime_error(error);
+
+    result.cancelled = cancelled() && !(fixed && next_merge >= n_units_max) && result.stop_reason.empty();
+    if (result.cancelled) result.stop_reason = "cancelled";
+    if (fixed && !result.cancelled) result.stop_reason = "photons";
+    finalize_estimates(result, cfg.batches);
+    if (cfg.store > 0 && result.records.size() > 0)
+        result.packets_traced = result.records.packet.back() + 1;
+    else
+        result.packets_traced = result.packets;
+    result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+
+    if (grids && result.packets > 0) {
+        // Grids hold per-launched-packet values, so the absorbed grid sums to the
+        // `absorbed` fraction.
+        const double s = 1.0 / double(result.packets);
+        auto abs_n = scaled(*g_abs, s);
+        auto fl_n = scaled(*g_fl, s);
+        std::vector<std::unique_ptr<VoxelAccumulator>> per_n;
+        std::vector<GridOutput> outs;
+        outs.push_back({"absorbed", "absorbed packet weight per voxel, as a fraction of launched packets", abs_n.get()});
+        outs.push_back({"fluorescence", "weight of fluorescent packets summed over their interaction sites (volume photon map density), per launched packet", fl_n.get()});
+        for (size_t f = 0; f < g_per.size(); ++f) {
+            per_n.push_back(scaled(*g_per[f], s));
+            outs.push_back({"fluorescence_" + scene.fluorophore_name(int(f)),
+                            "volume photon map density of packets that fluoresced by " + scene.fluorophore_name(int(f)),
+                            per_n.back().get()});
+        }
+        std::map<std::string, std::string> meta;
+        meta["packets"] = std::to_string(result.packets);
+        meta["seed"] = std::to_string(cfg.seed);
+        meta["unit_cm"] = std::to_string(scene.unit_cm());
+        meta["engine"] = "endophoton " + engine_version();
+        meta["voxel_size"] = std::to_string(cfg.grid_voxel_size);
+        write_vdb(cfg.grid_path, outs, meta);
+        result.grid_path = cfg.grid_path;
+        for (const auto& o : outs) result.grid_names.push_back(o.name);
+        result.grid_absorbed_sum = abs_n->sum();
+    }
+    result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+    return result;
+}
+
+}  // namespace ep

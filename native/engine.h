@@ -1,0 +1,54 @@
+// A run: packets are traced in fixed work units of consecutive indices, each by
+// one thread with its own tallies; finished units are merged strictly in unit
+// order. Seeds come from (seed, packet index). Together these make the result
+// bit-identical for any thread count (MMC/MCX practice).
+#pragma once
+#include <atomic>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "records.h"
+#include "run_config.h"
+#include "scene.h"
+#include "source.h"
+#include "tally.h"
+
+namespace ep {
+
+struct RunResult {
+    uint64_t packets = 0;         // packets whose tallies are included
+    uint64_t packets_traced = 0;  // store-N mode: index of the packet that made the N-th record + 1
+    std::vector<UnitTally> units; // per-unit tallies, in order (for batch means)
+    Estimate scalar[kScalarTallies];
+    std::vector<Estimate> absorbed_by_region;
+    EscapeRecords records;
+    bool cancelled = false;
+    bool target_reached = false;
+    bool spectral = false;
+    bool store_reached = false;
+    std::string stop_reason;      // "photons", "store", "target", "time", "max_photons", "cancelled"
+    double seconds = 0;
+    std::string grid_path;
+    std::vector<std::string> grid_names;
+    double grid_absorbed_sum = 0; // sum of the absorbed grid, per launched packet
+    uint64_t unit_size = 0;
+    int threads = 0;
+    size_t peak_record_bytes = 0;
+};
+
+// progress(done_packets, total_packets_or_0) is called on the calling thread
+// about every 100 ms; returning false cancels the run. `cancel` may be set from
+// any thread. Both may be empty/null.
+using ProgressFn = std::function<bool(uint64_t, uint64_t)>;
+
+RunResult run(const Scene& scene, const Source& source, const RunConfig& config, const ProgressFn& progress,
+              std::atomic<bool>* cancel);
+
+// Recomputes the estimates of `r` from r.units (used after merging).
+void finalize_estimates(RunResult& r, int batches);
+
+std::string engine_version();
+
+}  // namespace ep

@@ -1,0 +1,47 @@
+#include "halton.h"
+
+#include <stdexcept>
+
+#include "rng.h"
+
+namespace ep {
+
+namespace {
+constexpr int kPrimes[Halton::kMaxDimensions] = {2, 3, 5, 7, 11, 13, 17, 19};
+}
+
+int Halton::base(int dim) { return kPrimes[dim]; }
+
+Halton::Halton(uint64_t seed) {
+    for (int d = 0; d < kMaxDimensions; ++d) {
+        const int b = kPrimes[d];
+        perm_[d].resize(b);
+        for (int i = 0; i < b; ++i) perm_[d][i] = uint16_t(i);
+        // Fisher–Yates with a stream reserved for the scrambling tables.
+        Rng rng(seed, 0xFFFFFFFF00000000ULL + uint64_t(d));
+        for (int i = b - 1; i > 0; --i) {
+            const int j = int(rng.next_u64() % uint64_t(i + 1));
+            std::swap(perm_[d][i], perm_[d][j]);
+        }
+    }
+}
+
+double Halton::sample(uint64_t index, int dim) const {
+    if (dim < 0 || dim >= kMaxDimensions) throw std::out_of_range("Halton dimension out of range");
+    const uint64_t b = uint64_t(kPrimes[dim]);
+    const std::vector<uint16_t>& p = perm_[dim];
+    const double inv_b = 1.0 / double(b);
+    double inv_bk = inv_b, value = 0.0;
+    // Permuted radical inverse: digits of the index, each mapped through p.
+    while (index > 0) {
+        value += double(p[index % b]) * inv_bk;
+        index /= b;
+        inv_bk *= inv_b;
+    }
+    // The infinitely many leading zero digits map to p[0]; their sum is the
+    // geometric tail p[0] * b^-k / (1 - 1/b).
+    value += double(p[0]) * inv_bk / (1.0 - inv_b);
+    return value < 1.0 ? value : 0x1.fffffffffffffp-1;
+}
+
+}  // namespace ep

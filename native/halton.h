@@ -1,0 +1,24 @@
+// Scrambled Halton sequence for emission sampling (the seed shoots photons
+// "using Halton sequence", §4). Dimension d uses the d-th prime as base and a
+// random digit permutation per dimension (Braaten–Weller style scrambling),
+// derived from the run seed, so the sequence is deterministic for a seed and
+// avoids the correlation of unscrambled high bases.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+namespace ep {
+
+class Halton {
+  public:
+    static constexpr int kMaxDimensions = 8;
+    explicit Halton(uint64_t seed);
+    // Point `index` (packet index) in dimension `dim` (0 <= dim < kMaxDimensions), in [0, 1).
+    double sample(uint64_t index, int dim) const;
+    static int base(int dim);
+
+  private:
+    std::vector<uint16_t> perm_[kMaxDimensions];
+};
+
+}  // namespace ep

@@ -1,0 +1,138 @@
+#include "mesh_check.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <sstream>
+#include <stdexcept>
+#include <unordered_map>
+
+namespace ep {
+
+namespace {
+
+struct PosKey {
+    float p[3];
+    bool operator==(const PosKey& o) const { return std::memcmp(p, o.p, sizeof p) == 0; }
+};
+struct PosHash {
+    size_t operator()(const PosKey& k) const {
+        uint32_t b[3];
+        std::memcpy(b, k.p, sizeof b);
+        uint64_t h = 1469598103934665603ULL;
+        for (uint32_t v : b) h = (h ^ v) * 1099511628211ULL;
+        return size_t(h);
+    }
+};
+
+[[noreturn]] void fail(const std::string& owner, const std::string& what) {
+    throw std::invalid_argument(owner + ": " + what);
+}
+
+}  // namespace
+
+MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const uint32_t* tri,
+                      size_t nt) {
+    MeshReport rep;
+    if (nv < 4) fail(owner, "mesh.vertices has " + std::to_string(nv) + " rows; a closed mesh needs at least 4");
+    if (nt < 4) fail(owner, "mesh.triangles has " + std::to_string(nt) + " rows; a closed mesh needs at least 4");
+    for (size_t i = 0; i < nv; ++i) {
+        for (int k = 0; k < 3; ++k) {
+            const float x = v[3 * i + k];
+            if (!std::isfinite(x)) {
+                std::ostringstream os;
+                os << "mesh.vertices[" << i << "][" << k << "] = " << x << " is not finite";
+                fail(owner, os.str());
+            }
+        }
+    }
+    for (int k = 0; k < 3; ++k) {
+        rep.bbox_min[k] = rep.bbox_max[k] = v[k];
+    }
+    for (size_t i = 0; i < nv; ++i)
+        for (int k = 0; k < 3; ++k) {
+            rep.bbox_min[k] = std::min(rep.bbox_min[k], double(v[3 * i + k]));
+            rep.bbox_max[k] = std::max(rep.bbox_max[k], double(v[3 * i + k]));
+        }
+    const double extent = std::max({rep.bbox_max[0] - rep.bbox_min[0], rep.bbox_max[1] - rep.bbox_min[1],
+                                    rep.bbox_max[2] - rep.bbox_min[2]});
+    if (!(extent > 0)) fail(owner, "mesh has zero extent");
+
+    // Exact welding: canonical index per distinct position.
+    std::vector<uint32_t> canon(nv);
+    std::unordered_map<PosKey, uint32_t, PosHash> seen;
+    seen.reserve(nv * 2);
+    for (size_t i = 0; i < nv; ++i) {
+        PosKey key{{v[3 * i], v[3 * i + 1], v[3 * i + 2]}};
+        auto it = seen.emplace(key, uint32_t(i));
+        canon[i] = it.first->second;
+    }
+    rep.welded_vertices = seen.size();
+
+    // Degenerate triangles: out-of-range or repeated indices, or an area that is
+    // zero at the precision of the mesh (|cross| below 1e-12 extent^2).
+    double volume6 = 0;
+    const double area_floor = 1e-12 * extent * extent;
+    std::unordered_map<uint64_t, int> directed;  // (a,b) -> count of directed edge a->b
+    directed.reserve(nt * 4);
+    for (size_t t = 0; t < nt; ++t) {
+        uint32_t idx[3];
+        for (int k = 0; k < 3; ++k) {
+            idx[k] = tri[3 * t + k];
+            if (idx[k] >= nv) {
+                std::ostringstream os;
+                os << "mesh.triangles[" << t << "][" << k << "] = " << idx[k] << " is out of range (vertices: "
+                   << nv << ")";
+                fail(owner, os.str());
+            }
+            idx[k] = canon[idx[k]];
+        }
+        const float* a = v + 3 * size_t(idx[0]);
+        const float* b = v + 3 * size_t(idx[1]);
+        const float* c = v + 3 * size_t(idx[2]);
+        const double e1[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
+        const double e2[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
+        const double cr[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                              e1[0] * e2[1] - e1[1] * e2[0]};
+        const double area2 = std::sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
+        if (idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2] || !(area2 > area_floor)) {
+            std::ostringstream os;
+            os << "mesh.triangles[" << t << "] = (" << tri[3 * t] << ", " << tri[3 * t + 1] << ", " << tri[3 * t + 2]
+               << ") is degenerate (area " << 0.5 * area2 << ")";
+            fail(owner, os.str());
+        }
+        volume6 += double(a[0]) * cr[0] + double(a[1]) * cr[1] + double(a[2]) * cr[2];
+        for (int k = 0; k < 3; ++k) {
+            const uint64_t from = idx[k], to = idx[(k + 1) % 3];
+            directed[(from << 32) | to] += 1;
+        }
+    }
+    // Watertight and consistently oriented <=> every directed edge a->b occurs
+    // exactly once and its twin b->a occurs exactly once.
+    for (const auto& [key, count] : directed) {
+        const uint64_t a = key >> 32, b = key & 0xFFFFFFFFULL;
+        auto twin = directed.find((b << 32) | a);
+        const int twin_count = twin == directed.end() ? 0 : twin->second;
+        if (count > 1) {
+            std::ostringstream os;
+            os << "mesh orientation is inconsistent: edge (" << a << ", " << b << ") is traversed " << count
+               << " times in the same direction";
+            fail(owner, os.str());
+        }
+        if (twin_count == 0) {
+            std::ostringstream os;
+            os << "mesh is open (not watertight): edge (" << a << ", " << b << ") has only one triangle";
+            fail(owner, os.str());
+        }
+    }
+    rep.signed_volume = volume6 / 6.0;
+    if (!(rep.signed_volume > 0)) {
+        std::ostringstream os;
+        os << "mesh orientation is inward: signed volume = " << rep.signed_volume
+           << " must be > 0 (flip the triangle winding / recalculate normals outside)";
+        fail(owner, os.str());
+    }
+    return rep;
+}
+
+}  // namespace ep

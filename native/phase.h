@@ -1,0 +1,49 @@
+// Henyey–Greenstein phase function (Henyey & Greenstein 1941), the seed's
+// scattering model (§4) and MCML's. Interface after pbrt-v4: p, sample_p, pdf.
+#pragma once
+#include <cmath>
+
+#include "vecmath.h"
+
+namespace ep {
+
+class HenyeyGreenstein {
+  public:
+    explicit HenyeyGreenstein(Float g) : g_(g) {}
+    Float g() const { return g_; }
+
+    // Density over cos(theta) in [-1, 1]:
+    // p(cos) = (1 - g^2) / (2 (1 + g^2 - 2 g cos)^(3/2)), normalised to 1 over cos.
+    Float pdf(Float cos_theta) const {
+        if (g_ >= 1 || g_ <= -1) return 0;  // a delta: no finite density
+        const Float denom = 1 + g_ * g_ - 2 * g_ * cos_theta;
+        return (1 - g_ * g_) / (2 * denom * std::sqrt(denom));
+    }
+    // Density per steradian: the cos-density divided by 2*pi (azimuth uniform).
+    Float p(Float cos_theta) const { return pdf(cos_theta) / (2 * kPi); }
+
+    // Inverse CDF (MCML manual eq. 3.28). It divides by 2g, so g -> 0 uses the
+    // exact isotropic branch; |g| = 1 are deltas (no deflection / reversal).
+    Float sample_cos(Float u) const {
+        if (g_ >= 1) return 1;
+        if (g_ <= -1) return -1;
+        if (std::fabs(g_) < 1e-6) return 2 * u - 1;
+        const Float s = (1 - g_ * g_) / (1 - g_ + 2 * g_ * u);
+        const Float c = (1 + g_ * g_ - s * s) / (2 * g_);
+        return std::clamp(c, Float(-1), Float(1));
+    }
+
+    // New direction about `dir`: cosine from HG, azimuth uniform in [0, 2pi).
+    Vec3 sample_p(const Vec3& dir, Float u_cos, Float u_phi) const {
+        const Float cos_theta = sample_cos(u_cos);
+        if (cos_theta >= 1) return dir;
+        if (cos_theta <= -1) return -dir;
+        const Float phi = 2 * kPi * u_phi;
+        return spherical_about(dir, cos_theta, std::sin(phi), std::cos(phi));
+    }
+
+  private:
+    Float g_;
+};
+
+}  // namespace ep

@@ -1,0 +1,63 @@
+#include "records.h"
+
+#include <algorithm>
+
+namespace ep {
+
+namespace {
+void push3(std::vector<float>& v, const Vec3& p) {
+    v.push_back(float(p.x));
+    v.push_back(float(p.y));
+    v.push_back(float(p.z));
+}
+template <class T>
+void append_n(std::vector<T>& dst, const std::vector<T>& src, size_t n) {
+    dst.insert(dst.end(), src.begin(), src.begin() + std::ptrdiff_t(n));
+}
+}  // namespace
+
+void EscapeRecords::push(const EscapeRecord& r) {
+    push3(position, r.position);
+    push3(direction, r.direction);
+    push3(normal, r.normal);
+    push3(entry, r.entry);
+    weight.push_back(r.weight);
+    energy.push_back(r.energy);
+    wavelength.push_back(float(r.wavelength));
+    max_depth.push_back(float(r.max_depth_cm));
+    fluorescent.push_back(r.fluorescent);
+    light.push_back(r.light);
+    kind.push_back(r.kind);
+    fluorophore.push_back(r.fluorophore);
+    region.push_back(r.region);
+    scatterings.push_back(r.scatterings);
+    packet.push_back(r.packet);
+}
+
+void EscapeRecords::append(const EscapeRecords& o, size_t count) {
+    const size_t n = std::min(count, o.size());
+    append_n(position, o.position, 3 * n);
+    append_n(direction, o.direction, 3 * n);
+    append_n(normal, o.normal, 3 * n);
+    append_n(entry, o.entry, 3 * n);
+    append_n(weight, o.weight, n);
+    append_n(energy, o.energy, n);
+    append_n(wavelength, o.wavelength, n);
+    append_n(max_depth, o.max_depth, n);
+    append_n(fluorescent, o.fluorescent, n);
+    append_n(light, o.light, n);
+    append_n(kind, o.kind, n);
+    append_n(fluorophore, o.fluorophore, n);
+    append_n(region, o.region, n);
+    append_n(scatterings, o.scatterings, n);
+    append_n(packet, o.packet, n);
+}
+
+void EscapeRecords::clear() { *this = EscapeRecords(); }
+
+size_t EscapeRecords::memory_bytes() const {
+    return size() * (12 * sizeof(float) + 2 * sizeof(double) + 2 * sizeof(float) + 3 + 2 * sizeof(int32_t) +
+                     sizeof(uint32_t) + sizeof(uint64_t));
+}
+
+}  // namespace ep

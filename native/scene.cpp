@@ -1,0 +1,286 @@
+#include "scene.h"
+
+#include <algorithm>
+#include <numeric>
+#include <sstream>
+#include <stdexcept>
+
+#include "eem.h"
+
+namespace ep {
+
+namespace {
+
+// Intersection context extended with the hit list the filter fills.
+struct CollectContext {
+    RTCIntersectContext base;  // must be first: Embree hands back a pointer to it
+    const Scene* scene;
+    const std::vector<Region>* regions;
+    const unsigned* geom_to_region;
+    Vec3 dir;
+    std::vector<Hit>* hits;
+};
+
+void collect_filter(const RTCFilterFunctionNArguments* args) {
+    if (args->N != 1 || !args->valid[0]) return;
+    auto* ctx = reinterpret_cast<CollectContext*>(args->context);
+    const unsigned geom = RTCHitN_geomID(args->hit, args->N, 0);
+    const unsigned prim = RTCHitN_primID(args->hit, args->N, 0);
+    const float t = RTCRayN_tfar(args->ray, args->N, 0);
+    const unsigned region = ctx->geom_to_region[geom];
+    const Vec3& n = (*ctx->regions)[region].normals[prim];
+    // A BVH may reference a triangle from two leaves; keep each triangle once.
+    for (const Hit& h : *ctx->hits)
+        if (h.region == region && h.prim == prim) {
+            args->valid[0] = 0;
+            return;
+        }
+    ctx->hits->push_back(Hit{Float(t), region, prim, dot(ctx->dir, n)});
+    args->valid[0] = 0;  // reject: traversal goes on and collects every crossing
+}
+
+// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection §5.1.5),
+// returned as squared distance.
+Float closest_distance2(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+    const Vec3 ab = b - a, ac = c - a, ap = p - a;
+    const Float d1 = dot(ab, ap), d2 = dot(ac, ap);
+    if (d1 <= 0 && d2 <= 0) return dot(ap, ap);
+    const Vec3 bp = p - b;
+    const Float d3 = dot(ab, bp), d4 = dot(ac, bp);
+    if (d3 >= 0 && d4 <= d3) return dot(bp, bp);
+    const Float vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        const Vec3 q = a + ab * (d1 / (d1 - d3));
+        return dot(p - q, p - q);
+    }
+    const Vec3 cp = p - c;
+    const Float d5 = dot(ab, cp), d6 = dot(ac, cp);
+    if (d6 >= 0 && d5 <= d6) return dot(cp, cp);
+    const Float vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        const Vec3 q = a + ac * (d2 / (d2 - d6));
+        return dot(p - q, p - q);
+    }
+    const Float va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        const Vec3 q = b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+        return dot(p - q, p - q);
+    }
+    const Float denom = 1 / (va + vb + vc);
+    const Vec3 q = a + ab * (vb * denom) + ac * (vc * denom);
+    return dot(p - q, p - q);
+}
+
+struct PointQueryData {
+    const std::vector<std::vector<float>>* vertices;
+    const std::vector<std::vector<uint32_t>>* triangles;
+    const unsigned* geom_to_region;
+    Vec3 p;
+    Float best2;
+};
+
+bool closest_callback(RTCPointQueryFunctionArguments* args) {
+    auto* q = static_cast<PointQueryData*>(args->userPtr);
+    const unsigned region = q->geom_to_region[args->geomID];
+    const auto& v = (*q->vertices)[region];
+    const auto& t = (*q->triangles)[region];
+    const uint32_t* tri = &t[3 * size_t(args->primID)];
+    auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
+    const Float d2 = closest_distance2(q->p, vert(tri[0]), vert(tri[1]), vert(tri[2]));
+    if (d2 < q->best2) {
+        q->best2 = d2;
+        args->query->radius = float(std::sqrt(d2));
+        return true;
+    }
+    return false;
+}
+
+
+}  // namespace
+
+Scene::Scene(Float unit_cm, Float ambient_n) : unit_cm_(unit_cm), ambient_n_(ambient_n) {
+    if (!std::isfinite(unit_cm) || unit_cm <= 0) {
+        std::ostringstream os;
+        os << "scene.unit_cm = " << unit_cm << " must be a positive number";
+        throw std::invalid_argument(os.str());
+    }
+    if (!std::isfinite(ambient_n) || ambient_n < 1) {
+        std::ostringstream os;
+        os << "scene.ambient_n = " << ambient_n << " must be a finite number >= 1";
+        throw std::invalid_argument(os.str());
+    }
+    device_ = rtcNewDevice("threads=1");
+    if (!device_) throw std::runtime_error("Embree: rtcNewDevice failed");
+    scene_ = rtcNewScene(device_);
+    rtcSetSceneFlags(scene_, RTCSceneFlags(RTC_SCENE_FLAG_ROBUST | RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION));
+    rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_MEDIUM);
+}
+
+Scene::~Scene() {
+    if (scene_) rtcReleaseScene(scene_);
+    if (device_) rtcReleaseDevice(device_);
+}
+
+int Scene::add_region(const std::string& name, const float* vertices, size_t nv, const uint32_t* triangles,
+                      size_t nt, const Medium& medium, int priority) {
+    if (committed_) throw std::logic_error("Scene::add_region after commit");
+    const std::string owner = "region '" + name + "'";
+    if (regions_.size() >= size_t(kMaxRegions)) {
+        throw std::invalid_argument(owner + ": a scene holds at most " + std::to_string(kMaxRegions) + " regions");
+    }
+    for (const Region& r : regions_)
+        if (r.name == name) throw std::invalid_argument(owner + ": name is used by another region");
+    medium.validate(owner);
+    Region region;
+    region.name = name;
+    region.medium = medium;
+    region.priority = priority;
+    region.report = check_mesh(owner, vertices, nv, triangles, nt);
+
+    vertices_.emplace_back(vertices, vertices + 3 * nv);
+    triangles_.emplace_back(triangles, triangles + 3 * nt);
+    const auto& v = vertices_.back();
+    const auto& t = triangles_.back();
+    region.normals.resize(nt);
+    for (size_t i = 0; i < nt; ++i) {
+        auto P = [&](uint32_t k) { return Vec3(v[3 * k], v[3 * k + 1], v[3 * k + 2]); };
+        const Vec3 a = P(t[3 * i]), b = P(t[3 * i + 1]), c = P(t[3 * i + 2]);
+        region.normals[i] = normalize(cross(b - a, c - a));  // CCW winding -> outward
+    }
+
+    RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, v.data(), 0, 3 * sizeof(float), nv);
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, t.data(), 0, 3 * sizeof(uint32_t), nt);
+    rtcCommitGeometry(geom);
+    region.geom_id = rtcAttachGeometry(scene_, geom);
+    rtcReleaseGeometry(geom);
+    if (region.geom_id != regions_.size()) throw std::logic_error("Embree geometry ids are not sequential");
+
+    for (int k = 0; k < 3; ++k) {
+        if (regions_.empty()) {
+            bbox_min_[k] = region.report.bbox_min[k];
+            bbox_max_[k] = region.report.bbox_max[k];
+        } else {
+            bbox_min_[k] = std::min(bbox_min_[k], region.report.bbox_min[k]);
+            bbox_max_[k] = std::max(bbox_max_[k], region.report.bbox_max[k]);
+        }
+    }
+    extent_ = std::max({bbox_max_[0] - bbox_min_[0], bbox_max_[1] - bbox_min_[1], bbox_max_[2] - bbox_min_[2]});
+    regions_.push_back(std::move(region));
+    return int(regions_.size() - 1);
+}
+
+int Scene::add_fluorophore(const std::string& name, std::shared_ptr<const EEM> eem) {
+    if (!eem) throw std::invalid_argument("fluorophore '" + name + "': eem is missing");
+    for (size_t i = 0; i < fluor_names_.size(); ++i)
+        if (fluor_names_[i] == name) {
+            return int(i);
+        }
+    fluor_names_.push_back(name);
+    eems_.push_back(std::move(eem));
+    return int(eems_.size() - 1);
+}
+
+void Scene::set_region_fluorophores(int region, const std::vector<FluorophoreRef>& refs) {
+    Region& r = regions_.at(size_t(region));
+    for (const FluorophoreRef& f : refs) {
+        const std::string owner = "region '" + r.name + "': fluorophore";
+        if (f.id < 0 || size_t(f.id) >= eems_.size())
+            throw std::invalid_argument(owner + " id " + std::to_string(f.id) + " names no EEM");
+        const std::string fname = owner + " '" + fluor_names_[size_t(f.id)] + "'";
+        if (!std::isfinite(f.d) || f.d < 0 || f.d > 1) {
+            std::ostringstream os;
+            os << fname << ": d = " << f.d << " must be in [0, 1]";
+            throw std::invalid_argument(os.str());
+        }
+        if (!std::isfinite(f.c) || f.c < 0 || f.c > 1) {
+            std::ostringstream os;
+            os << fname << ": c = " << f.c << " must be in [0, 1]";
+            throw std::invalid_argument(os.str());
+        }
+    }
+    r.fluorophores = refs;
+}
+
+bool Scene::has_fluorophores() const {
+    for (const Region& r : regions_)
+        if (!r.fluorophores.empty()) return true;
+    return false;
+}
+
+bool Scene::has_spectral_media() const {
+    for (const Region& r : regions_)
+        if (r.medium.spectral()) return true;
+    return false;
+}
+
+void Scene::commit() {
+    if (regions_.empty()) throw std::invalid_argument("scene.regions is empty: add at least one region");
+    // Rank regions by (priority, index): the highest rank is the medium in overlaps.
+    std::vector<int> order(regions_.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(),
+                     [&](int a, int b) { return regions_[size_t(a)].priority < regions_[size_t(b)].priority; });
+    rank_.assign(regions_.size(), 0);
+    for (size_t k = 0; k < order.size(); ++k) rank_[size_t(order[k])] = int(k);
+    rtcCommitScene(scene_);
+    committed_ = true;
+}
+
+void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
+    out.clear();
+    static_assert(offsetof(CollectContext, base) == 0, "context must start with RTCIntersectContext");
+    thread_local std::vector<unsigned> identity;
+    if (identity.size() < regions_.size()) {
+        identity.resize(regions_.size());
+        std::iota(identity.begin(), identity.end(), 0u);
+    }
+    CollectContext ctx;
+    rtcInitIntersectContext(&ctx.base);
+    ctx.base.filter = collect_filter;
+    ctx.scene = this;
+    ctx.regions = &regions_;
+    ctx.geom_to_region = identity.data();  // geometry ids equal region indices (checked in add_region)
+    ctx.dir = d;
+    ctx.hits = &out;
+
+    RTCRayHit rh;
+    rh.ray.org_x = float(o.x);
+    rh.ray.org_y = float(o.y);
+    rh.ray.org_z = float(o.z);
+    rh.ray.dir_x = float(d.x);
+    rh.ray.dir_y = float(d.y);
+    rh.ray.dir_z = float(d.z);
+    rh.ray.tnear = float(tnear);
+    rh.ray.tfar = std::isfinite(tfar) ? float(tfar) : std::numeric_limits<float>::infinity();
+    rh.ray.time = 0;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene_, &ctx.base, &rh);
+    if (out.size() > 1)
+        std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
+}
+
+Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
+    thread_local std::vector<unsigned> identity;
+    if (identity.size() < regions_.size()) {
+        identity.resize(regions_.size());
+        std::iota(identity.begin(), identity.end(), 0u);
+    }
+    RTCPointQuery q;
+    q.x = float(p.x);
+    q.y = float(p.y);
+    q.z = float(p.z);
+    q.time = 0;
+    q.radius = float(radius);
+    RTCPointQueryContext qc;
+    rtcInitPointQueryContext(&qc);
+    PointQueryData data{&vertices_, &triangles_, identity.data(), p, radius * radius};
+    rtcPointQuery(scene_, &q, &qc, closest_callback, &data);
+    return std::min(radius, std::sqrt(data.best2));
+}
+
+}  // namespace ep

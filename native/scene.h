@@ -1,0 +1,107 @@
+// The scene: regions bounded by closed triangle meshes in one Embree 3 scene,
+// each with a medium, a priority and its fluorophores, inside an ambient
+// medium that neither scatters nor absorbs.
+#pragma once
+#include <embree3/rtcore.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "medium.h"
+#include "mesh_check.h"
+#include "vecmath.h"
+
+namespace ep {
+
+class EEM;
+
+// A fluorophore of a region: the seed's d (probability of interaction) and
+// c (concentration), and the scene-wide id of its EEM.
+struct FluorophoreRef {
+    int id = -1;
+    Float d = 0, c = 0;
+};
+
+struct Region {
+    std::string name;
+    Medium medium;
+    int priority = 0;
+    std::vector<FluorophoreRef> fluorophores;
+    unsigned geom_id = 0;
+    std::vector<Vec3> normals;  // outward unit normal per triangle
+    MeshReport report;
+};
+
+// One surface crossing found along a ray.
+struct Hit {
+    Float t;           // ray parameter, scene units
+    uint32_t region;   // region index
+    uint32_t prim;     // triangle index within the region
+    Float cos_dn;      // dot(ray direction, outward normal): < 0 entering, > 0 leaving
+};
+
+class Scene {
+  public:
+    static constexpr int kMaxRegions = 64;  // region sets are 64-bit masks
+
+    Scene(Float unit_cm, Float ambient_n);
+    ~Scene();
+    Scene(const Scene&) = delete;
+    Scene& operator=(const Scene&) = delete;
+
+    // Validates the mesh and the medium (std::invalid_argument naming the region)
+    // and adds it. Vertices are float32 (N,3) in scene units, triangles uint32 (M,3).
+    int add_region(const std::string& name, const float* vertices, size_t n_vertices,
+                   const uint32_t* triangles, size_t n_triangles, const Medium& medium, int priority);
+    int add_fluorophore(const std::string& name, std::shared_ptr<const EEM> eem);
+    void set_region_fluorophores(int region, const std::vector<FluorophoreRef>& refs);
+    void commit();
+
+    Float unit_cm() const { return unit_cm_; }
+    Float ambient_n() const { return ambient_n_; }
+    Float extent() const { return extent_; }  // largest bounding-box side, scene units
+    size_t region_count() const { return regions_.size(); }
+    const Region& region(size_t i) const { return regions_[i]; }
+    size_t fluorophore_count() const { return eems_.size(); }
+    const EEM& eem(int id) const { return *eems_[size_t(id)]; }
+    const std::string& fluorophore_name(int id) const { return fluor_names_[size_t(id)]; }
+    bool has_fluorophores() const;
+    bool has_spectral_media() const;
+
+    // Highest-priority region of a set (ties: the region added later wins); -1 if empty.
+    int top(uint64_t set) const {
+        int best = -1;
+        while (set) {
+            const int i = __builtin_ctzll(set);
+            set &= set - 1;
+            if (best < 0 || rank_[size_t(i)] > rank_[size_t(best)]) best = i;
+        }
+        return best;
+    }
+
+    // Every surface crossing with t in [tnear, tfar], sorted by t. Embree's
+    // filter callback records each candidate and rejects it, so traversal
+    // continues to tfar; coincident faces (touching regions) all show up.
+    void intersect_all(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, std::vector<Hit>& out) const;
+
+    // Distance from p to the nearest triangle of any region (scene units),
+    // searched within `radius`; returns `radius` if nothing is closer.
+    Float distance_to_surface(const Vec3& p, Float radius) const;
+
+  private:
+    Float unit_cm_, ambient_n_;
+    Float extent_ = 0;
+    RTCDevice device_ = nullptr;
+    RTCScene scene_ = nullptr;
+    bool committed_ = false;
+    std::vector<Region> regions_;
+    std::vector<int> rank_;
+    std::vector<std::vector<float>> vertices_;
+    std::vector<std::vector<uint32_t>> triangles_;
+    std::vector<std::shared_ptr<const EEM>> eems_;
+    std::vector<std::string> fluor_names_;
+    Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
+};
+
+}  // namespace ep

@@ -1,0 +1,52 @@
+#include "tally.h"
+
+#include <cmath>
+
+namespace ep {
+
+const char* tally_name(int i) {
+    static const char* names[kScalarTallies] = {"specular_reflectance", "diffuse_reflectance", "transmittance",
+                                                "absorbed", "missed", "cut", "roulette",
+                                                "fluorescent_escaped", "escaped_energy"};
+    return names[i];
+}
+
+Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums, int batches) {
+    Estimate e;
+    uint64_t total = 0;
+    double total_sum = 0;
+    for (size_t i = 0; i < packets.size(); ++i) {
+        total += packets[i];
+        total_sum += sums[i];
+    }
+    if (total == 0) return e;
+    e.mean = total_sum / double(total);
+    const size_t K = packets.size();
+    const size_t B = std::min<size_t>(K, size_t(std::max(batches, 2)));
+    if (B < 2) {
+        e.stderr_ = std::nan("");
+        return e;
+    }
+    // Contiguous groups: unit i goes to batch floor(i * B / K).
+    std::vector<double> bsum(B, 0.0);
+    std::vector<uint64_t> bn(B, 0);
+    for (size_t i = 0; i < K; ++i) {
+        const size_t b = i * B / K;
+        bsum[b] += sums[i];
+        bn[b] += packets[i];
+    }
+    // Weighted batch means: var(mean) = sum n_b^2 (x_b - x)^2 / (N^2) * B/(B-1).
+    double acc = 0;
+    size_t used = 0;
+    for (size_t b = 0; b < B; ++b) {
+        if (bn[b] == 0) continue;
+        const double xb = bsum[b] / double(bn[b]);
+        const double w = double(bn[b]) / double(total);
+        acc += w * w * (xb - e.mean) * (xb - e.mean);
+        ++used;
+    }
+    e.stderr_ = used >= 2 ? std::sqrt(acc * double(used) / double(used - 1)) : std::nan("");
+    return e;
+}
+
+}  // namespace ep

@@ -1,0 +1,63 @@
+// Weight tallies of one work unit (a fixed block of packet indices). Units are
+// merged in index order, so the totals are bit-identical for any thread count,
+// and the spread of per-batch fractions gives the standard errors (batch means,
+// as MCML's 10 x 50k runs do, but inside one run).
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace ep {
+
+enum TallyIndex : int {
+    kSpecular = 0,   // Rsp: specular reflection at the first boundary
+    kDiffuse,        // Rd: escaped back (direction against the source axis)
+    kTransmitted,    // Tt: escaped forward
+    kAbsorbed,       // A
+    kMissed,         // never met a region
+    kCut,            // removed by the step / path cap
+    kRoulette,       // net weight destroyed (+) or created (-) by Russian roulette
+    kFluorescentEscaped,  // weight of escaping fluorescent packets
+    kEscapedEnergy,       // energy (weight x 500/lambda) of escaping packets
+    kScalarTallies
+};
+
+const char* tally_name(int i);
+
+struct UnitTally {
+    uint64_t packets = 0;
+    double scalar[kScalarTallies] = {};
+    std::vector<double> absorbed_by_region;
+    void reset(size_t regions) {
+        packets = 0;
+        for (double& s : scalar) s = 0;
+        absorbed_by_region.assign(regions, 0.0);
+    }
+};
+
+// Mean per launched packet and its batch-means standard error.
+struct Estimate {
+    double mean = 0, stderr_ = 0;
+};
+
+// Groups consecutive units into at most `batches` batches of (nearly) equal
+// packet counts and returns mean and standard error of sum/packets for the
+// value picked by `value(unit)`.
+template <class F>
+Estimate batch_estimate(const std::vector<UnitTally>& units, int batches, F value);
+
+// Implementation.
+Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums, int batches);
+
+template <class F>
+Estimate batch_estimate(const std::vector<UnitTally>& units, int batches, F value) {
+    std::vector<uint64_t> packets(units.size());
+    std::vector<double> sums(units.size());
+    for (size_t i = 0; i < units.size(); ++i) {
+        packets[i] = units[i].packets;
+        sums[i] = value(units[i]);
+    }
+    return batch_estimate_impl(packets, sums, batches);
+}
+
+}  // namespace ep

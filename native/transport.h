@@ -1,0 +1,50 @@
+// The life of one photon packet (MCML / the seed's Fig. 1): launch, specular
+// loss at the first boundary, steps of -ln(xi)/mu_t carried across boundaries,
+// implicit absorption, fluorescence, Henyey-Greenstein scattering, Fresnel
+// boundaries, Russian roulette and the caps.
+#pragma once
+#include <memory>
+#include <vector>
+
+#include "halton.h"
+#include "records.h"
+#include "run_config.h"
+#include "scene.h"
+#include "source.h"
+#include "tally.h"
+
+namespace ep {
+
+class VoxelAccumulator;
+
+// Everything one work unit produces; merged in unit order by the engine.
+struct UnitOutput {
+    UnitTally tally;
+    EscapeRecords records;
+    std::unique_ptr<VoxelAccumulator> absorbed_grid;     // absorbed weight
+    std::unique_ptr<VoxelAccumulator> fluorescence_grid;  // fluorescent packet weight at every step
+    std::vector<std::unique_ptr<VoxelAccumulator>> per_fluorophore;
+    uint64_t first_packet = 0;
+};
+
+class Tracer {
+  public:
+    Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& config);
+    // Traces packet `index` and adds its contributions to `out`.
+    void trace(uint64_t index, UnitOutput& out);
+    bool spectral() const { return spectral_; }
+    bool grids() const { return grids_; }
+
+  private:
+    template <bool kSpectral, bool kGrids>
+    void trace_impl(uint64_t index, UnitOutput& out);
+
+    const Scene& scene_;
+    const Source& source_;
+    const Halton& halton_;
+    const RunConfig& cfg_;
+    bool spectral_, grids_;
+    std::vector<Hit> hits_;
+};
+
+}  // namespace ep

@@ -1,0 +1,198 @@
+#include "vdb_writer.h"
+
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cfloat>
+#include <cstdio>
+#include <cstring>
+#include <mutex>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+namespace ep {
+
+void ensure_openvdb_initialized() {
+    // openvdb::initialize() registers grid and metadata types in global
+    // registries; it is not safe to race with itself, so guard it once.
+    static std::once_flag flag;
+    std::call_once(flag, [] { openvdb::initialize(); });
+}
+
+namespace {
+
+std::runtime_error path_error(const std::string& path, const std::string& what) {
+    return std::runtime_error("vdb file '" + path + "': " + what);
+}
+
+// Metadata names OpenVDB itself writes into grids; a user key with one of these
+// names would be silently overwritten or would corrupt how the grid is read.
+bool is_reserved_key(const std::string& key) {
+    static const std::set<std::string> reserved = {
+        openvdb::GridBase::META_GRID_CLASS,      openvdb::GridBase::META_GRID_CREATOR,
+        openvdb::GridBase::META_GRID_NAME,       openvdb::GridBase::META_SAVE_HALF_FLOAT,
+        openvdb::GridBase::META_IS_LOCAL_SPACE,  openvdb::GridBase::META_VECTOR_TYPE,
+        openvdb::GridBase::META_FILE_BBOX_MIN,   openvdb::GridBase::META_FILE_BBOX_MAX,
+        openvdb::GridBase::META_FILE_COMPRESSION, openvdb::GridBase::META_FILE_MEM_BYTES,
+        openvdb::GridBase::META_FILE_VOXEL_COUNT, openvdb::GridBase::META_FILE_DELAYED_LOAD,
+        "meaning", "accumulator_sum", "dropped_deposits", "dropped_value"};
+    return reserved.count(key) != 0;
+}
+
+void validate(const std::vector<GridOutput>& grids,
+              const std::map<std::string, std::string>& metadata) {
+    if (grids.empty()) throw std::invalid_argument("grids: no grid to write (the list is empty)");
+    std::set<std::string> names;
+    for (size_t i = 0; i < grids.size(); ++i) {
+        const GridOutput& g = grids[i];
+        if (g.name.empty())
+            throw std::invalid_argument("grid #" + std::to_string(i) + ": name = '' must not be empty");
+        if (!names.insert(g.name).second)
+            throw std::invalid_argument("grid '" + g.name + "': name is used by more than one grid");
+        if (g.data == nullptr)
+            throw std::invalid_argument("grid '" + g.name + "': data = null must point to an accumulator");
+        if (g.data->voxel_size() != grids[0].data->voxel_size()) {
+            std::ostringstream msg;
+            msg.precision(17);
+            msg << "grid '" << g.name << "': voxel_size = " << g.data->voxel_size()
+                << " differs from grid '" << grids[0].name
+                << "' voxel_size = " << grids[0].data->voxel_size()
+                << "; all grids of a file must share one voxel size";
+            throw std::invalid_argument(msg.str());
+        }
+    }
+    for (const auto& kv : metadata) {
+        if (kv.first.empty())
+            throw std::invalid_argument("metadata key '' must not be empty");
+        if (is_reserved_key(kv.first))
+            throw std::invalid_argument("metadata key '" + kv.first +
+                                        "' is reserved by the VDB writer or OpenVDB");
+    }
+}
+
+openvdb::FloatGrid::Ptr build_grid(const GridOutput& g,
+                                   const std::map<std::string, std::string>& metadata) {
+    auto grid = openvdb::FloatGrid::create(/*background=*/0.0f);
+    grid->setName(g.name);
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    // The accumulator rounds x / h to the nearest integer, i.e. voxel centres
+    // sit at integer multiples of h; a pure linear scale reproduces exactly that.
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(g.data->voxel_size()));
+
+    auto acc = grid->getAccessor();
+    // Sorted order makes neighbouring inserts hit the same leaf node, which the
+    // accessor caches, and makes the tree build independent of the hash layout.
+    g.data->for_each_sorted([&](const VoxelAccumulator::Coord& c, double v) {
+        if (!(std::fabs(v) <= double(FLT_MAX))) {
+            std::ostringstream msg;
+            msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2]
+                << ") value = " << v << " is beyond the float range of a VDB grid";
+            throw std::invalid_argument(msg.str());
+        }
+        acc.setValue(openvdb::Coord(c[0], c[1], c[2]), static_cast<float>(v));
+    });
+
+    grid->insertMeta("meaning", openvdb::StringMetadata(g.meaning));
+    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(g.data->sum()));
+    grid->insertMeta("dropped_deposits",
+                     openvdb::Int64Metadata(static_cast<int64_t>(g.data->dropped())));
+    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(g.data->dropped_value()));
+#ifdef ENDOPHOTON_VERSION
+    grid->setCreator("EndoPhoton " ENDOPHOTON_VERSION);
+#else
+    grid->setCreator("EndoPhoton");
+#endif
+    for (const auto& kv : metadata) grid->insertMeta(kv.first, openvdb::StringMetadata(kv.second));
+    return grid;
+}
+
+// Creates an empty, uniquely named file next to `path` (same directory, so the
+// final rename stays on one filesystem and is atomic). O_EXCL makes the name
+// ours even if two processes write the same target; mode 0666 lets the umask
+// decide permissions as for any ordinary file.
+std::string create_temp_file(const std::string& path) {
+    static std::atomic<unsigned> counter{0};
+    for (int attempt = 0; attempt < 100; ++attempt) {
+        std::ostringstream name;
+        name << path << ".tmp-" << ::getpid() << "-" << counter.fetch_add(1);
+        const std::string tmp = name.str();
+        const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+        if (fd >= 0) {
+            ::close(fd);
+            return tmp;
+        }
+        if (errno != EEXIST)
+            throw path_error(path, std::string("cannot create a temporary file next to it: ") +
+                                       std::strerror(errno));
+    }
+    throw path_error(path, "cannot find a free temporary file name next to it");
+}
+
+// Flush file data to disk before the rename, so that after a crash the target
+// holds either the old file or the complete new one, never an empty file.
+void sync_file(const std::string& tmp, const std::string& path) {
+    const int fd = ::open(tmp.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0 || ::fsync(fd) != 0) {
+        const std::string why = std::strerror(errno);
+        if (fd >= 0) ::close(fd);
+        throw path_error(path, "cannot flush the temporary file '" + tmp + "': " + why);
+    }
+    ::close(fd);
+}
+
+}  // namespace
+
+void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
+               const std::map<std::string, std::string>& metadata) {
+    if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
+    validate(grids, metadata);
+    ensure_openvdb_initialized();
+
+    openvdb::GridCPtrVec out;
+    out.reserve(grids.size());
+    for (const GridOutput& g : grids) out.push_back(build_grid(g, metadata));
+
+    openvdb::MetaMap file_meta;
+    for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));
+
+    const std::string tmp = create_temp_file(path);
+    try {
+        openvdb::io::File file(tmp);
+        file.write(out, file_meta);
+        file.close();
+        sync_file(tmp, path);
+    } catch (const openvdb::Exception& e) {
+        std::remove(tmp.c_str());
+        throw path_error(path, std::string("write failed: ") + e.what());
+    } catch (...) {
+        std::remove(tmp.c_str());
+        throw;
+    }
+    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+        const std::string why = std::strerror(errno);
+        std::remove(tmp.c_str());
+        throw path_error(path, "cannot rename the temporary file over it: " + why);
+    }
+}
+
+std::vector<std::string> vdb_grid_names(const std::string& path) {
+    ensure_openvdb_initialized();
+    std::vector<std::string> names;
+    try {
+        openvdb::io::File file(path);
+        file.open(/*delayLoad=*/false);
+        for (auto it = file.beginName(); it != file.endName(); ++it) names.push_back(it.gridName());
+        file.close();
+    } catch (const openvdb::Exception& e) {
+        throw path_error(path, std::string("cannot read: ") + e.what());
+    }
+    return names;
+}
+
+}  // namespace ep

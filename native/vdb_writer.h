@@ -1,0 +1,49 @@
+// OpenVDB output of voxel tallies.
+//
+// This is the only place (with its tests) that includes OpenVDB; it lives in
+// the core library, which keeps default symbol visibility, because
+// openvdb::initialize() crashes when OpenVDB headers are compiled with
+// -fvisibility=hidden as in the pybind11 module.
+#pragma once
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "voxel_grid.h"
+
+namespace ep {
+
+struct GridOutput {
+    std::string name;                 // grid name in the file (unique, non-empty)
+    std::string meaning;              // stored as per-grid string metadata "meaning"
+    const VoxelAccumulator* data;     // not owned; must outlive the write_vdb call
+};
+
+// Writes one openvdb::FloatGrid per entry of `grids` to `path`.
+//  - grid class FOG_VOLUME, background 0, one active voxel per accumulator voxel
+//    (values converted to float), linear transform with the accumulator's voxel
+//    size, so index (i, j, k) is the world point (i, j, k) * voxel_size;
+//  - per-grid metadata: "meaning" (string), "accumulator_sum" (double, the
+//    exact double sum the float voxels were made from), "dropped_deposits"
+//    (int64) and "dropped_value" (double) from the accumulator's counters,
+//    creator "EndoPhoton <version>", and a copy of every `metadata` entry;
+//  - file-level metadata: every `metadata` entry, as strings.
+// The file is written to a temporary file next to `path` and renamed over it,
+// so readers never see a half-written file and a failed write leaves any
+// previous file untouched.
+// Throws std::invalid_argument for bad input (empty list, null data, empty or
+// duplicate name, reserved metadata key, voxel sizes that differ, a value
+// beyond float range), naming the grid or key; std::runtime_error naming the
+// path if the file cannot be written.
+void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
+               const std::map<std::string, std::string>& metadata);
+
+// Names of the grids stored in a .vdb file, in file order. Throws
+// std::runtime_error naming the path if the file cannot be read.
+std::vector<std::string> vdb_grid_names(const std::string& path);
+
+// Thread-safe, idempotent openvdb::initialize().
+void ensure_openvdb_initialized();
+
+}  // namespace ep

@@ -1,0 +1,65 @@
+// Small vector algebra for the transport engine.
+// Float is the engine's working precision for positions, directions and weights
+// (pbrt-v4 convention: one alias, so a float build is one line away).
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+
+namespace ep {
+
+using Float = double;
+constexpr Float kPi = 3.14159265358979323846;
+constexpr Float kInf = std::numeric_limits<Float>::infinity();
+
+struct Vec3 {
+    Float x = 0, y = 0, z = 0;
+    Vec3() = default;
+    constexpr Vec3(Float x_, Float y_, Float z_) : x(x_), y(y_), z(z_) {}
+    Float operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
+    Vec3 operator+(const Vec3& o) const { return {x + o.x, y + o.y, z + o.z}; }
+    Vec3 operator-(const Vec3& o) const { return {x - o.x, y - o.y, z - o.z}; }
+    Vec3 operator-() const { return {-x, -y, -z}; }
+    Vec3 operator*(Float s) const { return {x * s, y * s, z * s}; }
+    Vec3 operator/(Float s) const { return {x / s, y / s, z / s}; }
+    Vec3& operator+=(const Vec3& o) { x += o.x; y += o.y; z += o.z; return *this; }
+    Vec3& operator-=(const Vec3& o) { x -= o.x; y -= o.y; z -= o.z; return *this; }
+};
+
+inline Vec3 operator*(Float s, const Vec3& v) { return v * s; }
+inline Float dot(const Vec3& a, const Vec3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline Vec3 cross(const Vec3& a, const Vec3& b) {
+    return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+inline Float length(const Vec3& v) { return std::sqrt(dot(v, v)); }
+inline Vec3 normalize(const Vec3& v) { return v / length(v); }
+inline Float max_abs_component(const Vec3& v) {
+    return std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z)));
+}
+inline bool is_finite(const Vec3& v) {
+    return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+}
+
+// Orthonormal basis around a unit vector n (Duff et al. 2017, "Building an
+// orthonormal basis, revisited"): branch-free and stable for every n, including
+// n = (0,0,-1) where the classic Frisvad form divides by zero.
+inline void orthonormal_basis(const Vec3& n, Vec3* t, Vec3* b) {
+    const Float sign = std::copysign(Float(1), n.z);
+    const Float a = Float(-1) / (sign + n.z);
+    const Float c = n.x * n.y * a;
+    *t = Vec3(1 + sign * n.x * n.x * a, sign * c, -sign * n.x);
+    *b = Vec3(c, sign + n.y * n.y * a, -n.y);
+}
+
+// Direction with polar cosine cos_theta and azimuth phi about the axis n.
+inline Vec3 spherical_about(const Vec3& n, Float cos_theta, Float sin_phi, Float cos_phi) {
+    Vec3 t, b;
+    orthonormal_basis(n, &t, &b);
+    const Float sin_theta = std::sqrt(std::max(Float(0), 1 - cos_theta * cos_theta));
+    Vec3 d = t * (sin_theta * cos_phi) + b * (sin_theta * sin_phi) + n * cos_theta;
+    // Renormalise so that rounding does not accumulate over hundreds of scatterings.
+    return d / length(d);
+}
+
+}  // namespace ep

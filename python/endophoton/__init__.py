@@ -1,0 +1,20 @@
+"""EndoPhoton: Monte Carlo light transport for endoscopy of colon tissue.
+
+Units: lengths in the scene unit ("m", "cm", "mm"); mua and mus in cm^-1;
+wavelengths in nm; depths reported in cm.
+"""
+from .medium import Medium
+from .mesh_io import box_mesh, load_mesh
+from .run import CancelToken, GridRequest, Result, Target, run, FRACTIONS, TARGET_TALLIES
+from .scene import Region, Scene, layered_slab
+from .sources import ConeSource, DiskSource, EndoscopeRig, PencilSource, source_from_dict
+from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
+from .units import UNIT_CM, unit_cm
+from . import _core
+
+__version__ = _core.__version__
+
+__all__ = ["Medium", "Scene", "Region", "layered_slab", "box_mesh", "load_mesh", "PencilSource", "DiskSource",
+           "ConeSource", "EndoscopeRig", "source_from_dict", "run", "Result", "GridRequest", "Target",
+           "CancelToken", "EEM", "Fluorophore", "Spectrum", "FLUOROPHORE_DEFAULTS", "FRACTIONS", "TARGET_TALLIES",
+           "UNIT_CM", "unit_cm"]

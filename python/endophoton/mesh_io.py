@@ -1,0 +1,157 @@
+"""Triangle meshes: the box builder and PLY / OBJ readers.
+
+Meshes are float32 (N, 3) vertices in scene units and uint32 (M, 3)
+counter-clockwise (outward) triangles.
+"""
+from __future__ import annotations
+
+import os
+import struct
+
+import numpy as np
+
+
+def box_mesh(lo, hi):
+    """Closed, outward-oriented box from corner ``lo`` to corner ``hi`` (scene units).
+
+    Returns (vertices float32 (8, 3), triangles uint32 (12, 3)).
+    """
+    lo = np.asarray(lo, dtype=np.float64).reshape(3)
+    hi = np.asarray(hi, dtype=np.float64).reshape(3)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ValueError(f"box.min = {lo.tolist()} / box.max = {hi.tolist()} must be finite")
+    if np.any(hi <= lo):
+        raise ValueError(f"box.max = {hi.tolist()} must exceed box.min = {lo.tolist()} on every axis")
+    # Vertex k has bit 0 -> x, bit 1 -> y, bit 2 -> z taken from hi.
+    v = np.array([[hi[0] if k & 1 else lo[0], hi[1] if k & 2 else lo[1], hi[2] if k & 4 else lo[2]]
+                  for k in range(8)], dtype=np.float32)
+    quads = [  # outward-facing quads, counter-clockwise seen from outside
+        (0, 2, 3, 1),  # z = lo
+        (4, 5, 7, 6),  # z = hi
+        (0, 1, 5, 4),  # y = lo
+        (2, 6, 7, 3),  # y = hi
+        (0, 4, 6, 2),  # x = lo
+        (1, 3, 7, 5),  # x = hi
+    ]
+    tris = []
+    for a, b, c, d in quads:
+        tris += [(a, b, c), (a, c, d)]
+    return v, np.array(tris, dtype=np.uint32)
+
+
+def load_mesh(path: str):
+    """Read a triangle mesh from a PLY (ASCII or binary little-endian) or OBJ file.
+
+    Polygons are fan-triangulated. Returns (vertices float32 (N,3), triangles uint32 (M,3)).
+    """
+    ext = os.path.splitext(path)[1].lower()
+    if not os.path.isfile(path):
+        raise ValueError(f"mesh = {path!r}: file not found")
+    if ext == ".obj":
+        return _load_obj(path)
+    if ext == ".ply":
+        return _load_ply(path)
+    raise ValueError(f"mesh = {path!r}: unsupported format {ext!r} (use .ply or .obj)")
+
+
+def _fan(poly):
+    return [(poly[0], poly[i], poly[i + 1]) for i in range(1, len(poly) - 1)]
+
+
+def _load_obj(path):
+    verts, tris = [], []
+    with open(path, "r", encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "v":
+                verts.append([float(x) for x in parts[1:4]])
+            elif parts[0] == "f":
+                idx = []
+                for tok in parts[1:]:
+                    i = int(tok.split("/")[0])
+                    idx.append(i - 1 if i > 0 else len(verts) + i)
+                if len(idx) < 3:
+                    raise ValueError(f"mesh = {path!r}: face on line {lineno} has fewer than 3 vertices")
+                tris += _fan(idx)
+    return np.asarray(verts, dtype=np.float32).reshape(-1, 3), np.asarray(tris, dtype=np.uint32).reshape(-1, 3)
+
+
+_PLY_TYPES = {"char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h", "ushort": "H",
+              "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I", "float": "f", "float32": "f",
+              "double": "d", "float64": "d"}
+
+
+def _load_ply(path):
+    with open(path, "rb") as fh:
+        if fh.readline().strip() != b"ply":
+            raise ValueError(f"mesh = {path!r}: not a PLY file")
+        fmt, elements = None, []
+        while True:
+            line = fh.readline()
+            if not line:
+                raise ValueError(f"mesh = {path!r}: PLY header has no end_header")
+            words = line.decode("ascii", "replace").split()
+            if not words:
+                continue
+            if words[0] == "format":
+                fmt = words[1]
+            elif words[0] == "element":
+                elements.append([words[1], int(words[2]), []])
+            elif words[0] == "property":
+                elements[-1][2].append(words[1:])
+            elif words[0] == "end_header":
+                break
+        if fmt not in ("ascii", "binary_little_endian"):
+            raise ValueError(f"mesh = {path!r}: PLY format {fmt!r} is not supported")
+        verts, tris = None, []
+        text = fh.read()
+    pos = 0
+    tokens = text.split() if fmt == "ascii" else None
+
+    def read(kind):
+        nonlocal pos
+        if tokens is not None:
+            v = tokens[pos]
+            pos += 1
+            return float(v) if _PLY_TYPES[kind] in "fd" else int(v)
+        code = "<" + _PLY_TYPES[kind]
+        size = struct.calcsize(code)
+        (v,) = struct.unpack_from(code, text, pos)
+        pos += size
+        return v
+
+    for name, count, props in elements:
+        if name == "vertex":
+            names = [p[-1] for p in props]
+            if not all(k in names for k in ("x", "y", "z")):
+                raise ValueError(f"mesh = {path!r}: PLY vertices lack x, y, z")
+            ix = [names.index(k) for k in ("x", "y", "z")]
+            rows = []
+            for _ in range(count):
+                row = [read(p[0]) if p[0] != "list" else None for p in props]
+                rows.append([row[i] for i in ix])
+            verts = np.asarray(rows, dtype=np.float32).reshape(-1, 3)
+        elif name == "face":
+            for _ in range(count):
+                for p in props:
+                    if p[0] == "list":
+                        n = read(p[1])
+                        idx = [read(p[2]) for _ in range(n)]
+                        if p[-1] in ("vertex_indices", "vertex_index"):
+                            tris += _fan(idx)
+                    else:
+                        read(p[0])
+        else:
+            for _ in range(count):
+                for p in props:
+                    if p[0] == "list":
+                        n = read(p[1])
+                        for _ in range(n):
+                            read(p[2])
+                    else:
+                        read(p[0])
+    if verts is None:
+        raise ValueError(f"mesh = {path!r}: PLY file has no vertex element")
+    return verts, np.asarray(tris, dtype=np.uint32).reshape(-1, 3)

@@ -1,0 +1,178 @@
+"""Plots of a beta sweep, after the seed paper's Figs. 4-7 and 9 (matplotlib Agg, PNG).
+
+Every figure is written atomically (rendered to memory, then temp file +
+os.replace).  Error bars are the batch-means standard errors carried by the
+:class:`~endophoton.sweep.SweepResult` (for the maximum depth: the sd of the
+per-batch maxima, a spread measure, see :mod:`endophoton.analysis`).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from typing import Any
+
+import numpy as np
+
+import matplotlib
+
+matplotlib.use("Agg", force=False)
+from matplotlib.figure import Figure  # noqa: E402  (object API: no pyplot state, thread-safe)
+
+from . import analysis as an  # noqa: E402
+
+__all__ = ["plot_packets", "plot_energy", "plot_important", "plot_depth", "plot_polar", "plot_all",
+           "PLOT_FILES"]
+
+PLOT_FILES = {
+    "packets": "packets_traced.png",
+    "energy": "energy.png",
+    "important": "camera_fraction.png",
+    "depth": "max_depth.png",
+}
+
+
+def _save(fig: Figure, path: str | os.PathLike) -> str:
+    from .sweep import atomic_write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def _xy(result: Any, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return result.betas, result.column(name), result.column(name + "_stderr")
+
+
+def _line_axes(title: str, ylabel: str) -> tuple[Figure, Any]:
+    fig = Figure(figsize=(6.4, 4.2))
+    ax = fig.add_subplot(1, 1, 1)
+    ax.set_title(title)
+    ax.set_xlabel("tilt angle beta (deg)")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3)
+    return fig, ax
+
+
+def plot_packets(result: Any, path: str | os.PathLike) -> str:
+    """Packets traced to store N records vs beta (seed Fig. 4), with the linear fit."""
+    b, y, e = _xy(result, "packets_traced")
+    n = int(result.rows[0]["store"]) if result.rows else 0
+    fig, ax = _line_axes(f"Packets traced to store {n:,} records", "packets traced")
+    ax.errorbar(b, y, yerr=e, fmt="o-", capsize=3, label="simulation")
+    fit = an.linear_fit(b, y)
+    if np.isfinite(fit["slope"]):
+        xx = np.linspace(b.min(), b.max(), 50)
+        ax.plot(xx, fit["slope"] * xx + fit["intercept"], "--",
+                label=f"linear fit, slope {fit['slope']:.4g}/deg, R$^2$ {fit['r2']:.3f}")
+    ax.legend()
+    return _save(fig, path)
+
+
+def plot_energy(result: Any, path: str | os.PathLike, deg: int = 6) -> str:
+    """Relative total surface energy vs beta (seed Fig. 5) with polynomial fits and their maxima.
+
+    Two series, each divided by its maximum over beta: energy per packet traced,
+    and the sum over the stored records (the seed's definition).
+    """
+    fig, ax = _line_axes("Total surface energy (relative to the maximum over beta)", "relative energy")
+    for name, label, style in (("energy_per_packet_rel", "per packet traced", "o"),
+                               ("energy_total_rel", "sum over stored records (seed)", "s")):
+        b, y, e = _xy(result, name)
+        line = ax.errorbar(b, y, yerr=e, fmt=style, capsize=3, label=label)
+        pk = an.poly_peak(b, y, deg)
+        if pk["deg"] >= 1:
+            xx = np.linspace(b.min(), b.max(), 400)
+            color = line[0].get_color()
+            ax.plot(xx, np.polyval(pk["coeffs"], xx), "-", color=color, alpha=0.7,
+                    label=f"degree-{pk['deg']} fit, max at {pk['x_peak']:.1f} deg")
+            ax.plot([pk["x_peak"]], [pk["y_peak"]], "*", color=color, markersize=14)
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_important(result: Any, path: str | os.PathLike) -> str:
+    """Fraction of stored records pointing to the camera vs beta (seed Fig. 6)."""
+    b, y, e = _xy(result, "important_fraction")
+    angle = result.meta.get("max_angle_deg", 15.0)
+    fig, ax = _line_axes(f"Records visible to the camera and within {angle:g} deg of it",
+                         "fraction of stored records (%)")
+    ax.errorbar(b, 100 * y, yerr=100 * e, fmt="o-", capsize=3, label="simulation")
+    fit = an.linear_fit(b, 100 * y)
+    if np.isfinite(fit["slope"]):
+        xx = np.linspace(b.min(), b.max(), 50)
+        ax.plot(xx, fit["slope"] * xx + fit["intercept"], "--",
+                label=f"linear fit, slope {fit['slope']:.3g} %/deg, R$^2$ {fit['r2']:.3f}")
+    ax.legend()
+    return _save(fig, path)
+
+
+def plot_depth(result: Any, path: str | os.PathLike) -> str:
+    """Maximum penetration depth vs beta (seed Fig. 7), drawn negative (below the surface) like the seed.
+
+    Error bars: sd of the per-batch maxima; the open markers are their mean.
+    """
+    b = result.betas
+    y = result.column("max_depth_cm")
+    m = result.column("max_depth_batch_mean_cm")
+    s = result.column("max_depth_batch_sd_cm")
+    fig, ax = _line_axes("Maximum penetration depth", "depth (cm, negative = below the surface)")
+    ax.plot(b, -y, "o-", label="deepest record")
+    ax.errorbar(b, -m, yerr=s, fmt="o", mfc="none", capsize=3, label="mean +- sd of batch maxima")
+    ax.legend()
+    return _save(fig, path)
+
+
+def plot_polar(result: Any, beta: float, path: str | os.PathLike) -> str:
+    """Exit-direction histogram at ``beta`` as the seed's Fig. 9: two polar panels.
+
+    Left: elevation rings 45-90 deg, right: 0-45 deg; one closed curve per
+    ring, radius = record count, angle = azimuth (0 = toward the light,
+    180 = away from it); shaded band = count +- stderr.
+    """
+    h = result.histogram(beta)
+    counts = np.asarray(h["counts"], dtype=np.float64)
+    stderr = np.asarray(h["stderr"], dtype=np.float64)
+    n_elev, n_azim = counts.shape
+    width = 90.0 / n_elev
+    phi = np.radians((np.arange(n_azim) + 0.5) * 360.0 / n_azim)
+    phi_c = np.append(phi, phi[0] + 2 * np.pi)
+    fig = Figure(figsize=(11, 5.2))
+    fig.suptitle(f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records)")
+    groups = (("elevation 45-90 deg", [i for i in range(n_elev) if i * width >= 45 - 1e-9]),
+              ("elevation 0-45 deg", [i for i in range(n_elev) if (i + 1) * width <= 45 + 1e-9]))
+    for k, (title, rings) in enumerate(groups):
+        ax = fig.add_subplot(1, 2, k + 1, projection="polar")
+        ax.set_title(title, pad=14)
+        for i in rings:
+            c = np.append(counts[i], counts[i, 0])
+            e = np.append(stderr[i], stderr[i, 0])
+            line, = ax.plot(phi_c, c, "-", lw=1.3, label=f"{i * width:g}-{(i + 1) * width:g} deg")
+            ax.fill_between(phi_c, np.maximum(c - e, 0), c + e, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_ylim(bottom=0)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7)
+    fig.subplots_adjust(left=0.04, right=0.86, wspace=0.45)
+    return _save(fig, path)
+
+
+def plot_all(result: Any, out_dir: str | os.PathLike) -> list:
+    """Write every plot of the sweep into ``out_dir``; returns the list of paths.
+
+    Files: packets_traced.png, energy.png, camera_fraction.png, max_depth.png and
+    polar_beta_<beta>.png for every beta.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    paths = [
+        plot_packets(result, os.path.join(out_dir, PLOT_FILES["packets"])),
+        plot_energy(result, os.path.join(out_dir, PLOT_FILES["energy"])),
+        plot_important(result, os.path.join(out_dir, PLOT_FILES["important"])),
+        plot_depth(result, os.path.join(out_dir, PLOT_FILES["depth"])),
+    ]
+    for beta in result.betas:
+        paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta))))
+    return paths
+
+
+def polar_filename(beta: float) -> str:
+    """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_beta_12.5.png."""
+    return f"polar_beta_{beta:02.0f}.png" if float(beta).is_integer() else f"polar_beta_{beta:g}.png"

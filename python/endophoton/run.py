@@ -1,0 +1,153 @@
+"""Running the engine and reading its results."""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+from . import _core
+from .scene import Scene
+
+CancelToken = _core.CancelToken
+
+#: The fractions every run reports, each with ``<name>_stderr``.
+FRACTIONS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
+             "roulette")
+#: Tallies a target-accuracy run can aim at (engine-side, per launched packet).
+TARGET_TALLIES = FRACTIONS[:4] + ("fluorescent_escaped", "escaped_energy")
+
+
+@dataclass
+class GridRequest:
+    """Volume grids to accumulate and write as one OpenVDB file.
+
+    voxel_size : edge of a voxel in scene units
+    path : the .vdb file to write (atomically)
+    per_fluorophore : also one fluorescence grid per fluorophore
+    """
+    voxel_size: float
+    path: str
+    per_fluorophore: bool = False
+
+    def __post_init__(self):
+        v = self.voxel_size
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ValueError(f"grids.voxel_size = {v!r} must be a positive finite number (scene units)")
+        if not isinstance(self.path, (str, os.PathLike)) or not str(self.path):
+            raise ValueError(f"grids.path = {self.path!r} must be a file path")
+
+
+@dataclass
+class Target:
+    """Target accuracy: run until stderr/|mean| of ``tally`` <= ``rel_error``."""
+    tally: str = "diffuse_reflectance"
+    rel_error: float = 0.01
+
+    def __post_init__(self):
+        if self.tally not in TARGET_TALLIES:
+            raise ValueError(f"target.tally = {self.tally!r} must be one of {', '.join(TARGET_TALLIES)}")
+        r = self.rel_error
+        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r <= 0:
+            raise ValueError(f"target.rel_error = {r!r} must be a positive number")
+
+
+class Result:
+    """What a run produced. Fractions are per launched packet, each with ``<name>_stderr``
+    from batch means over consecutive blocks of packets."""
+
+    def __init__(self, raw: dict, scene: Scene, source, options: dict):
+        self._raw = raw
+        self.scene = scene
+        self.source = source
+        self.options = options
+        for k, v in raw.items():
+            if k != "escapes":
+                setattr(self, k, v)
+        self.escapes = raw.get("escapes")
+
+    @property
+    def energy_balance(self) -> float:
+        """Rsp + Rd + Tt + A + missed + cut + roulette (1 up to rounding)."""
+        return sum(getattr(self, k) for k in FRACTIONS)
+
+    @property
+    def fluorophore_names(self) -> list[str]:
+        return self.scene.fluorophore_names()
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (no per-record arrays)."""
+        out = {k: v for k, v in self._raw.items() if k != "escapes"}
+        out["unit"] = self.scene.unit
+        out["escape_records"] = 0 if self.escapes is None else int(len(self.escapes["weight"]))
+        for k, v in list(out.items()):
+            if isinstance(v, float) and not math.isfinite(v):
+                out[k] = None
+        return out
+
+    def __repr__(self):
+        parts = [f"photons={self.photons}"]
+        for k in FRACTIONS[:4]:
+            parts.append(f"{k}={getattr(self, k):.6f}±{getattr(self, k + '_stderr'):.6f}")
+        return "Result(" + ", ".join(parts) + ")"
+
+
+def run(scene: Scene, source, photons: int | None = None, *, store: int | None = None, seed: int = 1,
+        threads: int = 0, roulette_threshold: float = 1e-4, roulette_chance: float = 0.1, max_steps: int = 0,
+        max_path_cm: float = 0.0, record_escapes: bool = True, fluorescent_only: bool = False,
+        fluorescence_rule: str = "paper", grids: GridRequest | None = None, target: Target | None = None,
+        time_budget_s: float = 0.0, max_photons: int = 0, batches: int = 50, spectral: bool | None = None,
+        safe_distance: bool = True, unit_size: int = 0, progress=None, cancel=None) -> Result:
+    """Trace photon packets through ``scene`` from ``source``.
+
+    Exactly one of ``photons`` (launch that many packets), ``store`` (launch
+    until that many escape records are stored; the seed's "store N") or
+    ``target`` (until the relative standard error of a tally reaches the target)
+    chooses when to stop. The run releases the GIL; ``progress(done, total)`` is
+    called about 10 times a second from the calling thread and may return False
+    to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
+    partial result then has ``cancelled=True``.
+
+    Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene = {scene!r} must be an endophoton.Scene")
+    modes = [m for m, v in (("photons", photons), ("store", store), ("target", target)) if v is not None]
+    if not modes:
+        raise ValueError("photons = None: give photons > 0, store > 0 or a target")
+    if len(modes) > 1 and not (modes == ["photons", "target"]):
+        raise ValueError(f"{' and '.join(modes)} are exclusive: give one")
+    for name, v in (("photons", photons), ("store", store)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v <= 0):
+            raise ValueError(f"{name} = {v!r} must be a positive integer")
+    for name, v in (("seed", seed), ("threads", threads), ("max_steps", max_steps), ("max_photons", max_photons)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"{name} = {v!r} must be a non-negative integer")
+    if fluorescence_rule not in ("paper", "eem"):
+        raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
+    opts = dict(seed=seed, threads=threads, roulette_threshold=float(roulette_threshold),
+                roulette_chance=float(roulette_chance), max_steps=max_steps, max_path_cm=float(max_path_cm),
+                record_escapes=bool(record_escapes), fluorescent_only=bool(fluorescent_only),
+                fluorescence_rule=fluorescence_rule, batches=batches, safe_distance=bool(safe_distance),
+                unit_size=unit_size)
+    if photons is not None and target is None:
+        opts["photons"] = photons
+    if store is not None:
+        opts["store"] = store
+    if target is not None:
+        opts["target_tally"] = target.tally
+        opts["target_rel_error"] = float(target.rel_error)
+        opts["max_photons"] = photons if photons is not None else max_photons
+    elif max_photons:
+        opts["max_photons"] = max_photons
+    if time_budget_s:
+        opts["time_budget_s"] = float(time_budget_s)
+    if spectral:
+        opts["force_spectral"] = True
+    if grids is not None:
+        opts["grid_voxel_size"] = float(grids.voxel_size)
+        opts["grid_path"] = os.fspath(grids.path)
+        opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
+    native_scene = scene.to_native()
+    native_source = _core.Source(source.native_lights(scene.unit_cm))
+    raw = _core.run(native_scene, native_source, opts, progress, cancel)
+    return Result(raw, scene, source, opts)

@@ -1,0 +1,271 @@
+"""Scenes: regions bounded by closed triangle meshes, each with a medium,
+a priority and fluorophores, inside an ambient medium (index ``ambient_n``,
+no scattering, no absorption).
+
+Lengths are in the scene unit (``"m"``, ``"cm"`` or ``"mm"``); ``mua`` and
+``mus`` are always in cm^-1. Where regions overlap, the one with the higher
+priority is the medium (ties: the region added later).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .medium import Medium
+from .mesh_io import box_mesh, load_mesh
+from .spectra import EEM, Fluorophore, Spectrum
+from .units import unit_cm
+
+
+@dataclass
+class Region:
+    name: str
+    vertices: np.ndarray        # float32 (N, 3), scene units
+    triangles: np.ndarray       # uint32 (M, 3), outward CCW
+    medium: Medium
+    priority: int = 0
+    fluorophores: tuple = field(default_factory=tuple)
+
+
+def _as_mesh_arrays(owner, vertices, triangles):
+    v = np.asarray(vertices)
+    t = np.asarray(triangles)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{owner}: mesh.vertices must have shape (N, 3), got {v.shape}")
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise ValueError(f"{owner}: mesh.triangles must have shape (M, 3), got {t.shape}")
+    if not np.issubdtype(t.dtype, np.integer):
+        raise ValueError(f"{owner}: mesh.triangles must hold integers, got dtype {t.dtype}")
+    if t.size and t.min() < 0:
+        raise ValueError(f"{owner}: mesh.triangles contains the negative index {int(t.min())}")
+    bad = ~np.isfinite(v)
+    if bad.any():
+        i, k = map(int, np.argwhere(bad)[0])
+        raise ValueError(f"{owner}: mesh.vertices[{i}][{k}] = {v[i, k]} is not finite")
+    return np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(t, dtype=np.uint32)
+
+
+class Scene:
+    """A set of regions in an ambient medium.
+
+    Parameters
+    ----------
+    unit : length unit of every coordinate: "m", "cm" or "mm"
+    ambient_n : refractive index of the ambient medium (>= 1)
+    """
+
+    def __init__(self, unit: str = "cm", ambient_n: float = 1.0):
+        self.unit = unit
+        self.unit_cm = unit_cm(unit)
+        if isinstance(ambient_n, bool) or not isinstance(ambient_n, (int, float)) or not math.isfinite(ambient_n) \
+                or ambient_n < 1:
+            raise ValueError(f"scene.ambient_n = {ambient_n!r} must be a finite number >= 1")
+        self.ambient_n = float(ambient_n)
+        self.regions: list[Region] = []
+
+    # ---- building ---------------------------------------------------------
+    def add_mesh(self, name: str, vertices, triangles, medium: Medium, priority: int = 0,
+                 fluorophores: Sequence[Fluorophore] = ()) -> Region:
+        """Add a region bounded by a closed triangle mesh (vertices in scene units)."""
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"region.name = {name!r} must be a non-empty string")
+        owner = f"region '{name}'"
+        if any(r.name == name for r in self.regions):
+            raise ValueError(f"{owner}: name is used by another region")
+        if not isinstance(medium, Medium):
+            raise ValueError(f"{owner}: medium = {medium!r} must be an endophoton.Medium")
+        medium.validate(owner + ": ")
+        if isinstance(priority, bool) or not isinstance(priority, (int, np.integer)):
+            raise ValueError(f"{owner}: priority = {priority!r} must be an integer")
+        fl = tuple(fluorophores)
+        for f in fl:
+            if not isinstance(f, Fluorophore):
+                raise ValueError(f"{owner}: fluorophores entry {f!r} must be an endophoton.Fluorophore")
+        v, t = _as_mesh_arrays(owner, vertices, triangles)
+        region = Region(name, v, t, medium, int(priority), fl)
+        self.regions.append(region)
+        return region
+
+    def add_box(self, name: str, min, max, medium: Medium, priority: int = 0,
+                fluorophores: Sequence[Fluorophore] = ()) -> Region:
+        """Add an axis-aligned box region from corner ``min`` to ``max`` (scene units)."""
+        try:
+            v, t = box_mesh(min, max)
+        except ValueError as e:
+            raise ValueError(f"region '{name}': {e}") from None
+        return self.add_mesh(name, v, t, medium, priority, fluorophores)
+
+    @property
+    def has_fluorophores(self) -> bool:
+        return any(r.fluorophores for r in self.regions)
+
+    def region(self, name: str) -> Region:
+        for r in self.regions:
+            if r.name == name:
+                return r
+        raise KeyError(name)
+
+    # ---- native -----------------------------------------------------------
+    def to_native(self):
+        """Build the engine's scene (validates meshes: ValueError naming the region)."""
+        from . import _core
+
+        if not self.regions:
+            raise ValueError("scene.regions is empty: add at least one region")
+        s = _core.Scene(self.unit_cm, self.ambient_n)
+        ids: dict[str, int] = {}
+        eems: dict[str, EEM] = {}
+        for r in self.regions:
+            idx = s.add_region(r.name, r.vertices, r.triangles, priority=r.priority, **r.medium.native_args())
+            refs = []
+            for f in r.fluorophores:
+                if f.name in eems and eems[f.name] is not f.eem and not _same_eem(eems[f.name], f.eem):
+                    raise ValueError(f"region '{r.name}': fluorophore '{f.name}' has a different EEM than in "
+                                     "another region; give distinct names")
+                if f.name not in ids:
+                    e = f.eem
+                    ids[f.name] = s.add_fluorophore(f.name, list(map(float, e.excitation_nm)),
+                                                    list(map(float, e.emission_nm)),
+                                                    list(map(float, np.asarray(e.values).ravel())))
+                    eems[f.name] = f.eem
+                refs.append((ids[f.name], float(f.d), float(f.c)))
+            if refs:
+                s.set_region_fluorophores(idx, refs)
+        s.commit()
+        self._fluorophore_ids = ids
+        return s
+
+    def fluorophore_names(self) -> list[str]:
+        """Names of the scene's fluorophores in engine-id order (record column ``fluorophore``)."""
+        names: list[str] = []
+        for r in self.regions:
+            for f in r.fluorophores:
+                if f.name not in names:
+                    names.append(f.name)
+        return names
+
+    # ---- dict / JSON ------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "unit": self.unit,
+            "ambient_n": self.ambient_n,
+            "regions": [{
+                "name": r.name, "priority": r.priority, "medium": r.medium.to_dict(),
+                "mesh": {"vertices": r.vertices.tolist(), "triangles": r.triangles.tolist()},
+                "fluorophores": [{"name": f.name, "d": f.d, "c": f.c} for f in r.fluorophores],
+            } for r in self.regions],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, base_dir: str = ".") -> "Scene":
+        """Build a scene from the SCENE.json structure (see README). Unknown keys are errors."""
+        _check_keys("scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description"})
+        scene = cls(unit=data.get("unit", "cm"), ambient_n=data.get("ambient_n", 1.0))
+        regions = data.get("regions")
+        if not isinstance(regions, list) or not regions:
+            raise ValueError(f"scene.regions = {regions!r} must be a non-empty list")
+        for i, rd in enumerate(regions):
+            if not isinstance(rd, dict):
+                raise ValueError(f"scene.regions[{i}] = {rd!r} must be an object")
+            name = rd.get("name", f"region{i}")
+            owner = f"region '{name}'"
+            _check_keys(owner, rd, {"name", "medium"}, extra={"priority", "box", "mesh", "fluorophores"})
+            medium = _medium_from_dict(owner, rd["medium"])
+            fl = []
+            for j, fd in enumerate(rd.get("fluorophores", [])):
+                _check_keys(f"{owner}: fluorophores[{j}]", fd, {"name", "d", "c"}, extra={"eem"})
+                eem = None
+                if "eem" in fd:
+                    path = fd["eem"] if os.path.isabs(fd["eem"]) else os.path.join(base_dir, fd["eem"])
+                    eem = EEM.from_csv(path, name=fd["name"])
+                try:
+                    fl.append(Fluorophore(fd["name"], fd["d"], fd["c"], eem=eem))
+                except ValueError as e:
+                    raise ValueError(f"{owner}: {e}") from None
+            priority = rd.get("priority", 0)
+            has_box, has_mesh = "box" in rd, "mesh" in rd
+            if has_box == has_mesh:
+                raise ValueError(f"{owner}: give exactly one of 'box' or 'mesh'")
+            if has_box:
+                _check_keys(f"{owner}: box", rd["box"], {"min", "max"})
+                scene.add_box(name, rd["box"]["min"], rd["box"]["max"], medium, priority, fl)
+            else:
+                m = rd["mesh"]
+                if isinstance(m, str):
+                    path = m if os.path.isabs(m) else os.path.join(base_dir, m)
+                    try:
+                        v, t = load_mesh(path)
+                    except ValueError as e:
+                        raise ValueError(f"{owner}: {e}") from None
+                else:
+                    _check_keys(f"{owner}: mesh", m, {"vertices", "triangles"})
+                    v, t = m["vertices"], m["triangles"]
+                scene.add_mesh(name, v, t, medium, priority, fl)
+        return scene
+
+    @classmethod
+    def from_json(cls, path: str) -> "Scene":
+        with open(path, "r", encoding="utf-8") as fh:
+            data = json.load(fh)
+        return cls.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def _same_eem(a: EEM, b: EEM) -> bool:
+    return (np.array_equal(a.excitation_nm, b.excitation_nm) and np.array_equal(a.emission_nm, b.emission_nm)
+            and np.array_equal(a.values, b.values))
+
+
+def _check_keys(owner: str, d, required: set, extra: set = frozenset()) -> None:
+    if not isinstance(d, dict):
+        raise ValueError(f"{owner} = {d!r} must be an object")
+    allowed = set(required) | set(extra)
+    for k in d:
+        if k not in allowed:
+            raise ValueError(f"{owner}: unknown key {k!r} (allowed: {', '.join(sorted(allowed))})")
+    for k in required:
+        if k not in d:
+            raise ValueError(f"{owner}: missing key {k!r}")
+
+
+def _coefficient_from_json(owner, field, v):
+    if isinstance(v, dict):
+        _check_keys(f"{owner}: medium.{field}", v, {"wavelength_nm", "values"})
+        return Spectrum(v["wavelength_nm"], v["values"], name=f"{owner}: medium.{field}")
+    return v
+
+
+def _medium_from_dict(owner: str, md) -> Medium:
+    _check_keys(f"{owner}: medium", md, {"mua", "mus"}, extra={"g", "n"})
+    try:
+        return Medium(mua=_coefficient_from_json(owner, "mua", md["mua"]),
+                      mus=_coefficient_from_json(owner, "mus", md["mus"]),
+                      g=md.get("g", 0.0), n=md.get("n", 1.0))
+    except ValueError as e:
+        msg = str(e)
+        raise ValueError(msg if msg.startswith(owner) else f"{owner}: {msg}") from None
+
+
+def layered_slab(layers, unit: str = "cm", width: float = 1000.0, ambient_n: float = 1.0,
+                 top: float = 0.0, names: Sequence[str] | None = None) -> Scene:
+    """MCML-style stack of layers: ``layers`` = [(Medium, thickness), ...], the first on top.
+
+    The top surface is at z = ``top`` and layers go down (-z); each is a box of
+    side ``width`` (scene units) in x and y, touching its neighbours. Thicknesses
+    are in scene units. A source above the stack points along -z.
+    """
+    scene = Scene(unit=unit, ambient_n=ambient_n)
+    z = float(top)
+    half = 0.5 * float(width)
+    for i, item in enumerate(layers):
+        medium, thickness = item
+        name = names[i] if names else f"layer{i + 1}"
+        if not (isinstance(thickness, (int, float)) and math.isfinite(thickness) and thickness > 0):
+            raise ValueError(f"region '{name}': thickness = {thickness!r} must be a positive number")
+        scene.add_box(name, (-half, -half, z - thickness), (half, half, z), medium, priority=0)
+        z -= thickness
+    return scene

@@ -1,0 +1,252 @@
+"""Light sources, in scene units.
+
+Every source becomes a list of disk lights emitting into a cone with
+directions uniform in solid angle. Emission samples come from the engine's
+scrambled Halton sequence indexed by packet number.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .spectra import Spectrum
+from .units import unit_cm as _unit_cm
+
+
+def _vec3(owner, field_name, v, unit_length=False):
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{owner}.{field_name} = {v!r} must be 3 finite numbers")
+    if unit_length:
+        n = float(np.linalg.norm(a))
+        if n < 1e-12:
+            raise ValueError(f"{owner}.{field_name} = {v!r} has zero length")
+        a = a / n
+    return a
+
+
+def _nonneg(owner, field_name, v, hi=math.inf):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or v > hi:
+        rng = f"[0, {hi}]" if math.isfinite(hi) else ">= 0"
+        raise ValueError(f"{owner}.{field_name} = {v!r} must be a finite number {rng}")
+    return float(v)
+
+
+class _Source:
+    spectrum: Spectrum | None = None
+
+    def native_lights(self, scene_unit_cm: float) -> list[dict]:
+        raise NotImplementedError
+
+    def _spec(self):
+        s = self.spectrum
+        return None if s is None else (list(map(float, s.wavelength_nm)), list(map(float, s.values)))
+
+
+@dataclass
+class PencilSource(_Source):
+    """Infinitely thin collimated beam from ``position`` along ``direction`` (scene units)."""
+    position: tuple = (0.0, 0.0, 1.0)
+    direction: tuple = (0.0, 0.0, -1.0)
+    spectrum: Spectrum | None = None
+
+    def __post_init__(self):
+        self.position = _vec3("source", "position", self.position)
+        self.direction = _vec3("source", "direction", self.direction, unit_length=True)
+
+    def native_lights(self, scene_unit_cm):
+        return [dict(position=self.position.tolist(), direction=self.direction.tolist(), radius=0.0,
+                     half_angle=0.0, spectrum=self._spec())]
+
+
+@dataclass
+class DiskSource(_Source):
+    """Collimated beam with a uniform disk profile of ``radius`` (scene units)."""
+    center: tuple = (0.0, 0.0, 1.0)
+    direction: tuple = (0.0, 0.0, -1.0)
+    radius: float = 0.1
+    spectrum: Spectrum | None = None
+
+    def __post_init__(self):
+        self.center = _vec3("source", "center", self.center)
+        self.direction = _vec3("source", "direction", self.direction, unit_length=True)
+        self.radius = _nonneg("source", "radius", self.radius)
+
+    def native_lights(self, scene_unit_cm):
+        return [dict(position=self.center.tolist(), direction=self.direction.tolist(), radius=self.radius,
+                     half_angle=0.0, spectrum=self._spec())]
+
+
+@dataclass
+class ConeSource(_Source):
+    """Point (radius 0) or disk emitter into a cone of ``half_angle_deg`` about ``direction``,
+    uniform in solid angle inside the cone."""
+    position: tuple = (0.0, 0.0, 1.0)
+    direction: tuple = (0.0, 0.0, -1.0)
+    half_angle_deg: float = 7.5
+    radius: float = 0.0
+    spectrum: Spectrum | None = None
+
+    def __post_init__(self):
+        self.position = _vec3("source", "position", self.position)
+        self.direction = _vec3("source", "direction", self.direction, unit_length=True)
+        self.half_angle_deg = _nonneg("source", "half_angle_deg", self.half_angle_deg, 90.0)
+        self.radius = _nonneg("source", "radius", self.radius)
+
+    def native_lights(self, scene_unit_cm):
+        return [dict(position=self.position.tolist(), direction=self.direction.tolist(), radius=self.radius,
+                     half_angle=math.radians(self.half_angle_deg), spectrum=self._spec())]
+
+
+def rotation_about(axis, angle_rad):
+    """Rotation matrix (3x3) about a unit axis by angle_rad (Rodrigues)."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + math.sin(angle_rad) * K + (1 - math.cos(angle_rad)) * (K @ K)
+
+
+@dataclass
+class EndoscopeRig(_Source):
+    """The endoscope head of the seed's §5: two disk lights and a pinhole camera.
+
+    ``transform`` is the 4x4 head-to-world matrix (scene units), e.g. Blender's
+    ``matrix_world`` of the rig empty; its scale is ignored. In the head frame the
+    rig looks along local -Z (Blender's camera convention), the camera lens is at
+    the origin and the two light guides sit at (+-light_offset_mm, 0, 0).
+
+    Dimensions are physical, in mm, close to a colonoscope tip: head 12 mm
+    across, light guides 3 mm across, 3.5 mm from the centre.
+
+    ``cone_angle_deg`` is the FULL apex angle alpha of each light's cone (the
+    seed uses alpha = 15 deg, i.e. 7.5 deg half angle); directions are uniform
+    in solid angle inside the cone. The light spectrum defaults to flat white
+    over 400-700 nm.
+    """
+    transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+    head_diameter_mm: float = 12.0
+    light_diameter_mm: float = 3.0
+    light_offset_mm: float = 3.5
+    cone_angle_deg: float = 15.0
+    camera_fov_deg: float = 120.0
+    camera_resolution: tuple = (256, 256)
+    spectrum: Spectrum | None = None
+    beta_deg: float | None = None
+
+    def __post_init__(self):
+        M = np.asarray(self.transform, dtype=np.float64)
+        if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+            raise ValueError(f"rig.transform = {self.transform!r} must be a finite 4x4 matrix")
+        R = M[:3, :3]
+        scales = np.linalg.norm(R, axis=0)
+        if np.any(scales < 1e-12):
+            raise ValueError("rig.transform has a zero-length axis")
+        self.transform = M
+        self._R = R / scales
+        for name in ("head_diameter_mm", "light_diameter_mm", "light_offset_mm"):
+            setattr(self, name, _nonneg("rig", name, getattr(self, name)))
+        self.cone_angle_deg = _nonneg("rig", "cone_angle_deg", self.cone_angle_deg, 180.0)
+        self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0)
+        if self.light_offset_mm + 0.5 * self.light_diameter_mm > 0.5 * self.head_diameter_mm + 1e-9:
+            raise ValueError(f"rig.light_offset_mm = {self.light_offset_mm} puts the light guides outside the "
+                             f"head (head_diameter_mm = {self.head_diameter_mm})")
+
+    # ---- geometry in world / scene units ----------------------------------
+    @property
+    def position(self) -> np.ndarray:
+        return self.transform[:3, 3].copy()
+
+    @property
+    def forward(self) -> np.ndarray:
+        return -self._R[:, 2]
+
+    @property
+    def up(self) -> np.ndarray:
+        return self._R[:, 1].copy()
+
+    def light_positions(self, scene_unit: str | float) -> np.ndarray:
+        """World positions (scene units) of the two lights, shape (2, 3)."""
+        ucm = scene_unit if isinstance(scene_unit, float) else _unit_cm(scene_unit)
+        off = self.light_offset_mm * 0.1 / ucm
+        return np.array([self.position + self._R @ np.array([s * off, 0.0, 0.0]) for s in (+1.0, -1.0)])
+
+    def camera(self, scene_unit: str | float = "cm") -> dict:
+        return dict(position=self.position, forward=self.forward, up=self.up, fov_deg=self.camera_fov_deg,
+                    resolution=tuple(self.camera_resolution))
+
+    def native_lights(self, scene_unit_cm):
+        r = 0.5 * self.light_diameter_mm * 0.1 / scene_unit_cm
+        half = math.radians(0.5 * self.cone_angle_deg)
+        return [dict(position=p.tolist(), direction=self.forward.tolist(), radius=r, half_angle=half,
+                     spectrum=self._spec()) for p in self.light_positions(float(scene_unit_cm))]
+
+    @classmethod
+    def from_beta(cls, beta_deg: float, distance: float, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0),
+                  tilt_axis=None, **kwargs) -> "EndoscopeRig":
+        """Place the head ``distance`` (scene units) from the surface ``point``, looking at it,
+        tilted by ``beta_deg`` from the surface ``normal``.
+
+        The head orbits the point: its viewing axis always passes through the
+        point, and the rotation by beta is about ``tilt_axis`` (default: the
+        world Y axis projected onto the tangent plane, or X if Y is parallel to
+        the normal). The light guides lie in the plane of tilt, so at beta > 0 one
+        light is nearer the surface than the other.
+        """
+        if isinstance(beta_deg, bool) or not isinstance(beta_deg, (int, float)) or not math.isfinite(beta_deg) \
+                or abs(beta_deg) >= 90:
+            raise ValueError(f"rig.beta_deg = {beta_deg!r} must be a finite angle in (-90, 90) degrees")
+        if isinstance(distance, bool) or not isinstance(distance, (int, float)) or not math.isfinite(distance) \
+                or distance <= 0:
+            raise ValueError(f"rig.distance = {distance!r} must be a positive number (scene units)")
+        p = _vec3("rig", "point", point)
+        n = _vec3("rig", "normal", normal, unit_length=True)
+        if tilt_axis is None:
+            ref = np.array([0.0, 1.0, 0.0]) if abs(n[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        else:
+            ref = _vec3("rig", "tilt_axis", tilt_axis, unit_length=True)
+        axis = ref - np.dot(ref, n) * n
+        if np.linalg.norm(axis) < 1e-9:
+            raise ValueError(f"rig.tilt_axis = {tilt_axis!r} is parallel to the normal")
+        axis /= np.linalg.norm(axis)
+        view = rotation_about(axis, math.radians(beta_deg)) @ n  # from the point to the head
+        z = view
+        x = np.cross(axis, z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        M = np.eye(4)
+        M[:3, 0], M[:3, 1], M[:3, 2] = x, y, z
+        M[:3, 3] = p + distance * view
+        rig = cls(transform=M, **kwargs)
+        rig.beta_deg = float(beta_deg)
+        return rig
+
+
+def source_from_dict(d: dict):
+    """Build a source from the SCENE.json ``source`` object."""
+    from .scene import _check_keys
+
+    if not isinstance(d, dict) or "type" not in d:
+        raise ValueError(f"source = {d!r} must be an object with a 'type'")
+    kind = d["type"]
+    body = {k: v for k, v in d.items() if k != "type"}
+    if kind == "pencil":
+        _check_keys("source", body, {"position", "direction"})
+        return PencilSource(**body)
+    if kind == "disk":
+        _check_keys("source", body, {"center", "direction", "radius"})
+        return DiskSource(**body)
+    if kind == "cone":
+        _check_keys("source", body, {"position", "direction", "half_angle_deg"}, extra={"radius"})
+        return ConeSource(**body)
+    if kind == "endoscope":
+        if "transform" in body:
+            _check_keys("source", body, {"transform"}, extra={"head_diameter_mm", "light_diameter_mm",
+                                                              "light_offset_mm", "cone_angle_deg", "camera_fov_deg"})
+            return EndoscopeRig(**body)
+        _check_keys("source", body, {"beta_deg", "distance"},
+                    extra={"point", "normal", "tilt_axis", "head_diameter_mm", "light_diameter_mm",
+                           "light_offset_mm", "cone_angle_deg", "camera_fov_deg"})
+        return EndoscopeRig.from_beta(**body)
+    raise ValueError(f"source.type = {kind!r} must be one of 'pencil', 'disk', 'cone', 'endoscope'")

@@ -1,0 +1,236 @@
+// Unit tests for ep::write_vdb: what is written is read back by OpenVDB itself
+// (io::File), not by our own reader, so the file is checked against the format.
+#include "vdb_writer.h"
+
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+
+#include <gtest/gtest.h>
+
+#include <dirent.h>
+#include <stdlib.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace {
+
+using ep::GridOutput;
+using ep::VoxelAccumulator;
+
+// A fresh directory per test, removed afterwards, so leftover-file checks see
+// only what the test itself produced.
+class VdbWriterTest : public ::testing::Test {
+protected:
+    void SetUp() override {
+        std::string base = ::testing::TempDir();
+        if (base.empty() || base.back() != '/') base += '/';
+        std::string templ = base + "ep_vdb_test_XXXXXX";
+        std::vector<char> buf(templ.begin(), templ.end());
+        buf.push_back('\0');
+        ASSERT_NE(::mkdtemp(buf.data()), nullptr) << "mkdtemp in " << base;
+        dir_ = buf.data();
+        ep::ensure_openvdb_initialized();
+    }
+    void TearDown() override {
+        for (const std::string& f : list_dir()) ::unlink((dir_ + "/" + f).c_str());
+        ::rmdir(dir_.c_str());
+    }
+    std::vector<std::string> list_dir() const {
+        std::vector<std::string> out;
+        if (DIR* d = ::opendir(dir_.c_str())) {
+            while (dirent* e = ::readdir(d)) {
+                const std::string n = e->d_name;
+                if (n != "." && n != "..") out.push_back(n);
+            }
+            ::closedir(d);
+        }
+        return out;
+    }
+    std::string path(const std::string& name) const { return dir_ + "/" + name; }
+
+    std::string dir_;
+};
+
+openvdb::FloatGrid::Ptr read_float_grid(const std::string& path, const std::string& name) {
+    openvdb::io::File file(path);
+    file.open();
+    auto base = file.readGrid(name);
+    file.close();
+    return openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+}
+
+TEST_F(VdbWriterTest, WritesGridsThatOpenVdbReadsBack) {
+    const double h = 0.1;
+    VoxelAccumulator absorbed(h), emitted(h);
+    // Known deposit: world (0.3, -0.2, 0.5) -> index (3, -2, 5), two deposits.
+    absorbed.add(0.3, -0.2, 0.5, 0.25);
+    absorbed.add(0.31, -0.19, 0.52, 0.5);
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> pos(-1.0, 1.0), val(1e-5, 1.0);
+    for (int n = 0; n < 5000; ++n) absorbed.add(pos(rng), pos(rng), pos(rng), val(rng));
+    emitted.add(-0.7, 0.0, 0.1, 3.0);
+
+    const std::map<std::string, std::string> meta = {
+        {"packets", "100000"}, {"seed", "7"}, {"unit", "cm"}, {"engine_version", "0.1.0"}};
+    const std::string out = path("tally.vdb");
+    ep::write_vdb(out, {{"absorbed", "absorbed weight per voxel", &absorbed},
+                        {"fluorescence", "emitted fluorescence weight", &emitted}},
+                  meta);
+
+    EXPECT_EQ(ep::vdb_grid_names(out), (std::vector<std::string>{"absorbed", "fluorescence"}));
+
+    {
+        openvdb::io::File file(out);
+        file.open();
+        auto fmeta = file.getMetadata();
+        for (const auto& kv : meta) {
+            ASSERT_TRUE((*fmeta)[kv.first]) << "file metadata " << kv.first;
+            EXPECT_EQ(fmeta->metaValue<std::string>(kv.first), kv.second);
+        }
+        file.close();
+    }
+
+    auto grid = read_float_grid(out, "absorbed");
+    ASSERT_TRUE(grid);
+    EXPECT_EQ(grid->getName(), "absorbed");
+    EXPECT_EQ(grid->getGridClass(), openvdb::GRID_FOG_VOLUME);
+    EXPECT_EQ(grid->metaValue<std::string>("meaning"), "absorbed weight per voxel");
+    for (const auto& kv : meta) EXPECT_EQ(grid->metaValue<std::string>(kv.first), kv.second);
+    EXPECT_EQ(grid->metaValue<double>("accumulator_sum"), absorbed.sum());
+    EXPECT_EQ(grid->metaValue<int64_t>("dropped_deposits"), 0);
+    EXPECT_EQ(grid->metaValue<double>("dropped_value"), 0.0);
+    EXPECT_EQ(grid->getCreator().rfind("EndoPhoton", 0), 0u) << grid->getCreator();
+
+    const openvdb::Vec3d vs = grid->voxelSize();
+    EXPECT_DOUBLE_EQ(vs.x(), h);
+    EXPECT_DOUBLE_EQ(vs.y(), h);
+    EXPECT_DOUBLE_EQ(vs.z(), h);
+
+    // The known deposit: its voxel holds the float of the accumulated double,
+    // and that voxel's centre is where the deposit was made, to within h/2.
+    const openvdb::Coord known(3, -2, 5);
+    auto acc = grid->getConstAccessor();
+    EXPECT_TRUE(acc.isValueOn(known));
+    EXPECT_EQ(acc.getValue(known), static_cast<float>(absorbed.value({3, -2, 5})));
+    const openvdb::Vec3d centre = grid->transform().indexToWorld(known);
+    EXPECT_NEAR(centre.x(), 0.3, 1e-12);
+    EXPECT_NEAR(centre.y(), -0.2, 1e-12);
+    EXPECT_NEAR(centre.z(), 0.5, 1e-12);
+    // World -> index through OpenVDB's own transform lands on the same voxel.
+    EXPECT_EQ(grid->transform().worldToIndexCellCentered(openvdb::Vec3d(0.31, -0.19, 0.52)), known);
+
+    EXPECT_EQ(grid->activeVoxelCount(), absorbed.voxel_count());
+    // Every voxel value matches, and the float sum conserves the double sum.
+    double total = 0.0;
+    size_t visited = 0;
+    for (auto it = grid->cbeginValueOn(); it; ++it) {
+        ASSERT_TRUE(it.isVoxelValue());
+        const openvdb::Coord c = it.getCoord();
+        EXPECT_EQ(*it, static_cast<float>(absorbed.value({c.x(), c.y(), c.z()})));
+        total += *it;
+        ++visited;
+    }
+    EXPECT_EQ(visited, absorbed.voxel_count());
+    EXPECT_NEAR(total, absorbed.sum(), 1e-6 * absorbed.sum());
+
+    auto fl = read_float_grid(out, "fluorescence");
+    ASSERT_TRUE(fl);
+    EXPECT_EQ(fl->activeVoxelCount(), 1u);
+    EXPECT_EQ(fl->getConstAccessor().getValue(openvdb::Coord(-7, 0, 1)), 3.0f);
+    EXPECT_EQ(fl->metaValue<std::string>("meaning"), "emitted fluorescence weight");
+
+    // The atomic write leaves exactly the target behind, no temporary file.
+    EXPECT_EQ(list_dir(), (std::vector<std::string>{"tally.vdb"}));
+}
+
+TEST_F(VdbWriterTest, EmptyAccumulatorGivesValidEmptyGrid) {
+    VoxelAccumulator none(0.5);
+    none.add(std::nan(""), 0.0, 0.0, 0.75);  // dropped: the grid stays empty
+    const std::string out = path("empty.vdb");
+    ep::write_vdb(out, {{"absorbed", "nothing deposited", &none}}, {});
+    auto grid = read_float_grid(out, "absorbed");
+    ASSERT_TRUE(grid);
+    EXPECT_EQ(grid->activeVoxelCount(), 0u);
+    EXPECT_EQ(grid->getGridClass(), openvdb::GRID_FOG_VOLUME);
+    EXPECT_DOUBLE_EQ(grid->voxelSize().x(), 0.5);
+    EXPECT_EQ(grid->metaValue<double>("accumulator_sum"), 0.0);
+    EXPECT_EQ(grid->metaValue<int64_t>("dropped_deposits"), 1);
+    EXPECT_EQ(grid->metaValue<double>("dropped_value"), 0.75);
+}
+
+TEST_F(VdbWriterTest, OverwritesExistingFileAtomically) {
+    const std::string out = path("t.vdb");
+    {
+        std::ofstream old(out);
+        old << "not a vdb file";
+    }
+    VoxelAccumulator a(1.0);
+    a.add(2, 0, 0, 1.0);
+    ep::write_vdb(out, {{"first", "", &a}}, {});
+    EXPECT_EQ(ep::vdb_grid_names(out), std::vector<std::string>{"first"});
+    ep::write_vdb(out, {{"second", "", &a}}, {});
+    EXPECT_EQ(ep::vdb_grid_names(out), std::vector<std::string>{"second"});
+    EXPECT_EQ(list_dir(), std::vector<std::string>{"t.vdb"});
+}
+
+TEST_F(VdbWriterTest, UnwritablePathErrorNamesPath) {
+    VoxelAccumulator a(1.0);
+    a.add(0, 0, 0, 1.0);
+    const std::string bad = path("no_such_dir/out.vdb");
+    try {
+        ep::write_vdb(bad, {{"absorbed", "", &a}}, {});
+        FAIL() << "write to " << bad << " succeeded";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find(bad), std::string::npos) << e.what();
+    }
+    EXPECT_TRUE(list_dir().empty());
+}
+
+TEST_F(VdbWriterTest, UnreadableFileErrorNamesPath) {
+    const std::string missing = path("missing.vdb");
+    try {
+        ep::vdb_grid_names(missing);
+        FAIL() << "reading " << missing << " succeeded";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find(missing), std::string::npos) << e.what();
+    }
+}
+
+// Runs write_vdb expecting std::invalid_argument whose message contains `needle`.
+void expect_rejected(const std::string& out, const std::vector<GridOutput>& grids,
+                     const std::map<std::string, std::string>& meta, const std::string& needle) {
+    try {
+        ep::write_vdb(out, grids, meta);
+        ADD_FAILURE() << "accepted; expected an error mentioning " << needle;
+    } catch (const std::invalid_argument& e) {
+        EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+}
+
+TEST_F(VdbWriterTest, RejectsInconsistentInput) {
+    VoxelAccumulator a(0.1), b(0.2), huge(0.1);
+    a.add(0, 0, 0, 1.0);
+    b.add(0, 0, 0, 1.0);
+    huge.add(0, 0, 0, 1e39);  // finite double, not a finite float
+    const std::string out = path("bad.vdb");
+
+    expect_rejected(out, {{"absorbed", "", &a}, {"coarse", "", &b}}, {}, "grid 'coarse'");
+    expect_rejected(out, {{"absorbed", "", &a}, {"absorbed", "", &a}}, {}, "grid 'absorbed'");
+    expect_rejected(out, {{"absorbed", "", nullptr}}, {}, "grid 'absorbed': data");
+    expect_rejected(out, {{"", "", &a}}, {}, "name = ''");
+    expect_rejected(out, {}, {}, "grids");
+    expect_rejected(out, {{"absorbed", "", &a}}, {{"class", "x"}}, "metadata key 'class'");
+    expect_rejected(out, {{"absorbed", "", &a}}, {{"meaning", "x"}}, "metadata key 'meaning'");
+    expect_rejected(out, {{"big", "", &huge}}, {}, "grid 'big'");
+    // Nothing, not even a temporary file, is left by a rejected write.
+    EXPECT_TRUE(list_dir().empty());
+}
+
+}  // namespace

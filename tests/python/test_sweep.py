@@ -1,0 +1,351 @@
+"""Tests of endophoton.sweep / plots / report / meshes.
+
+The first part drives the sweep with a fake engine whose record statistics are
+known (so the analysis can be checked against them); the last part runs the
+real engine when it is built.
+"""
+
+import argparse
+import json
+import math
+import os
+import re
+import types
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton import analysis as an
+from endophoton import meshes
+from endophoton import sweep as sw
+from endophoton.sources import EndoscopeRig
+
+import _synth as sy
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+# ---------------------------------------------------------------- fake engine
+
+def fake_rate(beta):
+    """Records per packet of the fake engine (decreasing packets traced with beta)."""
+    return 0.45 + 0.004 * beta
+
+
+def fake_kappa(beta):
+    """von Mises concentration of the low-ring azimuths about 180 deg."""
+    return beta / 40.0
+
+
+def fake_run(scene, rig, store, fluorescent_only=True, fluorescence_rule="paper", seed=1, threads=0,
+             progress=None, cancel=None, **kw):
+    beta = float(rig.beta_deg)
+    rng = np.random.default_rng([seed, int(round(beta * 10))])
+    q = fake_rate(beta)
+    m = int(store / q * 1.3) + 1000
+    has = rng.random(m) < q
+    packets = np.flatnonzero(has)[:store]
+    assert packets.size == store
+    k = packets.size
+    el, _ = sy.sample_uniform_hemisphere(rng, k)
+    kappa = fake_kappa(beta)
+    az_low = np.degrees(rng.vonmises(np.pi, kappa, k)) % 360.0 if kappa > 0 else 360.0 * rng.random(k)
+    az = np.where(el < 45.0, az_low, 360.0 * rng.random(k))
+    lights = rig.light_positions(scene.unit)
+    esc = sy.make_records(el, az, rng, lights, packets=packets, energy=rng.random(k) * (1 + beta / 100),
+                          max_depth=0.12 * rng.random(k) ** 0.1, spot_sd=0.1)
+    if progress is not None:
+        progress(k // 2, store)
+        progress(k, store)
+    return types.SimpleNamespace(escapes=esc, packets_traced=int(packets[-1]) + 1, seconds=0.01,
+                                 cancelled=False)
+
+
+@pytest.fixture
+def fake_engine(monkeypatch):
+    monkeypatch.setattr(ep, "run", fake_run, raising=False)
+    monkeypatch.setattr(ep, "EndoscopeRig", EndoscopeRig, raising=False)
+    return types.SimpleNamespace(unit="cm")
+
+
+@pytest.fixture(scope="module")
+def fake_result(tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    mp.setattr(ep, "run", fake_run, raising=False)
+    mp.setattr(ep, "EndoscopeRig", EndoscopeRig, raising=False)
+    out = tmp_path_factory.mktemp("fake_sweep")
+    try:
+        res = sw.sweep(types.SimpleNamespace(unit="cm"), betas=[0, 20, 40], store=20_000, seed=3,
+                       progress=False, out_dir=str(out))
+    finally:
+        mp.undo()
+    return res, str(out)
+
+
+def test_fake_sweep_recovers_known_statistics(fake_result):
+    res, _ = fake_result
+    assert [r["beta_deg"] for r in res.rows] == [0.0, 20.0, 40.0]
+    special = pytest.importorskip("scipy.special")
+    d = math.radians(5.0)
+    for r in res.rows:
+        beta = r["beta_deg"]
+        assert r["records"] == 20_000 and r["store"] == 20_000
+        assert abs(r["record_rate"] - fake_rate(beta)) < 4 * r["record_rate_stderr"]
+        assert r["packets_traced_stderr"] > 0
+        kappa = fake_kappa(beta)
+        exact = -special.i1(kappa) / special.i0(kappa) * math.sin(d) / d if kappa > 0 else 0.0
+        assert abs(r["azimuth_asym_low"] - exact) < 4 * r["azimuth_asym_low_stderr"]
+        assert abs(r["azimuth_asym_high"]) < 4 * r["azimuth_asym_high_stderr"]
+        # fraction of uniform-hemisphere records above 45 deg is 1 - sin 45
+        hf = 1 - math.sin(math.radians(45))
+        assert abs(r["high_elevation_fraction"] - hf) < 4 * r["high_elevation_fraction_stderr"]
+        assert 0 < r["max_depth_cm"] <= 0.12 + 1e-6
+    # relative columns: maximum is exactly 1
+    assert max(res.column("energy_total_rel")) == 1.0
+    assert max(res.column("energy_per_packet_rel")) == 1.0
+    # beta = 0 fake data are uniform in azimuth
+    assert res.rows[0]["azimuth_chi2_p_bonferroni"] > 1e-3
+    assert res.rows[2]["azimuth_chi2_p_min"] < 1e-6
+
+
+def test_outputs_written(fake_result):
+    res, out = fake_result
+    files = sorted(os.listdir(out))
+    for name in ["sweep.csv", "sweep.json", "report.md", "packets_traced.png", "energy.png",
+                 "camera_fraction.png", "max_depth.png", "polar_beta_00.png", "polar_beta_20.png",
+                 "polar_beta_40.png"]:
+        assert name in files
+    for name in files:
+        if name.endswith(".png"):
+            with open(os.path.join(out, name), "rb") as f:
+                data = f.read()
+            assert data[:8] == PNG and len(data) > 5000, name
+    assert not [f for f in files if f.endswith(".tmp")]
+
+
+def test_csv_header_equals_documented_columns(fake_result):
+    res, out = fake_result
+    with open(os.path.join(out, "sweep.csv")) as f:
+        lines = f.read().splitlines()
+    header = lines[0].split(",")
+    assert header == list(sw.CSV_COLUMNS)
+    assert len(lines) == 1 + len(res.rows)
+    with open(os.path.join(ROOT, "docs", "sweep.md"), encoding="utf-8") as f:
+        doc = f.read()
+    section = doc.split("<!-- csv-columns:begin -->")[1].split("<!-- csv-columns:end -->")[0]
+    documented = re.findall(r"^\| `([a-z0-9_]+)` \|", section, flags=re.M)
+    assert documented == header
+    first = dict(zip(header, lines[1].split(",")))
+    assert float(first["beta_deg"]) == 0.0 and int(first["records"]) == 20_000
+
+
+def test_json_round_trip(fake_result, tmp_path):
+    res, out = fake_result
+    with open(os.path.join(out, "sweep.json")) as f:
+        raw = json.load(f)      # strict JSON (no NaN tokens)
+    assert raw["format"] == "endophoton-sweep/1" and list(raw["columns"]) == list(sw.CSV_COLUMNS)
+    back = sw.SweepResult.from_json(os.path.join(out, "sweep.json"))
+    for a, b in zip(res.rows, back.rows):
+        for k in sw.CSV_COLUMNS:
+            x, y = a[k], b[k]
+            assert (x == y) or (isinstance(x, float) and math.isnan(x) and math.isnan(y)), k
+    for a, b in zip(res.histograms, back.histograms):
+        assert np.array_equal(a["counts"], b["counts"]) and np.allclose(a["stderr"], b["stderr"])
+    p2 = back.to_json(str(tmp_path / "again.json"))
+    with open(p2) as f:
+        assert json.load(f)["rows"] == raw["rows"]
+
+
+def test_report_states_paper_and_run_numbers(fake_result):
+    res, out = fake_result
+    with open(os.path.join(out, "report.md"), encoding="utf-8") as f:
+        text = f.read()
+    assert "**paper**" in text and "34" in text and "0.12" in text
+    t = __import__("endophoton.report", fromlist=["compute_trends"]).compute_trends(res)
+    assert f"{100 * t['packets_drop']:.2f} %" in text
+    assert "nan" not in text.lower().replace("n/a", "")
+    for beta in (0, 20, 40):
+        assert f"polar_beta_{beta:02d}.png" in text
+    # the fake engine's record rate rises with beta, so packets traced fall: direction agrees
+    assert t["packets_drop"] > 0
+    # fake low rings move toward 180 deg with beta: the report says the shift agrees
+    assert "shift toward 180°: **agrees**" in text
+
+
+def test_progress_callable_and_tqdm(fake_engine, capsys):
+    calls = []
+    sw.sweep(fake_engine, betas=[0, 10], store=500, progress=lambda i, n, d, t: calls.append((i, n, d, t)),
+             plots=False, report=False)
+    assert calls and calls[-1] == (1, 2, 500, 500)
+    sw.sweep(fake_engine, betas=[0], store=500, progress=True)
+    assert "beta" in capsys.readouterr().err
+
+
+def test_builder_and_cancel(fake_engine):
+    seen = []
+
+    def builder(beta):
+        seen.append(beta)
+        return fake_engine
+
+    res = sw.sweep(builder, betas=[5, 15], store=400, progress=False)
+    assert seen == [5.0, 15.0] and len(res.rows) == 2
+
+    def cancelled_run(*a, **k):
+        r = fake_run(*a, **k)
+        r.cancelled = True
+        return r
+
+    ep.run = cancelled_run
+    res = sw.sweep(fake_engine, betas=[0, 5, 10], store=400, progress=False)
+    assert len(res.rows) == 1 and res.rows[0]["cancelled"] == 1
+
+
+def test_cli_with_fake_engine(fake_engine, monkeypatch, tmp_path):
+    monkeypatch.setattr(sw, "default_flat_scene", lambda **kw: fake_engine)
+    p = argparse.ArgumentParser()
+    sw.add_sweep_arguments(p)
+    args = p.parse_args(["--betas", "0,10,20", "--store", "2000", "--seed", "4", "--out", str(tmp_path),
+                         "--no-progress"])
+    assert args.betas == [0.0, 10.0, 20.0] and args.store == 2000
+    assert sw.sweep_main(args) == 0
+    for name in ("sweep.csv", "sweep.json", "report.md", "energy.png", "polar_beta_10.png"):
+        assert os.path.getsize(tmp_path / name) > 0
+    data = json.loads((tmp_path / "sweep.json").read_text())
+    assert data["meta"]["seed"] == 4 and len(data["rows"]) == 3
+
+
+def test_parse_betas():
+    assert sw.parse_betas("0:60:5") == [float(x) for x in range(0, 60, 5)]
+    assert sw.parse_betas("0, 7.5,15") == [0.0, 7.5, 15.0]
+    for bad in ("", "a,b", "0:10", "0:10:0"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            sw.parse_betas(bad)
+
+
+# ---------------------------------------------------------------- rig geometry
+
+def test_rig_geometry_matches_design_frame():
+    rig = EndoscopeRig.from_beta(beta_deg=0.0, distance=1.0, unit="cm") if "unit" in \
+        EndoscopeRig.from_beta.__code__.co_varnames else EndoscopeRig.from_beta(beta_deg=0.0, distance=1.0)
+    g = sw.rig_geometry(rig, "cm")
+    lp = g["light_positions"]
+    assert lp.shape == (2, 3)
+    assert np.allclose(sorted(lp[:, 0]), [-0.35, 0.35]) and np.allclose(lp[:, 2], 1.0)
+    cam = g["camera"]
+    assert np.allclose(cam["position"], [0, 0, 1]) and np.allclose(cam["forward"], [0, 0, -1])
+    # the fallback from transform + documented head frame gives the same geometry
+    bare = types.SimpleNamespace(transform=rig.transform, light_offset_mm=rig.light_offset_mm,
+                                 camera_fov_deg=rig.camera_fov_deg, camera_resolution=rig.camera_resolution)
+    g2 = sw.rig_geometry(bare, "cm")
+    assert np.allclose(g2["light_positions"], lp)
+    for k in ("position", "forward", "up"):
+        assert np.allclose(g2["camera"][k], cam[k])
+    # tilted: camera still looks at the target point
+    rig30 = EndoscopeRig.from_beta(beta_deg=30.0, distance=2.0)
+    c30 = sw.rig_geometry(rig30, "mm")["camera"]
+    to_point = -c30["position"] / np.linalg.norm(c30["position"])
+    assert np.allclose(c30["forward"], to_point)
+    assert math.degrees(math.acos(c30["position"][2] / np.linalg.norm(c30["position"]))) == pytest.approx(30.0)
+
+
+# ---------------------------------------------------------------- meshes
+
+@pytest.mark.parametrize("maker", [
+    lambda: meshes.ellipsoid((0.1, -0.2, 0.3), (0.3, 0.2, 0.15), 16, 32),
+    lambda: meshes.uv_sphere((0, 0, 0), 1.0, 8, 12),
+    lambda: meshes.half_ellipsoid((0, 0, 0), (0.3, 0.3, 0.15), 6, 24, upper=True),
+    lambda: meshes.half_ellipsoid((0, 0, -1e-4), (0.3, 0.3, 0.15), 6, 24, upper=False),
+])
+def test_meshes_closed_and_outward(maker):
+    v, t = maker()
+    assert v.dtype == np.float32 and t.dtype == np.uint32
+    meshes.check_closed_mesh(v, t)
+    # outward: every triangle normal points away from the centroid (shapes are convex)
+    c = v.astype(float).mean(axis=0)
+    a, b, d = (v[t[:, i]].astype(float) for i in range(3))
+    nrm = np.cross(b - a, d - a)
+    assert np.all(np.einsum("ij,ij->i", nrm, (a + b + d) / 3 - c) > 0)
+
+
+def test_mesh_volume_converges_to_analytic():
+    radii = (0.3, 0.25, 0.15)
+    exact = 4.0 / 3.0 * math.pi * np.prod(radii)
+    errs = []
+    for n in (8, 16, 32):
+        v, t = meshes.ellipsoid((0, 0, 0), radii, n, 2 * n)
+        errs.append(abs(meshes.signed_volume(v, t) - exact) / exact)
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 0.01
+    v, t = meshes.half_ellipsoid((0, 0, 0), radii, 16, 64)
+    assert meshes.signed_volume(v, t) == pytest.approx(exact / 2, rel=0.01)
+
+
+def test_check_closed_mesh_rejects_bad_meshes():
+    v, t = meshes.uv_sphere((0, 0, 0), 1.0, 6, 8)
+    flipped = t.copy()
+    flipped[3] = flipped[3, ::-1]
+    with pytest.raises(ValueError, match="winding"):
+        meshes.check_closed_mesh(v, flipped)
+    with pytest.raises(ValueError, match="closed"):
+        meshes.check_closed_mesh(v, t[1:])
+    with pytest.raises(ValueError, match="inward"):
+        meshes.check_closed_mesh(v, t[:, ::-1])
+    with pytest.raises(ValueError, match="radii"):
+        meshes.ellipsoid((0, 0, 0), (1, 0, 1))
+
+
+# ---------------------------------------------------------------- real engine
+
+def _engine_ready():
+    try:
+        from endophoton import _core  # noqa: F401
+    except ImportError:
+        return False
+    return all(hasattr(ep, n) for n in ("run", "Scene", "Medium", "Fluorophore", "EndoscopeRig"))
+
+
+needs_engine = pytest.mark.skipif(not _engine_ready(), reason="endophoton engine not built/exported yet")
+
+
+@needs_engine
+def test_default_flat_scene_builds():
+    for polyp in ("dome", "embedded", None):
+        scene = sw.default_flat_scene(polyp=polyp)
+        names = [r.name for r in scene.regions]
+        assert names == (["tissue", "polyp"] if polyp else ["tissue"])
+        for r in scene.regions:
+            meshes.check_closed_mesh(r.vertices, r.triangles)
+            assert (r.medium.mua, r.medium.mus, r.medium.g, r.medium.n) == (20.0, 200.0, 0.9, 1.1)
+        scene.to_native()
+    mm = sw.default_flat_scene(unit="mm")
+    assert np.isclose(mm.region("polyp").vertices[:, 0].max(), 3.0, rtol=1e-3)
+
+
+@needs_engine
+def test_real_small_sweep_outputs(tmp_path):
+    res = sw.sweep(None, betas=[0, 30, 50], store=4000, seed=2, progress=False, out_dir=str(tmp_path))
+    assert len(res.rows) == 3
+    for r in res.rows:
+        assert r["records"] == 4000 and r["packets_traced"] >= 4000
+        assert 0 <= r["important_fraction"] <= 1 and r["important_fraction_stderr"] > 0
+        assert r["max_depth_cm"] > 0 and r["energy_per_packet"] > 0
+    for name in ("sweep.csv", "sweep.json", "report.md", "energy.png", "polar_beta_30.png"):
+        assert os.path.getsize(tmp_path / name) > 0
+    # same seed, same numbers
+    again = sw.sweep(None, betas=[30], store=4000, seed=2, progress=False)
+    assert again.rows[0]["packets_traced"] == res.rows[1]["packets_traced"]
+    assert again.rows[0]["energy_total"] == res.rows[1]["energy_total"]
+
+
+@needs_engine
+@pytest.mark.parametrize("polyp", [None, "dome"])
+def test_real_beta0_azimuth_uniform(polyp):
+    """Acceptance: at beta = 0 every elevation ring is azimuthally uniform (chi-square)."""
+    scene = sw.default_flat_scene(polyp=polyp)
+    res = sw.sweep(scene, betas=[0], store=30_000, seed=5, progress=False)
+    p = np.asarray(res.histograms[0]["chi2_p"])
+    finite = p[np.isfinite(p)]
+    assert finite.size >= 8
+    assert min(1.0, finite.size * finite.min()) > 1e-3, p
