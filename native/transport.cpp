@@ -156,7 +156,11 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
     bool reuse_hits = (set == 0);  // the first query is exactly the first ambient step
     Float tau = 0;                 // remaining dimensionless step (MCML's carried step)
     bool need_tau = true;
-    Float safe = 0;                // distance below which no surface can be (scene units)
+    // Safe ball: no surface lies within safe_r of safe_c (from a closest-point
+    // query). A step whose end stays inside the ball cannot cross a surface,
+    // because the ball is convex; so no ray query is needed for it.
+    Vec3 safe_c = p;
+    Float safe_r = 0;
 
     while (true) {
         if (need_tau) {
@@ -167,14 +171,17 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
 
         // Safe-distance shortcut: no surface within `safe`, so no ray query.
         bool query = true;
-        if (!reuse_hits && med.region >= 0 && std::isfinite(s)) {
-            if (s < safe) {
+        if (!reuse_hits && cfg_.safe_distance && med.region >= 0 && std::isfinite(s)) {
+            const Vec3 end = p + d * s;
+            const Vec3 off = end - safe_c;
+            if (dot(off, off) < safe_r * safe_r) {
                 query = false;
-            } else if (cfg_.safe_distance) {
-                const Float radius = std::min(extent, Float(8) * s);
+            } else {
+                const Float radius = std::min(extent, Float(64) * s);
                 const Float dist = scene.distance_to_surface(p, radius) * (1 - 1e-5) - ray_offset(p, extent);
                 if (s < dist) {
-                    safe = dist;
+                    safe_c = p;
+                    safe_r = dist;
                     query = false;
                 }
             }
@@ -182,7 +189,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
         if (query) {
             if (!reuse_hits) scene.intersect_all(p, d, ray_offset(p, extent), s, hits);
             reuse_hits = false;
-            safe = 0;
+            safe_r = 0;
         } else {
             hits.clear();
         }
@@ -291,7 +298,6 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
         // ---- interaction inside med.region.
         p += d * s;
         path_cm += s * unit_cm;
-        safe -= s;
         need_tau = true;
         ++events;
         update_depth();

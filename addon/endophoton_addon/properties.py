@@ -208,8 +208,9 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         default="WAVELENGTH", update=_display_changed,
     )
     volume_density: FloatProperty(
-        name="Volume Density", description="Scale of the volume density (grid values normalised to 1)",
-        default=50.0, min=0.0, soft_max=1000.0, update=_display_changed,
+        name="Volume Density",
+        description="Optical depth of one voxel at the grid's maximum (density and glow of the grids)",
+        default=0.2, min=0.0, soft_max=10.0, update=_display_changed,
     )
     result_collection: PointerProperty(name="Result", type=bpy.types.Collection)
 

@@ -34,6 +34,8 @@ TOTAL_NAMES = (
     "missed",
     "cut",
     "roulette",
+    "fluorescent_escaped",
+    "escaped_energy",
 )
 
 # Escape-record column -> (attribute name, Blender attribute type, numpy dtype, width)
@@ -224,7 +226,7 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id):
     return obj
 
 
-def _volume_material(name, grid_name, vmax, density, run_id):
+def _volume_material(name, grid_name, vmax, voxel_bu, density, run_id):
     mat = bpy.data.materials.new(name)
     mat[RUN_KEY] = run_id
     mat.use_nodes = True
@@ -238,8 +240,11 @@ def _volume_material(name, grid_name, vmax, density, run_id):
     attr.location = (-400, 0)
     normalise = nodes.new("ShaderNodeMath")
     normalise.operation = "MULTIPLY"
-    normalise.inputs[1].default_value = 1.0 / vmax if vmax > 0 else 1.0
-    normalise.label = "1 / grid max"
+    # Grid max -> 1 per voxel length: "Volume Density" is then the optical depth
+    # of one voxel at the grid's maximum, whatever the units and tally values.
+    peak = vmax if vmax > 0 else 1.0
+    normalise.inputs[1].default_value = 1.0 / (peak * voxel_bu)
+    normalise.label = "1 / (grid max · voxel size)"
     normalise.location = (-200, 0)
     scale = nodes.new("ShaderNodeValue")
     scale.name = scale.label = DENSITY_NODE
@@ -251,22 +256,29 @@ def _volume_material(name, grid_name, vmax, density, run_id):
     volume = nodes.new("ShaderNodeVolumePrincipled")
     volume.inputs["Color"].default_value = (0.3, 0.9, 0.4, 1.0)
     volume.inputs["Emission Color"].default_value = (0.2, 1.0, 0.3, 1.0)
+    # Density comes from the link below; the node's own "density" attribute
+    # lookup would multiply it by a grid that does not exist (= 0).
+    volume.inputs["Density Attribute"].default_value = ""
     volume.location = (250, 0)
     links.new(attr.outputs["Fac"], normalise.inputs[0])
     links.new(normalise.outputs[0], density_mul.inputs[0])
     links.new(scale.outputs[0], density_mul.inputs[1])
     links.new(density_mul.outputs[0], volume.inputs["Density"])
-    links.new(normalise.outputs[0], volume.inputs["Emission Strength"])
+    links.new(density_mul.outputs[0], volume.inputs["Emission Strength"])
     links.new(volume.outputs["Volume"], out.inputs["Volume"])
     return mat
 
 
-def create_volume(name, path, grid_name, vmax, density, scale_length, run_id):
+def create_volume(name, path, grid_name, vmax, voxel_m, density, scale_length, run_id):
     """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units)."""
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
     volume.filepath = path
-    volume.materials.append(_volume_material(name, grid_name, vmax, density, run_id))
+    # Cycles treats voxels below render.clipping (default 1e-3) as empty, and
+    # tallies per launched packet are far smaller: clip relative to the peak.
+    volume.render.clipping = 1e-4 * vmax if vmax > 0 else 0.0
+    voxel_bu = voxel_m / scale_length
+    volume.materials.append(_volume_material(name, grid_name, vmax, voxel_bu, density, run_id))
     obj = bpy.data.objects.new(name, volume)
     obj[RUN_KEY] = run_id
     obj["endophoton_grid"] = grid_name
@@ -325,7 +337,9 @@ def apply_result(context, inputs, result, grid_info=()):
     grid_path = getattr(result, "grid_path", None)
     grids = list(grid_info)
     if grid_path and not grids:
-        grids = [(None, None, 0.0)]  # names unknown without pyopenvdb: read them from Blender
+        # No pyopenvdb: names from the result (or the file), densities not normalised.
+        names = list(getattr(result, "grid_names", None) or []) or [None]
+        grids = [(name, None, 0.0) for name in names]
     records = 0 if positions is None else len(positions)
     summary = summary_from_result(result, inputs, records)
 
@@ -348,7 +362,7 @@ def apply_result(context, inputs, result, grid_info=()):
             if grid_name is None:
                 grid_name = _first_grid_name(grid_path)
             obj = create_volume(f"EP Grid {grid_name} {beta}", grid_path, grid_name, vmax,
-                                settings.volume_density, inputs.scale_length, run_id)
+                                inputs.grid_voxel_m, settings.volume_density, inputs.scale_length, run_id)
             collection.objects.link(obj)
         collection[SUMMARY_KEY] = summary
     except Exception:
@@ -412,6 +426,8 @@ def summary_lines(collection):
         "missed": "Missed",
         "cut": "Cut",
         "roulette": "Roulette",
+        "fluorescent_escaped": "Fluorescence escaped",
+        "escaped_energy": "Escaped energy",
     }
     for name, (value, stderr) in s.get("totals", {}).items():
         lines.append(f"{labels.get(name, name)}: {value:.5g} ± {stderr:.2g}")

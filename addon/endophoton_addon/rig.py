@@ -140,7 +140,7 @@ def create_rig(context, target=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0),
 
     for part, label in zip(LIGHT_PARTS, ("L", "R")):
         light = bpy.data.lights.new(f"{name} Light {label}", "SPOT")
-        light.energy = 0.002  # W (Blender point-light power): ~1.6 W/m² at 1 cm, for the viewport/render only
+        light.energy = 0.005  # W (Blender point-light power): ~4 W/m² at 1 cm, for the viewport/render only
         light.spot_blend = 0.15
         light.show_cone = True
         child(bpy.data.objects.new(light.name, light), part)

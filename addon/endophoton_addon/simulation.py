@@ -88,11 +88,6 @@ def _pick_rig(scene):
 def _check_rig(obj, scale_length):
     s = obj.endophoton_rig
     who = f"Object '{obj.name}'"
-    matrix = np.array(obj.matrix_world, dtype=np.float64)
-    if not np.all(np.isfinite(matrix)):
-        raise InputError(f"{who}: matrix_world is not finite")
-    if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
-        raise InputError(f"{who}: matrix_world is singular (zero scale)")
     for name in ("beta", "distance", "head_diameter", "light_diameter", "light_offset",
                  "cone_angle", "camera_fov"):
         value = getattr(s, name)
@@ -104,9 +99,17 @@ def _check_rig(obj, scale_length):
             raise InputError(f"{who}: endophoton_rig.{name} = {value} must be finite")
     if np.linalg.norm(tuple(s.normal)) < 1e-12:
         raise InputError(f"{who}: endophoton_rig.normal has zero length")
+    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    if not np.all(np.isfinite(matrix)):
+        raise InputError(f"{who}: matrix_world is not finite")
+    if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
+        raise InputError(f"{who}: matrix_world is singular (zero scale)")
     params = rig.rig_parameters(obj, scale_length)
-    if params["light_diameter_mm"] > params["head_diameter_mm"]:
-        raise InputError(f"{who}: endophoton_rig.light_diameter is larger than the head diameter")
+    if params["light_offset_mm"] + 0.5 * params["light_diameter_mm"] > 0.5 * params["head_diameter_mm"] + 1e-9:
+        raise InputError(
+            f"{who}: endophoton_rig.light_offset + light_diameter / 2 puts the light guides "
+            "outside the head (head_diameter / 2)"
+        )
     # β as placed: angle between the viewing direction and −normal, signed like the property.
     axis = np.array(rig.light_axis_world(obj))
     normal = np.array(s.normal, dtype=np.float64)
@@ -204,8 +207,11 @@ def build_engine_call(ep, inputs):
                 priority=region.priority,
                 fluorophores=fluorophores,
             )
-        rig_kwargs = _accepted_kwargs(ep.EndoscopeRig, dict(inputs.rig_params))
-        endoscope = ep.EndoscopeRig(transform=inputs.rig_matrix, unit="m", **rig_kwargs)
+        # The rig transform is in scene units (metres here); older drafts of the
+        # API also took unit=..., newer ones infer it from the scene.
+        rig_kwargs = _accepted_kwargs(
+            ep.EndoscopeRig, dict(transform=inputs.rig_matrix, unit="m", **inputs.rig_params))
+        endoscope = ep.EndoscopeRig(**rig_kwargs)
         kwargs = {
             inputs.kind: inputs.count,
             "fluorescent_only": inputs.fluorescent_only,
@@ -360,8 +366,17 @@ def finish_job(context, job):
     if job.error is not None:
         raise RuntimeError(f"EndoPhoton run failed: {type(job.error).__name__}: {job.error}")
     if job.result is None or getattr(job.result, "cancelled", False):
+        _discard_partial_grid(job)
         return None
     return results.apply_result(context, job.inputs, job.result, job.grid_info)
+
+
+def _discard_partial_grid(job):
+    """A cancelled run may still have written its (partial) grid file: remove
+    it, it is ours (a fresh name per run) and nothing refers to it."""
+    path = job.inputs.grid_path
+    if path and os.path.isfile(path):
+        os.remove(path)
 
 
 def run_blocking(context, poll_interval=0.05):

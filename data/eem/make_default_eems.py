@@ -158,6 +158,7 @@ def write_atomic(path, text):
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
+        os.chmod(tmp, 0o644)   # mkstemp creates 0600; data files are meant to be shared
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)

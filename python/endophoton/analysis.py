@@ -201,18 +201,21 @@ def _light_positions(light_positions: Any) -> np.ndarray:
 
 
 def exit_angles(escapes: Mapping[str, Any], light_positions: Any,
-                inward_tol: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+                inward_tol: float = 1e-3, reference: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """Elevation and azimuth (degrees) of every exit direction in its local surface frame.
 
     Frame at each exit point (all vectors in world/scene coordinates):
 
     * ``n`` = the record's ``normal`` (normalised);
-    * ``u`` = projection of (light position - exit position) onto the tangent
-      plane, normalised; the light is ``light_positions[record['light']]``
-      (scene units).  If that projection is shorter than 1e-6 of the distance
-      to the light (light straight above the exit point) ``u`` falls back to the
-      projection of world +x, and if that is degenerate too (normal along x) to
-      the projection of world +y;
+    * ``u`` (azimuth 0), default *light frame* (``reference=None``): projection
+      of (light position - exit position) onto the tangent plane, normalised;
+      the light is ``light_positions[record['light']]`` (scene units).
+      *Fixed frame* (``reference`` = a world direction, 3 numbers): projection
+      of ``reference`` onto the tangent plane (``light_positions`` and the
+      ``light`` column are then not used).  If the projection is shorter than
+      1e-6 of the vector's length (light straight above the exit point, or
+      reference along the normal) ``u`` falls back to the projection of world
+      +x, and if that is degenerate too (normal along x) to world +y;
     * ``v = n x u``.
 
     elevation = asin(d . n) in [0, 90] (0 grazing, 90 along the normal);
@@ -228,14 +231,21 @@ def exit_angles(escapes: Mapping[str, Any], light_positions: Any,
     K = pos.shape[0]
     d = _unit_rows(_column(escapes, "direction", 2, 3, K), "direction")
     nrm = _unit_rows(_column(escapes, "normal", 2, 3, K), "normal")
-    light = _column(escapes, "light", 1, None, K)
-    if light.dtype.kind == "f":
-        raise ValueError(f"escapes['light']: dtype {light.dtype} must be an integer type")
-    lp = _light_positions(light_positions)
-    light = light.astype(np.int64)
-    if K and (light.min() < 0 or light.max() >= lp.shape[0]):
-        raise ValueError(f"escapes['light']: index {int(light.max())} out of range for "
-                         f"{lp.shape[0]} light position(s)")
+    if reference is None:
+        light = _column(escapes, "light", 1, None, K)
+        if light.dtype.kind == "f":
+            raise ValueError(f"escapes['light']: dtype {light.dtype} must be an integer type")
+        lp = _light_positions(light_positions)
+        light = light.astype(np.int64)
+        if K and (light.min() < 0 or light.max() >= lp.shape[0]):
+            raise ValueError(f"escapes['light']: index {int(light.max())} out of range for "
+                             f"{lp.shape[0]} light position(s)")
+        to_light = lp[light] - pos
+    else:
+        ref = np.asarray(reference, dtype=np.float64)
+        if ref.shape != (3,) or not np.all(np.isfinite(ref)) or np.linalg.norm(ref) == 0:
+            raise ValueError(f"reference = {reference!r} must be a finite non-zero 3-vector")
+        to_light = np.broadcast_to(ref / np.linalg.norm(ref), (K, 3))
     cos_el = np.einsum("ij,ij->i", d, nrm)
     if K and cos_el.min() < -inward_tol:
         i = int(np.argmin(cos_el))
@@ -243,7 +253,6 @@ def exit_angles(escapes: Mapping[str, Any], light_positions: Any,
                          f"(direction . normal = {cos_el[i]:.3g})")
     elev = np.degrees(np.arcsin(np.clip(cos_el, 0.0, 1.0)))
 
-    to_light = lp[light] - pos
     dist = np.linalg.norm(to_light, axis=1)
     u = to_light - np.einsum("ij,ij->i", to_light, nrm)[:, None] * nrm
     ulen = np.linalg.norm(u, axis=1)
@@ -276,7 +285,7 @@ def _bin_angles(elev: np.ndarray, az: np.ndarray, n_elev: int, n_azim: int) -> t
 def exit_direction_histogram(escapes: Mapping[str, Any], light_positions: Any,
                              n_elev: int = 10, n_azim: int = 36,
                              n_batches: int = DEFAULT_BATCHES, n_packets: int | None = None,
-                             return_batches: bool = False):
+                             return_batches: bool = False, reference: Any = None):
     """Histogram of exit directions over (elevation ring, azimuth bin), as the seed's Fig. 8/9.
 
     Parameters
@@ -291,6 +300,9 @@ def exit_direction_histogram(escapes: Mapping[str, Any], light_positions: Any,
         includes 90) and azimuths ``[j*360/n_azim, (j+1)*360/n_azim)``.
     n_batches, n_packets : batch-means setup (see module docstring).
     return_batches : also return the (B, n_elev, n_azim) per-batch counts.
+    reference : ``None`` = light frame (azimuth 0 toward the record's light);
+        a world direction = fixed frame (azimuth 0 along its tangent projection);
+        see :func:`exit_angles`.
 
     Returns
     -------
@@ -304,7 +316,7 @@ def exit_direction_histogram(escapes: Mapping[str, Any], light_positions: Any,
         raise ValueError(f"n_elev = {n_elev}, n_azim = {n_azim} must be >= 1")
     B = _check_batches(n_batches)
     packet = _packets(escapes)
-    elev, az = exit_angles(escapes, light_positions)
+    elev, az = exit_angles(escapes, light_positions, reference=reference)
     if elev.shape[0] != packet.shape[0]:
         raise ValueError(f"escapes['packet']: {packet.shape[0]} rows, expected {elev.shape[0]}")
     batch, _ = batch_index(packet, B, n_packets)

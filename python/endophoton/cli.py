@@ -32,6 +32,13 @@ def _run_main(args) -> int:
         kwargs["seed"] = args.seed
     if args.threads is not None:
         kwargs["threads"] = args.threads
+    if args.target_rel_error is not None:
+        from .run import Target
+        kwargs["target"] = Target(tally=args.target_tally, rel_error=args.target_rel_error)
+        kwargs["max_photons"] = args.max_photons
+        photons = None
+    if args.time_budget is not None:
+        kwargs["time_budget_s"] = args.time_budget
     res = run(scene, source, photons=photons, record_escapes=False, **kwargs)
     out = res.to_dict()
     print(json.dumps(out, indent=None, sort_keys=True, allow_nan=False))
@@ -46,6 +53,12 @@ def main(argv=None) -> int:
     p_run.add_argument("--photons", type=int, default=None, help="packets to launch (default: run.photons or 1e5)")
     p_run.add_argument("--seed", type=int, default=None)
     p_run.add_argument("--threads", type=int, default=None, help="0 = all cores")
+    p_run.add_argument("--target-rel-error", type=float, default=None,
+                       help="target-accuracy mode: run until stderr/mean of --target-tally is at most this")
+    p_run.add_argument("--target-tally", default="diffuse_reflectance",
+                       help="tally for --target-rel-error (default diffuse_reflectance)")
+    p_run.add_argument("--max-photons", type=int, default=0, help="upper bound in target mode (0 = none)")
+    p_run.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds")
     p_run.set_defaults(func=_run_main)
     try:
         from .sweep import add_sweep_arguments, sweep_main

@@ -123,22 +123,30 @@ def plot_depth(result: Any, path: str | os.PathLike) -> str:
     return _save(fig, path)
 
 
-def plot_polar(result: Any, beta: float, path: str | os.PathLike) -> str:
+def plot_polar(result: Any, beta: float, path: str | os.PathLike, frame: str = "light") -> str:
     """Exit-direction histogram at ``beta`` as the seed's Fig. 9: two polar panels.
 
     Left: elevation rings 45-90 deg, right: 0-45 deg; one closed curve per
-    ring, radius = record count, angle = azimuth (0 = toward the light,
-    180 = away from it); shaded band = count +- stderr.
+    ring, radius = record count, angle = azimuth; shaded band = count +- stderr.
+    ``frame="light"``: azimuth 0 = toward the record's light (180 = away from
+    it); ``frame="fixed"``: azimuth 0 = the horizontal direction toward the
+    tilted head, the same for every record (see docs/sweep.md).
     """
+    if frame not in ("light", "fixed"):
+        raise ValueError(f"frame = {frame!r} must be 'light' or 'fixed'")
     h = result.histogram(beta)
-    counts = np.asarray(h["counts"], dtype=np.float64)
-    stderr = np.asarray(h["stderr"], dtype=np.float64)
+    sfx = "" if frame == "light" else "_fixed"
+    if "counts" + sfx not in h:
+        raise ValueError(f"beta = {beta}: no '{frame}'-frame histogram in the result")
+    counts = np.asarray(h["counts" + sfx], dtype=np.float64)
+    stderr = np.asarray(h["stderr" + sfx], dtype=np.float64)
     n_elev, n_azim = counts.shape
     width = 90.0 / n_elev
     phi = np.radians((np.arange(n_azim) + 0.5) * 360.0 / n_azim)
     phi_c = np.append(phi, phi[0] + 2 * np.pi)
     fig = Figure(figsize=(11, 5.2))
-    fig.suptitle(f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records)")
+    zero = "toward the record's light" if frame == "light" else "toward the tilted head (fixed)"
+    fig.suptitle(f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records); azimuth 0 = {zero}")
     groups = (("elevation 45-90 deg", [i for i in range(n_elev) if i * width >= 45 - 1e-9]),
               ("elevation 0-45 deg", [i for i in range(n_elev) if (i + 1) * width <= 45 + 1e-9]))
     for k, (title, rings) in enumerate(groups):
@@ -158,8 +166,9 @@ def plot_polar(result: Any, beta: float, path: str | os.PathLike) -> str:
 def plot_all(result: Any, out_dir: str | os.PathLike) -> list:
     """Write every plot of the sweep into ``out_dir``; returns the list of paths.
 
-    Files: packets_traced.png, energy.png, camera_fraction.png, max_depth.png and
-    polar_beta_<beta>.png for every beta.
+    Files: packets_traced.png, energy.png, camera_fraction.png, max_depth.png,
+    polar_beta_<beta>.png (light frame) and polar_fixed_beta_<beta>.png (fixed
+    frame, when the result has it) for every beta.
     """
     os.makedirs(out_dir, exist_ok=True)
     paths = [
@@ -170,9 +179,13 @@ def plot_all(result: Any, out_dir: str | os.PathLike) -> list:
     ]
     for beta in result.betas:
         paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta))))
+        if "counts_fixed" in result.histogram(float(beta)):
+            paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta, "fixed")),
+                                    frame="fixed"))
     return paths
 
 
-def polar_filename(beta: float) -> str:
-    """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_beta_12.5.png."""
-    return f"polar_beta_{beta:02.0f}.png" if float(beta).is_integer() else f"polar_beta_{beta:g}.png"
+def polar_filename(beta: float, frame: str = "light") -> str:
+    """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_fixed_beta_12.5.png."""
+    stem = "polar_beta_" if frame == "light" else "polar_fixed_beta_"
+    return f"{stem}{beta:02.0f}.png" if float(beta).is_integer() else f"{stem}{beta:g}.png"

@@ -190,40 +190,37 @@ def compute_trends(result: Any, paper: Mapping[str, Any] = PAPER_TRENDS) -> dict
 
     # ---- exit-direction histogram (Fig. 9) ---------------------------------------
     zero = [i for i in range(n) if abs(b[i] - paper["histogram_uniform_at_deg"]) < 1e-9]
-    if zero:
-        h = result.histograms[zero[0]]
-        p = np.asarray(h["chi2_p"], dtype=np.float64)
-        t["uniform_beta"] = float(b[zero[0]])
-        t["uniform_p"] = p.tolist()
-        t["uniform_p_bonferroni"] = float(result.rows[zero[0]]["azimuth_chi2_p_bonferroni"])
-        t["uniform_records"] = float(np.asarray(h["counts"]).sum())
-    a_lo = result.column("azimuth_asym_low")
-    a_hi = result.column("azimuth_asym_high")
-    lo_m = _batch_matrix(result, "azimuth_asym_low")
-    hi_m = _batch_matrix(result, "azimuth_asym_high")
     diff = lambda x, y: y[-1] - y[0]
-    t["asym_low_first"], t["asym_low_last"] = a_lo[i0], a_lo[i1]
-    t["asym_low_first_se"] = result.column("azimuth_asym_low_stderr")[i0]
-    t["asym_low_last_se"] = result.column("azimuth_asym_low_stderr")[i1]
-    t["asym_high_first"], t["asym_high_last"] = a_hi[i0], a_hi[i1]
-    t["asym_high_first_se"] = result.column("azimuth_asym_high_stderr")[i0]
-    t["asym_high_last_se"] = result.column("azimuth_asym_high_stderr")[i1]
-    t["asym_low_change"], t["asym_low_change_se"], _ = _batched(b, a_lo, lo_m, diff)
-    t["asym_high_change"], t["asym_high_change_se"], _ = _batched(b, a_hi, hi_m, diff)
+    frames = [""] + (["_fixed"] if all("chi2_p_fixed" in h for h in result.histograms) else [])
+    t["frames"] = frames
+    for sfx in frames:
+        if zero:
+            h = result.histograms[zero[0]]
+            t["uniform_beta"] = float(b[zero[0]])
+            t["uniform_records"] = float(np.asarray(h["counts"]).sum())
+            t["uniform_p" + sfx] = np.asarray(h["chi2_p" + sfx], dtype=np.float64).tolist()
+            t["uniform_p_bonferroni" + sfx] = float(result.rows[zero[0]]["azimuth_chi2_p_bonferroni" + sfx])
+        for part in ("low", "high"):
+            name = f"azimuth_asym_{part}{sfx}"
+            col = result.column(name)
+            col_se = result.column(name + "_stderr")
+            key = f"asym_{part}{sfx}"
+            t[key + "_first"], t[key + "_first_se"] = col[i0], col_se[i0]
+            t[key + "_last"], t[key + "_last_se"] = col[i1], col_se[i1]
+            t[key + "_change"], t[key + "_change_se"], _ = _batched(b, col, _batch_matrix(result, name), diff)
+        # circular mean azimuth of the low rings at the last beta, degrees
+        h_last = np.asarray(result.histograms[i1]["counts" + sfx], dtype=np.float64)
+        n_elev, n_azim = h_last.shape
+        low_rings = [i for i in range(n_elev) if (i + 1) * 90.0 / n_elev <= 45.0 + 1e-9]
+        phi = np.radians((np.arange(n_azim) + 0.5) * 360.0 / n_azim)
+        c = h_last[low_rings].sum(axis=0)
+        cs, sn = float((c * np.cos(phi)).sum()), float((c * np.sin(phi)).sum())
+        t["low_mean_azimuth_last_deg" + sfx] = float(np.degrees(np.arctan2(sn, cs)) % 360.0)
+        t["low_resultant_last" + sfx] = float(np.hypot(sn, cs) / c.sum()) if c.sum() > 0 else float("nan")
     hf = result.column("high_elevation_fraction")
     hf_m = _batch_matrix(result, "high_elevation_fraction")
     t["high_frac_first"], t["high_frac_last"] = hf[i0], hf[i1]
     t["high_frac_change"], t["high_frac_change_se"], _ = _batched(b, hf, hf_m, diff)
-    # mean azimuth (circular) of the low rings at the last beta, degrees
-    h_last = np.asarray(result.histograms[i1]["counts"], dtype=np.float64)
-    n_elev, n_azim = h_last.shape
-    low_rings = [i for i in range(n_elev) if (i + 1) * 90.0 / n_elev <= 45.0 + 1e-9]
-    phi = np.radians((np.arange(n_azim) + 0.5) * 360.0 / n_azim)
-    c = h_last[low_rings].sum(axis=0)
-    t["low_mean_azimuth_last_deg"] = float(np.degrees(np.arctan2((c * np.sin(phi)).sum(),
-                                                                 (c * np.cos(phi)).sum())) % 360.0)
-    t["low_resultant_last"] = float(np.hypot((c * np.sin(phi)).sum(), (c * np.cos(phi)).sum()) / c.sum()) \
-        if c.sum() > 0 else float("nan")
     return t
 
 
@@ -387,33 +384,57 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     # ---- Fig. 9 ----
     w("## Exit-direction histogram (Figs. 8-9)\n")
     for beta in b:
-        w(f"![polar beta {beta:g}]({polar_filename(beta)})")
+        w(f"![polar beta {beta:g}, light frame]({polar_filename(beta)})")
+        if "_fixed" in t["frames"]:
+            w(f"![polar beta {beta:g}, fixed frame]({polar_filename(beta, 'fixed')})")
     w("")
     w(f"- **paper**: azimuthally uniform at β = {pt['histogram_uniform_at_deg']}°; as β grows the rings below "
       f"{pt['histogram_high_above_deg']}° elevation become ellipses shifted toward azimuth "
       f"{pt['histogram_low_shift_to_deg']}°; rings above {pt['histogram_high_above_deg']}° stay nearly unchanged.")
-    if "uniform_p" in t:
-        ok = t["uniform_p_bonferroni"] >= ALPHA
-        w(f"- uniformity at β = {t['uniform_beta']:g}° ({int(t['uniform_records']):,} records): per-ring "
-          f"chi-square p-values (elevation 0-9°, 9-18°, ...): {', '.join(_fmt(p, 2) for p in t['uniform_p'])}; "
-          f"Bonferroni-corrected smallest p = {_fmt(t['uniform_p_bonferroni'], 3)} → "
-          f"**{'uniform (agrees)' if ok else 'not uniform at the 1 % level (differs)'}**.")
-    else:
-        w(f"- β = {pt['histogram_uniform_at_deg']}° not in the sweep: uniformity not tested.")
-    v, z = _direction_verdict(t["asym_low_change"], t["asym_low_change_se"], -1)
-    w(f"- rings below 45°: mean cos(azimuth) {_pm(t['asym_low_first'], t['asym_low_first_se'], 3)} at "
-      f"β = {b[0]:g}° → {_pm(t['asym_low_last'], t['asym_low_last_se'], 3)} at β = {b[-1]:g}° (change "
-      f"{_pm(t['asym_low_change'], t['asym_low_change_se'], 3)}); shift toward 180°: **{v}** ({_fmt(z, 3)} σ).  "
-      f"Circular mean azimuth of these rings at β = {b[-1]:g}°: {_fmt(t['low_mean_azimuth_last_deg'], 4)}° "
-      f"(resultant length {_fmt(t['low_resultant_last'], 3)}).")
-    vh, zh = _direction_verdict(t["asym_high_change"], t["asym_high_change_se"], -1)
-    ratio = abs(t["asym_high_change"]) / abs(t["asym_low_change"]) if t["asym_low_change"] else float("nan")
-    w(f"- rings at/above 45°: mean cos(azimuth) {_pm(t['asym_high_first'], t['asym_high_first_se'], 3)} → "
-      f"{_pm(t['asym_high_last'], t['asym_high_last_se'], 3)} (change "
-      f"{_pm(t['asym_high_change'], t['asym_high_change_se'], 3)}, {_fmt(zh, 3)} σ; "
-      f"{_fmt(ratio, 3)} × the low-ring change); fraction of records above 45°: {_pct(t['high_frac_first'])} → "
-      f"{_pct(t['high_frac_last'])} (change {_pct(t['high_frac_change'], t['high_frac_change_se'])}).  "
-      f"{'Smaller than the low-ring change, as the paper says.' if np.isfinite(ratio) and ratio < 1 else 'Not smaller than the low-ring change, unlike the paper.'}\n")
+    w("Two azimuth frames (docs/sweep.md).  *Light frame* (the project's definition): azimuth 0° points from each "
+      "exit point toward the light that emitted the packet.  *Fixed frame*: azimuth 0° is the same horizontal "
+      "direction for every record, toward the tilted head (at β = 0 the line between the lights); this is how "
+      "a single hemisphere of bins over the whole photon map (the seed's Fig. 8) reads most naturally.  In the "
+      "light frame the reference turns with the exit point's position around the spot, so any net outward "
+      "flow of light away from the illuminated spot shows up as a lean toward 180° even at β = 0.\n")
+    lines_summary = []
+    for sfx in t["frames"]:
+        fname = "light frame" if sfx == "" else "fixed frame"
+        w(f"### {fname.capitalize()}\n")
+        if "uniform_p" + sfx in t:
+            ok = t["uniform_p_bonferroni" + sfx] >= ALPHA
+            w(f"- uniformity at β = {t['uniform_beta']:g}° ({int(t['uniform_records']):,} records): per-ring "
+              f"chi-square p-values (elevation 0-9°, 9-18°, ...): "
+              f"{', '.join(_fmt(p, 2) for p in t['uniform_p' + sfx])}; Bonferroni-corrected smallest p = "
+              f"{_fmt(t['uniform_p_bonferroni' + sfx], 3)} → "
+              f"**{'uniform (agrees)' if ok else 'not uniform at the 1 % level (differs)'}**.")
+            lines_summary.append((f"uniform azimuth at β = 0° ({fname})",
+                                  f"Bonferroni p = {_fmt(t['uniform_p_bonferroni' + sfx], 3)}",
+                                  "agrees" if ok else "differs"))
+        else:
+            w(f"- β = {pt['histogram_uniform_at_deg']}° not in the sweep: uniformity not tested.")
+        lo, hi = "asym_low" + sfx, "asym_high" + sfx
+        v, z = _direction_verdict(t[lo + "_change"], t[lo + "_change_se"], -1)
+        w(f"- rings below 45°: mean cos(azimuth) {_pm(t[lo + '_first'], t[lo + '_first_se'], 3)} at "
+          f"β = {b[0]:g}° → {_pm(t[lo + '_last'], t[lo + '_last_se'], 3)} at β = {b[-1]:g}° (change "
+          f"{_pm(t[lo + '_change'], t[lo + '_change_se'], 3)}); shift toward 180°: **{v}** ({_fmt(z, 3)} σ).  "
+          f"Circular mean azimuth of these rings at β = {b[-1]:g}°: {_fmt(t['low_mean_azimuth_last_deg' + sfx], 4)}° "
+          f"(resultant length {_fmt(t['low_resultant_last' + sfx], 3)}).")
+        vh, zh = _direction_verdict(t[hi + "_change"], t[hi + "_change_se"], -1)
+        ratio = abs(t[hi + "_change"]) / abs(t[lo + "_change"]) if t[lo + "_change"] else float("nan")
+        smaller = np.isfinite(ratio) and ratio < 1
+        w(f"- rings at/above 45°: mean cos(azimuth) {_pm(t[hi + '_first'], t[hi + '_first_se'], 3)} → "
+          f"{_pm(t[hi + '_last'], t[hi + '_last_se'], 3)} (change "
+          f"{_pm(t[hi + '_change'], t[hi + '_change_se'], 3)}, {_fmt(zh, 3)} σ; "
+          f"{_fmt(ratio, 3)} × the low-ring change).  "
+          f"{'Smaller than the low-ring change, as the paper says.' if smaller else 'Not smaller than the low-ring change, unlike the paper.'}\n")
+        lines_summary.append((f"low rings shift toward 180° ({fname})",
+                              f"Δ mean cos = {_pm(t[lo + '_change'], t[lo + '_change_se'], 3)}", v))
+        lines_summary.append((f"rings > 45° nearly unchanged ({fname})",
+                              f"Δ mean cos = {_pm(t[hi + '_change'], t[hi + '_change_se'], 3)} "
+                              f"({_fmt(ratio, 3)} × low-ring change)", "agrees" if smaller else "differs"))
+    w(f"- fraction of records at/above 45° elevation: {_pct(t['high_frac_first'])} at β = {b[0]:g}° → "
+      f"{_pct(t['high_frac_last'])} at β = {b[-1]:g}° (change {_pct(t['high_frac_change'], t['high_frac_change_se'])}).\n")
 
     w("## Summary\n")
     w("| paper trend | ours | verdict |")
@@ -438,11 +459,7 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     w(f"| max depth ≈ {pt['max_depth_cm']} cm, independent of β | {_fmt(t['depth_mean'])} ± "
       f"{_fmt(t['depth_sd'], 2)} cm, r = {_fmt(t['depth_r'], 3)} | dependence on β: "
       f"{_direction_verdict(t['depth_slope'], t['depth_slope_se'], 0)[0]}; level {_fmt(100 * rel, 3)} % off |")
-    if "uniform_p" in t:
-        w(f"| uniform azimuth at β = 0° | Bonferroni p = {_fmt(t['uniform_p_bonferroni'], 3)} | "
-          f"{'agrees' if t['uniform_p_bonferroni'] >= ALPHA else 'differs'} |")
-    w(f"| low rings shift toward 180° | Δ mean cos = {_pm(t['asym_low_change'], t['asym_low_change_se'], 3)} | {v} |")
-    w(f"| rings > 45° nearly unchanged | Δ mean cos = {_pm(t['asym_high_change'], t['asym_high_change_se'], 3)} "
-      f"({_fmt(ratio, 3)} × low-ring change) | {'agrees' if np.isfinite(ratio) and ratio < 1 else 'differs'} |")
+    for a, bb, c in lines_summary:
+        w(f"| {a} | {bb} | {c} |")
     w("")
     return atomic_write_text(os.path.join(out_dir, filename), "\n".join(L))

@@ -85,6 +85,7 @@ def _write_text_atomic(path, text):
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
+        os.chmod(tmp, 0o644)   # mkstemp creates 0600; an EEM file is ordinary data
         os.replace(tmp, path)
     except BaseException:
         try:

@@ -44,6 +44,10 @@ __all__ = [
     "SweepResult",
     "sweep",
     "sweep_blend",
+    "blender_regions_to_scene",
+    "enable_addon",
+    "analyse_run",
+    "write_outputs",
     "default_flat_scene",
     "rig_geometry",
     "CSV_COLUMNS",
@@ -97,6 +101,12 @@ CSV_COLUMNS: dict[str, str] = {
     "high_elevation_fraction_stderr": "batch-means stderr of high_elevation_fraction",
     "azimuth_chi2_p_min": "smallest per-ring azimuthal-uniformity chi-square p-value (10 rings)",
     "azimuth_chi2_p_bonferroni": "min(1, n_rings x azimuth_chi2_p_min)",
+    "azimuth_asym_low_fixed": "as azimuth_asym_low in the fixed frame (azimuth 0 = horizontal direction toward the tilted head)",
+    "azimuth_asym_low_fixed_stderr": "batch-means stderr of azimuth_asym_low_fixed",
+    "azimuth_asym_high_fixed": "as azimuth_asym_high in the fixed frame",
+    "azimuth_asym_high_fixed_stderr": "batch-means stderr of azimuth_asym_high_fixed",
+    "azimuth_chi2_p_min_fixed": "as azimuth_chi2_p_min in the fixed frame",
+    "azimuth_chi2_p_bonferroni_fixed": "as azimuth_chi2_p_bonferroni in the fixed frame",
     "seconds": "wall time of the engine run, s",
     "seed": "seed of the run",
     "cancelled": "1 if the run was cancelled (partial), else 0",
@@ -308,7 +318,7 @@ def _get(obj: Any, name: str, default: Any = None) -> Any:
     return getattr(obj, name, default)
 
 
-def rig_geometry(rig: Any, unit: str = "cm") -> dict:
+def rig_geometry(rig: Any, unit: str = "cm", normal: Sequence[float] = (0.0, 0.0, 1.0)) -> dict:
     """Light positions (L,3) and pinhole camera of an endoscope rig, in scene units.
 
     Uses the rig's own ``light_positions(unit)`` and ``camera(unit)`` (methods of
@@ -319,7 +329,11 @@ def rig_geometry(rig: Any, unit: str = "cm") -> dict:
     (+-light_offset_mm, 0, 0) in the head frame; fov and resolution from
     ``camera_fov_deg``/``camera_resolution``.
     Returns ``dict(light_positions=(L,3) array, camera=dict(position, forward,
-    up, fov_deg, resolution))``.
+    up, fov_deg, resolution), reference=3-vector)``.  ``reference`` is the
+    fixed-frame azimuth-0 direction: the component of -camera.forward (from the
+    target toward the head) perpendicular to the surface ``normal``; at beta = 0
+    that vanishes and the line light 1 -> light 0 (the head's x axis, the
+    same horizontal direction as the tilt for beta > 0) is used.
     """
     if unit not in UNIT_CM:
         raise ValueError(f"unit = {unit!r} must be one of {sorted(UNIT_CM)}")
@@ -357,7 +371,18 @@ def rig_geometry(rig: Any, unit: str = "cm") -> dict:
               for k, v in camera.items()}
     camera["resolution"] = tuple(int(x) for x in camera["resolution"])
     camera["fov_deg"] = float(camera["fov_deg"])
-    return dict(light_positions=lights, camera=camera)
+    n = np.asarray(normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    reference = None
+    for cand in (-camera["forward"], (lights[0] - lights[-1]) if lights.shape[0] > 1 else None,
+                 np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])):
+        if cand is None:
+            continue
+        r = cand - np.dot(cand, n) * n
+        if np.linalg.norm(r) > 1e-9 * max(np.linalg.norm(cand), 1e-300):
+            reference = r / np.linalg.norm(r)
+            break
+    return dict(light_positions=lights, camera=camera, reference=reference)
 
 
 # --------------------------------------------------------------------------
@@ -366,10 +391,13 @@ def rig_geometry(rig: Any, unit: str = "cm") -> dict:
 
 def analyse_run(escapes: Mapping[str, Any], packets_traced: int, light_positions: Any, camera: Any,
                 n_batches: int = an.DEFAULT_BATCHES, max_angle_deg: float = 15.0,
-                n_elev: int = 10, n_azim: int = 36) -> tuple[dict, dict, dict]:
+                n_elev: int = 10, n_azim: int = 36, reference: Any = None) -> tuple[dict, dict, dict]:
     """Reduce one run's escape records to (row, histogram, batches); see :data:`CSV_COLUMNS`.
 
     ``packets_traced`` is P for the batch means (packets 0..P-1 were traced).
+    The exit-direction histogram is made in the light frame (azimuth 0 toward
+    the record's light) and, if ``reference`` (world direction) is given, in the
+    fixed frame too (``*_fixed`` keys; without it they are nan).
     """
     K = int(np.asarray(escapes["packet"]).shape[0]) if "packet" in escapes else 0
     if K == 0:
@@ -383,19 +411,30 @@ def analyse_run(escapes: Mapping[str, Any], packets_traced: int, light_positions
     imp_count = int(an.important_mask(escapes, camera, max_angle_deg).sum())
     mdepth = an.max_depth(escapes)
     md_mean, md_sd, md_b = an.max_depth_spread(escapes, B, P, return_batches=True)
-    counts, stderr, hb = an.exit_direction_histogram(escapes, light_positions, n_elev, n_azim, B, P,
-                                                     return_batches=True)
     low = [i for i in range(n_elev) if (i + 1) * 90.0 / n_elev <= 45.0 + 1e-9]
     high = [i for i in range(n_elev) if i * 90.0 / n_elev >= 45.0 - 1e-9]
     # rings that straddle 45 deg (odd n_elev) belong to neither group
-    a_low_b = an.azimuth_asymmetry(hb, low)
-    a_high_b = an.azimuth_asymmetry(hb, high)
+
+    def frame(ref):
+        counts, stderr, hb = an.exit_direction_histogram(escapes, light_positions, n_elev, n_azim, B, P,
+                                                         return_batches=True, reference=ref)
+        a_low_b = an.azimuth_asymmetry(hb, low)
+        a_high_b = an.azimuth_asymmetry(hb, high)
+        pvals = an.azimuthal_uniformity_test(counts)
+        finite_p = pvals[np.isfinite(pvals)]
+        pmin = float(finite_p.min()) if finite_p.size else float("nan")
+        vals = {"azimuth_asym_low": an.azimuth_asymmetry(counts, low), "azimuth_asym_low_stderr": an.batch_se(a_low_b),
+                "azimuth_asym_high": an.azimuth_asymmetry(counts, high),
+                "azimuth_asym_high_stderr": an.batch_se(a_high_b),
+                "azimuth_chi2_p_min": pmin,
+                "azimuth_chi2_p_bonferroni": min(1.0, pmin * finite_p.size) if finite_p.size else float("nan")}
+        return vals, {"counts": counts, "stderr": stderr, "chi2_p": pvals}, \
+            {"azimuth_asym_low": a_low_b, "azimuth_asym_high": a_high_b}, hb
+
+    vals, hist, fb, hb = frame(None)
     tot_b = hb.sum(axis=(1, 2))
     high_b = hb[:, high, :].sum(axis=(1, 2))
     hf, hf_se, hf_b = an._ratio_with_se(high_b, tot_b)
-    pvals = an.azimuthal_uniformity_test(counts)
-    finite_p = pvals[np.isfinite(pvals)]
-    pmin = float(finite_p.min()) if finite_p.size else float("nan")
     row = {
         "records": K,
         "packets_traced": P,
@@ -407,17 +446,24 @@ def analyse_run(escapes: Mapping[str, Any], packets_traced: int, light_positions
         "important_fraction": imp, "important_fraction_stderr": imp_se,
         "important_count": imp_count,
         "max_depth_cm": mdepth, "max_depth_batch_mean_cm": md_mean, "max_depth_batch_sd_cm": md_sd,
-        "azimuth_asym_low": an.azimuth_asymmetry(counts, low), "azimuth_asym_low_stderr": an.batch_se(a_low_b),
-        "azimuth_asym_high": an.azimuth_asymmetry(counts, high), "azimuth_asym_high_stderr": an.batch_se(a_high_b),
+        **vals,
         "high_elevation_fraction": hf, "high_elevation_fraction_stderr": hf_se,
-        "azimuth_chi2_p_min": pmin,
-        "azimuth_chi2_p_bonferroni": min(1.0, pmin * finite_p.size) if finite_p.size else float("nan"),
     }
-    hist = {"counts": counts, "stderr": stderr, "chi2_p": pvals}
     batches = {"energy_per_packet": epp_b, "energy_per_record": epr_b, "important_fraction": imp_b,
-               "record_rate": rate_b, "max_depth_cm": md_b, "azimuth_asym_low": a_low_b,
-               "azimuth_asym_high": a_high_b, "high_elevation_fraction": hf_b}
+               "record_rate": rate_b, "max_depth_cm": md_b, **fb, "high_elevation_fraction": hf_b}
+    if reference is not None:
+        vals_f, hist_f, fb_f, _ = frame(reference)
+        row.update({_fixed_name(k): v for k, v in vals_f.items()})
+        hist.update({k + "_fixed": v for k, v in hist_f.items()})
+        batches.update({k + "_fixed": v for k, v in fb_f.items()})
+    else:
+        row.update({_fixed_name(k): float("nan") for k in vals})
     return row, hist, batches
+
+
+def _fixed_name(key: str) -> str:
+    """Column name of ``key`` in the fixed frame: x -> x_fixed, x_stderr -> x_fixed_stderr."""
+    return key[:-7] + "_fixed_stderr" if key.endswith("_stderr") else key + "_fixed"
 
 
 def _finish_relative(rows: list) -> None:
@@ -488,13 +534,15 @@ class _Progress:
         if self.bar is not None:
             self.bar.set_description(f"beta = {beta:g} deg")
 
-    def engine(self, done: int, total: int) -> None:
+    def engine(self, done: int, total: int):
+        """Engine progress callback; returns the user callback's value (False stops the run)."""
         now = time.monotonic()
         if self.bar is not None and now - self._last > 0.5:
             self._last = now
-            self.bar.set_postfix_str(f"{done}/{total}")
+            self.bar.set_postfix_str(f"{done:,}/{total:,}" if total else f"{done:,} packets")
         if self.user is not None:
-            self.user(self._i, self._n, done, total)
+            return self.user(self._i, self._n, done, total)
+        return None
 
     def step(self) -> None:
         if self.bar is not None:
@@ -530,7 +578,8 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
     distance : head distance from ``point`` in scene units (default 1 cm).
     point, normal, tilt_axis : see ``ep.EndoscopeRig.from_beta`` (scene units).
     progress : True = tqdm bar on stderr; False = silent; a callable
-        ``progress(i_beta, n_beta, done, total)`` is called as the engine reports.
+        ``progress(i_beta, n_beta, done, total)`` is called as the engine reports
+        (returning False stops the current run, like a cancel).
     out_dir : if given, write ``sweep.csv``, ``sweep.json``, the plots and
         ``report.md`` there (``plots``/``report`` switch the last two).
     n_batches : B for the batch-means standard errors.
@@ -587,7 +636,7 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
                 rig = rig_builder(beta, scene)
             else:
                 rig = _rig_from_beta(ep.EndoscopeRig, beta, dist, point, normal, tilt_axis, unit, rig_kwargs)
-            geo = rig_geometry(rig, unit)
+            geo = rig_geometry(rig, unit, normal)
             kw = dict(store=int(store), fluorescent_only=bool(fluorescent_only),
                       fluorescence_rule=fluorescence_rule, seed=int(seed), threads=int(threads),
                       progress=bar.engine)
@@ -603,7 +652,8 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
             P = int(getattr(res, "packets_traced", 0) or 0)
             if P <= 0:
                 P = int(np.asarray(esc["packet"]).max()) + 1
-            row, hist, bt = analyse_run(esc, P, geo["light_positions"], geo["camera"], n_batches, max_angle_deg)
+            row, hist, bt = analyse_run(esc, P, geo["light_positions"], geo["camera"], n_batches, max_angle_deg,
+                                        reference=geo["reference"])
             cancelled = bool(getattr(res, "cancelled", False))
             full = {"beta_deg": beta, "store": int(store), **row, "seconds": seconds, "seed": int(seed),
                     "cancelled": int(cancelled)}
@@ -612,6 +662,7 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
             batches.append(bt)
             meta.setdefault("light_positions", {})[f"{beta:g}"] = geo["light_positions"].tolist()
             meta.setdefault("camera", {})[f"{beta:g}"] = _jsonable(geo["camera"])
+            meta.setdefault("azimuth_reference", {})[f"{beta:g}"] = _jsonable(geo["reference"])
             bar.step()
             if cancelled:
                 meta["cancelled_at_beta"] = beta
@@ -645,26 +696,39 @@ def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool =
 # Blender path
 # --------------------------------------------------------------------------
 
-def sweep_blend(blend: Any = None, **kwargs) -> SweepResult:
-    """Run :func:`sweep` on a Blender scene, read through the add-on's export module.
+def sweep_blend(blend: Any = None, use_blend_rig: bool = True, **kwargs) -> SweepResult:
+    """Run :func:`sweep` on a Blender scene read through the add-on's export module.
 
-    ``blend`` is a ``bpy.types.Scene``, a path to a ``.blend`` file (opened
-    with ``bpy.ops.wm.open_mainfile``) or ``None`` for the current scene.  Must
-    run inside Blender.  The tissue/polyp regions come from the add-on's
-    export; the rig is rebuilt for each beta with ``EndoscopeRig.from_beta``
-    (the rig object in the .blend only fixes the parameters it exports), so the
-    same scene and seed give the same numbers as the plain-Python path.
-    Keyword arguments are those of :func:`sweep`.
+    Must run inside Blender with the EndoPhoton add-on registered (its object
+    properties hold the roles, media and fluorophores).  ``blend`` is a
+    ``bpy.types.Scene``, a path to a ``.blend`` file (opened with
+    ``bpy.ops.wm.open_mainfile``) or ``None`` for the current scene.
+
+    * regions: ``endophoton_addon.export.export_regions(scene, view_layer,
+      depsgraph)`` (evaluated meshes, world space, metres), added to an
+      ``ep.Scene(unit="m")`` exactly as the add-on's own run does;
+    * rig: rebuilt for each beta with ``EndoscopeRig.from_beta``.  With
+      ``use_blend_rig`` and an endoscope rig in the scene (the scene's chosen
+      rig, or its only one) its target, normal, tilt axis, distance and head
+      dimensions are used (``endophoton_addon.rig.rig_parameters``); otherwise
+      the defaults of :func:`sweep` (1 cm, origin, +z, tilt about y).  Keyword
+      arguments given here win over both.
+
+    The same regions, rig and seed give the same numbers as :func:`sweep` on an
+    ``ep.Scene`` built from the same arrays in plain Python.  Keyword arguments
+    are those of :func:`sweep`.
     """
     try:
-        import bpy  # noqa: F401
+        import bpy
     except ImportError as e:
-        raise RuntimeError("sweep_blend must run inside Blender (use the CLI's --blend to start it)") from e
-    import bpy
+        raise RuntimeError("sweep_blend must run inside Blender (the CLI's --blend starts it)") from e
     try:
-        from endophoton_addon import export
+        from endophoton_addon import export as addon_export
+        from endophoton_addon import rig as addon_rig
     except ImportError as e:
-        raise RuntimeError("the EndoPhoton add-on's export module (endophoton_addon.export) is not available") from e
+        raise RuntimeError("the EndoPhoton add-on (endophoton_addon) is not importable in this Blender") from e
+    import endophoton as ep
+
     if isinstance(blend, (str, os.PathLike)):
         bpy.ops.wm.open_mainfile(filepath=os.fspath(blend))
         bscene = bpy.context.scene
@@ -672,17 +736,42 @@ def sweep_blend(blend: Any = None, **kwargs) -> SweepResult:
         bscene = bpy.context.scene
     else:
         bscene = blend
-    return sweep(_export_scene(export, bscene), **kwargs)
+    if not hasattr(bscene, "endophoton"):
+        raise RuntimeError("the EndoPhoton add-on is not registered (scene.endophoton is missing)")
+    view_layer = bpy.context.view_layer if bscene == bpy.context.scene else bscene.view_layers[0]
+    depsgraph = bpy.context.evaluated_depsgraph_get() if bscene == bpy.context.scene else \
+        bscene.view_layers[0].depsgraph
+    regions = addon_export.export_regions(bscene, view_layer, depsgraph)
+    scene = blender_regions_to_scene(ep, regions)
+
+    kw = dict(kwargs)
+    if use_blend_rig:
+        chosen = bscene.endophoton.rig
+        rigs = [chosen] if chosen is not None else list(addon_rig.find_rigs(bscene))
+        if len(rigs) == 1:
+            obj = rigs[0]
+            scale = float(bscene.unit_settings.scale_length)
+            rs = obj.endophoton_rig
+            kw.setdefault("distance", float(rs.distance) * scale)
+            kw.setdefault("point", tuple(float(x) * scale for x in rs.target))
+            kw.setdefault("normal", tuple(float(x) for x in rs.normal))
+            kw.setdefault("tilt_axis", tuple(float(x) for x in rs.tilt_axis))
+            rk = dict(addon_rig.rig_parameters(obj, scale))
+            rk.update(kw.get("rig_kwargs") or {})
+            kw["rig_kwargs"] = rk
+    result = sweep(scene, **kw)
+    result.meta["scene"] = f"blender scene '{bscene.name}'" + (f" ({bpy.data.filepath})" if bpy.data.filepath else "")
+    return result
 
 
-def _export_scene(export: Any, bscene: Any):
-    """Build an ``ep.Scene`` from a Blender scene with the add-on's public export function."""
-    for name in ("build_scene", "export_scene", "scene_from_blender"):
-        fn = getattr(export, name, None)
-        if fn is not None:
-            out = fn(bscene)
-            return out[0] if isinstance(out, tuple) else out
-    raise RuntimeError("endophoton_addon.export has no build_scene/export_scene/scene_from_blender function")
+def blender_regions_to_scene(ep: Any, regions: Sequence[Any]):
+    """``ep.Scene(unit="m")`` from the add-on's ``RegionExport`` list (as the add-on's own run builds it)."""
+    scene = ep.Scene(unit="m")
+    for region in regions:
+        fluorophores = [ep.Fluorophore(name, d, c) for name, d, c in region.fluorophores]
+        scene.add_mesh(region.name, region.vertices, region.triangles, ep.Medium(**region.medium),
+                       priority=region.priority, fluorophores=fluorophores)
+    return scene
 
 
 def _run_blender(args: argparse.Namespace) -> int:
@@ -698,6 +787,7 @@ def _run_blender(args: argparse.Namespace) -> int:
     argv = _forward_argv(args)
     expr = ("import sys; sys.path.insert(0, %r); from endophoton import sweep as s; "
             "sys.exit(s._blender_entry(%r))" % (pkg_parent, argv))
+    # the .blend is opened by blender itself; _blender_entry enables the add-on first
     cmd = [blender, "-b", os.fspath(args.blend), "--python-exit-code", "1", "--python-expr", expr]
     env = dict(os.environ)
     env.setdefault("ENDOPHOTON_PYTHONPATH", pkg_parent)
@@ -717,11 +807,39 @@ def _forward_argv(args: argparse.Namespace) -> list:
     return argv
 
 
+def enable_addon() -> None:
+    """Inside Blender: make sure the EndoPhoton add-on is registered.
+
+    Tries ``addon_utils.enable("endophoton_addon")`` (an installed add-on); if
+    Blender does not know it, imports it from the source tree's ``addon/``
+    folder (next to ``python/``) or from ``$ENDOPHOTON_ADDON_PATH`` and calls its
+    ``register()``.
+    """
+    import bpy
+
+    if hasattr(bpy.types.Scene, "endophoton"):
+        return
+    try:
+        import addon_utils
+        mod = addon_utils.enable("endophoton_addon", default_set=False)
+        if mod is not None and hasattr(bpy.types.Scene, "endophoton"):
+            return
+    except Exception:  # not installed as an add-on: fall back to the source tree
+        pass
+    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    folder = os.environ.get("ENDOPHOTON_ADDON_PATH") or os.path.join(here, "addon")
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    import endophoton_addon
+    endophoton_addon.register()
+
+
 def _blender_entry(argv: list) -> int:
     """Inside Blender: parse the forwarded arguments and sweep the open .blend."""
     p = argparse.ArgumentParser(prog="endophoton sweep (blender)")
     add_sweep_arguments(p)
     args = p.parse_args(argv)
+    enable_addon()
     res = sweep_blend(None, **_sweep_kwargs(args))
     write_outputs(res, args.out)
     print(f"sweep: wrote {args.out}")
@@ -794,6 +912,7 @@ def sweep_main(args: argparse.Namespace) -> int:
             in_blender = False
         if not in_blender:
             return _run_blender(args)
+        enable_addon()
         res = sweep_blend(args.blend, **_sweep_kwargs(args))
     else:
         polyp = None if args.polyp == "none" else args.polyp

@@ -40,7 +40,9 @@ TEST(VoxelAccumulator, RejectsVoxelSizeThatIsNotPositiveFinite) {
             const std::string msg = e.what();
             EXPECT_NE(msg.find("grids.voxel_size"), std::string::npos) << msg;
             EXPECT_NE(msg.find("positive finite"), std::string::npos) << msg;
-            if (h == -0.5) EXPECT_NE(msg.find("= -0.5 "), std::string::npos) << msg;
+            if (h == -0.5) {
+                EXPECT_NE(msg.find("= -0.5 "), std::string::npos) << msg;
+            }
         }
     }
 }

@@ -115,6 +115,26 @@ def test_degenerate_light_falls_back_to_world_x():
     assert az == pytest.approx([0.0, 90.0], abs=1e-4)
 
 
+def test_fixed_reference_frame():
+    rng = np.random.default_rng(12)
+    el = np.array([4.5, 4.5, 4.5, 40.5])
+    az = np.zeros(4)
+    esc = sy.make_records(el, az, rng, LIGHTS)
+    s, c = math.sin(math.radians(4.5)), math.cos(math.radians(4.5))
+    s4, c4 = math.sin(math.radians(40.5)), math.cos(math.radians(40.5))
+    esc["direction"] = np.array([[c, 0, s], [0, c, s], [-c, 0, s], [0, -c4, s4]], np.float32)
+    # reference with a normal component: only its tangent projection matters
+    _, a = an.exit_angles(esc, None, reference=(2.0, 0.0, 5.0))
+    assert a == pytest.approx([0.0, 90.0, 180.0, 270.0], abs=1e-4)
+    # reference along the normal: falls back to world x
+    _, a2 = an.exit_angles(esc, None, reference=(0.0, 0.0, 1.0))
+    assert a2 == pytest.approx(a, abs=1e-4)
+    counts, _ = an.exit_direction_histogram(esc, None, n_batches=2, reference=(0.0, 1.0, 0.0))
+    assert counts[0, 27] == 1 and counts[0, 0] == 1 and counts[0, 9] == 1 and counts[4, 18] == 1
+    with pytest.raises(ValueError, match="reference"):
+        an.exit_angles(esc, None, reference=(0.0, 0.0))
+
+
 def test_histogram_is_invariant_under_rigid_motion():
     rng = np.random.default_rng(3)
     el, az = sy.sample_uniform_hemisphere(rng, 20_000)

@@ -190,6 +190,7 @@ def test_csv_round_trip_is_exact(tmp_path):
     text = path.read_text()
     assert "# made by a test\n# second line\n" in text
     assert [p.name for p in tmp_path.iterdir()] == ["random.csv"]   # no temp file left
+    assert path.stat().st_mode & 0o777 == 0o644                      # not mkstemp's 0600
 
 
 def test_default_csv_round_trip(tmp_path):

@@ -164,7 +164,7 @@ def test_report_states_paper_and_run_numbers(fake_result):
         text = f.read()
     assert "**paper**" in text and "34" in text and "0.12" in text
     t = __import__("endophoton.report", fromlist=["compute_trends"]).compute_trends(res)
-    assert f"{100 * t['packets_drop']:.2f} %" in text
+    assert f"{100 * t['packets_drop']:.2f} ± " in text
     assert "nan" not in text.lower().replace("n/a", "")
     for beta in (0, 20, 40):
         assert f"polar_beta_{beta:02d}.png" in text
@@ -228,10 +228,11 @@ def test_parse_betas():
 # ---------------------------------------------------------------- rig geometry
 
 def test_rig_geometry_matches_design_frame():
-    rig = EndoscopeRig.from_beta(beta_deg=0.0, distance=1.0, unit="cm") if "unit" in \
-        EndoscopeRig.from_beta.__code__.co_varnames else EndoscopeRig.from_beta(beta_deg=0.0, distance=1.0)
+    rig = EndoscopeRig.from_beta(beta_deg=0.0, distance=1.0)
     g = sw.rig_geometry(rig, "cm")
     lp = g["light_positions"]
+    # fixed-frame reference at beta = 0: the line light 1 -> light 0 (head x axis)
+    assert np.allclose(g["reference"], (lp[0] - lp[1]) / np.linalg.norm(lp[0] - lp[1]))
     assert lp.shape == (2, 3)
     assert np.allclose(sorted(lp[:, 0]), [-0.35, 0.35]) and np.allclose(lp[:, 2], 1.0)
     cam = g["camera"]
@@ -249,6 +250,10 @@ def test_rig_geometry_matches_design_frame():
     to_point = -c30["position"] / np.linalg.norm(c30["position"])
     assert np.allclose(c30["forward"], to_point)
     assert math.degrees(math.acos(c30["position"][2] / np.linalg.norm(c30["position"]))) == pytest.approx(30.0)
+    # fixed-frame reference at beta = 30: horizontal, toward the head
+    ref30 = sw.rig_geometry(rig30, "mm")["reference"]
+    horiz = c30["position"] * np.array([1.0, 1.0, 0.0])
+    assert np.allclose(ref30, horiz / np.linalg.norm(horiz)) and abs(ref30[2]) < 1e-12
 
 
 # ---------------------------------------------------------------- meshes
@@ -342,10 +347,118 @@ def test_real_small_sweep_outputs(tmp_path):
 @needs_engine
 @pytest.mark.parametrize("polyp", [None, "dome"])
 def test_real_beta0_azimuth_uniform(polyp):
-    """Acceptance: at beta = 0 every elevation ring is azimuthally uniform (chi-square)."""
+    """Acceptance: at beta = 0 every elevation ring is azimuthally uniform (chi-square).
+
+    Uniformity holds in the fixed frame (one azimuth reference for the whole
+    photon map).  In the light frame (reference toward each record's light)
+    the radial outflow of light from each illuminated spot makes the low rings
+    lean toward 180 deg even at beta = 0, so only its mirror symmetry is
+    tested there: the scene and rig are symmetric under y -> -y, which maps
+    azimuth -> -azimuth, so the mean sin(azimuth) of every ring must vanish.
+    """
     scene = sw.default_flat_scene(polyp=polyp)
     res = sw.sweep(scene, betas=[0], store=30_000, seed=5, progress=False)
-    p = np.asarray(res.histograms[0]["chi2_p"])
+    h = res.histograms[0]
+    p = np.asarray(h["chi2_p_fixed"])
     finite = p[np.isfinite(p)]
     assert finite.size >= 8
     assert min(1.0, finite.size * finite.min()) > 1e-3, p
+    assert res.rows[0]["azimuth_chi2_p_bonferroni_fixed"] == pytest.approx(min(1.0, finite.size * finite.min()))
+    counts = np.asarray(h["counts"])
+    stderr = np.asarray(h["stderr"])
+    phi = np.radians(np.arange(36) * 10.0 + 5.0)
+    for ring in range(10):
+        n = counts[ring].sum()
+        if n < 100:
+            continue
+        mean_sin = (counts[ring] * np.sin(phi)).sum() / n
+        # se of the mean of sin over n independent records, from the histogram itself
+        se = math.sqrt(((counts[ring] * np.sin(phi) ** 2).sum() / n - mean_sin ** 2) / n)
+        assert abs(mean_sin) < 4.5 * se, (ring, mean_sin, se)
+    assert np.all(stderr >= 0)
+
+
+# ---------------------------------------------------------------- Blender path
+
+BLENDER_SCRIPT = r'''
+import json, sys
+import numpy as np
+import bpy
+sys.path.insert(0, PKG)
+from endophoton import sweep as sw
+sw.enable_addon()
+for obj in list(bpy.data.objects):
+    bpy.data.objects.remove(obj, do_unlink=True)
+bscene = bpy.context.scene
+bscene.unit_settings.scale_length = 1.0          # 1 Blender unit = 1 m, the engine's unit here
+src = sw.default_flat_scene(unit="m", polyp="dome")
+for region in src.regions:
+    mesh = bpy.data.meshes.new(region.name)
+    mesh.from_pydata(region.vertices.astype(float).tolist(), [], region.triangles.astype(int).tolist())
+    mesh.update()
+    obj = bpy.data.objects.new(region.name, mesh)
+    bscene.collection.objects.link(obj)
+    s = obj.endophoton
+    s.role = "TISSUE" if region.name == "tissue" else "POLYP"
+    m = region.medium
+    s.medium.mua, s.medium.mus, s.medium.g, s.medium.n = m.mua, m.mus, m.g, m.n
+    s.priority = region.priority
+    s.fluorophores.clear()
+    for f in region.fluorophores:
+        item = s.fluorophores.add()
+        item.species, item.d, item.c = f.name, f.d, f.c
+bpy.ops.wm.save_as_mainfile(filepath=BLEND)
+res = sw.sweep_blend(BLEND, betas=BETAS, store=STORE, seed=SEED, progress=False)
+with open(OUT, "w") as fh:
+    json.dump({"rows": res.rows, "counts": [np.asarray(h["counts"]).tolist() for h in res.histograms]}, fh)
+'''
+
+
+def _blender_available():
+    import shutil
+    import subprocess
+    exe = shutil.which("blender")
+    if exe is None or not _engine_ready():
+        return False
+    try:
+        out = subprocess.run([exe, "-b", "--factory-startup", "--python-expr",
+                              "import numpy, sys; print('PYOK', sys.version_info[:2])"],
+                             capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return "PYOK (3, 11)" in out.stdout
+
+
+@pytest.mark.skipif(not _blender_available(), reason="blender with python 3.11 + numpy, or the engine, missing")
+def test_blender_path_gives_identical_numbers(tmp_path):
+    """sweep_blend on a .blend holding the paper's scene == sweep() on the same arrays and values."""
+    import subprocess
+    import endophoton as ep_mod
+    betas, store, seed = [0.0, 30.0], 3000, 7
+    pkg = os.path.join(ROOT, "python")
+    script = tmp_path / "run_in_blender.py"
+    out = tmp_path / "blender.json"
+    blend = tmp_path / "paper.blend"
+    script.write_text(f"PKG={pkg!r}\nBLEND={str(blend)!r}\nOUT={str(out)!r}\nBETAS={betas!r}\n"
+                      f"STORE={store}\nSEED={seed}\n" + BLENDER_SCRIPT)
+    proc = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1",
+                           "--python", str(script)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    got = json.loads(out.read_text())
+    # the same scene in plain Python: Blender keeps vertex coordinates and the
+    # add-on's float properties in single precision, so round the same way
+    f32 = lambda x: float(np.float32(x))
+    src = sw.default_flat_scene(unit="m", polyp="dome")
+    scene = ep_mod.Scene(unit="m")
+    for r in src.regions:
+        m = r.medium
+        scene.add_mesh(r.name, r.vertices, r.triangles,
+                       ep_mod.Medium(mua=f32(m.mua), mus=f32(m.mus), g=f32(m.g), n=f32(m.n)), priority=r.priority,
+                       fluorophores=[ep_mod.Fluorophore(f.name, f32(f.d), f32(f.c)) for f in r.fluorophores])
+    ref = sw.sweep(scene, betas=betas, store=store, seed=seed, progress=False)
+    for a, b in zip(ref.rows, got["rows"]):
+        for k in ("packets_traced", "records", "energy_total", "energy_per_packet", "important_fraction",
+                  "max_depth_cm", "azimuth_asym_low"):
+            assert a[k] == b[k], (k, a[k], b[k])
+    for h, c in zip(ref.histograms, got["counts"]):
+        assert np.array_equal(np.asarray(h["counts"]), np.asarray(c))

@@ -1,0 +1,162 @@
+# SPDX-License-Identifier: MIT
+"""Acceptance 3 (error paths): bad input ends in an operator error naming the
+object and field, and the scene stays exactly as it was."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from endophoton_addon import rig
+from conftest import data_snapshot, mesh_object
+
+BOX_V = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                  [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float) * 0.02
+BOX_F = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
+
+
+def _tissue(faces=BOX_F):
+    obj = mesh_object("Tissue", BOX_V, [faces])
+    obj.endophoton.role = "TISSUE"
+    return obj
+
+
+def _rig():
+    return rig.create_rig(bpy.context, target=(0, 0, 0))
+
+
+def _valid_scene():
+    tissue = _tissue()
+    root = _rig()
+    s = bpy.context.scene.endophoton
+    s.quality = "CUSTOM"
+    s.photons = 1000
+    return tissue, root
+
+
+def _assert_rejected(pattern, invoke=False):
+    before = data_snapshot()
+    args = ("INVOKE_DEFAULT",) if invoke else ()
+    with pytest.raises(RuntimeError, match=pattern):
+        bpy.ops.endophoton.run_simulation(*args)
+    assert data_snapshot() == before
+
+
+def test_no_tissue():
+    polyp = mesh_object("Polyp", BOX_V * 0.1, [BOX_F])
+    polyp.endophoton.role = "POLYP"
+    _rig()
+    _assert_rejected(r"Scene 'Scene': no object has role 'tissue'")
+
+
+def test_open_mesh():
+    _tissue(faces=BOX_F[1:])
+    _rig()
+    _assert_rejected(r"Object 'Tissue': mesh is open \(4 boundary edges")
+
+
+def test_open_mesh_through_invoke():
+    _tissue(faces=BOX_F[1:])
+    _rig()
+    _assert_rejected(r"Object 'Tissue': mesh is open", invoke=True)
+
+
+def test_open_after_modifiers():
+    """The closed box becomes open through a Geometry Nodes modifier deleting its top."""
+    tissue, _root = _valid_scene()
+    modifier = tissue.modifiers.new("delete top", "NODES")
+    group = bpy.data.node_groups.new("delete top", "GeometryNodeTree")
+    group.inputs.new("NodeSocketGeometry", "Geometry")
+    group.outputs.new("NodeSocketGeometry", "Geometry")
+    gin, gout = group.nodes.new("NodeGroupInput"), group.nodes.new("NodeGroupOutput")
+    delete = group.nodes.new("GeometryNodeDeleteGeometry")
+    delete.domain = "FACE"
+    normal = group.nodes.new("GeometryNodeInputNormal")
+    sep = group.nodes.new("ShaderNodeSeparateXYZ")
+    compare = group.nodes.new("FunctionNodeCompare")
+    compare.data_type = "FLOAT"
+    compare.operation = "GREATER_THAN"
+    compare.inputs[1].default_value = 0.5
+    group.links.new(normal.outputs[0], sep.inputs[0])
+    group.links.new(sep.outputs["Z"], compare.inputs[0])
+    group.links.new(gin.outputs[0], delete.inputs["Geometry"])
+    group.links.new(compare.outputs[0], delete.inputs["Selection"])
+    group.links.new(delete.outputs[0], gout.inputs[0])
+    modifier.node_group = group
+    _assert_rejected(r"Object 'Tissue': mesh is open \(.* after modifiers\)")
+
+
+def test_no_rig():
+    _tissue()
+    _assert_rejected(r"Scene 'Scene': simulation.rig is not set and the scene has no endoscope rig")
+
+
+def test_zero_packets():
+    _valid_scene()
+    bpy.context.scene.endophoton.photons = 0
+    _assert_rejected(r"Scene 'Scene': simulation.photons = 0 must be > 0")
+
+
+def test_zero_store():
+    _valid_scene()
+    s = bpy.context.scene.endophoton
+    s.mode = "STORE"
+    s.store = 0
+    _assert_rejected(r"Scene 'Scene': simulation.store = 0 must be > 0")
+
+
+@pytest.mark.parametrize("field,pattern", [
+    ("mua", r"Object 'Tissue': medium.mua = nan must be a finite number >= 0"),
+    ("mus", r"Object 'Tissue': medium.mus = nan must be"),
+    ("g", r"Object 'Tissue': medium.g = nan must be a finite number in \[-1, 1\]"),
+    ("n", r"Object 'Tissue': medium.n = nan must be a finite number >= 1"),
+])
+def test_nan_medium(field, pattern):
+    tissue, _root = _valid_scene()
+    setattr(tissue.endophoton.medium, field, math.nan)
+    _assert_rejected(pattern)
+
+
+def test_nan_fluorophore():
+    tissue, _root = _valid_scene()
+    tissue.endophoton.fluorophores[0].c = math.nan
+    _assert_rejected(r"Object 'Tissue': fluorophores\[0\] \(collagen\).c = nan must be")
+
+
+def test_out_of_range_medium():
+    tissue, _root = _valid_scene()
+    tissue.endophoton.medium.g = 1.5
+    _assert_rejected(r"Object 'Tissue': medium.g = 1.5 must be a finite number in \[-1, 1\]")
+
+
+def test_nan_rig_distance():
+    _tissue, root = _valid_scene()
+    root.endophoton_rig.distance = math.nan
+    _assert_rejected(r"Object 'EP Endoscope': endophoton_rig.distance = nan must be a finite number")
+
+
+def test_nan_voxel_size():
+    _valid_scene()
+    bpy.context.scene.endophoton.voxel_size = math.nan
+    _assert_rejected(r"Scene 'Scene': simulation.voxel_size = nan must be a finite number > 0")
+
+
+def test_role_on_non_mesh():
+    _valid_scene()
+    curve = bpy.data.objects.new("Wire", bpy.data.curves.new("Wire", "CURVE"))
+    bpy.context.scene.collection.objects.link(curve)
+    curve.endophoton.role = "TISSUE"
+    _assert_rejected(r"Object 'Wire': role is tissue but the object is a curve")
+
+
+def test_previous_result_survives_a_rejected_run():
+    """A rejected re-run must not remove the previous run's collection."""
+    _valid_scene()
+    previous = bpy.data.collections.new("EP previous")
+    previous["endophoton_result"] = True
+    bpy.context.scene.collection.children.link(previous)
+    bpy.context.scene.endophoton.result_collection = previous
+    bpy.context.scene.endophoton.photons = 0
+    _assert_rejected(r"simulation.photons = 0")
+    assert bpy.context.scene.endophoton.result_collection == previous

@@ -1,0 +1,226 @@
+# SPDX-License-Identifier: MIT
+"""Acceptance 1: registration, plus install-from-zip, manifest and the panels."""
+
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+
+import bpy
+import pytest
+
+import numpy as np
+
+from conftest import ADDON, REPO, data_snapshot, ensure_addon, mesh_object
+
+BOX = (
+    np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+              [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float) * 0.01,
+    [np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])],
+)
+
+def _addon_classes():
+    import endophoton_addon
+    from endophoton_addon import operators, panels, preferences, properties
+
+    assert endophoton_addon  # the package itself is importable
+    return (*properties.CLASSES, *operators.CLASSES, *panels.CLASSES,
+            preferences.EndoPhotonPreferences)
+
+
+def _registered():
+    classes = _addon_classes()
+    assert len(classes) >= 15
+    types = {cls.__name__ for cls in classes if cls.is_registered}
+    props = {
+        "Scene.endophoton": hasattr(bpy.types.Scene, "endophoton"),
+        "Object.endophoton": hasattr(bpy.types.Object, "endophoton"),
+        "Object.endophoton_rig": hasattr(bpy.types.Object, "endophoton_rig"),
+    }
+    return types, props
+
+
+def _all_names():
+    return {cls.__name__ for cls in _addon_classes()}
+
+
+def _operator_exists(idname):
+    module, name = idname.split(".")
+    try:
+        getattr(getattr(bpy.ops, module), name).get_rna_type()
+    except KeyError:
+        return False
+    return True
+
+
+def test_register_unregister_twice():
+    import endophoton_addon
+
+    for _ in range(2):
+        endophoton_addon.unregister()
+        types, props = _registered()
+        assert types == set(), f"still registered after unregister: {types}"
+        assert not any(props.values()), props
+        assert not _operator_exists("endophoton.run_simulation")
+        endophoton_addon.register()
+        types, props = _registered()
+        assert types == _all_names()
+        assert all(props.values()), props
+        assert _operator_exists("endophoton.run_simulation")
+        # The registered add-on works: the properties exist on a new object.
+        obj = bpy.data.objects.new("probe", bpy.data.meshes.new("probe"))
+        obj.endophoton.role = "TISSUE"
+        assert obj.endophoton.fluorophores[0].species == "collagen"
+        bpy.data.objects.remove(obj)
+
+
+def test_addon_utils_disable_enable_twice():
+    import addon_utils
+
+    for _ in range(2):
+        addon_utils.disable(ADDON, default_set=True)
+        assert _registered()[0] == set()
+        assert addon_utils.enable(ADDON, default_set=True) is not None
+        assert _registered()[0] == _all_names()
+        assert ADDON in bpy.context.preferences.addons
+    ensure_addon()
+
+
+def test_bl_info_and_manifest():
+    import endophoton_addon
+
+    info = endophoton_addon.bl_info
+    assert info["blender"] == (3, 4, 0)
+    assert info["name"] == "EndoPhoton"
+    path = os.path.join(REPO, "addon", ADDON, "blender_manifest.toml")
+    with open(path, "rb") as f:
+        manifest = tomllib.load(f)
+    assert manifest["schema_version"] == "1.0.0"
+    assert manifest["type"] == "add-on"
+    assert manifest["blender_version_min"] >= "4.2.0"
+    assert tuple(int(p) for p in manifest["version"].split(".")) == info["version"]
+    for key in ("id", "name", "tagline", "maintainer", "license"):
+        assert manifest[key], key
+
+
+def test_install_from_zip_in_fresh_blender(tmp_path):
+    """Build the zip the way users install it and install + enable it from the
+    preferences operator in a separate Blender with its own user-scripts folder."""
+    archive = shutil.make_archive(str(tmp_path / ADDON), "zip", os.path.join(REPO, "addon"), ADDON)
+    user_scripts = tmp_path / "user_scripts"
+    user_scripts.mkdir()
+    script = tmp_path / "install.py"
+    script.write_text(
+        "import bpy, addon_utils, sys\n"
+        f"bpy.ops.preferences.addon_install(filepath={archive!r})\n"
+        f"mod = addon_utils.enable({ADDON!r}, default_set=True)\n"
+        "assert mod is not None, 'enable failed'\n"
+        "assert hasattr(bpy.types, 'ENDOPHOTON_PT_main')\n"
+        "print('INSTALLED_FROM', mod.__file__)\n"
+        f"addon_utils.disable({ADDON!r}, default_set=True)\n"
+        "assert not hasattr(bpy.types, 'ENDOPHOTON_PT_main')\n"
+        "print('ZIP_INSTALL_OK')\n"
+        "sys.exit(0)\n"
+    )
+    env = dict(os.environ, BLENDER_USER_SCRIPTS=str(user_scripts))
+    proc = subprocess.run(
+        [bpy.app.binary_path, "-b", "--factory-startup", "--python-exit-code", "1",
+         "--python", str(script)],
+        env=env, capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "ZIP_INSTALL_OK" in proc.stdout
+    installed = [line for line in proc.stdout.splitlines() if line.startswith("INSTALLED_FROM")]
+    assert installed and str(user_scripts) in installed[0], installed
+
+
+class FakeLayout:
+    """Records what a panel draws; checks every prop() names a real property."""
+
+    def __init__(self, log):
+        self.log = log
+        self.active = self.enabled = True
+        self.scale_y = 1.0
+
+    def _child(self, *_args, **_kwargs):
+        return FakeLayout(self.log)
+
+    row = column = box = split = _child
+
+    def label(self, text="", icon="NONE"):
+        self.log.append(("label", text))
+
+    def prop(self, data, name, **_kwargs):
+        assert name in data.bl_rna.properties, f"{data} has no property {name}"
+        self.log.append(("prop", name))
+
+    def operator(self, idname, **_kwargs):
+        module, name = idname.split(".")
+        getattr(getattr(bpy.ops, module), name).get_rna_type()  # KeyError if not registered
+        self.log.append(("operator", idname))
+
+    def template_list(self, *args, **_kwargs):
+        assert args[3] in args[2].bl_rna.properties
+        self.log.append(("template_list", args[3]))
+
+
+def _draw_all_panels():
+    from types import SimpleNamespace
+
+    log = []
+    for name in ("ENDOPHOTON_PT_main", "ENDOPHOTON_PT_object", "ENDOPHOTON_PT_endoscope",
+                 "ENDOPHOTON_PT_simulation", "ENDOPHOTON_PT_results"):
+        panel = getattr(bpy.types, name)
+        panel.draw(SimpleNamespace(layout=FakeLayout(log)), bpy.context)
+    return log
+
+
+def test_panel_says_plainly_when_package_missing(tmp_path):
+    from endophoton_addon import engine
+
+    saved = {k: v for k, v in sys.modules.items() if k == "endophoton" or k.startswith("endophoton.")}
+    for k in saved:
+        del sys.modules[k]
+    try:
+        ensure_addon(package_path=str(tmp_path))  # an existing folder without the package
+        engine.forget()
+        module, message = engine.status()
+        assert module is None
+        assert "EndoPhoton engine not found" in message and str(tmp_path) in message
+        log = _draw_all_panels()
+        labels = " ".join(text for kind, text in log if kind == "label")
+        assert "Engine package not found" in labels
+        assert "Preferences" in labels
+        # With a valid scene the run operator reports the same message (an
+        # operator error, not a traceback) and adds nothing.
+        from endophoton_addon import rig
+
+        tissue = mesh_object("Tissue", *BOX)
+        tissue.endophoton.role = "TISSUE"
+        rig.create_rig(bpy.context, target=(0, 0, 0))
+        before = data_snapshot()
+        with pytest.raises(RuntimeError, match="EndoPhoton engine not found"):
+            bpy.ops.endophoton.run_simulation()
+        assert data_snapshot() == before
+    finally:
+        sys.modules.update(saved)
+        ensure_addon()
+        engine.forget()
+
+
+def test_panels_draw_with_objects_and_rig():
+    from endophoton_addon import rig
+
+    obj = bpy.data.objects.new("Tissue", bpy.data.meshes.new("Tissue"))
+    bpy.context.scene.collection.objects.link(obj)
+    obj.endophoton.role = "POLYP"
+    bpy.context.view_layer.objects.active = obj
+    rig.create_rig(bpy.context)
+    log = _draw_all_panels()
+    props = {name for kind, name in log if kind == "prop"}
+    assert {"role", "mua", "mus", "g", "n", "priority", "beta", "distance", "quality",
+            "seed", "threads", "voxel_size", "output_points", "output_grids", "color_by"} <= props
+    assert ("template_list", "fluorophores") in log
+    assert ("operator", "endophoton.run_simulation") in log
+    assert ("operator", "endophoton.add_endoscope") in log

@@ -1,0 +1,260 @@
+// Unit tests of the engine's building blocks against analytic references.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <set>
+#include <vector>
+
+#include "engine.h"
+#include "fresnel.h"
+#include "halton.h"
+#include "mesh_check.h"
+#include "phase.h"
+#include "rng.h"
+#include "scene.h"
+#include "source.h"
+
+using namespace ep;
+
+namespace {
+
+// The oracle's unpolarised Fresnel form (oracles §4), independent of the
+// engine's cosine form: R = 1/2 [sin^2(i-t)/sin^2(i+t) + tan^2(i-t)/tan^2(i+t)].
+double fresnel_sin_tan(double theta_i, double n1, double n2) {
+    const double st = n1 / n2 * std::sin(theta_i);
+    if (st >= 1) return 1;
+    const double tt = std::asin(st);
+    const double a = std::sin(theta_i - tt) / std::sin(theta_i + tt);
+    const double b = std::tan(theta_i - tt) / std::tan(theta_i + tt);
+    return 0.5 * (a * a + b * b);
+}
+
+void box(float x0, float y0, float z0, float x1, float y1, float z1, std::vector<float>& v, std::vector<uint32_t>& t) {
+    v.clear();
+    for (int k = 0; k < 8; ++k) {
+        v.push_back(k & 1 ? x1 : x0);
+        v.push_back(k & 2 ? y1 : y0);
+        v.push_back(k & 4 ? z1 : z0);
+    }
+    const uint32_t q[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+    t.clear();
+    for (auto& f : q) {
+        t.insert(t.end(), {f[0], f[1], f[2]});
+        t.insert(t.end(), {f[0], f[2], f[3]});
+    }
+}
+
+}  // namespace
+
+TEST(Fresnel, MatchesSinTanFormAndNormalIncidence) {
+    const double n1 = 1.0, n2 = 1.5;
+    double ct;
+    EXPECT_NEAR(fresnel_dielectric(1.0, n1, n2, &ct), std::pow((n1 - n2) / (n1 + n2), 2), 1e-15);
+    for (double deg : {1.0, 10.0, 30.0, 45.0, 60.0, 75.0, 85.0, 89.0}) {
+        const double th = deg * kPi / 180;
+        EXPECT_NEAR(fresnel_dielectric(std::cos(th), n1, n2, &ct), fresnel_sin_tan(th, n1, n2), 1e-12) << deg;
+        // Snell: n1 sin i = n2 sin t.
+        EXPECT_NEAR(n1 * std::sin(th), n2 * std::sqrt(1 - ct * ct), 1e-12);
+    }
+    EXPECT_EQ(fresnel_dielectric(0.0, n1, n2, &ct), 1.0);  // grazing
+}
+
+TEST(Fresnel, TotalInternalReflectionBeyondCriticalAngle) {
+    const double n1 = 1.4, n2 = 1.0, crit = std::asin(n2 / n1);
+    double ct;
+    EXPECT_EQ(fresnel_dielectric(std::cos(crit + 1e-6), n1, n2, &ct), 1.0);
+    EXPECT_EQ(ct, 0.0);
+    EXPECT_LT(fresnel_dielectric(std::cos(crit - 1e-3), n1, n2, &ct), 1.0);
+    EXPECT_NEAR(fresnel_dielectric(std::cos(crit - 1e-3), n1, n2, &ct), fresnel_sin_tan(crit - 1e-3, n1, n2), 1e-10);
+}
+
+TEST(Fresnel, RefractObeysSnell) {
+    const Vec3 n(0, 0, 1);
+    const double th = 40 * kPi / 180;
+    const Vec3 d(std::sin(th), 0, -std::cos(th));
+    double ct;
+    fresnel_dielectric(std::cos(th), 1.0, 1.33, &ct);
+    const Vec3 t = refract(d, n, 1.0 / 1.33, std::cos(th), ct);
+    EXPECT_NEAR(length(t), 1.0, 1e-14);
+    EXPECT_NEAR(t.x, std::sin(th) / 1.33, 1e-14);
+    EXPECT_LT(t.z, 0);
+}
+
+TEST(HenyeyGreenstein, PdfIsNormalisedAndMeanIsG) {
+    for (double g : {-0.9, -0.3, 0.0, 0.5, 0.9, 0.99}) {
+        const HenyeyGreenstein hg(g);
+        // Simpson on cos in [-1, 1] with many nodes: integral of p = 1, of cos p = g.
+        const int n = 200000;
+        double s0 = 0, s1 = 0;
+        for (int i = 0; i <= n; ++i) {
+            const double c = -1 + 2.0 * i / n;
+            const double w = (i == 0 || i == n) ? 1 : (i % 2 ? 4 : 2);
+            s0 += w * hg.pdf(c);
+            s1 += w * c * hg.pdf(c);
+        }
+        s0 *= 2.0 / n / 3;
+        s1 *= 2.0 / n / 3;
+        EXPECT_NEAR(s0, 1.0, 2e-4) << g;
+        EXPECT_NEAR(s1, g, 2e-4) << g;
+    }
+}
+
+TEST(HenyeyGreenstein, SamplingInvertsTheCdf) {
+    // The HG CDF in closed form: F(c) = (1-g^2)/(2g) [ (1+g^2-2gc)^-1/2 - (1+g)^-1 ].
+    for (double g : {-0.8, 0.3, 0.9, 0.9999}) {
+        const HenyeyGreenstein hg(g);
+        for (double u : {0.01, 0.2, 0.5, 0.8, 0.99}) {
+            const double c = hg.sample_cos(u);
+            const double F = (1 - g * g) / (2 * g) * (1 / std::sqrt(1 + g * g - 2 * g * c) - 1 / (1 + g));
+            EXPECT_NEAR(F, u, 1e-9) << g << " " << u;
+        }
+    }
+    EXPECT_EQ(HenyeyGreenstein(1.0).sample_cos(0.3), 1.0);
+    EXPECT_EQ(HenyeyGreenstein(-1.0).sample_cos(0.3), -1.0);
+    EXPECT_EQ(HenyeyGreenstein(0.0).sample_cos(0.25), -0.5);
+    const Vec3 d(0, 0.6, 0.8);
+    const Vec3 r = HenyeyGreenstein(-1.0).sample_p(d, 0.3, 0.7);
+    EXPECT_EQ(r.y, -0.6);
+    EXPECT_EQ(r.z, -0.8);
+}
+
+TEST(Rng, StreamsAreDeterministicAndDistinct) {
+    Rng a(7, 123), b(7, 123), c(7, 124), d(8, 123);
+    std::vector<uint64_t> va, vc, vd;
+    for (int i = 0; i < 1000; ++i) {
+        const uint64_t x = a.next_u64();
+        EXPECT_EQ(x, b.next_u64());
+        va.push_back(x);
+        vc.push_back(c.next_u64());
+        vd.push_back(d.next_u64());
+    }
+    EXPECT_NE(va, vc);
+    EXPECT_NE(va, vd);
+    Rng e(1, 2);
+    double mean = 0;
+    const int n = 1000000;
+    for (int i = 0; i < n; ++i) {
+        const double u = e.uniform_open_low();
+        ASSERT_GT(u, 0.0);
+        ASSERT_LE(u, 1.0);
+        mean += u;
+    }
+    mean /= n;
+    EXPECT_NEAR(mean, 0.5, 3 * std::sqrt(1.0 / 12 / n) + 1e-12);
+}
+
+TEST(Halton, DeterministicUniformAndScrambled) {
+    const Halton h(3), h2(3), h3(4);
+    for (int dim = 0; dim < Halton::kMaxDimensions; ++dim) {
+        // First b^2 points of a (digit-permuted) radical inverse hit every
+        // cell of width 1/b^2 exactly once.
+        const int b = Halton::base(dim), m = b * b;
+        std::set<int> cells;
+        for (int i = 0; i < m; ++i) {
+            const double x = h.sample(uint64_t(i), dim);
+            ASSERT_GE(x, 0.0);
+            ASSERT_LT(x, 1.0);
+            EXPECT_EQ(x, h2.sample(uint64_t(i), dim));
+            // x is a multiple of 1/m up to rounding (~1e-16) or sits >= 2^-40 below
+            // the cell's upper edge, so a 1e-14 nudge finds the true cell.
+            cells.insert(int(x * m + 1e-14));
+        }
+        EXPECT_EQ(int(cells.size()), m) << "dim " << dim;
+    }
+    int differ = 0;
+    for (int i = 1; i < 50; ++i) differ += h.sample(uint64_t(i), 3) != h3.sample(uint64_t(i), 3);
+    EXPECT_GT(differ, 0);
+    EXPECT_LT(h.sample(uint64_t(1) << 40, 2), 1.0);
+}
+
+TEST(MeshCheck, RejectsEveryClassOfBadMesh) {
+    std::vector<float> v;
+    std::vector<uint32_t> t;
+    box(0, 0, 0, 1, 1, 1, v, t);
+    EXPECT_GT(check_mesh("region 'b'", v.data(), 8, t.data(), 12).signed_volume, 0.999);
+    auto expect_error = [&](std::vector<float> vv, std::vector<uint32_t> tt, const std::string& needle) {
+        try {
+            check_mesh("region 'b'", vv.data(), vv.size() / 3, tt.data(), tt.size() / 3);
+            ADD_FAILURE() << "no error for " << needle;
+        } catch (const std::invalid_argument& e) {
+            EXPECT_NE(std::string(e.what()).find("region 'b'"), std::string::npos) << e.what();
+            EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+        }
+    };
+    auto open = t;
+    open.resize(t.size() - 3);
+    expect_error(v, open, "open");
+    auto flipped = t;
+    std::swap(flipped[1], flipped[2]);
+    expect_error(v, flipped, "inconsistent");
+    auto inward = t;
+    for (size_t i = 0; i < inward.size(); i += 3) std::swap(inward[i + 1], inward[i + 2]);
+    expect_error(v, inward, "inward");
+    auto nan = v;
+    nan[4] = std::nanf("");
+    expect_error(nan, t, "mesh.vertices[1][1] = nan");
+    auto degenerate = t;
+    degenerate[2] = degenerate[1];
+    expect_error(v, degenerate, "degenerate");
+}
+
+TEST(Scene, CollectsCoincidentFacesOfTouchingBoxes) {
+    Scene s(1.0, 1.0);
+    std::vector<float> v;
+    std::vector<uint32_t> t;
+    Medium m;
+    m.mua = 1;
+    m.mus = 1;
+    box(-1, -1, -1, 1, 1, 0, v, t);
+    s.add_region("top", v.data(), 8, t.data(), 12, m, 0);
+    box(-1, -1, -2, 1, 1, -1, v, t);
+    s.add_region("bottom", v.data(), 8, t.data(), 12, m, 0);
+    s.commit();
+    std::vector<Hit> hits;
+    s.intersect_all(Vec3(0.1, 0.2, 1), Vec3(0, 0, -1), 0, kInf, hits);
+    ASSERT_EQ(hits.size(), 4u);  // enter top, leave top + enter bottom at z=-1, leave bottom
+    EXPECT_NEAR(hits[0].t, 1.0, 1e-6);
+    EXPECT_LT(hits[0].cos_dn, 0);
+    EXPECT_NEAR(hits[1].t, 2.0, 1e-6);
+    EXPECT_NEAR(hits[2].t, 2.0, 1e-6);
+    EXPECT_NE(hits[1].region, hits[2].region);
+    EXPECT_NEAR(hits[3].t, 3.0, 1e-6);
+    EXPECT_GT(hits[3].cos_dn, 0);
+    EXPECT_NEAR(s.distance_to_surface(Vec3(0, 0, -0.3), 10.0), 0.3, 1e-6);
+}
+
+TEST(Engine, BitIdenticalOnOneAndTwoThreadsAndBalanced) {
+    Scene s(1.0, 1.0);
+    std::vector<float> v;
+    std::vector<uint32_t> t;
+    Medium m;
+    m.mua = 10;
+    m.mus = 90;
+    m.g = 0.75;
+    m.n = 1.4;
+    box(-50, -50, -0.02f, 50, 50, 0, v, t);
+    s.add_region("slab", v.data(), 8, t.data(), 12, m, 0);
+    s.commit();
+    Light l;
+    l.center = Vec3(0, 0, 1);
+    l.axis = Vec3(0, 0, -1);
+    const Source src({l});
+    RunConfig c;
+    c.photons = 20000;
+    c.seed = 5;
+    c.threads = 1;
+    const RunResult a = run(s, src, c, nullptr, nullptr);
+    c.threads = 2;
+    const RunResult b = run(s, src, c, nullptr, nullptr);
+    double sum = 0;
+    for (int k = 0; k < kRoulette + 1; ++k) {
+        EXPECT_EQ(a.scalar[k].mean, b.scalar[k].mean) << tally_name(k);
+        EXPECT_EQ(a.scalar[k].stderr_, b.scalar[k].stderr_) << tally_name(k);
+        sum += a.scalar[k].mean;
+    }
+    EXPECT_NEAR(sum, 1.0, 1e-9);
+    EXPECT_EQ(a.records.weight, b.records.weight);
+    EXPECT_EQ(a.records.position, b.records.position);
+    // Rsp at normal incidence is exact.
+    EXPECT_NEAR(a.scalar[kSpecular].mean, std::pow(0.4 / 2.4, 2), 1e-15);
+}
