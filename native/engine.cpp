@@ -28,6 +28,8 @@ void finalize_estimates(RunResult& r, int batches) {
     for (const UnitTally& u : r.units) r.packets += u.packets;
     for (int k = 0; k < kScalarTallies; ++k)
         r.scalar[k] = batch_estimate(r.units, batches, [k](const UnitTally& u) { return u.scalar[k]; });
+    for (int k = 0; k < kEnergyTallies; ++k)
+        r.energy[k] = batch_estimate(r.units, batches, [k](const UnitTally& u) { return u.energy[k]; });
     const size_t nreg = r.units.empty() ? 0 : r.units.front().absorbed_by_region.size();
     r.absorbed_by_region.assign(nreg, Estimate{});
     for (size_t k = 0; k < nreg; ++k)
@@ -249,7 +251,7 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
         auto fl_n = scaled(*g_fl, s);
         std::vector<std::unique_ptr<VoxelAccumulator>> per_n;
         std::vector<GridOutput> outs;
-        outs.push_back({"absorbed", "absorbed packet weight per voxel, as a fraction of launched packets", abs_n.get()});
+        outs.push_back({"absorbed", "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet", abs_n.get()});
         outs.push_back({"fluorescence", "weight of fluorescent packets summed over their interaction sites (volume photon map density), per launched packet", fl_n.get()});
         for (size_t f = 0; f < g_per.size(); ++f) {
             per_n.push_back(scaled(*g_per[f], s));

@@ -22,6 +22,7 @@ struct RunResult {
     uint64_t packets_traced = 0;  // store-N mode: index of the packet that made the N-th record + 1
     std::vector<UnitTally> units; // per-unit tallies, in order (for batch means)
     Estimate scalar[kScalarTallies];
+    Estimate energy[kEnergyTallies];  // meaningful in spectral runs
     std::vector<Estimate> absorbed_by_region;
     EscapeRecords records;
     bool cancelled = false;
@@ -32,7 +33,7 @@ struct RunResult {
     double seconds = 0;
     std::string grid_path;
     std::vector<std::string> grid_names;
-    double grid_absorbed_sum = 0; // sum of the absorbed grid, per launched packet
+    double grid_absorbed_sum = 0; // sum of the absorbed (energy) grid, per launched packet
     uint64_t unit_size = 0;
     int threads = 0;
     size_t peak_record_bytes = 0;

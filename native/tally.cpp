@@ -11,6 +11,13 @@ const char* tally_name(int i) {
     return names[i];
 }
 
+const char* energy_tally_name(int i) {
+    static const char* names[kEnergyTallies] = {"specular_reflectance_energy", "diffuse_reflectance_energy",
+                                                "transmittance_energy", "absorbed_energy", "missed_energy",
+                                                "cut_energy", "roulette_energy", "stokes_loss", "launched_energy"};
+    return names[i];
+}
+
 Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums, int batches) {
     Estimate e;
     uint64_t total = 0;

@@ -24,13 +24,25 @@ enum TallyIndex : int {
 
 const char* tally_name(int i);
 
+// Energy tallies of spectral runs (energy = weight x 500 nm / lambda). The
+// first seven mirror the weight tallies of the balance; kStokes is the energy
+// fluorescence removed by lengthening wavelengths, kLaunched the energy that
+// was emitted. Launched = sum of the others, to rounding.
+enum EnergyIndex : int {
+    kEnergySpecular = 0, kEnergyDiffuse, kEnergyTransmitted, kEnergyAbsorbed, kEnergyMissed, kEnergyCut,
+    kEnergyRoulette, kEnergyStokes, kEnergyLaunched, kEnergyTallies
+};
+const char* energy_tally_name(int i);
+
 struct UnitTally {
     uint64_t packets = 0;
     double scalar[kScalarTallies] = {};
+    double energy[kEnergyTallies] = {};
     std::vector<double> absorbed_by_region;
     void reset(size_t regions) {
         packets = 0;
         for (double& s : scalar) s = 0;
+        for (double& e : energy) e = 0;
         absorbed_by_region.assign(regions, 0.0);
     }
 };

@@ -58,6 +58,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
     const Float unit_cm = scene.unit_cm();
     const Float extent = scene.extent();
     double* tally = out.tally.scalar;
+    double* energy_tally = out.tally.energy;
     out.tally.packets += 1;
 
     Rng rng(cfg_.seed, index);
@@ -66,6 +67,14 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
     Vec3 p = em.position, d = em.direction;
     Float W = 1;
     Float lambda = em.wavelength;
+    // Photon energy per unit weight at the current wavelength (1 when not spectral).
+    Float energy_per_weight = kSpectral && lambda > 0 ? kEnergyReferenceNm / lambda : Float(1);
+    // Adds weight w to tally k and, in spectral runs, its energy to the mirror tally.
+    auto add = [&](int k, Float w) {
+        tally[k] += w;
+        if constexpr (kSpectral) energy_tally[k] += w * energy_per_weight;
+    };
+    if constexpr (kSpectral) energy_tally[kEnergyLaunched] += energy_per_weight;
 
     // Packet state.
     uint64_t set = 0;
@@ -101,8 +110,8 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
 
     auto escape = [&](int from_region, const Vec3& normal_out) {
         const bool reflected = dot(d, source_axis) < 0;
-        tally[reflected ? kDiffuse : kTransmitted] += W;
-        const Float energy = kSpectral && lambda > 0 ? W * kEnergyReferenceNm / lambda : W;
+        add(reflected ? kDiffuse : kTransmitted, W);
+        const Float energy = W * energy_per_weight;
         tally[kEscapedEnergy] += energy;
         if (fluorescent) tally[kFluorescentEscaped] += W;
         if (cfg_.record_escapes && (!cfg_.fluorescent_only || fluorescent)) {
@@ -145,7 +154,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
         }
     }
     if (set == 0 && hits.empty()) {
-        tally[kMissed] += W;
+        add(kMissed, W);
         return;
     }
     load_medium(scene.top(set));
@@ -249,7 +258,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             if (!entered && med.region < 0) {
                 // First boundary from the ambient: the specular part leaves
                 // deterministically (MCML's Rsp; seed eq. 1), the rest enters.
-                tally[kSpecular] += W * R;
+                add(kSpecular, W * R);
                 W -= W * R;
                 transmit = W > 0;
                 if (!transmit) return;
@@ -276,7 +285,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             break;
         }
         if (events >= max_events || (cfg_.max_path_cm > 0 && path_cm >= cfg_.max_path_cm)) {
-            tally[kCut] += W;
+            add(kCut, W);
             return;
         }
         if (boundary_event) continue;
@@ -286,11 +295,11 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             if (med.region < 0) {
                 // Outside every region with nothing ahead: it never entered
                 // (escapes end the packet earlier), so it missed.
-                tally[kMissed] += W;
+                add(kMissed, W);
             } else {
                 // A clear, non-absorbing region extends to infinity along the ray:
                 // impossible for a closed mesh; count it as cut, never lose it.
-                tally[kCut] += W;
+                add(kCut, W);
             }
             return;
         }
@@ -305,10 +314,11 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
         // Implicit capture, seed eq. (3): W -= W mua/(mua+mus).
         const Float dW = W * (med.mua / med.mut);
         W -= dW;
-        tally[kAbsorbed] += dW;
+        add(kAbsorbed, dW);
         out.tally.absorbed_by_region[size_t(med.region)] += dW;
         if constexpr (kGrids) {
-            out.absorbed_grid->add(p.x, p.y, p.z, dW);
+            // The absorbed grid holds energy (= weight when the run is not spectral).
+            out.absorbed_grid->add(p.x, p.y, p.z, dW * energy_per_weight);
             if (fluorescent) {
                 out.fluorescence_grid->add(p.x, p.y, p.z, W);
                 if (!out.per_fluorophore.empty()) out.per_fluorophore[size_t(fluorophore)]->add(p.x, p.y, p.z, W);
@@ -328,6 +338,11 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
                     if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene.eem(f.id).efficiency(lambda);
                     if (u1 < d_eff && u2 < f.c) {
                         lambda = scene.eem(f.id).sample_emission(lambda, rng.uniform(), rng.uniform());
+                        // Stokes loss: the weight (photon count) is kept, the energy per
+                        // photon drops from 500/lambda_ex to 500/lambda_em.
+                        const Float new_epw = kEnergyReferenceNm / lambda;
+                        energy_tally[kEnergyStokes] += W * (energy_per_weight - new_epw);
+                        energy_per_weight = new_epw;
                         fluorescent = true;
                         fluorophore = f.id;
                         load_medium(med.region);  // coefficients at the new wavelength
@@ -351,15 +366,15 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             if (W <= 0) return;
             if (rng.uniform() < cfg_.roulette_chance) {
                 const Float boosted = W / cfg_.roulette_chance;
-                tally[kRoulette] -= boosted - W;
+                add(kRoulette, -(boosted - W));
                 W = boosted;
             } else {
-                tally[kRoulette] += W;
+                add(kRoulette, W);
                 return;
             }
         }
         if (events >= max_events || (cfg_.max_path_cm > 0 && path_cm >= cfg_.max_path_cm)) {
-            tally[kCut] += W;
+            add(kCut, W);
             return;
         }
     }

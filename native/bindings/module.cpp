@@ -53,6 +53,12 @@ py::dict estimates_dict(const RunResult& r, const Scene& scene) {
         reg[scene.region(i).name.c_str()] = r.absorbed_by_region[i].mean;
         reg_se[scene.region(i).name.c_str()] = r.absorbed_by_region[i].stderr_;
     }
+    if (r.spectral) {
+        for (int k = 0; k < kEnergyTallies; ++k) {
+            d[energy_tally_name(k)] = r.energy[k].mean;
+            d[(std::string(energy_tally_name(k)) + "_stderr").c_str()] = r.energy[k].stderr_;
+        }
+    }
     d["absorbed_by_region"] = reg;
     d["absorbed_by_region_stderr"] = reg_se;
     return d;

@@ -144,9 +144,10 @@ def plot_polar(result: Any, beta: float, path: str | os.PathLike, frame: str = "
     width = 90.0 / n_elev
     phi = np.radians((np.arange(n_azim) + 0.5) * 360.0 / n_azim)
     phi_c = np.append(phi, phi[0] + 2 * np.pi)
-    fig = Figure(figsize=(11, 5.2))
+    fig = Figure(figsize=(11, 6.0))
     zero = "toward the record's light" if frame == "light" else "toward the tilted head (fixed)"
-    fig.suptitle(f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records); azimuth 0 = {zero}")
+    fig.suptitle(f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records)\n"
+                 f"azimuth 0 = {zero}; radius = records per bin")
     groups = (("elevation 45-90 deg", [i for i in range(n_elev) if i * width >= 45 - 1e-9]),
               ("elevation 0-45 deg", [i for i in range(n_elev) if (i + 1) * width <= 45 + 1e-9]))
     for k, (title, rings) in enumerate(groups):
@@ -159,7 +160,7 @@ def plot_polar(result: Any, beta: float, path: str | os.PathLike, frame: str = "
             ax.fill_between(phi_c, np.maximum(c - e, 0), c + e, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_ylim(bottom=0)
         ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7)
-    fig.subplots_adjust(left=0.04, right=0.86, wspace=0.45)
+    fig.subplots_adjust(left=0.04, right=0.86, top=0.78, bottom=0.05, wspace=0.45)
     return _save(fig, path)
 
 

@@ -84,7 +84,22 @@ def _batched(betas: np.ndarray, full: np.ndarray, mat: np.ndarray,
 def _fmt(x: float, digits: int = 4) -> str:
     if x is None or not np.isfinite(x):
         return "n/a"
+    if abs(x) >= 1000:
+        return f"{x:,.0f}"
     return f"{x:.{digits}g}"
+
+
+def _fmt_p(p: float) -> str:
+    """p-value; an underflow to 0 is shown as < 1e-300."""
+    if p is None or not np.isfinite(p):
+        return "n/a"
+    return "< 1e-300" if p == 0 else f"{p:.2g}"
+
+
+def _p_rel(p: float) -> str:
+    """'= 0.28' or '< 1e-300' (for 'p <rel>')."""
+    txt = _fmt_p(p)
+    return txt if txt.startswith("<") else "= " + txt
 
 
 def _pm(v: float, se: float, digits: int = 4) -> str:
@@ -144,6 +159,9 @@ def compute_trends(result: Any, paper: Mapping[str, Any] = PAPER_TRENDS) -> dict
     sel = b >= flat_from
     t["packets_fit_beyond"] = an.linear_fit(b[sel], P[sel]) if sel.sum() >= 2 else None
     t["packets_rel_slope_per_deg"] = t["packets_slope"] / P[i0]
+    if n >= 2:
+        step = lambda x, y: (y[1] - y[0]) / y[0]
+        t["packets_first_step"], t["packets_first_step_se"], _ = _batched(b, P, p_m, step)
 
     # ---- energy (Fig. 5) ---------------------------------------------------------
     deg = paper["energy_fit_degree"]
@@ -270,8 +288,9 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
 
     w("## Per-angle results\n")
     w("| beta (deg) | packets traced | energy / packet (rel.) | energy sum of stored (rel.) | camera fraction | "
-      "max depth (cm) | batch-max depth (cm) | asym. < 45° | asym. ≥ 45° | min p (β-ring χ²) |")
-    w("|---|---|---|---|---|---|---|---|---|---|")
+      "max depth (cm) | batch-max depth (cm) | asym. < 45° (light) | asym. ≥ 45° (light) | min ring χ² p (light) | "
+      "asym. < 45° (fixed) | asym. ≥ 45° (fixed) | min ring χ² p (fixed) |")
+    w("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in r.rows:
         w(f"| {row['beta_deg']:g} | {_pm(row['packets_traced'], row['packets_traced_stderr'], 7)} | "
           f"{_pm(row['energy_per_packet_rel'], row['energy_per_packet_rel_stderr'])} | "
@@ -280,10 +299,15 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
           f"{_fmt(row['max_depth_cm'])} | {_pm(row['max_depth_batch_mean_cm'], row['max_depth_batch_sd_cm'])} | "
           f"{_pm(row['azimuth_asym_low'], row['azimuth_asym_low_stderr'], 3)} | "
           f"{_pm(row['azimuth_asym_high'], row['azimuth_asym_high_stderr'], 3)} | "
-          f"{_fmt(row['azimuth_chi2_p_min'], 3)} |")
-    w("\nasym. = mean cos(azimuth) of the exit directions in the rings below / above 45° elevation; azimuth 0° "
-      "points from the exit point toward the light that emitted the packet, so a negative value means the exits "
-      "lean toward 180° (away from the light).\n")
+          f"{_fmt_p(row['azimuth_chi2_p_min'])} | "
+          f"{_pm(row.get('azimuth_asym_low_fixed', float('nan')), row.get('azimuth_asym_low_fixed_stderr', float('nan')), 3)} | "
+          f"{_pm(row.get('azimuth_asym_high_fixed', float('nan')), row.get('azimuth_asym_high_fixed_stderr', float('nan')), 3)} | "
+          f"{_fmt_p(row.get('azimuth_chi2_p_min_fixed', float('nan')))} |")
+    w("\nasym. = mean cos(azimuth) of the exit directions in the rings below / above 45° elevation; a negative "
+      "value means the exits lean toward azimuth 180°.  Light frame: azimuth 0° points from the exit point toward "
+      "the light that emitted the packet; fixed frame: azimuth 0° is the horizontal direction toward the tilted "
+      "head, the same for all records (see the histogram section).  min ring χ² p: smallest per-ring "
+      "azimuthal-uniformity p-value (10 rings, not corrected).\n")
     w(f"Verdict rules: a paper value is *consistent* if our value is within {SIGMAS:g} standard errors of it "
       f"(the paper gives no uncertainty); a paper direction *agrees* if our slope/difference has the same sign and "
       f"is at least {SIGMAS:g} standard errors from zero.\n")
@@ -295,8 +319,15 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
       f"(≈ {pt['packets_traced_min'] / pt['store']:g} per stored photon); flat near 0°, then linear, about "
       f"{100 * pt['packets_relative_drop']:g} % fewer at the largest angle.")
     w(f"- ours: {_pm(t['packets_first'], t['packets_first_se'], 7)} packets at β = {b[0]:g}° for "
-      f"{int(r.rows[0]['records']):,} records ({_fmt(t['packets_per_record_first'])} per stored record); "
+      f"{int(r.rows[0]['records']):,} records ({_fmt(t['packets_per_record_first'])} per stored record; the "
+      f"paper's > {pt['packets_traced_min'] / pt['store']:g}: "
+      f"**{'agrees' if t['packets_per_record_first'] > pt['packets_traced_min'] / pt['store'] else 'differs'}**); "
       f"{_pm(t['packets_last'], t['packets_last_se'], 7)} at β = {b[-1]:g}°.")
+    if "packets_first_step" in t:
+        vf, zf = _direction_verdict(t["packets_first_step"], t["packets_first_step_se"], -1)
+        w(f"- first step β = {b[0]:g}° → {b[1]:g}°: relative change "
+          f"{_pct(t['packets_first_step'], t['packets_first_step_se'])} ({_fmt(zf, 3)} σ; "
+          f"{'flat within 3 σ, as the paper' if vf == 'not significant' else 'not flat'}).")
     v, z = _direction_verdict(t["packets_drop"], t["packets_drop_se"], +1)
     v2, z2 = _value_verdict(t["packets_drop"], t["packets_drop_se"], pt["packets_relative_drop"])
     w(f"- relative drop first → last angle: {_pct(t['packets_drop'], t['packets_drop_se'])}; "
@@ -325,14 +356,17 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
           f"({'interior' if fit['interior'] else 'at the end of the range'}"
           f"{'; interior local maxima at ' + ', '.join(f'{x:.1f}°' for x in fit['local_maxima']) if fit['local_maxima'] else ''}).")
         vmin = "agrees" if abs(t[key + "_argmin_beta"] - pt["energy_min_beta_deg"]) < 1e-9 else "differs"
-        vp, zp = _value_verdict(t[key + "_peak"], t[key + "_peak_se"], pt["energy_peak_beta_deg"])
+        if fit["interior"]:
+            vp, zp = _value_verdict(t[key + "_peak"], t[key + "_peak_se"], pt["energy_peak_beta_deg"])
+        else:
+            vp, zp = "differs (the fit has no interior maximum)", float("nan")
         rise = t.get(key + "_rise_first_step")
         vr, zr = _direction_verdict(rise, t.get(key + "_rise_first_step_se", float("nan")), +1) \
             if rise is not None else ("n/a", float("nan"))
         w(f"  - minimum at β = {pt['energy_min_beta_deg']}°: **{vmin}**; rise from β = {b[0]:g}° to the next "
           f"angle: {_pm(rise if rise is not None else float('nan'), t.get(key + '_rise_first_step_se', float('nan')), 3)} "
-          f"of the maximum, **{vr}** ({_fmt(zr, 3)} σ); fitted peak vs {pt['energy_peak_beta_deg']}°: **{vp}** "
-          f"({_fmt(zp, 3)} σ).")
+          f"of the maximum, **{vr}** ({_fmt(zr, 3)} σ); fitted peak vs {pt['energy_peak_beta_deg']}°: **{vp}**"
+          f"{f' ({_fmt(zp, 3)} σ)' if np.isfinite(zp) else ''}.")
     if t["energy_total_fit"]["deg"] < pt["energy_fit_degree"]:
         w(f"- note: only {t['n_beta']} angles, so the fit degree is {t['energy_total_fit']['deg']} instead of "
           f"{pt['energy_fit_degree']}.")
@@ -405,11 +439,11 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
             ok = t["uniform_p_bonferroni" + sfx] >= ALPHA
             w(f"- uniformity at β = {t['uniform_beta']:g}° ({int(t['uniform_records']):,} records): per-ring "
               f"chi-square p-values (elevation 0-9°, 9-18°, ...): "
-              f"{', '.join(_fmt(p, 2) for p in t['uniform_p' + sfx])}; Bonferroni-corrected smallest p = "
-              f"{_fmt(t['uniform_p_bonferroni' + sfx], 3)} → "
+              f"{', '.join(_fmt_p(p) for p in t['uniform_p' + sfx])}; Bonferroni-corrected smallest p "
+              f"{_p_rel(t['uniform_p_bonferroni' + sfx])} → "
               f"**{'uniform (agrees)' if ok else 'not uniform at the 1 % level (differs)'}**.")
             lines_summary.append((f"uniform azimuth at β = 0° ({fname})",
-                                  f"Bonferroni p = {_fmt(t['uniform_p_bonferroni' + sfx], 3)}",
+                                  f"Bonferroni p {_p_rel(t['uniform_p_bonferroni' + sfx])}",
                                   "agrees" if ok else "differs"))
         else:
             w(f"- β = {pt['histogram_uniform_at_deg']}° not in the sweep: uniformity not tested.")
@@ -423,16 +457,21 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
         vh, zh = _direction_verdict(t[hi + "_change"], t[hi + "_change_se"], -1)
         ratio = abs(t[hi + "_change"]) / abs(t[lo + "_change"]) if t[lo + "_change"] else float("nan")
         smaller = np.isfinite(ratio) and ratio < 1
+        if v != "agrees":
+            high_verdict = "not comparable (the low rings do not shift toward 180°)"
+        else:
+            high_verdict = "agrees" if smaller else "differs"
         w(f"- rings at/above 45°: mean cos(azimuth) {_pm(t[hi + '_first'], t[hi + '_first_se'], 3)} → "
           f"{_pm(t[hi + '_last'], t[hi + '_last_se'], 3)} (change "
           f"{_pm(t[hi + '_change'], t[hi + '_change_se'], 3)}, {_fmt(zh, 3)} σ; "
           f"{_fmt(ratio, 3)} × the low-ring change).  "
-          f"{'Smaller than the low-ring change, as the paper says.' if smaller else 'Not smaller than the low-ring change, unlike the paper.'}\n")
+          f"Verdict: **{high_verdict}**"
+          f"{' (smaller than the low-ring change)' if high_verdict == 'agrees' else ''}.\n")
         lines_summary.append((f"low rings shift toward 180° ({fname})",
                               f"Δ mean cos = {_pm(t[lo + '_change'], t[lo + '_change_se'], 3)}", v))
         lines_summary.append((f"rings > 45° nearly unchanged ({fname})",
                               f"Δ mean cos = {_pm(t[hi + '_change'], t[hi + '_change_se'], 3)} "
-                              f"({_fmt(ratio, 3)} × low-ring change)", "agrees" if smaller else "differs"))
+                              f"({_fmt(ratio, 3)} × low-ring change)", high_verdict))
     w(f"- fraction of records at/above 45° elevation: {_pct(t['high_frac_first'])} at β = {b[0]:g}° → "
       f"{_pct(t['high_frac_last'])} at β = {b[-1]:g}° (change {_pct(t['high_frac_change'], t['high_frac_change_se'])}).\n")
 
@@ -449,7 +488,7 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     w(f"| degree-{pt['energy_fit_degree']} fit peak ≈ {pt['energy_peak_beta_deg']}° | "
       f"{_pm(t['energy_total_peak'], t['energy_total_peak_se'], 3)}° (sum of stored), "
       f"{_pm(t['energy_per_packet_peak'], t['energy_per_packet_peak_se'], 3)}° (per packet) | "
-      f"{_value_verdict(t['energy_total_peak'], t['energy_total_peak_se'], pt['energy_peak_beta_deg'])[0]} (sum of stored) |")
+      f"{_value_verdict(t['energy_total_peak'], t['energy_total_peak_se'], pt['energy_peak_beta_deg'])[0] if t['energy_total_fit']['interior'] else 'differs (no interior maximum)'} (sum of stored) |")
     w(f"| camera fraction < {100 * pt['camera_fraction_max']:g} %, falling | max {_pct(t['camera_max'])}, slope "
       f"{_fmt(100 * t['camera_slope'], 3)} ± {_fmt(100 * t['camera_slope_se'], 2)} pp/deg | "
       f"{'below' if t['camera_max'] < pt['camera_fraction_max'] else 'above'}; falling "

@@ -821,9 +821,10 @@ def enable_addon() -> None:
         return
     try:
         import addon_utils
-        mod = addon_utils.enable("endophoton_addon", default_set=False)
-        if mod is not None and hasattr(bpy.types.Scene, "endophoton"):
-            return
+        if any(m.__name__ == "endophoton_addon" for m in addon_utils.modules()):
+            addon_utils.enable("endophoton_addon", default_set=False)
+            if hasattr(bpy.types.Scene, "endophoton"):
+                return
     except Exception:  # not installed as an add-on: fall back to the source tree
         pass
     here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

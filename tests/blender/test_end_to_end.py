@@ -290,3 +290,16 @@ def test_render_result_png(ep, tmp_path, out_dir):
     # Wavelength colouring: the points are not all the same hue.
     bright = rgb[rgb.max(axis=1) > 0.2]
     assert np.ptp(bright / (bright.sum(axis=1, keepdims=True) + 1e-9), axis=0).max() > 0.1
+
+    # The grids sit inside the opaque tissue: render them alone as well.
+    for obj in collection.objects:
+        obj.hide_render = obj.type != "VOLUME"
+    for name in ("Tissue", "Polyp"):
+        scene.objects[name].hide_render = True
+    render.filepath = os.path.join(out_dir, "flat_tissue_grids.png")
+    bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(render.filepath)
+    image.pixels.foreach_get(pixels)
+    rgb = pixels.reshape(-1, 4)[:, :3]
+    assert rgb.std() > 0.01, f"grid render is (nearly) one flat colour: std {rgb.std():.4f}"
+    assert rgb[:, 1].max() > 2 * rgb[:, 1].mean(), "no glowing grid in the render"
