@@ -17,7 +17,9 @@ struct CollectContext {
     const Scene* scene;
     const std::vector<Region>* regions;
     const unsigned* geom_to_region;
-    Vec3 dir;
+    const std::vector<std::vector<float>>* vertices;
+    const std::vector<std::vector<uint32_t>>* triangles;
+    Vec3 org, dir;  // the ray as traced, in double
     std::vector<Hit>* hits;
 };
 
@@ -35,7 +37,18 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
             args->valid[0] = 0;
             return;
         }
-    ctx->hits->push_back(Hit{Float(t), region, prim, dot(ctx->dir, n)});
+    // Embree's distance is float precision (~1e-7 relative). Refine it in double
+    // against the triangle's plane, t = (v0 - o).n / (d.n), so that straight
+    // paths (Beer-Lambert, thin layers) are exact to double rounding. Near-grazing
+    // rays keep Embree's value, where the plane division is ill-conditioned.
+    const Float cos_dn = dot(ctx->dir, n);
+    Float t_hit = Float(t);
+    if (std::fabs(cos_dn) > 1e-3) {
+        const float* v = &(*ctx->vertices)[region][3 * size_t((*ctx->triangles)[region][3 * size_t(prim)])];
+        const Float tr = dot(Vec3(v[0], v[1], v[2]) - ctx->org, n) / cos_dn;
+        if (std::fabs(tr - t_hit) <= 1e-5 * (std::fabs(t_hit) + 1)) t_hit = tr;
+    }
+    ctx->hits->push_back(Hit{t_hit, region, prim, cos_dn});
     args->valid[0] = 0;  // reject: traversal goes on and collects every crossing
 }
 
@@ -241,18 +254,28 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
     ctx.scene = this;
     ctx.regions = &regions_;
     ctx.geom_to_region = identity.data();  // geometry ids equal region indices (checked in add_region)
+    ctx.vertices = &vertices_;
+    ctx.triangles = &triangles_;
     ctx.dir = d;
     ctx.hits = &out;
 
     RTCRayHit rh;
-    rh.ray.org_x = float(o.x);
-    rh.ray.org_y = float(o.y);
-    rh.ray.org_z = float(o.z);
+    // Embree needs tnear >= 0. A negative tnear means "also report crossings up
+    // to |tnear| behind o": the origin is backed up along the ray and the
+    // distances shifted back afterwards. The transport relies on this to never
+    // lose a crossing that rounding put just behind the packet.
+    const Float back = tnear < 0 ? -tnear : Float(0);
+    const Vec3 org = back > 0 ? o - d * back : o;
+    if (back > 0) tnear = 0;
+    ctx.org = org;
+    rh.ray.org_x = float(org.x);
+    rh.ray.org_y = float(org.y);
+    rh.ray.org_z = float(org.z);
     rh.ray.dir_x = float(d.x);
     rh.ray.dir_y = float(d.y);
     rh.ray.dir_z = float(d.z);
     rh.ray.tnear = float(tnear);
-    rh.ray.tfar = std::isfinite(tfar) ? float(tfar) : std::numeric_limits<float>::infinity();
+    rh.ray.tfar = std::isfinite(tfar) ? float(tfar + back) : std::numeric_limits<float>::infinity();
     rh.ray.time = 0;
     rh.ray.mask = 0xFFFFFFFFu;
     rh.ray.id = 0;
@@ -260,6 +283,8 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
     rtcIntersect1(scene_, &ctx.base, &rh);
+    if (back > 0)
+        for (Hit& h : out) h.t -= back;
     if (out.size() > 1)
         std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
 }

@@ -80,7 +80,8 @@ class Scene {
         return best;
     }
 
-    // Every surface crossing with t in [tnear, tfar], sorted by t. Embree's
+    // Every surface crossing with t in [tnear, tfar], sorted by t; tnear may be
+    // negative to include crossings just behind the origin. Embree's
     // filter callback records each candidate and rejects it, so traversal
     // continues to tfar; coincident faces (touching regions) all show up.
     void intersect_all(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, std::vector<Hit>& out) const;

@@ -16,8 +16,12 @@ namespace {
 // carries energy 1, so energy = weight * 500 / lambda (photon energy ~ 1/lambda).
 constexpr Float kEnergyReferenceNm = 500;
 
-// Ray-origin offset scaled to the coordinate's magnitude (pbrt-v4 practice):
-// Embree works in float, so a hit is only known to ~1e-7 of |p|.
+// Ray-origin tolerance scaled to the coordinate's magnitude (pbrt-v4 practice):
+// Embree works in float, so a hit is only known to ~1e-7 of |p|. Queries look
+// this far *behind* the packet as well (a negative tnear): a crossing that
+// rounding put just behind it is still seen, and re-seeing the surface just
+// crossed is harmless because region membership updates are idempotent
+// (entering sets a bit, leaving clears it).
 inline Float ray_offset(const Vec3& p, Float extent) {
     return 4e-7 * (max_abs_component(p) + 1e-3 * extent);
 }
@@ -64,6 +68,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
     Rng rng(cfg_.seed, index);
     const Emission em = source_.emit(halton_, index, kSpectral);
     const Vec3 source_axis = source_.lights()[size_t(em.light)].axis;
+    Vec3 entry_reference = source_axis;
     Vec3 p = em.position, d = em.direction;
     Float W = 1;
     Float lambda = em.wavelength;
@@ -103,13 +108,20 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             med.mua = m.mua;
             med.mus = m.mus;
         }
-        med.mut = med.mua + med.mus;
+        // A non-scattering region has no interactions: its absorption is applied
+        // exactly along each straight segment (Beer-Lambert), not sampled.
+        med.mut = med.mus > 0 ? med.mua + med.mus : 0;
         med.g = m.g;
         med.n = m.n;
     };
 
     auto escape = [&](int from_region, const Vec3& normal_out) {
-        const bool reflected = dot(d, source_axis) < 0;
+        // Reflected = leaving back through the side it came in: against the
+        // inward normal at its first entry. (Against the source axis, as MCML
+        // puts it for normal incidence, misclassifies oblique beams beyond 45
+        // degrees, whose mirror direction still has a positive dot product with
+        // the beam.) Packets that started inside use the source axis.
+        const bool reflected = dot(d, entry_reference) < 0;
         add(reflected ? kDiffuse : kTransmitted, W);
         const Float energy = W * energy_per_weight;
         tally[kEscapedEnergy] += energy;
@@ -137,6 +149,45 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
 
     auto update_depth = [&]() {
         if (entered) max_depth = std::max(max_depth, dot(p - entry_p, entry_in) * unit_cm);
+    };
+
+    // Russian roulette (MCML): below the threshold survive with chance m, and
+    // survivors carry W/m, which keeps the estimator unbiased. The weight it
+    // destroys (+) or creates (-) is tallied so that the balance stays exact.
+    auto survives_roulette = [&]() -> bool {
+        if (W >= cfg_.roulette_threshold) return true;
+        if (W <= 0) return false;
+        if (rng.uniform() < cfg_.roulette_chance) {
+            const Float boosted = W / cfg_.roulette_chance;
+            add(kRoulette, -(boosted - W));
+            W = boosted;
+            return true;
+        }
+        add(kRoulette, W);
+        return false;
+    };
+
+    // Beer-Lambert along a straight segment of length t (scene units) from p in
+    // a region with mus = 0: W -> W exp(-mua t). Grid deposits are spread over
+    // sub-segments of at most one voxel, each with its exact share.
+    auto attenuate_clear = [&](Float t) {
+        if (t <= 0 || W <= 0) return;
+        const Float dW = -W * std::expm1(-med.mua * t * unit_cm);
+        if constexpr (kGrids) {
+            const Float h = cfg_.grid_voxel_size;
+            const int pieces = int(std::min<Float>(1e5, std::ceil(t / h)));
+            Float w = W;
+            for (int k = 0; k < pieces; ++k) {
+                const Float a = t * k / pieces, b = t * (k + 1) / pieces;
+                const Float piece = -w * std::expm1(-med.mua * (b - a) * unit_cm);
+                const Vec3 mid = p + d * (Float(0.5) * (a + b));
+                out.absorbed_grid->add(mid.x, mid.y, mid.z, piece * energy_per_weight);
+                w -= piece;
+            }
+        }
+        add(kAbsorbed, dW);
+        out.tally.absorbed_by_region[size_t(med.region)] += dW;
+        W -= dW;
     };
 
     // ---- where does the packet start? One query to infinity along its
@@ -170,6 +221,11 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
     // because the ball is convex; so no ray query is needed for it.
     Vec3 safe_c = p;
     Float safe_r = 0;
+    // After a closest-point query that did not cover the step (the packet is
+    // near a surface), go straight to ray queries for a few steps instead of
+    // paying for both queries every step.
+    int point_query_cooldown = 0;
+    constexpr int kCooldownSteps = 32;
 
     while (true) {
         if (need_tau) {
@@ -185,6 +241,8 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             const Vec3 off = end - safe_c;
             if (dot(off, off) < safe_r * safe_r) {
                 query = false;
+            } else if (point_query_cooldown > 0) {
+                --point_query_cooldown;
             } else {
                 const Float radius = std::min(extent, Float(64) * s);
                 const Float dist = scene.distance_to_surface(p, radius) * (1 - 1e-5) - ray_offset(p, extent);
@@ -192,11 +250,13 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
                     safe_c = p;
                     safe_r = dist;
                     query = false;
+                } else {
+                    point_query_cooldown = kCooldownSteps;
                 }
             }
         }
         if (query) {
-            if (!reuse_hits) scene.intersect_all(p, d, ray_offset(p, extent), s, hits);
+            if (!reuse_hits) scene.intersect_all(p, d, -ray_offset(p, extent), s, hits);
             reuse_hits = false;
             safe_r = 0;
         } else {
@@ -231,6 +291,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
                 continue;
             }
             // ---- an interface between med.region and new_top at t0.
+            if (med.region >= 0 && med.mus == 0 && med.mua > 0) attenuate_clear(t0);
             p += d * t0;
             path_cm += t0 * unit_cm;
             tau = std::max(Float(0), tau - t0 * unit_cm * med.mut);
@@ -276,6 +337,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
                     entered = true;
                     entry_p = p;
                     entry_in = -n_inc;  // n_inc faces the ambient, so -n_inc points into the tissue
+                    entry_reference = entry_in;
                 }
                 load_medium(new_top);
             } else {
@@ -288,7 +350,11 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             add(kCut, W);
             return;
         }
-        if (boundary_event) continue;
+        if (boundary_event) {
+            // Clear absorbing regions lose weight at boundaries only.
+            if (!survives_roulette()) return;
+            continue;
+        }
 
         if (!std::isfinite(s)) {
             // Travelling through the ambient or a clear region to infinity.
@@ -360,19 +426,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             ++scatterings;
         }
 
-        // Russian roulette (MCML): below the threshold survive with chance m,
-        // and survivors carry W/m, which keeps the estimator unbiased.
-        if (W < cfg_.roulette_threshold) {
-            if (W <= 0) return;
-            if (rng.uniform() < cfg_.roulette_chance) {
-                const Float boosted = W / cfg_.roulette_chance;
-                add(kRoulette, -(boosted - W));
-                W = boosted;
-            } else {
-                add(kRoulette, W);
-                return;
-            }
-        }
+        if (!survives_roulette()) return;
         if (events >= max_events || (cfg_.max_path_cm > 0 && path_cm >= cfg_.max_path_cm)) {
             add(kCut, W);
             return;

@@ -22,12 +22,15 @@ def running_job():
 
 
 def _redraw_sidebars(context):
+    """Redraw only the 3D views' sidebars (the progress box), not the viewports."""
     screen = context.screen
     if screen is None:
         return
     for area in screen.areas:
         if area.type == "VIEW_3D":
-            area.tag_redraw()
+            for region in area.regions:
+                if region.type == "UI":
+                    region.tag_redraw()
 
 
 class ENDOPHOTON_OT_add_endoscope(bpy.types.Operator):
@@ -209,7 +212,7 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
         _running["job"] = job
         job.start()
         wm = context.window_manager
-        self._timer = wm.event_timer_add(0.1, window=context.window)
+        self._timer = wm.event_timer_add(0.2, window=context.window)
         wm.progress_begin(0, 1000)
         wm.modal_handler_add(self)
         self._status(context, job.progress().text())
@@ -221,7 +224,7 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
             job.cancel()
             self._status(context, "EndoPhoton: cancelling…")
             return {"RUNNING_MODAL"}
-        if event.type != "TIMER" or event.timer is not self._timer:
+        if event.type != "TIMER":
             return {"PASS_THROUGH"}
         if not job.done:
             progress = job.progress()

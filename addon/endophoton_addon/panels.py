@@ -121,7 +121,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         if s.quality == "CUSTOM":
             layout.prop(s, "store" if s.mode == "STORE" else "photons")
         layout.prop(s, "fluorescent_only")
-        layout.prop(s, "fluorescence_rule")
+        layout.prop(s, "fluorescence_rule", text="Rule")
         row = layout.row(align=True)
         row.prop(s, "seed")
         row.prop(s, "threads")
@@ -132,7 +132,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         sub.active = s.output_grids
         sub.prop(s, "voxel_size")
         sub.prop(s, "grid_per_fluorophore")
-        sub.prop(s, "grid_dir")
+        sub.prop(s, "grid_dir", text="")
         row = layout.row()
         row.scale_y = 1.5
         row.enabled = engine.get() is not None
@@ -156,8 +156,10 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
         box = layout.box()
         box.label(text=collection.name, icon="OUTLINER_COLLECTION")
         col = box.column(align=True)
-        for line in results.summary_lines(collection):
-            col.label(text=line)
+        for label, value in results.summary_rows(collection):
+            row = col.split(factor=0.42, align=True)
+            row.label(text=label)
+            row.label(text=value)
         layout.operator("endophoton.clear_results", icon="TRASH")
 
 

@@ -112,11 +112,11 @@ class EndoPhotonRigSettings(bpy.types.PropertyGroup):
     )
     normal: FloatVectorProperty(
         name="Surface Normal", description="Outward surface normal at the target (β = 0 looks along −normal)",
-        subtype="DIRECTION", size=3, default=(0.0, 0.0, 1.0), update=_rig_changed,
+        subtype="XYZ", size=3, default=(0.0, 0.0, 1.0), update=_rig_changed,
     )
     tilt_axis: FloatVectorProperty(
         name="Tilt Axis", description="Axis β rotates about (made perpendicular to the normal)",
-        subtype="DIRECTION", size=3, default=(0.0, 1.0, 0.0), update=_rig_changed,
+        subtype="XYZ", size=3, default=(0.0, 1.0, 0.0), update=_rig_changed,
     )
     head_diameter: FloatProperty(
         name="Head Diameter", subtype="DISTANCE", unit="LENGTH", default=0.012, min=0.0,

@@ -407,30 +407,40 @@ def update_display(scene):
                     node.outputs[0].default_value = settings.volume_density
 
 
-def summary_lines(collection):
-    """Human-readable lines of a run's summary for the panel."""
+SUMMARY_LABELS = {
+    "diffuse_reflectance": "Diffuse R",
+    "specular_reflectance": "Specular R",
+    "transmittance": "Transmitted",
+    "absorbed": "Absorbed",
+    "missed": "Missed",
+    "cut": "Cut",
+    "roulette": "Roulette",
+    "fluorescent_escaped": "Fluor. escaped",
+    "escaped_energy": "Escaped energy",
+}
+
+
+def summary_rows(collection):
+    """(label, value) rows of a run's summary for the panel; totals as value ± standard error."""
     summary = collection.get(SUMMARY_KEY)
     if summary is None:
         return []
     s = summary.to_dict() if hasattr(summary, "to_dict") else dict(summary)
-    lines = [
-        f"β = {s['beta_deg']:+.2f}°   {s['timestamp']}",
-        f"Packets traced: {s['packets_traced']:,}   launched: {s['photons']:,}",
-        f"Surface records: {s['records']:,}   time: {s['seconds']:.2f} s",
+    rows = [
+        ("β", f"{s['beta_deg']:+.2f}°"),
+        ("Run", s["timestamp"]),
+        ("Packets traced", f"{s['packets_traced']:,}"),
+        ("Launched", f"{s['photons']:,}"),
+        ("Surface records", f"{s['records']:,}"),
+        ("Time", f"{s['seconds']:.2f} s"),
     ]
-    labels = {
-        "diffuse_reflectance": "Diffuse reflectance",
-        "specular_reflectance": "Specular reflectance",
-        "transmittance": "Transmittance",
-        "absorbed": "Absorbed",
-        "missed": "Missed",
-        "cut": "Cut",
-        "roulette": "Roulette",
-        "fluorescent_escaped": "Fluorescence escaped",
-        "escaped_energy": "Escaped energy",
-    }
     for name, (value, stderr) in s.get("totals", {}).items():
-        lines.append(f"{labels.get(name, name)}: {value:.5g} ± {stderr:.2g}")
+        rows.append((SUMMARY_LABELS.get(name, name), f"{value:.5g} ± {stderr:.2g}"))
     for name, (value, stderr) in s.get("absorbed_by_region", {}).items():
-        lines.append(f"  absorbed in {name}: {value:.5g} ± {stderr:.2g}")
-    return lines
+        rows.append((f"Absorbed: {name}", f"{value:.5g} ± {stderr:.2g}"))
+    return rows
+
+
+def summary_lines(collection):
+    """The summary as 'label: value' lines (scripts, reports)."""
+    return [f"{label}: {value}" for label, value in summary_rows(collection)]

@@ -119,7 +119,7 @@ def plot_depth(result: Any, path: str | os.PathLike) -> str:
     fig, ax = _line_axes("Maximum penetration depth", "depth (cm, negative = below the surface)")
     ax.plot(b, -y, "o-", label="deepest record")
     ax.errorbar(b, -m, yerr=s, fmt="o", mfc="none", capsize=3, label="mean +- sd of batch maxima")
-    ax.legend()
+    ax.legend(loc="best", fontsize=8)
     return _save(fig, path)
 
 

@@ -115,7 +115,7 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
         assert value == getattr(res, name) and stderr == getattr(res, name + "_stderr")
     assert set(summary["absorbed_by_region"]) == {"Tissue", "Polyp"}
     lines = results.summary_lines(collection)
-    assert any(line.startswith("Diffuse reflectance:") and "±" in line for line in lines)
+    assert any(line.startswith("Diffuse R:") and "±" in line for line in lines)
     assert any("Packets traced: 20,000" in line for line in lines)
 
 

@@ -39,7 +39,18 @@ def assert_energy_conserved(res, tol=1e-9):
 
     Also: every fraction and its stderr is finite, stderr >= 0, and the net
     Russian-roulette weight (expectation 0 for an unbiased roulette) is within
-    3 of its own standard errors of 0 (+1e-12 for rounding).
+    3 of its own standard errors of 0, plus an allowance of 5 boosted packet
+    weights, 5 * threshold / (chance * photons), plus 1e-12 for rounding.
+
+    Why the allowance: each roulette event adds +W (killed, chance 1 - m) or
+    -W (1/m - 1) (survivor boosted to W/m, chance m), a strongly skewed term.
+    When a run has few roulette events the batch-means sigma is itself very
+    uncertain and z = roulette/sigma has heavy tails: for 40 seeds of the
+    vertex-launch scene of test_extremes (about 50 events per run), z had mean
+    -0.01 (no bias) but standard deviation 1.42, with |z| > 3 in 3 runs. The
+    allowance is the tally's granularity (one boosted weight is threshold/m
+    per launched packet at most); it is negligible next to 3 sigma as soon as
+    the run has many roulette events.
     """
     total = 0.0
     for k in BALANCE_KEYS:
@@ -50,7 +61,13 @@ def assert_energy_conserved(res, tol=1e-9):
         total += v
     assert abs(total - 1.0) < tol, f"energy balance: sum of {BALANCE_KEYS} = {total!r}, |sum - 1| = {abs(total - 1)}"
     r, rs = _get(res, "roulette"), _get(res, "roulette_stderr")
-    assert abs(r) < K_SIGMA * rs + 1e-12, f"roulette = {r} is not within 3 sigma ({rs}) of 0: biased roulette"
+    opts = getattr(res, "options", None) or {}
+    threshold = float(opts.get("roulette_threshold", 1e-4))
+    chance = float(opts.get("roulette_chance", 0.1))
+    photons = max(1, int(_get(res, "photons")))
+    allowance = 5.0 * threshold / (chance * photons)
+    assert abs(r) < K_SIGMA * rs + allowance + 1e-12, \
+        f"roulette = {r} is not within 3 sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
     for k in ("absorbed", "specular_reflectance", "diffuse_reflectance", "transmittance", "missed", "cut"):
         assert _get(res, k) >= -1e-12, f"{k} = {_get(res, k)} is negative"
     a_reg = _get(res, "absorbed_by_region")

@@ -1,0 +1,123 @@
+# SPDX-License-Identifier: MIT
+"""Drives the modal Run operator in a real (windowed) Blender; run by
+test_modal_gui.py under Xvfb:
+
+    xvfb-run -a blender --factory-startup --enable-event-simulate BLEND \
+        --python tests/blender/gui_modal_driver.py -- OUT.json GRID_DIR ENGINE_FOLDER
+
+Everything happens in bpy.app.timers callbacks, i.e. in Blender's own event
+loop: the operator is invoked with INVOKE_DEFAULT in the 3D viewport, its
+progress is sampled from the status bar text, a real ESC key event is
+injected with Window.event_simulate, and the tick times measure whether the
+UI kept running.  The findings go to OUT.json; the test asserts on them.
+"""
+
+import json
+import os
+import sys
+import time
+
+import bpy
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon"))
+
+OUT, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1:][:3]
+TICK = 0.1
+state = {"phase": "warmup", "t": time.monotonic(), "ticks": [], "report": {}, "texts": []}
+
+
+def finish(extra=None):
+    state["report"].update(extra or {})
+    with open(OUT, "w") as f:
+        json.dump(state["report"], f, indent=1)
+    bpy.ops.wm.quit_blender()
+
+
+def view3d():
+    window = bpy.context.window_manager.windows[0]
+    area = max((a for a in window.screen.areas if a.type == "VIEW_3D"), key=lambda a: a.width * a.height)
+    region = next(r for r in area.regions if r.type == "WINDOW")
+    return window, area, region
+
+
+def invoke(photons):
+    settings = bpy.context.scene.endophoton
+    settings.quality, settings.photons, settings.grid_dir = "CUSTOM", photons, GRID_DIR
+    window, area, region = view3d()
+    with bpy.context.temp_override(window=window, area=area, region=region):
+        return sorted(bpy.ops.endophoton.run_simulation("INVOKE_DEFAULT"))
+
+
+def status_text():
+    from endophoton_addon import operators
+
+    job = operators.running_job()
+    return None if job is None else job.progress().text()
+
+
+def tick():
+    from endophoton_addon import operators
+
+    now = time.monotonic()
+    phase = state["phase"]
+    report = state["report"]
+    settings = bpy.context.scene.endophoton
+    if phase == "warmup":                    # let the first redraws (shader compiles) pass
+        if now - state["t"] > 6.0:
+            import addon_utils
+
+            addon_utils.enable("endophoton_addon", default_set=True)
+            bpy.context.preferences.addons["endophoton_addon"].preferences.package_path = ENGINE_FOLDER
+            report["objects_before"] = sorted(o.name for o in bpy.data.objects)
+            report["invoke_1"] = invoke(150_000)
+            state.update(phase="run1", t=now, ticks=[])
+    elif phase == "run1":
+        state["ticks"].append(now)
+        text = status_text()
+        if text:
+            state["texts"].append(text)
+        if operators.running_job() is None:
+            gaps = [b - a for a, b in zip(state["ticks"], state["ticks"][1:])]
+            coll = settings.result_collection
+            report.update(
+                run1_seconds=now - state["t"],
+                run1_ticks=len(state["ticks"]),
+                run1_max_gap=max(gaps) if gaps else None,
+                run1_texts=state["texts"][-3:],
+                run1_collection=coll.name if coll else None,
+                run1_objects=sorted(o.name for o in coll.objects) if coll else [],
+                objects_after_run1=sorted(o.name for o in bpy.data.objects),
+            )
+            report["invoke_2"] = invoke(50_000_000)
+            state.update(phase="run2", t=now, ticks=[], texts=[])
+    elif phase == "run2":
+        state["ticks"].append(now)
+        text = status_text()
+        if text:
+            state["texts"].append(text)
+        if now - state["t"] > 3.0 and "esc_sent" not in report:
+            window, _area, _region = view3d()
+            window.event_simulate(type="ESC", value="PRESS")
+            window.event_simulate(type="ESC", value="RELEASE")
+            report["esc_sent"] = now - state["t"]
+        if "esc_sent" in report and operators.running_job() is None:
+            gaps = [b - a for a, b in zip(state["ticks"], state["ticks"][1:])]
+            coll = settings.result_collection
+            finish(dict(
+                run2_stopped_after=now - state["t"],
+                run2_max_gap=max(gaps) if gaps else None,
+                run2_texts=state["texts"][-3:],
+                run2_collection=coll.name if coll else None,
+                objects_after_run2=sorted(o.name for o in bpy.data.objects),
+                grid_files=sorted(os.listdir(GRID_DIR)) if os.path.isdir(GRID_DIR) else [],
+                status_cleared=status_text() is None,
+            ))
+            return None
+        if now - state["t"] > 60.0:
+            finish({"error": "run 2 did not stop after ESC"})
+            return None
+    return TICK
+
+
+bpy.app.timers.register(tick, first_interval=1.0)
