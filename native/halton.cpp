@@ -32,14 +32,13 @@ double Halton::sample(uint64_t index, int dim) const {
     const std::vector<uint16_t>& p = perm_[dim];
     const double inv_b = 1.0 / double(b);
     double inv_bk = inv_b, value = 0.0;
-    // Permuted radical inverse over a fixed number of digits, enough for double
-    // resolution (b^-K just below 2^-40, so the sequence has > 1e12 distinct
-    // points and the margin to a cell edge is far above rounding). Permuting the index's leading zeros too (they map
-    // to p[0]) is what scrambles; stopping after K digits keeps the sum of those
-    // permuted zeros below one cell width, so the first b^k points still fall one
-    // per cell of width b^-k. (Summing the infinite tail instead would shift a
-    // whole cell whenever p[0] = b - 1 and break the stratification.)
-    while (inv_bk > 0x1.0p-40) {
+    // Permuted radical inverse over a fixed number of digits K, down to double
+    // resolution (b^-K < 2^-53, so indices up to 2^53 stay distinct). Permuting
+    // the index's leading zeros too (they map to p[0]) is what scrambles; stopping
+    // after K digits keeps their sum below one cell width, so the first b^k points
+    // are the lattice j b^-k shifted by one common offset < b^-k. (Summing the
+    // infinite tail instead would push a whole cell over when p[0] = b - 1.)
+    while (inv_bk > 0x1.0p-53) {
         value += double(p[index % b]) * inv_bk;
         index /= b;
         inv_bk *= inv_b;

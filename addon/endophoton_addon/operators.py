@@ -168,9 +168,9 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
     def poll(cls, context):
         return running_job() is None
 
-    def _prepare(self, context):
+    def _prepare(self, context, interactive=False):
         try:
-            return simulation.prepare_job(context)
+            return simulation.prepare_job(context, interactive=interactive)
         except (InputError, EngineMissing) as exc:
             self.report({"ERROR"}, str(exc))
             return None
@@ -203,7 +203,7 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
 
     # Interactive: worker thread + timer; the UI keeps running.
     def invoke(self, context, _event):
-        job = self._prepare(context)
+        job = self._prepare(context, interactive=not bpy.app.background)
         if job is None:
             return {"CANCELLED"}
         self._job = job

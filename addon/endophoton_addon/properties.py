@@ -181,7 +181,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         default="paper",
     )
     seed: IntProperty(name="Seed", default=1, min=0)
-    threads: IntProperty(name="Threads", description="0 = all cores", default=0, min=0, max=1024)
+    threads: IntProperty(name="Threads", description="0 = all cores (all but one while the UI runs, to keep it responsive)", default=0, min=0, max=1024)
 
     output_points: BoolProperty(name="Surface Point Cloud", default=True)
     output_grids: BoolProperty(name="Volume Grids", default=True)

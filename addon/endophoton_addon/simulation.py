@@ -346,9 +346,23 @@ def read_grid_info(path):
     return info
 
 
-def prepare_job(context):
-    """Validate the scene and build the engine call; raises InputError / EngineMissing."""
+def interactive_threads(threads):
+    """Threads for a run behind a live UI: 0 ("all cores") becomes all cores but
+    one, so Blender's own drawing keeps a core and the UI stays responsive."""
+    if threads > 0:
+        return threads
+    return max(1, (os.cpu_count() or 1) - 1)
+
+
+def prepare_job(context, interactive=False):
+    """Validate the scene and build the engine call; raises InputError / EngineMissing.
+
+    ``interactive``: the modal operator's run; threads = 0 then leaves one core
+    to the UI (see interactive_threads).
+    """
     inputs = collect_inputs(context)
+    if interactive:
+        inputs.threads = interactive_threads(inputs.threads)
     ep = engine.require()
     return SimulationJob(ep, inputs)
 

@@ -11,10 +11,14 @@ from .sources import ConeSource, DiskSource, EndoscopeRig, PencilSource, source_
 from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
 from .units import UNIT_CM, unit_cm
 from . import _core
+from . import analysis, meshes
+from .beta_sweep import SweepResult, default_flat_scene, sweep, sweep_blend
+from .report import write_report
 
 __version__ = _core.__version__
 
 __all__ = ["Medium", "Scene", "Region", "layered_slab", "box_mesh", "load_mesh", "PencilSource", "DiskSource",
            "ConeSource", "EndoscopeRig", "source_from_dict", "run", "Result", "GridRequest", "Target",
            "CancelToken", "EEM", "Fluorophore", "Spectrum", "FLUOROPHORE_DEFAULTS", "FRACTIONS", "TARGET_TALLIES",
-           "UNIT_CM", "unit_cm"]
+           "UNIT_CM", "unit_cm", "analysis", "meshes", "sweep", "sweep_blend", "SweepResult",
+           "default_flat_scene", "write_report"]

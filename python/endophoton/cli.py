@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     p_run.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds")
     p_run.set_defaults(func=_run_main)
     try:
-        from .sweep import add_sweep_arguments, sweep_main
+        from .beta_sweep import add_sweep_arguments, sweep_main
     except ImportError:  # pragma: no cover - the sweep module is part of the package
         add_sweep_arguments = None
     if add_sweep_arguments is not None:

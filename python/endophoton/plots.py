@@ -2,7 +2,7 @@
 
 Every figure is written atomically (rendered to memory, then temp file +
 os.replace).  Error bars are the batch-means standard errors carried by the
-:class:`~endophoton.sweep.SweepResult` (for the maximum depth: the sd of the
+:class:`~endophoton.beta_sweep.SweepResult` (for the maximum depth: the sd of the
 per-batch maxima, a spread measure, see :mod:`endophoton.analysis`).
 """
 
@@ -33,7 +33,7 @@ PLOT_FILES = {
 
 
 def _save(fig: Figure, path: str | os.PathLike) -> str:
-    from .sweep import atomic_write_bytes
+    from .beta_sweep import atomic_write_bytes
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)

@@ -1,7 +1,7 @@
 """Markdown report of a beta sweep, set beside the seed paper's reported trends.
 
 :func:`write_report` writes ``report.md``.  Every number in it is computed from
-the :class:`~endophoton.sweep.SweepResult`; the only constants are the paper's
+the :class:`~endophoton.beta_sweep.SweepResult`; the only constants are the paper's
 reported trend values in :data:`PAPER_TRENDS`, labelled as the paper's.
 
 Uncertainties of derived trends (slopes, fitted peaks, differences between
@@ -256,7 +256,7 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     (rules in this module's docstring).
     """
     from .plots import PLOT_FILES, polar_filename
-    from .sweep import atomic_write_text
+    from .beta_sweep import atomic_write_text
 
     r = sweep_result
     pt = dict(PAPER_TRENDS)

@@ -57,6 +57,16 @@ def status_text():
 
 
 def tick():
+    try:
+        return _tick()
+    except Exception:  # never leave a windowed Blender hanging
+        import traceback
+
+        finish({"error": traceback.format_exc()})
+        return None
+
+
+def _tick():
     from endophoton_addon import operators
 
     now = time.monotonic()
@@ -65,10 +75,6 @@ def tick():
     settings = bpy.context.scene.endophoton
     if phase == "warmup":                    # let the first redraws (shader compiles) pass
         if now - state["t"] > 6.0:
-            import addon_utils
-
-            addon_utils.enable("endophoton_addon", default_set=True)
-            bpy.context.preferences.addons["endophoton_addon"].preferences.package_path = ENGINE_FOLDER
             report["objects_before"] = sorted(o.name for o in bpy.data.objects)
             report["invoke_1"] = invoke(150_000)
             state.update(phase="run1", t=now, ticks=[])
@@ -84,6 +90,7 @@ def tick():
                 run1_seconds=now - state["t"],
                 run1_ticks=len(state["ticks"]),
                 run1_max_gap=max(gaps) if gaps else None,
+                run1_gaps=[(round(a - state["t"], 2), round(g, 2)) for a, g in zip(state["ticks"], gaps) if g > 0.5],
                 run1_texts=state["texts"][-3:],
                 run1_collection=coll.name if coll else None,
                 run1_objects=sorted(o.name for o in coll.objects) if coll else [],
@@ -107,6 +114,7 @@ def tick():
             finish(dict(
                 run2_stopped_after=now - state["t"],
                 run2_max_gap=max(gaps) if gaps else None,
+                run2_gaps=[(round(a - state["t"], 2), round(g, 2)) for a, g in zip(state["ticks"], gaps) if g > 0.5],
                 run2_texts=state["texts"][-3:],
                 run2_collection=coll.name if coll else None,
                 objects_after_run2=sorted(o.name for o in bpy.data.objects),
@@ -120,4 +128,8 @@ def tick():
     return TICK
 
 
+import addon_utils  # noqa: E402
+
+addon_utils.enable("endophoton_addon", default_set=True)
+bpy.context.preferences.addons["endophoton_addon"].preferences.package_path = ENGINE_FOLDER
 bpy.app.timers.register(tick, first_interval=1.0)

@@ -24,7 +24,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     cmd = [xvfb, "-a", "-s", "-screen 0 1280x800x24", bpy.app.binary_path, "--factory-startup",
            "--enable-event-simulate", os.path.join(BLEND_DIR, "flat_tissue.blend"),
            "--python", os.path.join(HERE, "gui_modal_driver.py"), "--", str(out), str(grids), engine_folder]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert out.exists(), f"driver wrote nothing (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     report = json.loads(out.read_text())
     assert "error" not in report, report

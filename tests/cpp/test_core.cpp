@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <algorithm>
 #include <set>
 #include <vector>
 
@@ -146,25 +147,28 @@ TEST(Rng, StreamsAreDeterministicAndDistinct) {
 TEST(Halton, DeterministicUniformAndScrambled) {
     const Halton h(3), h2(3), h3(4);
     for (int dim = 0; dim < Halton::kMaxDimensions; ++dim) {
-        // First b^2 points of a (digit-permuted) radical inverse hit every
-        // cell of width 1/b^2 exactly once.
+        // The first b^2 points of a digit-permuted radical inverse are the
+        // lattice j / b^2 plus one common offset below 1 / b^2: sorted, every gap
+        // is 1 / b^2 (checked on gaps, which rounding cannot push across a cell edge).
         const int b = Halton::base(dim), m = b * b;
-        std::set<int> cells;
+        std::vector<double> xs;
         for (int i = 0; i < m; ++i) {
             const double x = h.sample(uint64_t(i), dim);
             ASSERT_GE(x, 0.0);
             ASSERT_LT(x, 1.0);
             EXPECT_EQ(x, h2.sample(uint64_t(i), dim));
-            // x is a multiple of 1/m up to rounding (~1e-16) or sits >= 2^-40 below
-            // the cell's upper edge, so a 1e-14 nudge finds the true cell.
-            cells.insert(int(x * m + 1e-14));
+            xs.push_back(x);
         }
-        EXPECT_EQ(int(cells.size()), m) << "dim " << dim;
+        std::sort(xs.begin(), xs.end());
+        EXPECT_LT(xs.front(), 1.0 / m + 1e-12) << "dim " << dim;
+        for (int i = 1; i < m; ++i) EXPECT_NEAR(xs[size_t(i)] - xs[size_t(i) - 1], 1.0 / m, 1e-12) << "dim " << dim;
     }
     int differ = 0;
     for (int i = 1; i < 50; ++i) differ += h.sample(uint64_t(i), 3) != h3.sample(uint64_t(i), 3);
     EXPECT_GT(differ, 0);
     EXPECT_LT(h.sample(uint64_t(1) << 40, 2), 1.0);
+    // Far into the sequence indices stay distinct: 2^40 is not 0 in base 2.
+    EXPECT_NE(h.sample(uint64_t(1) << 40, 0), h.sample(0, 0));
 }
 
 TEST(MeshCheck, RejectsEveryClassOfBadMesh) {

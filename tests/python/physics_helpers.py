@@ -16,6 +16,7 @@ values, or the Monte Carlo error of a Monte Carlo reference, see
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -77,9 +78,19 @@ def assert_energy_conserved(res, tol=1e-9):
     return total
 
 
+def _log(line):
+    """Append a line to $EP_PHYSICS_LOG if set (a table of measured vs reference values)."""
+    path = os.environ.get("EP_PHYSICS_LOG")
+    if path:
+        test = os.environ.get("PYTEST_CURRENT_TEST", "").split(" ")[0]
+        with open(path, "a", encoding="utf-8") as fh:
+            fh.write(f"{test}\t{line}\n")
+
+
 def assert_within(label, value, sigma, ref, ref_unc=0.0, k=K_SIGMA):
     """|value - ref| < k*sigma + ref_unc, with a message that shows every number."""
     tol = k * sigma + ref_unc
+    _log(f"{label}\t{value:.6g}\t{sigma:.2g}\t{ref:.6g}\t{ref_unc:.2g}\t{abs(value - ref) / tol if tol else 0:.2f}")
     assert math.isfinite(value), f"{label}: value {value} is not finite"
     assert abs(value - ref) < tol, (f"{label}: measured {value:.6g} +- {sigma:.3g} (1 sigma), reference {ref:.6g} "
                                     f"(+- {ref_unc:.3g}); |diff| = {abs(value - ref):.3g} >= {k:g} sigma + ref_unc "
@@ -89,6 +100,7 @@ def assert_within(label, value, sigma, ref, ref_unc=0.0, k=K_SIGMA):
 def assert_same_within_stats(label, a, sa, b, sb, k=K_SIGMA, extra=0.0):
     """Two independent estimates agree: |a - b| < k * sqrt(sa^2 + sb^2) (+ extra)."""
     tol = k * math.hypot(sa, sb) + extra
+    _log(f"{label}\t{a:.6g}\t{sa:.2g}\t{b:.6g}\t{sb:.2g}\t{abs(a - b) / tol if tol else 0:.2f}")
     assert abs(a - b) < tol, f"{label}: {a:.6g} +- {sa:.3g} vs {b:.6g} +- {sb:.3g}; |diff| = {abs(a - b):.3g} >= {tol:.3g}"
 
 

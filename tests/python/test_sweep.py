@@ -18,7 +18,7 @@ import pytest
 import endophoton as ep
 from endophoton import analysis as an
 from endophoton import meshes
-from endophoton import sweep as sw
+from endophoton import beta_sweep as sw
 from endophoton.sources import EndoscopeRig
 
 import _synth as sy
@@ -385,7 +385,7 @@ import json, sys
 import numpy as np
 import bpy
 sys.path.insert(0, PKG)
-from endophoton import sweep as sw
+from endophoton import beta_sweep as sw
 sw.enable_addon()
 for obj in list(bpy.data.objects):
     bpy.data.objects.remove(obj, do_unlink=True)

@@ -785,7 +785,7 @@ def _run_blender(args: argparse.Namespace) -> int:
         return 2
     pkg_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     argv = _forward_argv(args)
-    expr = ("import sys; sys.path.insert(0, %r); from endophoton import sweep as s; "
+    expr = ("import sys; sys.path.insert(0, %r); from endophoton import beta_sweep as s; "
             "sys.exit(s._blender_entry(%r))" % (pkg_parent, argv))
     # the .blend is opened by blender itself; _blender_entry enables the add-on first
     cmd = [blender, "-b", os.fspath(args.blend), "--python-exit-code", "1", "--python-expr", expr]
