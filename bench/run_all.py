@@ -433,6 +433,11 @@ def ensure_profile_build():
     dst = os.path.join(PROFILE_PY, "endophoton")
     for f in glob.glob(os.path.join(PY, "endophoton", "*.py")):
         shutil.copy2(f, dst)
+    # Default EEMs: the package looks in endophoton/data/eem first.
+    os.makedirs(os.path.join(dst, "data"), exist_ok=True)
+    link = os.path.join(dst, "data", "eem")
+    if not os.path.exists(link):
+        os.symlink(os.path.join(ROOT, "data", "eem"), link)
     return None
 
 
@@ -667,7 +672,8 @@ def write_markdown(R, figs):
         ["engine", f"endophoton {M['engine']}, commit {M['commit']}"],
         ["load average at start / end", " / ".join(f"{x:.1f}" for x in M["load_start"]) + " ; "
          + " / ".join(f"{x:.1f}" for x in M["load_end"])],
-        ["bench wall time", f"{R['bench_seconds']:.0f} s" + (" (--quick)" if R["quick"] else "")],
+        ["bench wall time", f"{R['bench_seconds']:.0f} s" + (" (--quick)" if R["quick"] else "")
+         + (f" (partial rerun of {', '.join(R['partial_rerun'])})" if R.get("partial_rerun") else "")],
     ]))
     a("\nThe machine is shared with other engineers running tests: wall-clock figures are noisy (best of two "
       "repeats where stated). The instruction counts of the profile section are not.\n")
@@ -891,6 +897,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="small packet counts (pipeline check)")
     ap.add_argument("--no-profile", action="store_true", help="skip the callgrind sections")
+    ap.add_argument("--only", help="comma-separated sections to rerun, keeping the rest of docs/perf/results.json "
+                    "(development aid; the published page comes from a full run)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -899,21 +907,31 @@ def main():
     sys.path.insert(0, PY)
     sys.path.insert(1, HERE)
     q = args.quick
+    sections = ["throughput", "accuracy", "roulette", "safe_distance", "voxel_beer_lambert", "voxel_colon",
+                "max_steps", "presets", "target_overhead", "profile"]
+    only = sections
     R = dict(quick=q)
+    if args.only:  # development aid: rerun some sections, keep the others from the last results.json
+        only = args.only.split(",")
+        with open(os.path.join(PERF, "results.json"), encoding="utf-8") as fh:
+            R = json.load(fh)
+        R["partial_rerun"] = only
     R["machine"] = machine_info()
     log(f"machine: {R['machine']['cpu']}, nproc {R['machine']['nproc']}")
-    R["throughput"] = bench_throughput(q)
-    runs = bench_accuracy(q)
-    R["accuracy_runs"] = runs
-    R["accuracy"], R["accuracy_pooled"] = summarize_accuracy(runs)
-    R["roulette"] = bench_roulette(q)
-    R["safe_distance"] = bench_safe_distance(q)
-    R["voxel_beer_lambert"] = bench_voxel_beer_lambert(q)
-    R["voxel_colon"] = bench_voxel_colon(q)
-    R["max_steps"] = bench_max_steps(q)
-    R["presets"] = bench_presets(q)
-    R["target_overhead"] = bench_target_overhead(q)
-    R["profile"] = dict(error="skipped (--no-profile)") if args.no_profile else bench_profile(q)
+    if "throughput" in only:
+        R["throughput"] = bench_throughput(q)
+    if "accuracy" in only:
+        runs = bench_accuracy(q)
+        R["accuracy_runs"] = runs
+        R["accuracy"], R["accuracy_pooled"] = summarize_accuracy(runs)
+    for name, fn in (("roulette", bench_roulette), ("safe_distance", bench_safe_distance),
+                     ("voxel_beer_lambert", bench_voxel_beer_lambert), ("voxel_colon", bench_voxel_colon),
+                     ("max_steps", bench_max_steps), ("presets", bench_presets),
+                     ("target_overhead", bench_target_overhead)):
+        if name in only:
+            R[name] = fn(q)
+    if "profile" in only:
+        R["profile"] = dict(error="skipped (--no-profile)") if args.no_profile else bench_profile(q)
     R["machine"]["load_end"] = os.getloadavg()
     R["bench_seconds"] = time.time() - T0
     atomic_write_text(os.path.join(PERF, "results.json"), json.dumps(R, indent=1, default=str))

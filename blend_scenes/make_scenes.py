@@ -5,6 +5,7 @@
 
 writes blend_scenes/flat_tissue.blend and blend_scenes/colon_polyp.blend
 (metres, unit scale 1; no packed data).  Meshes are built from numpy arrays.
+``-- --out DIR`` writes them to DIR instead (the tests compare the two).
 
 flat_tissue.blend — the paper's setting: a 4 cm x 4 cm x 2 cm slab of tissue
 (top face at z = 0), a sessile polyp (flattened sphere, 6 mm across, 2 mm
@@ -150,8 +151,16 @@ def _check_closed(export, obj):
     export.check_closed(obj.name, verts, tris)   # raises if open or inward
 
 
+def _out_dir():
+    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    if "--out" in argv:
+        return os.path.abspath(argv[argv.index("--out") + 1])
+    return HERE
+
+
 def _save(name):
-    path = os.path.join(HERE, name)
+    os.makedirs(_out_dir(), exist_ok=True)
+    path = os.path.join(_out_dir(), name)
     bpy.ops.wm.save_as_mainfile(filepath=path, compress=True, relative_remap=True)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB)")
     return path

@@ -7,7 +7,8 @@ namespace ep {
 const char* tally_name(int i) {
     static const char* names[kScalarTallies] = {"specular_reflectance", "diffuse_reflectance", "transmittance",
                                                 "absorbed", "missed", "cut", "roulette",
-                                                "fluorescent_escaped", "escaped_energy"};
+                                                "fluorescent_escaped", "escaped_energy", "interactions",
+                                                "fluorescence_trials", "fluorescence_events"};
     return names[i];
 }
 

@@ -19,6 +19,9 @@ enum TallyIndex : int {
     kRoulette,       // net weight destroyed (+) or created (-) by Russian roulette
     kFluorescentEscaped,  // weight of escaping fluorescent packets
     kEscapedEnergy,       // energy (weight x 500/lambda) of escaping packets
+    kInteractions,        // count of interaction events (not weighted)
+    kFluorescenceTrials,  // count of fluorescence decisions (interaction x eligible fluorophore)
+    kFluorescenceEvents,  // count of fluorescence events
     kScalarTallies
 };
 

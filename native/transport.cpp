@@ -371,6 +371,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
         }
 
         // ---- interaction inside med.region.
+        tally[kInteractions] += 1;
         p += d * s;
         path_cm += s * unit_cm;
         need_tau = true;
@@ -399,6 +400,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
             const bool may = cfg_.rule == FluorescenceRule::kEEM || !fluorescent;
             if (may && W > 0) {
                 for (const FluorophoreRef& f : fl) {
+                    tally[kFluorescenceTrials] += 1;
                     const Float u1 = rng.uniform(), u2 = rng.uniform();
                     Float d_eff = f.d;
                     if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene.eem(f.id).efficiency(lambda);
@@ -411,6 +413,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
                         energy_per_weight = new_epw;
                         fluorescent = true;
                         fluorophore = f.id;
+                        tally[kFluorescenceEvents] += 1;
                         load_medium(med.region);  // coefficients at the new wavelength
                         break;
                     }

@@ -16,8 +16,8 @@ from conftest import BLEND_DIR, ENGINE_FOLDER, HERE
 
 def test_modal_operator_in_window(ep, tmp_path):
     xvfb = shutil.which("xvfb-run")
-    if xvfb is None:
-        pytest.skip("xvfb-run not installed (apt-get install xvfb): windowed modal test not run")
+    if xvfb is None or shutil.which("xauth") is None:
+        pytest.skip("xvfb-run/xauth not installed (apt-get install xvfb xauth): windowed modal test not run")
     out = tmp_path / "modal.json"
     grids = tmp_path / "grids"
     engine_folder = ENGINE_FOLDER or os.path.dirname(os.path.dirname(ep.__file__))

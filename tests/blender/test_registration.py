@@ -2,7 +2,6 @@
 """Acceptance 1: registration, plus install-from-zip, manifest and the panels."""
 
 import os
-import shutil
 import subprocess
 import sys
 import tomllib
@@ -107,7 +106,15 @@ def test_bl_info_and_manifest():
 def test_install_from_zip_in_fresh_blender(tmp_path):
     """Build the zip the way users install it and install + enable it from the
     preferences operator in a separate Blender with its own user-scripts folder."""
-    archive = shutil.make_archive(str(tmp_path / ADDON), "zip", os.path.join(REPO, "addon"), ADDON)
+    sys.path.insert(0, os.path.join(REPO, "addon"))
+    import build_zip
+
+    archive = build_zip.build(str(tmp_path / f"{ADDON}.zip"))
+    import zipfile
+
+    names = zipfile.ZipFile(archive).namelist()
+    assert f"{ADDON}/__init__.py" in names and f"{ADDON}/blender_manifest.toml" in names
+    assert not any("__pycache__" in n for n in names)
     user_scripts = tmp_path / "user_scripts"
     user_scripts.mkdir()
     script = tmp_path / "install.py"

@@ -1,0 +1,137 @@
+"""OpenVDB grid output, "store N" determinism, emission reproducibility, progress and cancel."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton import vdb
+from physics_helpers import assert_energy_conserved
+
+
+def _clear_absorber(unit="cm", scale=1.0):
+    """A non-scattering absorbing box: a pencil beam deposits only along its own line."""
+    s = ep.Scene(unit=unit)
+    s.add_box("absorber", np.array((-1, -1, -1)) * scale, np.array((1, 1, 0)) * scale,
+              ep.Medium(mua=1.5, mus=0.0, g=0.0, n=1.0))
+    return s
+
+
+def test_grid_lines_up_with_world_space_and_sums_to_the_absorbed_tally(tmp_path):
+    x0, y0 = 0.3, -0.2
+    voxel = 0.05
+    path = tmp_path / "abs.vdb"
+    res = ep.run(_clear_absorber(), ep.PencilSource((x0, y0, 1.0), (0, 0, -1)), photons=500, seed=1,
+                 grids=ep.GridRequest(voxel_size=voxel, path=str(path)))
+    assert_energy_conserved(res)
+    assert res.grid_path == str(path) and path.exists()
+    summary = vdb.read_grid_summary(str(path))
+    g = summary["grids"]["absorbed"]
+    assert g["grid_class"].lower().startswith("fog")
+    assert g["voxel_size"] == pytest.approx((voxel,) * 3)
+    # Every packet loses 1 - exp(-1.5 * 1 cm) in the box (Beer-Lambert, exact for mus = 0).
+    expected_absorbed = 1 - np.exp(-1.5)
+    assert res.absorbed == pytest.approx(expected_absorbed, rel=1e-12)
+    assert g["sum"] == pytest.approx(res.absorbed, rel=1e-6)
+    for key in ("packets", "seed", "unit_cm", "engine"):
+        assert key in summary["metadata"] or key in g["metadata"], key
+    # Voxel-to-world: the deposition line x = x0, y = y0, -1 < z < 0 (cell-centred voxels).
+    arr, origin, h = vdb.grid_to_numpy(str(path), "absorbed")
+    idx = np.argwhere(arr > 0)
+    world = origin + idx * h
+    assert np.all(np.abs(world[:, 0] - x0) <= 0.5 * h + 1e-9)
+    assert np.all(np.abs(world[:, 1] - y0) <= 0.5 * h + 1e-9)
+    assert world[:, 2].min() >= -1 - h and world[:, 2].max() <= 0 + h
+    # Beer-Lambert shape: the voxel nearest the surface holds more than the deepest one.
+    by_z = {round(float(z), 6): float(v) for z, v in zip(world[:, 2], arr[arr > 0])}
+    zs = sorted(by_z)
+    assert by_z[zs[-1]] > by_z[zs[0]]
+
+
+def test_no_grid_file_unless_requested(tmp_path):
+    res = ep.run(_clear_absorber(), ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=200, seed=1)
+    assert res.grid_path is None and res.grid_names == []
+
+
+def test_grid_in_metres_lines_up_with_the_same_physical_point(tmp_path):
+    path = tmp_path / "m.vdb"
+    res = ep.run(_clear_absorber("m", 0.01), ep.PencilSource((0.003, -0.002, 0.01), (0, 0, -1)),
+                 photons=200, seed=1, grids=ep.GridRequest(voxel_size=0.0005, path=str(path)))
+    arr, origin, h = vdb.grid_to_numpy(str(path), "absorbed")
+    world = origin + np.argwhere(arr > 0) * h
+    assert np.all(np.abs(world[:, 0] - 0.003) <= 0.5 * h + 1e-12)
+    # The box bottom is stored as float32(-0.01) m: the path is that thickness in cm.
+    path_cm = -float(np.float32(-0.01)) * 100.0
+    assert res.absorbed == pytest.approx(1 - np.exp(-1.5 * path_cm), rel=1e-12)
+
+
+def _fluor_scene():
+    s = ep.Scene(unit="cm")
+    s.add_box("tissue", (-5, -5, -5), (5, 5, 0), ep.Medium(20, 200, 0.9, 1.1),
+              fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
+    return s
+
+
+def test_store_n_is_deterministic_across_thread_counts():
+    rig = ep.EndoscopeRig.from_beta(15, 1.0)
+    a = ep.run(_fluor_scene(), rig, store=3000, fluorescent_only=True, seed=4, threads=1)
+    b = ep.run(_fluor_scene(), rig, store=3000, fluorescent_only=True, seed=4, threads=2)
+    assert a.stop_reason == "store" and len(a.escapes["weight"]) == 3000
+    assert a.packets_traced == b.packets_traced
+    assert a.packets_traced == int(a.escapes["packet"][-1]) + 1
+    for k in a.escapes:
+        assert np.array_equal(a.escapes[k], b.escapes[k]), k
+    assert np.all(a.escapes["fluorescent"] == 1)
+    assert np.all(np.diff(a.escapes["packet"].astype(np.int64)) > 0)
+
+
+def test_halton_emission_is_reproducible():
+    rig = ep.EndoscopeRig.from_beta(20, 1.0)
+    src = ep._core.Source(rig.native_lights(1.0))
+    p1, d1, w1, l1 = src.emit(9, 0, 4096, True)
+    p2, d2, w2, l2 = src.emit(9, 0, 4096, True)
+    assert np.array_equal(p1, p2) and np.array_equal(d1, d2) and np.array_equal(w1, w2)
+    assert np.array_equal(l1, np.arange(4096) % 2)
+    # Directions are inside each light's cone (half angle 7.5 deg about the head axis).
+    cosang = d1 @ rig.forward
+    assert np.all(cosang >= np.cos(np.radians(7.5)) - 1e-12)
+    # Flat white 400-700 nm by default: uniform, checked by the first two moments.
+    assert w1.min() >= 400 and w1.max() <= 700
+    assert abs(w1.mean() - 550) < 3 * 300 / np.sqrt(12 * len(w1))
+
+
+def test_progress_is_reported_and_cancel_returns_a_marked_partial_result():
+    scene = _fluor_scene()
+    token = ep.CancelToken()
+    calls = []
+
+    def progress(done, total):
+        calls.append((done, total))
+
+    out = {}
+
+    def work():
+        out["res"] = ep.run(scene, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=5_000_000, seed=1,
+                            threads=2, record_escapes=False, progress=progress, cancel=token)
+
+    th = threading.Thread(target=work)
+    th.start()
+    time.sleep(1.5)
+    # The GIL is released: this thread keeps running Python while the engine works.
+    ticks = sum(1 for _ in range(100000))
+    token.cancel()
+    th.join(timeout=30)
+    assert not th.is_alive()
+    res = out["res"]
+    assert ticks == 100000
+    assert res.cancelled is True and res.stop_reason == "cancelled"
+    assert 0 < res.photons < 5_000_000
+    assert calls and all(t == 5_000_000 for _, t in calls)
+    assert_energy_conserved(res)
+
+
+def test_progress_returning_false_stops_the_run():
+    res = ep.run(_fluor_scene(), ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=50_000_000, seed=1,
+                 record_escapes=False, progress=lambda done, total: False)
+    assert res.cancelled and res.photons < 50_000_000
