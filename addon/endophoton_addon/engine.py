@@ -60,12 +60,24 @@ def _forget_partial_import():
             del sys.modules[name]
 
 
+HOW_TO_FIX = (
+    "Install the package with /usr/bin/python3 -m pip into the dist-packages "
+    "Blender sees, or set its folder in Preferences > Add-ons > EndoPhoton."
+)
+
+
 def _try_import(path):
     if path:
-        if not os.path.isdir(path):
+        if not os.path.isdir(os.path.join(path, "endophoton")):
             return None, (
-                f"EndoPhoton package folder '{path}' does not exist. "
-                "Fix it in Preferences > Add-ons > EndoPhoton."
+                f"EndoPhoton engine not found: the package folder '{path}' has no "
+                f"'endophoton' package in it. {HOW_TO_FIX}"
+            )
+        loaded = sys.modules.get("endophoton")
+        if loaded is not None and not _is_inside(getattr(loaded, "__file__", "") or "", path):
+            return None, (
+                f"Another endophoton package is already imported from "
+                f"'{os.path.dirname(loaded.__file__)}'; restart Blender to use '{path}'."
             )
         if path not in sys.path:
             sys.path.insert(0, path)
@@ -75,11 +87,7 @@ def _try_import(path):
     except Exception as exc:  # ImportError, or an ABI/linker error from the extension
         _forget_partial_import()
         where = f" from '{path}'" if path else ""
-        return None, (
-            f"EndoPhoton engine not found{where} ({type(exc).__name__}: {exc}). "
-            "Install the package with /usr/bin/python3 -m pip into the dist-packages "
-            "Blender sees, or set its folder in Preferences > Add-ons > EndoPhoton."
-        )
+        return None, f"EndoPhoton engine not found{where} ({type(exc).__name__}: {exc}). {HOW_TO_FIX}"
     missing = [name for name in REQUIRED_NAMES if not hasattr(module, name)]
     if missing:
         return None, (
@@ -87,6 +95,14 @@ def _try_import(path):
             f"it lacks {', '.join(missing)}."
         )
     return module, None
+
+
+def _is_inside(file_path, folder):
+    try:
+        return os.path.commonpath([os.path.realpath(file_path), os.path.realpath(folder)]) \
+            == os.path.realpath(folder)
+    except ValueError:
+        return False
 
 
 def status():
