@@ -161,6 +161,7 @@ def _out_dir():
 def _save(name):
     os.makedirs(_out_dir(), exist_ok=True)
     path = os.path.join(_out_dir(), name)
+    bpy.context.preferences.filepaths.save_version = 0   # no .blend1 backups
     bpy.ops.wm.save_as_mainfile(filepath=path, compress=True, relative_remap=True)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB)")
     return path

@@ -195,11 +195,16 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
                             out->per_fluorophore.push_back(std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size));
                 }
                 const uint64_t end = std::min(limit, (u + 1) * unit_size);
+                uint64_t counted = u * unit_size;
                 for (uint64_t k = u * unit_size; k < end; ++k) {
-                    if (((k & 255) == 0) && (cancelled() || stop.load())) return;
+                    if ((k & 255) == 0) {
+                        if (cancelled() || stop.load()) return;
+                        done_packets.fetch_add(k - counted);  // progress every 256 packets
+                        counted = k;
+                    }
                     tracer.trace(k, *out);
                 }
-                done_packets.fetch_add(end - u * unit_size);
+                done_packets.fetch_add(end - counted);
                 std::lock_guard<std::mutex> lock(mu);
                 pending.emplace(u, std::move(out));
                 merge_ready();
@@ -243,7 +248,7 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
         result.packets_traced = result.packets;
     result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
 
-    if (grids && result.packets > 0) {
+    if (grids && result.packets > 0 && !result.cancelled) {  // a cancelled run writes no file
         // Grids hold per-launched-packet values, so the absorbed grid sums to the
         // `absorbed` fraction.
         const double s = 1.0 / double(result.packets);

@@ -12,13 +12,17 @@ from . import engine, properties, results, rig, simulation
 from .engine import EngineMissing
 from .export import InputError
 
-# The job the modal operator is running (one at a time).
-_running = {"job": None}
+# The job being run (one at a time); "modal" is True from invoke until the
+# modal operator has finished (results added) or been cancelled.
+_running = {"job": None, "modal": False}
 
 
 def running_job():
+    """The job in progress, until its results are in the scene; else None."""
     job = _running["job"]
-    return job if job is not None and not job.done else None
+    if job is None or (job.done and not _running["modal"]):
+        return None
+    return job
 
 
 def _redraw_sidebars(context):
@@ -209,7 +213,7 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
         self._job = job
         self._area = context.area
         self._workspace = context.workspace
-        _running["job"] = job
+        _running.update(job=job, modal=True)
         job.start()
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.2, window=context.window)
@@ -232,9 +236,11 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
             self._status(context, progress.text())
             _redraw_sidebars(context)
             return {"PASS_THROUGH"}
-        self._cleanup(context)
-        _redraw_sidebars(context)
-        return self._finish(context, job)
+        try:
+            return self._finish(context, job)
+        finally:
+            self._cleanup(context)
+            _redraw_sidebars(context)
 
     def cancel(self, context):
         # Blender cancels modal operators when the file is closed.
@@ -257,6 +263,7 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
         wm.progress_end()
         self._status(context, None)
         self._area = self._workspace = None
+        _running["modal"] = False
 
 
 CLASSES = (

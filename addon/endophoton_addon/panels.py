@@ -41,7 +41,8 @@ class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
         if job is not None:
             box = layout.box()
             progress = job.progress()
-            box.label(text=f"Running: {progress.done:,}/{progress.total:,}", icon="TIME")
+            of_total = f"/{progress.total:,}" if progress.total > 0 else ""
+            box.label(text=f"Running: {progress.done:,}{of_total} packets", icon="TIME")
             box.label(text=f"{progress.rate:,.0f} packets/s")
             box.operator("endophoton.cancel_run", icon="CANCEL")
 
@@ -157,7 +158,7 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
         box.label(text=collection.name, icon="OUTLINER_COLLECTION")
         col = box.column(align=True)
         for label, value in results.summary_rows(collection):
-            row = col.split(factor=0.42, align=True)
+            row = col.split(factor=0.34, align=True)
             row.label(text=label)
             row.label(text=value)
         layout.operator("endophoton.clear_results", icon="TRASH")

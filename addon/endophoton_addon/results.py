@@ -407,16 +407,17 @@ def update_display(scene):
                     node.outputs[0].default_value = settings.volume_density
 
 
+# Short labels: the sidebar is narrow (Rsp + Rd + Tt + A + missed + cut + roulette = 1).
 SUMMARY_LABELS = {
-    "diffuse_reflectance": "Diffuse R",
-    "specular_reflectance": "Specular R",
-    "transmittance": "Transmitted",
-    "absorbed": "Absorbed",
+    "diffuse_reflectance": "Rd",
+    "specular_reflectance": "Rsp",
+    "transmittance": "Tt",
+    "absorbed": "A",
     "missed": "Missed",
     "cut": "Cut",
     "roulette": "Roulette",
-    "fluorescent_escaped": "Fluor. escaped",
-    "escaped_energy": "Escaped energy",
+    "fluorescent_escaped": "Fluor. out",
+    "escaped_energy": "Energy out",
 }
 
 
@@ -428,16 +429,15 @@ def summary_rows(collection):
     s = summary.to_dict() if hasattr(summary, "to_dict") else dict(summary)
     rows = [
         ("β", f"{s['beta_deg']:+.2f}°"),
-        ("Run", s["timestamp"]),
-        ("Packets traced", f"{s['packets_traced']:,}"),
+        ("Traced", f"{s['packets_traced']:,}"),
         ("Launched", f"{s['photons']:,}"),
-        ("Surface records", f"{s['records']:,}"),
+        ("Records", f"{s['records']:,}"),
         ("Time", f"{s['seconds']:.2f} s"),
     ]
     for name, (value, stderr) in s.get("totals", {}).items():
-        rows.append((SUMMARY_LABELS.get(name, name), f"{value:.5g} ± {stderr:.2g}"))
+        rows.append((SUMMARY_LABELS.get(name, name), f"{value:.4g}±{stderr:.1g}"))
     for name, (value, stderr) in s.get("absorbed_by_region", {}).items():
-        rows.append((f"Absorbed: {name}", f"{value:.5g} ± {stderr:.2g}"))
+        rows.append((f"A {name}", f"{value:.4g}±{stderr:.1g}"))
     return rows
 
 

@@ -243,6 +243,9 @@ class Progress:
         return min(1.0, self.done / self.total) if self.total > 0 else 0.0
 
     def text(self):
+        if self.total <= 0:  # "store N" runs: the packet count is open-ended
+            return (f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · "
+                    "ETA -- (store N) · Esc to cancel")
         eta = "--" if self.eta is None else _format_seconds(self.eta)
         return (f"EndoPhoton: {self.done:,}/{self.total:,} packets · {self.rate:,.0f} packets/s · "
                 f"ETA {eta} · Esc to cancel")
@@ -272,7 +275,7 @@ class SimulationJob:
         self.error_traceback = None
         self.grid_info = []  # [(name, active voxel count, max value)] read in the worker
         self._lock = threading.Lock()
-        self._progress = (0, inputs.count)
+        self._progress = (0, inputs.count if inputs.kind == "photons" else 0)
         self._t0 = None
         self._finished = threading.Event()
         self._thread = None
@@ -289,10 +292,6 @@ class SimulationJob:
         self.token.cancel()
 
     @property
-    def cancelled(self):
-        return bool(self.token.cancelled) if hasattr(self.token, "cancelled") else False
-
-    @property
     def done(self):
         return self._finished.is_set()
 
@@ -304,7 +303,7 @@ class SimulationJob:
             done, total = self._progress
         elapsed = time.monotonic() - self._t0 if self._t0 else 0.0
         rate = done / elapsed if elapsed > 0 else 0.0
-        eta = (total - done) / rate if rate > 0 and total >= done else None
+        eta = (total - done) / rate if rate > 0 and total >= done > 0 else None
         return Progress(done, total, elapsed, rate, eta)
 
     # --- worker thread (no bpy here) ----------------------------------------

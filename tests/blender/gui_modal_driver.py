@@ -24,6 +24,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon")
 
 OUT, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1:][:3]
 TICK = 0.1
+DEADLINE = 180.0          # seconds; the driver quits Blender whatever happens
+START = time.monotonic()
 state = {"phase": "warmup", "t": time.monotonic(), "ticks": [], "report": {}, "texts": []}
 
 
@@ -70,6 +72,9 @@ def _tick():
     from endophoton_addon import operators
 
     now = time.monotonic()
+    if now - START > DEADLINE:
+        finish({"error": f"driver deadline ({DEADLINE:.0f} s) passed in phase {state['phase']}"})
+        return None
     phase = state["phase"]
     report = state["report"]
     settings = bpy.context.scene.endophoton

@@ -115,8 +115,9 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
         assert value == getattr(res, name) and stderr == getattr(res, name + "_stderr")
     assert set(summary["absorbed_by_region"]) == {"Tissue", "Polyp"}
     lines = results.summary_lines(collection)
-    assert any(line.startswith("Diffuse R:") and "±" in line for line in lines)
-    assert any("Packets traced: 20,000" in line for line in lines)
+    assert f"Rd: {res.diffuse_reflectance:.4g}±{res.diffuse_reflectance_stderr:.1g}" in lines
+    assert "Traced: 20,000" in lines
+    assert any(line.startswith("A Polyp: ") for line in lines)
 
 
 def test_rerun_replaces_previous_collection(ep, tmp_path):

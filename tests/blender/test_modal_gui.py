@@ -6,6 +6,7 @@ nothing behind.  Needs xvfb-run (Debian package xvfb)."""
 import json
 import os
 import shutil
+import signal
 import subprocess
 
 import bpy
@@ -24,8 +25,15 @@ def test_modal_operator_in_window(ep, tmp_path):
     cmd = [xvfb, "-a", "-s", "-screen 0 1280x800x24", bpy.app.binary_path, "--factory-startup",
            "--enable-event-simulate", os.path.join(BLEND_DIR, "flat_tissue.blend"),
            "--python", os.path.join(HERE, "gui_modal_driver.py"), "--", str(out), str(grids), engine_folder]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
-    assert out.exists(), f"driver wrote nothing (rc {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    # Own process group: on a timeout, Xvfb and Blender are ended together.
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=240)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        stdout, stderr = proc.communicate()
+    assert out.exists(), f"driver wrote nothing (rc {proc.returncode}):\n{stdout[-3000:]}\n{stderr[-3000:]}"
     report = json.loads(out.read_text())
     assert "error" not in report, report
 

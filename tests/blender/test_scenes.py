@@ -66,6 +66,7 @@ def test_committed_blends_match_make_scenes(tmp_path):
 @pytest.mark.parametrize("name", SCENES)
 def test_blend_is_small_and_self_contained(name):
     path = os.path.join(BLEND_DIR, name)
+    assert not os.path.exists(path + "1"), "a .blend1 backup next to the scene"
     assert os.path.getsize(path) < 1_000_000
     _open(path)
     assert bpy.utils.blend_paths(absolute=True) == []        # no external files

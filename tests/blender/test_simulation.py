@@ -1,0 +1,43 @@
+# SPDX-License-Identifier: MIT
+"""Plain-Python parts of a run: budgets from quality presets, progress text, threads."""
+
+import os
+
+import bpy
+import pytest
+
+from endophoton_addon import presets, simulation
+
+
+@pytest.mark.parametrize("quality,mode,expected", [
+    ("PREVIEW", "PHOTONS", ("photons", 20_000)),
+    ("STANDARD", "PHOTONS", ("photons", 200_000)),
+    ("REFERENCE", "STORE", ("store", 2_000_000)),
+    ("CUSTOM", "PHOTONS", ("photons", 123)),
+    ("CUSTOM", "STORE", ("store", 456)),
+])
+def test_resolve_budget(quality, mode, expected):
+    assert presets.resolve_budget(quality, mode, 123, 456) == expected
+
+
+def test_quality_enum_matches_presets():
+    items = bpy.types.Scene.bl_rna.properties["endophoton"].fixed_type.properties["quality"].enum_items
+    assert [i.identifier for i in items] == [*presets.QUALITY_PRESETS, "CUSTOM"]
+    assert all(p.target_error is None for p in presets.QUALITY_PRESETS.values())
+
+
+def test_progress_text():
+    p = simulation.Progress(done=50_000, total=200_000, elapsed=2.0, rate=25_000.0, eta=6.0)
+    assert p.fraction == 0.25
+    assert p.text() == "EndoPhoton: 50,000/200,000 packets · 25,000 packets/s · ETA 6s · Esc to cancel"
+    long = simulation.Progress(done=1, total=10**9, elapsed=1.0, rate=1.0, eta=3725.0)
+    assert "ETA 1h02m" in long.text()
+    store = simulation.Progress(done=7_000, total=0, elapsed=1.0, rate=7_000.0, eta=None)
+    assert store.fraction == 0.0
+    assert store.text() == "EndoPhoton: 7,000 packets · 7,000 packets/s · ETA -- (store N) · Esc to cancel"
+
+
+def test_interactive_threads_leave_a_core():
+    cores = os.cpu_count() or 1
+    assert simulation.interactive_threads(0) == max(1, cores - 1)
+    assert simulation.interactive_threads(3) == 3
