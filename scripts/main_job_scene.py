@@ -9,6 +9,7 @@ and volume grids), saves DIR/scene_beta<B>.blend, renders DIR/render_beta<B>.png
 with Cycles and appends what it made, with the run's totals, to DIR/report.md.
 """
 import argparse
+import math
 import os
 import sys
 
@@ -34,7 +35,8 @@ def main(argv):
 
     scene = bpy.context.scene
     rig = scene.endophoton.rig or next(o for o in scene.objects if o.endophoton_rig.is_rig)
-    rig.endophoton_rig.beta = args.beta
+    rig.endophoton_rig.beta = math.radians(args.beta)  # an ANGLE property: radians inside
+    bpy.context.view_layer.update()
     s = scene.endophoton
     s.quality = "CUSTOM"
     s.mode = "STORE"

@@ -8,19 +8,19 @@ from typing import Optional
 #
 # Choosing a role on an object loads these defaults (medium, priority,
 # fluorophores); the user edits them afterwards.  The optical constants are
-# illustrative colon-tissue values in cm^-1; the fluorophore d (probability
-# the interaction can fluoresce) and c (quantum-yield-like acceptance) follow
-# the issue: tissue collagen d=0.2 c=0.4; polyp collagen (same) + photofrin
-# d=0.1 c=0.33.
+# the seed paper's colon tissue (its §3, after Wang & Jacques): n = 1.1,
+# mua = 20 cm^-1, mus = 200 cm^-1, g = 0.9; the paper gives the polyp no other
+# optics, only photofrin besides collagen.  Fluorophores follow the paper:
+# tissue collagen d=0.2 c=0.4; polyp collagen (same) + photofrin d=0.1 c=0.33.
 
 ROLE_DEFAULTS = {
     "TISSUE": {
-        "medium": {"mua": 10.0, "mus": 90.0, "g": 0.75, "n": 1.37},
+        "medium": {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.1},
         "priority": 0,
         "fluorophores": (("collagen", 0.2, 0.4),),
     },
     "POLYP": {
-        "medium": {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.37},
+        "medium": {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.1},
         "priority": 1,
         "fluorophores": (("collagen", 0.2, 0.4), ("photofrin", 0.1, 0.33)),
     },

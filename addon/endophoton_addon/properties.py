@@ -43,19 +43,19 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
     # (naming object and field) instead of Blender silently clamping them.
     mua: FloatProperty(
         name="μa [cm⁻¹]", description="Absorption coefficient in cm⁻¹",
-        default=10.0, soft_min=0.0, soft_max=1000.0, precision=3,
+        default=20.0, soft_min=0.0, soft_max=1000.0, precision=3,
     )
     mus: FloatProperty(
         name="μs [cm⁻¹]", description="Scattering coefficient in cm⁻¹",
-        default=90.0, soft_min=0.0, soft_max=10000.0, precision=3,
+        default=200.0, soft_min=0.0, soft_max=10000.0, precision=3,
     )
     g: FloatProperty(
         name="g", description="Scattering anisotropy (Henyey-Greenstein), -1..1",
-        default=0.75, soft_min=-1.0, soft_max=1.0, precision=3,
+        default=0.9, soft_min=-1.0, soft_max=1.0, precision=3,
     )
     n: FloatProperty(
         name="n", description="Refractive index (>= 1)",
-        default=1.37, soft_min=1.0, soft_max=3.0, precision=3,
+        default=1.1, soft_min=1.0, soft_max=3.0, precision=3,
     )
 
 
@@ -151,8 +151,51 @@ def _display_changed(self, _context):
     results.update_display(self.id_data)
 
 
+class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
+    """Options of the Sweep β operator: those of ``python3 -m endophoton sweep``
+    (the scene and the rig's target, normal, tilt axis, distance and tip come
+    from the .blend).  Limits are left open: the operator reports bad values."""
+
+    betas: StringProperty(
+        name="β Values",
+        description="Tilt angles in degrees: a list '0,10,20' or 'start:stop:step' (stop excluded, "
+                    "like --betas of the command line)",
+        default="0:60:5",
+    )
+    store: IntProperty(
+        name="Store N", description="Records stored per β (store-N mode)",
+        default=500_000, soft_min=1,
+    )
+    seed: IntProperty(name="Seed", description="Engine seed, the same for every β", default=1, min=0)
+    threads: IntProperty(
+        name="Threads", description="0 = all cores (all but one while the UI runs)",
+        default=0, min=0, max=1024,
+    )
+    batches: IntProperty(
+        name="Batches", description="Batches for the batch-means standard errors",
+        default=20, soft_min=2,
+    )
+    fluorescent_only: BoolProperty(
+        name="Fluorescent Only", description="Store only fluorescence records (the paper's photon map)",
+        default=True,
+    )
+    fluorescence_rule: EnumProperty(
+        name="Fluorescence Rule",
+        items=(("paper", "Paper", "ξ1 < d and ξ2 < c"),
+               ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η")),
+        default="paper",
+    )
+    output_dir: StringProperty(
+        name="Output Folder",
+        description="Where sweep.csv, sweep.json, the plots and report.md are written; empty = "
+                    "'//endophoton_sweep' next to the .blend, or the temporary folder for an unsaved file",
+        subtype="DIR_PATH", default="",
+    )
+
+
 class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     rig: PointerProperty(name="Endoscope", type=bpy.types.Object, poll=_is_rig)
+    sweep: PointerProperty(type=EndoPhotonSweepSettings)
 
     quality: EnumProperty(
         name="Quality",
@@ -220,6 +263,7 @@ CLASSES = (
     EndoPhotonMedium,
     EndoPhotonObjectSettings,
     EndoPhotonRigSettings,
+    EndoPhotonSweepSettings,
     EndoPhotonSceneSettings,
 )
 

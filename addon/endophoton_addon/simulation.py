@@ -188,6 +188,26 @@ def _accepted_kwargs(func, kwargs):
     return {k: v for k, v in kwargs.items() if k in params}
 
 
+def build_engine_scene(ep, regions):
+    """``ep.Scene(unit="m")`` holding the exported regions (export.RegionExport list).
+
+    Shared by the Run and the Sweep β operators so both give the engine the
+    same scene.  Raises ValueError (the engine's own message) on bad input.
+    """
+    scene = ep.Scene(unit="m")
+    for region in regions:
+        fluorophores = [ep.Fluorophore(name, d, c) for name, d, c in region.fluorophores]
+        scene.add_mesh(
+            region.name,
+            region.vertices,
+            region.triangles,
+            ep.Medium(**region.medium),
+            priority=region.priority,
+            fluorophores=fluorophores,
+        )
+    return scene
+
+
 def build_engine_call(ep, inputs):
     """Engine scene, rig and ep.run keyword arguments for ``inputs``.
 
@@ -196,17 +216,7 @@ def build_engine_call(ep, inputs):
     before anything runs.
     """
     try:
-        scene = ep.Scene(unit="m")
-        for region in inputs.regions:
-            fluorophores = [ep.Fluorophore(name, d, c) for name, d, c in region.fluorophores]
-            scene.add_mesh(
-                region.name,
-                region.vertices,
-                region.triangles,
-                ep.Medium(**region.medium),
-                priority=region.priority,
-                fluorophores=fluorophores,
-            )
+        scene = build_engine_scene(ep, inputs.regions)
         # The rig transform is in scene units (metres here); older drafts of the
         # API also took unit=..., newer ones infer it from the scene.
         rig_kwargs = _accepted_kwargs(
@@ -246,12 +256,12 @@ class Progress:
         if self.total <= 0:  # "store N" runs: the packet count is open-ended
             return (f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · "
                     "ETA -- (store N) · Esc to cancel")
-        eta = "--" if self.eta is None else _format_seconds(self.eta)
+        eta = "--" if self.eta is None else format_seconds(self.eta)
         return (f"EndoPhoton: {self.done:,}/{self.total:,} packets · {self.rate:,.0f} packets/s · "
                 f"ETA {eta} · Esc to cancel")
 
 
-def _format_seconds(seconds):
+def format_seconds(seconds):
     seconds = int(round(seconds))
     if seconds >= 3600:
         return f"{seconds // 3600}h{(seconds % 3600) // 60:02d}m"
@@ -284,8 +294,7 @@ class SimulationJob:
     def start(self):
         self._t0 = time.monotonic()
         self._thread = threading.Thread(target=self._work, name="endophoton-run", daemon=True)
-        with _ACTIVE_LOCK:
-            _ACTIVE_JOBS.add(self)
+        track_job(self)
         self._thread.start()
 
     def cancel(self):
@@ -305,6 +314,12 @@ class SimulationJob:
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (total - done) / rate if rate > 0 and total >= done > 0 else None
         return Progress(done, total, elapsed, rate, eta)
+
+    def panel_lines(self):
+        """Lines for the sidebar's progress box."""
+        progress = self.progress()
+        of_total = f"/{progress.total:,}" if progress.total > 0 else ""
+        return [f"Running: {progress.done:,}{of_total} packets", f"{progress.rate:,.0f} packets/s"]
 
     # --- worker thread (no bpy here) ----------------------------------------
     def _on_progress(self, done, total):
@@ -326,8 +341,7 @@ class SimulationJob:
             self.error = exc
             self.error_traceback = traceback.format_exc()
         finally:
-            with _ACTIVE_LOCK:
-                _ACTIVE_JOBS.discard(self)
+            untrack_job(self)
             self._finished.set()
 
 
@@ -399,6 +413,17 @@ def run_blocking(context, poll_interval=0.05):
     while not job.wait(poll_interval):
         pass
     return finish_job(context, job)
+
+
+def track_job(job):
+    """Note a job whose worker thread is starting (cancelled on unregister)."""
+    with _ACTIVE_LOCK:
+        _ACTIVE_JOBS.add(job)
+
+
+def untrack_job(job):
+    with _ACTIVE_LOCK:
+        _ACTIVE_JOBS.discard(job)
 
 
 def cancel_all_jobs(timeout=10.0):

@@ -626,6 +626,9 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
     }
     try:
         for i, beta in enumerate(betas):
+            if cancel is not None and getattr(cancel, "cancelled", False):
+                meta["cancelled_at_beta"] = beta   # cancelled between two runs: nothing to analyse
+                break
             bar.start(i, beta)
             scene = static_scene if static_scene is not None else _call_builder(scene_or_builder, beta)
             unit = _scene_unit(scene)
@@ -649,12 +652,15 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
             esc = res.escapes
             if esc is None:
                 raise ValueError("ep.run returned no escape records (record_escapes off?)")
+            cancelled = bool(getattr(res, "cancelled", False))
+            if cancelled and np.asarray(esc.get("packet", ())).size == 0:
+                meta["cancelled_at_beta"] = beta   # cancelled before the first record: no row
+                break
             P = int(getattr(res, "packets_traced", 0) or 0)
             if P <= 0:
                 P = int(np.asarray(esc["packet"]).max()) + 1
             row, hist, bt = analyse_run(esc, P, geo["light_positions"], geo["camera"], n_batches, max_angle_deg,
                                         reference=geo["reference"])
-            cancelled = bool(getattr(res, "cancelled", False))
             full = {"beta_deg": beta, "store": int(store), **row, "seconds": seconds, "seed": int(seed),
                     "cancelled": int(cancelled)}
             rows.append(full)
@@ -670,6 +676,7 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
     finally:
         bar.close()
     _finish_relative(rows)
+    meta["cancelled"] = "cancelled_at_beta" in meta
     meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     result = SweepResult(rows=rows, histograms=hists, batches=batches, meta=meta)
     if out_dir is not None:
@@ -683,10 +690,10 @@ def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool =
     os.makedirs(out_dir, exist_ok=True)
     paths = {"csv": result.to_csv(os.path.join(out_dir, "sweep.csv")),
              "json": result.to_json(os.path.join(out_dir, "sweep.json"))}
-    if plots:
+    if plots and result.rows:   # a sweep cancelled before its first record has no rows to plot
         from . import plots as pl
         paths["plots"] = pl.plot_all(result, out_dir)
-    if report:
+    if report and result.rows:
         from . import report as rp
         paths["report"] = rp.write_report(result, out_dir)
     return paths
@@ -923,4 +930,4 @@ def sweep_main(args: argparse.Namespace) -> int:
     paths = write_outputs(res, args.out)
     print(f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
           f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}")
-    return 130 if any(r["cancelled"] for r in res.rows) else 0
+    return 130 if res.meta.get("cancelled") or any(r["cancelled"] for r in res.rows) else 0

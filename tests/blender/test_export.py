@@ -100,4 +100,5 @@ def test_export_regions_collects_role_objects_with_settings():
     assert [f[0] for f in by_name["Polyp"].fluorophores] == ["collagen", "photofrin"]
     assert by_name["Polyp"].fluorophores[1][1:] == (pytest.approx(0.1), pytest.approx(0.33))
     assert by_name["Polyp"].priority > by_name["Tissue"].priority
-    assert by_name["Tissue"].medium == {"mua": 10.0, "mus": 90.0, "g": 0.75, "n": pytest.approx(1.37)}
+    # The seed paper's tissue (oracles §5): n = 1.1, mua = 20, mus = 200 cm^-1, g = 0.9.
+    assert by_name["Tissue"].medium == {"mua": 20.0, "mus": 200.0, "g": pytest.approx(0.9), "n": pytest.approx(1.1)}

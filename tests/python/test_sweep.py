@@ -203,6 +203,32 @@ def test_builder_and_cancel(fake_engine):
     assert len(res.rows) == 1 and res.rows[0]["cancelled"] == 1
 
 
+def test_cancel_before_any_record_ends_without_row(fake_engine, tmp_path):
+    """A cancel that lands before a run stored anything (between two betas, or
+    right at the start) ends the sweep without a row instead of failing."""
+    def empty_cancelled_run(*a, **k):
+        r = fake_run(*a, **k)
+        r.escapes = {key: np.asarray(v)[:0] for key, v in r.escapes.items()}
+        r.cancelled = True
+        return r
+
+    ep.run = empty_cancelled_run
+    res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False, out_dir=str(tmp_path))
+    assert res.rows == [] and res.meta["cancelled"] is True and res.meta["cancelled_at_beta"] == 0.0
+    assert (tmp_path / "sweep.csv").read_text().splitlines() == [",".join(sw.CSV_COLUMNS)]
+    assert not list(tmp_path.glob("*.png")) and not (tmp_path / "report.md").exists()
+
+    calls = []
+    ep.run = lambda *a, **k: calls.append(a)
+    res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False,
+                   cancel=types.SimpleNamespace(cancelled=True))
+    assert calls == [] and res.rows == [] and res.meta["cancelled"] is True
+
+    ep.run = fake_run
+    res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False)
+    assert len(res.rows) == 2 and res.meta["cancelled"] is False
+
+
 def test_cli_with_fake_engine(fake_engine, monkeypatch, tmp_path):
     monkeypatch.setattr(sw, "default_flat_scene", lambda **kw: fake_engine)
     p = argparse.ArgumentParser()
