@@ -8,16 +8,13 @@
 #include <stdexcept>
 #include <utility>
 
+#include "format.h"
+
 namespace ep {
 
 namespace {
 
-// "%g", the same formatting as Python's f"{v:g}" in python/endophoton/spectra.py.
-std::string fmt(double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof buf, "%g", v);
-    return buf;
-}
+std::string fmt(double v) { return format_g(v); }
 
 void check_wavelengths(const std::string& where, const char* field, const std::vector<double>& w,
                        std::size_t min_size) {

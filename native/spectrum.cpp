@@ -9,17 +9,13 @@
 #include <stdexcept>
 #include <utility>
 
+#include "format.h"
+
 namespace ep {
 
 namespace {
 
-// "%g" formatting, shared with the Python package so that both sides print
-// a value the same way in error messages (Python's f"{v:g}").
-std::string fmt(double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof buf, "%g", v);
-    return buf;
-}
+std::string fmt(double v) { return format_g(v); }
 
 }  // namespace
 

@@ -6,6 +6,8 @@
 // comes from the Wilson-Hilferty approximation (Wilson & Hilferty 1931).
 #include <gtest/gtest.h>
 
+#include "stat_util.h"
+
 #include <cmath>
 #include <cstdint>
 #include <functional>
@@ -19,41 +21,13 @@
 
 namespace {
 
+using namespace ep_test;
+
 using ep::EEM;
 
-double uniform(std::mt19937_64& rng) { return static_cast<double>(rng() >> 11) * 0x1.0p-53; }
 
-// z with P(Z > z) = p, by bisection on erfc(z / sqrt 2) / 2.
-double normal_upper_quantile(double p) {
-    double lo = -10.0, hi = 10.0;
-    for (int it = 0; it < 200; ++it) {
-        const double mid = 0.5 * (lo + hi);
-        if (0.5 * std::erfc(mid / std::sqrt(2.0)) > p) lo = mid; else hi = mid;
-    }
-    return 0.5 * (lo + hi);
-}
 
-// Wilson-Hilferty upper-p critical value of chi-square with `dof` degrees of
-// freedom: k (1 - 2/(9k) + z_p sqrt(2/(9k)))^3.
-double chi_square_critical(int dof, double p) {
-    const double k = dof, a = 2.0 / (9.0 * k);
-    return k * std::pow(1.0 - a + normal_upper_quantile(p) * std::sqrt(a), 3.0);
-}
 
-// Exact integral of the piecewise-linear interpolant of (xs, ys) over [a, b].
-double lin_integral(const std::vector<double>& xs, const std::vector<double>& ys, double a,
-                    double b) {
-    double sum = 0.0;
-    for (std::size_t i = 0; i + 1 < xs.size(); ++i) {
-        const double lo = std::max(a, xs[i]), hi = std::min(b, xs[i + 1]);
-        if (!(hi > lo)) continue;
-        auto line = [&](double x) {
-            return ys[i] + (ys[i + 1] - ys[i]) * (x - xs[i]) / (xs[i + 1] - xs[i]);
-        };
-        sum += 0.5 * (hi - lo) * (line(lo) + line(hi));
-    }
-    return sum;
-}
 
 // Piecewise-linear interpolant of (xs, ys) at x, 0 outside.
 double lin_eval(const std::vector<double>& xs, const std::vector<double>& ys, double x) {
@@ -97,17 +71,6 @@ void expect_fits_row(const std::function<double(std::mt19937_64&)>& draw,
     EXPECT_LT(chi2, chi_square_critical(used - 1, 0.001)) << "dof " << used - 1;
 }
 
-void expect_invalid(const std::function<void()>& fn, const std::vector<std::string>& parts) {
-    try {
-        fn();
-    } catch (const std::invalid_argument& e) {
-        const std::string msg = e.what();
-        for (const auto& p : parts)
-            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
-        return;
-    }
-    ADD_FAILURE() << "no std::invalid_argument thrown";
-}
 
 // Hand-built EEM: 3 excitation rows x 3 emission columns.
 //   ex 300: [0, 1, 1]  integral 10*(0+1)/2 + 20*(1+1)/2 = 5 + 20 = 25
