@@ -141,7 +141,14 @@ def child_main(cfg):
 
 def run_child(cfg, prefix=()):
     cmd = list(prefix) + [PYTHON, os.path.abspath(__file__), "--child", json.dumps(cfg)]
-    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    for attempt in range(4):
+        out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        # A module being rebuilt at that moment ("file too short") is transient: wait and retry.
+        if out.returncode != 0 and "ImportError" in out.stderr and attempt < 3:
+            log("child could not import the module (being rebuilt?); retrying in 30 s")
+            time.sleep(30)
+            continue
+        break
     if out.returncode != 0:
         raise RuntimeError(f"child {cfg} failed:\n{out.stderr[-3000:]}")
     for line in out.stdout.splitlines()[::-1]:

@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: MIT
-"""Operators: thin wrappers over rig.py, simulation.py and results.py.
+"""Operators: thin wrappers over rig.py, simulation.py, sweep_job.py and results.py.
 
 Errors are reported with ``self.report({'ERROR'}, message)``; messages name
 the object (or scene) and the field.  Validation runs before any datablock is
@@ -8,7 +8,7 @@ created, so a rejected run leaves the scene untouched.
 
 import bpy
 
-from . import engine, properties, results, rig, simulation
+from . import engine, properties, results, rig, simulation, sweep_job
 from .engine import EngineMissing
 from .export import InputError
 
@@ -128,7 +128,7 @@ class ENDOPHOTON_OT_retry_engine_import(bpy.types.Operator):
 
 
 class ENDOPHOTON_OT_cancel_run(bpy.types.Operator):
-    """Cancel the running EndoPhoton simulation (same as Esc)"""
+    """Cancel the running EndoPhoton simulation or sweep (same as Esc)"""
 
     bl_idname = "endophoton.cancel_run"
     bl_label = "Cancel Run"
@@ -156,12 +156,15 @@ class ENDOPHOTON_OT_clear_results(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class ENDOPHOTON_OT_run(bpy.types.Operator):
-    """Run the EndoPhoton simulation for this scene (Esc cancels)"""
+class _JobOperator:
+    """The modal machinery shared by Run and Sweep β.
 
-    bl_idname = "endophoton.run_simulation"
-    bl_label = "Run Simulation"
-    bl_options = {"REGISTER", "UNDO"}
+    Subclasses give ``_prepare(context, interactive)`` (a job, or None after
+    reporting the error) and ``_finish(context, job)`` (an operator return
+    set).  A job has ``start()``, ``cancel()``, ``wait(timeout)``, ``done`` and
+    ``progress()`` (with ``fraction`` and ``text()``); its worker thread never
+    calls bpy.
+    """
 
     _timer = None
     _job = None
@@ -171,29 +174,6 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         return running_job() is None
-
-    def _prepare(self, context, interactive=False):
-        try:
-            return simulation.prepare_job(context, interactive=interactive)
-        except (InputError, EngineMissing) as exc:
-            self.report({"ERROR"}, str(exc))
-            return None
-
-    def _finish(self, context, job):
-        try:
-            collection = simulation.finish_job(context, job)
-        except Exception as exc:  # engine failure or result import error
-            if job.error_traceback:
-                print(job.error_traceback)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        if collection is None:
-            self.report({"WARNING"}, "EndoPhoton run cancelled; nothing was added")
-            return {"CANCELLED"}
-        summary = collection.get(results.SUMMARY_KEY, {})
-        self.report({"INFO"}, f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
-                              f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
-        return {"FINISHED"}
 
     # Scripts and background mode: the same job, waited for in this thread.
     def execute(self, context):
@@ -266,6 +246,68 @@ class ENDOPHOTON_OT_run(bpy.types.Operator):
         _running["modal"] = False
 
 
+class ENDOPHOTON_OT_run(_JobOperator, bpy.types.Operator):
+    """Run the EndoPhoton simulation for this scene (Esc cancels)"""
+
+    bl_idname = "endophoton.run_simulation"
+    bl_label = "Run Simulation"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def _prepare(self, context, interactive=False):
+        try:
+            return simulation.prepare_job(context, interactive=interactive)
+        except (InputError, EngineMissing) as exc:
+            self.report({"ERROR"}, str(exc))
+            return None
+
+    def _finish(self, context, job):
+        try:
+            collection = simulation.finish_job(context, job)
+        except Exception as exc:  # engine failure or result import error
+            if job.error_traceback:
+                print(job.error_traceback)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if collection is None:
+            self.report({"WARNING"}, "EndoPhoton run cancelled; nothing was added")
+            return {"CANCELLED"}
+        summary = collection.get(results.SUMMARY_KEY, {})
+        self.report({"INFO"}, f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
+                              f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_sweep(_JobOperator, bpy.types.Operator):
+    """Sweep the endoscope tilt β about the rig's target (store N records per β), write
+    CSV, JSON, plots and report, and load the plots as images (Esc cancels)"""
+
+    bl_idname = "endophoton.sweep_beta"
+    bl_label = "Sweep β"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def _prepare(self, context, interactive=False):
+        try:
+            return sweep_job.prepare_sweep(context, interactive=interactive)
+        except (InputError, EngineMissing) as exc:
+            self.report({"ERROR"}, str(exc))
+            return None
+
+    def _finish(self, context, job):
+        try:
+            images = sweep_job.finish_sweep(context, job)
+        except Exception as exc:  # sweep failure or image load error
+            if job.error_traceback:
+                print(job.error_traceback)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if images is None:
+            self.report({"WARNING"}, "EndoPhoton sweep cancelled; nothing was written or added")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
+                              f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'")
+        return {"FINISHED"}
+
+
 CLASSES = (
     ENDOPHOTON_OT_add_endoscope,
     ENDOPHOTON_OT_fluorophore_add,
@@ -275,6 +317,7 @@ CLASSES = (
     ENDOPHOTON_OT_cancel_run,
     ENDOPHOTON_OT_clear_results,
     ENDOPHOTON_OT_run,
+    ENDOPHOTON_OT_sweep,
 )
 
 

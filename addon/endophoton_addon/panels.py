@@ -3,7 +3,7 @@
 
 import bpy
 
-from . import engine, operators, results, rig
+from . import engine, operators, results, rig, sweep_job
 from .utils import wrap_text
 
 
@@ -40,10 +40,8 @@ class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
         job = operators.running_job()
         if job is not None:
             box = layout.box()
-            progress = job.progress()
-            of_total = f"/{progress.total:,}" if progress.total > 0 else ""
-            box.label(text=f"Running: {progress.done:,}{of_total} packets", icon="TIME")
-            box.label(text=f"{progress.rate:,.0f} packets/s")
+            for i, line in enumerate(job.panel_lines()):
+                box.label(text=line, icon="TIME" if i == 0 else "NONE")
             box.operator("endophoton.cancel_run", icon="CANCEL")
 
 
@@ -140,6 +138,40 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         row.operator("endophoton.run_simulation", icon="PLAY")
 
 
+class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
+    bl_label = "Sweep β"
+    bl_parent_id = "ENDOPHOTON_PT_main"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        s = context.scene.endophoton.sweep
+        layout.label(text="Tilts the chosen rig about its target")
+        layout.prop(s, "betas")
+        layout.prop(s, "store")
+        row = layout.row(align=True)
+        row.prop(s, "seed")
+        row.prop(s, "threads")
+        layout.prop(s, "batches")
+        layout.prop(s, "fluorescent_only")
+        layout.prop(s, "fluorescence_rule", text="Rule")
+        layout.prop(s, "output_dir", text="")
+        row = layout.row()
+        row.scale_y = 1.5
+        row.enabled = engine.get() is not None
+        row.operator("endophoton.sweep_beta", icon="GRAPH")
+        rows = sweep_job.summary_rows(context.scene)
+        if not rows:
+            return
+        box = layout.box()
+        box.label(text="Last sweep", icon="IMAGE_DATA")
+        col = box.column(align=True)
+        for label, value in rows:
+            row = col.split(factor=0.4, align=True)
+            row.label(text=label)
+            row.label(text=value)
+
+
 class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
     bl_label = "Results"
     bl_parent_id = "ENDOPHOTON_PT_main"
@@ -171,6 +203,7 @@ CLASSES = (
     ENDOPHOTON_PT_endoscope,
     ENDOPHOTON_PT_simulation,
     ENDOPHOTON_PT_results,
+    ENDOPHOTON_PT_sweep,
 )
 
 

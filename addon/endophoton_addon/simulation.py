@@ -270,10 +270,36 @@ def format_seconds(seconds):
     return f"{seconds}s"
 
 
-class SimulationJob:
+class BackgroundJob:
+    """Life cycle shared by the engine jobs: a daemon worker thread running
+    ``self._work`` (no bpy there), a CancelToken in ``self.token`` and a
+    ``self._finished`` event the worker sets when it ends."""
+
+    thread_name = "endophoton-job"
+
+    def start(self):
+        self._t0 = time.monotonic()
+        self._thread = threading.Thread(target=self._work, name=self.thread_name, daemon=True)
+        track_job(self)
+        self._thread.start()
+
+    def cancel(self):
+        self.token.cancel()
+
+    @property
+    def done(self):
+        return self._finished.is_set()
+
+    def wait(self, timeout=None):
+        return self._finished.wait(timeout)
+
+
+class SimulationJob(BackgroundJob):
     """A run of the engine in a worker thread.  Only ``start``/``cancel``/``progress``
     /``done`` are called from the main thread while it runs; the worker writes
     ``result``/``error`` and sets the finished event."""
+
+    thread_name = "endophoton-run"
 
     def __init__(self, ep, inputs):
         self.ep = ep
@@ -290,23 +316,7 @@ class SimulationJob:
         self._finished = threading.Event()
         self._thread = None
 
-    # --- main thread ------------------------------------------------------
-    def start(self):
-        self._t0 = time.monotonic()
-        self._thread = threading.Thread(target=self._work, name="endophoton-run", daemon=True)
-        track_job(self)
-        self._thread.start()
-
-    def cancel(self):
-        self.token.cancel()
-
-    @property
-    def done(self):
-        return self._finished.is_set()
-
-    def wait(self, timeout=None):
-        return self._finished.wait(timeout)
-
+    # --- main thread: start(), cancel(), done and wait() from BackgroundJob ---
     def progress(self):
         with self._lock:
             done, total = self._progress

@@ -561,7 +561,7 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
           n_batches: int = an.DEFAULT_BATCHES, max_angle_deg: float = 15.0,
           rig_kwargs: Mapping[str, Any] | None = None, rig_builder: Callable | None = None,
           run_kwargs: Mapping[str, Any] | None = None, cancel: Any = None,
-          plots: bool = True, report: bool = True) -> SweepResult:
+          plots: bool = True, report: bool = True, on_beta: Callable | None = None) -> SweepResult:
     """Run the seed's beta sweep and analyse every run.
 
     Parameters
@@ -588,6 +588,10 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
     rig_builder : ``rig_builder(beta_deg, scene) -> rig`` replaces from_beta.
     run_kwargs : extra keyword arguments to ``ep.run``.
     cancel : an ``ep.CancelToken``; a cancelled run ends the sweep early.
+    on_beta : a callable ``on_beta(i_beta, n_beta, row)`` called after each beta's
+        run is analysed (``row`` is its CSV row, still without the ``*_rel``
+        columns, which need every beta; ``row["packets_traced"]`` sizes the
+        next run, e.g. for a progress estimate in store-N mode).
 
     Returns
     -------
@@ -670,6 +674,8 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
             meta.setdefault("camera", {})[f"{beta:g}"] = _jsonable(geo["camera"])
             meta.setdefault("azimuth_reference", {})[f"{beta:g}"] = _jsonable(geo["reference"])
             bar.step()
+            if on_beta is not None:
+                on_beta(i, len(betas), full)
             if cancelled:
                 meta["cancelled_at_beta"] = beta
                 break

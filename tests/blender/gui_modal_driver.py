@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: MIT
-"""Drives the modal Run operator in a real (windowed) Blender; run by
+"""Drives the modal Run and Sweep β operators in a real (windowed) Blender; run by
 test_modal_gui.py under Xvfb:
 
     xvfb-run -a blender --factory-startup --enable-event-simulate BLEND \
@@ -23,8 +23,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon"))
 
 OUT, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1:][:3]
+SWEEP_DIR = os.path.join(os.path.dirname(os.path.abspath(GRID_DIR)), "sweep")
 TICK = 0.1
-DEADLINE = 180.0          # seconds; the driver quits Blender whatever happens
+DEADLINE = 300.0          # seconds; the driver quits Blender whatever happens
 START = time.monotonic()
 state = {"phase": "warmup", "t": time.monotonic(), "ticks": [], "report": {}, "texts": []}
 
@@ -49,6 +50,14 @@ def invoke(photons):
     window, area, region = view3d()
     with bpy.context.temp_override(window=window, area=area, region=region):
         return sorted(bpy.ops.endophoton.run_simulation("INVOKE_DEFAULT"))
+
+
+def invoke_sweep(betas, store):
+    sweep = bpy.context.scene.endophoton.sweep
+    sweep.betas, sweep.store, sweep.output_dir = betas, store, SWEEP_DIR
+    window, area, region = view3d()
+    with bpy.context.temp_override(window=window, area=area, region=region):
+        return sorted(bpy.ops.endophoton.sweep_beta("INVOKE_DEFAULT"))
 
 
 def status_text():
@@ -116,7 +125,7 @@ def _tick():
         if "esc_sent" in report and operators.running_job() is None:
             gaps = [b - a for a, b in zip(state["ticks"], state["ticks"][1:])]
             coll = settings.result_collection
-            finish(dict(
+            report.update(
                 run2_stopped_after=now - state["t"],
                 run2_max_gap=max(gaps) if gaps else None,
                 run2_gaps=[(round(a - state["t"], 2), round(g, 2)) for a, g in zip(state["ticks"], gaps) if g > 0.5],
@@ -125,10 +134,60 @@ def _tick():
                 objects_after_run2=sorted(o.name for o in bpy.data.objects),
                 grid_files=sorted(os.listdir(GRID_DIR)) if os.path.isdir(GRID_DIR) else [],
                 status_cleared=status_text() is None,
+            )
+            report["invoke_sweep_1"] = invoke_sweep("0,30", 20_000)
+            state.update(phase="sweep1", t=now, ticks=[], texts=[], fractions=[])
+            return TICK
+        if now - state["t"] > 60.0:
+            finish({"error": "run 2 did not stop after ESC"})
+            return None
+    elif phase == "sweep1":                  # Sweep β to the end: progress, then the plots as images
+        state["ticks"].append(now)
+        job = operators.running_job()
+        if job is not None:
+            state["texts"].append(job.progress().text())
+            state["fractions"].append(job.progress().fraction)
+        else:
+            gaps = [b - a for a, b in zip(state["ticks"], state["ticks"][1:])]
+            report.update(
+                sweep1_seconds=now - state["t"],
+                sweep1_max_gap=max(gaps) if gaps else None,
+                sweep1_texts=state["texts"],
+                sweep1_fractions=state["fractions"],
+                sweep1_images=sorted(i.name for i in bpy.data.images if i.name.startswith("EndoPhoton Sweep: ")),
+                sweep1_image_sizes=[tuple(i.size) for i in bpy.data.images
+                                    if i.name.startswith("EndoPhoton Sweep: ")],
+                sweep1_files=sorted(os.listdir(SWEEP_DIR)) if os.path.isdir(SWEEP_DIR) else [],
+                sweep1_summary=bpy.context.scene.get("endophoton_sweep", {}).get("n_betas"),
+                images_after_sweep1=sorted(i.name for i in bpy.data.images),
+                objects_after_sweep1=sorted(o.name for o in bpy.data.objects),
+            )
+            report["invoke_sweep_2"] = invoke_sweep("0:60:5", 5_000_000)
+            state.update(phase="sweep2", t=now, ticks=[], texts=[])
+        if now - state["t"] > 90.0:
+            finish({"error": "sweep 1 did not finish in 90 s"})
+            return None
+    elif phase == "sweep2":                  # Sweep β cancelled with ESC: nothing new
+        state["ticks"].append(now)
+        if operators.running_job() is not None:
+            state["texts"].append(status_text())
+        if now - state["t"] > 3.0 and "sweep_esc_sent" not in report:
+            window, _area, _region = view3d()
+            window.event_simulate(type="ESC", value="PRESS")
+            window.event_simulate(type="ESC", value="RELEASE")
+            report["sweep_esc_sent"] = now - state["t"]
+        if "sweep_esc_sent" in report and operators.running_job() is None:
+            finish(dict(
+                sweep2_stopped_after=now - state["t"],
+                sweep2_texts=state["texts"][-3:],
+                images_after_sweep2=sorted(i.name for i in bpy.data.images),
+                objects_after_sweep2=sorted(o.name for o in bpy.data.objects),
+                sweep2_files=sorted(os.listdir(SWEEP_DIR)) if os.path.isdir(SWEEP_DIR) else [],
+                sweep_status_cleared=status_text() is None,
             ))
             return None
         if now - state["t"] > 60.0:
-            finish({"error": "run 2 did not stop after ESC"})
+            finish({"error": "sweep 2 did not stop after ESC"})
             return None
     return TICK
 

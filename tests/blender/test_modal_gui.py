@@ -1,7 +1,7 @@
 # SPDX-License-Identifier: MIT
-"""The modal Run operator in a real Blender window (Xvfb): progress in the
-status bar, the UI keeps ticking while the engine runs, ESC cancels and leaves
-nothing behind.  Needs xvfb-run (Debian package xvfb)."""
+"""The modal Run and Sweep β operators in a real Blender window (Xvfb):
+progress in the status bar, the UI keeps ticking while the engine runs, ESC
+cancels and leaves nothing behind.  Needs xvfb-run (Debian package xvfb)."""
 
 import json
 import os
@@ -29,7 +29,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     try:
-        stdout, stderr = proc.communicate(timeout=240)
+        stdout, stderr = proc.communicate(timeout=360)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         stdout, stderr = proc.communicate()
@@ -54,3 +54,27 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["objects_after_run2"] == report["objects_after_run1"]
     assert len(report["grid_files"]) == 1            # run 1's file only
     assert report["status_cleared"]
+
+    # Sweep β, modal, to the end: β and position in the status text, the overall
+    # fraction rising, the plots loaded as images with pixels, the files written.
+    assert report["invoke_sweep_1"] == ["RUNNING_MODAL"]
+    texts = report["sweep1_texts"]
+    assert texts and texts[0].startswith("Sweep β=0° (1/2), ETA ")
+    assert any(t.startswith("Sweep β=30° (2/2), ETA ") for t in texts), texts
+    fractions = report["sweep1_fractions"]
+    assert fractions == sorted(fractions) and 0.5 <= max(fractions) <= 1.0
+    plots = [f for f in report["sweep1_files"] if f.endswith(".png")]
+    assert len(plots) == 8 and {"sweep.csv", "sweep.json", "report.md"} <= set(report["sweep1_files"])
+    assert report["sweep1_images"] == sorted(f"EndoPhoton Sweep: {f}" for f in plots)
+    assert all(w > 0 and h > 0 for w, h in report["sweep1_image_sizes"])
+    assert report["sweep1_summary"] == 2
+    assert report["objects_after_sweep1"] == report["objects_after_run2"]
+    assert report["sweep1_max_gap"] < 2.0, report["sweep1_max_gap"]
+
+    # Sweep β cancelled with ESC: no new image, object or file; the status is cleared.
+    assert report["invoke_sweep_2"] == ["RUNNING_MODAL"]
+    assert report["sweep2_stopped_after"] < report["sweep_esc_sent"] + 5.0
+    assert report["images_after_sweep2"] == report["images_after_sweep1"]
+    assert report["objects_after_sweep2"] == report["objects_after_sweep1"]
+    assert report["sweep2_files"] == report["sweep1_files"]
+    assert report["sweep_status_cleared"]

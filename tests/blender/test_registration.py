@@ -177,7 +177,7 @@ def _draw_all_panels():
 
     log = []
     for name in ("ENDOPHOTON_PT_main", "ENDOPHOTON_PT_object", "ENDOPHOTON_PT_endoscope",
-                 "ENDOPHOTON_PT_simulation", "ENDOPHOTON_PT_results"):
+                 "ENDOPHOTON_PT_simulation", "ENDOPHOTON_PT_results", "ENDOPHOTON_PT_sweep"):
         panel = getattr(bpy.types, name)
         panel.draw(SimpleNamespace(layout=FakeLayout(log)), bpy.context)
     return log
@@ -231,3 +231,6 @@ def test_panels_draw_with_objects_and_rig():
     assert ("template_list", "fluorophores") in log
     assert ("operator", "endophoton.run_simulation") in log
     assert ("operator", "endophoton.add_endoscope") in log
+    # The Sweep β sub-panel: the command line's options and the operator.
+    assert {"betas", "store", "batches", "fluorescent_only", "fluorescence_rule", "output_dir"} <= props
+    assert ("operator", "endophoton.sweep_beta") in log

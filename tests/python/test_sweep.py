@@ -179,6 +179,10 @@ def test_progress_callable_and_tqdm(fake_engine, capsys):
     sw.sweep(fake_engine, betas=[0, 10], store=500, progress=lambda i, n, d, t: calls.append((i, n, d, t)),
              plots=False, report=False)
     assert calls and calls[-1] == (1, 2, 500, 500)
+    finished = []
+    res = sw.sweep(fake_engine, betas=[0, 10], store=500, progress=False, plots=False, report=False,
+                   on_beta=lambda i, n, row: finished.append((i, n, row["beta_deg"], row["packets_traced"])))
+    assert finished == [(i, 2, r["beta_deg"], r["packets_traced"]) for i, r in enumerate(res.rows)]
     sw.sweep(fake_engine, betas=[0], store=500, progress=True)
     assert "beta" in capsys.readouterr().err
 

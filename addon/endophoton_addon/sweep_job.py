@@ -1,0 +1,456 @@
+# SPDX-License-Identifier: MIT
+"""The β sweep from Blender: collect and validate inputs (main thread), run
+``endophoton.sweep`` in a worker thread, load its plots as images (main thread).
+
+The scene is exported once (the same regions and ``ep.Scene(unit="m")`` as the
+Run operator builds) and the rig's geometry is read from the rig's properties:
+for every β the package rebuilds the head with ``ep.EndoscopeRig.from_beta``
+about the rig's target, normal and tilt axis at its distance, with its tip
+dimensions — exactly what ``endophoton.sweep_blend`` does, so both paths give
+the same numbers for the same seed.
+
+The worker thread never touches ``bpy``: it gets the engine scene and plain
+values in :class:`SweepInputs`, runs the sweep, writes the output files with
+``write_outputs`` (atomic writes) and reduces the result to a plain summary.
+"""
+
+import argparse
+import math
+import os
+import tempfile
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from . import engine, export, rig, simulation
+from .export import InputError
+
+IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
+IMAGE_KEY = "endophoton_sweep_plot"   # ID property on every image the sweep loaded
+SUMMARY_KEY = "endophoton_sweep"      # ID property on the scene: the last finished sweep
+DEFAULT_DIR_NAME = "endophoton_sweep"
+FIT_DEGREE = 6                        # the paper's polynomial fit of the energy curve
+
+
+@dataclass
+class SweepInputs:
+    """Everything a sweep needs, as plain values (no bpy objects)."""
+
+    scene_name: str
+    regions: list
+    rig_name: str
+    betas: list                 # degrees
+    store: int
+    seed: int
+    threads: int
+    n_batches: int
+    fluorescent_only: bool
+    fluorescence_rule: str
+    distance_m: float           # head distance from the target, metres (the engine unit)
+    point_m: tuple              # target point, metres
+    normal: tuple
+    tilt_axis: tuple
+    rig_params: dict            # head_diameter_mm, ... (EndoscopeRig keywords)
+    out_dir: str
+    scale_length: float
+
+    def sweep_kwargs(self):
+        """Keyword arguments of ``endophoton.sweep`` (all but the scene, progress and cancel)."""
+        return dict(
+            betas=list(self.betas), store=self.store, seed=self.seed, threads=self.threads,
+            fluorescent_only=self.fluorescent_only, fluorescence_rule=self.fluorescence_rule,
+            distance=self.distance_m, point=self.point_m, normal=self.normal, tilt_axis=self.tilt_axis,
+            rig_kwargs=dict(self.rig_params), n_batches=self.n_batches,
+        )
+
+
+# --- validation (main thread) ---------------------------------------------------
+def parse_betas(ep, text, who):
+    """The β list of the ``betas`` field, with the command line's grammar
+    (``endophoton.beta_sweep.parse_betas``); raises InputError naming the field."""
+    field = f"{who}: sweep.betas = '{text}'"
+    if not text.strip():
+        raise InputError(f"{field} is empty; give angles in degrees, e.g. '0,10,20' or '0:60:5'")
+    try:
+        values = ep.beta_sweep.parse_betas(text)
+    except (ValueError, argparse.ArgumentTypeError):
+        raise InputError(f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
+                         "(degrees, stop excluded) giving at least one angle") from None
+    seen = set()
+    for beta in values:
+        if not math.isfinite(beta) or not -90.0 < beta < 90.0:
+            raise InputError(f"{field}: β = {beta:g}° must be a finite angle in (-90, 90) degrees")
+        if beta in seen:
+            raise InputError(f"{field}: β = {beta:g}° is given twice")
+        seen.add(beta)
+    return [float(b) for b in values]
+
+
+def resolve_output_dir(raw, who):
+    """Absolute output folder for the ``output_dir`` field; raises InputError.  Creates nothing."""
+    import bpy
+
+    raw = raw.strip()
+    field = f"{who}: sweep.output_dir = '{raw}'"
+    if not raw:
+        if bpy.data.filepath:
+            path = bpy.path.abspath("//" + DEFAULT_DIR_NAME)
+        else:
+            path = os.path.join(tempfile.gettempdir(), DEFAULT_DIR_NAME)
+    else:
+        if raw.startswith("//") and not bpy.data.filepath:
+            raise InputError(f"{field} is relative to the .blend file, which is not saved; "
+                             "save the file or choose an absolute folder")
+        path = bpy.path.abspath(raw)
+    path = os.path.normpath(os.path.abspath(path))
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"{field} is a file, not a folder")
+    existing = path
+    while not os.path.exists(existing):
+        parent = os.path.dirname(existing)
+        if parent == existing:
+            break
+        existing = parent
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"{field}: '{existing}' is not writable")
+    return path
+
+
+def _rig_geometry(rig_obj, scale_length):
+    """Target (m), normal, tilt axis, distance (m) and tip of the rig; raises InputError."""
+    simulation._check_rig(rig_obj, scale_length)   # finite values, light guides inside the head
+    s = rig_obj.endophoton_rig
+    who = f"Object '{rig_obj.name}'"
+    if not s.distance > 0.0:
+        raise InputError(f"{who}: endophoton_rig.distance = {s.distance:g} must be > 0 for the sweep")
+    normal = np.array(s.normal, dtype=np.float64)
+    tilt = np.array(s.tilt_axis, dtype=np.float64)
+    if np.linalg.norm(tilt) < 1e-12:
+        raise InputError(f"{who}: endophoton_rig.tilt_axis has zero length; the sweep tilts about it")
+    n = normal / np.linalg.norm(normal)
+    if np.linalg.norm(tilt - (tilt @ n) * n) < 1e-9 * np.linalg.norm(tilt):
+        raise InputError(f"{who}: endophoton_rig.tilt_axis is parallel to endophoton_rig.normal; "
+                         "the sweep tilts about it")
+    return dict(
+        distance_m=float(s.distance) * scale_length,
+        point_m=tuple(float(x) * scale_length for x in s.target),
+        normal=tuple(float(x) for x in s.normal),
+        tilt_axis=tuple(float(x) for x in s.tilt_axis),
+        rig_params=dict(rig.rig_parameters(rig_obj, scale_length)),
+    )
+
+
+def collect_sweep_inputs(context, ep):
+    """Read and validate the scene, the rig and the sweep settings; export once.
+
+    Returns ``(SweepInputs, ep.Scene)``.  Creates no datablock and no file.
+    Raises InputError (message names the object/scene and field).
+    """
+    scene = context.scene
+    settings = scene.endophoton.sweep
+    who = f"Scene '{scene.name}'"
+    scale = scene.unit_settings.scale_length
+    if not math.isfinite(scale) or scale <= 0.0:
+        raise InputError(f"{who}: unit_settings.scale_length = {scale:g} must be > 0")
+
+    betas = parse_betas(ep, settings.betas, who)
+    if settings.store <= 0:
+        raise InputError(f"{who}: sweep.store = {settings.store} must be > 0")
+    if settings.batches < 2:
+        raise InputError(f"{who}: sweep.batches = {settings.batches} must be >= 2")
+    if settings.store < settings.batches:
+        raise InputError(f"{who}: sweep.store = {settings.store} must be >= sweep.batches = "
+                         f"{settings.batches} (one record per batch at least)")
+    if settings.threads < 0:
+        raise InputError(f"{who}: sweep.threads = {settings.threads} must be >= 0")
+    out_dir = resolve_output_dir(settings.output_dir, who)
+
+    depsgraph = context.evaluated_depsgraph_get()
+    regions = export.export_regions(scene, context.view_layer, depsgraph)
+    rig_obj = simulation._pick_rig(scene)
+    geometry = _rig_geometry(rig_obj, scale)
+
+    inputs = SweepInputs(
+        scene_name=scene.name, regions=regions, rig_name=rig_obj.name, betas=betas,
+        store=int(settings.store), seed=int(settings.seed), threads=int(settings.threads),
+        n_batches=int(settings.batches), fluorescent_only=bool(settings.fluorescent_only),
+        fluorescence_rule=settings.fluorescence_rule, out_dir=out_dir, scale_length=float(scale),
+        **geometry,
+    )
+    try:
+        engine_scene = simulation.build_engine_scene(ep, regions)
+    except ValueError as exc:
+        raise InputError(f"Engine rejected the input: {exc}") from exc
+    # The head for every β, as the sweep will build it: the engine's own checks
+    # run here, before anything starts.
+    for beta in betas:
+        try:
+            ep.EndoscopeRig.from_beta(beta_deg=beta, distance=inputs.distance_m, point=inputs.point_m,
+                                      normal=inputs.normal, tilt_axis=inputs.tilt_axis, **inputs.rig_params)
+        except ValueError as exc:
+            raise InputError(f"Object '{rig_obj.name}': at β = {beta:g}°: {exc}") from exc
+    return inputs, engine_scene
+
+
+# --- the job ----------------------------------------------------------------------
+@dataclass
+class SweepProgress:
+    index: int              # β being run (0-based)
+    n: int
+    beta: float
+    done: int               # packets of the current β so far
+    fraction: float         # of the whole sweep
+    elapsed: float
+    eta: Optional[float]    # seconds, None when unknown (first β in store-N mode)
+    phase: str              # "running" or "writing"
+
+    def text(self):
+        if self.phase == "writing":
+            return f"Sweep: all {self.n} β done, writing CSV, JSON, plots and report…"
+        eta = "--" if self.eta is None else simulation.format_seconds(self.eta)
+        return (f"Sweep β={self.beta:g}° ({self.index + 1}/{self.n}), ETA {eta} · "
+                f"{self.done:,} packets · Esc to cancel")
+
+    def panel_lines(self):
+        if self.phase == "writing":
+            return [f"Sweep: {self.n}/{self.n} β done", "Writing outputs…"]
+        eta = "--" if self.eta is None else simulation.format_seconds(self.eta)
+        return [f"Sweep β={self.beta:g}° ({self.index + 1}/{self.n})",
+                f"{self.done:,} packets · ETA {eta}"]
+
+
+class SweepJob(simulation.BackgroundJob):
+    """A β sweep in a worker thread.  The main thread calls ``start``, ``cancel``,
+    ``progress``, ``done``; the worker writes ``result``/``paths``/``summary``
+    or ``error`` (or sets ``cancelled``) and then the finished event."""
+
+    thread_name = "endophoton-sweep"
+
+    def __init__(self, ep, inputs, engine_scene):
+        self.ep = ep
+        self.inputs = inputs
+        self.engine_scene = engine_scene
+        self.token = ep.CancelToken()
+        self.result = None
+        self.paths = None
+        self.summary = None
+        self.cancelled = False
+        self.error = None
+        self.error_traceback = None
+        self._lock = threading.Lock()
+        self._finished_betas = 0     # β values run and analysed
+        self._engine_index = 0       # β of the engine's last progress report
+        self._done = 0               # packets of that β so far
+        self._packets_per_beta = 0   # packets the last finished β needed (estimate for the current one)
+        self._phase = "running"
+        self._t0 = None
+        self._finished = threading.Event()
+        self._thread = None
+
+    # --- main thread: start(), cancel(), done and wait() from BackgroundJob ---
+    def progress(self):
+        """Overall fraction = (finished β + fraction of the current β) / n.  In store-N
+        mode the current β's packet total is unknown: it is estimated by the packets
+        the previous β needed (none during the first β: its fraction stays 0)."""
+        with self._lock:
+            finished, phase = self._finished_betas, self._phase
+            done = self._done if self._engine_index == finished else 0
+            per_beta = self._packets_per_beta
+        n = len(self.inputs.betas)
+        index = min(finished, n - 1)
+        current = min(done / per_beta, 0.99) if per_beta > 0 else 0.0
+        fraction = 1.0 if phase == "writing" else min(1.0, (finished + current) / n)
+        elapsed = time.monotonic() - self._t0 if self._t0 else 0.0
+        eta = elapsed * (1.0 - fraction) / fraction if 0.0 < fraction < 1.0 else None
+        return SweepProgress(index, n, self.inputs.betas[index], done, fraction, elapsed, eta, phase)
+
+    def panel_lines(self):
+        return self.progress().panel_lines()
+
+    # --- worker thread (no bpy here) ----------------------------------------
+    def _on_progress(self, index, _n, done, _total):
+        with self._lock:
+            self._engine_index = index
+            self._done = int(done)
+
+    def _on_beta(self, index, _n, row):
+        if row["cancelled"]:   # a cancelled partial run: the sweep ends here
+            return
+        with self._lock:
+            self._finished_betas = index + 1
+            self._packets_per_beta = int(row["packets_traced"])
+
+    def _work(self):
+        try:
+            bs = self.ep.beta_sweep
+            result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
+                              cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs())
+            if (self.token.cancelled or result.meta.get("cancelled")
+                    or any(row["cancelled"] for row in result.rows)):
+                self.cancelled = True   # nothing is written, nothing will be added
+                return
+            with self._lock:
+                self._phase = "writing"
+            paths = bs.write_outputs(result, self.inputs.out_dir)
+            self.summary = sweep_summary(self.ep, result, paths, self.inputs.out_dir)
+            self.paths = paths
+            self.result = result
+        except BaseException as exc:  # reported by the main thread
+            self.error = exc
+            self.error_traceback = traceback.format_exc()
+        finally:
+            simulation.untrack_job(self)
+            self._finished.set()
+
+
+def sweep_summary(ep, result, paths, out_dir):
+    """Plain-value summary of a finished sweep (no bpy): the β of the energy
+    maximum by the paper's degree-6 fit (sum over stored records, and per packet
+    traced), the range of packets traced, times and where the files are."""
+    an = ep.analysis
+    betas = result.betas
+
+    def best(column):
+        y = result.column(column)
+        ok = np.isfinite(y)
+        if ok.sum() < 2:
+            return float("nan"), 0
+        fit = an.poly_peak(betas[ok], y[ok], deg=FIT_DEGREE)
+        return float(fit["x_peak"]), int(fit["deg"])
+
+    best_total, degree = best("energy_total_rel")
+    best_packet, _ = best("energy_per_packet_rel")
+    packets = result.column("packets_traced")
+    return {
+        "out_dir": out_dir,
+        "csv": paths["csv"],
+        "n_betas": len(result.rows),
+        "beta_min": float(betas.min()),
+        "beta_max": float(betas.max()),
+        "store": int(result.meta.get("store", 0)),
+        "seed": int(result.meta.get("seed", 0)),
+        "best_beta_energy_total": best_total,
+        "best_beta_energy_per_packet": best_packet,
+        "fit_degree": degree,
+        "packets_min": float(np.nanmin(packets)),
+        "packets_max": float(np.nanmax(packets)),
+        "seconds": float(np.nansum(result.column("seconds"))),
+        "plots": len(paths.get("plots", [])),
+    }
+
+
+# --- main thread: start, finish ----------------------------------------------------
+def prepare_sweep(context, interactive=False):
+    """Validate, export once and build the job; raises InputError / EngineMissing.
+
+    ``interactive``: the modal operator's run; threads = 0 then leaves one core
+    to the UI (simulation.interactive_threads; the numbers do not depend on it).
+    """
+    ep = engine.require()
+    if not hasattr(ep, "beta_sweep"):
+        raise engine.EngineMissing(f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
+                                   "it has no β sweep (endophoton.beta_sweep)")
+    inputs, engine_scene = collect_sweep_inputs(context, ep)
+    if interactive:
+        inputs.threads = simulation.interactive_threads(inputs.threads)
+    return SweepJob(ep, inputs, engine_scene)
+
+
+def image_name(path):
+    return IMAGE_PREFIX + os.path.basename(path)
+
+
+def sweep_images():
+    """The images loaded by sweeps (tagged with IMAGE_KEY)."""
+    import bpy
+
+    return [img for img in bpy.data.images if img.get(IMAGE_KEY)]
+
+
+def load_plot_images(paths):
+    """Load the plot PNGs as images named ``"EndoPhoton Sweep: <file>"``.
+
+    An image of that name from an earlier sweep is pointed at the new file and
+    reloaded; other images are loaded with ``check_existing=True`` (a file
+    already open is reused and reloaded).  Plot images of an earlier sweep that
+    this one did not produce (other β values) are removed.
+    """
+    import bpy
+
+    wanted = {image_name(path): os.path.abspath(path) for path in paths}
+    for img in sweep_images():
+        if img.name not in wanted:
+            bpy.data.images.remove(img)
+    images = []
+    for name, path in wanted.items():
+        img = bpy.data.images.get(name)
+        if img is not None and img.get(IMAGE_KEY):
+            if os.path.normpath(bpy.path.abspath(img.filepath)) != os.path.normpath(path):
+                img.filepath = path
+        else:
+            try:
+                img = bpy.data.images.load(path, check_existing=True)
+            except RuntimeError as exc:
+                raise RuntimeError(f"Sweep plot '{path}' could not be loaded: {exc}") from exc
+            img.name = name
+            img[IMAGE_KEY] = True
+        img.reload()
+        images.append(img)
+    return images
+
+
+def finish_sweep(context, job):
+    """Load the plots and store the summary (main thread).
+
+    Returns the list of images, or None when the sweep was cancelled (then
+    nothing is added).  Raises RuntimeError if the worker failed.
+    """
+    import bpy
+
+    if not job.done:
+        raise RuntimeError("finish_sweep called before the sweep finished")
+    if job.error is not None:
+        raise RuntimeError(f"EndoPhoton sweep failed: {type(job.error).__name__}: {job.error}")
+    if job.cancelled or job.result is None:
+        return None
+    images = load_plot_images(job.paths.get("plots", []))
+    scene = bpy.data.scenes.get(job.inputs.scene_name) or context.scene
+    scene[SUMMARY_KEY] = dict(job.summary, images=len(images))
+    return images
+
+
+def run_sweep_blocking(context, poll_interval=0.05):
+    """Run synchronously (scripts, tests, ``execute``): the same job, waited for."""
+    job = prepare_sweep(context)
+    job.start()
+    while not job.wait(poll_interval):
+        pass
+    return finish_sweep(context, job)
+
+
+def summary_rows(scene):
+    """(label, value) rows of the last sweep's summary for the panel; [] if none."""
+    summary = scene.get(SUMMARY_KEY)
+    if summary is None:
+        return []
+    s = summary.to_dict() if hasattr(summary, "to_dict") else dict(summary)
+
+    def angle(value):
+        return "–" if value is None or not math.isfinite(value) else f"{value:.1f}°"
+
+    degree = s.get("fit_degree", 0)
+    rows = [
+        ("β", f"{s.get('beta_min', 0):g}…{s.get('beta_max', 0):g}° ({s.get('n_betas', 0)} values)"),
+        ("Store N", f"{s.get('store', 0):,} · seed {s.get('seed', 0)}"),
+        ("Best β (sum)", angle(s.get("best_beta_energy_total")) + (f" deg-{degree} fit" if degree else "")),
+        ("Best β (/packet)", angle(s.get("best_beta_energy_per_packet"))),
+        ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
+        ("Time", f"{s.get('seconds', 0.0):.1f} s"),
+        ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),
+        ("Folder", s.get("out_dir", "")),
+    ]
+    return rows

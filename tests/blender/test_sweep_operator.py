@@ -1,0 +1,253 @@
+# SPDX-License-Identifier: MIT
+"""The Sweep β operator: the same job the modal operator runs (worker thread,
+polled progress, finish on the main thread), cancelling, and bad input.
+
+The numbers must equal those of ``endophoton.sweep`` on the same exported
+scene and of ``endophoton.sweep_blend`` for the same seed."""
+
+import csv
+import math
+import os
+import re
+import time
+
+import bpy
+import numpy as np
+import pytest
+
+from endophoton_addon import rig, sweep_job
+from conftest import REPO, data_snapshot, open_blend
+
+BETAS, STORE, SEED = "0,30", 2_000, 5
+LINE_PLOTS = ("packets_traced.png", "energy.png", "camera_fraction.png", "max_depth.png")
+
+
+def _setup(tmp_path, betas=BETAS, store=STORE):
+    scene = open_blend("flat_tissue.blend", tmp_path / "grids")
+    s = scene.endophoton.sweep
+    s.betas, s.store, s.seed, s.threads = betas, store, SEED, 1
+    s.output_dir = str(tmp_path / "sweep")
+    return scene
+
+
+def _run_job(context):
+    """Start, poll like the modal timer, finish.  Returns (job, images, progress seen)."""
+    job = sweep_job.prepare_sweep(context)
+    job.start()
+    seen = []
+    while not job.wait(0.05):
+        seen.append(job.progress())
+    return job, sweep_job.finish_sweep(context, job), seen
+
+
+def _documented_columns():
+    with open(os.path.join(REPO, "docs", "sweep.md"), encoding="utf-8") as f:
+        text = f.read()
+    block = text.split("<!-- csv-columns:begin -->")[1].split("<!-- csv-columns:end -->")[0]
+    return re.findall(r"^\| `([a-z0-9_]+)` \|", block, flags=re.M)
+
+
+def _same(a, b):
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b
+
+
+def _assert_same_rows(got, ref):
+    assert len(got.rows) == len(ref.rows)
+    for row, ref_row in zip(got.rows, ref.rows):
+        assert set(row) == set(ref_row)
+        for key in row:
+            if key != "seconds":
+                assert _same(row[key], ref_row[key]), (row["beta_deg"], key, row[key], ref_row[key])
+    for h, ref_h in zip(got.histograms, ref.histograms):
+        for key in ("counts", "counts_fixed", "chi2_p"):
+            np.testing.assert_array_equal(np.asarray(h[key]), np.asarray(ref_h[key]))
+
+
+def test_sweep_job_matches_python_api(ep, tmp_path):
+    scene = _setup(tmp_path)
+    out = tmp_path / "sweep"
+    before = data_snapshot()
+    job, images, seen = _run_job(bpy.context)
+    assert job.error is None and not job.cancelled, job.error_traceback
+
+    # Progress: fraction over the whole sweep, β and position in the status text.
+    assert seen and all(0.0 <= p.fraction <= 1.0 for p in seen)
+    assert [p.fraction for p in seen] == sorted(p.fraction for p in seen)
+    assert any(p.text().startswith("Sweep β=0° (1/2), ETA ") for p in seen)
+
+    # The CSV: the documented columns, one row per β, store-N records.
+    with open(out / "sweep.csv", newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        header, rows = reader.fieldnames, list(reader)
+    assert header == _documented_columns() == list(ep.beta_sweep.CSV_COLUMNS)
+    assert [float(r["beta_deg"]) for r in rows] == [0.0, 30.0]
+    assert all(int(r["records"]) == STORE and int(r["packets_traced"]) > STORE for r in rows)
+    assert all(int(r["seed"]) == SEED and r["cancelled"] == "0" for r in rows)
+    for name in ("sweep.json", "report.md"):
+        assert (out / name).stat().st_size > 0
+
+    # The plots, loaded as images named after their files, with pixels.
+    files = sorted(p.name for p in out.glob("*.png"))
+    assert files == sorted([*LINE_PLOTS, "polar_beta_00.png", "polar_beta_30.png",
+                            "polar_fixed_beta_00.png", "polar_fixed_beta_30.png"])
+    assert sorted(img.name for img in images) == sorted(f"EndoPhoton Sweep: {f}" for f in files)
+    for img in images:
+        assert bpy.data.images[img.name] == img
+        assert img.size[0] > 100 and img.size[1] > 100
+        assert os.path.samefile(bpy.path.abspath(img.filepath), out / img.name.split(": ", 1)[1])
+    after = data_snapshot()
+    assert {k: v for k, v in after.items() if k != "images"} == \
+        {k: v for k, v in before.items() if k != "images"}
+    assert set(after["images"]) - set(before["images"]) == {img.name for img in images}
+
+    # Summary for the panel.
+    summary = scene[sweep_job.SUMMARY_KEY].to_dict()
+    packets = [int(r["packets_traced"]) for r in rows]
+    assert summary["n_betas"] == 2 and summary["images"] == len(files)
+    assert (summary["packets_min"], summary["packets_max"]) == (min(packets), max(packets))
+    assert summary["best_beta_energy_total"] in (0.0, 30.0)   # a line through 2 points peaks at an end
+    assert summary["out_dir"] == str(out)
+    labels = dict(sweep_job.summary_rows(scene))
+    assert labels["Packets"] == f"{min(packets):,} – {max(packets):,}"
+
+    # Same numbers as ep.sweep on the exported scene with the rig's geometry ...
+    rig_obj = scene.objects["EP Endoscope"]
+    rs, scale = rig_obj.endophoton_rig, scene.unit_settings.scale_length
+    ref = ep.sweep(job.engine_scene, betas=[0, 30], store=STORE, seed=SEED, threads=1,
+                   distance=rs.distance * scale, point=tuple(x * scale for x in rs.target),
+                   normal=tuple(rs.normal), tilt_axis=tuple(rs.tilt_axis),
+                   rig_kwargs=rig.rig_parameters(rig_obj, scale), progress=False)
+    _assert_same_rows(job.result, ref)
+    for row, ref_row in zip(rows, ref.rows):   # ... and in the file
+        assert float(row["energy_total"]) == ref_row["energy_total"]
+        assert int(row["packets_traced"]) == ref_row["packets_traced"]
+    # ... and as sweep_blend, which exports the scene and reads the rig itself.
+    _assert_same_rows(job.result, ep.sweep_blend(scene, betas=[0, 30], store=STORE, seed=SEED,
+                                                 threads=1, progress=False))
+
+    # A second sweep into the same folder reuses the images of the same name and
+    # drops those of β values it does not have.
+    pointers = {img.name: img.as_pointer() for img in images}
+    scene.endophoton.sweep.betas = "0"
+    scene.endophoton.sweep.store = 500
+    _job, images2, _seen = _run_job(bpy.context)
+    names2 = sorted(img.name for img in images2)
+    assert names2 == sorted(f"EndoPhoton Sweep: {f}" for f in (*LINE_PLOTS, "polar_beta_00.png",
+                                                               "polar_fixed_beta_00.png"))
+    assert sorted(img.name for img in sweep_job.sweep_images()) == names2
+    assert all(img.as_pointer() == pointers[img.name] and img.size[0] > 0 for img in images2)
+    assert scene[sweep_job.SUMMARY_KEY]["n_betas"] == 1
+
+
+def test_cancel_adds_nothing(ep, tmp_path):
+    scene = _setup(tmp_path, betas="0", store=500)
+    # An earlier sweep's images and summary, made by the operator's blocking path.
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    assert len(sweep_job.sweep_images()) == 6 and scene[sweep_job.SUMMARY_KEY]["n_betas"] == 1
+    out = tmp_path / "sweep"
+    files = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    summary = scene[sweep_job.SUMMARY_KEY].to_dict()
+    before = data_snapshot()
+
+    s = scene.endophoton.sweep
+    s.betas, s.store = "0:60:5", 2_000_000
+    job = sweep_job.prepare_sweep(bpy.context)
+    job.start()
+    deadline = time.monotonic() + 60.0
+    while job.progress().done == 0 and not job.done and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert job.progress().done > 0 and not job.done   # the engine is running
+    labels = _sidebar_labels_while_running(job)
+    assert labels[0].startswith("Sweep β=0° (1/12)") and "packets · ETA --" in labels[1]
+    job.cancel()                                      # what Esc does
+    assert job.wait(60.0)
+    assert sweep_job.finish_sweep(bpy.context, job) is None
+    assert job.cancelled and job.error is None and job.paths is None
+    assert data_snapshot() == before
+    assert repr(scene[sweep_job.SUMMARY_KEY].to_dict()) == repr(summary)   # nan-aware
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == files
+
+
+def _sidebar_labels_while_running(job):
+    """The main panel's progress box while ``job`` is the running job, as the modal operator sets it."""
+    from types import SimpleNamespace
+
+    from endophoton_addon import operators
+    from test_registration import FakeLayout
+
+    saved = dict(operators._running)
+    operators._running.update(job=job, modal=True)
+    try:
+        log = []
+        bpy.types.ENDOPHOTON_PT_main.draw(SimpleNamespace(layout=FakeLayout(log)), bpy.context)
+    finally:
+        operators._running.clear()
+        operators._running.update(saved)
+    assert ("operator", "endophoton.cancel_run") in log
+    return [text for kind, text in log if kind == "label" and not text.startswith("Engine")]
+
+
+def _assert_rejected(pattern, out_dir, invoke=False):
+    scene = bpy.context.scene
+    before = data_snapshot()
+    args = ("INVOKE_DEFAULT",) if invoke else ()
+    with pytest.raises(RuntimeError, match=pattern):
+        bpy.ops.endophoton.sweep_beta(*args)
+    assert data_snapshot() == before
+    assert sweep_job.SUMMARY_KEY not in scene
+    assert not os.path.exists(out_dir)
+
+
+@pytest.mark.parametrize("field, value, pattern", [
+    ("betas", "", r"Scene '[^']+': sweep.betas = '' is empty"),
+    ("betas", "  ", r"sweep.betas = '  ' is empty"),
+    ("betas", "0,90", r"sweep.betas = '0,90': β = 90° must be a finite angle in \(-90, 90\)"),
+    ("betas", "-95,0", r"β = -95° must be a finite angle"),
+    ("betas", "0,10,0", r"β = 0° is given twice"),
+    ("betas", "10:0:5", r"sweep.betas = '10:0:5' must be a list '0,10,20' or a range"),
+    ("betas", "ten", r"sweep.betas = 'ten' must be a list"),
+    ("store", 0, r"Scene '[^']+': sweep.store = 0 must be > 0"),
+    ("store", 10, r"sweep.store = 10 must be >= sweep.batches = 20"),
+    ("batches", 1, r"sweep.batches = 1 must be >= 2"),
+])
+def test_bad_settings_rejected(ep, tmp_path, field, value, pattern):
+    _setup(tmp_path)
+    setattr(bpy.context.scene.endophoton.sweep, field, value)
+    _assert_rejected(pattern, tmp_path / "sweep")
+
+
+def test_bad_input_through_invoke(ep, tmp_path):
+    _setup(tmp_path, betas="")
+    _assert_rejected(r"sweep.betas = '' is empty", tmp_path / "sweep", invoke=True)
+
+
+def test_output_folder_is_a_file(ep, tmp_path):
+    scene = _setup(tmp_path)
+    path = tmp_path / "taken"
+    path.write_text("not a folder")
+    scene.endophoton.sweep.output_dir = str(path)
+    with pytest.raises(RuntimeError, match=r"sweep.output_dir = '.*taken' is a file, not a folder"):
+        bpy.ops.endophoton.sweep_beta()
+    assert path.read_text() == "not a folder"
+
+
+def test_bad_rig_rejected(ep, tmp_path):
+    scene = _setup(tmp_path)
+    rs = scene.objects["EP Endoscope"].endophoton_rig
+    normal = tuple(rs.normal)
+    rs.tilt_axis = normal
+    _assert_rejected(r"Object 'EP Endoscope': endophoton_rig.tilt_axis is parallel to endophoton_rig.normal",
+                     tmp_path / "sweep")
+    rs.tilt_axis = (0.0, 1.0, 0.0)
+    rs.distance = 0.0
+    _assert_rejected(r"Object 'EP Endoscope': endophoton_rig.distance = 0 must be > 0", tmp_path / "sweep")
+
+
+def test_no_tissue_rejected(ep, tmp_path):
+    scene = _setup(tmp_path)
+    for obj in scene.objects:
+        if obj.type == "MESH":
+            obj.endophoton.role = "NONE"
+    _assert_rejected(r"Scene '[^']+': no object has role 'tissue'", tmp_path / "sweep")
