@@ -57,6 +57,7 @@ def atomic_write_text(path, text):
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=os.path.dirname(path))
     with os.fdopen(fd, "w", encoding="utf-8") as fh:
         fh.write(text)
+    os.chmod(tmp, 0o644)
     os.replace(tmp, path)
 
 
@@ -66,6 +67,7 @@ def save_fig(fig, name):
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".png", dir=PERF)
     os.close(fd)
     fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    os.chmod(tmp, 0o644)
     os.replace(tmp, path)
     import matplotlib.pyplot as plt
     plt.close(fig)
@@ -636,7 +638,8 @@ def make_plots(R):
     for name in dict.fromkeys(r["scene"] for r in ms):
         rs = [r for r in ms if r["scene"] == name and r["cap"] > 0]
         caps = [r["cap"] for r in rs]
-        ax[0].loglog(caps, [max(r["cut"], 1e-7) for r in rs], "o-", label=name)
+        cut = [(r["cap"], r["cut"]) for r in rs if r["cut"] > 0]   # cut = 0 cannot be drawn on a log axis
+        ax[0].loglog([c for c, _ in cut], [v for _, v in cut], "o-", label=name + " (caps with cut > 0)")
         ax[1].semilogx(caps, [(r["value"] - r["ref"]) / r["se"] for r in rs], "o-", label=name)
     ax[0].set_ylabel("cut weight (fraction of launched)")
     ax[1].set_ylabel("(estimate − reference) / σ")
@@ -763,9 +766,12 @@ def write_markdown(R, figs):
                 "packets per CPU-s (1 / 2 thr)", "RSS MB base / peak (1 thr)", "RSS MB base / peak (2 thr)"], tr))
     eff = [next(r for r in rows if r["key"] == k and r["threads"] == 2)["pp_cpu_s"]
            / next(r for r in rows if r["key"] == k and r["threads"] == 1)["pp_cpu_s"] for k in dict.fromkeys(r["key"] for r in rows)]
+    wall = [next(r for r in rows if r["key"] == k and r["threads"] == 2)["pps"]
+            / next(r for r in rows if r["key"] == k and r["threads"] == 1)["pps"] for k in dict.fromkeys(r["key"] for r in rows)]
     a(f"\nPer CPU-second the 2-thread runs do {min(eff):.2f}–{max(eff):.2f} of the 1-thread work, so on two idle "
-      f"cores the expected scaling is about {2 * min(eff):.1f}–{2 * max(eff):.1f}×; the wall-clock scaling above is "
-      f"lower because the machine was shared (load average {R['machine']['load_start'][0]:.1f} at the start).")
+      f"cores the expected scaling is about {2 * min(eff):.1f}–{2 * max(eff):.1f}×. The wall-clock scaling measured "
+      f"here ranges from {min(wall):.2f}× to {max(wall):.2f}× because the machine was shared with other jobs (load "
+      f"average {R['machine']['load_start'][0]:.1f} at the start, {R['machine']['load_end'][0]:.1f} at the end).")
     rec = next(r for r in rows if r["key"] == "colon+records" and r["threads"] == 2)
     grd = next(r for r in rows if r["key"] == "colon+grids" and r["threads"] == 2)
     a(f"\nEscape records: {fmt_int(rec['records_n'])} records took {rec['record_bytes'] / 1e6:.1f} MB in the engine "
@@ -974,7 +980,7 @@ def write_markdown(R, figs):
         cells = [name, f"{100 * t:g} %"]
         for scene in dict.fromkeys(r["scene"] for r in R["presets"]):
             r = next((x for x in R["presets"] if x["scene"] == scene and x["target"] == t), None)
-            cells.append(f"{fmt_int(r['packets'])} / {r['seconds']:.1f} s" if r else "–")
+            cells.append(f"{fmt_int(r['packets'])} / {r['seconds']:.2f} s" if r else "–")
         tr.append(cells)
     a(md_table(["preset", "target rel. stderr"] + [f"{s}: packets / time" for s in
                                                  dict.fromkeys(r["scene"] for r in R["presets"])], tr))

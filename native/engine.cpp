@@ -80,7 +80,11 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
     uint64_t unit_size = cfg.unit_size;
     if (unit_size == 0) {
         // Depends only on the request, never on the thread count.
-        unit_size = fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536) : 1024;
+        // Store and target runs check their stop rule after every merged unit:
+        // 1024-packet units for "store N", 256 for targets so that a loose target
+        // can stop after its minimum of 20 units (5120 packets).
+        unit_size = fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536)
+                          : (cfg.target_tally >= 0 ? 256 : 1024);
     }
     uint64_t limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : UINT64_MAX / 2);
     const uint64_t n_units_max = (limit + unit_size - 1) / unit_size;

@@ -43,28 +43,35 @@ RIG_DEFAULT_DISTANCE_MM = 10.0
 @dataclass(frozen=True)
 class QualityPreset:
     label: str
-    packets: int                  # packets launched ("photons" mode) or records kept ("store" mode)
-    target_error: Optional[float]  # relative standard error goal; None until the engine supports it
+    packets: int          # records kept in "store" mode; in packet mode the cap of the target run
+    target_error: float   # relative standard error goal of the diffuse reflectance
 
 
-# HOOK: a later issue maps the presets to target errors (run until the
-# relative standard error of the diffuse reflectance drops below
-# target_error).  Until then only `packets` is used; `resolve_budget` is the one
-# place that turns a preset into run arguments, so that issue changes it here.
+# The presets run in target-accuracy mode (the engine stops once the relative
+# standard error of the diffuse reflectance reaches target_error), the same
+# values as the package's endophoton.QUALITY_PRESETS; `packets` caps the run
+# (and is the record count in "store" mode, where the count is the request).
 QUALITY_PRESETS = {
-    "PREVIEW": QualityPreset("Preview", 20_000, None),
-    "STANDARD": QualityPreset("Standard", 200_000, None),
-    "REFERENCE": QualityPreset("Reference", 2_000_000, None),
+    "PREVIEW": QualityPreset("Preview", 20_000, 0.05),
+    "STANDARD": QualityPreset("Standard", 200_000, 0.01),
+    "REFERENCE": QualityPreset("Reference", 2_000_000, 0.002),
 }
+
+# Packet caps of the target runs, from the package when it is importable.
+TARGET_CAPS = {"PREVIEW": 1_000_000, "STANDARD": 20_000_000, "REFERENCE": 200_000_000}
 
 
 def resolve_budget(quality, mode, photons, store):
-    """Turn the quality preset / custom counts into ``(kind, count)``.
+    """Turn the quality preset / custom counts into ``(kind, count, target_error)``.
 
-    ``kind`` is ``"photons"`` (packets launched) or ``"store"`` (records kept).
+    ``kind`` is ``"photons"`` (packets launched), ``"store"`` (records kept) or
+    ``"target"`` (run to ``target_error``, at most ``count`` packets).
     ``quality`` is a key of QUALITY_PRESETS or ``"CUSTOM"`` (use the explicit counts).
     """
     kind = "store" if mode == "STORE" else "photons"
     if quality == "CUSTOM":
-        return kind, (store if kind == "store" else photons)
-    return kind, QUALITY_PRESETS[quality].packets
+        return kind, (store if kind == "store" else photons), None
+    preset = QUALITY_PRESETS[quality]
+    if kind == "store":
+        return kind, preset.packets, None
+    return "target", TARGET_CAPS[quality], preset.target_error

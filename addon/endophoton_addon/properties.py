@@ -199,7 +199,8 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
 
     quality: EnumProperty(
         name="Quality",
-        items=tuple((key, p.label, f"{p.packets:,} packets") for key, p in presets.QUALITY_PRESETS.items())
+        items=tuple((key, p.label, f"run to {100 * p.target_error:g} % relative error of the diffuse reflectance")
+                    for key, p in presets.QUALITY_PRESETS.items())
         + (("CUSTOM", "Custom", "Use the packet / record count below"),),
         default="PREVIEW",
     )

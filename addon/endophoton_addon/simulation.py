@@ -38,8 +38,8 @@ class RunInputs:
     rig_matrix: np.ndarray          # 4x4 float64, head frame -> world, metres
     rig_params: dict                # head_diameter_mm, ... (engine keyword units)
     beta_deg: float                 # the rig's tilt from its surface normal, for naming
-    kind: str                       # "photons" or "store"
-    count: int
+    kind: str                       # "photons", "store" or "target"
+    count: int                      # packets, records, or the packet cap of a target run
     seed: int
     threads: int
     fluorescent_only: bool
@@ -49,6 +49,7 @@ class RunInputs:
     grid_path: Optional[str]
     grid_per_fluorophore: bool
     scale_length: float             # metres per Blender unit
+    target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
@@ -137,7 +138,8 @@ def collect_inputs(context):
     rig_obj = _pick_rig(scene)
     rig_matrix, rig_params, beta_deg = _check_rig(rig_obj, scale)
 
-    kind, count = presets.resolve_budget(settings.quality, settings.mode, settings.photons, settings.store)
+    kind, count, target_error = presets.resolve_budget(settings.quality, settings.mode, settings.photons,
+                                                       settings.store)
     if count <= 0:
         field_name = "store" if kind == "store" else "photons"
         raise InputError(f"{who}: simulation.{field_name} = {count} must be > 0")
@@ -174,6 +176,7 @@ def collect_inputs(context):
         grid_path=grid_path,
         grid_per_fluorophore=bool(settings.grid_per_fluorophore),
         scale_length=float(scale),
+        target_error=target_error,
     )
 
 
@@ -222,8 +225,12 @@ def build_engine_call(ep, inputs):
         rig_kwargs = _accepted_kwargs(
             ep.EndoscopeRig, dict(transform=inputs.rig_matrix, unit="m", **inputs.rig_params))
         endoscope = ep.EndoscopeRig(**rig_kwargs)
+        if inputs.kind == "target":
+            budget = {"target": ep.Target("diffuse_reflectance", inputs.target_error), "max_photons": inputs.count}
+        else:
+            budget = {inputs.kind: inputs.count}
         kwargs = {
-            inputs.kind: inputs.count,
+            **budget,
             "fluorescent_only": inputs.fluorescent_only,
             "fluorescence_rule": inputs.fluorescence_rule,
             "seed": inputs.seed,

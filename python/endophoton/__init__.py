@@ -14,6 +14,7 @@ from . import _core
 from . import analysis, meshes
 from .beta_sweep import SweepResult, default_flat_scene, sweep, sweep_blend
 from .report import write_report
+from .quality import QUALITY_PRESETS, Quality, quality_preset
 
 __version__ = _core.__version__
 
@@ -21,4 +22,4 @@ __all__ = ["Medium", "Scene", "Region", "layered_slab", "box_mesh", "load_mesh",
            "ConeSource", "EndoscopeRig", "source_from_dict", "run", "Result", "GridRequest", "Target",
            "CancelToken", "EEM", "Fluorophore", "Spectrum", "FLUOROPHORE_DEFAULTS", "FRACTIONS", "TARGET_TALLIES",
            "UNIT_CM", "unit_cm", "analysis", "meshes", "sweep", "sweep_blend", "SweepResult",
-           "default_flat_scene", "write_report"]
+           "default_flat_scene", "write_report", "QUALITY_PRESETS", "Quality", "quality_preset"]

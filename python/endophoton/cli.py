@@ -37,6 +37,9 @@ def _run_main(args) -> int:
         kwargs["target"] = Target(tally=args.target_tally, rel_error=args.target_rel_error)
         kwargs["max_photons"] = args.max_photons
         photons = None
+    if args.quality is not None:
+        kwargs["quality"] = args.quality
+        photons = None
     if args.time_budget is not None:
         kwargs["time_budget_s"] = args.time_budget
     res = run(scene, source, photons=photons, record_escapes=False, **kwargs)
@@ -58,6 +61,8 @@ def main(argv=None) -> int:
     p_run.add_argument("--target-tally", default="diffuse_reflectance",
                        help="tally for --target-rel-error (default diffuse_reflectance)")
     p_run.add_argument("--max-photons", type=int, default=0, help="upper bound in target mode (0 = none)")
+    p_run.add_argument("--quality", choices=("preview", "standard", "reference"), default=None,
+                       help="run to a preset accuracy: 5 %%, 1 %% or 0.2 %% relative error on the diffuse reflectance")
     p_run.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds")
     p_run.set_defaults(func=_run_main)
     try:

@@ -96,7 +96,8 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         max_path_cm: float = 0.0, record_escapes: bool = True, fluorescent_only: bool = False,
         fluorescence_rule: str = "paper", grids: GridRequest | None = None, target: Target | None = None,
         time_budget_s: float = 0.0, max_photons: int = 0, batches: int = 50, spectral: bool | None = None,
-        safe_distance: bool = True, unit_size: int = 0, progress=None, cancel=None) -> Result:
+        safe_distance: bool = True, unit_size: int = 0, quality: str | None = None, progress=None,
+        cancel=None) -> Result:
     """Trace photon packets through ``scene`` from ``source``.
 
     Exactly one of ``photons`` (launch that many packets), ``store`` (launch
@@ -107,8 +108,18 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
     partial result then has ``cancelled=True``.
 
+    ``quality`` ("preview", "standard", "reference") is a shortcut for a target
+    accuracy with a packet cap (endophoton.quality); it cannot be combined with
+    ``photons``, ``store`` or ``target``.
+
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
+    if quality is not None:
+        if photons is not None or store is not None or target is not None:
+            raise ValueError(f"quality = {quality!r} replaces photons, store and target: give only one")
+        from .quality import quality_preset
+        preset = quality_preset(quality)
+        target, max_photons = preset.target, preset.max_photons
     if not isinstance(scene, Scene):
         raise ValueError(f"scene = {scene!r} must be an endophoton.Scene")
     modes = [m for m, v in (("photons", photons), ("store", store), ("target", target)) if v is not None]

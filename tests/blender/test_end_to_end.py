@@ -262,6 +262,21 @@ def test_colon_polyp_scene_runs(ep, tmp_path):
     assert len(_points_object(collection).data.vertices) == len(res.escapes["weight"])
 
 
+def test_preview_preset_runs_to_its_target_accuracy(ep, tmp_path):
+    """Quality presets are target accuracies: Preview stops once the diffuse reflectance's
+    relative standard error is at most 5 %, and says so."""
+    scene = open_blend("flat_tissue.blend", tmp_path)
+    settings = scene.endophoton
+    settings.quality = "PREVIEW"
+    settings.mode = "PHOTONS"
+    job, collection, _ = _run_job(bpy.context)
+    res = job.result
+    assert collection is not None
+    assert res.stop_reason == "target" and res.target_reached
+    assert res.diffuse_reflectance_stderr / res.diffuse_reflectance <= 0.05
+    assert 0 < res.photons < 1_000_000
+
+
 def test_render_result_png(ep, tmp_path, out_dir):
     """Acceptance 5: a small Cycles render of the result scene is not empty."""
     scene = open_blend("flat_tissue.blend", tmp_path)

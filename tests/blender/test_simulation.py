@@ -10,11 +10,11 @@ from endophoton_addon import presets, simulation
 
 
 @pytest.mark.parametrize("quality,mode,expected", [
-    ("PREVIEW", "PHOTONS", ("photons", 20_000)),
-    ("STANDARD", "PHOTONS", ("photons", 200_000)),
-    ("REFERENCE", "STORE", ("store", 2_000_000)),
-    ("CUSTOM", "PHOTONS", ("photons", 123)),
-    ("CUSTOM", "STORE", ("store", 456)),
+    ("PREVIEW", "PHOTONS", ("target", 1_000_000, 0.05)),
+    ("STANDARD", "PHOTONS", ("target", 20_000_000, 0.01)),
+    ("REFERENCE", "STORE", ("store", 2_000_000, None)),
+    ("CUSTOM", "PHOTONS", ("photons", 123, None)),
+    ("CUSTOM", "STORE", ("store", 456, None)),
 ])
 def test_resolve_budget(quality, mode, expected):
     assert presets.resolve_budget(quality, mode, 123, 456) == expected
@@ -23,7 +23,12 @@ def test_resolve_budget(quality, mode, expected):
 def test_quality_enum_matches_presets():
     items = bpy.types.Scene.bl_rna.properties["endophoton"].fixed_type.properties["quality"].enum_items
     assert [i.identifier for i in items] == [*presets.QUALITY_PRESETS, "CUSTOM"]
-    assert all(p.target_error is None for p in presets.QUALITY_PRESETS.values())
+    # The add-on's presets are the package's (endophoton.QUALITY_PRESETS): same errors and caps.
+    import endophoton as ep
+    for key, p in presets.QUALITY_PRESETS.items():
+        q = ep.QUALITY_PRESETS[key.lower()]
+        assert q.target.rel_error == p.target_error and q.target.tally == "diffuse_reflectance"
+        assert q.max_photons == presets.TARGET_CAPS[key]
 
 
 def test_progress_text():
