@@ -119,9 +119,26 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
     std::atomic<bool> user_cancel{false};
     auto cancelled = [&]() { return user_cancel.load() || (cancel && cancel->load()); };
 
+    // Prefix sums of the target tally over merged units: the stop rule is then
+    // O(batches) per unit instead of O(units).
+    std::vector<uint64_t> target_prefix_n{0};
+    std::vector<double> target_prefix_sum{0.0};
+    auto time_is_up = [&]() {
+        if (cfg.time_budget_s <= 0) return false;
+        const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+        return el >= cfg.time_budget_s;
+    };
+
     auto stop_predicate = [&]() -> bool {
         // Called with `mu` held, right after unit next_merge-1 was merged.
-        if (fixed) return next_merge >= n_units_max;
+        if (fixed) {
+            if (next_merge >= n_units_max) return true;
+            if (time_is_up()) {
+                result.stop_reason = "time";
+                return true;
+            }
+            return false;
+        }
         if (next_merge >= n_units_max) {
             result.stop_reason = "max_photons";
             return true;
@@ -131,21 +148,29 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
             result.stop_reason = "store";
             return true;
         }
-        if (cfg.target_tally >= 0 && result.units.size() >= 20) {
-            const Estimate e = batch_estimate(result.units, cfg.batches,
-                                              [&](const UnitTally& u) { return u.scalar[cfg.target_tally]; });
-            if (e.mean != 0 && std::isfinite(e.stderr_) && e.stderr_ / std::fabs(e.mean) <= cfg.target_rel_error) {
-                result.target_reached = true;
-                result.stop_reason = "target";
-                return true;
+        if (cfg.target_tally >= 0) {
+            const UnitTally& last = result.units.back();
+            target_prefix_n.push_back(target_prefix_n.back() + last.packets);
+            target_prefix_sum.push_back(target_prefix_sum.back() + last.scalar[cfg.target_tally]);
+            const size_t k = result.units.size();
+            if (k >= 20) {
+                const Estimate e = batch_estimate_prefix(target_prefix_n, target_prefix_sum, cfg.batches);
+                if (e.mean != 0 && std::isfinite(e.stderr_) && e.stderr_ / std::fabs(e.mean) <= cfg.target_rel_error) {
+                    result.target_reached = true;
+                    result.stop_reason = "target";
+                    return true;
+                }
+                // A relative error of a tally that stays exactly zero is undefined:
+                // after 1000 units (256k packets) say so instead of running on.
+                if (e.mean == 0 && k >= 1000) {
+                    result.stop_reason = "target_zero";
+                    return true;
+                }
             }
         }
-        if (cfg.time_budget_s > 0) {
-            const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-            if (el >= cfg.time_budget_s) {
-                result.stop_reason = "time";
-                return true;
-            }
+        if (time_is_up()) {
+            result.stop_reason = "time";
+            return true;
         }
         return false;
     };
@@ -244,7 +269,7 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
 
     result.cancelled = cancelled() && !(fixed && next_merge >= n_units_max) && result.stop_reason.empty();
     if (result.cancelled) result.stop_reason = "cancelled";
-    if (fixed && !result.cancelled) result.stop_reason = "photons";
+    if (fixed && !result.cancelled && result.stop_reason.empty()) result.stop_reason = "photons";
     finalize_estimates(result, cfg.batches);
     if (cfg.store > 0 && result.records.size() > 0)
         result.packets_traced = result.records.packet.back() + 1;

@@ -57,4 +57,19 @@ Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::ve
     return e;
 }
 
+Estimate batch_estimate_prefix(const std::vector<uint64_t>& prefix_n, const std::vector<double>& prefix_sum,
+                               int batches) {
+    const size_t K = prefix_n.size() - 1;
+    const size_t B = std::min<size_t>(K, size_t(std::max(batches, 2)));
+    std::vector<uint64_t> bn(B);
+    std::vector<double> bs(B);
+    for (size_t b = 0; b < B; ++b) {
+        // Same grouping as batch_estimate_impl: unit i in batch floor(i B / K).
+        const size_t lo = (b * K + B - 1) / B, hi = ((b + 1) * K + B - 1) / B;
+        bn[b] = prefix_n[hi] - prefix_n[lo];
+        bs[b] = prefix_sum[hi] - prefix_sum[lo];
+    }
+    return batch_estimate_impl(bn, bs, batches);
+}
+
 }  // namespace ep

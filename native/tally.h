@@ -64,6 +64,11 @@ Estimate batch_estimate(const std::vector<UnitTally>& units, int batches, F valu
 // Implementation.
 Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums, int batches);
 
+// The same estimate from prefix sums over units (prefix_n[0] = prefix_sum[0] = 0,
+// K + 1 entries): O(batches) per call, for stop rules checked after every unit.
+Estimate batch_estimate_prefix(const std::vector<uint64_t>& prefix_n, const std::vector<double>& prefix_sum,
+                               int batches);
+
 template <class F>
 Estimate batch_estimate(const std::vector<UnitTally>& units, int batches, F value) {
     std::vector<uint64_t> packets(units.size());

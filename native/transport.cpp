@@ -1,5 +1,6 @@
 #include "transport.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "eem.h"
@@ -168,17 +169,30 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
     };
 
     // Beer-Lambert along a straight segment of length t (scene units) from p in
-    // a region with mus = 0: W -> W exp(-mua t). Grid deposits are spread over
-    // sub-segments of at most one voxel, each with its exact share.
+    // a region with mus = 0: W -> W exp(-mua t). For grids the segment is cut
+    // where it crosses voxel faces (planes at (i + 1/2) h, cell-centred voxels),
+    // so every piece lies in one voxel and deposits its exact share there.
     auto attenuate_clear = [&](Float t) {
         if (t <= 0 || W <= 0) return;
         const Float dW = -W * std::expm1(-med.mua * t * unit_cm);
         if constexpr (kGrids) {
             const Float h = cfg_.grid_voxel_size;
-            const int pieces = int(std::min<Float>(1e5, std::ceil(t / h)));
+            cuts_.clear();
+            cuts_.push_back(0);
+            cuts_.push_back(t);
+            for (int axis = 0; axis < 3 && cuts_.size() < 300000; ++axis) {
+                const Float o = p[axis], v = d[axis];
+                if (v == 0) continue;
+                const Float a = o / h - Float(0.5), b = (o + v * t) / h - Float(0.5);
+                const Float lo = std::min(a, b), hi = std::max(a, b);
+                for (Float k = std::floor(lo) + 1; k <= hi && cuts_.size() < 300000; k += 1)
+                    cuts_.push_back(((k + Float(0.5)) * h - o) / v);
+            }
+            std::sort(cuts_.begin(), cuts_.end());
             Float w = W;
-            for (int k = 0; k < pieces; ++k) {
-                const Float a = t * k / pieces, b = t * (k + 1) / pieces;
+            for (size_t k = 0; k + 1 < cuts_.size(); ++k) {
+                const Float a = std::clamp(cuts_[k], Float(0), t), b = std::clamp(cuts_[k + 1], Float(0), t);
+                if (b <= a) continue;
                 const Float piece = -w * std::expm1(-med.mua * (b - a) * unit_cm);
                 const Vec3 mid = p + d * (Float(0.5) * (a + b));
                 out.absorbed_grid->add(mid.x, mid.y, mid.z, piece * energy_per_weight);

@@ -45,6 +45,7 @@ class Tracer {
     const RunConfig& cfg_;
     bool spectral_, grids_;
     std::vector<Hit> hits_;
+    std::vector<Float> cuts_;  // voxel-face crossings of a clear segment (grids)
 };
 
 }  // namespace ep

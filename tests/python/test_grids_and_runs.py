@@ -135,3 +135,51 @@ def test_progress_returning_false_stops_the_run():
     res = ep.run(_fluor_scene(), ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=50_000_000, seed=1,
                  record_escapes=False, progress=lambda done, total: False)
     assert res.cancelled and res.photons < 50_000_000
+
+
+def test_clear_region_deposits_are_exact_per_voxel(tmp_path):
+    """mus = 0: the absorbed weight of every voxel equals the Beer-Lambert loss along the part
+    of the ray inside that voxel (reference: fine numerical integration along the ray,
+    binned by cell-centred voxel index), for an oblique ray that crosses voxel faces."""
+    h, mua = 0.07, 1.5
+    s = ep.Scene(unit="cm")
+    s.add_box("a", (-1, -1, -1), (1, 1, 0), ep.Medium(mua, 0.0, 0.0, 1.0))
+    d = np.array([0.3, 0.1, -1.0])
+    d /= np.linalg.norm(d)
+    p0 = np.array([0.013, 0.02, 1.0])
+    path = tmp_path / "clear.vdb"
+    res = ep.run(s, ep.PencilSource(tuple(p0), tuple(d)), photons=64, grids=ep.GridRequest(h, str(path)))
+    arr, origin, hh = vdb.grid_to_numpy(str(path), "absorbed")
+    entry = p0 + d * (-p0[2] / d[2])
+    length = -1.0 / d[2]
+    t = np.linspace(0.0, length, 2_000_001)
+    w = np.exp(-mua * t)
+    mid = entry + np.outer(0.5 * (t[1:] + t[:-1]), d)
+    ref = {}
+    for key, v in zip(map(tuple, np.round(mid / h).astype(int)), w[:-1] - w[1:]):
+        ref[key] = ref.get(key, 0.0) + v
+    got = {tuple(np.round((origin + ijk * hh) / h).astype(int)): float(arr[tuple(ijk)])
+           for ijk in np.argwhere(arr > 0)}
+    assert set(got) == set(ref)
+    for key, v in ref.items():
+        assert got[key] == pytest.approx(v, rel=1e-4, abs=1e-7), key
+    assert res.absorbed == pytest.approx(1 - np.exp(-mua * length), rel=1e-6)
+
+
+def test_time_budget_stops_a_fixed_count_run():
+    res = ep.run(_fluor_scene(), ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=50_000_000, seed=1,
+                 record_escapes=False, time_budget_s=0.5)
+    assert res.stop_reason == "time" and res.photons < 50_000_000
+    assert not res.cancelled
+    assert_energy_conserved(res)
+
+
+def test_target_on_a_tally_that_stays_zero_stops_and_says_so():
+    """Transmittance of a 10 cm deep absorbing box is exactly 0: its relative error is
+    undefined, so the run stops after its minimum and reports 'target_zero'."""
+    s = ep.Scene(unit="cm")
+    s.add_box("t", (-5, -5, -10), (5, 5, 0), ep.Medium(20, 200, 0.9, 1.1))
+    res = ep.run(s, ep.PencilSource((0, 0, 1), (0, 0, -1)), target=ep.Target("transmittance", 0.01),
+                 record_escapes=False)
+    assert res.stop_reason == "target_zero" and not res.target_reached
+    assert res.transmittance == 0.0

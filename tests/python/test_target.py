@@ -37,8 +37,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 # Oracles §1 (van de Hulst's table, 5 decimals: rounding half a unit in the last place).
 VDH_RD, VDH_TT, VDH_UNC = 0.09739, 0.66096, 0.5e-5
-# Work unit of the store/target modes (engine default when unit_size = 0);
-# passed explicitly wherever a test relies on it.
+# Work unit passed explicitly wherever a test relies on it, so that the tests do not
+# depend on the engine's default unit size for target mode.
 UNIT = 1024
 
 
@@ -161,6 +161,19 @@ def test_same_seed_same_packets_any_thread_count():
         assert getattr(a, k + "_stderr") == getattr(b, k + "_stderr"), k
     c = run_target(0.01, seed=6, threads=2)
     assert c.diffuse_reflectance != a.diffuse_reflectance  # the seed matters
+
+
+def test_default_unit_size_is_deterministic_across_threads():
+    """The same with the engine's own unit size (unit_size = 0)."""
+    runs = [ep.run(mcml_slab(), SOURCE, target=ep.Target("diffuse_reflectance", 0.01), seed=9, threads=t,
+                   record_escapes=False) for t in (1, 2)]
+    a, b = runs
+    assert a.stop_reason == b.stop_reason == "target" and a.target_reached and b.target_reached
+    assert a.unit_size == b.unit_size and a.photons == b.photons and a.photons % a.unit_size == 0
+    assert a.diffuse_reflectance == b.diffuse_reflectance
+    assert a.diffuse_reflectance_stderr == b.diffuse_reflectance_stderr
+    assert rel(a, "diffuse_reflectance") <= 0.01
+    assert_within("Rd (default unit)", a.diffuse_reflectance, a.diffuse_reflectance_stderr, VDH_RD, VDH_UNC)
 
 
 def test_invalid_targets_are_rejected():
