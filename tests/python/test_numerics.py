@@ -23,7 +23,7 @@ import pytest
 import endophoton as ep
 from endophoton import _core
 
-from physics_helpers import (assert_energy_conserved, assert_no_nan, assert_same_within_stats, assert_within,
+from physics_helpers import (fresnel_unpolarized, assert_energy_conserved, assert_no_nan, assert_same_within_stats, assert_within,
                              semi_infinite_isotropic_reflectance)
 
 DOWN = (0.0, 0.0, -1.0)
@@ -35,18 +35,9 @@ def fresnel_oracle(n1, n2, theta):
     """Unpolarised Fresnel reflectance from n1 into n2 at incidence angle theta (rad), written from
     the oracle: R = 1/2 [sin^2(i-t)/sin^2(i+t) + tan^2(i-t)/tan^2(i+t)]; ((n1-n2)/(n1+n2))^2 at
     normal incidence; 1 beyond the critical angle and at grazing incidence (limit theta -> 90 deg)."""
-    if theta == 0:
-        return ((n1 - n2) / (n1 + n2)) ** 2
     if theta >= math.pi / 2:
-        return 1.0
-    s = n1 / n2 * math.sin(theta)
-    if s >= 1:
-        return 1.0
-    t = math.asin(s)
-    if t == theta:
-        return 0.0
-    a, b = theta - t, theta + t
-    return 0.5 * (math.sin(a) ** 2 / math.sin(b) ** 2 + math.tan(a) ** 2 / math.tan(b) ** 2)
+        return 1.0  # grazing: the oracle's formula is 0/0 there; the limit is total reflection
+    return fresnel_unpolarized(n1, n2, theta)
 
 
 def rod_model(mua, mus, d):
