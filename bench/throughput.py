@@ -16,7 +16,7 @@ import sys
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 
 CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 sys.path.insert(0, {py!r})
 import endophoton as ep
 cfg = json.loads(sys.argv[1])
@@ -30,7 +30,9 @@ t = time.perf_counter()
 r = ep.run(s, src, photons=cfg['photons'], threads=cfg['threads'], record_escapes=cfg['records'],
            safe_distance=cfg['safe_distance'], grids=grids)
 dt = time.perf_counter() - t
-peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+# The process's own peak resident set (VmHWM). ru_maxrss is not used: Linux
+# carries a parent's peak over fork + exec into the child's ru_maxrss.
+peak_kb = next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM:'))
 print(json.dumps(dict(cfg, seconds=dt, packets_per_s=r.photons / dt, peak_rss_mb=peak_kb / 1024.0,
                       diffuse_reflectance=r.diffuse_reflectance, rd_stderr=r.diffuse_reflectance_stderr)))
 """
