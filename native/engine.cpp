@@ -2,7 +2,6 @@
 
 #include <chrono>
 #include <cmath>
-#include <condition_variable>
 #include <memory>
 #include <mutex>
 #include <sstream>

@@ -14,9 +14,7 @@ namespace {
 // Intersection context extended with the hit list the filter fills.
 struct CollectContext {
     RTCIntersectContext base;  // must be first: Embree hands back a pointer to it
-    const Scene* scene;
     const std::vector<Region>* regions;
-    const unsigned* geom_to_region;
     const std::vector<std::vector<float>>* vertices;
     const std::vector<std::vector<uint32_t>>* triangles;
     Vec3 org, dir;  // the ray as traced, in double
@@ -29,7 +27,7 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
     const unsigned geom = RTCHitN_geomID(args->hit, args->N, 0);
     const unsigned prim = RTCHitN_primID(args->hit, args->N, 0);
     const float t = RTCRayN_tfar(args->ray, args->N, 0);
-    const unsigned region = ctx->geom_to_region[geom];
+    const unsigned region = geom;  // geometry ids equal region indices (checked in add_region)
     const Vec3& n = (*ctx->regions)[region].normals[prim];
     // A BVH may reference a triangle from two leaves; keep each triangle once.
     for (const Hit& h : *ctx->hits)
@@ -87,14 +85,13 @@ Float closest_distance2(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3&
 struct PointQueryData {
     const std::vector<std::vector<float>>* vertices;
     const std::vector<std::vector<uint32_t>>* triangles;
-    const unsigned* geom_to_region;
     Vec3 p;
     Float best2;
 };
 
 bool closest_callback(RTCPointQueryFunctionArguments* args) {
     auto* q = static_cast<PointQueryData*>(args->userPtr);
-    const unsigned region = q->geom_to_region[args->geomID];
+    const unsigned region = args->geomID;
     const auto& v = (*q->vertices)[region];
     const auto& t = (*q->triangles)[region];
     const uint32_t* tri = &t[3 * size_t(args->primID)];
@@ -243,17 +240,10 @@ void Scene::commit() {
 void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
     out.clear();
     static_assert(offsetof(CollectContext, base) == 0, "context must start with RTCIntersectContext");
-    thread_local std::vector<unsigned> identity;
-    if (identity.size() < regions_.size()) {
-        identity.resize(regions_.size());
-        std::iota(identity.begin(), identity.end(), 0u);
-    }
     CollectContext ctx;
     rtcInitIntersectContext(&ctx.base);
     ctx.base.filter = collect_filter;
-    ctx.scene = this;
     ctx.regions = &regions_;
-    ctx.geom_to_region = identity.data();  // geometry ids equal region indices (checked in add_region)
     ctx.vertices = &vertices_;
     ctx.triangles = &triangles_;
     ctx.dir = d;
@@ -290,11 +280,6 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
 }
 
 Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
-    thread_local std::vector<unsigned> identity;
-    if (identity.size() < regions_.size()) {
-        identity.resize(regions_.size());
-        std::iota(identity.begin(), identity.end(), 0u);
-    }
     RTCPointQuery q;
     q.x = float(p.x);
     q.y = float(p.y);
@@ -303,7 +288,7 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
     q.radius = float(radius);
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    PointQueryData data{&vertices_, &triangles_, identity.data(), p, radius * radius};
+    PointQueryData data{&vertices_, &triangles_, p, radius * radius};
     rtcPointQuery(scene_, &q, &qc, closest_callback, &data);
     return std::min(radius, std::sqrt(data.best2));
 }

@@ -115,9 +115,14 @@ def test_stokes_loss_follows_the_energy_convention():
     wl = res.escapes["wavelength"][res.escapes["fluorescent"] == 1].astype(np.float64)
     sigma = 500.0 * np.std(1.0 / wl) / math.sqrt(len(wl))
     assert abs(per_event - per_event_ref) < 3 * sigma + 1e-4 * per_event_ref, (per_event, per_event_ref, sigma)
-    # The energy of each escape record is weight x 500 / wavelength.
+    # The energy of each escape record is weight x 500 / wavelength, and the escaped-energy
+    # tally is their sum per launched packet (every escape is recorded here): the reflected
+    # plus transmitted energy of the balance.
     e = res.escapes
     assert np.allclose(e["energy"], e["weight"] * 500.0 / e["wavelength"].astype(np.float64), rtol=1e-6)
+    assert res.escaped_energy == pytest.approx(e["energy"].sum() / res.photons, rel=1e-9)
+    assert res.escaped_energy == pytest.approx(res.diffuse_reflectance_energy + res.transmittance_energy,
+                                               rel=1e-12)
 
 
 def test_eem_rule_scales_the_decision_by_the_excitation_efficiency():
