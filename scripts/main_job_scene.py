@@ -29,7 +29,10 @@ def main(argv):
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
 
-    from endophoton.beta_sweep import enable_addon
+    # the add-on: installed in Blender, else the source tree's addon/ (or $ENDOPHOTON_ADDON_PATH)
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    sys.path.append(os.environ.get("ENDOPHOTON_ADDON_PATH") or os.path.join(repo, "addon"))
+    from endophoton_addon.sweep_blend import enable_addon
     enable_addon()
     from endophoton_addon import simulation
 
@@ -85,10 +88,8 @@ def main(argv):
             lines.append(f"- Volume grids: `{os.path.basename(result.grid_path)}` ({', '.join(result.grid_names)})")
     report = os.path.join(out, "report.md")
     text = open(report, encoding="utf-8").read() if os.path.exists(report) else "# EndoPhoton main job\n"
-    tmp = report + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text.rstrip("\n") + "\n" + "\n".join(lines) + "\n")
-    os.replace(tmp, report)
+    from endophoton.io import atomic_write_text   # the package the add-on runs (found by enable_addon)
+    atomic_write_text(report, text.rstrip("\n") + "\n" + "\n".join(lines) + "\n")
     print(f"main job scene: {blend_path}, {render.filepath}")
 
 

@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import engine, export, presets, rig
+from . import engine, export, presets, rig, sweep_blend
 from .export import InputError
 
 _ACTIVE_JOBS = set()
@@ -192,23 +192,8 @@ def _accepted_kwargs(func, kwargs):
 
 
 def build_engine_scene(ep, regions):
-    """``ep.Scene(unit="m")`` holding the exported regions (export.RegionExport list).
-
-    Shared by the Run and the Sweep β operators so both give the engine the
-    same scene.  Raises ValueError (the engine's own message) on bad input.
-    """
-    scene = ep.Scene(unit="m")
-    for region in regions:
-        fluorophores = [ep.Fluorophore(name, d, c) for name, d, c in region.fluorophores]
-        scene.add_mesh(
-            region.name,
-            region.vertices,
-            region.triangles,
-            ep.Medium(**region.medium),
-            priority=region.priority,
-            fluorophores=fluorophores,
-        )
-    return scene
+    """``ep.Scene(unit="m")`` holding the exported regions; see sweep_blend.blender_regions_to_scene."""
+    return sweep_blend.blender_regions_to_scene(ep, regions)
 
 
 def build_engine_call(ep, inputs):

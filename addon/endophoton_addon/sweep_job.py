@@ -6,7 +6,7 @@ The scene is exported once (the same regions and ``ep.Scene(unit="m")`` as the
 Run operator builds) and the rig's geometry is read from the rig's properties:
 for every β the package rebuilds the head with ``ep.EndoscopeRig.from_beta``
 about the rig's target, normal and tilt axis at its distance, with its tip
-dimensions — exactly what ``endophoton.sweep_blend`` does, so both paths give
+dimensions — exactly what ``endophoton_addon.sweep_blend`` does, so both paths give
 the same numbers for the same seed.
 
 The worker thread never touches ``bpy``: it gets the engine scene and plain
@@ -26,7 +26,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import engine, export, rig, simulation
+from . import engine, export, simulation, sweep_blend
 from .export import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -135,13 +135,7 @@ def _rig_geometry(rig_obj, scale_length):
     if np.linalg.norm(tilt - (tilt @ n) * n) < 1e-9 * np.linalg.norm(tilt):
         raise InputError(f"{who}: endophoton_rig.tilt_axis is parallel to endophoton_rig.normal; "
                          "the sweep tilts about it")
-    return dict(
-        distance_m=float(s.distance) * scale_length,
-        point_m=tuple(float(x) * scale_length for x in s.target),
-        normal=tuple(float(x) for x in s.normal),
-        tilt_axis=tuple(float(x) for x in s.tilt_axis),
-        rig_params=dict(rig.rig_parameters(rig_obj, scale_length)),
-    )
+    return sweep_blend.rig_sweep_geometry(rig_obj, scale_length)
 
 
 def collect_sweep_inputs(context, ep):

@@ -11,8 +11,8 @@ from .sources import ConeSource, DiskSource, EndoscopeRig, PencilSource, source_
 from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
 from .units import UNIT_CM, unit_cm
 from . import _core
-from . import analysis, meshes
-from .beta_sweep import SweepResult, default_flat_scene, sweep, sweep_blend
+from . import analysis, meshes, paper
+from .beta_sweep import SweepResult, default_flat_scene, sweep
 from .report import write_report
 from .quality import QUALITY_PRESETS, Quality, quality_preset
 
@@ -21,5 +21,5 @@ __version__ = _core.__version__
 __all__ = ["Medium", "Scene", "Region", "layered_slab", "box_mesh", "load_mesh", "PencilSource", "DiskSource",
            "ConeSource", "EndoscopeRig", "source_from_dict", "run", "Result", "GridRequest", "Target",
            "CancelToken", "EEM", "Fluorophore", "Spectrum", "FLUOROPHORE_DEFAULTS", "FRACTIONS", "TARGET_TALLIES",
-           "UNIT_CM", "unit_cm", "analysis", "meshes", "sweep", "sweep_blend", "SweepResult",
+           "UNIT_CM", "unit_cm", "analysis", "meshes", "paper", "sweep", "SweepResult",
            "default_flat_scene", "write_report", "QUALITY_PRESETS", "Quality", "quality_preset"]

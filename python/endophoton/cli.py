@@ -6,6 +6,8 @@ import json
 import math
 import sys
 
+from .sweep_cli import add_sweep_arguments, sweep_main
+
 
 def _run_main(args) -> int:
     from .scene import Scene
@@ -65,14 +67,9 @@ def main(argv=None) -> int:
                        help="run to a preset accuracy: 5 %%, 1 %% or 0.2 %% relative error on the diffuse reflectance")
     p_run.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds")
     p_run.set_defaults(func=_run_main)
-    try:
-        from .beta_sweep import add_sweep_arguments, sweep_main
-    except ImportError:  # pragma: no cover - the sweep module is part of the package
-        add_sweep_arguments = None
-    if add_sweep_arguments is not None:
-        p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
-        add_sweep_arguments(p_sweep)
-        p_sweep.set_defaults(func=sweep_main)
+    p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
+    add_sweep_arguments(p_sweep)
+    p_sweep.set_defaults(func=sweep_main)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -2,7 +2,7 @@
 
 Every figure is written atomically (rendered to memory, then temp file +
 os.replace).  Error bars are the batch-means standard errors carried by the
-:class:`~endophoton.beta_sweep.SweepResult` (for the maximum depth: the sd of the
+:class:`~endophoton.sweep_schema.SweepResult` (for the maximum depth: the sd of the
 per-batch maxima, a spread measure, see :mod:`endophoton.analysis`).
 """
 
@@ -20,21 +20,16 @@ matplotlib.use("Agg", force=False)
 from matplotlib.figure import Figure  # noqa: E402  (object API: no pyplot state, thread-safe)
 
 from . import analysis as an  # noqa: E402
+from .io import atomic_write_bytes  # noqa: E402
+from .sweep_schema import PLOT_FILES, polar_filename  # noqa: E402
 
 __all__ = ["plot_packets", "plot_energy", "plot_important", "plot_depth", "plot_polar", "plot_all",
            "PLOT_FILES"]
 
-PLOT_FILES = {
-    "packets": "packets_traced.png",
-    "energy": "energy.png",
-    "important": "camera_fraction.png",
-    "depth": "max_depth.png",
-}
+
 
 
 def _save(fig: Figure, path: str | os.PathLike) -> str:
-    from .beta_sweep import atomic_write_bytes
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     return atomic_write_bytes(path, buf.getvalue())
@@ -184,9 +179,3 @@ def plot_all(result: Any, out_dir: str | os.PathLike) -> list:
             paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta, "fixed")),
                                     frame="fixed"))
     return paths
-
-
-def polar_filename(beta: float, frame: str = "light") -> str:
-    """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_fixed_beta_12.5.png."""
-    stem = "polar_beta_" if frame == "light" else "polar_fixed_beta_"
-    return f"{stem}{beta:02.0f}.png" if float(beta).is_integer() else f"{stem}{beta:g}.png"

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .run import Target
+from .tallies import Target
 
 
 @dataclass(frozen=True)

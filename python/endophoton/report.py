@@ -1,8 +1,8 @@
 """Markdown report of a beta sweep, set beside the seed paper's reported trends.
 
 :func:`write_report` writes ``report.md``.  Every number in it is computed from
-the :class:`~endophoton.beta_sweep.SweepResult`; the only constants are the paper's
-reported trend values in :data:`PAPER_TRENDS`, labelled as the paper's.
+the :class:`~endophoton.sweep_schema.SweepResult`; the only constants are the paper's
+reported trend values in :data:`endophoton.paper.PAPER_TRENDS`, labelled as the paper's.
 
 Uncertainties of derived trends (slopes, fitted peaks, differences between
 angles) follow the batch-means rule of :mod:`endophoton.analysis`: the derived
@@ -24,36 +24,17 @@ Verdict rules (stated in the report):
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from . import analysis as an
+from .io import atomic_write_text
+from .paper import PAPER_TRENDS
+from .sweep_schema import PLOT_FILES, polar_filename
 
 __all__ = ["PAPER_TRENDS", "write_report", "compute_trends"]
-
-#: The seed paper's reported trends (Zacher 2009, §5, Figs. 4-9; oracles.md §5).
-#: These are the paper's numbers, not ours and not laws of physics.
-PAPER_TRENDS: dict = {
-    "store": 500_000,                 # photons stored per beta
-    "betas_deg": list(range(0, 60, 5)),
-    "packets_traced_min": 1_000_000,  # "more than one million" traced to store 500,000
-    "packets_flat_until_deg": 5,      # flat near 0 deg, linear decrease beyond 5 deg
-    "packets_relative_drop": 0.11,    # ~11 % fewer at the largest angle than at 0 deg
-    "energy_min_beta_deg": 0,         # lowest total energy at beta = 0
-    "energy_fit_degree": 6,
-    "energy_peak_beta_deg": 34,       # 6th-degree fit peaks near 34 deg
-    "camera_fraction_max": 0.10,      # under 10 % of stored photons point to the camera
-    "camera_fraction_last": 0.03,     # ~3 % at the last angle ...
-    "camera_fraction_last_beta_deg": 55,  # ... beta = 55 deg
-    "camera_max_angle_deg": 15,
-    "max_depth_cm": 0.12,             # ~0.12 cm, independent of beta
-    "histogram_uniform_at_deg": 0,    # azimuthally uniform at beta = 0
-    "histogram_low_shift_to_deg": 180,  # low-elevation rings shift toward 180 deg as beta grows
-    "histogram_high_above_deg": 45,   # rings above 45 deg nearly unchanged
-}
 
 SIGMAS = 3.0      # verdict threshold in standard errors (a convention, see module docstring)
 ALPHA = 0.01      # significance level of the beta = 0 uniformity test
@@ -255,9 +236,6 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     paper's trends, the paper's statement beside our numbers with a verdict
     (rules in this module's docstring).
     """
-    from .plots import PLOT_FILES, polar_filename
-    from .beta_sweep import atomic_write_text
-
     r = sweep_result
     pt = dict(PAPER_TRENDS)
     pt.update(paper_trends or {})
@@ -376,7 +354,7 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     w("## Photons pointing to the camera (Fig. 6)\n")
     w(f"![camera fraction]({PLOT_FILES['important']})\n")
     w(f"- **paper**: under {100 * pt['camera_fraction_max']:g} % of the stored photons are visible and within "
-      f"{pt['camera_max_angle_deg']}° of the direction to the camera; roughly linear decrease to about "
+      f"{pt['camera_max_angle_deg']:g}° of the direction to the camera; roughly linear decrease to about "
       f"{100 * pt['camera_fraction_last']:g} % at β = {pt['camera_fraction_last_beta_deg']}°.")
     w(f"- ours (criterion {m.get('max_angle_deg', 15):g}°): {_pct(t['camera_first'], t['camera_first_se'])} at "
       f"β = {b[0]:g}°, {_pct(t['camera_last'], t['camera_last_se'])} at β = {b[-1]:g}°; maximum "

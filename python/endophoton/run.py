@@ -6,15 +6,11 @@ import os
 from dataclasses import dataclass
 
 from . import _core
+from .quality import quality_preset
 from .scene import Scene
+from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
 
 CancelToken = _core.CancelToken
-
-#: The fractions every run reports, each with ``<name>_stderr``.
-FRACTIONS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
-             "roulette")
-#: Tallies a target-accuracy run can aim at (engine-side, per launched packet).
-TARGET_TALLIES = FRACTIONS[:4] + ("fluorescent_escaped", "escaped_energy")
 
 
 @dataclass
@@ -35,20 +31,6 @@ class GridRequest:
             raise ValueError(f"grids.voxel_size = {v!r} must be a positive finite number (scene units)")
         if not isinstance(self.path, (str, os.PathLike)) or not str(self.path):
             raise ValueError(f"grids.path = {self.path!r} must be a file path")
-
-
-@dataclass
-class Target:
-    """Target accuracy: run until stderr/|mean| of ``tally`` <= ``rel_error``."""
-    tally: str = "diffuse_reflectance"
-    rel_error: float = 0.01
-
-    def __post_init__(self):
-        if self.tally not in TARGET_TALLIES:
-            raise ValueError(f"target.tally = {self.tally!r} must be one of {', '.join(TARGET_TALLIES)}")
-        r = self.rel_error
-        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r <= 0:
-            raise ValueError(f"target.rel_error = {r!r} must be a positive number")
 
 
 class Result:
@@ -117,7 +99,6 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     if quality is not None:
         if photons is not None or store is not None or target is not None:
             raise ValueError(f"quality = {quality!r} replaces photons, store and target: give only one")
-        from .quality import quality_preset
         preset = quality_preset(quality)
         target, max_photons = preset.target, preset.max_photons
     if not isinstance(scene, Scene):

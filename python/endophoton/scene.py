@@ -19,6 +19,7 @@ import numpy as np
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
 from .spectra import EEM, Fluorophore, Spectrum
+from .io import check_keys as _check_keys
 from .units import unit_cm
 
 
@@ -218,18 +219,6 @@ class Scene:
 def _same_eem(a: EEM, b: EEM) -> bool:
     return (np.array_equal(a.excitation_nm, b.excitation_nm) and np.array_equal(a.emission_nm, b.emission_nm)
             and np.array_equal(a.values, b.values))
-
-
-def _check_keys(owner: str, d, required: set, extra: set = frozenset()) -> None:
-    if not isinstance(d, dict):
-        raise ValueError(f"{owner} = {d!r} must be an object")
-    allowed = set(required) | set(extra)
-    for k in d:
-        if k not in allowed:
-            raise ValueError(f"{owner}: unknown key {k!r} (allowed: {', '.join(sorted(allowed))})")
-    for k in required:
-        if k not in d:
-            raise ValueError(f"{owner}: missing key {k!r}")
 
 
 def _coefficient_from_json(owner, field, v):

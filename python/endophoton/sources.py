@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .spectra import Spectrum
+from .io import check_keys as _check_keys
 from .units import unit_cm as _unit_cm
 
 
@@ -225,8 +226,6 @@ class EndoscopeRig(_Source):
 
 def source_from_dict(d: dict):
     """Build a source from the SCENE.json ``source`` object."""
-    from .scene import _check_keys
-
     if not isinstance(d, dict) or "type" not in d:
         raise ValueError(f"source = {d!r} must be an object with a 'type'")
     kind = d["type"]

@@ -14,11 +14,12 @@ See docs/fluorescence.md for the fluorescence model and the CSV format.
 """
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .io import atomic_write_text
+from .paper import FLUOROPHORES
 
 __all__ = [
     "Spectrum",
@@ -28,13 +29,10 @@ __all__ = [
     "default_fluorophores",
 ]
 
-# Fluorophores of the seed paper's experiment (Zacher 2009, section 3):
-# (name, d = probability of interacting with the fluorophore,
-#  c = concentration of fluorescent molecules), both dimensionless in [0, 1].
-FLUOROPHORE_DEFAULTS = {
-    "tissue": [("collagen", 0.2, 0.4)],
-    "polyp": [("collagen", 0.2, 0.4), ("photofrin", 0.1, 0.33)],
-}
+# Fluorophores of the seed paper's experiment per region kind, as (name, d, c):
+# endophoton.paper holds the values (d = probability of interacting with the
+# fluorophore, c = concentration of fluorescent molecules, both in [0, 1]).
+FLUOROPHORE_DEFAULTS = {kind: list(fluorophores) for kind, fluorophores in FLUOROPHORES.items()}
 
 
 def _g(v):
@@ -76,23 +74,6 @@ def _as_float_array(value, where, field):
 def _trapezoid_rows(x, v):
     """Trapezoid integral of each row of v (..., n) over x (n,): exact for piecewise-linear rows."""
     return np.sum(0.5 * np.diff(x) * (v[..., 1:] + v[..., :-1]), axis=-1)
-
-
-def _write_text_atomic(path, text):
-    """Write text to path through a temporary file in the same directory and os.replace."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-" + path.name + "-", dir=path.parent.resolve())
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)   # mkstemp creates 0600; an EEM file is ordinary data
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 class Spectrum:
@@ -330,7 +311,7 @@ class EEM:
         lines.append("ex\\em," + ",".join(repr(float(w)) for w in self._em))
         for x, row in zip(self._ex, self._values):
             lines.append(repr(float(x)) + "," + ",".join(repr(float(v)) for v in row))
-        _write_text_atomic(path, "\n".join(lines) + "\n")
+        atomic_write_text(path, "\n".join(lines) + "\n", make_dirs=False)
 
     # ---- defaults ---------------------------------------------------------
     @staticmethod

@@ -3,7 +3,7 @@
 polled progress, finish on the main thread), cancelling, and bad input.
 
 The numbers must equal those of ``endophoton.sweep`` on the same exported
-scene and of ``endophoton.sweep_blend`` for the same seed."""
+scene and of ``endophoton_addon.sweep_blend`` for the same seed."""
 
 import csv
 import math
@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 import pytest
 
-from endophoton_addon import rig, sweep_job
+from endophoton_addon import rig, sweep_blend, sweep_job
 from conftest import REPO, data_snapshot, open_blend
 
 BETAS, STORE, SEED = "0,30", 2_000, 5
@@ -124,8 +124,8 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
         assert float(row["energy_total"]) == ref_row["energy_total"]
         assert int(row["packets_traced"]) == ref_row["packets_traced"]
     # ... and as sweep_blend, which exports the scene and reads the rig itself.
-    _assert_same_rows(job.result, ep.sweep_blend(scene, betas=[0, 30], store=STORE, seed=SEED,
-                                                 threads=1, progress=False))
+    _assert_same_rows(job.result, sweep_blend.sweep_blend(scene, betas=[0, 30], store=STORE, seed=SEED,
+                                                          threads=1, progress=False))
 
     # A second sweep into the same folder reuses the images of the same name and
     # drops those of β values it does not have.

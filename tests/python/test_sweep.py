@@ -19,6 +19,7 @@ import endophoton as ep
 from endophoton import analysis as an
 from endophoton import meshes
 from endophoton import beta_sweep as sw
+from endophoton import sweep_cli
 from endophoton.sources import EndoscopeRig
 
 import _synth as sy
@@ -65,16 +66,14 @@ def fake_run(scene, rig, store, fluorescent_only=True, fluorescence_rule="paper"
 
 @pytest.fixture
 def fake_engine(monkeypatch):
-    monkeypatch.setattr(ep, "run", fake_run, raising=False)
-    monkeypatch.setattr(ep, "EndoscopeRig", EndoscopeRig, raising=False)
+    monkeypatch.setattr(sw, "run", fake_run)
     return types.SimpleNamespace(unit="cm")
 
 
 @pytest.fixture(scope="module")
 def fake_result(tmp_path_factory):
     mp = pytest.MonkeyPatch()
-    mp.setattr(ep, "run", fake_run, raising=False)
-    mp.setattr(ep, "EndoscopeRig", EndoscopeRig, raising=False)
+    mp.setattr(sw, "run", fake_run)
     out = tmp_path_factory.mktemp("fake_sweep")
     try:
         res = sw.sweep(types.SimpleNamespace(unit="cm"), betas=[0, 20, 40], store=20_000, seed=3,
@@ -202,7 +201,7 @@ def test_builder_and_cancel(fake_engine):
         r.cancelled = True
         return r
 
-    ep.run = cancelled_run
+    sw.run = cancelled_run
     res = sw.sweep(fake_engine, betas=[0, 5, 10], store=400, progress=False)
     assert len(res.rows) == 1 and res.rows[0]["cancelled"] == 1
 
@@ -216,31 +215,31 @@ def test_cancel_before_any_record_ends_without_row(fake_engine, tmp_path):
         r.cancelled = True
         return r
 
-    ep.run = empty_cancelled_run
+    sw.run = empty_cancelled_run
     res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False, out_dir=str(tmp_path))
     assert res.rows == [] and res.meta["cancelled"] is True and res.meta["cancelled_at_beta"] == 0.0
     assert (tmp_path / "sweep.csv").read_text().splitlines() == [",".join(sw.CSV_COLUMNS)]
     assert not list(tmp_path.glob("*.png")) and not (tmp_path / "report.md").exists()
 
     calls = []
-    ep.run = lambda *a, **k: calls.append(a)
+    sw.run = lambda *a, **k: calls.append(a)
     res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False,
                    cancel=types.SimpleNamespace(cancelled=True))
     assert calls == [] and res.rows == [] and res.meta["cancelled"] is True
 
-    ep.run = fake_run
+    sw.run = fake_run
     res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False)
     assert len(res.rows) == 2 and res.meta["cancelled"] is False
 
 
 def test_cli_with_fake_engine(fake_engine, monkeypatch, tmp_path):
-    monkeypatch.setattr(sw, "default_flat_scene", lambda **kw: fake_engine)
+    monkeypatch.setattr(sweep_cli, "default_flat_scene", lambda **kw: fake_engine)
     p = argparse.ArgumentParser()
-    sw.add_sweep_arguments(p)
+    sweep_cli.add_sweep_arguments(p)
     args = p.parse_args(["--betas", "0,10,20", "--store", "2000", "--seed", "4", "--out", str(tmp_path),
                          "--no-progress"])
     assert args.betas == [0.0, 10.0, 20.0] and args.store == 2000
-    assert sw.sweep_main(args) == 0
+    assert sweep_cli.sweep_main(args) == 0
     for name in ("sweep.csv", "sweep.json", "report.md", "energy.png", "polar_beta_10.png"):
         assert os.path.getsize(tmp_path / name) > 0
     data = json.loads((tmp_path / "sweep.json").read_text())
@@ -414,9 +413,10 @@ BLENDER_SCRIPT = r'''
 import json, sys
 import numpy as np
 import bpy
-sys.path.insert(0, PKG)
+sys.path[:0] = [PKG, ADDON]
 from endophoton import beta_sweep as sw
-sw.enable_addon()
+from endophoton_addon import sweep_blend as sb
+sb.enable_addon()
 for obj in list(bpy.data.objects):
     bpy.data.objects.remove(obj, do_unlink=True)
 bscene = bpy.context.scene
@@ -438,7 +438,7 @@ for region in src.regions:
         item = s.fluorophores.add()
         item.species, item.d, item.c = f.name, f.d, f.c
 bpy.ops.wm.save_as_mainfile(filepath=BLEND)
-res = sw.sweep_blend(BLEND, betas=BETAS, store=STORE, seed=SEED, progress=False)
+res = sb.sweep_blend(BLEND, betas=BETAS, store=STORE, seed=SEED, progress=False)
 with open(OUT, "w") as fh:
     json.dump({"rows": res.rows, "counts": [np.asarray(h["counts"]).tolist() for h in res.histograms]}, fh)
 '''
@@ -469,7 +469,8 @@ def test_blender_path_gives_identical_numbers(tmp_path):
     script = tmp_path / "run_in_blender.py"
     out = tmp_path / "blender.json"
     blend = tmp_path / "paper.blend"
-    script.write_text(f"PKG={pkg!r}\nBLEND={str(blend)!r}\nOUT={str(out)!r}\nBETAS={betas!r}\n"
+    addon = os.path.join(ROOT, "addon")
+    script.write_text(f"PKG={pkg!r}\nADDON={addon!r}\nBLEND={str(blend)!r}\nOUT={str(out)!r}\nBETAS={betas!r}\n"
                       f"STORE={store}\nSEED={seed}\n" + BLENDER_SCRIPT)
     proc = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1",
                            "--python", str(script)], capture_output=True, text=True, timeout=600)
@@ -531,7 +532,7 @@ def _synthetic_result(rng, B=20):
         hists.append({"counts": counts, "stderr": np.full((10, 36), 10.0), "chi2_p": p})
         batches.append(bt)
         rows.append(row)
-    sw._finish_relative(rows)
+    sw.finish_relative(rows)
     for r in rows:
         for k in sw.CSV_COLUMNS:
             r.setdefault(k, float("nan"))

@@ -1,0 +1,95 @@
+"""File output of the package: atomic writes and strict JSON.
+
+Every file the package writes (sweep CSV/JSON, plots, reports, EEM CSVs) goes
+through :func:`atomic_write_bytes`: the data are written to a temporary file in
+the destination folder, flushed to disk and renamed over the target with
+``os.replace``, so a reader sees either the old file or the complete new one,
+never a torn one.  JSON is strict (RFC 8259): non-finite floats become ``null``
+on the way out (:func:`jsonable`) and ``nan`` on the way back (:func:`unjson`).
+
+This module imports nothing from the package (it is a leaf of the import graph).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "jsonable", "unjson", "check_keys"]
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, make_dirs: bool = True) -> str:
+    """Write ``data`` to ``path`` atomically (temp file in the same folder, fsync, os.replace).
+
+    ``make_dirs`` creates the folder if it is missing.  The file gets mode 0644
+    (mkstemp's 0600 would hide ordinary data from other users).  Returns the path.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if make_dirs:
+        os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, make_dirs: bool = True) -> str:
+    """Write UTF-8 ``text`` to ``path`` atomically (see :func:`atomic_write_bytes`)."""
+    return atomic_write_bytes(path, text.encode("utf-8"), make_dirs=make_dirs)
+
+
+def jsonable(x: Any) -> Any:
+    """numpy -> Python, tuples -> lists, non-finite floats -> None (strict JSON)."""
+    if isinstance(x, Mapping):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    return x
+
+
+def unjson(x: Any) -> Any:
+    """Inverse of :func:`jsonable` for one value: ``None`` -> nan."""
+    return float("nan") if x is None else x
+
+
+def write_json(path: str | os.PathLike, obj: Any, indent: int | None = 1) -> str:
+    """Write ``jsonable(obj)`` as strict JSON (non-finite -> null), atomically."""
+    return atomic_write_text(path, json.dumps(jsonable(obj), indent=indent, allow_nan=False) + "\n")
+
+
+def check_keys(owner: str, d: Any, required: set, extra: set = frozenset()) -> None:
+    """Check a JSON object: ``d`` is a dict holding every key of ``required`` and no key
+    outside ``required | extra``.  Raises ValueError naming ``owner`` and the key."""
+    if not isinstance(d, dict):
+        raise ValueError(f"{owner} = {d!r} must be an object")
+    allowed = set(required) | set(extra)
+    for k in d:
+        if k not in allowed:
+            raise ValueError(f"{owner}: unknown key {k!r} (allowed: {', '.join(sorted(allowed))})")
+    for k in required:
+        if k not in d:
+            raise ValueError(f"{owner}: missing key {k!r}")

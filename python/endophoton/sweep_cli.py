@@ -1,0 +1,113 @@
+"""``python3 -m endophoton sweep``: the β sweep from the command line.
+
+Without ``--blend`` the sweep runs here on the paper's scene
+(:func:`endophoton.beta_sweep.default_flat_scene`).  With ``--blend FILE`` it
+starts ``blender -b FILE`` and runs the add-on's module
+``endophoton_addon.sweep_blend`` inside it, which exports the Blender scene and
+calls :func:`endophoton.sweep`; the package itself never imports ``bpy`` or the
+add-on.  Outputs (sweep.csv, sweep.json, the plots, report.md) go to ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+
+from .analysis import DEFAULT_BATCHES
+from .beta_sweep import default_flat_scene, sweep, write_outputs
+from .sweep_schema import parse_betas
+
+__all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder"]
+
+#: Environment variable naming the folder that holds the ``endophoton_addon`` package.
+ADDON_PATH_VAR = "ENDOPHOTON_ADDON_PATH"
+
+
+def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``sweep`` subcommand's arguments to ``parser``."""
+    parser.add_argument("--betas", type=parse_betas, default=parse_betas("0:60:5"),
+                        help="tilt angles in degrees: '0,5,10' or 'start:stop:step' (default 0:60:5)")
+    parser.add_argument("--store", type=int, default=500_000, help="records stored per beta (default 500000)")
+    parser.add_argument("--seed", type=int, default=1, help="engine seed, same for every beta (default 1)")
+    parser.add_argument("--threads", type=int, default=0, help="engine threads, 0 = all cores")
+    parser.add_argument("--out", default="sweep_out", help="output folder (default ./sweep_out)")
+    parser.add_argument("--blend", default=None,
+                        help=".blend file: run the sweep on it inside 'blender -b' (default: the paper's scene)")
+    parser.add_argument("--distance", type=float, default=None,
+                        help="head distance from the target point, scene units (default 1 cm)")
+    parser.add_argument("--batches", type=int, default=DEFAULT_BATCHES,
+                        help="batches for batch-means standard errors (default 20)")
+    parser.add_argument("--fluorescence-rule", choices=("paper", "eem"), default="paper")
+    parser.add_argument("--all-photons", action="store_true",
+                        help="store every escaping packet, not only fluorescent ones")
+    parser.add_argument("--polyp", choices=("dome", "embedded", "none"), default="dome",
+                        help="polyp of the default scene (default dome)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def sweep_kwargs(args: argparse.Namespace) -> dict:
+    """Keyword arguments of :func:`endophoton.sweep` from the parsed ``sweep`` arguments."""
+    return dict(betas=args.betas, store=args.store, seed=args.seed, threads=args.threads,
+                fluorescent_only=not args.all_photons, fluorescence_rule=args.fluorescence_rule,
+                distance=args.distance, progress=not args.no_progress, n_batches=args.batches)
+
+
+def forward_argv(args: argparse.Namespace) -> list:
+    """The ``sweep`` arguments, as a list the add-on's ``sweep_blend.main`` parses again inside Blender."""
+    argv = ["--betas", ",".join(f"{b:g}" for b in args.betas), "--store", str(args.store),
+            "--seed", str(args.seed), "--threads", str(args.threads), "--out", os.path.abspath(args.out),
+            "--batches", str(args.batches), "--fluorescence-rule", args.fluorescence_rule]
+    if args.distance is not None:
+        argv += ["--distance", str(args.distance)]
+    if args.all_photons:
+        argv.append("--all-photons")
+    if args.no_progress:
+        argv.append("--no-progress")
+    return argv
+
+
+def addon_folder() -> str | None:
+    """The folder holding ``endophoton_addon``: ``$ENDOPHOTON_ADDON_PATH``, else the source tree's
+    ``addon/`` beside ``python/``, else None (Blender then uses its installed add-on)."""
+    folder = os.environ.get(ADDON_PATH_VAR)
+    if not folder:
+        here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        folder = os.path.join(here, "addon")
+    return folder if os.path.isdir(os.path.join(folder, "endophoton_addon")) else None
+
+
+def run_in_blender(args: argparse.Namespace) -> int:
+    """Start ``blender -b FILE`` and run ``endophoton_addon.sweep_blend.main`` inside it."""
+    blender = shutil.which(os.environ.get("BLENDER", "blender"))
+    if blender is None:
+        print("error: blender not found (set $BLENDER)", file=sys.stderr)
+        return 2
+    pkg_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    paths = [pkg_parent] + [p for p in (addon_folder(),) if p]
+    expr = ("import sys; sys.path[:0] = %r; from endophoton_addon import sweep_blend; "
+            "sys.exit(sweep_blend.main(%r))" % (paths, forward_argv(args)))
+    # blender opens the .blend itself; sweep_blend.main registers the add-on first
+    cmd = [blender, "-b", os.fspath(args.blend), "--python-exit-code", "1", "--python-expr", expr]
+    env = dict(os.environ)
+    env.setdefault("ENDOPHOTON_PYTHONPATH", pkg_parent)
+    return subprocess.call(cmd, env=env)
+
+
+def sweep_main(args: argparse.Namespace) -> int:
+    """Entry point of ``python -m endophoton sweep``; returns the exit code.
+
+    Writes sweep.csv, sweep.json, the PNG plots and report.md into ``--out``.
+    """
+    if getattr(args, "blend", None):
+        return run_in_blender(args)
+    polyp = None if args.polyp == "none" else args.polyp
+    scene = default_flat_scene(polyp=polyp)
+    res = sweep(scene, **sweep_kwargs(args))
+    res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
+    paths = write_outputs(res, args.out)
+    print(f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
+          f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}")
+    return 130 if res.meta.get("cancelled") or any(r["cancelled"] for r in res.rows) else 0

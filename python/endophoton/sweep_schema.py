@@ -1,0 +1,186 @@
+"""The β sweep's data: the CSV columns, :class:`SweepResult` and the β-list grammar.
+
+A sweep result is a table with one row per tilt angle β (the keys of
+:data:`CSV_COLUMNS`, documented in ``docs/sweep.md`` in the same order), plus
+per row the exit-direction histograms and the per-batch values behind every
+standard error.  It is written as CSV (the rows) and as strict JSON (format
+``endophoton-sweep/1``, everything) and read back from the JSON.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .io import atomic_write_text, jsonable, unjson, write_json
+
+__all__ = ["CSV_COLUMNS", "PLOT_FILES", "SweepResult", "parse_betas", "polar_filename"]
+
+# CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
+# (tests/python/test_sweep.py checks that the documentation and the header agree).
+CSV_COLUMNS: dict[str, str] = {
+    "beta_deg": "tilt of the endoscope head from the surface normal, degrees",
+    "store": "records requested (store-N mode)",
+    "records": "escape records actually stored",
+    "packets_traced": "packets traced until the N-th record was stored",
+    "packets_traced_stderr": "stderr of packets_traced: packets_traced x relative stderr of record_rate (delta method)",
+    "record_rate": "records stored per packet traced",
+    "record_rate_stderr": "batch-means stderr of record_rate",
+    "energy_per_packet": "sum of record energy / packets traced (energy = weight x 500 nm / wavelength)",
+    "energy_per_packet_stderr": "batch-means stderr of energy_per_packet",
+    "energy_per_packet_rel": "energy_per_packet / its maximum over the sweep",
+    "energy_per_packet_rel_stderr": "energy_per_packet_stderr / the same maximum (the maximum's own error ignored)",
+    "energy_per_record": "mean energy of a stored record",
+    "energy_per_record_stderr": "batch-means stderr of energy_per_record (ratio statistic)",
+    "energy_total": "sum of the energy of the stored records (the seed's total power of the photon map)",
+    "energy_total_stderr": "records x energy_per_record_stderr",
+    "energy_total_rel": "energy_total / its maximum over the sweep",
+    "energy_total_rel_stderr": "energy_total_stderr / the same maximum",
+    "important_fraction": "fraction of stored records visible to the camera and within max_angle of the direction to it",
+    "important_fraction_stderr": "batch-means stderr of important_fraction (ratio statistic)",
+    "important_count": "number of important records",
+    "max_depth_cm": "deepest max_depth of any stored record, cm (positive downward)",
+    "max_depth_batch_mean_cm": "mean of the B per-batch maxima of max_depth, cm",
+    "max_depth_batch_sd_cm": "sd of the B per-batch maxima of max_depth, cm (uncertainty proxy)",
+    "azimuth_asym_low": "mean cos(azimuth) of records with elevation < 45 deg (negative = toward 180 deg, away from the light)",
+    "azimuth_asym_low_stderr": "batch-means stderr of azimuth_asym_low",
+    "azimuth_asym_high": "mean cos(azimuth) of records with elevation >= 45 deg",
+    "azimuth_asym_high_stderr": "batch-means stderr of azimuth_asym_high",
+    "high_elevation_fraction": "fraction of records with elevation >= 45 deg",
+    "high_elevation_fraction_stderr": "batch-means stderr of high_elevation_fraction",
+    "azimuth_chi2_p_min": "smallest per-ring azimuthal-uniformity chi-square p-value (10 rings)",
+    "azimuth_chi2_p_bonferroni": "min(1, n_rings x azimuth_chi2_p_min)",
+    "azimuth_asym_low_fixed": "as azimuth_asym_low in the fixed frame (azimuth 0 = horizontal direction toward the tilted head)",
+    "azimuth_asym_low_fixed_stderr": "batch-means stderr of azimuth_asym_low_fixed",
+    "azimuth_asym_high_fixed": "as azimuth_asym_high in the fixed frame",
+    "azimuth_asym_high_fixed_stderr": "batch-means stderr of azimuth_asym_high_fixed",
+    "azimuth_chi2_p_min_fixed": "as azimuth_chi2_p_min in the fixed frame",
+    "azimuth_chi2_p_bonferroni_fixed": "as azimuth_chi2_p_bonferroni in the fixed frame",
+    "seconds": "wall time of the engine run, s",
+    "seed": "seed of the run",
+    "cancelled": "1 if the run was cancelled (partial), else 0",
+}
+
+
+@dataclass
+class SweepResult:
+    """Result of :func:`sweep`.
+
+    Attributes
+    ----------
+    rows : one dict per beta with the keys of :data:`CSV_COLUMNS`.
+    histograms : per row (same order) a dict with ``counts`` and ``stderr``
+        (n_elev x n_azim float arrays, record counts) and ``chi2_p`` (per ring).
+    batches : per row a dict of per-batch arrays (length B) used for the
+        batch-means standard errors of derived trends (``energy_per_packet``,
+        ``energy_per_record``, ``important_fraction``, ``record_rate``,
+        ``max_depth_cm``, ``azimuth_asym_low``, ``azimuth_asym_high``).
+    meta : run settings (seed, store, n_batches, scene, rig parameters, ...).
+    """
+
+    rows: list = field(default_factory=list)
+    histograms: list = field(default_factory=list)
+    batches: list = field(default_factory=list)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def betas(self) -> np.ndarray:
+        """Tilt angles in degrees."""
+        return np.array([r["beta_deg"] for r in self.rows], dtype=np.float64)
+
+    def column(self, name: str) -> np.ndarray:
+        """One CSV column over beta as a float array (missing values -> nan)."""
+        if name not in CSV_COLUMNS:
+            raise ValueError(f"column '{name}' is not a sweep column")
+        return np.array([unjson(r.get(name)) for r in self.rows], dtype=np.float64)
+
+    def histogram(self, beta: float) -> dict:
+        """The histogram dict of the row whose beta equals ``beta`` (degrees)."""
+        for r, h in zip(self.rows, self.histograms):
+            if abs(r["beta_deg"] - beta) < 1e-9:
+                return h
+        raise ValueError(f"beta = {beta} not in the sweep")
+
+    def to_csv(self, path: str | os.PathLike) -> str:
+        """Write the rows as CSV (header = CSV_COLUMNS keys; nan as empty), atomically."""
+        lines = [",".join(CSV_COLUMNS)]
+        for r in self.rows:
+            cells = []
+            for k in CSV_COLUMNS:
+                v = r.get(k)
+                if v is None or (isinstance(v, float) and not math.isfinite(v)):
+                    cells.append("")
+                elif isinstance(v, float):
+                    cells.append(repr(float(v)))
+                else:
+                    cells.append(str(v))
+            lines.append(",".join(cells))
+        return atomic_write_text(path, "\n".join(lines) + "\n")
+
+    def to_dict(self) -> dict:
+        """JSON-able dict: ``format``, ``meta``, ``columns`` (descriptions), ``rows``, ``histograms``, ``batches``."""
+        return jsonable({
+            "format": "endophoton-sweep/1",
+            "meta": self.meta,
+            "columns": CSV_COLUMNS,
+            "rows": self.rows,
+            "histograms": self.histograms,
+            "batches": self.batches,
+        })
+
+    def to_json(self, path: str | os.PathLike) -> str:
+        """Write :meth:`to_dict` as strict JSON (non-finite -> null), atomically."""
+        return write_json(path, self.to_dict())
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike) -> "SweepResult":
+        """Read a file written by :meth:`to_json` (arrays come back as numpy float arrays)."""
+        with open(path, "r", encoding="utf-8") as f:
+            d = json.load(f)
+        if d.get("format") != "endophoton-sweep/1":
+            raise ValueError(f"{path}: format = {d.get('format')!r} is not endophoton-sweep/1")
+        rows = [{k: unjson(v) for k, v in r.items()} for r in d["rows"]]
+        arr = lambda v: np.array([[unjson(x) for x in row] for row in v], dtype=np.float64) \
+            if v and isinstance(v[0], list) else np.array([unjson(x) for x in v], dtype=np.float64)
+        hists = [{k: arr(v) for k, v in h.items()} for h in d["histograms"]]
+        batches = [{k: arr(v) for k, v in b.items()} for b in d["batches"]]
+        return cls(rows=rows, histograms=hists, batches=batches, meta=d.get("meta", {}))
+
+
+def parse_betas(text: str) -> list:
+    """Parse ``"0,5,10"`` or ``"start:stop:step"`` (stop exclusive, like range) into floats (degrees)."""
+    text = str(text).strip()
+    try:
+        if ":" in text:
+            parts = [float(x) for x in text.split(":")]
+            if len(parts) != 3 or parts[2] <= 0:
+                raise ValueError
+            start, stop, step = parts
+            n = int(math.floor((stop - start) / step - 1e-9)) + 1
+            vals = [start + k * step for k in range(max(n, 0))]
+        else:
+            vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--betas {text!r}: use '0,5,10' or 'start:stop:step'") from None
+    if not vals:
+        raise argparse.ArgumentTypeError(f"--betas {text!r}: no angles")
+    return vals
+
+
+#: File names of the sweep's trend plots (endophoton.plots), linked from report.md.
+PLOT_FILES = {
+    "packets": "packets_traced.png",
+    "energy": "energy.png",
+    "important": "camera_fraction.png",
+    "depth": "max_depth.png",
+}
+
+
+def polar_filename(beta: float, frame: str = "light") -> str:
+    """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_fixed_beta_12.5.png."""
+    stem = "polar_beta_" if frame == "light" else "polar_fixed_beta_"
+    return f"{stem}{beta:02.0f}.png" if float(beta).is_integer() else f"{stem}{beta:g}.png"

@@ -1,0 +1,171 @@
+"""The package's place in the house: traffic runs one way (core -> binding ->
+package -> add-on), and the package's own modules import each other without
+cycles.
+
+Both checks read the source with ``ast``, so imports hidden inside functions
+count as much as those at the top of a module.
+"""
+
+import ast
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PKG_DIR = os.path.join(ROOT, "python", "endophoton")
+PKG = "endophoton"
+FORBIDDEN = ("bpy", "bmesh", "mathutils", "addon_utils", "endophoton_addon")
+
+
+def _modules():
+    """{module name: parsed AST} for every .py file of the package."""
+    out = {}
+    for name in sorted(os.listdir(PKG_DIR)):
+        if name.endswith(".py"):
+            mod = PKG if name == "__init__.py" else f"{PKG}.{name[:-3]}"
+            with open(os.path.join(PKG_DIR, name), encoding="utf-8") as fh:
+                out[mod] = ast.parse(fh.read(), filename=name)
+    return out
+
+
+def _imported(mod, tree, known):
+    """Every module of the package that ``mod`` imports (anywhere in its body), and every
+    top-level name of a module it imports from outside the package."""
+    inside, outside = set(), set()
+    base = PKG  # all modules are direct children of the package
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                (inside if a.name.split(".")[0] == PKG else outside).add(
+                    a.name if a.name.split(".")[0] == PKG else a.name.split(".")[0])
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                top = (node.module or "").split(".")[0]
+                if top != PKG:
+                    outside.add(top)
+                    continue
+                target = node.module
+            else:
+                target = base + ("." + node.module if node.module else "")
+            if target == PKG:   # "from . import x": x is a submodule or a name of the root
+                for a in node.names:
+                    sub = f"{PKG}.{a.name}"
+                    inside.add(sub if sub in known else PKG)
+            else:
+                inside.add(target)
+    inside = {m if m in known else PKG for m in inside}   # e.g. endophoton._core (native) -> root
+    inside.discard(mod)
+    return inside, outside
+
+
+def _graph():
+    trees = _modules()
+    known = set(trees) | {f"{PKG}._core"}
+    graph = {}
+    for mod, tree in trees.items():
+        inside, _ = _imported(mod, tree, known)
+        graph[mod] = inside - {f"{PKG}._core"}
+    return graph
+
+
+def _find_cycle(graph):
+    """A list of modules forming a cycle, or None (depth-first search, three colours)."""
+    colour, stack = {}, []
+
+    def visit(m):
+        colour[m] = "grey"
+        stack.append(m)
+        for n in sorted(graph.get(m, ())):
+            if colour.get(n) == "grey":
+                return stack[stack.index(n):] + [n]
+            if n not in colour:
+                found = visit(n)
+                if found:
+                    return found
+        stack.pop()
+        colour[m] = "black"
+        return None
+
+    for m in sorted(graph):
+        if m not in colour:
+            found = visit(m)
+            if found:
+                return found
+    return None
+
+
+def test_cycle_finder_finds_a_planted_cycle():
+    """The checker itself: a graph with a cycle hidden behind a leaf is reported as that cycle."""
+    g = {"a": {"b", "leaf"}, "b": {"c"}, "c": {"a"}, "leaf": set()}
+    assert _find_cycle(g) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_package_has_no_import_cycles():
+    graph = _graph()
+    assert len(graph) >= 15 and "endophoton.beta_sweep" in graph
+    # the root imports the public modules; no module may import the root back
+    importers_of_root = sorted(m for m, deps in graph.items() if PKG in deps and m != PKG)
+    assert importers_of_root == [], importers_of_root
+    assert _find_cycle(graph) is None, " -> ".join(_find_cycle(graph))
+
+
+def test_no_module_imports_blender_or_the_addon():
+    trees = _modules()
+    known = set(trees)
+    offenders = {}
+    for mod, tree in trees.items():
+        _, outside = _imported(mod, tree, known)
+        bad = sorted(outside & set(FORBIDDEN))
+        if bad:
+            offenders[mod] = bad
+    assert offenders == {}
+
+
+BLOCKER = textwrap.dedent('''
+    import importlib.abc, sys
+    BLOCKED = {blocked!r}
+
+    class Block(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name.split(".")[0] in BLOCKED:
+                raise ImportError(f"{{name}} is blocked by the layering test")
+            return None
+
+    sys.meta_path.insert(0, Block())
+    sys.path.insert(0, {pkg!r})
+    import pkgutil, importlib
+    import endophoton
+    names = [m.name for m in pkgutil.iter_modules(endophoton.__path__, "endophoton.")
+             if m.name != "endophoton.__main__"]   # __main__ runs the CLI
+    for name in names:
+        importlib.import_module(name)
+    for b in BLOCKED:
+        try:
+            __import__(b)
+        except ImportError:
+            pass
+        else:
+            raise SystemExit(f"{{b}} was importable")
+    from endophoton import cli
+    try:
+        cli.main(["sweep", "--help"])
+    except SystemExit as e:
+        assert e.code == 0, e.code
+    print("IMPORTED", len(names))
+''')
+
+
+def test_package_imports_with_bpy_and_addon_unimportable():
+    """Import the package and every module in it, and parse the sweep CLI, in a
+    fresh interpreter where bpy and the add-on cannot be imported."""
+    code = BLOCKER.format(blocked=list(FORBIDDEN), pkg=os.path.join(ROOT, "python"))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    n = int(proc.stdout.split("IMPORTED")[-1].split()[0])
+    # every .py module but __init__ and __main__, plus the native _core
+    assert n == len([f for f in os.listdir(PKG_DIR) if f.endswith(".py")]) - 2 + 1
