@@ -223,34 +223,27 @@ def compute_trends(result: Any, paper: Mapping[str, Any] = PAPER_TRENDS) -> dict
     return t
 
 
-# --------------------------------------------------------------------------
-# report
-# --------------------------------------------------------------------------
 
-def write_report(sweep_result: Any, out_dir: str | os.PathLike,
-                 paper_trends: Mapping[str, Any] = PAPER_TRENDS, filename: str = "report.md") -> str:
-    """Write ``report.md`` into ``out_dir`` (atomically) and return its path.
-
-    The report lists the run settings, the per-beta table, links to the plots
-    (file names of :func:`endophoton.plots.plot_all`) and, for each of the
-    paper's trends, the paper's statement beside our numbers with a verdict
-    (rules in this module's docstring).
-    """
-    r = sweep_result
-    pt = dict(PAPER_TRENDS)
-    pt.update(paper_trends or {})
-    t = compute_trends(r, pt)
-    m = r.meta
+def _camera_at(r: Any, t: Mapping[str, Any], beta: float) -> tuple[float, float, str]:
+    """Camera fraction and its stderr at ``beta``: the measured row if the sweep has that angle,
+    else the linear fit of :func:`compute_trends` (which evaluates it at the paper's last angle)."""
     b = r.betas
-    L: list = []
-    w = L.append
-    w("# EndoPhoton beta sweep: comparison with the seed paper\n")
-    w("Seed: A. Zacher, *Initial angle of light rays and their influence on the total distribution, "
-      "scattering and absorption in human tissue* (2009), §5, Figs. 4-9.  Values marked **paper** are the "
-      "paper's reported trends (docs/sweep.md); every other number is computed from this run.\n")
-    if t["n_beta"] == 0:
-        w("The sweep has no rows.\n")
-        return atomic_write_text(os.path.join(out_dir, filename), "\n".join(L))
+    at = [i for i in range(t["n_beta"]) if abs(b[i] - beta) < 1e-9]
+    if at:
+        return r.rows[at[0]]["important_fraction"], r.rows[at[0]]["important_fraction_stderr"], "measured"
+    src = "linear fit (extrapolated)" if beta > b.max() or beta < b.min() else "linear fit (interpolated)"
+    return t["camera_fit_at_paper_last"], t["camera_fit_at_paper_last_se"], src
+
+
+def _depth_rel(t: Mapping[str, Any], pt: Mapping[str, Any]) -> float:
+    """Our mean deepest record relative to the paper's depth, minus 1."""
+    return (t["depth_mean"] - pt["max_depth_cm"]) / pt["max_depth_cm"]
+
+
+def _write_run(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any]) -> None:
+    """Run settings and the per-angle table."""
+    b = r.betas
+    m = r.meta
     w("## Run\n")
     w(f"- angles beta: {', '.join(f'{x:g}' for x in b)} deg; records requested per angle: {int(m.get('store', 0)):,} "
       f"(**paper**: {pt['store']:,} at {pt['betas_deg'][0]}-{pt['betas_deg'][-1]} deg)")
@@ -290,6 +283,10 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
       f"(the paper gives no uncertainty); a paper direction *agrees* if our slope/difference has the same sign and "
       f"is at least {SIGMAS:g} standard errors from zero.\n")
 
+
+def _write_packets(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any]) -> None:
+    """Fig. 4: packets traced to store N records."""
+    b = r.betas
     # ---- Fig. 4 ----
     w("## Photons traced (Fig. 4)\n")
     w(f"![packets traced]({PLOT_FILES['packets']})\n")
@@ -320,6 +317,10 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
           f"{_fmt(fb['slope'])} packets/deg, R² = {_fmt(fb['r2'], 3)} ({fb['n']} angles).")
     w("")
 
+
+def _write_energy(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any]) -> None:
+    """Fig. 5: total surface energy and its fitted peak."""
+    b = r.betas
     # ---- Fig. 5 ----
     w("## Total surface energy (Fig. 5)\n")
     w(f"![energy]({PLOT_FILES['energy']})\n")
@@ -350,6 +351,11 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
           f"{pt['energy_fit_degree']}.")
     w("")
 
+
+def _write_camera(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any]) -> None:
+    """Fig. 6: fraction of stored records pointing to the camera."""
+    b = r.betas
+    m = r.meta
     # ---- Fig. 6 ----
     w("## Photons pointing to the camera (Fig. 6)\n")
     w(f"![camera fraction]({PLOT_FILES['important']})\n")
@@ -365,17 +371,14 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     w(f"- linear fit: slope {_fmt(100 * t['camera_slope'], 3)} ± {_fmt(100 * t['camera_slope_se'], 2)} "
       f"percentage points/deg, R² = {_fmt(t['camera_fit']['r2'], 3)}; decrease: **{v}** ({_fmt(z, 3)} σ).")
     last_b = pt["camera_fraction_last_beta_deg"]
-    at = [i for i in range(t["n_beta"]) if abs(b[i] - last_b) < 1e-9]
-    if at:
-        val, se = r.rows[at[0]]["important_fraction"], r.rows[at[0]]["important_fraction_stderr"]
-        src = "measured"
-    else:
-        val, se = t["camera_fit_at_paper_last"], t["camera_fit_at_paper_last_se"]
-        src = "linear fit (extrapolated)" if last_b > b.max() or last_b < b.min() else "linear fit (interpolated)"
+    val, se, src = _camera_at(r, t, last_b)
     vv, zz = _value_verdict(val, se, pt["camera_fraction_last"])
     w(f"- at β = {last_b}° ({src}): {_pct(val, se)} vs the paper's {100 * pt['camera_fraction_last']:g} %: "
       f"**{vv}** ({_fmt(zz, 3)} σ).\n")
 
+
+def _write_depth(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any]) -> None:
+    """Fig. 7: maximum penetration depth."""
     # ---- Fig. 7 ----
     w("## Maximum penetration depth (Fig. 7)\n")
     w(f"![max depth]({PLOT_FILES['depth']})\n")
@@ -387,12 +390,16 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     w(f"- correlation with β: Pearson r = {_fmt(t['depth_r'], 3)}; linear slope "
       f"{_pm(t['depth_slope'], t['depth_slope_se'], 3)} cm/deg ({_fmt(z, 3)} σ from zero: "
       f"{'no significant dependence on β, as the paper' if v == 'not significant' else 'a significant dependence on β, unlike the paper'}).")
-    rel = (t["depth_mean"] - pt["max_depth_cm"]) / pt["max_depth_cm"]
+    rel = _depth_rel(t, pt)
     w(f"- level vs the paper's {pt['max_depth_cm']} cm: {_fmt(100 * rel, 3)} % "
       f"({_fmt((t['depth_mean'] - pt['max_depth_cm']) / t['depth_sd'], 3) if np.isfinite(t['depth_sd']) and t['depth_sd'] > 0 else 'n/a'} "
       f"× the sd over angles).  A sample maximum grows with the number of packets traced, so the level depends "
       f"on N; the paper's value is one maximum per angle as well.\n")
 
+
+def _write_histograms(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any]) -> list:
+    """Figs. 8-9: exit-direction histograms in both azimuth frames; returns summary rows."""
+    b = r.betas
     # ---- Fig. 9 ----
     w("## Exit-direction histogram (Figs. 8-9)\n")
     for beta in b:
@@ -453,7 +460,15 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     w(f"- fraction of records at/above 45° elevation: {_pct(t['high_frac_first'])} at β = {b[0]:g}° → "
       f"{_pct(t['high_frac_last'])} at β = {b[-1]:g}° (change {_pct(t['high_frac_change'], t['high_frac_change_se'])}).\n")
 
+    return lines_summary
+
+
+def _write_summary(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any], lines_summary: list) -> None:
+    """The summary table: each paper trend beside ours and the verdict."""
     w("## Summary\n")
+    val, se, src = _camera_at(r, t, pt["camera_fraction_last_beta_deg"])
+    vv = _value_verdict(val, se, pt["camera_fraction_last"])[0]
+    rel = _depth_rel(t, pt)
     w("| paper trend | ours | verdict |")
     w("|---|---|---|")
     vd, zd = _direction_verdict(t["packets_drop"], t["packets_drop_se"], +1)
@@ -479,4 +494,35 @@ def write_report(sweep_result: Any, out_dir: str | os.PathLike,
     for a, bb, c in lines_summary:
         w(f"| {a} | {bb} | {c} |")
     w("")
+
+
+# --------------------------------------------------------------------------
+# report
+# --------------------------------------------------------------------------
+
+def write_report(sweep_result: Any, out_dir: str | os.PathLike,
+                 paper_trends: Mapping[str, Any] = PAPER_TRENDS, filename: str = "report.md") -> str:
+    """Write ``report.md`` into ``out_dir`` (atomically) and return its path.
+
+    The report lists the run settings, the per-beta table, links to the plots
+    (file names of :func:`endophoton.plots.plot_all`) and, for each of the
+    paper's trends, the paper's statement beside our numbers with a verdict
+    (rules in this module's docstring).
+    """
+    r = sweep_result
+    pt = dict(PAPER_TRENDS)
+    pt.update(paper_trends or {})
+    t = compute_trends(r, pt)
+    L: list = []
+    w = L.append
+    w("# EndoPhoton beta sweep: comparison with the seed paper\n")
+    w("Seed: A. Zacher, *Initial angle of light rays and their influence on the total distribution, "
+      "scattering and absorption in human tissue* (2009), §5, Figs. 4-9.  Values marked **paper** are the "
+      "paper's reported trends (docs/sweep.md); every other number is computed from this run.\n")
+    if t["n_beta"] == 0:
+        w("The sweep has no rows.\n")
+        return atomic_write_text(os.path.join(out_dir, filename), "\n".join(L))
+    for section in (_write_run, _write_packets, _write_energy, _write_camera, _write_depth):
+        section(w, r, t, pt)
+    _write_summary(w, r, t, pt, _write_histograms(w, r, t, pt))
     return atomic_write_text(os.path.join(out_dir, filename), "\n".join(L))
