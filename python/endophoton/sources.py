@@ -62,21 +62,34 @@ class PencilSource(_Source):
                      half_angle=0.0, spectrum=self._spec())]
 
 
-@dataclass
+@dataclass(init=False)
 class DiskSource(_Source):
-    """Collimated beam with a uniform disk profile of ``radius`` (scene units)."""
-    center: tuple = (0.0, 0.0, 1.0)
-    direction: tuple = (0.0, 0.0, -1.0)
-    radius: float = 0.1
-    spectrum: Spectrum | None = None
+    """Collimated beam with a uniform disk profile of ``radius`` about ``position`` (scene units).
 
-    def __post_init__(self):
-        self.center = _vec3("source", "center", self.center)
-        self.direction = _vec3("source", "direction", self.direction, unit_length=True)
-        self.radius = _nonneg("source", "radius", self.radius)
+    ``center=`` is accepted for ``position`` (the same point; one word per concept, docs/design.md).
+    """
+    position: tuple
+    direction: tuple
+    radius: float
+    spectrum: Spectrum | None
+
+    def __init__(self, position=None, direction=(0.0, 0.0, -1.0), radius=0.1, spectrum=None, *, center=None):
+        if position is not None and center is not None:
+            raise ValueError("source: give position or center (the same point), not both")
+        point = center if position is None else position
+        self.position = _vec3("source", "position" if center is None else "center",
+                              (0.0, 0.0, 1.0) if point is None else point)
+        self.direction = _vec3("source", "direction", direction, unit_length=True)
+        self.radius = _nonneg("source", "radius", radius)
+        self.spectrum = spectrum
+
+    @property
+    def center(self) -> np.ndarray:
+        """The disk's centre: the same point as ``position``."""
+        return self.position
 
     def native_lights(self, scene_unit_cm):
-        return [dict(position=self.center.tolist(), direction=self.direction.tolist(), radius=self.radius,
+        return [dict(position=self.position.tolist(), direction=self.direction.tolist(), radius=self.radius,
                      half_angle=0.0, spectrum=self._spec())]
 
 
@@ -234,7 +247,9 @@ def source_from_dict(d: dict):
         _check_keys("source", body, {"position", "direction"})
         return PencilSource(**body)
     if kind == "disk":
-        _check_keys("source", body, {"center", "direction", "radius"})
+        _check_keys("source", body, {"direction", "radius"}, extra={"position", "center"})
+        if ("position" in body) == ("center" in body):
+            raise ValueError("source: give exactly one of 'position' or 'center' (the disk's centre)")
         return DiskSource(**body)
     if kind == "cone":
         _check_keys("source", body, {"position", "direction", "half_angle_deg"}, extra={"radius"})
