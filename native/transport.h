@@ -36,9 +36,6 @@ class Tracer {
     bool grids() const { return grids_; }
 
   private:
-    template <bool kSpectral, bool kGrids>
-    void trace_impl(uint64_t index, UnitOutput& out);
-
     const Scene& scene_;
     const Source& source_;
     const Halton& halton_;
