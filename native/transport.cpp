@@ -54,6 +54,7 @@ struct PacketState {
     Vec3 entry_p, entry_in, entry_reference;
     Float max_depth = 0, path_cm = 0;
     uint32_t scatterings = 0;
+    uint32_t exits = 0;  // exits into the ambient so far
     uint64_t events = 0;
     Float tau = 0;            // remaining dimensionless step (MCML's carried step)
     bool need_tau = true;
@@ -74,14 +75,26 @@ constexpr int kCooldownSteps = 32;
 // What a step through the crossings ahead ended with.
 enum class Crossing { kNone, kBoundary, kEnded };
 
+// The first crossing ahead that changes the top region: the hits [i, j) at t0.
+struct Interface {
+    bool found = false;
+    size_t i = 0, j = 0;
+    Float t0 = 0;
+    uint64_t enter = 0, new_set = 0;
+    uint64_t set_before = 0;  // the region set after the skipped (non-interface) crossings
+    int new_top = -1;
+};
+
 // The named steps of one packet's walk over its PacketState: locate the start,
 // find and cross the interfaces ahead, interact. One instance per packet.
 template <bool kSpectral, bool kGrids>
 class PacketWalk {
   public:
     PacketWalk(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg,
-               std::vector<Hit>& hits, std::vector<Float>& cuts, UnitOutput& out)
-        : scene_(scene), source_(source), halton_(halton), cfg_(cfg), hits_(hits), cuts_(cuts), out_(out),
+               std::vector<Hit>& hits, std::vector<Float>& cuts, const std::vector<uint8_t>& enclosed,
+               UnitOutput& out)
+        : scene_(scene), source_(source), halton_(halton), cfg_(cfg), hits_(hits), cuts_(cuts),
+          enclosed_(enclosed), out_(out),
           unit_cm_(scene.unit_cm()), extent_(scene.extent()),
           max_events_(cfg.max_steps > 0 ? std::min<uint64_t>(cfg.max_steps, kSafetyMaxEvents) : kSafetyMaxEvents) {}
 
@@ -91,11 +104,24 @@ class PacketWalk {
     void launch(uint64_t index);
     bool locate_start();
     void find_crossings(Float s);
+    Interface next_interface(Float s, uint64_t set, int region) const;
+    uint64_t inside_just_ahead(uint64_t regions, Float t) const;
     Crossing cross_interfaces(Float s);
-    Crossing cross_interface(size_t i, size_t j, Float t0, uint64_t enter, uint64_t new_set, int new_top);
+    Crossing cross_interface(const Interface& f);
+    bool first_boundary(const Vec3& n_inc, Float R, int* mirror);
+    NextHit look_ahead();
+    NextHit landing() const;
+    Crossing leave_tissue(int from_region, const Vec3& normal_out);
+    Crossing through_ambient(NextHit next);
     bool interact(Float s);
     void fluoresce();
-    void escape(int from_region, const Vec3& normal_out);
+    void escape();
+    // The rig head, when the lumen rule is on and the source has one.
+    const RigBody* body() const { return cfg_.lumen ? source_.body() : nullptr; }
+    bool reflected() const {
+        return !enclosed_[size_t(st_.light)] && dot(st_.d, st_.entry_reference) < 0;
+    }
+    void record_exit(int from_region, const Vec3& normal_out, NextHit next);
     void load_medium(int region);
     void attenuate_clear(Float t);
     bool survives_roulette();
@@ -117,11 +143,13 @@ class PacketWalk {
     const RunConfig& cfg_;
     std::vector<Hit>& hits_;
     std::vector<Float>& cuts_;
+    const std::vector<uint8_t>& enclosed_;
     UnitOutput& out_;
     const Float unit_cm_, extent_;
     const uint64_t max_events_;
     Rng rng_{0, 0};
     PacketState st_;
+    mutable std::vector<Hit> probe_hits_;  // inside_just_ahead's own query (rare)
 };
 
 template <bool kSpectral, bool kGrids>
@@ -151,7 +179,8 @@ void PacketWalk<kSpectral, kGrids>::run(uint64_t index) {
             // Travelling through the ambient or a clear region to infinity.
             if (st.med.region < 0) {
                 // Outside every region with nothing ahead: it never entered
-                // (escapes end the packet earlier), so it missed.
+                // (every ambient leg after an entry is looked ahead by
+                // through_ambient, which ends the packet there), so it missed.
                 add(kMissed, st.W);
             } else {
                 // A clear, non-absorbing region extends to infinity along the ray:
@@ -207,6 +236,11 @@ bool PacketWalk<kSpectral, kGrids>::locate_start() {
         st.entry_in = st.d;
     }
     st.reuse_hits = (st.set == 0);  // the first query is exactly the first ambient step
+    if (st.set == 0 && body()) {
+        // Started in the ambient: the rig head may be in the way.
+        const NextHit next = landing();
+        if (next == kNextHead || next == kNextCamera) return through_ambient(next) != Crossing::kEnded;
+    }
     return true;
 }
 
@@ -244,17 +278,19 @@ void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
     }
 }
 
-// Boundary crossings before the interaction point, in order: groups of
-// coincident hits are one crossing; the first that changes the top region is
-// an interface and ends the scan.
+// The first crossing before s that changes the top region, for a packet in
+// the region set `set` whose top region is `region`: groups of coincident
+// hits are one crossing.
 template <bool kSpectral, bool kGrids>
-Crossing PacketWalk<kSpectral, kGrids>::cross_interfaces(Float s) {
-    PacketState& st = st_;
+Interface PacketWalk<kSpectral, kGrids>::next_interface(Float s, uint64_t set, int region) const {
     const std::vector<Hit>& hits = hits_;
+    Interface f;
+    // In the ambient, hits at the origin include the surface the packet is on.
+    const Float own_surface = region < 0 ? group_tolerance(st_.p, 0, extent_) : -kInf;
     size_t i = 0;
     while (i < hits.size() && hits[i].t <= s) {
         const Float t0 = hits[i].t;
-        const Float tol = group_tolerance(st.p, t0, extent_);
+        const Float tol = group_tolerance(st_.p, t0, extent_);
         size_t j = i;
         uint64_t enter = 0, leave = 0;
         while (j < hits.size() && hits[j].t <= t0 + tol) {
@@ -264,40 +300,82 @@ Crossing PacketWalk<kSpectral, kGrids>::cross_interfaces(Float s) {
             ++j;
         }
         // A region entered and left at the same point was only touched
-        // (an edge or vertex grazed from outside): no change.
-        const uint64_t both = enter & leave;
+        // (an edge or vertex grazed from outside): no change. At the packet's
+        // own position in the ambient the two cases look alike -- leaving the
+        // surface it is on past a convex vertex, or entering the next face at a
+        // concave edge of a cavity -- so a point just ahead decides.
+        uint64_t both = enter & leave;
+        if (both && t0 <= own_surface) {
+            const Float t_next = j < hits.size() ? hits[j].t : t0 + 1e3 * tol;
+            const uint64_t entered = inside_just_ahead(both, Float(0.5) * (std::max(t0, Float(0)) + t_next));
+            both &= ~entered;
+            leave &= ~entered;
+        }
         enter &= ~both;
         leave &= ~both;
-        const uint64_t new_set = (st.set | enter) & ~leave;
+        const uint64_t new_set = (set | enter) & ~leave;
         const int new_top = scene_.top(new_set);
-        if (new_set == st.set || new_top == st.med.region) {
+        if (new_set == set || new_top == region) {
             // Not an interface: a spurious re-hit, or a lower-priority surface.
-            st.set = new_set;
+            set = new_set;
             i = j;
             continue;
         }
-        return cross_interface(i, j, t0, enter, new_set, new_top);
+        f.found = true;
+        f.i = i;
+        f.j = j;
+        f.t0 = t0;
+        f.enter = enter;
+        f.new_set = new_set;
+        f.new_top = new_top;
+        break;
     }
-    return Crossing::kNone;
+    f.set_before = set;
+    return f;
 }
 
-// An interface between st.med.region and new_top at distance t0, made by the
-// hits [i, j): move there, then reflect or refract (Fresnel, Snell).
+// Which of `regions` contain the point st.p + t st.d: along the ray from that
+// point, a region whose first crossing is an exit contains it (as in
+// locate_start).
 template <bool kSpectral, bool kGrids>
-Crossing PacketWalk<kSpectral, kGrids>::cross_interface(size_t i, size_t j, Float t0, uint64_t enter,
-                                                        uint64_t new_set, int new_top) {
+uint64_t PacketWalk<kSpectral, kGrids>::inside_just_ahead(uint64_t regions, Float t) const {
+    scene_.intersect_all(st_.p + st_.d * t, st_.d, 0, kInf, probe_hits_);
+    uint64_t seen = 0, inside = 0;
+    for (const Hit& h : probe_hits_) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if (!(regions & bit) || (seen & bit) || h.cos_dn == 0) continue;
+        seen |= bit;
+        if (h.cos_dn > 0) inside |= bit;
+    }
+    return inside;
+}
+
+// Boundary crossings before the interaction point, in order; the first
+// interface ends the scan.
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::cross_interfaces(Float s) {
+    const Interface f = next_interface(s, st_.set, st_.med.region);
+    st_.set = f.set_before;
+    return f.found ? cross_interface(f) : Crossing::kNone;
+}
+
+// An interface between st.med.region and f.new_top: move there, then reflect
+// or refract (Fresnel, Snell).
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::cross_interface(const Interface& f) {
     PacketState& st = st_;
-    if (st.med.region >= 0 && st.med.mus == 0 && st.med.mua > 0) attenuate_clear(t0);
-    st.p += st.d * t0;
-    st.path_cm += t0 * unit_cm_;
-    st.tau = std::max(Float(0), st.tau - t0 * unit_cm_ * st.med.mut);
+    const int new_top = f.new_top;
+    if (st.med.region >= 0 && st.med.mus == 0 && st.med.mua > 0) attenuate_clear(f.t0);
+    st.p += st.d * f.t0;
+    st.path_cm += f.t0 * unit_cm_;
+    st.tau = std::max(Float(0), st.tau - f.t0 * unit_cm_ * st.med.mut);
     ++st.events;
     update_depth();
     // Normal of the surface that makes the interface: the entered top
     // region's face, or else the face of the region being left.
-    const int face_region = (enter >> new_top) & 1 ? new_top : st.med.region;
+    const int face_region = (f.enter >> new_top) & 1 ? new_top : st.med.region;
     Vec3 n_out(0, 0, 1);
-    for (size_t k = i; k < j; ++k)
+    for (size_t k = f.i; k < f.j; ++k)
         if (int(hits_[k].region) == face_region) {
             n_out = scene_.region(size_t(face_region)).normals[hits_[k].prim];
             break;
@@ -312,34 +390,116 @@ Crossing PacketWalk<kSpectral, kGrids>::cross_interface(size_t i, size_t j, Floa
     if (n1 != n2) R = fresnel_dielectric(cos_i, n1, n2, &cos_t);
 
     bool transmit;
+    int mirror = -1;  // where the mirror ray lands, if first_boundary looked (its hits are in the buffer)
     if (!st.entered && st.med.region < 0) {
-        // First boundary from the ambient: the specular part leaves
-        // deterministically (MCML's Rsp; seed eq. 1), the rest enters.
-        add(kSpecular, st.W * R);
-        st.W -= st.W * R;
-        transmit = st.W > 0;
-        if (!transmit) return Crossing::kEnded;
+        transmit = first_boundary(n_inc, R, &mirror);
+        if (st.W <= 0) return Crossing::kEnded;
     } else {
         transmit = R < 1 && (R == 0 || rng_.uniform() >= R);
     }
     if (!transmit) {
         st.d = reflect(st.d, n_inc);
-        return Crossing::kBoundary;
+        if (st.med.region >= 0) return Crossing::kBoundary;
+        // Reflected on the ambient side: the packet goes on through the ambient.
+        return through_ambient(mirror >= 0 ? NextHit(mirror) : look_ahead());
     }
     if (n1 != n2) st.d = refract(st.d, n_inc, n1 / n2, cos_i, cos_t);
-    st.set = new_set;
-    if (new_top < 0) {
-        escape(st.med.region, -n_inc);  // n_inc faces the inside: outward is -n_inc
-        return Crossing::kEnded;
-    }
-    if (!st.entered) {
+    st.set = f.new_set;
+    if (new_top < 0) return leave_tissue(st.med.region, -n_inc);  // n_inc faces the inside
+    if (st.med.region < 0) {
+        // Entering from the ambient (first entry or a landing across the lumen):
+        // depth and the reflected/transmitted classification refer to this entry.
         st.entered = true;
         st.entry_p = st.p;
         st.entry_in = -n_inc;  // n_inc faces the ambient, so -n_inc points into the tissue
         st.entry_reference = st.entry_in;
+        st.max_depth = 0;
     }
     load_medium(new_top);
     return Crossing::kBoundary;
+}
+
+// The first boundary from the ambient (docs/design.md, "The first boundary").
+// Where the mirror ray meets nothing, the specular part leaves deterministically
+// (MCML's Rsp; seed eq. 1) and the rest enters: W -> W (1 - R), transmit. Where
+// the mirror ray lands on tissue or the head (a concave scene), the specular
+// part is light that goes on, so the boundary makes the same random choice as
+// every later one: reflect the whole packet with probability R. Both are
+// unbiased; the first keeps convex scenes bit-identical to MCML's estimator.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::first_boundary(const Vec3& n_inc, Float R, int* mirror) {
+    PacketState& st = st_;
+    if (R > 0 && cfg_.lumen) {
+        const Vec3 d_in = st.d;
+        st.d = reflect(d_in, n_inc);
+        const NextHit lands = look_ahead();
+        st.d = d_in;
+        if (lands != kNextAway) {
+            st.reuse_hits = false;
+            *mirror = lands;
+            return R < 1 && rng_.uniform() >= R;
+        }
+    }
+    add(kSpecular, st.W * R);
+    st.W -= st.W * R;
+    st.reuse_hits = false;
+    return st.W > 0;
+}
+
+// One ray query from st.p along st.d to infinity (the hits stay in the buffer
+// as the next ambient step), then where it lands.
+template <bool kSpectral, bool kGrids>
+NextHit PacketWalk<kSpectral, kGrids>::look_ahead() {
+    scene_.intersect_all(st_.p, st_.d, -ray_offset(st_.p, extent_), kInf, hits_);
+    return landing();
+}
+
+// Where a packet in the ambient lands, from the hits to infinity in the
+// buffer: the first region it enters, unless the rig head is nearer.
+template <bool kSpectral, bool kGrids>
+NextHit PacketWalk<kSpectral, kGrids>::landing() const {
+    const Interface f = next_interface(kInf, 0, -1);
+    if (const RigBody* b = body()) {
+        const BodyHit h = intersect_body(*b, st_.p, st_.d);
+        if (h.part != BodyPart::kNone && (!f.found || h.t < f.t0))
+            return h.part == BodyPart::kCamera ? kNextCamera : kNextHead;
+    }
+    return f.found ? kNextTissue : kNextAway;
+}
+
+// The packet left the tissue into the ambient: a surface photon record, then
+// it goes on in a straight line (issue 9). One ray query per exit.
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::leave_tissue(int from_region, const Vec3& normal_out) {
+    ++st_.exits;
+    if (!cfg_.lumen) {  // the rule off: every exit ends the packet
+        record_exit(from_region, normal_out, kNextAway);
+        escape();
+        return Crossing::kEnded;
+    }
+    const NextHit next = look_ahead();
+    load_medium(-1);
+    record_exit(from_region, normal_out, next);
+    return through_ambient(next);
+}
+
+// The packet is in the ambient and the hits to infinity are in the buffer:
+// it lands on tissue (the hits are its next step), stops on the head or the
+// camera, or leaves the scene for good.
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::through_ambient(NextHit next) {
+    switch (next) {
+        case kNextTissue:
+            st_.reuse_hits = true;
+            st_.safe_r = 0;
+            return Crossing::kBoundary;
+        case kNextHead: add(kOccluded, st_.W); return Crossing::kEnded;
+        case kNextCamera: add(kCameraCollected, st_.W); return Crossing::kEnded;
+        case kNextAway: break;
+    }
+    if (st_.entered) escape();
+    else add(kMissed, st_.W);  // never entered any region
+    return Crossing::kEnded;
 }
 
 // An interaction at distance s inside st.med.region: implicit capture,
@@ -416,38 +576,45 @@ void PacketWalk<kSpectral, kGrids>::fluoresce() {
     }
 }
 
+// Leaving the scene for good. Reflected (reflected()) = leaving back through
+// the side it came in: against the inward normal at its last entry from the
+// ambient. (Against the source axis, as MCML puts it for normal incidence,
+// misclassifies oblique beams beyond 45 degrees, whose mirror direction still
+// has a positive dot product with the beam.) Packets that started inside use
+// the source axis. A light in a closed pocket of ambient (a cavity) has no
+// side to come back to: whatever reaches infinity went through the tissue.
 template <bool kSpectral, bool kGrids>
-void PacketWalk<kSpectral, kGrids>::escape(int from_region, const Vec3& normal_out) {
+void PacketWalk<kSpectral, kGrids>::escape() {
     PacketState& st = st_;
-    // Reflected = leaving back through the side it came in: against the
-    // inward normal at its first entry. (Against the source axis, as MCML
-    // puts it for normal incidence, misclassifies oblique beams beyond 45
-    // degrees, whose mirror direction still has a positive dot product with
-    // the beam.) Packets that started inside use the source axis.
-    const bool reflected = dot(st.d, st.entry_reference) < 0;
-    add(reflected ? kDiffuse : kTransmitted, st.W);
-    const Float energy = st.W * st.energy_per_weight;
-    out_.tally.scalar[kEscapedEnergy] += energy;
+    add(reflected() ? kDiffuse : kTransmitted, st.W);
+    out_.tally.scalar[kEscapedEnergy] += st.W * st.energy_per_weight;
     if (st.fluorescent) out_.tally.scalar[kFluorescentEscaped] += st.W;
-    if (cfg_.record_escapes && (!cfg_.fluorescent_only || st.fluorescent)) {
-        EscapeRecord r;
-        r.position = st.p;
-        r.direction = st.d;
-        r.normal = normal_out;
-        r.entry = st.entry_p;
-        r.weight = st.W;
-        r.energy = energy;
-        r.wavelength = st.lambda;
-        r.max_depth_cm = st.max_depth;
-        r.fluorophore = st.fluorophore;
-        r.region = from_region;
-        r.scatterings = st.scatterings;
-        r.packet = st.index;
-        r.fluorescent = st.fluorescent ? 1 : 0;
-        r.light = uint8_t(st.light);
-        r.kind = reflected ? 0 : 1;
-        out_.records.push(r);
-    }
+}
+
+// The surface photon record of an exit into the ambient (every exit, any order).
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::record_exit(int from_region, const Vec3& normal_out, NextHit next) {
+    const PacketState& st = st_;
+    if (!cfg_.record_escapes || (cfg_.fluorescent_only && !st.fluorescent)) return;
+    EscapeRecord r;
+    r.position = st.p;
+    r.direction = st.d;
+    r.normal = normal_out;
+    r.entry = st.entry_p;
+    r.weight = st.W;
+    r.energy = st.W * st.energy_per_weight;
+    r.wavelength = st.lambda;
+    r.max_depth_cm = st.max_depth;
+    r.fluorophore = st.fluorophore;
+    r.region = from_region;
+    r.scatterings = st.scatterings;
+    r.packet = st.index;
+    r.fluorescent = st.fluorescent ? 1 : 0;
+    r.light = uint8_t(st.light);
+    r.kind = reflected() ? 0 : 1;
+    r.exit_order = st.exits;
+    r.next_hit = next;
+    out_.records.push(r);
 }
 
 template <bool kSpectral, bool kGrids>
@@ -537,12 +704,27 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     grids_ = cfg.grid_voxel_size > 0;
     hits_.reserve(64);
+    // A light is enclosed when every one of 64 probe rays from its centre
+    // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
+    // with an opening larger than about 1/64 of the sphere is seen as open.
+    constexpr int kProbes = 64;
+    for (const Light& l : source.lights()) {
+        bool closed = scene.region_count() > 0;
+        for (int k = 0; k < kProbes && closed; ++k) {
+            const Float z = 1 - (2 * k + 1) / Float(kProbes);
+            const Float r = std::sqrt(std::max(Float(0), 1 - z * z));
+            const Float phi = k * kPi * (3 - std::sqrt(Float(5)));
+            scene.intersect_all(l.center, Vec3(r * std::cos(phi), r * std::sin(phi), z), 0, kInf, hits_);
+            closed = !hits_.empty();
+        }
+        enclosed_.push_back(closed ? 1 : 0);
+    }
 }
 
 void Tracer::trace(uint64_t index, UnitOutput& out) {
     auto walk = [&](auto spectral, auto grids) {
         PacketWalk<decltype(spectral)::value, decltype(grids)::value>(scene_, source_, halton_, cfg_, hits_, cuts_,
-                                                                      out)
+                                                                      enclosed_, out)
             .run(index);
     };
     using T = std::true_type;

@@ -43,6 +43,9 @@ class Tracer {
     bool spectral_, grids_;
     std::vector<Hit> hits_;
     std::vector<Float> cuts_;  // voxel-face crossings of a clear segment (grids)
+    // Per light: its ambient pocket is closed (every probe ray meets a region),
+    // so light that leaves the scene went through the tissue: transmitted.
+    std::vector<uint8_t> enclosed_;
 };
 
 }  // namespace ep
