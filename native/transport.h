@@ -1,7 +1,12 @@
 // The life of one photon packet (MCML / the seed's Fig. 1): launch, specular
 // loss at the first boundary, steps of -ln(xi)/mu_t carried across boundaries,
 // implicit absorption, fluorescence, Henyey-Greenstein scattering, Fresnel
-// boundaries, Russian roulette and the caps.
+// boundaries, Russian roulette and the caps. A packet that leaves the tissue
+// goes on in a straight line through the ambient and lands on the region or
+// the rig head it meets; it escapes only when its ray meets nothing (issue 9,
+// docs/design.md "Light crosses the lumen"). transport.cpp walks one packet in
+// named steps over one PacketState: launch, locate_start, find_crossings,
+// cross_interfaces, interact, and leave_tissue / through_ambient.
 #pragma once
 #include <memory>
 #include <vector>

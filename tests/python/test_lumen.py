@@ -327,3 +327,16 @@ def test_rig_body_is_validated():
         ep._core.Source([dict(position=[0, 0, 1], direction=[0, 0, -1])],
                         body=dict(front=[0, 0, 1], axis=[0, 0, -1], radius=-1.0, length=1.0, camera=[0, 0, 1],
                                   camera_radius=0.0))
+
+
+def test_lumen_runs_are_bit_identical_on_any_thread_count():
+    rig = ep.EndoscopeRig.from_beta(30.0, 0.5, head_length_mm=3.0)
+    scene = _cavity_scene(0.05)
+    scene.add_box("floor", min=(-3, -3, -3), max=(3, 3, -2), medium=SHELL)
+    a = ep.run(scene, rig, photons=3000, seed=12, threads=1, unit_size=256)
+    b = ep.run(scene, rig, photons=3000, seed=12, threads=2, unit_size=256)
+    for k in ep.FRACTIONS:
+        assert getattr(a, k) == getattr(b, k) and getattr(a, k + "_stderr") == getattr(b, k + "_stderr"), k
+    for k in a.escapes:
+        assert np.array_equal(a.escapes[k], b.escapes[k]), k
+    assert_energy_conserved(a)
