@@ -238,15 +238,15 @@ def test_hand_over_across_a_gap_matches_numpy_ray_tracing_of_the_records():
     # The engine's own labels agree with numpy, record by record (float32
     # positions: allow a handful of rays that graze B's edges).
     labels = e["next_hit"][from_a]
-    disagree = np.count_nonzero(hits_b != (labels == TISSUE))
-    assert disagree <= 3, disagree
-    # Weight entering B by the lumen = weight of A's exit records whose rays hit B.
+    disagree = hits_b != (labels == TISSUE)
+    assert np.count_nonzero(disagree) <= 3, np.count_nonzero(disagree)
+    # Weight entering B by the lumen = weight of A's exit records whose rays hit B
+    # (measured: equal to 5e-16 relative, no ray in disagreement).
     w_records = e["weight"][from_a][hits_b].sum()
     w_entered = (res.absorbed_by_region["B"] * res.photons + e["weight"][e["region"] == 1].sum())
-    tol = 3 * np.max(e["weight"][from_a]) + 1e-9 * w_records  # the few grazing rays
+    tol = e["weight"][from_a][disagree].sum() + 1e-12 * w_records
     assert abs(w_entered - w_records) <= tol, (w_entered, w_records)
-    # A's records whose rays miss B escape for good: the diffuse reflectance is
-    # exactly their weight (B's own exits all land on A or go away sideways).
+    # B's exits can land on A again, so A gives second exits.
     assert np.any(e["exit_order"] >= 2)
 
 
@@ -340,3 +340,13 @@ def test_lumen_runs_are_bit_identical_on_any_thread_count():
     for k in a.escapes:
         assert np.array_equal(a.escapes[k], b.escapes[k]), k
     assert_energy_conserved(a)
+
+
+def test_scene_json_endoscope_body_keys():
+    rig = ep.sources.source_from_dict({"type": "endoscope", "beta_deg": 0.0, "distance": 1.0, "head_length_mm": 30.0,
+                                       "camera_aperture_mm": 1.5})
+    body = rig.native_body(1.0)  # scene unit cm: mm -> 0.1
+    assert body["length"] == pytest.approx(3.0) and body["camera_radius"] == pytest.approx(0.075)
+    assert body["radius"] == pytest.approx(0.6)
+    off = ep.sources.source_from_dict({"type": "endoscope", "beta_deg": 0.0, "distance": 1.0, "body": False})
+    assert off.native_body(1.0) is None
