@@ -67,7 +67,7 @@ class Result:
 
     @property
     def energy_balance(self) -> float:
-        """Rsp + Rd + Tt + A + missed + cut + roulette + occluded + camera_collected (1 up to rounding)."""
+        """Rsp + Rd + Tt + A + missed + cut + roulette (1 up to rounding)."""
         return sum(getattr(self, k) for k in FRACTIONS)
 
     @property

@@ -323,6 +323,8 @@ def test_rig_body_is_validated():
         ep.EndoscopeRig.from_beta(0.0, 1.0, camera_aperture_mm=20.0)
     with pytest.raises(ValueError, match="body"):
         ep.EndoscopeRig.from_beta(0.0, 1.0, body="yes")
+    with pytest.raises(ValueError, match="lumen = 'yes'"):
+        ep.run(_cavity_scene(0.05), INSIDE, photons=10, lumen="yes")
     with pytest.raises(ValueError, match="source.body.radius"):
         ep._core.Source([dict(position=[0, 0, 1], direction=[0, 0, -1])],
                         body=dict(front=[0, 0, 1], axis=[0, 0, -1], radius=-1.0, length=1.0, camera=[0, 0, 1],
