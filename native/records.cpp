@@ -32,6 +32,8 @@ void EscapeRecords::push(const EscapeRecord& r) {
     region.push_back(r.region);
     scatterings.push_back(r.scatterings);
     packet.push_back(r.packet);
+    exit_order.push_back(r.exit_order);
+    next_hit.push_back(r.next_hit);
 }
 
 void EscapeRecords::append(const EscapeRecords& o, size_t count) {
@@ -51,13 +53,15 @@ void EscapeRecords::append(const EscapeRecords& o, size_t count) {
     append_n(region, o.region, n);
     append_n(scatterings, o.scatterings, n);
     append_n(packet, o.packet, n);
+    append_n(exit_order, o.exit_order, n);
+    append_n(next_hit, o.next_hit, n);
 }
 
 void EscapeRecords::clear() { *this = EscapeRecords(); }
 
 size_t EscapeRecords::memory_bytes() const {
     return size() * (12 * sizeof(float) + 2 * sizeof(double) + 2 * sizeof(float) + 3 + 2 * sizeof(int32_t) +
-                     sizeof(uint32_t) + sizeof(uint64_t));
+                     2 * sizeof(uint32_t) + sizeof(uint64_t) + 1);
 }
 
 }  // namespace ep

@@ -34,6 +34,9 @@ struct RunConfig {
     int batches = 50;             // batches for the batch-means standard errors
     // Use the closest-surface distance to skip ray queries deep inside regions.
     bool safe_distance = true;
+    // Light crosses the lumen (issue 9): exits go on through the ambient and the
+    // rig head is a body. false = every exit ends its packet, as before (benchmarks).
+    bool lumen = true;
 };
 
 // Hard ceiling on events per packet whatever the user cap: a packet trapped by

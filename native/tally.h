@@ -17,6 +17,8 @@ enum TallyIndex : int {
     kMissed,         // never met a region
     kCut,            // removed by the step / path cap
     kRoulette,       // net weight destroyed (+) or created (-) by Russian roulette
+    kOccluded,       // landed on the endoscope head (opaque, black) after leaving the tissue or by specular reflection
+    kCameraCollected,  // landed on the camera's aperture: the camera's signal
     kFluorescentEscaped,  // weight of escaping fluorescent packets
     kEscapedEnergy,       // energy (weight x 500/lambda) of escaping packets
     kInteractions,        // count of interaction events (not weighted)
@@ -25,15 +27,18 @@ enum TallyIndex : int {
     kScalarTallies
 };
 
+// The fates of launched weight: tallies [0, kBalanceTallies) sum to 1 in every run.
+constexpr int kBalanceTallies = kCameraCollected + 1;
+
 const char* tally_name(int i);
 
 // Energy tallies of spectral runs (energy = weight x 500 nm / lambda). The
-// first seven mirror the weight tallies of the balance; kStokes is the energy
+// first nine mirror the weight tallies of the balance (same indices); kStokes is the energy
 // fluorescence removed by lengthening wavelengths, kLaunched the energy that
 // was emitted. Launched = sum of the others, to rounding.
 enum EnergyIndex : int {
     kEnergySpecular = 0, kEnergyDiffuse, kEnergyTransmitted, kEnergyAbsorbed, kEnergyMissed, kEnergyCut,
-    kEnergyRoulette, kEnergyStokes, kEnergyLaunched, kEnergyTallies
+    kEnergyRoulette, kEnergyOccluded, kEnergyCameraCollected, kEnergyStokes, kEnergyLaunched, kEnergyTallies
 };
 const char* energy_tally_name(int i);
 

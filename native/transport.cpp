@@ -38,6 +38,665 @@ struct MediumState {
     Float mua = 0, mus = 0, mut = 0, g = 0, n = 1;
 };
 
+// The one state of a packet in flight (MCML/MMC practice: a single struct that
+// every step reads and writes).
+struct PacketState {
+    uint64_t index = 0;
+    int light = 0;
+    Vec3 p, d;
+    Float W = 1;
+    Float lambda = 0;
+    Float energy_per_weight = 1;  // photon energy per unit weight (1 when not spectral)
+    uint64_t set = 0;             // regions containing p (bit mask)
+    MediumState med;
+    bool entered = false, fluorescent = false;
+    int fluorophore = -1;
+    Vec3 entry_p, entry_in, entry_reference;
+    Float max_depth = 0, path_cm = 0;
+    uint32_t scatterings = 0;
+    uint32_t exits = 0;  // exits into the ambient so far
+    uint64_t events = 0;
+    Float tau = 0;            // remaining dimensionless step (MCML's carried step)
+    bool need_tau = true;
+    bool reuse_hits = false;  // the hits in the buffer are this step's (no new query)
+    // Safe ball: no surface lies within safe_r of safe_c (from a closest-point
+    // query). A step whose end stays inside the ball cannot cross a surface,
+    // because the ball is convex; so no ray query is needed for it.
+    Vec3 safe_c;
+    Float safe_r = 0;
+    // After a closest-point query that did not cover the step (the packet is
+    // near a surface), go straight to ray queries for a few steps instead of
+    // paying for both queries every step.
+    int point_query_cooldown = 0;
+};
+
+constexpr int kCooldownSteps = 32;
+
+// What a step through the crossings ahead ended with.
+enum class Crossing { kNone, kBoundary, kEnded };
+
+// The first crossing ahead that changes the top region: the hits [i, j) at t0.
+struct Interface {
+    bool found = false;
+    size_t i = 0, j = 0;
+    Float t0 = 0;
+    uint64_t enter = 0, new_set = 0;
+    uint64_t set_before = 0;  // the region set after the skipped (non-interface) crossings
+    int new_top = -1;
+};
+
+// The named steps of one packet's walk over its PacketState: locate the start,
+// find and cross the interfaces ahead, interact. One instance per packet.
+template <bool kSpectral, bool kGrids>
+class PacketWalk {
+  public:
+    PacketWalk(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg,
+               std::vector<Hit>& hits, std::vector<Float>& cuts, const std::vector<uint8_t>& enclosed,
+               UnitOutput& out)
+        : scene_(scene), source_(source), halton_(halton), cfg_(cfg), hits_(hits), cuts_(cuts),
+          enclosed_(enclosed), out_(out),
+          unit_cm_(scene.unit_cm()), extent_(scene.extent()),
+          max_events_(cfg.max_steps > 0 ? std::min<uint64_t>(cfg.max_steps, kSafetyMaxEvents) : kSafetyMaxEvents) {}
+
+    void run(uint64_t index);
+
+  private:
+    void launch(uint64_t index);
+    bool locate_start();
+    void find_crossings(Float s);
+    Interface next_interface(Float s, uint64_t set, int region) const;
+    uint64_t inside_just_ahead(uint64_t regions, Float t) const;
+    Crossing cross_interfaces(Float s);
+    Crossing cross_interface(const Interface& f);
+    bool first_boundary(const Vec3& n_inc, Float R, int* mirror);
+    NextHit look_ahead();
+    NextHit landing() const;
+    Crossing leave_tissue(int from_region, const Vec3& normal_out);
+    Crossing through_ambient(NextHit next);
+    bool interact(Float s);
+    void fluoresce();
+    void escape();
+    // The rig head, when the lumen rule is on and the source has one.
+    const RigBody* body() const { return cfg_.lumen ? source_.body() : nullptr; }
+    bool reflected() const {
+        return !enclosed_[size_t(st_.light)] && dot(st_.d, st_.entry_reference) < 0;
+    }
+    void record_exit(int from_region, const Vec3& normal_out, NextHit next);
+    void load_medium(int region);
+    void attenuate_clear(Float t);
+    bool survives_roulette();
+    bool over_caps() const {
+        return st_.events >= max_events_ || (cfg_.max_path_cm > 0 && st_.path_cm >= cfg_.max_path_cm);
+    }
+    void update_depth() {
+        if (st_.entered) st_.max_depth = std::max(st_.max_depth, dot(st_.p - st_.entry_p, st_.entry_in) * unit_cm_);
+    }
+    // Adds weight w to tally k and, in spectral runs, its energy to the mirror tally.
+    void add(int k, Float w) {
+        out_.tally.scalar[k] += w;
+        if constexpr (kSpectral) out_.tally.energy[k] += w * st_.energy_per_weight;
+    }
+
+    const Scene& scene_;
+    const Source& source_;
+    const Halton& halton_;
+    const RunConfig& cfg_;
+    std::vector<Hit>& hits_;
+    std::vector<Float>& cuts_;
+    const std::vector<uint8_t>& enclosed_;
+    UnitOutput& out_;
+    const Float unit_cm_, extent_;
+    const uint64_t max_events_;
+    Rng rng_{0, 0};
+    PacketState st_;
+    mutable std::vector<Hit> probe_hits_;  // inside_just_ahead's own query (rare)
+};
+
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::run(uint64_t index) {
+    launch(index);
+    if (!locate_start()) return;
+    PacketState& st = st_;
+    while (true) {
+        if (st.need_tau) {
+            st.tau = -std::log(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
+            st.need_tau = false;
+        }
+        const Float s = st.med.mut > 0 ? st.tau / (st.med.mut * unit_cm_) : kInf;
+        find_crossings(s);
+        const Crossing c = cross_interfaces(s);
+        if (c == Crossing::kEnded) return;
+        if (over_caps()) {
+            add(kCut, st.W);
+            return;
+        }
+        if (c == Crossing::kBoundary) {
+            // Clear absorbing regions lose weight at boundaries only.
+            if (!survives_roulette()) return;
+            continue;
+        }
+        if (!std::isfinite(s)) {
+            // Travelling through the ambient or a clear region to infinity.
+            if (st.med.region < 0) {
+                // Outside every region with nothing ahead: it never entered
+                // (every ambient leg after an entry is looked ahead by
+                // through_ambient, which ends the packet there), so it missed.
+                add(kMissed, st.W);
+            } else {
+                // A clear, non-absorbing region extends to infinity along the ray:
+                // impossible for a closed mesh; count it as cut, never lose it.
+                add(kCut, st.W);
+            }
+            return;
+        }
+        if (!interact(s)) return;
+    }
+}
+
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::launch(uint64_t index) {
+    out_.tally.packets += 1;
+    rng_ = Rng(cfg_.seed, index);
+    const Emission em = source_.emit(halton_, index, kSpectral);
+    PacketState& st = st_;
+    st.index = index;
+    st.light = em.light;
+    st.entry_reference = source_.lights()[size_t(em.light)].axis;
+    st.p = em.position;
+    st.d = em.direction;
+    st.lambda = em.wavelength;
+    st.energy_per_weight = kSpectral && st.lambda > 0 ? kEnergyReferenceNm / st.lambda : Float(1);
+    if constexpr (kSpectral) out_.tally.energy[kEnergyLaunched] += st.energy_per_weight;
+    st.entry_p = st.p;
+    st.safe_c = st.p;
+}
+
+// Where does the packet start? One query to infinity along its direction: a
+// region whose first crossing is an exit contains the start. False if the
+// packet meets nothing at all (tallied as missed).
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::locate_start() {
+    PacketState& st = st_;
+    scene_.intersect_all(st.p, st.d, 0, kInf, hits_);
+    uint64_t seen = 0;
+    for (const Hit& h : hits_) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if (seen & bit) continue;
+        if (h.cos_dn == 0) continue;  // grazing: undecided, look at the next crossing
+        seen |= bit;
+        if (h.cos_dn > 0) st.set |= bit;
+    }
+    if (st.set == 0 && hits_.empty()) {
+        add(kMissed, st.W);
+        return false;
+    }
+    load_medium(scene_.top(st.set));
+    if (st.set != 0) {
+        st.entered = true;  // started inside: depth is measured from the start point
+        st.entry_in = st.d;
+    }
+    st.reuse_hits = (st.set == 0);  // the first query is exactly the first ambient step
+    if (st.set == 0 && body()) {
+        // Started in the ambient: the rig head may be in the way.
+        const NextHit next = landing();
+        if (next == kNextHead || next == kNextCamera) return through_ambient(next) != Crossing::kEnded;
+    }
+    return true;
+}
+
+// Fills hits_ with the crossings along a step of length s, or clears it when
+// the safe ball proves there are none.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
+    PacketState& st = st_;
+    bool query = true;
+    if (!st.reuse_hits && cfg_.safe_distance && st.med.region >= 0 && std::isfinite(s)) {
+        const Vec3 end = st.p + st.d * s;
+        const Vec3 off = end - st.safe_c;
+        if (dot(off, off) < st.safe_r * st.safe_r) {
+            query = false;
+        } else if (st.point_query_cooldown > 0) {
+            --st.point_query_cooldown;
+        } else {
+            const Float radius = std::min(extent_, Float(64) * s);
+            const Float dist = scene_.distance_to_surface(st.p, radius) * (1 - 1e-5) - ray_offset(st.p, extent_);
+            if (s < dist) {
+                st.safe_c = st.p;
+                st.safe_r = dist;
+                query = false;
+            } else {
+                st.point_query_cooldown = kCooldownSteps;
+            }
+        }
+    }
+    if (query) {
+        if (!st.reuse_hits) scene_.intersect_all(st.p, st.d, -ray_offset(st.p, extent_), s, hits_);
+        st.reuse_hits = false;
+        st.safe_r = 0;
+    } else {
+        hits_.clear();
+    }
+}
+
+// The first crossing before s that changes the top region, for a packet in
+// the region set `set` whose top region is `region`: groups of coincident
+// hits are one crossing.
+template <bool kSpectral, bool kGrids>
+Interface PacketWalk<kSpectral, kGrids>::next_interface(Float s, uint64_t set, int region) const {
+    const std::vector<Hit>& hits = hits_;
+    Interface f;
+    // In the ambient, hits at the origin include the surface the packet is on.
+    const Float own_surface = region < 0 ? group_tolerance(st_.p, 0, extent_) : -kInf;
+    size_t i = 0;
+    while (i < hits.size() && hits[i].t <= s) {
+        const Float t0 = hits[i].t;
+        const Float tol = group_tolerance(st_.p, t0, extent_);
+        size_t j = i;
+        uint64_t enter = 0, leave = 0;
+        while (j < hits.size() && hits[j].t <= t0 + tol) {
+            const uint64_t bit = uint64_t(1) << hits[j].region;
+            if (hits[j].cos_dn < 0) enter |= bit;
+            else if (hits[j].cos_dn > 0) leave |= bit;
+            ++j;
+        }
+        // A region entered and left at the same point was only touched
+        // (an edge or vertex grazed from outside): no change. At the packet's
+        // own position in the ambient the two cases look alike -- leaving the
+        // surface it is on past a convex vertex, or entering the next face at a
+        // concave edge of a cavity -- so a point just ahead decides.
+        uint64_t both = enter & leave;
+        if (both && t0 <= own_surface) {
+            const Float t_next = j < hits.size() ? hits[j].t : t0 + 1e3 * tol;
+            const uint64_t entered = inside_just_ahead(both, Float(0.5) * (std::max(t0, Float(0)) + t_next));
+            both &= ~entered;
+            leave &= ~entered;
+        }
+        enter &= ~both;
+        leave &= ~both;
+        const uint64_t new_set = (set | enter) & ~leave;
+        const int new_top = scene_.top(new_set);
+        if (new_set == set || new_top == region) {
+            // Not an interface: a spurious re-hit, or a lower-priority surface.
+            set = new_set;
+            i = j;
+            continue;
+        }
+        f.found = true;
+        f.i = i;
+        f.j = j;
+        f.t0 = t0;
+        f.enter = enter;
+        f.new_set = new_set;
+        f.new_top = new_top;
+        break;
+    }
+    f.set_before = set;
+    return f;
+}
+
+// Which of `regions` contain the point st.p + t st.d: along the ray from that
+// point, a region whose first crossing is an exit contains it (as in
+// locate_start).
+template <bool kSpectral, bool kGrids>
+uint64_t PacketWalk<kSpectral, kGrids>::inside_just_ahead(uint64_t regions, Float t) const {
+    scene_.intersect_all(st_.p + st_.d * t, st_.d, 0, kInf, probe_hits_);
+    uint64_t seen = 0, inside = 0;
+    for (const Hit& h : probe_hits_) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if (!(regions & bit) || (seen & bit) || h.cos_dn == 0) continue;
+        seen |= bit;
+        if (h.cos_dn > 0) inside |= bit;
+    }
+    return inside;
+}
+
+// Boundary crossings before the interaction point, in order; the first
+// interface ends the scan.
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::cross_interfaces(Float s) {
+    const Interface f = next_interface(s, st_.set, st_.med.region);
+    st_.set = f.set_before;
+    return f.found ? cross_interface(f) : Crossing::kNone;
+}
+
+// An interface between st.med.region and f.new_top: move there, then reflect
+// or refract (Fresnel, Snell).
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::cross_interface(const Interface& f) {
+    PacketState& st = st_;
+    const int new_top = f.new_top;
+    if (st.med.region >= 0 && st.med.mus == 0 && st.med.mua > 0) attenuate_clear(f.t0);
+    st.p += st.d * f.t0;
+    st.path_cm += f.t0 * unit_cm_;
+    st.tau = std::max(Float(0), st.tau - f.t0 * unit_cm_ * st.med.mut);
+    ++st.events;
+    update_depth();
+    // Normal of the surface that makes the interface: the entered top
+    // region's face, or else the face of the region being left.
+    const int face_region = (f.enter >> new_top) & 1 ? new_top : st.med.region;
+    Vec3 n_out(0, 0, 1);
+    for (size_t k = f.i; k < f.j; ++k)
+        if (int(hits_[k].region) == face_region) {
+            n_out = scene_.region(size_t(face_region)).normals[hits_[k].prim];
+            break;
+        }
+    // Normal facing the incident side, and the incidence cosine.
+    const Vec3 n_inc = dot(st.d, n_out) > 0 ? -n_out : n_out;
+    const Float cos_i = std::min(Float(1), std::max(Float(0), -dot(st.d, n_inc)));
+    const Float n1 = st.med.n;
+    const Float n2 = new_top >= 0 ? scene_.region(size_t(new_top)).medium.n : scene_.ambient_n();
+    Float cos_t = cos_i;
+    Float R = 0;
+    if (n1 != n2) R = fresnel_dielectric(cos_i, n1, n2, &cos_t);
+
+    bool transmit;
+    int mirror = -1;  // where the mirror ray lands, if first_boundary looked (its hits are in the buffer)
+    if (!st.entered && st.med.region < 0) {
+        transmit = first_boundary(n_inc, R, &mirror);
+        if (st.W <= 0) return Crossing::kEnded;
+    } else {
+        transmit = R < 1 && (R == 0 || rng_.uniform() >= R);
+    }
+    if (!transmit) {
+        st.d = reflect(st.d, n_inc);
+        if (st.med.region >= 0) return Crossing::kBoundary;
+        // Reflected on the ambient side: the packet goes on through the ambient.
+        return through_ambient(mirror >= 0 ? NextHit(mirror) : look_ahead());
+    }
+    if (n1 != n2) st.d = refract(st.d, n_inc, n1 / n2, cos_i, cos_t);
+    st.set = f.new_set;
+    if (new_top < 0) return leave_tissue(st.med.region, -n_inc);  // n_inc faces the inside
+    if (st.med.region < 0) {
+        // Entering from the ambient (first entry or a landing across the lumen):
+        // depth and the reflected/transmitted classification refer to this entry.
+        st.entered = true;
+        st.entry_p = st.p;
+        st.entry_in = -n_inc;  // n_inc faces the ambient, so -n_inc points into the tissue
+        st.entry_reference = st.entry_in;
+        st.max_depth = 0;
+    }
+    load_medium(new_top);
+    return Crossing::kBoundary;
+}
+
+// The first boundary from the ambient (docs/design.md, "The first boundary").
+// Where the mirror ray meets nothing, the specular part leaves deterministically
+// (MCML's Rsp; seed eq. 1) and the rest enters: W -> W (1 - R), transmit. Where
+// the mirror ray lands on tissue or the head (a concave scene), the specular
+// part is light that goes on, so the boundary makes the same random choice as
+// every later one: reflect the whole packet with probability R. Both are
+// unbiased; the first keeps convex scenes bit-identical to MCML's estimator.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::first_boundary(const Vec3& n_inc, Float R, int* mirror) {
+    PacketState& st = st_;
+    if (R > 0 && cfg_.lumen) {
+        const Vec3 d_in = st.d;
+        st.d = reflect(d_in, n_inc);
+        const NextHit lands = look_ahead();
+        st.d = d_in;
+        if (lands != kNextAway) {
+            st.reuse_hits = false;
+            *mirror = lands;
+            return R < 1 && rng_.uniform() >= R;
+        }
+    }
+    add(kSpecular, st.W * R);
+    st.W -= st.W * R;
+    st.reuse_hits = false;
+    return st.W > 0;
+}
+
+// One ray query from st.p along st.d to infinity (the hits stay in the buffer
+// as the next ambient step), then where it lands.
+template <bool kSpectral, bool kGrids>
+NextHit PacketWalk<kSpectral, kGrids>::look_ahead() {
+    scene_.intersect_all(st_.p, st_.d, -ray_offset(st_.p, extent_), kInf, hits_);
+    return landing();
+}
+
+// Where a packet in the ambient lands, from the hits to infinity in the
+// buffer: the first region it enters, unless the rig head is nearer.
+template <bool kSpectral, bool kGrids>
+NextHit PacketWalk<kSpectral, kGrids>::landing() const {
+    const Interface f = next_interface(kInf, 0, -1);
+    if (const RigBody* b = body()) {
+        const BodyHit h = intersect_body(*b, st_.p, st_.d);
+        if (h.part != BodyPart::kNone && (!f.found || h.t < f.t0))
+            return h.part == BodyPart::kCamera ? kNextCamera : kNextHead;
+    }
+    return f.found ? kNextTissue : kNextAway;
+}
+
+// The packet left the tissue into the ambient: a surface photon record, then
+// it goes on in a straight line (issue 9). One ray query per exit.
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::leave_tissue(int from_region, const Vec3& normal_out) {
+    ++st_.exits;
+    if (!cfg_.lumen) {  // the rule off: every exit ends the packet
+        record_exit(from_region, normal_out, kNextAway);
+        escape();
+        return Crossing::kEnded;
+    }
+    const NextHit next = look_ahead();
+    load_medium(-1);
+    record_exit(from_region, normal_out, next);
+    return through_ambient(next);
+}
+
+// The packet is in the ambient and the hits to infinity are in the buffer:
+// it lands on tissue (the hits are its next step), stops on the head or the
+// camera, or leaves the scene for good.
+template <bool kSpectral, bool kGrids>
+Crossing PacketWalk<kSpectral, kGrids>::through_ambient(NextHit next) {
+    switch (next) {
+        case kNextTissue:
+            st_.reuse_hits = true;
+            st_.safe_r = 0;
+            return Crossing::kBoundary;
+        case kNextHead: add(kOccluded, st_.W); return Crossing::kEnded;
+        case kNextCamera: add(kCameraCollected, st_.W); return Crossing::kEnded;
+        case kNextAway: break;
+    }
+    if (st_.entered) escape();
+    else add(kMissed, st_.W);  // never entered any region
+    return Crossing::kEnded;
+}
+
+// An interaction at distance s inside st.med.region: implicit capture,
+// fluorescence, scattering, roulette. False when the packet ends.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
+    PacketState& st = st_;
+    out_.tally.scalar[kInteractions] += 1;
+    st.p += st.d * s;
+    st.path_cm += s * unit_cm_;
+    st.need_tau = true;
+    ++st.events;
+    update_depth();
+
+    // Implicit capture, seed eq. (3): W -= W mua/(mua+mus).
+    const Float dW = st.W * (st.med.mua / st.med.mut);
+    st.W -= dW;
+    add(kAbsorbed, dW);
+    out_.tally.absorbed_by_region[size_t(st.med.region)] += dW;
+    if constexpr (kGrids) {
+        // The absorbed grid holds energy (= weight when the run is not spectral).
+        const Vec3& p = st.p;
+        out_.absorbed_grid->add(p.x, p.y, p.z, dW * st.energy_per_weight);
+        if (st.fluorescent) {
+            out_.fluorescence_grid->add(p.x, p.y, p.z, st.W);
+            if (!out_.per_fluorophore.empty()) out_.per_fluorophore[size_t(st.fluorophore)]->add(p.x, p.y, p.z, st.W);
+        }
+    }
+    if constexpr (kSpectral) fluoresce();
+
+    // Scattering (seed §4): HG cosine, uniform azimuth.
+    if (st.med.mus > 0 && st.W > 0) {
+        const HenyeyGreenstein hg(st.med.g);
+        const Float u1 = rng_.uniform(), u2 = rng_.uniform();
+        st.d = hg.sample_p(st.d, u1, u2);
+        ++st.scatterings;
+    }
+
+    if (!survives_roulette()) return false;
+    if (over_caps()) {
+        add(kCut, st.W);
+        return false;
+    }
+    return true;
+}
+
+// Fluorescence decision (seed §4): two random numbers per fluorophore, against
+// d and c (rule "paper"), or d scaled by the EEM's relative excitation
+// efficiency at the packet's wavelength (rule "eem").
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::fluoresce() {
+    PacketState& st = st_;
+    const auto& fl = scene_.region(size_t(st.med.region)).fluorophores;
+    const bool may = cfg_.rule == FluorescenceRule::kEEM || !st.fluorescent;
+    if (!may || st.W <= 0) return;
+    for (const FluorophoreRef& f : fl) {
+        out_.tally.scalar[kFluorescenceTrials] += 1;
+        const Float u1 = rng_.uniform(), u2 = rng_.uniform();
+        Float d_eff = f.d;
+        if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene_.eem(f.id).efficiency(st.lambda);
+        if (u1 < d_eff && u2 < f.c) {
+            st.lambda = scene_.eem(f.id).sample_emission(st.lambda, rng_.uniform(), rng_.uniform());
+            // Stokes loss: the weight (photon count) is kept, the energy per
+            // photon drops from 500/lambda_ex to 500/lambda_em.
+            const Float new_epw = kEnergyReferenceNm / st.lambda;
+            out_.tally.energy[kEnergyStokes] += st.W * (st.energy_per_weight - new_epw);
+            st.energy_per_weight = new_epw;
+            st.fluorescent = true;
+            st.fluorophore = f.id;
+            out_.tally.scalar[kFluorescenceEvents] += 1;
+            load_medium(st.med.region);  // coefficients at the new wavelength
+            break;
+        }
+    }
+}
+
+// Leaving the scene for good. Reflected (reflected()) = leaving back through
+// the side it came in: against the inward normal at its last entry from the
+// ambient. (Against the source axis, as MCML puts it for normal incidence,
+// misclassifies oblique beams beyond 45 degrees, whose mirror direction still
+// has a positive dot product with the beam.) Packets that started inside use
+// the source axis. A light in a closed pocket of ambient (a cavity) has no
+// side to come back to: whatever reaches infinity went through the tissue.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::escape() {
+    PacketState& st = st_;
+    add(reflected() ? kDiffuse : kTransmitted, st.W);
+    out_.tally.scalar[kEscapedEnergy] += st.W * st.energy_per_weight;
+    if (st.fluorescent) out_.tally.scalar[kFluorescentEscaped] += st.W;
+}
+
+// The surface photon record of an exit into the ambient (every exit, any order).
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::record_exit(int from_region, const Vec3& normal_out, NextHit next) {
+    const PacketState& st = st_;
+    if (!cfg_.record_escapes || (cfg_.fluorescent_only && !st.fluorescent)) return;
+    EscapeRecord r;
+    r.position = st.p;
+    r.direction = st.d;
+    r.normal = normal_out;
+    r.entry = st.entry_p;
+    r.weight = st.W;
+    r.energy = st.W * st.energy_per_weight;
+    r.wavelength = st.lambda;
+    r.max_depth_cm = st.max_depth;
+    r.fluorophore = st.fluorophore;
+    r.region = from_region;
+    r.scatterings = st.scatterings;
+    r.packet = st.index;
+    r.fluorescent = st.fluorescent ? 1 : 0;
+    r.light = uint8_t(st.light);
+    r.kind = reflected() ? 0 : 1;
+    r.exit_order = st.exits;
+    r.next_hit = next;
+    out_.records.push(r);
+}
+
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::load_medium(int region) {
+    MediumState& med = st_.med;
+    med.region = region;
+    if (region < 0) {
+        med.mua = med.mus = med.mut = med.g = 0;
+        med.n = scene_.ambient_n();
+        return;
+    }
+    const Medium& m = scene_.region(size_t(region)).medium;
+    if constexpr (kSpectral) {
+        med.mua = m.mua_at(st_.lambda);
+        med.mus = m.mus_at(st_.lambda);
+    } else {
+        med.mua = m.mua;
+        med.mus = m.mus;
+    }
+    // A non-scattering region has no interactions: its absorption is applied
+    // exactly along each straight segment (Beer-Lambert), not sampled.
+    med.mut = med.mus > 0 ? med.mua + med.mus : 0;
+    med.g = m.g;
+    med.n = m.n;
+}
+
+// Russian roulette (MCML): below the threshold survive with chance m, and
+// survivors carry W/m, which keeps the estimator unbiased. The weight it
+// destroys (+) or creates (-) is tallied so that the balance stays exact.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::survives_roulette() {
+    Float& W = st_.W;
+    if (W >= cfg_.roulette_threshold) return true;
+    if (W <= 0) return false;
+    if (rng_.uniform() < cfg_.roulette_chance) {
+        const Float boosted = W / cfg_.roulette_chance;
+        add(kRoulette, -(boosted - W));
+        W = boosted;
+        return true;
+    }
+    add(kRoulette, W);
+    return false;
+}
+
+// Beer-Lambert along a straight segment of length t (scene units) from p in
+// a region with mus = 0: W -> W exp(-mua t). For grids the segment is cut
+// where it crosses voxel faces (planes at (i + 1/2) h, cell-centred voxels),
+// so every piece lies in one voxel and deposits its exact share there.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::attenuate_clear(Float t) {
+    PacketState& st = st_;
+    if (t <= 0 || st.W <= 0) return;
+    const Float dW = -st.W * std::expm1(-st.med.mua * t * unit_cm_);
+    if constexpr (kGrids) {
+        const Float h = cfg_.grid_voxel_size;
+        cuts_.clear();
+        cuts_.push_back(0);
+        cuts_.push_back(t);
+        for (int axis = 0; axis < 3 && cuts_.size() < 300000; ++axis) {
+            const Float o = st.p[axis], v = st.d[axis];
+            if (v == 0) continue;
+            const Float a = o / h - Float(0.5), b = (o + v * t) / h - Float(0.5);
+            const Float lo = std::min(a, b), hi = std::max(a, b);
+            for (Float k = std::floor(lo) + 1; k <= hi && cuts_.size() < 300000; k += 1)
+                cuts_.push_back(((k + Float(0.5)) * h - o) / v);
+        }
+        std::sort(cuts_.begin(), cuts_.end());
+        Float w = st.W;
+        for (size_t k = 0; k + 1 < cuts_.size(); ++k) {
+            const Float a = std::clamp(cuts_[k], Float(0), t), b = std::clamp(cuts_[k + 1], Float(0), t);
+            if (b <= a) continue;
+            const Float piece = -w * std::expm1(-st.med.mua * (b - a) * unit_cm_);
+            const Vec3 mid = st.p + st.d * (Float(0.5) * (a + b));
+            out_.absorbed_grid->add(mid.x, mid.y, mid.z, piece * st.energy_per_weight);
+            w -= piece;
+        }
+    }
+    add(kAbsorbed, dW);
+    out_.tally.absorbed_by_region[size_t(st.med.region)] += dW;
+    st.W -= dW;
+}
+
 }  // namespace
 
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
@@ -45,409 +704,37 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     grids_ = cfg.grid_voxel_size > 0;
     hits_.reserve(64);
+    // A light is enclosed when every one of 64 probe rays from its centre
+    // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
+    // with an opening larger than about 1/64 of the sphere is seen as open.
+    constexpr int kProbes = 64;
+    for (const Light& l : source.lights()) {
+        bool closed = scene.region_count() > 0;
+        for (int k = 0; k < kProbes && closed; ++k) {
+            const Float z = 1 - (2 * k + 1) / Float(kProbes);
+            const Float r = std::sqrt(std::max(Float(0), 1 - z * z));
+            const Float phi = k * kPi * (3 - std::sqrt(Float(5)));
+            scene.intersect_all(l.center, Vec3(r * std::cos(phi), r * std::sin(phi), z), 0, kInf, hits_);
+            closed = !hits_.empty();
+        }
+        enclosed_.push_back(closed ? 1 : 0);
+    }
 }
 
 void Tracer::trace(uint64_t index, UnitOutput& out) {
+    auto walk = [&](auto spectral, auto grids) {
+        PacketWalk<decltype(spectral)::value, decltype(grids)::value>(scene_, source_, halton_, cfg_, hits_, cuts_,
+                                                                      enclosed_, out)
+            .run(index);
+    };
+    using T = std::true_type;
+    using F = std::false_type;
     if (spectral_) {
-        if (grids_) trace_impl<true, true>(index, out);
-        else trace_impl<true, false>(index, out);
+        if (grids_) walk(T{}, T{});
+        else walk(T{}, F{});
     } else {
-        if (grids_) trace_impl<false, true>(index, out);
-        else trace_impl<false, false>(index, out);
-    }
-}
-
-template <bool kSpectral, bool kGrids>
-void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
-    const Scene& scene = scene_;
-    const Float unit_cm = scene.unit_cm();
-    const Float extent = scene.extent();
-    double* tally = out.tally.scalar;
-    double* energy_tally = out.tally.energy;
-    out.tally.packets += 1;
-
-    Rng rng(cfg_.seed, index);
-    const Emission em = source_.emit(halton_, index, kSpectral);
-    const Vec3 source_axis = source_.lights()[size_t(em.light)].axis;
-    Vec3 entry_reference = source_axis;
-    Vec3 p = em.position, d = em.direction;
-    Float W = 1;
-    Float lambda = em.wavelength;
-    // Photon energy per unit weight at the current wavelength (1 when not spectral).
-    Float energy_per_weight = kSpectral && lambda > 0 ? kEnergyReferenceNm / lambda : Float(1);
-    // Adds weight w to tally k and, in spectral runs, its energy to the mirror tally.
-    auto add = [&](int k, Float w) {
-        tally[k] += w;
-        if constexpr (kSpectral) energy_tally[k] += w * energy_per_weight;
-    };
-    if constexpr (kSpectral) energy_tally[kEnergyLaunched] += energy_per_weight;
-
-    // Packet state.
-    uint64_t set = 0;
-    MediumState med;
-    bool entered = false, fluorescent = false;
-    int fluorophore = -1;
-    Vec3 entry_p = p, entry_in(0, 0, 0);
-    Float max_depth = 0, path_cm = 0;
-    uint32_t scatterings = 0;
-    uint64_t events = 0;
-    const uint64_t max_events = cfg_.max_steps > 0 ? std::min<uint64_t>(cfg_.max_steps, kSafetyMaxEvents)
-                                                   : kSafetyMaxEvents;
-
-    auto load_medium = [&](int region) {
-        med.region = region;
-        if (region < 0) {
-            med.mua = med.mus = med.mut = med.g = 0;
-            med.n = scene.ambient_n();
-            return;
-        }
-        const Medium& m = scene.region(size_t(region)).medium;
-        if constexpr (kSpectral) {
-            med.mua = m.mua_at(lambda);
-            med.mus = m.mus_at(lambda);
-        } else {
-            med.mua = m.mua;
-            med.mus = m.mus;
-        }
-        // A non-scattering region has no interactions: its absorption is applied
-        // exactly along each straight segment (Beer-Lambert), not sampled.
-        med.mut = med.mus > 0 ? med.mua + med.mus : 0;
-        med.g = m.g;
-        med.n = m.n;
-    };
-
-    auto escape = [&](int from_region, const Vec3& normal_out) {
-        // Reflected = leaving back through the side it came in: against the
-        // inward normal at its first entry. (Against the source axis, as MCML
-        // puts it for normal incidence, misclassifies oblique beams beyond 45
-        // degrees, whose mirror direction still has a positive dot product with
-        // the beam.) Packets that started inside use the source axis.
-        const bool reflected = dot(d, entry_reference) < 0;
-        add(reflected ? kDiffuse : kTransmitted, W);
-        const Float energy = W * energy_per_weight;
-        tally[kEscapedEnergy] += energy;
-        if (fluorescent) tally[kFluorescentEscaped] += W;
-        if (cfg_.record_escapes && (!cfg_.fluorescent_only || fluorescent)) {
-            EscapeRecord r;
-            r.position = p;
-            r.direction = d;
-            r.normal = normal_out;
-            r.entry = entry_p;
-            r.weight = W;
-            r.energy = energy;
-            r.wavelength = lambda;
-            r.max_depth_cm = max_depth;
-            r.fluorophore = fluorophore;
-            r.region = from_region;
-            r.scatterings = scatterings;
-            r.packet = index;
-            r.fluorescent = fluorescent ? 1 : 0;
-            r.light = uint8_t(em.light);
-            r.kind = reflected ? 0 : 1;
-            out.records.push(r);
-        }
-    };
-
-    auto update_depth = [&]() {
-        if (entered) max_depth = std::max(max_depth, dot(p - entry_p, entry_in) * unit_cm);
-    };
-
-    // Russian roulette (MCML): below the threshold survive with chance m, and
-    // survivors carry W/m, which keeps the estimator unbiased. The weight it
-    // destroys (+) or creates (-) is tallied so that the balance stays exact.
-    auto survives_roulette = [&]() -> bool {
-        if (W >= cfg_.roulette_threshold) return true;
-        if (W <= 0) return false;
-        if (rng.uniform() < cfg_.roulette_chance) {
-            const Float boosted = W / cfg_.roulette_chance;
-            add(kRoulette, -(boosted - W));
-            W = boosted;
-            return true;
-        }
-        add(kRoulette, W);
-        return false;
-    };
-
-    // Beer-Lambert along a straight segment of length t (scene units) from p in
-    // a region with mus = 0: W -> W exp(-mua t). For grids the segment is cut
-    // where it crosses voxel faces (planes at (i + 1/2) h, cell-centred voxels),
-    // so every piece lies in one voxel and deposits its exact share there.
-    auto attenuate_clear = [&](Float t) {
-        if (t <= 0 || W <= 0) return;
-        const Float dW = -W * std::expm1(-med.mua * t * unit_cm);
-        if constexpr (kGrids) {
-            const Float h = cfg_.grid_voxel_size;
-            cuts_.clear();
-            cuts_.push_back(0);
-            cuts_.push_back(t);
-            for (int axis = 0; axis < 3 && cuts_.size() < 300000; ++axis) {
-                const Float o = p[axis], v = d[axis];
-                if (v == 0) continue;
-                const Float a = o / h - Float(0.5), b = (o + v * t) / h - Float(0.5);
-                const Float lo = std::min(a, b), hi = std::max(a, b);
-                for (Float k = std::floor(lo) + 1; k <= hi && cuts_.size() < 300000; k += 1)
-                    cuts_.push_back(((k + Float(0.5)) * h - o) / v);
-            }
-            std::sort(cuts_.begin(), cuts_.end());
-            Float w = W;
-            for (size_t k = 0; k + 1 < cuts_.size(); ++k) {
-                const Float a = std::clamp(cuts_[k], Float(0), t), b = std::clamp(cuts_[k + 1], Float(0), t);
-                if (b <= a) continue;
-                const Float piece = -w * std::expm1(-med.mua * (b - a) * unit_cm);
-                const Vec3 mid = p + d * (Float(0.5) * (a + b));
-                out.absorbed_grid->add(mid.x, mid.y, mid.z, piece * energy_per_weight);
-                w -= piece;
-            }
-        }
-        add(kAbsorbed, dW);
-        out.tally.absorbed_by_region[size_t(med.region)] += dW;
-        W -= dW;
-    };
-
-    // ---- where does the packet start? One query to infinity along its
-    // direction: a region whose first crossing is an exit contains the start.
-    std::vector<Hit>& hits = hits_;
-    scene.intersect_all(p, d, 0, kInf, hits);
-    {
-        uint64_t seen = 0;
-        for (const Hit& h : hits) {
-            const uint64_t bit = uint64_t(1) << h.region;
-            if (seen & bit) continue;
-            if (h.cos_dn == 0) continue;  // grazing: undecided, look at the next crossing
-            seen |= bit;
-            if (h.cos_dn > 0) set |= bit;
-        }
-    }
-    if (set == 0 && hits.empty()) {
-        add(kMissed, W);
-        return;
-    }
-    load_medium(scene.top(set));
-    if (set != 0) {
-        entered = true;  // started inside: depth is measured from the start point
-        entry_in = d;
-    }
-    bool reuse_hits = (set == 0);  // the first query is exactly the first ambient step
-    Float tau = 0;                 // remaining dimensionless step (MCML's carried step)
-    bool need_tau = true;
-    // Safe ball: no surface lies within safe_r of safe_c (from a closest-point
-    // query). A step whose end stays inside the ball cannot cross a surface,
-    // because the ball is convex; so no ray query is needed for it.
-    Vec3 safe_c = p;
-    Float safe_r = 0;
-    // After a closest-point query that did not cover the step (the packet is
-    // near a surface), go straight to ray queries for a few steps instead of
-    // paying for both queries every step.
-    int point_query_cooldown = 0;
-    constexpr int kCooldownSteps = 32;
-
-    while (true) {
-        if (need_tau) {
-            tau = -std::log(rng.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
-            need_tau = false;
-        }
-        const Float s = med.mut > 0 ? tau / (med.mut * unit_cm) : kInf;
-
-        // Safe-distance shortcut: no surface within `safe`, so no ray query.
-        bool query = true;
-        if (!reuse_hits && cfg_.safe_distance && med.region >= 0 && std::isfinite(s)) {
-            const Vec3 end = p + d * s;
-            const Vec3 off = end - safe_c;
-            if (dot(off, off) < safe_r * safe_r) {
-                query = false;
-            } else if (point_query_cooldown > 0) {
-                --point_query_cooldown;
-            } else {
-                const Float radius = std::min(extent, Float(64) * s);
-                const Float dist = scene.distance_to_surface(p, radius) * (1 - 1e-5) - ray_offset(p, extent);
-                if (s < dist) {
-                    safe_c = p;
-                    safe_r = dist;
-                    query = false;
-                } else {
-                    point_query_cooldown = kCooldownSteps;
-                }
-            }
-        }
-        if (query) {
-            if (!reuse_hits) scene.intersect_all(p, d, -ray_offset(p, extent), s, hits);
-            reuse_hits = false;
-            safe_r = 0;
-        } else {
-            hits.clear();
-        }
-
-        // ---- boundary crossings before the interaction point, in order.
-        bool boundary_event = false;
-        size_t i = 0;
-        while (i < hits.size() && hits[i].t <= s) {
-            const Float t0 = hits[i].t;
-            const Float tol = group_tolerance(p, t0, extent);
-            size_t j = i;
-            uint64_t enter = 0, leave = 0;
-            while (j < hits.size() && hits[j].t <= t0 + tol) {
-                const uint64_t bit = uint64_t(1) << hits[j].region;
-                if (hits[j].cos_dn < 0) enter |= bit;
-                else if (hits[j].cos_dn > 0) leave |= bit;
-                ++j;
-            }
-            // A region entered and left at the same point was only touched
-            // (an edge or vertex grazed from outside): no change.
-            const uint64_t both = enter & leave;
-            enter &= ~both;
-            leave &= ~both;
-            const uint64_t new_set = (set | enter) & ~leave;
-            const int new_top = scene.top(new_set);
-            if (new_set == set || new_top == med.region) {
-                // Not an interface: a spurious re-hit, or a lower-priority surface.
-                set = new_set;
-                i = j;
-                continue;
-            }
-            // ---- an interface between med.region and new_top at t0.
-            if (med.region >= 0 && med.mus == 0 && med.mua > 0) attenuate_clear(t0);
-            p += d * t0;
-            path_cm += t0 * unit_cm;
-            tau = std::max(Float(0), tau - t0 * unit_cm * med.mut);
-            ++events;
-            update_depth();
-            // Normal of the surface that makes the interface: the entered top
-            // region's face, or else the face of the region being left.
-            const int face_region = (enter >> new_top) & 1 ? new_top : med.region;
-            Vec3 n_out(0, 0, 1);
-            for (size_t k = i; k < j; ++k)
-                if (int(hits[k].region) == face_region) {
-                    n_out = scene.region(size_t(face_region)).normals[hits[k].prim];
-                    break;
-                }
-            // Normal facing the incident side, and the incidence cosine.
-            const Vec3 n_inc = dot(d, n_out) > 0 ? -n_out : n_out;
-            const Float cos_i = std::min(Float(1), std::max(Float(0), -dot(d, n_inc)));
-            const Float n1 = med.n;
-            const Float n2 = new_top >= 0 ? scene.region(size_t(new_top)).medium.n : scene.ambient_n();
-            Float cos_t = cos_i;
-            Float R = 0;
-            if (n1 != n2) R = fresnel_dielectric(cos_i, n1, n2, &cos_t);
-
-            bool transmit;
-            if (!entered && med.region < 0) {
-                // First boundary from the ambient: the specular part leaves
-                // deterministically (MCML's Rsp; seed eq. 1), the rest enters.
-                add(kSpecular, W * R);
-                W -= W * R;
-                transmit = W > 0;
-                if (!transmit) return;
-            } else {
-                transmit = R < 1 && (R == 0 || rng.uniform() >= R);
-            }
-            if (transmit) {
-                if (n1 != n2) d = refract(d, n_inc, n1 / n2, cos_i, cos_t);
-                set = new_set;
-                if (new_top < 0) {
-                    escape(med.region, -n_inc);  // n_inc faces the inside: outward is -n_inc
-                    return;
-                }
-                if (!entered) {
-                    entered = true;
-                    entry_p = p;
-                    entry_in = -n_inc;  // n_inc faces the ambient, so -n_inc points into the tissue
-                    entry_reference = entry_in;
-                }
-                load_medium(new_top);
-            } else {
-                d = reflect(d, n_inc);
-            }
-            boundary_event = true;
-            break;
-        }
-        if (events >= max_events || (cfg_.max_path_cm > 0 && path_cm >= cfg_.max_path_cm)) {
-            add(kCut, W);
-            return;
-        }
-        if (boundary_event) {
-            // Clear absorbing regions lose weight at boundaries only.
-            if (!survives_roulette()) return;
-            continue;
-        }
-
-        if (!std::isfinite(s)) {
-            // Travelling through the ambient or a clear region to infinity.
-            if (med.region < 0) {
-                // Outside every region with nothing ahead: it never entered
-                // (escapes end the packet earlier), so it missed.
-                add(kMissed, W);
-            } else {
-                // A clear, non-absorbing region extends to infinity along the ray:
-                // impossible for a closed mesh; count it as cut, never lose it.
-                add(kCut, W);
-            }
-            return;
-        }
-
-        // ---- interaction inside med.region.
-        tally[kInteractions] += 1;
-        p += d * s;
-        path_cm += s * unit_cm;
-        need_tau = true;
-        ++events;
-        update_depth();
-
-        // Implicit capture, seed eq. (3): W -= W mua/(mua+mus).
-        const Float dW = W * (med.mua / med.mut);
-        W -= dW;
-        add(kAbsorbed, dW);
-        out.tally.absorbed_by_region[size_t(med.region)] += dW;
-        if constexpr (kGrids) {
-            // The absorbed grid holds energy (= weight when the run is not spectral).
-            out.absorbed_grid->add(p.x, p.y, p.z, dW * energy_per_weight);
-            if (fluorescent) {
-                out.fluorescence_grid->add(p.x, p.y, p.z, W);
-                if (!out.per_fluorophore.empty()) out.per_fluorophore[size_t(fluorophore)]->add(p.x, p.y, p.z, W);
-            }
-        }
-
-        if constexpr (kSpectral) {
-            // Fluorescence decision (seed §4): two random numbers per fluorophore,
-            // against d and c (rule "paper"), or d scaled by the EEM's relative
-            // excitation efficiency at the packet's wavelength (rule "eem").
-            const auto& fl = scene.region(size_t(med.region)).fluorophores;
-            const bool may = cfg_.rule == FluorescenceRule::kEEM || !fluorescent;
-            if (may && W > 0) {
-                for (const FluorophoreRef& f : fl) {
-                    tally[kFluorescenceTrials] += 1;
-                    const Float u1 = rng.uniform(), u2 = rng.uniform();
-                    Float d_eff = f.d;
-                    if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene.eem(f.id).efficiency(lambda);
-                    if (u1 < d_eff && u2 < f.c) {
-                        lambda = scene.eem(f.id).sample_emission(lambda, rng.uniform(), rng.uniform());
-                        // Stokes loss: the weight (photon count) is kept, the energy per
-                        // photon drops from 500/lambda_ex to 500/lambda_em.
-                        const Float new_epw = kEnergyReferenceNm / lambda;
-                        energy_tally[kEnergyStokes] += W * (energy_per_weight - new_epw);
-                        energy_per_weight = new_epw;
-                        fluorescent = true;
-                        fluorophore = f.id;
-                        tally[kFluorescenceEvents] += 1;
-                        load_medium(med.region);  // coefficients at the new wavelength
-                        break;
-                    }
-                }
-            }
-        }
-
-        // Scattering (seed §4): HG cosine, uniform azimuth.
-        if (med.mus > 0 && W > 0) {
-            const HenyeyGreenstein hg(med.g);
-            const Float u1 = rng.uniform(), u2 = rng.uniform();
-            d = hg.sample_p(d, u1, u2);
-            ++scatterings;
-        }
-
-        if (!survives_roulette()) return;
-        if (events >= max_events || (cfg_.max_path_cm > 0 && path_cm >= cfg_.max_path_cm)) {
-            add(kCut, W);
-            return;
-        }
+        if (grids_) walk(F{}, T{});
+        else walk(F{}, F{});
     }
 }
 

@@ -1,7 +1,12 @@
 // The life of one photon packet (MCML / the seed's Fig. 1): launch, specular
 // loss at the first boundary, steps of -ln(xi)/mu_t carried across boundaries,
 // implicit absorption, fluorescence, Henyey-Greenstein scattering, Fresnel
-// boundaries, Russian roulette and the caps.
+// boundaries, Russian roulette and the caps. A packet that leaves the tissue
+// goes on in a straight line through the ambient and lands on the region or
+// the rig head it meets; it escapes only when its ray meets nothing (issue 9,
+// docs/design.md "Light crosses the lumen"). transport.cpp walks one packet in
+// named steps over one PacketState: launch, locate_start, find_crossings,
+// cross_interfaces, interact, and leave_tissue / through_ambient.
 #pragma once
 #include <memory>
 #include <vector>
@@ -36,9 +41,6 @@ class Tracer {
     bool grids() const { return grids_; }
 
   private:
-    template <bool kSpectral, bool kGrids>
-    void trace_impl(uint64_t index, UnitOutput& out);
-
     const Scene& scene_;
     const Source& source_;
     const Halton& halton_;
@@ -46,6 +48,9 @@ class Tracer {
     bool spectral_, grids_;
     std::vector<Hit> hits_;
     std::vector<Float> cuts_;  // voxel-face crossings of a clear segment (grids)
+    // Per light: its ambient pocket is closed (every probe ray meets a region),
+    // so light that leaves the scene went through the tissue: transmitted.
+    std::vector<uint8_t> enclosed_;
 };
 
 }  // namespace ep

@@ -51,6 +51,8 @@ POINT_ATTRIBUTES = (
     ("kind", "kind", "INT", np.int32, 1),
     ("region", "region", "INT", np.int32, 1),
     ("scatterings", "scatterings", "INT", np.int32, 1),
+    ("exit_order", "exit_order", "INT", np.int32, 1),  # 1st, 2nd, ... exit of its packet into the ambient
+    ("next_hit", "next_hit", "INT", np.int32, 1),      # where its ray went: 0 away, 1 tissue, 2 head, 3 camera
 )
 
 

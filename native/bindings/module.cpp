@@ -82,7 +82,25 @@ py::dict records_dict(EscapeRecords&& rec) {
     d["region"] = take(std::move(rec.region), {n});
     d["scatterings"] = take(std::move(rec.scatterings), {n});
     d["packet"] = take(std::move(rec.packet), {n});
+    d["exit_order"] = take(std::move(rec.exit_order), {n});
+    d["next_hit"] = take(std::move(rec.next_hit), {n});
     return d;
+}
+
+// The rig head (source.h RigBody) from {front, axis, radius, length, camera, camera_radius}.
+RigBody rig_body_from_dict(const py::dict& d) {
+    auto vec = [&](const char* k) {
+        const auto a = d[k].cast<std::array<double, 3>>();
+        return Vec3(a[0], a[1], a[2]);
+    };
+    RigBody b;
+    b.front = vec("front");
+    b.axis = vec("axis");
+    b.camera = vec("camera");
+    b.radius = d["radius"].cast<double>();
+    b.length = d["length"].cast<double>();
+    b.camera_radius = d["camera_radius"].cast<double>();
+    return b;
 }
 
 }  // namespace
@@ -159,7 +177,7 @@ PYBIND11_MODULE(_core, m) {
             "Debug helper: every crossing (t, region, triangle, cos) along a ray.");
 
     py::class_<Source, std::shared_ptr<Source>>(m, "Source")
-        .def(py::init([](const std::vector<py::dict>& lights) {
+        .def(py::init([](const std::vector<py::dict>& lights, const py::object& body) {
                  std::vector<Light> out;
                  for (const py::dict& d : lights) {
                      Light l;
@@ -172,9 +190,11 @@ PYBIND11_MODULE(_core, m) {
                      if (d.contains("spectrum")) l.spectrum = table_or_null(d["spectrum"], "source.spectrum");
                      out.push_back(l);
                  }
-                 return std::make_shared<Source>(out);
+                 if (body.is_none()) return std::make_shared<Source>(out);
+                 const RigBody b = rig_body_from_dict(body.cast<py::dict>());
+                 return std::make_shared<Source>(out, &b);
              }),
-             py::arg("lights"))
+             py::arg("lights"), py::arg("body") = py::none())
         .def(
             "emit",
             [](const Source& s, uint64_t seed, uint64_t first, uint64_t count, bool spectral) {
@@ -235,6 +255,7 @@ PYBIND11_MODULE(_core, m) {
                 else if (k == "unit_size") c.unit_size = v.cast<uint64_t>();
                 else if (k == "batches") c.batches = v.cast<int>();
                 else if (k == "safe_distance") c.safe_distance = v.cast<bool>();
+                else if (k == "lumen") c.lumen = v.cast<bool>();
                 else throw std::invalid_argument("run option '" + k + "' is unknown");
             }
             std::atomic<bool>* flag = cancel ? &cancel->flag : nullptr;

@@ -79,7 +79,7 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         fluorescence_rule: str = "paper", grids: GridRequest | None = None, target: Target | None = None,
         time_budget_s: float = 0.0, max_photons: int = 0, batches: int = 50, spectral: bool | None = None,
         safe_distance: bool = True, unit_size: int = 0, quality: str | None = None, progress=None,
-        cancel=None) -> Result:
+        cancel=None, lumen: bool = True) -> Result:
     """Trace photon packets through ``scene`` from ``source``.
 
     Exactly one of ``photons`` (launch that many packets), ``store`` (launch
@@ -93,6 +93,11 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     ``quality`` ("preview", "standard", "reference") is a shortcut for a target
     accuracy with a packet cap (endophoton.quality); it cannot be combined with
     ``photons``, ``store`` or ``target``.
+
+    ``lumen`` (default True): packets that leave the tissue go on through the
+    ambient and land on the region or rig head they meet (docs/design.md,
+    "Light crosses the lumen"); False ends every packet at its first exit, as
+    the engine did before (for comparisons and benchmarks).
 
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
@@ -133,6 +138,10 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         opts["max_photons"] = max_photons
     if time_budget_s:
         opts["time_budget_s"] = float(time_budget_s)
+    if not isinstance(lumen, bool):
+        raise ValueError(f"lumen = {lumen!r} must be True or False")
+    if not lumen:
+        opts["lumen"] = False
     if spectral:
         opts["force_spectral"] = True
     if grids is not None:
@@ -140,6 +149,6 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         opts["grid_path"] = os.fspath(grids.path)
         opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
     native_scene = scene.to_native()
-    native_source = _core.Source(source.native_lights(scene.unit_cm))
+    native_source = _core.Source(source.native_lights(scene.unit_cm), body=source.native_body(scene.unit_cm))
     raw = _core.run(native_scene, native_source, opts, progress, cancel)
     return Result(raw, scene, source, opts)

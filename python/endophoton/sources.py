@@ -41,6 +41,10 @@ class _Source:
     def native_lights(self, scene_unit_cm: float) -> list[dict]:
         raise NotImplementedError
 
+    def native_body(self, scene_unit_cm: float) -> dict | None:
+        """The opaque body light can land on (the endoscope head), or None."""
+        return None
+
     def _spec(self):
         s = self.spectrum
         return None if s is None else (list(map(float, s.wavelength_nm)), list(map(float, s.values)))
@@ -134,6 +138,12 @@ class EndoscopeRig(_Source):
     Dimensions are physical, in mm, close to a colonoscope tip: head 12 mm
     across, light guides 3 mm across, 3.5 mm from the centre.
 
+    With ``body=True`` (default) the head is an opaque, black cylinder of
+    ``head_diameter_mm`` reaching ``head_length_mm`` behind its front face, with
+    the camera's aperture (``camera_aperture_mm`` across, at the lens) on that
+    face: light that comes back onto the head is tallied ``occluded``, light on
+    the aperture ``camera_collected`` (docs/design.md, "Light crosses the lumen").
+
     ``cone_angle_deg`` is the FULL apex angle alpha of each light's cone (the
     seed uses alpha = 15 deg, i.e. 7.5 deg half angle); directions are uniform
     in solid angle inside the cone. The light spectrum defaults to flat white
@@ -148,6 +158,9 @@ class EndoscopeRig(_Source):
     camera_resolution: tuple = (256, 256)
     spectrum: Spectrum | None = None
     beta_deg: float | None = None
+    head_length_mm: float = 50.0
+    camera_aperture_mm: float = 2.0
+    body: bool = True
 
     def __post_init__(self):
         M = np.asarray(self.transform, dtype=np.float64)
@@ -159,10 +172,16 @@ class EndoscopeRig(_Source):
             raise ValueError("rig.transform has a zero-length axis")
         self.transform = M
         self._R = R / scales
-        for name in ("head_diameter_mm", "light_diameter_mm", "light_offset_mm"):
+        for name in ("head_diameter_mm", "light_diameter_mm", "light_offset_mm", "head_length_mm",
+                     "camera_aperture_mm"):
             setattr(self, name, _nonneg("rig", name, getattr(self, name)))
         self.cone_angle_deg = _nonneg("rig", "cone_angle_deg", self.cone_angle_deg, 180.0)
         self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0)
+        if not isinstance(self.body, bool):
+            raise ValueError(f"rig.body = {self.body!r} must be True or False")
+        if self.camera_aperture_mm > self.head_diameter_mm:
+            raise ValueError(f"rig.camera_aperture_mm = {self.camera_aperture_mm} is wider than the head "
+                             f"(head_diameter_mm = {self.head_diameter_mm})")
         if self.light_offset_mm + 0.5 * self.light_diameter_mm > 0.5 * self.head_diameter_mm + 1e-9:
             raise ValueError(f"rig.light_offset_mm = {self.light_offset_mm} puts the light guides outside the "
                              f"head (head_diameter_mm = {self.head_diameter_mm})")
@@ -195,6 +214,14 @@ class EndoscopeRig(_Source):
         half = math.radians(0.5 * self.cone_angle_deg)
         return [dict(position=p.tolist(), direction=self.forward.tolist(), radius=r, half_angle=half,
                      spectrum=self._spec()) for p in self.light_positions(float(scene_unit_cm))]
+
+    def native_body(self, scene_unit_cm):
+        if not self.body or self.head_diameter_mm <= 0 or self.head_length_mm <= 0:
+            return None
+        mm = 0.1 / float(scene_unit_cm)
+        return dict(front=self.position.tolist(), axis=self.forward.tolist(), radius=0.5 * self.head_diameter_mm * mm,
+                    length=self.head_length_mm * mm, camera=self.position.tolist(),
+                    camera_radius=0.5 * self.camera_aperture_mm * mm)
 
     @classmethod
     def from_beta(cls, beta_deg: float, distance: float, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0),
@@ -257,10 +284,12 @@ def source_from_dict(d: dict):
     if kind == "endoscope":
         if "transform" in body:
             _check_keys("source", body, {"transform"}, extra={"head_diameter_mm", "light_diameter_mm",
-                                                              "light_offset_mm", "cone_angle_deg", "camera_fov_deg"})
+                                                              "light_offset_mm", "cone_angle_deg", "camera_fov_deg", "head_length_mm",
+                           "camera_aperture_mm", "body"})
             return EndoscopeRig(**body)
         _check_keys("source", body, {"beta_deg", "distance"},
                     extra={"point", "normal", "tilt_axis", "head_diameter_mm", "light_diameter_mm",
-                           "light_offset_mm", "cone_angle_deg", "camera_fov_deg"})
+                           "light_offset_mm", "cone_angle_deg", "camera_fov_deg", "head_length_mm",
+                           "camera_aperture_mm", "body"})
         return EndoscopeRig.from_beta(**body)
     raise ValueError(f"source.type = {kind!r} must be one of 'pencil', 'disk', 'cone', 'endoscope'")

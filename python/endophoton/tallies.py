@@ -12,7 +12,7 @@ __all__ = ["FRACTIONS", "TARGET_TALLIES", "Target"]
 
 #: The fractions every run reports, each with ``<name>_stderr``.
 FRACTIONS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
-             "roulette")
+             "roulette", "occluded", "camera_collected")
 #: Tallies a target-accuracy run can aim at (engine-side, per launched packet).
 TARGET_TALLIES = FRACTIONS[:4] + ("fluorescent_escaped", "escaped_energy")
 

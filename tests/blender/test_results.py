@@ -32,6 +32,8 @@ def _records(rng, k=K):
         "region": rng.integers(0, 2, k).astype(np.int32),
         "scatterings": rng.integers(0, 50, k).astype(np.uint32),
         "packet": np.arange(k, dtype=np.uint64),
+        "exit_order": rng.integers(1, 4, k).astype(np.uint32),
+        "next_hit": rng.integers(0, 4, k).astype(np.uint8),
     }
 
 
@@ -65,6 +67,8 @@ def test_point_cloud_from_records(scale_length):
     assert _attr(mesh, "fluorophore").sum() == rec["fluorophore"].sum()
     assert _attr(mesh, "depth").sum() == pytest.approx(rec["max_depth"].astype(np.float64).sum(), rel=1e-5)
     np.testing.assert_array_equal(_attr(mesh, "direction"), rec["direction"])
+    np.testing.assert_array_equal(_attr(mesh, "exit_order"), rec["exit_order"])
+    np.testing.assert_array_equal(_attr(mesh, "next_hit"), rec["next_hit"])
     assert mesh.attributes["fluorescent"].data_type == "BOOLEAN"
 
     # The Geometry Nodes modifier turns it into a point cloud with the attributes.

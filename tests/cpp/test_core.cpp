@@ -251,7 +251,7 @@ TEST(Engine, BitIdenticalOnOneAndTwoThreadsAndBalanced) {
     c.threads = 2;
     const RunResult b = run(s, src, c, nullptr, nullptr);
     double sum = 0;
-    for (int k = 0; k < kRoulette + 1; ++k) {
+    for (int k = 0; k < kBalanceTallies; ++k) {
         EXPECT_EQ(a.scalar[k].mean, b.scalar[k].mean) << tally_name(k);
         EXPECT_EQ(a.scalar[k].stderr_, b.scalar[k].stderr_) << tally_name(k);
         sum += a.scalar[k].mean;
@@ -261,4 +261,40 @@ TEST(Engine, BitIdenticalOnOneAndTwoThreadsAndBalanced) {
     EXPECT_EQ(a.records.position, b.records.position);
     // Rsp at normal incidence is exact.
     EXPECT_NEAR(a.scalar[kSpecular].mean, std::pow(0.4 / 2.4, 2), 1e-15);
+}
+
+// The rig head (issue 9): a cylinder of radius 0.6 reaching 5 behind its front
+// face at z = 1, looking down -z, with an aperture of radius 0.1 at the centre.
+TEST(RigBody, RayCylinderHitsAgainstHandComputedDistances) {
+    RigBody b;
+    b.front = Vec3(0, 0, 1);
+    b.axis = Vec3(0, 0, -1);
+    b.radius = 0.6;
+    b.length = 5;
+    b.camera = Vec3(0, 0, 1);
+    b.camera_radius = 0.1;
+    // Straight up the axis from z = 0: the aperture, 1 away.
+    BodyHit h = intersect_body(b, Vec3(0, 0, 0), Vec3(0, 0, 1));
+    EXPECT_EQ(h.part, BodyPart::kCamera);
+    EXPECT_NEAR(h.t, 1.0, 1e-15);
+    // Up at x = 0.3: the front face outside the aperture.
+    h = intersect_body(b, Vec3(0.3, 0, 0), Vec3(0, 0, 1));
+    EXPECT_EQ(h.part, BodyPart::kHead);
+    EXPECT_NEAR(h.t, 1.0, 1e-15);
+    // Sideways at z = 3 from x = -2: the side wall at x = -0.6, 1.4 away.
+    h = intersect_body(b, Vec3(-2, 0, 3), Vec3(1, 0, 0));
+    EXPECT_EQ(h.part, BodyPart::kHead);
+    EXPECT_NEAR(h.t, 1.4, 1e-12);
+    // Down from the back (z = 7): the back face at z = 6, 1 away.
+    h = intersect_body(b, Vec3(0, 0, 7), Vec3(0, 0, -1));
+    EXPECT_EQ(h.part, BodyPart::kHead);
+    EXPECT_NEAR(h.t, 1.0, 1e-15);
+    // Misses: beside the cylinder, beyond its back, and a light on the front face emitting forward.
+    EXPECT_EQ(intersect_body(b, Vec3(0.7, 0, 0), Vec3(0, 0, 1)).part, BodyPart::kNone);
+    EXPECT_EQ(intersect_body(b, Vec3(-2, 0, 6.5), Vec3(1, 0, 0)).part, BodyPart::kNone);
+    EXPECT_EQ(intersect_body(b, Vec3(0.35, 0, 1), normalize(Vec3(0.1, 0, -1))).part, BodyPart::kNone);
+    // Oblique onto the face at 45 degrees: enters at (0.05, 0, 1) inside the aperture, t = sqrt(2).
+    h = intersect_body(b, Vec3(-0.95, 0, 0), normalize(Vec3(1, 0, 1)));
+    EXPECT_EQ(h.part, BodyPart::kCamera);
+    EXPECT_NEAR(h.t, std::sqrt(2.0), 1e-12);
 }

@@ -22,7 +22,7 @@ import numpy as np
 
 #: Every fraction the engine reports; they must sum to 1 (launched weight).
 BALANCE_KEYS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
-                "roulette")
+                "roulette", "occluded", "camera_collected")
 K_SIGMA = 3.0
 
 

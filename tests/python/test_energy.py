@@ -59,10 +59,18 @@ def test_energy_balance(case):
     build, src, opts = CASES[case]
     res = ep.run(build(), src, photons=20_000, seed=31, threads=0, record_escapes=True, **opts)
     assert_energy_conserved(res)
-    # the escape records carry exactly the escaped weight
+    # the records of exits whose ray went away (next_hit 0) carry the escaped weight, exactly
+    # when no exit landed on tissue again; a landing (next_hit 1) can also reflect off the
+    # surface it meets and escape without a record of its own (light crosses the lumen)
     esc = res.escapes
-    assert esc["weight"].sum() / res.photons == pytest.approx(res.diffuse_reflectance + res.transmittance,
-                                                              abs=1e-9)
+    n = res.photons
+    escaped = res.diffuse_reflectance + res.transmittance
+    away = esc["weight"][esc["next_hit"] == 0].sum() / n
+    landed = esc["weight"][esc["next_hit"] == 1].sum() / n
+    if landed == 0:
+        assert away == pytest.approx(escaped, abs=1e-9)
+    else:
+        assert away - 1e-9 <= escaped <= away + landed + 1e-9
     assert np.all(esc["weight"] > 0)
     if "max_steps" in opts or "max_path_cm" in opts:
         assert res.cut > 0
