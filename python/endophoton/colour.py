@@ -21,8 +21,10 @@ The rules, written down once (docs/render.md repeats them):
   maps exactly to the D65 white point, i.e. to R = G = B: a white,
   non-absorbing scene renders neutral grey.
 * **Exposure.** ``auto``: one factor per image, chosen so that the 99th
-  percentile of the linear luminance Y over the pixels that see a surface maps
-  to 0.5 (one stop below clipping). A number fixes the factor (use the same
+  percentile, over the pixels that see a surface, of each pixel's largest
+  linear sRGB channel maps to 0.5 (one stop below clipping). The largest
+  channel rather than the luminance Y, so a saturated blue or red field
+  (small Y, large B or R) is not pushed into clipping. A number fixes the factor (use the same
   number to compare images from different runs). The factor used is reported.
 * **Out of gamut.** Spectral colours (e.g. 450 nm or 630 nm records) lie
   outside the sRGB triangle: some linear channel is negative. After exposure,
@@ -114,9 +116,10 @@ def srgb_encode(linear) -> np.ndarray:
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1.0 / 2.4) - 0.055)
 
 
-def auto_exposure(luminance, mask=None) -> float:
-    """Exposure rule: factor mapping the 99th percentile of Y (over ``mask``) to 0.5; 1 if that is 0."""
-    y = np.asarray(luminance, dtype=np.float64)
+def auto_exposure(value, mask=None) -> float:
+    """Exposure rule: factor mapping the 99th percentile of ``value`` (each pixel's largest linear
+    channel) over ``mask`` to 0.5; 1 if that percentile is 0."""
+    y = np.asarray(value, dtype=np.float64)
     if mask is not None:
         y = y[np.asarray(mask, dtype=bool)]
     y = y[np.isfinite(y)]

@@ -123,7 +123,8 @@ class View:
     ``images[name]`` for name in ("white", "fluorescence") with keys ``radiance``, ``radiance_stderr``,
     ``bias``, ``bias_stderr``, ``xyz``, ``rgb`` (linear sRGB, white balanced, unclipped), ``srgb8``,
     ``exposure``, ``spectrum`` (H, W, bins); ``aperture`` (same radiance/rgb keys, or None without an
-    aperture); ``region_pixels``; ``region_batches`` (per-region, per-batch pixel-mean sums).
+    aperture); ``region_pixels``; ``region_batches`` (per-region, per-batch pixel-mean sums);
+    ``pixel_batches[name]`` (H, W, B) per-batch radiance estimates (not saved).
     """
 
     def __init__(self, **kw):
@@ -153,6 +154,23 @@ class View:
                 d[key + "_radiance_stderr"] = float(np.std(per_batch, ddof=1) / math.sqrt(Pb.size))
             out[name] = d
         return out
+
+    def kernel_summary(self) -> dict:
+        """The kernel (radius in scene units, angle_deg) and its estimated bias in each region's mean radiance:
+        bias = 4/3 (L(r, theta) - L(r/2, theta/2)), with its batch-means stderr, per image."""
+        Pb = self.packets_per_batch
+        bias = {}
+        for i, name in enumerate(self.region_names):
+            if self.region_pixels[i] == 0:
+                continue
+            d = {}
+            for key in ("white", "fluorescence"):
+                rb = self.region_batches
+                b = 4.0 / 3.0 * (rb[key + "_radiance"][i] - rb[key + "_half_radiance"][i])
+                d[key + "_bias"] = float(b.sum() / Pb.sum())
+                d[key + "_bias_stderr"] = float(np.std(b / Pb, ddof=1) / math.sqrt(Pb.size))
+            bias[name] = d
+        return {"radius": self.kernel["radius"], "angle_deg": self.kernel["angle_deg"], "bias": bias}
 
     def contrast(self, target: str, background: str) -> dict:
         from .visibility import contrast
@@ -344,8 +362,7 @@ def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefi
     img["xyz"] = full(xyz, (3,))
     rgb = colour.xyz_to_linear_srgb(img["xyz"], gains)
     img["rgb"] = rgb
-    lum = img["xyz"][..., 1] * (1.0 if gains is None else gains[1])
-    k = colour.auto_exposure(lum, hit.reshape(H, W)) if exposure == "auto" else float(exposure)
+    k = colour.auto_exposure(rgb.max(axis=-1), hit.reshape(H, W)) if exposure == "auto" else float(exposure)
     img["exposure"] = np.float64(k)
     img["srgb8"] = colour.to_srgb8(rgb, k)
     spec = acc.get(f"{prefix}{name}_spec_pix", np.zeros(n_hit * nbins)).reshape(n_hit, nbins) / P
@@ -380,7 +397,7 @@ def render_view(result, camera=None, width: int | None = None, height: int | Non
     emission_filter : the fluorescence image's filter (:func:`emission_filter_function`)
     white_balance : "white" (von Kries for the flat 400-700 nm white light), "excitation" (for the run's
         light) or None (no balance, D65 assumed)
-    exposure : "auto" (99th percentile of Y -> 0.5, per image) or a fixed factor
+    exposure : "auto" (99th percentile of the largest linear channel -> 0.5, per image) or a fixed factor
     n_batches : packet-index blocks for the batch-means standard errors
     threads : for the primary rays and the gather (0 = all cores)
     """
@@ -433,7 +450,16 @@ def render_view(result, camera=None, width: int | None = None, height: int | Non
                                                               angle_deg=float(kernel_angle_deg)),
                 candidates=int(n_candidates), emission_filter=filter_desc, white_balance=white_balance,
                 images=images, aperture=aperture, region_pixels=region_pixels, region_batches=region_batches,
+                pixel_batches={name: _pixel_batches(acc, name, hit, (H, W), Pb) for name in ("white", "fluorescence")},
                 spectrum_bin_edges_nm=colour.spectrum_bins())
+
+
+def _pixel_batches(acc, name, hit, shape, Pb):
+    """Per-pixel, per-batch radiance estimates (H, W, B): batch sums / packets in the batch."""
+    B = Pb.size
+    out = np.zeros((hit.size, B))
+    out[hit] = acc.get(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
+    return out.reshape(shape + (B,))
 
 
 def _region_batches(acc, preg, region_pixels, B, gains):
@@ -447,6 +473,9 @@ def _region_batches(acc, preg, region_pixels, B, gains):
         reg = np.zeros((n_regions, B))
         np.add.at(reg, preg, pb)
         out[name + "_radiance"] = reg * inv[:, None]
+        half = np.zeros((n_regions, B))
+        np.add.at(half, preg, acc.get(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B))
+        out[name + "_half_radiance"] = half * inv[:, None]
         xyz = np.stack([acc.get(f"{name}_xyz{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B)
                         for c in range(3)], axis=1) * inv[:, None, None]
         out[name + "_xyz"] = xyz
