@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-__all__ = ["jackknife", "weber", "contrast", "visibility_columns"]
+__all__ = ["jackknife", "weber", "contrast", "visibility_columns", "VISIBILITY_COLUMNS", "fit_peak"]
 
 
 def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[float | None, float | None]:
@@ -79,10 +79,25 @@ def contrast(view, target: str, background: str) -> dict:
     return out
 
 
-def visibility_columns(result, target: str, background: str, **render_kwargs) -> dict:
-    """Hook for the beta sweep: render the run's view and return flat, JSON-able columns
-    ``fluorescence_contrast``, ``white_contrast``, ``red_green_contrast`` (each with ``_stderr``),
-    plus ``target_pixels`` and ``background_pixels``. ``render_kwargs`` go to ``render_view``."""
+#: Sweep columns added by :func:`visibility_columns` (name -> description).
+VISIBILITY_COLUMNS = {
+    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
+    "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
+    "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
+                      "runs this is the fluorescent records only)",
+    "white_contrast_stderr": "jackknife standard error",
+    "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
+    "red_green_contrast_stderr": "jackknife standard error",
+    "target_pixels": "pixels of the view that see the target region",
+    "background_pixels": "pixels of the view that see the background region",
+}
+
+
+def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "",
+                       **render_kwargs) -> dict:
+    """Hook for the beta sweep: render the run's view and return the :data:`VISIBILITY_COLUMNS` as a
+    flat, JSON-able dict (None where a contrast is undefined). ``render_kwargs`` go to ``render_view``;
+    with ``out_dir`` the view's images and arrays are saved there with file names starting ``prefix``."""
     from .render import render_view
 
     view = render_view(result, **render_kwargs)
@@ -93,4 +108,48 @@ def visibility_columns(result, target: str, background: str, **render_kwargs) ->
         cols[key + "_contrast_stderr"] = c[key + "_stderr"]
     cols["target_pixels"] = int(view.region_pixels[view.region_index(target, "target")])
     cols["background_pixels"] = int(view.region_pixels[view.region_index(background, "background")])
+    if out_dir is not None:
+        view.save(out_dir, prefix=prefix)
     return cols
+
+
+def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
+    """Where a contrast peaks over beta, and how sure we are.
+
+    A weighted least-squares parabola (weights 1/stderr^2) through the 5 points around the largest
+    value (all points if fewer) gives the peak: its vertex if the parabola opens downward and the
+    vertex lies inside the fitted range, else the best end of the range. The uncertainty is a
+    parametric bootstrap: y is redrawn from N(y, stderr) ``n_boot`` times (fixed ``seed``, so the
+    answer is reproducible) and the fit repeated; ``x_peak_stderr`` is the sd of the bootstrap peaks and
+    ``x_peak_lo``/``x_peak_hi`` their 16th/84th percentiles. ``interior`` tells whether the peak lies
+    strictly inside the swept range (else the maximum may lie outside it).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    se = np.asarray(y_stderr, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(se) & (se > 0)
+    x, y, se = x[ok], y[ok], se[ok]
+    if x.size < 3:
+        return {"x_peak": None, "x_peak_stderr": None, "x_peak_lo": None, "x_peak_hi": None, "y_peak": None,
+                "interior": False, "coeffs": [], "n": int(x.size)}
+    order = np.argsort(x)
+    x, y, se = x[order], y[order], se[order]
+    k = int(np.argmax(y))
+    lo, hi = max(0, min(k - 2, x.size - 5)), min(x.size, max(k + 3, 5))
+    xs, ys, ss = x[lo:hi], y[lo:hi], se[lo:hi]
+
+    def peak(yy):
+        c = np.polyfit(xs, yy, 2, w=1.0 / ss)
+        if c[0] < 0:
+            v = -c[1] / (2 * c[0])
+            if xs[0] < v < xs[-1]:
+                return float(v), c
+        grid = np.array([xs[0], xs[-1]])
+        return float(grid[np.argmax(np.polyval(c, grid))]), c
+    x0, c0 = peak(ys)
+    rng = np.random.default_rng(seed)
+    boots = np.array([peak(ys + rng.standard_normal(ys.size) * ss)[0] for _ in range(int(n_boot))])
+    return {"x_peak": x0, "x_peak_stderr": float(np.std(boots, ddof=1)),
+            "x_peak_lo": float(np.percentile(boots, 16)), "x_peak_hi": float(np.percentile(boots, 84)),
+            "y_peak": float(np.polyval(c0, x0)), "interior": bool(x[0] < x0 < x[-1]),
+            "coeffs": [float(v) for v in c0], "fit_range": [float(xs[0]), float(xs[-1])], "n": int(x.size)}

@@ -1,0 +1,69 @@
+"""Visibility across a sweep: the fitted maximum and its uncertainty, the sweep hook, plots and report."""
+import math
+import os
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton.visibility import VISIBILITY_COLUMNS, fit_peak, jackknife, visibility_columns
+from endophoton.view_sweep import contact_sheet, plot_visibility, visibility_report
+
+
+def _delta_method_vertex_se(x, se, coeffs):
+    """Independent stderr of the vertex -b/(2a) of a weighted quadratic fit (delta method)."""
+    X = np.vander(x, 3)
+    cov = np.linalg.inv(X.T @ (X / se[:, None] ** 2))
+    a, b, _ = coeffs
+    grad = np.array([b / (2 * a * a), -1 / (2 * a), 0.0])
+    return math.sqrt(grad @ cov @ grad)
+
+
+def test_fit_peak_finds_the_vertex_and_its_uncertainty():
+    x = np.arange(0.0, 60.0, 5.0)
+    y_true = 1.0 - (x - 31.0) ** 2 / 900.0
+    se = np.full(x.size, 0.02)
+    f = fit_peak(x, y_true, se)
+    assert f["x_peak"] == pytest.approx(31.0, abs=1e-6) and f["interior"]
+    window = (x >= f["fit_range"][0]) & (x <= f["fit_range"][1])
+    expected = _delta_method_vertex_se(x[window], se[window], f["coeffs"])
+    assert f["x_peak_stderr"] == pytest.approx(expected, rel=0.15)
+    assert f["x_peak_lo"] < 31.0 < f["x_peak_hi"]
+
+
+def test_fit_peak_at_the_end_of_a_monotone_range_is_not_interior():
+    x = np.arange(0.0, 30.0, 5.0)
+    f = fit_peak(x, 0.1 * x, np.full(x.size, 0.01))
+    assert f["x_peak"] == 25.0 and not f["interior"]
+    assert fit_peak([0, 1], [1, 2], [0.1, 0.1])["x_peak"] is None
+
+
+def test_jackknife_of_a_mean_equals_batch_means():
+    rng = np.random.default_rng(3)
+    sums = rng.normal(10.0, 1.0, 20)
+    Pb = np.full(20, 100)
+    v, se = jackknife(sums, Pb, lambda m: float(m))
+    assert v == pytest.approx(sums.sum() / 2000)
+    assert se == pytest.approx(np.std(sums / 100, ddof=1) / math.sqrt(20), rel=1e-9)
+
+
+def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
+    m = ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0)
+    s = ep.Scene(unit="cm")
+    s.add_box("wall", (-3, -3, -2), (3, 3, 0), m, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
+    s.add_box("polyp", (-0.6, -0.6, -0.3), (0.6, 0.6, 0.3), m, priority=1,
+              fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, 0.33)])
+    rows, betas, images = [], [0.0, 20.0, 40.0], []
+    for beta in betas:
+        rig = ep.EndoscopeRig.from_beta(beta, 2.0, point=(0, 0, 0.3), camera_resolution=(16, 16), cone_angle_deg=60)
+        res = ep.run(s, rig, photons=20_000, seed=1, spectral=True)
+        cols = visibility_columns(res, "polyp", "wall", out_dir=tmp_path, prefix=f"beta{beta:g}_")
+        assert set(cols) == set(VISIBILITY_COLUMNS)
+        assert cols["target_pixels"] + cols["background_pixels"] <= 16 * 16
+        rows.append(cols)
+        images.append(tmp_path / f"beta{beta:g}_fluorescence.png")
+        assert images[-1].exists()
+    assert os.path.getsize(plot_visibility(betas, rows, tmp_path / "visibility.png")) > 1000
+    assert os.path.getsize(contact_sheet(images, betas, tmp_path / "sheet.png")) > 1000
+    text = visibility_report(betas, rows)
+    assert "34" in text and "most visible" in text
