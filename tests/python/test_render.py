@@ -247,3 +247,34 @@ def test_photofrin_shows_in_the_red_green_contrast():
     assert drop > 3 * math.hypot(with_pf["red_green_stderr"], without["red_green_stderr"])
     for k in ("fluorescence", "white", "red_green"):
         assert math.isfinite(with_pf[k]) and with_pf[k + "_stderr"] > 0
+
+
+def test_same_records_same_image_on_any_thread_count():
+    n = 50_000
+    res = _Records(_plane_scene(), _lambertian(n), n)
+    cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30, aperture_radius=0.2)
+    a = render_view(res, cam, 10, 10, kernel_radius=0.1, threads=1)
+    b = render_view(res, cam, 10, 10, kernel_radius=0.1, threads=2)
+    for key in ("radiance", "radiance_stderr", "bias", "xyz"):
+        assert np.array_equal(a.images["white"][key], b.images["white"][key])
+    assert np.array_equal(a.aperture["white"]["radiance"], b.aperture["white"]["radiance"])
+
+
+def test_empty_kernels_give_zeros_and_undefined_contrast_is_none():
+    # Records far outside the field of view: every pixel sees tissue but gathers nothing.
+    n = 1000
+    esc = _lambertian(n)
+    esc["position"][:, 0] += 4.0
+    s = ep.Scene(unit="cm")
+    s.add_box("wall", (-5, -5, -1), (5, 5, 0), ep.Medium(mua=1.0, mus=10.0))
+    s.add_box("polyp", (-0.5, -0.5, -0.2), (0.5, 0.5, 0.3), ep.Medium(mua=1.0, mus=10.0), priority=1)
+    view = render_view(_Records(s, esc, n), Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=60), 8, 8,
+                       kernel_radius=0.1)
+    for img in view.images.values():
+        for key, v in img.items():
+            assert np.all(np.isfinite(np.asarray(v, dtype=float))), key
+        assert not img["radiance"].any() and not img["srgb8"].any()
+    c = view.contrast("polyp", "wall")
+    assert c["fluorescence"] is None and c["fluorescence_stderr"] is None and c["red_green"] is None
+    with pytest.raises(ValueError, match="background = 'wall'"):
+        view.contrast("wall", "wall")
