@@ -172,9 +172,9 @@ class View:
             bias[name] = d
         return {"radius": self.kernel["radius"], "angle_deg": self.kernel["angle_deg"], "bias": bias}
 
-    def contrast(self, target: str, background: str) -> dict:
+    def contrast(self, target: str, background: str, channels: str = "srgb") -> dict:
         from .visibility import contrast
-        return contrast(self, target, background)
+        return contrast(self, target, background, channels)
 
     def save(self, out_dir, prefix: str = "") -> dict:
         """Write ``white.png``, ``fluorescence.png`` (and ``aperture_*.png``) and ``view.npz`` (float arrays)
@@ -331,6 +331,8 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
                 wc = w * rec["cmf"][j, c]
                 _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
+            for c in range(2):
+                _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, w * rec["cam_rg"][j, c], n_regions * B)
             sb = rec["sbin"][j]
             ok = sb >= 0
             _accumulate(acc, name + "_spec_pix", p[ok] * rec["nbins"] + sb[ok], w[ok], n_pix * rec["nbins"])
@@ -430,6 +432,8 @@ def render_view(result, camera=None, width: int | None = None, height: int | Non
     P = _packets(result)
     rec = _records(result, n_batches, P, T)
     rec["cam"] = camera.position
+    # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
+    rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
     n_regions = len(scene.regions)
     preg = region[hit].astype(np.int64)
     acc, n_candidates = _kernel_gather(px, pw, pk, preg, n_regions, rec, float(kernel_radius),
@@ -481,6 +485,9 @@ def _region_batches(acc, preg, region_pixels, B, gains):
         out[name + "_xyz"] = xyz
         g = np.ones(3) if gains is None else np.asarray(gains)
         out[name + "_rgb"] = np.einsum("ck,rkb->rcb", colour.XYZ_TO_SRGB, xyz * g[None, :, None])
+        out[name + "_camera_rg"] = np.stack(
+            [acc.get(f"{name}_cam{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(2)],
+            axis=1) * inv[:, None, None]
     return out
 
 

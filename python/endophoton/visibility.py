@@ -54,13 +54,20 @@ def weber(target: float, background: float) -> float | None:
     return (target - background) / background if background > 0 else None
 
 
-def contrast(view, target: str, background: str) -> dict:
+def contrast(view, target: str, background: str, channels: str = "srgb") -> dict:
     """Visibility of region ``target`` against ``background`` in a rendered ``view``.
 
     Returns the CLI's ``contrast`` object: target, background, fluorescence (Weber contrast of the
     mean fluorescence radiance), white (the same in the white-light image), red_green (Weber contrast
     of the R/G ratio of the fluorescence image's mean linear sRGB), each with ``_stderr``.
+
+    ``channels="camera"`` takes R and G from camera-like, non-negative sensitivities instead: each
+    record's linear-sRGB R and G with negative parts clipped to 0. Saturated red (photofrin at 630 nm) or
+    blue-green light has a negative linear-sRGB G, so under blue excitation the sRGB ratio can be
+    undefined (None) where the camera ratio is not.
     """
+    if channels not in ("srgb", "camera"):
+        raise ValueError(f"channels = {channels!r} must be 'srgb' or 'camera'")
     ti, bi = view.region_index(target, "target"), view.region_index(background, "background")
     if ti == bi:
         raise ValueError(f"background = {background!r} is the target region; give two different regions")
@@ -69,7 +76,8 @@ def contrast(view, target: str, background: str) -> dict:
     for key in ("fluorescence", "white"):
         s = rb[key + "_radiance"][[ti, bi]]
         out[key], out[key + "_stderr"] = jackknife(s, view.packets_per_batch, lambda m: weber(m[0], m[1]))
-    rgb = rb["fluorescence_rgb"][[ti, bi]][:, :2]          # (2 regions, R G, B batches)
+    key = "fluorescence_rgb" if channels == "srgb" else "fluorescence_camera_rg"
+    rgb = rb[key][[ti, bi]][:, :2]          # (2 regions, R G, B batches)
 
     def rg(m):
         if not (m[0, 1] > 0 and m[1, 1] > 0):
@@ -88,6 +96,9 @@ VISIBILITY_COLUMNS = {
     "white_contrast_stderr": "jackknife standard error",
     "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
     "red_green_contrast_stderr": "jackknife standard error",
+    "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
+                                 "blue light, where linear-sRGB G of red or blue-green light is negative)",
+    "red_green_camera_contrast_stderr": "jackknife standard error",
     "target_pixels": "pixels of the view that see the target region",
     "background_pixels": "pixels of the view that see the background region",
 }
@@ -106,6 +117,9 @@ def visibility_columns(result, target: str, background: str, out_dir=None, prefi
     for key in ("fluorescence", "white", "red_green"):
         cols[key + "_contrast"] = c[key]
         cols[key + "_contrast_stderr"] = c[key + "_stderr"]
+    cam = contrast(view, target, background, "camera")
+    cols["red_green_camera_contrast"] = cam["red_green"]
+    cols["red_green_camera_contrast_stderr"] = cam["red_green_stderr"]
     cols["target_pixels"] = int(view.region_pixels[view.region_index(target, "target")])
     cols["background_pixels"] = int(view.region_pixels[view.region_index(background, "background")])
     if out_dir is not None:

@@ -278,3 +278,20 @@ def test_empty_kernels_give_zeros_and_undefined_contrast_is_none():
     assert c["fluorescence"] is None and c["fluorescence_stderr"] is None and c["red_green"] is None
     with pytest.raises(ValueError, match="background = 'wall'"):
         view.contrast("wall", "wall")
+
+
+def test_blue_light_photofrin_red_green_with_camera_channels():
+    """405 nm excitation (photodynamic diagnosis) with the auto long-pass filter: photofrin's red against
+    collagen's blue-green. Linear-sRGB G is negative for such light, so the camera-channel ratio is used;
+    it is > 0 beyond 3 sigma with photofrin and falls by > 3 sigma at c = 0."""
+    src = ep.DiskSource(center=(0, 0, 2), direction=(0, 0, -1), radius=1.5, spectrum=excitation_spectrum("blue"))
+    cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
+    out = {}
+    for c in (0.33, 0.0):
+        view = render_view(ep.run(_polyp_scene(c), src, photons=200_000, seed=1, spectral=True), cam, 24, 24,
+                           kernel_radius=0.3, kernel_angle_deg=30)
+        assert view.emission_filter.startswith("long-pass")
+        out[c] = view.contrast("polyp", "wall", channels="camera")
+    assert out[0.33]["red_green"] > 3 * out[0.33]["red_green_stderr"]
+    drop = out[0.33]["red_green"] - out[0.0]["red_green"]
+    assert drop > 3 * math.hypot(out[0.33]["red_green_stderr"], out[0.0]["red_green_stderr"])
