@@ -129,3 +129,32 @@ def visibility_report(betas, rows, target: str = "polyp", background: str = "wal
                      f"{rg['x_peak_lo']:.1f}–{rg['x_peak_hi']:.1f}°). The paper's 34° is {abs(z):.1f} σ away: "
                      f"{verdict} it.{edge}")
     return "\n".join(lines) + "\n"
+
+
+def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> dict:
+    """Sweep hook: add the visibility columns of one beta's run to its row, saving its views to
+    ``out_dir/views/beta<β>_*.png`` when ``out_dir`` is given. ``visibility`` is a mapping with ``target``,
+    ``background`` and optional ``render_view`` keyword arguments (width, height, kernel_radius, ...)."""
+    from .visibility import visibility_columns
+
+    vis = dict(visibility)
+    try:
+        target, background = vis.pop("target"), vis.pop("background")
+    except KeyError as e:
+        raise ValueError(f"visibility: missing key {e.args[0]!r} (give target and background regions)") from None
+    img_dir = None if out_dir is None else os.path.join(os.fspath(out_dir), "views")
+    row.update(visibility_columns(result, target, background, out_dir=img_dir, prefix=f"beta{float(beta):g}_",
+                                  **vis))
+    return row
+
+
+def write_visibility_outputs(betas, rows, out_dir, target: str = "polyp", background: str = "wall") -> dict:
+    """After a sweep with visibility columns: ``visibility.png`` (plot with fitted maxima),
+    ``views_contact_sheet.png`` (fluorescence views across beta, if saved) and the report section
+    (returned under ``"report"``; the caller appends it to report.md)."""
+    out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, "visibility.png"))}
+    views = [os.path.join(out_dir, "views", f"beta{float(b):g}_fluorescence.png") for b in betas]
+    if views and all(os.path.exists(p) for p in views):
+        out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, "views_contact_sheet.png"))
+    out["report"] = visibility_report(betas, rows, target, background)
+    return out

@@ -7,7 +7,8 @@ import pytest
 
 import endophoton as ep
 from endophoton.visibility import VISIBILITY_COLUMNS, fit_peak, jackknife, visibility_columns
-from endophoton.view_sweep import contact_sheet, plot_visibility, visibility_report
+from endophoton.view_sweep import (add_visibility, contact_sheet, plot_visibility, visibility_report,
+                                   write_visibility_outputs)
 
 
 def _delta_method_vertex_se(x, se, coeffs):
@@ -67,3 +68,18 @@ def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
     assert os.path.getsize(contact_sheet(images, betas, tmp_path / "sheet.png")) > 1000
     text = visibility_report(betas, rows)
     assert "34" in text and "most visible" in text
+    # The sweep hook: rows gain the columns, views land in out/views, then plot + sheet + report section.
+    out = tmp_path / "sweep"
+    hook_rows = []
+    for beta in betas:
+        rig = ep.EndoscopeRig.from_beta(beta, 2.0, point=(0, 0, 0.3), camera_resolution=(16, 16), cone_angle_deg=60)
+        row = {"beta_deg": beta}
+        add_visibility(row, ep.run(s, rig, photons=5_000, seed=2, spectral=True), beta,
+                       {"target": "polyp", "background": "wall", "width": 12, "height": 12}, out)
+        assert set(VISIBILITY_COLUMNS) <= set(row)
+        hook_rows.append(row)
+    paths = write_visibility_outputs(betas, hook_rows, out)
+    assert os.path.exists(paths["plot"]) and os.path.exists(paths["contact_sheet"])
+    assert paths["report"].startswith("## At which")
+    with pytest.raises(ValueError, match="visibility: missing key 'background'"):
+        add_visibility({}, None, 0.0, {"target": "polyp"})
