@@ -91,7 +91,7 @@ def table(rows, meta) -> str:
 
 
 def write(text: str) -> None:
-    from endophoton.beta_sweep import atomic_write_text
+    from endophoton.io import atomic_write_text
 
     path = os.path.join(ROOT, "docs", "performance.md")
     doc = open(path, encoding="utf-8").read()

@@ -61,9 +61,9 @@ class Camera:
     @classmethod
     def from_dict(cls, d) -> "Camera":
         """The SCENE.json ``camera`` object: position, look_at, up, fov_deg, optional aperture_radius."""
-        from .scene import _check_keys
+        from .io import check_keys
 
-        _check_keys("camera", d, {"position", "look_at", "up", "fov_deg"}, extra={"aperture_radius",
+        check_keys("camera", d, {"position", "look_at", "up", "fov_deg"}, extra={"aperture_radius",
                                                                                "focus_distance"})
         return cls.look_at(d["position"], d["look_at"], d["up"], d["fov_deg"], d.get("aperture_radius", 0.0),
                            d.get("focus_distance"))

@@ -179,7 +179,7 @@ class View:
     def save(self, out_dir, prefix: str = "") -> dict:
         """Write ``white.png``, ``fluorescence.png`` (and ``aperture_*.png``) and ``view.npz`` (float arrays)
         atomically into ``out_dir``; returns {name: path}."""
-        from .beta_sweep import atomic_write_bytes
+        from .io import atomic_write_bytes
 
         os.makedirs(out_dir, exist_ok=True)
         paths = {}

@@ -13,15 +13,56 @@ import os
 
 import numpy as np
 
-from .visibility import fit_peak
+from .paper import PAPER_TRENDS
+from .render import render_view
+from .visibility import contrast, fit_peak
 
-__all__ = ["PAPER_BETA_DEG", "visibility_fits", "plot_visibility", "contact_sheet", "visibility_report"]
+__all__ = ["PAPER_BETA_DEG", "VISIBILITY_COLUMNS", "visibility_columns", "add_visibility",
+           "write_visibility_outputs", "visibility_fits", "plot_visibility", "contact_sheet", "visibility_report"]
 
-#: The seed paper's answer: the endoscope angle at which pathological changes are best visible.
-PAPER_BETA_DEG = 34.0
+#: The seed paper's answer (its energy fit peaks near 34 deg): where pathological changes are best visible.
+PAPER_BETA_DEG = float(PAPER_TRENDS["energy_peak_beta_deg"])
 _SERIES = (("red_green_contrast", "red/green contrast (fluorescence)"),
            ("fluorescence_contrast", "Weber contrast, fluorescence radiance"),
            ("white_contrast", "Weber contrast, white light"))
+
+
+#: Sweep columns added by :func:`visibility_columns` (name -> description).
+VISIBILITY_COLUMNS = {
+    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
+    "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
+    "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
+                      "runs this is the fluorescent records only)",
+    "white_contrast_stderr": "jackknife standard error",
+    "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
+    "red_green_contrast_stderr": "jackknife standard error",
+    "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
+                                 "blue light, where linear-sRGB G of red or blue-green light is negative)",
+    "red_green_camera_contrast_stderr": "jackknife standard error",
+    "target_pixels": "pixels of the view that see the target region",
+    "background_pixels": "pixels of the view that see the background region",
+}
+
+
+def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "",
+                       **render_kwargs) -> dict:
+    """Hook for the beta sweep: render the run's view and return the :data:`VISIBILITY_COLUMNS` as a
+    flat, JSON-able dict (None where a contrast is undefined). ``render_kwargs`` go to ``render_view``;
+    with ``out_dir`` the view's images and arrays are saved there with file names starting ``prefix``."""
+    view = render_view(result, **render_kwargs)
+    c = contrast(view, target, background)
+    cols = {}
+    for key in ("fluorescence", "white", "red_green"):
+        cols[key + "_contrast"] = c[key]
+        cols[key + "_contrast_stderr"] = c[key + "_stderr"]
+    cam = contrast(view, target, background, "camera")
+    cols["red_green_camera_contrast"] = cam["red_green"]
+    cols["red_green_camera_contrast_stderr"] = cam["red_green_stderr"]
+    cols["target_pixels"] = int(view.region_pixels[view.region_index(target, "target")])
+    cols["background_pixels"] = int(view.region_pixels[view.region_index(background, "background")])
+    if out_dir is not None:
+        view.save(out_dir, prefix=prefix)
+    return cols
 
 
 def _column(rows, key):
@@ -41,7 +82,7 @@ def plot_visibility(betas, rows, path) -> str:
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
 
-    from .beta_sweep import atomic_write_bytes
+    from .io import atomic_write_bytes
 
     b = np.asarray(betas, dtype=np.float64)
     fits = visibility_fits(b, rows)
@@ -74,7 +115,7 @@ def contact_sheet(image_paths, betas, path, columns: int = 4, title: str = "fluo
     import matplotlib.image as mpimg
     from matplotlib.figure import Figure
 
-    from .beta_sweep import atomic_write_bytes
+    from .io import atomic_write_bytes
 
     n = len(image_paths)
     if n == 0:
@@ -135,8 +176,6 @@ def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> 
     """Sweep hook: add the visibility columns of one beta's run to its row, saving its views to
     ``out_dir/views/beta<β>_*.png`` when ``out_dir`` is given. ``visibility`` is a mapping with ``target``,
     ``background`` and optional ``render_view`` keyword arguments (width, height, kernel_radius, ...)."""
-    from .visibility import visibility_columns
-
     vis = dict(visibility)
     try:
         target, background = vis.pop("target"), vis.pop("background")

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-__all__ = ["jackknife", "weber", "contrast", "visibility_columns", "VISIBILITY_COLUMNS", "fit_peak"]
+__all__ = ["jackknife", "weber", "contrast", "fit_peak"]
 
 
 def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[float | None, float | None]:
@@ -85,46 +85,6 @@ def contrast(view, target: str, background: str, channels: str = "srgb") -> dict
         return weber(m[0, 0] / m[0, 1], m[1, 0] / m[1, 1])
     out["red_green"], out["red_green_stderr"] = jackknife(rgb, view.packets_per_batch, rg)
     return out
-
-
-#: Sweep columns added by :func:`visibility_columns` (name -> description).
-VISIBILITY_COLUMNS = {
-    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
-    "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
-    "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
-                      "runs this is the fluorescent records only)",
-    "white_contrast_stderr": "jackknife standard error",
-    "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
-    "red_green_contrast_stderr": "jackknife standard error",
-    "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
-                                 "blue light, where linear-sRGB G of red or blue-green light is negative)",
-    "red_green_camera_contrast_stderr": "jackknife standard error",
-    "target_pixels": "pixels of the view that see the target region",
-    "background_pixels": "pixels of the view that see the background region",
-}
-
-
-def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "",
-                       **render_kwargs) -> dict:
-    """Hook for the beta sweep: render the run's view and return the :data:`VISIBILITY_COLUMNS` as a
-    flat, JSON-able dict (None where a contrast is undefined). ``render_kwargs`` go to ``render_view``;
-    with ``out_dir`` the view's images and arrays are saved there with file names starting ``prefix``."""
-    from .render import render_view
-
-    view = render_view(result, **render_kwargs)
-    c = contrast(view, target, background)
-    cols = {}
-    for key in ("fluorescence", "white", "red_green"):
-        cols[key + "_contrast"] = c[key]
-        cols[key + "_contrast_stderr"] = c[key + "_stderr"]
-    cam = contrast(view, target, background, "camera")
-    cols["red_green_camera_contrast"] = cam["red_green"]
-    cols["red_green_camera_contrast_stderr"] = cam["red_green_stderr"]
-    cols["target_pixels"] = int(view.region_pixels[view.region_index(target, "target")])
-    cols["background_pixels"] = int(view.region_pixels[view.region_index(background, "background")])
-    if out_dir is not None:
-        view.save(out_dir, prefix=prefix)
-    return cols
 
 
 def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:

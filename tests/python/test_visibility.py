@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from endophoton.visibility import VISIBILITY_COLUMNS, fit_peak, jackknife, visibility_columns
-from endophoton.view_sweep import (add_visibility, contact_sheet, plot_visibility, visibility_report,
+from endophoton.visibility import fit_peak, jackknife
+from endophoton.view_sweep import (VISIBILITY_COLUMNS, add_visibility, visibility_columns, contact_sheet, plot_visibility, visibility_report,
                                    write_visibility_outputs)
 
 
