@@ -15,6 +15,7 @@ import numpy as np
 
 from .paper import PAPER_TRENDS
 from .render import render_view
+from .sweep_schema import VISIBILITY_COLUMNS
 from .visibility import contrast, fit_peak
 
 __all__ = ["PAPER_BETA_DEG", "VISIBILITY_COLUMNS", "visibility_columns", "add_visibility",
@@ -27,21 +28,6 @@ _SERIES = (("red_green_contrast", "red/green contrast (fluorescence)"),
            ("white_contrast", "Weber contrast, white light"))
 
 
-#: Sweep columns added by :func:`visibility_columns` (name -> description).
-VISIBILITY_COLUMNS = {
-    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
-    "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
-    "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
-                      "runs this is the fluorescent records only)",
-    "white_contrast_stderr": "jackknife standard error",
-    "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
-    "red_green_contrast_stderr": "jackknife standard error",
-    "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
-                                 "blue light, where linear-sRGB G of red or blue-green light is negative)",
-    "red_green_camera_contrast_stderr": "jackknife standard error",
-    "target_pixels": "pixels of the view that see the target region",
-    "background_pixels": "pixels of the view that see the background region",
-}
 
 
 def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "",
@@ -66,7 +52,7 @@ def visibility_columns(result, target: str, background: str, out_dir=None, prefi
 
 
 def _column(rows, key):
-    return np.array([np.nan if r.get(key) is None else float(r[key]) for r in rows])
+    return np.array([np.nan if r.get(key) is None else float(r[key]) for r in rows], dtype=np.float64)
 
 
 def visibility_fits(betas, rows) -> dict:
@@ -175,15 +161,19 @@ def visibility_report(betas, rows, target: str = "polyp", background: str = "wal
 def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> dict:
     """Sweep hook: add the visibility columns of one beta's run to its row, saving its views to
     ``out_dir/views/beta<β>_*.png`` when ``out_dir`` is given. ``visibility`` is a mapping with ``target``,
-    ``background`` and optional ``render_view`` keyword arguments (width, height, kernel_radius, ...)."""
+    ``background``, optional ``images_dir`` (where the views go; default ``out_dir/views``) and optional
+    ``render_view`` keyword arguments (width, height, kernel_radius, ...). Undefined contrasts become nan,
+    the sweep's mark for an undefined cell."""
     vis = dict(visibility)
     try:
         target, background = vis.pop("target"), vis.pop("background")
     except KeyError as e:
         raise ValueError(f"visibility: missing key {e.args[0]!r} (give target and background regions)") from None
-    img_dir = None if out_dir is None else os.path.join(os.fspath(out_dir), "views")
-    row.update(visibility_columns(result, target, background, out_dir=img_dir, prefix=f"beta{float(beta):g}_",
-                                  **vis))
+    img_dir = vis.pop("images_dir", None)
+    if img_dir is None and out_dir is not None:
+        img_dir = os.path.join(os.fspath(out_dir), "views")
+    cols = visibility_columns(result, target, background, out_dir=img_dir, prefix=f"beta{float(beta):g}_", **vis)
+    row.update({k: float("nan") if v is None else v for k, v in cols.items()})   # the sweep's "undefined"
     return row
 
 

@@ -83,3 +83,33 @@ def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
     assert paths["report"].startswith("## At which")
     with pytest.raises(ValueError, match="visibility: missing key 'background'"):
         add_visibility({}, None, 0.0, {"target": "polyp"})
+
+
+def test_sweep_with_visibility_writes_columns_views_plot_sheet_and_answer(tmp_path):
+    res = ep.sweep(ep.default_flat_scene(), betas=[0, 20, 40], store=3000, progress=False, out_dir=tmp_path,
+                   visibility={"target": "polyp", "background": "tissue", "width": 24, "height": 24})
+    for row in res.rows:
+        assert row["target_pixels"] > 0 and row["background_pixels"] > 0
+        assert math.isfinite(row["fluorescence_contrast"]) and row["fluorescence_contrast_stderr"] > 0
+    header = (tmp_path / "sweep.csv").read_text().splitlines()[0].split(",")
+    assert header[-len(VISIBILITY_COLUMNS):] == list(VISIBILITY_COLUMNS)
+    for name in ("visibility.png", "views_contact_sheet.png", "views/beta20_fluorescence.png"):
+        assert (tmp_path / name).exists(), name
+    assert "## At which β is the polyp most visible?" in (tmp_path / "report.md").read_text()
+    assert res.meta["visibility"]["target"] == "polyp"
+
+
+def test_sweep_without_visibility_leaves_the_columns_undefined():
+    res = ep.sweep(ep.default_flat_scene(), betas=[0], store=500, progress=False)
+    assert all(math.isnan(res.rows[0][k]) for k in VISIBILITY_COLUMNS)
+
+
+def test_sweep_cli_target_needs_background(tmp_path):
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = dict(os.environ, PYTHONPATH=os.path.join(root, "python"))
+    p = subprocess.run([sys.executable, "-m", "endophoton", "sweep", "--betas", "0", "--store", "100",
+                        "--out", str(tmp_path), "--target", "polyp", "--no-progress"], env=env, capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 2 and "--background = None" in p.stderr
