@@ -108,7 +108,7 @@ def contact_sheet(image_paths, betas, path, columns: int = 4, title: str = "fluo
         raise ValueError("contact_sheet: image_paths is empty")
     cols = min(columns, n)
     rows = math.ceil(n / cols)
-    fig = Figure(figsize=(2.4 * cols, 2.6 * rows))
+    fig = Figure(figsize=(2.4 * cols, 2.8 * rows))
     for i, (p, beta) in enumerate(zip(image_paths, betas)):
         ax = fig.add_subplot(rows, cols, i + 1)
         ax.imshow(mpimg.imread(os.fspath(p)), interpolation="nearest")
