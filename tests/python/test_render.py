@@ -162,7 +162,7 @@ def test_flat_field_has_no_trend_beyond_noise():
     the image (field 1.75 cm across, exit angles within 5 deg of the normal) is flat. The linear trend
     across the image, fitted per packet batch, is consistent with 0 (batch means handle the kernels'
     overlap between neighbouring pixels)."""
-    res = ep.run(_box_scene(), ep.DiskSource(center=(0, 0, 1), direction=(0, 0, -1), radius=3.0),
+    res = ep.run(_box_scene(), ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=3.0),
                  photons=300_000, seed=1, spectral=True)
     view = render_view(res, Camera.look_at((0, 0, 10), (0, 0, 0), up=(0, 1, 0), fov_deg=10), 16, 16,
                        kernel_radius=0.2)
@@ -188,7 +188,7 @@ def test_kernel_and_aperture_images_agree_within_noise():
     """Two independent runs (seeds 1, 2) of a 0.3 cm beam on a semi-infinite medium: the kernel image of one
     and the thin-lens aperture image of the other agree pixel by pixel (chi-square over the pixels where
     both have converged to 25 % relative error), and the test has power: a 30 % scale error fails it."""
-    src = ep.DiskSource(center=(0, 0, 1), direction=(0, 0, -1), radius=0.3)
+    src = ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=0.3)
     cam = Camera.look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0), fov_deg=20, aperture_radius=0.5)
     v1 = render_view(ep.run(_box_scene(), src, photons=300_000, seed=1, spectral=True), cam, 12, 12,
                      kernel_radius=0.03)
@@ -209,7 +209,7 @@ def test_white_non_absorbing_scene_renders_neutral():
     leaves and sampling of wavelengths by the Halton sequence)."""
     from endophoton.visibility import jackknife
 
-    res = ep.run(_box_scene(mua=0.0, mus=20.0, depth=0.3), ep.DiskSource(center=(0, 0, 1), direction=(0, 0, -1),
+    res = ep.run(_box_scene(mua=0.0, mus=20.0, depth=0.3), ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1),
                                                                            radius=3.0),
                  photons=100_000, seed=3, spectral=True)
     view = render_view(res, Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), fov_deg=20), 8, 8,
@@ -234,7 +234,7 @@ def _polyp_scene(c_photofrin):
 def test_photofrin_shows_in_the_red_green_contrast():
     """Collagen wall, polyp with collagen + photofrin (the seed's d, c), white light, paper rule: the polyp's
     red/green contrast in the fluorescence image is > 0 beyond 3 sigma and falls by > 3 sigma at c = 0."""
-    src = ep.DiskSource(center=(0, 0, 2), direction=(0, 0, -1), radius=1.5)
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.5)
     cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
     out = {}
     for c in (0.33, 0.0):
@@ -284,7 +284,7 @@ def test_blue_light_photofrin_red_green_with_camera_channels():
     """405 nm excitation (photodynamic diagnosis) with the auto long-pass filter: photofrin's red against
     collagen's blue-green. Linear-sRGB G is negative for such light, so the camera-channel ratio is used;
     it is > 0 beyond 3 sigma with photofrin and falls by > 3 sigma at c = 0."""
-    src = ep.DiskSource(center=(0, 0, 2), direction=(0, 0, -1), radius=1.5, spectrum=excitation_spectrum("blue"))
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.5, spectrum=excitation_spectrum("blue"))
     cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
     out = {}
     for c in (0.33, 0.0):

@@ -18,7 +18,7 @@ SCENE = {
         {"name": "polyp", "priority": 1, "medium": {"mua": 1, "mus": 10, "g": 0.0, "n": 1.0},
          "box": {"min": [-0.6, -0.6, -0.3], "max": [0.6, 0.6, 0.3]},
          "fluorophores": [{"name": "collagen", "d": 0.2, "c": 0.4}, {"name": "photofrin", "d": 0.1, "c": 0.33}]}],
-    "source": {"type": "disk", "center": [0, 0, 2], "direction": [0, 0, -1], "radius": 1.5},
+    "source": {"type": "disk", "position": [0, 0, 2], "direction": [0, 0, -1], "radius": 1.5},
     "camera": {"position": [0, 0, 2.5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 50},
     "run": {"photons": 20000, "seed": 1},
 }
