@@ -22,6 +22,8 @@
 namespace py = pybind11;
 using namespace ep;
 
+void bind_surface_hits(py::module_& m);  // native/bindings/surface_hits.cpp
+
 namespace {
 
 // Moves a vector into a numpy array without copying; the capsule frees it.
@@ -300,6 +302,8 @@ PYBIND11_MODULE(_core, m) {
         },
         py::arg("scene"), py::arg("source"), py::arg("options"), py::arg("progress") = py::none(),
         py::arg("cancel") = nullptr);
+
+    bind_surface_hits(m);
 
     m.def(
         "sample_hg_cos",

@@ -15,6 +15,8 @@ from . import analysis, meshes, paper
 from .beta_sweep import SweepResult, default_flat_scene, sweep
 from .report import write_report
 from .quality import QUALITY_PRESETS, Quality, quality_preset
+from .camera import Camera
+from .render import View, excitation_spectrum, render_view
 
 __version__ = _core.__version__
 
@@ -22,4 +24,5 @@ __all__ = ["Medium", "Scene", "Region", "layered_slab", "box_mesh", "load_mesh",
            "ConeSource", "EndoscopeRig", "source_from_dict", "run", "Result", "GridRequest", "Target",
            "CancelToken", "EEM", "Fluorophore", "Spectrum", "FLUOROPHORE_DEFAULTS", "FRACTIONS", "TARGET_TALLIES",
            "UNIT_CM", "unit_cm", "analysis", "meshes", "paper", "sweep", "SweepResult",
-           "default_flat_scene", "write_report", "QUALITY_PRESETS", "Quality", "quality_preset"]
+           "default_flat_scene", "write_report", "QUALITY_PRESETS", "Quality", "quality_preset",
+           "Camera", "View", "render_view", "excitation_spectrum"]

@@ -37,7 +37,7 @@ import numpy as np
 
 from . import _core, meshes
 from .analysis import DEFAULT_BATCHES
-from .io import jsonable
+from .io import atomic_write_text, jsonable
 from .medium import Medium
 from .paper import DISTANCE_CM, FLUOROPHORES, IMPORTANT_ANGLE_DEG, TISSUE
 from .run import run
@@ -45,7 +45,7 @@ from .scene import Scene
 from .sources import EndoscopeRig
 from .spectra import Fluorophore
 from .sweep_reduce import analyse_run, finish_relative, rig_geometry
-from .sweep_schema import CSV_COLUMNS, SweepResult, parse_betas
+from .sweep_schema import CSV_COLUMNS, VISIBILITY_COLUMNS, SweepResult, parse_betas
 from .units import UNIT_CM
 
 __all__ = [
@@ -192,7 +192,8 @@ def _sweep_meta(scene_or_builder: Any, static_scene: Any, seed: int, store: int,
 
 
 def _sweep_one_beta(scene: Any, beta: float, rig: Any, unit: str, normal, run_kwargs: dict, meta: dict,
-                    n_batches: int, max_angle_deg: float):
+                    n_batches: int, max_angle_deg: float, visibility: Mapping[str, Any] | None = None,
+                    out_dir: str | os.PathLike | None = None):
     """Run the engine for one beta and reduce it; returns ``(row, hist, batches, cancelled)``
     or ``None`` when a cancel landed before the first record (no row)."""
     geo = rig_geometry(rig, unit, normal)
@@ -212,6 +213,11 @@ def _sweep_one_beta(scene: Any, beta: float, rig: Any, unit: str, normal, run_kw
                                 reference=geo["reference"])
     full = {"beta_deg": beta, "store": int(run_kwargs["store"]), **row, "seconds": seconds,
             "seed": int(run_kwargs["seed"]), "cancelled": int(cancelled)}
+    if visibility is not None:   # the endoscope's view of this run (docs/render.md)
+        from .view_sweep import add_visibility
+        add_visibility(full, res, beta, visibility, out_dir)
+    else:
+        full.update({k: float("nan") for k in VISIBILITY_COLUMNS})
     meta.setdefault("light_positions", {})[f"{beta:g}"] = geo["light_positions"].tolist()
     meta.setdefault("camera", {})[f"{beta:g}"] = jsonable(geo["camera"])
     meta.setdefault("azimuth_reference", {})[f"{beta:g}"] = jsonable(geo["reference"])
@@ -226,7 +232,8 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
           n_batches: int = DEFAULT_BATCHES, max_angle_deg: float = IMPORTANT_ANGLE_DEG,
           rig_kwargs: Mapping[str, Any] | None = None, rig_builder: Callable | None = None,
           run_kwargs: Mapping[str, Any] | None = None, cancel: Any = None,
-          plots: bool = True, report: bool = True, on_beta: Callable | None = None) -> SweepResult:
+          plots: bool = True, report: bool = True, on_beta: Callable | None = None,
+          visibility: Mapping[str, Any] | None = None) -> SweepResult:
     """Run the seed's beta sweep and analyse every run.
 
     Parameters
@@ -257,6 +264,11 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
         run is analysed (``row`` is its CSV row, still without the ``*_rel``
         columns, which need every beta; ``row["packets_traced"]`` sizes the
         next run, e.g. for a progress estimate in store-N mode).
+    visibility : render the endoscope's view of every run and add the visibility columns
+        (``{"target": "polyp", "background": "tissue", "width": 128, "height": 128, ...}``: regions,
+        optional ``images_dir`` and ``render_view`` keyword arguments; see ``view_sweep.add_visibility``);
+        with ``out_dir`` the views, ``visibility.png``, ``views_contact_sheet.png`` and the report's answer
+        to "at which beta is the polyp most visible" are written too.
 
     Returns
     -------
@@ -282,6 +294,8 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
     rows, hists, batches = [], [], []
     meta = _sweep_meta(scene_or_builder, static_scene, seed, store, threads, n_batches, fluorescent_only,
                        fluorescence_rule, max_angle_deg, point, normal, tilt_axis, rig_kwargs)
+    if visibility is not None:
+        meta["visibility"] = jsonable(dict(visibility))
     try:
         for i, beta in enumerate(betas):
             if cancel is not None and getattr(cancel, "cancelled", False):
@@ -295,7 +309,8 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
             meta.setdefault("distance", dist)
             rig = rig_builder(beta, scene) if rig_builder is not None else \
                 _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
-            one = _sweep_one_beta(scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg)
+            one = _sweep_one_beta(scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg,
+                                  visibility, out_dir)
             if one is None:
                 meta["cancelled_at_beta"] = beta   # cancelled before the first record: no row
                 break
@@ -334,4 +349,12 @@ def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool =
     if report and result.rows:
         from .report import write_report
         paths["report"] = write_report(result, out_dir)
+    vis = result.meta.get("visibility")
+    if vis and plots and result.rows:
+        from .view_sweep import write_visibility_outputs
+        extra = write_visibility_outputs(result.betas, result.rows, out_dir, vis["target"], vis["background"])
+        paths.update({k: v for k, v in extra.items() if k != "report"})
+        if "report" in paths:
+            with open(paths["report"], encoding="utf-8") as fh:
+                atomic_write_text(paths["report"], fh.read().rstrip("\n") + "\n\n" + extra["report"])
     return paths

@@ -70,6 +70,10 @@ def main(argv=None) -> int:
     p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
     add_sweep_arguments(p_sweep)
     p_sweep.set_defaults(func=sweep_main)
+    from .render_cli import add_render_arguments, render_main
+    p_render = sub.add_parser("render", help="run a scene and render the endoscope's view (PNG + arrays + JSON)")
+    add_render_arguments(p_render)
+    p_render.set_defaults(func=render_main)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

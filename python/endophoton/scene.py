@@ -165,7 +165,7 @@ class Scene:
     @classmethod
     def from_dict(cls, data: dict, base_dir: str = ".") -> "Scene":
         """Build a scene from the SCENE.json structure (see README). Unknown keys are errors."""
-        _check_keys("scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description"})
+        _check_keys("scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description", "camera"})
         scene = cls(unit=data.get("unit", "cm"), ambient_n=data.get("ambient_n", 1.0))
         regions = data.get("regions")
         if not isinstance(regions, list) or not regions:

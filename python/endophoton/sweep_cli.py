@@ -45,14 +45,28 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     parser.add_argument("--polyp", choices=("dome", "embedded", "none"), default="dome",
                         help="polyp of the default scene (default dome)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--target", default=None,
+                        help="render the endoscope's view per beta and add the visibility of this region "
+                             "(e.g. polyp) against --background (docs/render.md)")
+    parser.add_argument("--background", default=None, help="background region for --target (e.g. tissue)")
+    parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
     return parser
 
 
 def sweep_kwargs(args: argparse.Namespace) -> dict:
     """Keyword arguments of :func:`endophoton.sweep` from the parsed ``sweep`` arguments."""
-    return dict(betas=args.betas, store=args.store, seed=args.seed, threads=args.threads,
-                fluorescent_only=not args.all_photons, fluorescence_rule=args.fluorescence_rule,
-                distance=args.distance, progress=not args.no_progress, n_batches=args.batches)
+    kw = dict(betas=args.betas, store=args.store, seed=args.seed, threads=args.threads,
+              fluorescent_only=not args.all_photons, fluorescence_rule=args.fluorescence_rule,
+              distance=args.distance, progress=not args.no_progress, n_batches=args.batches)
+    target, background = getattr(args, "target", None), getattr(args, "background", None)
+    if (target is None) != (background is None):
+        raise ValueError(f"--target = {target!r}, --background = {background!r}: give both or neither")
+    if target is not None:
+        if args.view_size < 1:
+            raise ValueError(f"--view-size = {args.view_size} must be >= 1")
+        kw["visibility"] = {"target": target, "background": background, "width": args.view_size,
+                            "height": args.view_size, "images_dir": os.path.join(os.path.abspath(args.out), "views")}
+    return kw
 
 
 def forward_argv(args: argparse.Namespace) -> list:
@@ -66,6 +80,8 @@ def forward_argv(args: argparse.Namespace) -> list:
         argv.append("--all-photons")
     if args.no_progress:
         argv.append("--no-progress")
+    if getattr(args, "target", None) is not None:
+        argv += ["--target", args.target, "--background", args.background, "--view-size", str(args.view_size)]
     return argv
 
 

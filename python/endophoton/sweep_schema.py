@@ -18,7 +18,7 @@ import numpy as np
 
 from .io import atomic_write_text, jsonable, unjson, write_json
 
-__all__ = ["CSV_COLUMNS", "PLOT_FILES", "SweepResult", "parse_betas", "polar_filename"]
+__all__ = ["CSV_COLUMNS", "VISIBILITY_COLUMNS", "PLOT_FILES", "SweepResult", "parse_betas", "polar_filename"]
 
 # CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
 # (tests/python/test_sweep.py checks that the documentation and the header agree).
@@ -64,6 +64,23 @@ CSV_COLUMNS: dict[str, str] = {
     "seed": "seed of the run",
     "cancelled": "1 if the run was cancelled (partial), else 0",
 }
+
+# Visibility columns (endophoton.view_sweep.add_visibility; nan unless the sweep ran with visibility=...).
+VISIBILITY_COLUMNS = {
+    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
+    "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
+    "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
+                      "runs this is the fluorescent records only)",
+    "white_contrast_stderr": "jackknife standard error",
+    "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
+    "red_green_contrast_stderr": "jackknife standard error",
+    "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
+                                 "blue light, where linear-sRGB G of red or blue-green light is negative)",
+    "red_green_camera_contrast_stderr": "jackknife standard error",
+    "target_pixels": "pixels of the view that see the target region",
+    "background_pixels": "pixels of the view that see the background region",
+}
+CSV_COLUMNS.update(VISIBILITY_COLUMNS)
 
 
 @dataclass
