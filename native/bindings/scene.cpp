@@ -42,10 +42,7 @@ void bind_scene(py::module_& m) {
                 s.set_region_fluorophores(region, out);
             },
             py::arg("region"), py::arg("fluorophores"))
-        .def("commit", &Scene::commit)
-        .def_property_readonly("unit_cm", &Scene::unit_cm)
-        .def_property_readonly("extent", &Scene::extent)
-        .def_property_readonly("region_count", &Scene::region_count);
+        .def("commit", &Scene::commit);
 }
 
 }  // namespace ep::bind
