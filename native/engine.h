@@ -29,7 +29,7 @@ struct RunResult {
     bool target_reached = false;
     bool spectral = false;
     bool store_reached = false;
-    std::string stop_reason;      // "photons", "store", "target", "time", "max_photons", "cancelled"
+    std::string stop_reason;      // "photons", "store", "target", "target_zero", "time", "max_photons", "cancelled"
     double seconds = 0;
     std::string grid_path;
     std::vector<std::string> grid_names;

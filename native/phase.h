@@ -1,5 +1,6 @@
 // Henyey–Greenstein phase function (Henyey & Greenstein 1941), the seed's
-// scattering model (§4) and MCML's. Interface after pbrt-v4: p, sample_p, pdf.
+// scattering model (§4) and MCML's. Interface after pbrt-v4: p, sample_p, pdf (both per
+// steradian, as in pbrt), plus pdf_cos, the density per unit cos(theta) that MCML's sampling uses.
 #pragma once
 #include <cmath>
 
@@ -12,15 +13,17 @@ class HenyeyGreenstein {
     explicit HenyeyGreenstein(Float g) : g_(g) {}
     Float g() const { return g_; }
 
-    // Density over cos(theta) in [-1, 1]:
-    // p(cos) = (1 - g^2) / (2 (1 + g^2 - 2 g cos)^(3/2)), normalised to 1 over cos.
-    Float pdf(Float cos_theta) const {
+    // Density per unit cos(theta) on [-1, 1] (not per steradian):
+    // p_cos(cos) = (1 - g^2) / (2 (1 + g^2 - 2 g cos)^(3/2)), normalised to 1 over cos.
+    Float pdf_cos(Float cos_theta) const {
         if (g_ >= 1 || g_ <= -1) return 0;  // a delta: no finite density
         const Float denom = 1 + g_ * g_ - 2 * g_ * cos_theta;
         return (1 - g_ * g_) / (2 * denom * std::sqrt(denom));
     }
-    // Density per steradian: the cos-density divided by 2*pi (azimuth uniform).
-    Float p(Float cos_theta) const { return pdf(cos_theta) / (2 * kPi); }
+    // Phase function per steradian (pbrt-v4's p): the cos-density over 2*pi, the azimuth being uniform.
+    Float p(Float cos_theta) const { return pdf_cos(cos_theta) / (2 * kPi); }
+    // pbrt-v4's pdf of sample_p, per steradian: sample_p draws exactly from p, so pdf == p.
+    Float pdf(Float cos_theta) const { return p(cos_theta); }
 
     // Inverse CDF (MCML manual eq. 3.28). It divides by 2g, so g -> 0 uses the
     // exact isotropic branch; |g| = 1 are deltas (no deflection / reversal).

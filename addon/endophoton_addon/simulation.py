@@ -8,7 +8,6 @@ returns the engine's Result.  The modal operator (operators.py), the blocking
 ``execute`` path and the tests all drive the same :class:`SimulationJob`.
 """
 
-import inspect
 import math
 import os
 import tempfile
@@ -180,17 +179,6 @@ def collect_inputs(context):
     )
 
 
-def _accepted_kwargs(func, kwargs):
-    """The subset of kwargs that ``func`` accepts (all of them if it takes **kwargs)."""
-    try:
-        params = inspect.signature(func).parameters
-    except (TypeError, ValueError):
-        return dict(kwargs)
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return dict(kwargs)
-    return {k: v for k, v in kwargs.items() if k in params}
-
-
 def build_engine_scene(ep, regions):
     """``ep.Scene(unit="m")`` holding the exported regions; see sweep_blend.blender_regions_to_scene."""
     return sweep_blend.blender_regions_to_scene(ep, regions)
@@ -205,11 +193,8 @@ def build_engine_call(ep, inputs):
     """
     try:
         scene = build_engine_scene(ep, inputs.regions)
-        # The rig transform is in scene units (metres here); older drafts of the
-        # API also took unit=..., newer ones infer it from the scene.
-        rig_kwargs = _accepted_kwargs(
-            ep.EndoscopeRig, dict(transform=inputs.rig_matrix, unit="m", **inputs.rig_params))
-        endoscope = ep.EndoscopeRig(**rig_kwargs)
+        # The rig transform is in scene units (metres here, the engine scene's unit).
+        endoscope = ep.EndoscopeRig(transform=inputs.rig_matrix, **inputs.rig_params)
         if inputs.kind == "target":
             budget = {"target": ep.Target("diffuse_reflectance", inputs.target_error), "max_photons": inputs.count}
         else:
@@ -406,15 +391,6 @@ def _discard_partial_grid(job):
     path = job.inputs.grid_path
     if path and os.path.isfile(path):
         os.remove(path)
-
-
-def run_blocking(context, poll_interval=0.05):
-    """Run synchronously (scripts, tests, ``execute``): same job, waited for."""
-    job = prepare_job(context)
-    job.start()
-    while not job.wait(poll_interval):
-        pass
-    return finish_job(context, job)
 
 
 def track_job(job):

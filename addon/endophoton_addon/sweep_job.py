@@ -417,15 +417,6 @@ def finish_sweep(context, job):
     return images
 
 
-def run_sweep_blocking(context, poll_interval=0.05):
-    """Run synchronously (scripts, tests, ``execute``): the same job, waited for."""
-    job = prepare_sweep(context)
-    job.start()
-    while not job.wait(poll_interval):
-        pass
-    return finish_sweep(context, job)
-
-
 def summary_rows(scene):
     """(label, value) rows of the last sweep's summary for the panel; [] if none."""
     summary = scene.get(SUMMARY_KEY)

@@ -1,18 +1,16 @@
 // Binding of ep::first_surfaces (native/surface_hits.h): the surface each ray
 // sees, in one batch call with the GIL released. Thin: array checks only.
-#include <pybind11/numpy.h>
-#include <pybind11/pybind11.h>
-
 #include <cmath>
 #include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "common.h"
 #include "scene.h"
 #include "surface_hits.h"
 
-namespace py = pybind11;
+namespace ep::bind {
 
 namespace {
 
@@ -63,3 +61,5 @@ void bind_surface_hits(py::module_& m) {
         "starts inside a region), triangle (N,) int32, outward normal (N,3)). t is in scene units along "
         "the normalised direction; inf where no surface. Releases the GIL.");
 }
+
+}  // namespace ep::bind

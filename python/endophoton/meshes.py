@@ -1,4 +1,4 @@
-"""Closed triangle meshes for scene building (no dependency on the engine).
+"""Closed triangle meshes for scene building; their check is the engine's (native/mesh_check.h).
 
 All generators return ``(vertices, triangles)`` with ``vertices`` float32 (N,3)
 in the caller's length unit and ``triangles`` uint32 (M,3) wound
@@ -13,6 +13,8 @@ import math
 from typing import Sequence
 
 import numpy as np
+
+from . import _core
 
 __all__ = ["ellipsoid", "uv_sphere", "half_ellipsoid", "check_closed_mesh", "signed_volume"]
 
@@ -127,32 +129,15 @@ def signed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
-def check_closed_mesh(vertices: np.ndarray, triangles: np.ndarray) -> None:
+def check_closed_mesh(vertices: np.ndarray, triangles: np.ndarray, owner: str = "mesh") -> dict:
     """Raise ``ValueError`` unless the mesh is closed, consistently wound and outward.
 
-    Checks: index range, no degenerate triangles, every directed edge used once
-    and its reverse used once (closed, consistently oriented 2-manifold), and a
-    positive signed volume (outward normals).
+    The rule has one owner, the engine's mesh checker (native/mesh_check.h, the
+    same check every region gets in ``Scene.add_mesh``): finite coordinates, no
+    degenerate triangle, every directed edge used once and its reverse once
+    after welding coincident vertices (closed, consistently oriented), and a
+    positive signed volume (outward normals).  The message names ``owner``, the
+    field and the value.  Returns ``dict(signed_volume, bbox_min, bbox_max,
+    welded_vertices)``.
     """
-    v = np.asarray(vertices)
-    t = np.asarray(triangles, dtype=np.int64)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"vertices: shape {v.shape} must be (N,3)")
-    if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] == 0:
-        raise ValueError(f"triangles: shape {t.shape} must be (M,3), M > 0")
-    if t.min() < 0 or t.max() >= v.shape[0]:
-        raise ValueError("triangles: index out of range")
-    if np.any((t[:, 0] == t[:, 1]) | (t[:, 1] == t[:, 2]) | (t[:, 0] == t[:, 2])):
-        raise ValueError("triangles: degenerate triangle (repeated vertex)")
-    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    n = v.shape[0]
-    codes = e[:, 0] * n + e[:, 1]
-    uniq, cnt = np.unique(codes, return_counts=True)
-    if np.any(cnt != 1):
-        raise ValueError("triangles: a directed edge is used twice (inconsistent winding)")
-    rev = e[:, 1] * n + e[:, 0]
-    if not np.all(np.isin(rev, uniq)):
-        raise ValueError("triangles: mesh is not closed (an edge has no opposite)")
-    vol = signed_volume(v, t)
-    if not vol > 0:
-        raise ValueError(f"triangles: signed volume {vol:.3g} <= 0 (inward winding)")
+    return _core.check_mesh(owner, vertices, triangles)

@@ -49,17 +49,22 @@ def _line_axes(title: str, ylabel: str) -> tuple[Figure, Any]:
     return fig, ax
 
 
+def _plot_linear_fit(ax, x: np.ndarray, y: np.ndarray, slope_format: str) -> None:
+    """Dashed least-squares line over the data range, its slope and R² in the legend (no line if undefined)."""
+    fit = an.linear_fit(x, y)
+    if np.isfinite(fit["slope"]):
+        xx = np.linspace(x.min(), x.max(), 50)
+        ax.plot(xx, fit["slope"] * xx + fit["intercept"], "--",
+                label=f"linear fit, slope {slope_format.format(fit['slope'])}, R$^2$ {fit['r2']:.3f}")
+
+
 def plot_packets(result: Any, path: str | os.PathLike) -> str:
     """Packets traced to store N records vs beta (seed Fig. 4), with the linear fit."""
     b, y, e = _xy(result, "packets_traced")
     n = int(result.rows[0]["store"]) if result.rows else 0
     fig, ax = _line_axes(f"Packets traced to store {n:,} records", "packets traced")
     ax.errorbar(b, y, yerr=e, fmt="o-", capsize=3, label="simulation")
-    fit = an.linear_fit(b, y)
-    if np.isfinite(fit["slope"]):
-        xx = np.linspace(b.min(), b.max(), 50)
-        ax.plot(xx, fit["slope"] * xx + fit["intercept"], "--",
-                label=f"linear fit, slope {fit['slope']:.4g}/deg, R$^2$ {fit['r2']:.3f}")
+    _plot_linear_fit(ax, b, y, "{:.4g}/deg")
     ax.legend()
     return _save(fig, path)
 
@@ -93,11 +98,7 @@ def plot_important(result: Any, path: str | os.PathLike) -> str:
     fig, ax = _line_axes(f"Records visible to the camera and within {angle:g} deg of it",
                          "fraction of stored records (%)")
     ax.errorbar(b, 100 * y, yerr=100 * e, fmt="o-", capsize=3, label="simulation")
-    fit = an.linear_fit(b, 100 * y)
-    if np.isfinite(fit["slope"]):
-        xx = np.linspace(b.min(), b.max(), 50)
-        ax.plot(xx, fit["slope"] * xx + fit["intercept"], "--",
-                label=f"linear fit, slope {fit['slope']:.3g} %/deg, R$^2$ {fit['r2']:.3f}")
+    _plot_linear_fit(ax, b, 100 * y, "{:.3g} %/deg")
     ax.legend()
     return _save(fig, path)
 

@@ -48,11 +48,6 @@ class Result:
         self.escapes = raw.get("escapes")
 
     @property
-    def energy_balance(self) -> float:
-        """Rsp + Rd + Tt + A + missed + cut + roulette (1 up to rounding)."""
-        return sum(getattr(self, k) for k in FRACTIONS)
-
-    @property
     def fluorophore_names(self) -> list[str]:
         return self.scene.fluorophore_names()
 
@@ -150,5 +145,5 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
     native_scene = scene.to_native()
     native_source = _core.Source(source.native_lights(scene.unit_cm), body=source.native_body(scene.unit_cm))
-    raw = _core.run(native_scene, native_source, opts, progress, cancel)
+    raw = _core.run(native_scene, native_source, _core.RunConfig(**opts), progress, cancel)
     return Result(raw, scene, source, opts)

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
 #include <functional>
 #include <random>
 #include <stdexcept>
@@ -34,6 +35,41 @@ double chi_square_critical(int dof, double p) {
     const double z = normal_upper_quantile(p);
     const double a = 2.0 / (9.0 * k);
     return k * std::pow(1.0 - a + z * std::sqrt(a), 3.0);
+}
+
+// Draws n samples, bins them on [lo, hi] in `bins` equal bins and runs a
+// chi-square test against the expected bin probabilities `prob(a, b)`.
+// Bins with zero expected probability must stay empty; they are excluded
+// from the statistic.  Requires every used bin to expect >= 5 counts.
+inline void expect_chi_square_fit(const std::function<double(std::mt19937_64&)>& draw,
+                           const std::function<double(double, double)>& prob, double lo,
+                           double hi, int bins, int n, std::uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::vector<long> count(bins, 0);
+    for (int s = 0; s < n; ++s) {
+        const double x = draw(rng);
+        ASSERT_GE(x, lo);
+        ASSERT_LE(x, hi);
+        int b = static_cast<int>((x - lo) / (hi - lo) * bins);
+        if (b == bins) b = bins - 1;
+        ++count[b];
+    }
+    double chi2 = 0.0;
+    int used = 0;
+    for (int b = 0; b < bins; ++b) {
+        const double a = lo + (hi - lo) * b / bins, c = lo + (hi - lo) * (b + 1) / bins;
+        const double expected = n * prob(a, c);
+        if (expected <= 0.0) {
+            EXPECT_EQ(count[b], 0) << "bin [" << a << ", " << c << "] has zero probability";
+            continue;
+        }
+        ASSERT_GE(expected, 5.0) << "bin [" << a << ", " << c << "] too small for chi-square";
+        chi2 += (count[b] - expected) * (count[b] - expected) / expected;
+        ++used;
+    }
+    ASSERT_GE(used, 2);
+    const double critical = chi_square_critical(used - 1, 0.001);
+    EXPECT_LT(chi2, critical) << "dof " << used - 1;
 }
 
 // Exact integral of the piecewise-linear interpolant of (xs, ys) over [a, b],

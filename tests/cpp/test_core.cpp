@@ -86,16 +86,19 @@ TEST(HenyeyGreenstein, PdfIsNormalisedAndMeanIsG) {
         const HenyeyGreenstein hg(g);
         // Simpson on cos in [-1, 1] with many nodes: integral of p = 1, of cos p = g.
         const int n = 200000;
-        double s0 = 0, s1 = 0;
+        double s0 = 0, s1 = 0, s_sr = 0;
         for (int i = 0; i <= n; ++i) {
             const double c = -1 + 2.0 * i / n;
             const double w = (i == 0 || i == n) ? 1 : (i % 2 ? 4 : 2);
-            s0 += w * hg.pdf(c);
-            s1 += w * c * hg.pdf(c);
+            s0 += w * hg.pdf_cos(c);
+            s1 += w * c * hg.pdf_cos(c);
+            s_sr += w * 2 * M_PI * hg.pdf(c);  // per steradian: d(omega) = 2 pi d(cos)
         }
         s0 *= 2.0 / n / 3;
         s1 *= 2.0 / n / 3;
+        s_sr *= 2.0 / n / 3;
         EXPECT_NEAR(s0, 1.0, 2e-4) << g;
+        EXPECT_NEAR(s_sr, 1.0, 2e-4) << g;
         EXPECT_NEAR(s1, g, 2e-4) << g;
     }
 }

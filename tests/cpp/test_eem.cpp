@@ -44,31 +44,8 @@ void expect_fits_row(const std::function<double(std::mt19937_64&)>& draw,
                      std::uint64_t seed) {
     const double lo = xs.front(), hi = xs.back();
     const double total = lin_integral(xs, ys, lo, hi);
-    std::mt19937_64 rng(seed);
-    std::vector<long> count(bins, 0);
-    for (int s = 0; s < n; ++s) {
-        const double x = draw(rng);
-        ASSERT_GE(x, lo);
-        ASSERT_LE(x, hi);
-        int b = static_cast<int>((x - lo) / (hi - lo) * bins);
-        if (b == bins) b = bins - 1;
-        ++count[b];
-    }
-    double chi2 = 0.0;
-    int used = 0;
-    for (int b = 0; b < bins; ++b) {
-        const double a = lo + (hi - lo) * b / bins, c = lo + (hi - lo) * (b + 1) / bins;
-        const double expected = n * lin_integral(xs, ys, a, c) / total;
-        if (expected <= 0.0) {
-            EXPECT_EQ(count[b], 0) << "bin [" << a << ", " << c << "] has zero probability";
-            continue;
-        }
-        ASSERT_GE(expected, 5.0);
-        chi2 += (count[b] - expected) * (count[b] - expected) / expected;
-        ++used;
-    }
-    ASSERT_GE(used, 2);
-    EXPECT_LT(chi2, chi_square_critical(used - 1, 0.001)) << "dof " << used - 1;
+    expect_chi_square_fit(draw, [&](double a, double b) { return lin_integral(xs, ys, a, b) / total; }, lo, hi,
+                          bins, n, seed);
 }
 
 

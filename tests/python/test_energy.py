@@ -14,7 +14,7 @@ import endophoton as ep
 from physics_helpers import assert_energy_conserved, assert_within
 
 DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
-TISSUE = ep.Medium(mua=20.0, mus=200.0, g=0.9, n=1.1)
+TISSUE = ep.Medium(**ep.paper.TISSUE)   # the seed paper's colon tissue
 
 
 def _scene_overlapping():

@@ -1,4 +1,4 @@
-"""Henyey-Greenstein sampling (oracles §4) through endophoton._core.sample_hg_cos.
+"""Henyey-Greenstein sampling (oracles §4) through endophoton._core._testing.sample_hg_cos.
 
 - chi-square goodness of fit of the sampled cos(theta) against the analytic HG pdf,
   with equal-probability bins from the analytic CDF (expected count per bin
@@ -40,7 +40,7 @@ def test_hg_cdf_reference_is_the_integral_of_the_pdf(g):
 
 @pytest.mark.parametrize("g", [-0.9, 0.0, 0.3, 0.9, 0.99])
 def test_hg_chi_square(g):
-    x = np.asarray(_core.sample_hg_cos(g, N, 101 + int(1000 * abs(g))))
+    x = np.asarray(_core._testing.sample_hg_cos(g, N, 101 + int(1000 * abs(g))))
     assert x.dtype == np.float64 and x.shape == (N,)
     assert np.all(np.isfinite(x)) and np.all(np.abs(x) <= 1.0)
     edges = _equal_probability_edges(g, BINS)
@@ -56,7 +56,7 @@ def test_hg_chi_square(g):
 
 @pytest.mark.parametrize("g", [-0.9, 0.0, 0.3, 0.9, 0.99])
 def test_hg_legendre_moments(g):
-    x = np.asarray(_core.sample_hg_cos(g, N, 202 + int(1000 * abs(g))))
+    x = np.asarray(_core._testing.sample_hg_cos(g, N, 202 + int(1000 * abs(g))))
     for l in (1, 2, 3):
         p = special.eval_legendre(l, x)
         mean = p.mean()
@@ -68,7 +68,7 @@ def test_hg_legendre_moments(g):
 
 @pytest.mark.parametrize("g,value", [(1.0, 1.0), (-1.0, -1.0)])
 def test_hg_delta_limits(g, value):
-    x = np.asarray(_core.sample_hg_cos(g, 10_000, 3))
+    x = np.asarray(_core._testing.sample_hg_cos(g, 10_000, 3))
     assert np.all(x == value)
 
 
@@ -79,7 +79,7 @@ def test_hg_near_singular_g(g):
     Near |g| = 1 the law is heavy-tailed (the deviation of the mean comes from rare wide
     angles), so sigma uses the exact variance Var[cos] = E[P_2]*2/3 + 1/3 - g^2 = (1 - g^2)/3."""
     n = 200_000
-    x = np.asarray(_core.sample_hg_cos(g, n, 17))
+    x = np.asarray(_core._testing.sample_hg_cos(g, n, 17))
     assert np.all(np.isfinite(x)) and np.all(np.abs(x) <= 1.0)
     sigma = math.sqrt((1 - g * g) / 3 / n)
     assert abs(x.mean() - g) < 3 * sigma + 1e-12, (g, x.mean(), sigma)
@@ -91,9 +91,9 @@ def test_hg_near_singular_g(g):
 
 
 def test_hg_seed_reproducible_and_seeds_differ():
-    a = np.asarray(_core.sample_hg_cos(0.5, 1000, 42))
-    b = np.asarray(_core.sample_hg_cos(0.5, 1000, 42))
-    c = np.asarray(_core.sample_hg_cos(0.5, 1000, 43))
+    a = np.asarray(_core._testing.sample_hg_cos(0.5, 1000, 42))
+    b = np.asarray(_core._testing.sample_hg_cos(0.5, 1000, 42))
+    c = np.asarray(_core._testing.sample_hg_cos(0.5, 1000, 43))
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
 
@@ -101,5 +101,5 @@ def test_hg_seed_reproducible_and_seeds_differ():
 @pytest.mark.parametrize("g", [1.0000001, -1.5, float("nan"), float("inf")])
 def test_hg_rejects_invalid_g(g):
     with pytest.raises(ValueError) as ei:
-        _core.sample_hg_cos(g, 10, 1)
+        _core._testing.sample_hg_cos(g, 10, 1)
     assert "g" in str(ei.value)

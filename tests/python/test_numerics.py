@@ -70,7 +70,7 @@ def pencil(z=1.0):
 @pytest.mark.parametrize("g", [1.0, -1.0])
 def test_hg_sampler_at_unit_g_is_a_delta(g):
     """|g| = 1: no deflection (g = 1) or reversal (g = -1), exactly."""
-    c = _core.sample_hg_cos(g, 10_000, 3)
+    c = _core._testing.sample_hg_cos(g, 10_000, 3)
     assert np.all(c == g)
 
 
@@ -82,7 +82,7 @@ def test_hg_sampler_tail_near_unit_g(g, x0):
     and the observable part is the tail: P(x > x0) = eps / sqrt(eps^2 + 2 x0). Binomial 3 sigma.
     (The sample mean is no test here: E[x] = eps comes from events of probability ~eps.)"""
     n = 400_000
-    c = _core.sample_hg_cos(g, n, 3)
+    c = _core._testing.sample_hg_cos(g, n, 3)
     assert np.all(np.isfinite(c)) and c.min() >= -1 and c.max() <= 1
     eps = 1 - abs(g)
     x = 1 - np.sign(g) * c
@@ -96,7 +96,7 @@ def test_hg_sampler_isotropic_branch():
     [-1, 1], mean g ~ 0 and variance 1/3 (3 standard errors; se of the variance from the
     uniform's fourth moment: Var(c^2) = 1/5 - 1/9)."""
     n = 400_000
-    c = _core.sample_hg_cos(1e-7, n, 3)
+    c = _core._testing.sample_hg_cos(1e-7, n, 3)
     assert c.min() >= -1 and c.max() <= 1
     assert abs(c.mean() - 1e-7) < 3 * math.sqrt(1 / 3 / n)
     assert abs(np.mean(c * c) - 1 / 3) < 3 * math.sqrt((1 / 5 - 1 / 9) / n)
@@ -268,12 +268,12 @@ def test_grazing_incidence_specular_is_fresnel(deg):
 
 def test_fresnel_tends_to_one_at_grazing_incidence():
     degs = (89.0, 89.9, 89.99, 89.999, 89.9999, 89.99999)
-    Rs = [_core.fresnel(math.cos(math.radians(deg)), 1.0, 1.5) for deg in degs]
+    Rs = [_core._testing.fresnel(math.cos(math.radians(deg)), 1.0, 1.5) for deg in degs]
     for deg, R in zip(degs, Rs):
         assert abs(R - fresnel_oracle(1.0, 1.5, math.radians(deg))) < 1e-9
     # 1 - R ~ cos(theta) near grazing: 1e-6 of 1 - R per 1e-6 rad in this range
     assert all(b > a for a, b in zip(Rs, Rs[1:])) and 1 - Rs[-1] < 2e-6
-    assert _core.fresnel(0.0, 1.0, 1.5) == 1.0 and _core.fresnel(0.0, 1.5, 1.0) == 1.0
+    assert _core._testing.fresnel(0.0, 1.0, 1.5) == 1.0 and _core._testing.fresnel(0.0, 1.5, 1.0) == 1.0
 
 
 def test_beam_parallel_to_the_surface_never_enters():
@@ -304,20 +304,20 @@ THETA_C = math.asin(1.0 / N_GLASS)
 @pytest.mark.parametrize("delta", [1e-3, 1e-6, 1e-8])
 def test_fresnel_just_below_critical_angle(delta):
     th = THETA_C - delta
-    R = _core.fresnel(math.cos(th), N_GLASS, 1.0)
+    R = _core._testing.fresnel(math.cos(th), N_GLASS, 1.0)
     assert R < 1
     assert abs(R - fresnel_oracle(N_GLASS, 1.0, th)) < 1e-9
 
 
 @pytest.mark.parametrize("delta", [1e-9, 1e-6, 1e-3])
 def test_fresnel_beyond_critical_angle_is_total(delta):
-    assert _core.fresnel(math.cos(THETA_C + delta), N_GLASS, 1.0) == 1.0
+    assert _core._testing.fresnel(math.cos(THETA_C + delta), N_GLASS, 1.0) == 1.0
 
 
 def test_fresnel_at_exactly_the_critical_angle():
     # cos(theta_c) is rounded, so the engine sees theta_c +- 1 ulp: either TIR or R = 1 - O(1e-8).
-    assert abs(_core.fresnel(math.cos(THETA_C), N_GLASS, 1.0) - 1.0) < 1e-6
-    assert _core.fresnel(math.sqrt(1 - (1 / N_GLASS) ** 2), N_GLASS, 1.0) == pytest.approx(1.0, abs=1e-6)
+    assert abs(_core._testing.fresnel(math.cos(THETA_C), N_GLASS, 1.0) - 1.0) < 1e-6
+    assert _core._testing.fresnel(math.sqrt(1 - (1 / N_GLASS) ** 2), N_GLASS, 1.0) == pytest.approx(1.0, abs=1e-6)
 
 
 def _glass_slab_source(theta):
@@ -462,7 +462,7 @@ def test_emission_far_into_the_sequence(first):
     packets 0..1023."""
     R, half = 0.2, math.radians(10)
     src = _core.Source(_disk_cone_lights())
-    pos, dirs, wl, light = src.emit(7, first, 1024, True)
+    pos, dirs, wl, light = _core._testing.emit(src, 7, first, 1024, True)
     for a in (pos, dirs, wl):
         assert np.all(np.isfinite(a))
     assert np.all(light == 0)
@@ -475,7 +475,7 @@ def test_emission_far_into_the_sequence(first):
     u = np.sort(r2)
     assert np.allclose(np.diff(u) * 1024, 1.0, atol=1e-6) and u[0] < 1 / 1024  # lattice j/1024 + offset
     if first:
-        pos0, dirs0, wl0, _ = src.emit(7, 0, 1024, True)
+        pos0, dirs0, wl0, _ = _core._testing.emit(src, 7, 0, 1024, True)
         assert not np.allclose(dirs, dirs0) and not np.allclose(wl, wl0)
         assert np.all(np.any(pos != pos0, axis=1))
 
@@ -483,7 +483,7 @@ def test_emission_far_into_the_sequence(first):
 def test_two_lights_alternate_far_into_the_sequence():
     rig = ep.EndoscopeRig.from_beta(20.0, 1.0)
     src = _core.Source(rig.native_lights(1.0))
-    _, _, _, light = src.emit(1, 2 ** 40 + 1, 6, False)
+    _, _, _, light = _core._testing.emit(src, 1, 2 ** 40 + 1, 6, False)
     assert light.tolist() == [1, 0, 1, 0, 1, 0]
 
 

@@ -320,12 +320,16 @@ def test_check_closed_mesh_rejects_bad_meshes():
     v, t = meshes.uv_sphere((0, 0, 0), 1.0, 6, 8)
     flipped = t.copy()
     flipped[3] = flipped[3, ::-1]
-    with pytest.raises(ValueError, match="winding"):
-        meshes.check_closed_mesh(v, flipped)
-    with pytest.raises(ValueError, match="closed"):
+    # the engine's checker (native/mesh_check.cpp) owns the rule and words the message
+    with pytest.raises(ValueError, match=r"^sphere: mesh orientation is inconsistent: edge \(\d+, \d+\) is traversed 2 times"):
+        meshes.check_closed_mesh(v, flipped, owner="sphere")
+    with pytest.raises(ValueError, match=r"^mesh: mesh is open \(not watertight\)"):
         meshes.check_closed_mesh(v, t[1:])
-    with pytest.raises(ValueError, match="inward"):
+    with pytest.raises(ValueError, match="mesh orientation is inward: signed volume = -"):
         meshes.check_closed_mesh(v, t[:, ::-1])
+    report = meshes.check_closed_mesh(v, t)
+    assert report["signed_volume"] == pytest.approx(meshes.signed_volume(v, t), rel=1e-9)
+    assert report["welded_vertices"] == len(v)
     with pytest.raises(ValueError, match="radii"):
         meshes.ellipsoid((0, 0, 0), (1, 0, 1))
 
@@ -351,7 +355,7 @@ def test_default_flat_scene_builds():
         assert names == (["tissue", "polyp"] if polyp else ["tissue"])
         for r in scene.regions:
             meshes.check_closed_mesh(r.vertices, r.triangles)
-            assert (r.medium.mua, r.medium.mus, r.medium.g, r.medium.n) == (20.0, 200.0, 0.9, 1.1)
+            assert dict(mua=r.medium.mua, mus=r.medium.mus, g=r.medium.g, n=r.medium.n) == ep.paper.TISSUE
         scene.to_native()
     mm = sw.default_flat_scene(unit="mm")
     assert np.isclose(mm.region("polyp").vertices[:, 0].max(), 3.0, rtol=1e-3)
@@ -493,6 +497,28 @@ def test_blender_path_gives_identical_numbers(tmp_path):
             assert a[k] == b[k], (k, a[k], b[k])
     for h, c in zip(ref.histograms, got["counts"]):
         assert np.array_equal(np.asarray(h["counts"]), np.asarray(c))
+
+
+@pytest.mark.skipif(not _blender_available(), reason="blender with python 3.11 + numpy, or the engine, missing")
+def test_cli_blend_runs_the_addon_module_in_blender(tmp_path):
+    """``python3 -m endophoton sweep --blend FILE`` starts Blender, which runs the add-on's
+    sweep_blend on the file's scene and rig (the package itself never imports bpy)."""
+    import subprocess
+    import sys
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
+    proc = subprocess.run([sys.executable, "-m", "endophoton", "sweep", "--blend",
+                           os.path.join(ROOT, "blend_scenes", "flat_tissue.blend"), "--betas", "0,20",
+                           "--store", "400", "--batches", "4", "--threads", "1", "--seed", "3", "--no-progress",
+                           "--out", str(out)], capture_output=True, text=True, timeout=900, env=env, cwd=str(tmp_path))
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    res = sw.SweepResult.from_json(str(out / "sweep.json"))
+    assert res.meta["scene"].startswith("blender scene") and "flat_tissue.blend" in res.meta["scene"]
+    assert list(res.betas) == [0.0, 20.0] and all(r["records"] == 400 for r in res.rows)
+    assert res.meta["seed"] == 3 and res.meta["n_batches"] == 4 and res.meta["unit"] == "m"
+    # the rig of the .blend (its head dimensions reach from_beta), at its distance (10 mm) in metres
+    assert "head_diameter_mm" in res.meta["rig_kwargs"] and res.meta["distance"] == pytest.approx(0.01)
+    assert (out / "report.md").exists() and (out / "sweep.csv").exists()
 
 
 # ---------------------------------------------------------------- report logic on a known trend

@@ -1,0 +1,178 @@
+// Binding of a run: CancelToken, RunConfig (native/run_config.h, one attribute
+// per field; keyword construction RunConfig(photons=..., seed=...)) and run(),
+// which releases the GIL and returns the estimates and records as a dict.
+#include <stdexcept>
+
+#include "common.h"
+#include "engine.h"
+
+namespace ep::bind {
+
+namespace {
+
+py::dict estimates_dict(const RunResult& r, const Scene& scene) {
+    py::dict d;
+    for (int k = 0; k < kScalarTallies; ++k) {
+        d[tally_name(k)] = r.scalar[k].mean;
+        d[(std::string(tally_name(k)) + "_stderr").c_str()] = r.scalar[k].stderr_;
+    }
+    py::dict reg, reg_se;
+    for (size_t i = 0; i < r.absorbed_by_region.size(); ++i) {
+        reg[scene.region(i).name.c_str()] = r.absorbed_by_region[i].mean;
+        reg_se[scene.region(i).name.c_str()] = r.absorbed_by_region[i].stderr_;
+    }
+    if (r.spectral) {
+        for (int k = 0; k < kEnergyTallies; ++k) {
+            d[energy_tally_name(k)] = r.energy[k].mean;
+            d[(std::string(energy_tally_name(k)) + "_stderr").c_str()] = r.energy[k].stderr_;
+        }
+    }
+    d["absorbed_by_region"] = reg;
+    d["absorbed_by_region_stderr"] = reg_se;
+    return d;
+}
+
+py::dict records_dict(EscapeRecords&& rec) {
+    const py::ssize_t n = py::ssize_t(rec.size());
+    py::dict d;
+    d["position"] = take(std::move(rec.position), {n, 3});
+    d["direction"] = take(std::move(rec.direction), {n, 3});
+    d["normal"] = take(std::move(rec.normal), {n, 3});
+    d["entry"] = take(std::move(rec.entry), {n, 3});
+    d["weight"] = take(std::move(rec.weight), {n});
+    d["energy"] = take(std::move(rec.energy), {n});
+    d["wavelength"] = take(std::move(rec.wavelength), {n});
+    d["max_depth"] = take(std::move(rec.max_depth), {n});
+    d["fluorescent"] = take(std::move(rec.fluorescent), {n});
+    d["light"] = take(std::move(rec.light), {n});
+    d["kind"] = take(std::move(rec.kind), {n});
+    d["fluorophore"] = take(std::move(rec.fluorophore), {n});
+    d["region"] = take(std::move(rec.region), {n});
+    d["scatterings"] = take(std::move(rec.scatterings), {n});
+    d["packet"] = take(std::move(rec.packet), {n});
+    d["exit_order"] = take(std::move(rec.exit_order), {n});
+    d["next_hit"] = take(std::move(rec.next_hit), {n});
+    return d;
+}
+
+py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
+    py::dict d = estimates_dict(r, scene);
+    d["photons"] = r.packets;
+    d["packets_traced"] = r.packets_traced;
+    d["cancelled"] = r.cancelled;
+    d["target_reached"] = r.target_reached;
+    d["store_reached"] = r.store_reached;
+    d["stop_reason"] = r.stop_reason;
+    d["seconds"] = r.seconds;
+    d["spectral"] = r.spectral;
+    d["unit_size"] = r.unit_size;
+    d["threads"] = r.threads;
+    d["grid_path"] = r.grid_path.empty() ? py::object(py::none()) : py::object(py::str(r.grid_path));
+    d["grid_names"] = r.grid_names;
+    d["grid_absorbed_sum"] = r.grid_absorbed_sum;
+    d["record_bytes"] = r.peak_record_bytes;
+    if (with_records) d["escapes"] = records_dict(std::move(r.records));
+    else d["escapes"] = py::none();
+    return d;
+}
+
+std::string rule_name(FluorescenceRule r) { return r == FluorescenceRule::kEEM ? "eem" : "paper"; }
+
+FluorescenceRule rule_from_name(const std::string& r) {
+    if (r == "paper") return FluorescenceRule::kPaper;
+    if (r == "eem") return FluorescenceRule::kEEM;
+    throw std::invalid_argument("fluorescence_rule = '" + r + "' must be 'paper' or 'eem'");
+}
+
+int tally_from_name(const std::string& name) {
+    if (name.empty()) return -1;
+    for (int i = 0; i < kScalarTallies; ++i)
+        if (name == tally_name(i)) return i;
+    throw std::invalid_argument("target tally '" + name + "' is not a tally name");
+}
+
+void bind_config(py::module_& m) {
+    py::class_<RunConfig> cls(m, "RunConfig", "Options of one run (native/run_config.h); lengths in scene units.");
+    cls.def(py::init<>())
+        .def(py::init([](const py::kwargs& kwargs) {
+                 // Keyword construction: every key must name an attribute (a field of RunConfig).
+                 py::object self = py::cast(RunConfig{});
+                 for (auto item : kwargs) {
+                     const std::string key = item.first.cast<std::string>();
+                     if (key.rfind("__", 0) == 0 || !py::hasattr(self, key.c_str()))
+                         throw std::invalid_argument("run option '" + key + "' is unknown");
+                     py::setattr(self, key.c_str(), item.second);
+                 }
+                 return self.cast<RunConfig>();
+             }))
+        .def_readwrite("photons", &RunConfig::photons)
+        .def_readwrite("store", &RunConfig::store)
+        .def_readwrite("fluorescent_only", &RunConfig::fluorescent_only)
+        .def_readwrite("record_escapes", &RunConfig::record_escapes)
+        .def_readwrite("max_records", &RunConfig::max_records)
+        .def_readwrite("seed", &RunConfig::seed)
+        .def_readwrite("threads", &RunConfig::threads)
+        .def_readwrite("roulette_threshold", &RunConfig::roulette_threshold)
+        .def_readwrite("roulette_chance", &RunConfig::roulette_chance)
+        .def_readwrite("max_steps", &RunConfig::max_steps)
+        .def_readwrite("max_path_cm", &RunConfig::max_path_cm)
+        .def_readwrite("force_spectral", &RunConfig::force_spectral)
+        .def_readwrite("grid_voxel_size", &RunConfig::grid_voxel_size)
+        .def_readwrite("grid_per_fluorophore", &RunConfig::grid_per_fluorophore)
+        .def_readwrite("grid_path", &RunConfig::grid_path)
+        .def_readwrite("target_rel_error", &RunConfig::target_rel_error)
+        .def_readwrite("time_budget_s", &RunConfig::time_budget_s)
+        .def_readwrite("max_photons", &RunConfig::max_photons)
+        .def_readwrite("unit_size", &RunConfig::unit_size)
+        .def_readwrite("batches", &RunConfig::batches)
+        .def_readwrite("safe_distance", &RunConfig::safe_distance)
+        .def_readwrite("lumen", &RunConfig::lumen)
+        .def_property(
+            "fluorescence_rule", [](const RunConfig& c) { return rule_name(c.rule); },
+            [](RunConfig& c, const std::string& r) { c.rule = rule_from_name(r); }, "'paper' or 'eem'")
+        .def_property(
+            "target_tally", [](const RunConfig& c) { return c.target_tally < 0 ? std::string() : tally_name(c.target_tally); },
+            [](RunConfig& c, const std::string& name) { c.target_tally = tally_from_name(name); },
+            "name of the tally a target-accuracy run aims at, '' for none");
+}
+
+}  // namespace
+
+void bind_run(py::module_& m) {
+    py::class_<CancelToken, std::shared_ptr<CancelToken>>(m, "CancelToken")
+        .def(py::init<>())
+        .def("cancel", [](CancelToken& t) { t.flag.store(true); }, "Ask the running simulation to stop.")
+        .def_property_readonly("cancelled", [](const CancelToken& t) { return t.flag.load(); });
+    bind_config(m);
+    m.def(
+        "run",
+        [](std::shared_ptr<Scene> scene, std::shared_ptr<Source> source, const RunConfig& config, py::object progress,
+           std::shared_ptr<CancelToken> cancel) {
+            std::atomic<bool>* flag = cancel ? &cancel->flag : nullptr;
+            ProgressFn fn;
+            std::string py_error;
+            if (!progress.is_none()) {
+                fn = [&](uint64_t done, uint64_t total) {
+                    py::gil_scoped_acquire gil;
+                    try {
+                        py::object r = progress(done, total);
+                        return r.is_none() || r.cast<bool>();
+                    } catch (py::error_already_set& e) {
+                        py_error = e.what();
+                        return false;
+                    }
+                };
+            }
+            RunResult r;
+            {
+                py::gil_scoped_release release;
+                r = ep::run(*scene, *source, config, fn, flag);
+            }
+            if (!py_error.empty()) throw std::runtime_error("progress callback raised: " + py_error);
+            return result_dict(std::move(r), *scene, config.record_escapes);
+        },
+        py::arg("scene"), py::arg("source"), py::arg("config"), py::arg("progress") = py::none(),
+        py::arg("cancel") = nullptr);
+}
+
+}  // namespace ep::bind
