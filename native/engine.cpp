@@ -1,5 +1,6 @@
 #include "engine.h"
 
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <memory>
@@ -307,6 +308,8 @@ void run_workers(RunState& st, int threads, uint64_t total, const ProgressFn& pr
     std::vector<std::thread> pool;
     for (int t = 0; t < threads; ++t) {
         try {
+            if (st.cfg.test_fail_thread > 0 && t + 1 >= st.cfg.test_fail_thread)
+                throw std::system_error(EAGAIN, std::generic_category(), "Resource temporarily unavailable");
             active.fetch_add(1);
             pool.emplace_back([&st, &active]() {
                 worker(st);
@@ -374,6 +377,9 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
     finalize_estimates(result, cfg.batches);
     result.packets_traced = cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
     result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+    if (result.packets == 0)
+        result.warnings.push_back("no work unit finished before the run stopped: the result holds no estimate "
+                                  "(every fraction and its stderr is 0, photons = 0)");
     if (result.capped_packets > 0)
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");
