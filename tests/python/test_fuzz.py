@@ -54,6 +54,18 @@ def _paths(node, prefix=()):
 ALL_PATHS = _paths(BASE)
 
 
+def _get(doc, path):
+    node = doc
+    for k in path:
+        node = node[k]
+    return node
+
+
+#: Paths to numbers: scaling them gives valid but extreme scenes, which exercise the engine.
+NUMBER_PATHS = [p for p in ALL_PATHS if type(_get(BASE, p)) in (int, float)]
+FACTORS = [0, 1e-9, 1e-3, 0.5, 2, 10, 1e3, 1e6, 1e9, -1]
+
+
 def _set(doc, path, value):
     node = doc
     for k in path[:-1]:
@@ -71,11 +83,16 @@ def _delete(doc, path):
 @st.composite
 def mutated_documents(draw):
     doc = copy.deepcopy(BASE)
-    for _ in range(draw(st.integers(1, 3))):
-        path = draw(st.sampled_from(ALL_PATHS))
-        kind = draw(st.sampled_from(["edge", "edge", "number", "delete", "unknown_key"]))
+    for _ in range(draw(st.integers(1, 2))):
+        kind = draw(st.sampled_from(["scale", "scale", "scale", "edge", "number", "delete", "unknown_key"]))
+        path = draw(st.sampled_from(NUMBER_PATHS if kind == "scale" else ALL_PATHS))
         try:
-            if kind == "edge":
+            if kind == "scale":
+                v = _get(doc, path)
+                if type(v) in (int, float):
+                    w = v * draw(st.sampled_from(FACTORS))
+                    _set(doc, path, int(w) if type(v) is int and abs(w) < 2 ** 63 else w)
+            elif kind == "edge":
                 _set(doc, path, copy.deepcopy(draw(st.sampled_from(EDGE_VALUES))))
             elif kind == "number":
                 _set(doc, path, draw(st.one_of(st.integers(-2 ** 70, 2 ** 70),
