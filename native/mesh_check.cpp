@@ -53,7 +53,8 @@ bool segment_pierces(const P3& p, const P3& q, const P3& a, const P3& b, const P
 }
 
 // Two triangles without a shared (welded) vertex intersect if an edge of one
-// pierces the other. Broad phase: sweep over the triangles' x intervals.
+// pierces the other. Broad phase: sweep over the triangles' intervals along
+// the longest axis.
 void check_self_intersection(const std::string& owner, const float* v, const uint32_t* tri, size_t nt,
                              const std::vector<uint32_t>& canon) {
     struct Box {
@@ -74,7 +75,17 @@ void check_self_intersection(const std::string& owner, const float* v, const uin
             }
         }
     }
-    std::sort(boxes.begin(), boxes.end(), [](const Box& a, const Box& b) { return a.lo[0] < b.lo[0]; });
+    // Sweep along the mesh's longest axis: a long tube (a colon) then meets
+    // only its neighbouring rings in the sweep window.
+    double ext[3] = {0, 0, 0};
+    for (int a = 0; a < 3; ++a) {
+        double lo = INFINITY, hi = -INFINITY;
+        for (const Box& b : boxes) lo = std::min(lo, b.lo[a]), hi = std::max(hi, b.hi[a]);
+        ext[a] = hi - lo;
+    }
+    const int ax = ext[0] >= ext[1] && ext[0] >= ext[2] ? 0 : (ext[1] >= ext[2] ? 1 : 2);
+    const int o1 = (ax + 1) % 3, o2 = (ax + 2) % 3;
+    std::sort(boxes.begin(), boxes.end(), [ax](const Box& a, const Box& b) { return a.lo[ax] < b.lo[ax]; });
     auto point = [&](uint32_t i) { return P3{v[3 * size_t(i)], v[3 * size_t(i) + 1], v[3 * size_t(i) + 2]}; };
     auto pierces = [&](const Box& e, const Box& f) {
         const P3 a = point(f.idx[0]), b = point(f.idx[1]), c = point(f.idx[2]);
@@ -84,9 +95,9 @@ void check_self_intersection(const std::string& owner, const float* v, const uin
     };
     for (size_t i = 0; i < nt; ++i) {
         const Box& A = boxes[i];
-        for (size_t j = i + 1; j < nt && boxes[j].lo[0] <= A.hi[0]; ++j) {
+        for (size_t j = i + 1; j < nt && boxes[j].lo[ax] <= A.hi[ax]; ++j) {
             const Box& B = boxes[j];
-            if (B.lo[1] > A.hi[1] || A.lo[1] > B.hi[1] || B.lo[2] > A.hi[2] || A.lo[2] > B.hi[2]) continue;
+            if (B.lo[o1] > A.hi[o1] || A.lo[o1] > B.hi[o1] || B.lo[o2] > A.hi[o2] || A.lo[o2] > B.hi[o2]) continue;
             bool shared = false;
             for (uint32_t x : A.idx)
                 for (uint32_t y : B.idx) shared = shared || x == y;
