@@ -282,8 +282,10 @@ void worker(RunState& st) {
             const uint64_t first = u * st.unit_size, end = std::min(st.limit, first + st.unit_size);
             uint64_t counted = first;
             for (uint64_t k = first; k < end; ++k) {
+                // Cancel is checked before every packet (two relaxed loads), so a
+                // Ctrl-C lands within one packet even when packets are slow.
+                if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return;
                 if ((k & 255) == 0) {
-                    if (st.cancelled() || st.stop.load()) return;
                     st.done_packets.fetch_add(k - counted);  // progress every 256 packets
                     counted = k;
                 }
