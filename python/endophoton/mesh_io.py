@@ -16,8 +16,16 @@ def box_mesh(lo, hi):
 
     Returns (vertices float32 (8, 3), triangles uint32 (12, 3)).
     """
-    lo = np.asarray(lo, dtype=np.float64).reshape(3)
-    hi = np.asarray(hi, dtype=np.float64).reshape(3)
+    corners = []
+    for field, c in (("box.min", lo), ("box.max", hi)):
+        try:
+            a = np.asarray(c, dtype=np.float64)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.shape != (3,) or any(isinstance(x, (bool, np.bool_)) for x in np.ravel(np.asarray(c, dtype=object))):
+            raise ValueError(f"{field} = {c!r} must be 3 numbers")
+        corners.append(a)
+    lo, hi = corners
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         raise ValueError(f"box.min = {lo.tolist()} / box.max = {hi.tolist()} must be finite")
     if np.any(hi <= lo):

@@ -359,3 +359,10 @@ def test_zero_weight_escapes_are_not_records():
     r = ep.run(s, DOWN, photons=100, seed=1)
     assert r.transmittance == 0.0 and r.absorbed == 1.0
     assert len(r.escapes["weight"]) == 0
+
+
+@pytest.mark.parametrize("corner", [(1, 2), (True, 0, 0), "abc", [[0, 0, 0]]])
+def test_short_or_bad_box_corner_names_the_field_in_the_api(corner):
+    s = ep.Scene("cm")
+    with pytest.raises(ValueError, match=r"region 'b': box.min = .* must be 3 numbers"):
+        s.add_box("b", corner, (1, 1, 1), TISSUE)
