@@ -109,6 +109,10 @@ def _run_main(args) -> int:
     return EXIT_INTERRUPTED if res.cancelled else 0
 
 
+#: SIGINTs received while the CLI was still loading modules or reading the scene.
+_early_interrupts: list = []
+
+
 def _run_interruptible(run, *a, **kw):
     """Ctrl-C cancels the run (within ~0.1 s: the engine runs signal handlers at every
     progress tick); the partial result, marked cancelled, is returned."""
@@ -123,6 +127,18 @@ def _run_interruptible(run, *a, **kw):
 
 
 def main(argv=None) -> int:
+    # Until a run installs its own handler, Ctrl-C is only noted (an interrupt inside a
+    # module import would otherwise surface as a traceback or an ImportError).
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: _early_interrupts.append(signum))
+    try:
+        return _main(argv)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if _early_interrupts:
+            _early_interrupts.clear()
+
+
+def _main(argv) -> int:
     from .run import MAX_PACKETS, MAX_THREADS
 
     parser = argparse.ArgumentParser(prog="python3 -m endophoton", description=__doc__,
@@ -152,4 +168,10 @@ def main(argv=None) -> int:
     add_sweep_arguments(p_sweep)
     p_sweep.set_defaults(func=sweep_main)
     args = parser.parse_args(argv)
+    # From here Ctrl-C raises KeyboardInterrupt again (run_guarded: exit 130); `run`
+    # replaces that with a cancel of the engine while it runs.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    if _early_interrupts:
+        print("endophoton: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return run_guarded(args.func, args)
