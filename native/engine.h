@@ -32,15 +32,16 @@ enum class StopReason {
 };
 const char* stop_reason_name(StopReason r);
 
-// The stop rule of store and target runs, checked after every merged unit.
-// It never looks at the clock itself: the caller passes the elapsed time, so
+// The stop rule of every run, checked after every merged unit (fixed runs:
+// the count and the time budget; store and target runs: their goal, the
+// "zero" rules, the packet cap and the budget). It never looks at the clock itself: the caller passes the elapsed time, so
 // the rule is a pure function of the merged units (testable without timing).
 class StopRule {
   public:
     static constexpr size_t kMinTargetUnits = 20;   // units before a target can be met
     static constexpr size_t kZeroUnits = 1000;      // units before "store_zero" / "target_zero"
     StopRule(const RunConfig& cfg, uint64_t n_units_max);
-    // `unit` was just merged as unit number `units_merged` - 1; `records` are
+    // `unit` was just merged, making `units_merged` units; `records` are
     // stored so far. Returns kNone to go on.
     StopReason after_merge(const UnitTally& unit, size_t units_merged, uint64_t records, double elapsed_s);
 
