@@ -17,6 +17,43 @@
 
 namespace ep {
 
+// Why a run stopped. Every mode ends with one of these; the name is what the
+// Python result's `stop_reason` says.
+enum class StopReason {
+    kNone,        // still running
+    kPhotons,     // fixed count reached
+    kStore,       // "store N": N escape records stored
+    kStoreZero,   // "store N": no record at all after kZeroUnits units (the request is impossible)
+    kTarget,      // target accuracy reached
+    kTargetZero,  // target tally still exactly 0 after kZeroUnits units (relative error undefined)
+    kTime,        // time budget used up
+    kMaxPhotons,  // packet cap of a store/target run reached
+    kCancelled,   // cancel token, progress callback or signal
+};
+const char* stop_reason_name(StopReason r);
+
+// The stop rule of every run, checked after every merged unit (fixed runs:
+// the count and the time budget; store and target runs: their goal, the
+// "zero" rules, the packet cap and the budget). It never looks at the clock itself: the caller passes the elapsed time, so
+// the rule is a pure function of the merged units (testable without timing).
+class StopRule {
+  public:
+    static constexpr size_t kMinTargetUnits = 20;   // units before a target can be met
+    static constexpr size_t kZeroUnits = 1000;      // units before "store_zero" / "target_zero"
+    StopRule(const RunConfig& cfg, uint64_t n_units_max);
+    // `unit` was just merged, making `units_merged` units; `records` are
+    // stored so far. Returns kNone to go on.
+    StopReason after_merge(const UnitTally& unit, size_t units_merged, uint64_t records, double elapsed_s);
+
+  private:
+    const RunConfig& cfg_;
+    uint64_t n_units_max_;
+    // Prefix sums of the target tally over merged units: the target test is
+    // then O(batches) per unit instead of O(units).
+    std::vector<uint64_t> prefix_n_{0};
+    std::vector<double> prefix_sum_{0.0};
+};
+
 struct RunResult {
     uint64_t packets = 0;         // packets whose tallies are included
     uint64_t packets_traced = 0;  // store-N mode: index of the packet that made the N-th record + 1
@@ -29,7 +66,9 @@ struct RunResult {
     bool target_reached = false;
     bool spectral = false;
     bool store_reached = false;
-    std::string stop_reason;      // "photons", "store", "target", "target_zero", "time", "max_photons", "cancelled"
+    StopReason stop = StopReason::kNone;
+    uint64_t capped_packets = 0;  // packets that ended at the step or path cap (their weight is `cut`)
+    std::vector<std::string> warnings;  // conditions a reader of the result must know about
     double seconds = 0;
     std::string grid_path;
     std::vector<std::string> grid_names;
@@ -41,7 +80,8 @@ struct RunResult {
 
 // progress(done_packets, total_packets_or_0) is called on the calling thread
 // about every 100 ms; returning false cancels the run. `cancel` may be set from
-// any thread. Both may be empty/null.
+// any thread. Both may be empty/null. The scene and the source are checked
+// against float32 ray-tracing limits (scale_check.h) before any ray is cast.
 using ProgressFn = std::function<bool(uint64_t, uint64_t)>;
 
 RunResult run(const Scene& scene, const Source& source, const RunConfig& config, const ProgressFn& progress,

@@ -595,7 +595,8 @@ void PacketWalk<kSpectral, kGrids>::escape() {
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::record_exit(int from_region, const Vec3& normal_out, NextHit next) {
     const PacketState& st = st_;
-    if (!cfg_.record_escapes || (cfg_.fluorescent_only && !st.fluorescent)) return;
+    // No zero-weight records: they carry no light and would count towards "store N".
+    if (!cfg_.record_escapes || !(st.W > 0) || (cfg_.fluorescent_only && !st.fluorescent)) return;
     EscapeRecord r;
     r.position = st.p;
     r.direction = st.d;

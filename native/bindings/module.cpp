@@ -29,6 +29,8 @@ PYBIND11_MODULE(_core, m) {
     m.doc() = "EndoPhoton native engine (thin binding; use the endophoton package API)";
     m.attr("__version__") = ep::engine_version();
     py::register_exception<std::invalid_argument>(m, "InvalidArgument", PyExc_ValueError);
+    m.attr("MAX_REGIONS") = int(ep::Scene::kMaxRegions);
+    m.attr("MAX_PACKET_REQUEST") = ep::kMaxPacketRequest;
     ep::bind::bind_scene(m);
     ep::bind::bind_source(m);
     ep::bind::bind_run(m);

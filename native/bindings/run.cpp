@@ -62,7 +62,9 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
     d["cancelled"] = r.cancelled;
     d["target_reached"] = r.target_reached;
     d["store_reached"] = r.store_reached;
-    d["stop_reason"] = r.stop_reason;
+    d["stop_reason"] = stop_reason_name(r.stop);
+    d["capped_packets"] = r.capped_packets;
+    d["warnings"] = r.warnings;
     d["seconds"] = r.seconds;
     d["spectral"] = r.spectral;
     d["unit_size"] = r.unit_size;
@@ -127,6 +129,8 @@ void bind_config(py::module_& m) {
         .def_readwrite("batches", &RunConfig::batches)
         .def_readwrite("safe_distance", &RunConfig::safe_distance)
         .def_readwrite("lumen", &RunConfig::lumen)
+        .def_readwrite("test_cancel_after_units", &RunConfig::test_cancel_after_units)
+        .def_readwrite("test_fail_thread", &RunConfig::test_fail_thread)
         .def_property(
             "fluorescence_rule", [](const RunConfig& c) { return rule_name(c.rule); },
             [](RunConfig& c, const std::string& r) { c.rule = rule_from_name(r); }, "'paper' or 'eem'")
@@ -149,26 +153,29 @@ void bind_run(py::module_& m) {
         [](std::shared_ptr<Scene> scene, std::shared_ptr<Source> source, const RunConfig& config, py::object progress,
            std::shared_ptr<CancelToken> cancel) {
             std::atomic<bool>* flag = cancel ? &cancel->flag : nullptr;
-            ProgressFn fn;
-            std::string py_error;
-            if (!progress.is_none()) {
-                fn = [&](uint64_t done, uint64_t total) {
-                    py::gil_scoped_acquire gil;
-                    try {
-                        py::object r = progress(done, total);
-                        return r.is_none() || r.cast<bool>();
-                    } catch (py::error_already_set& e) {
-                        py_error = e.what();
-                        return false;
-                    }
-                };
-            }
+            // Every watcher tick also runs Python's signal handlers, so Ctrl-C
+            // (or a handler that cancels) stops the run within ~0.1 s.
+            std::unique_ptr<py::error_already_set> py_error;
+            ProgressFn fn = [&](uint64_t done, uint64_t total) {
+                py::gil_scoped_acquire gil;
+                try {
+                    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+                    if (progress.is_none()) return true;
+                    py::object r = progress(done, total);
+                    return r.is_none() || r.cast<bool>();
+                } catch (py::error_already_set& e) {
+                    py_error = std::make_unique<py::error_already_set>(std::move(e));
+                    return false;
+                }
+            };
             RunResult r;
             {
                 py::gil_scoped_release release;
                 r = ep::run(*scene, *source, config, fn, flag);
             }
-            if (!py_error.empty()) throw std::runtime_error("progress callback raised: " + py_error);
+            // A KeyboardInterrupt (or an error of the callback) is re-raised once
+            // the workers have stopped; a cancelled run writes no grid file.
+            if (py_error) throw std::move(*py_error);
             return result_dict(std::move(r), *scene, config.record_escapes);
         },
         py::arg("scene"), py::arg("source"), py::arg("config"), py::arg("progress") = py::none(),

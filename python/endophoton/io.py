@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import os
 import tempfile
 from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "jsonable", "unjson", "check_keys"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "jsonable", "unjson", "check_keys", "check_int", "check_real", "check_bool"]
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, make_dirs: bool = True) -> str:
@@ -93,3 +94,28 @@ def check_keys(owner: str, d: Any, required: set, extra: set = frozenset()) -> N
     for k in required:
         if k not in d:
             raise ValueError(f"{owner}: missing key {k!r}")
+
+
+def check_int(name: str, v, lo: int, hi: int) -> int:
+    """``v`` is an integer (not a bool, not a float, not a string) in [lo, hi]."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"{name} = {v!r} must be an integer")
+    if not lo <= int(v) <= hi:
+        raise ValueError(f"{name} = {v!r} must be in [{lo}, {hi}]")
+    return int(v)
+
+
+def check_real(name: str, v, lo: float, hi: float, lo_open: bool = False) -> float:
+    """``v`` is a finite real number (not a bool, not a string) in [lo, hi] (or (lo, hi])."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+        raise ValueError(f"{name} = {v!r} must be a finite number")
+    if not (lo < v if lo_open else lo <= v) or not v <= hi:
+        raise ValueError(f"{name} = {v!r} must be in {'(' if lo_open else '['}{lo}, {hi}]")
+    return float(v)
+
+
+def check_bool(name: str, v) -> bool:
+    """``v`` is True or False (not 0/1, not a string)."""
+    if not isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"{name} = {v!r} must be true or false")
+    return bool(v)

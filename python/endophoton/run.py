@@ -2,15 +2,23 @@
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from dataclasses import dataclass
+
+import numpy as np
 
 from . import _core
 from .quality import quality_preset
 from .scene import Scene
+from .io import check_bool, check_int, check_real
 from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
 
 CancelToken = _core.CancelToken
+#: Largest packet count a request may name (photons, store, max_photons): 2^62.
+MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
+#: Largest thread count a run accepts (a count the system cannot start is a named error too).
+MAX_THREADS = 4096
 
 
 @dataclass
@@ -26,11 +34,10 @@ class GridRequest:
     per_fluorophore: bool = False
 
     def __post_init__(self):
-        v = self.voxel_size
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ValueError(f"grids.voxel_size = {v!r} must be a positive finite number (scene units)")
+        check_real("grids.voxel_size", self.voxel_size, 0.0, math.inf, lo_open=True)
         if not isinstance(self.path, (str, os.PathLike)) or not str(self.path):
             raise ValueError(f"grids.path = {self.path!r} must be a file path")
+        check_bool("grids.per_fluorophore", self.per_fluorophore)
 
 
 class Result:
@@ -38,6 +45,7 @@ class Result:
     from batch means over consecutive blocks of packets."""
 
     def __init__(self, raw: dict, scene: Scene, source, options: dict):
+        _require_finite(raw)
         self._raw = raw
         self.scene = scene
         self.source = source
@@ -56,9 +64,6 @@ class Result:
         out = {k: v for k, v in self._raw.items() if k != "escapes"}
         out["unit"] = self.scene.unit
         out["escape_records"] = 0 if self.escapes is None else int(len(self.escapes["weight"]))
-        for k, v in list(out.items()):
-            if isinstance(v, float) and not math.isfinite(v):
-                out[k] = None
         return out
 
     def __repr__(self):
@@ -66,6 +71,18 @@ class Result:
         for k in FRACTIONS[:4]:
             parts.append(f"{k}={getattr(self, k):.6f}±{getattr(self, k + '_stderr'):.6f}")
         return "Result(" + ", ".join(parts) + ")"
+
+
+def _require_finite(raw: dict, path: str = "result") -> None:
+    """Every number of a result, nested ones included, is finite (no NaN ever reaches a
+    result): an engine bug is reported here, naming the field, rather than passed on."""
+    for k, v in raw.items():
+        if k == "escapes":
+            continue
+        if isinstance(v, dict):
+            _require_finite(v, f"{path}.{k}")
+        elif isinstance(v, float) and not math.isfinite(v):
+            raise RuntimeError(f"{path}.{k} = {v!r} is not finite (engine bug: please report)")
 
 
 def run(scene: Scene, source, photons: int | None = None, *, store: int | None = None, seed: int = 1,
@@ -109,11 +126,22 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     if len(modes) > 1 and not (modes == ["photons", "target"]):
         raise ValueError(f"{' and '.join(modes)} are exclusive: give one")
     for name, v in (("photons", photons), ("store", store)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v <= 0):
-            raise ValueError(f"{name} = {v!r} must be a positive integer")
-    for name, v in (("seed", seed), ("threads", threads), ("max_steps", max_steps), ("max_photons", max_photons)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise ValueError(f"{name} = {v!r} must be a non-negative integer")
+        if v is not None:
+            check_int(name, v, 1, MAX_PACKETS)
+    check_int("seed", seed, 0, 2 ** 64 - 1)
+    check_int("threads", threads, 0, MAX_THREADS)
+    for name, v in (("max_steps", max_steps), ("max_photons", max_photons), ("unit_size", unit_size)):
+        check_int(name, v, 0, MAX_PACKETS)
+    check_int("batches", batches, 2, 1_000_000)
+    check_real("roulette_threshold", roulette_threshold, 0.0, 1.0)
+    check_real("roulette_chance", roulette_chance, 0.0, 1.0, lo_open=True)
+    check_real("max_path_cm", max_path_cm, 0.0, math.inf)
+    check_real("time_budget_s", time_budget_s, 0.0, math.inf)
+    for name, v in (("record_escapes", record_escapes), ("fluorescent_only", fluorescent_only),
+                    ("safe_distance", safe_distance)):
+        check_bool(name, v)
+    if spectral is not None:
+        check_bool("spectral", spectral)
     if fluorescence_rule not in ("paper", "eem"):
         raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
     opts = dict(seed=seed, threads=threads, roulette_threshold=float(roulette_threshold),

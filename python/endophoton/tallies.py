@@ -8,6 +8,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .io import check_real
+
 __all__ = ["FRACTIONS", "TARGET_TALLIES", "Target"]
 
 #: The fractions every run reports, each with ``<name>_stderr``.
@@ -26,6 +28,4 @@ class Target:
     def __post_init__(self):
         if self.tally not in TARGET_TALLIES:
             raise ValueError(f"target.tally = {self.tally!r} must be one of {', '.join(TARGET_TALLIES)}")
-        r = self.rel_error
-        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r <= 0:
-            raise ValueError(f"target.rel_error = {r!r} must be a positive number")
+        check_real("target.rel_error", self.rel_error, 0.0, math.inf, lo_open=True)

@@ -209,12 +209,12 @@ def test_cancelled_run_leaves_nothing(ep, tmp_path):
     before = data_snapshot()
     job = simulation.prepare_job(bpy.context)
     job.start()
-    deadline = time.monotonic() + 30.0
+    deadline = time.monotonic() + 600.0   # a hang guard, not a verdict on speed (issue 13)
     while job.progress().done == 0 and time.monotonic() < deadline:
         time.sleep(0.02)
     assert job.progress().done > 0, "the run never reported progress"
     job.cancel()
-    assert job.wait(30.0), "the run did not stop after cancel"
+    assert job.wait(600.0), "the run did not stop after cancel"
     assert job.result.cancelled and job.result.photons < settings.photons
     assert simulation.finish_job(bpy.context, job) is None
     assert data_snapshot() == before
@@ -232,7 +232,7 @@ def test_cancel_keeps_previous_result(ep, tmp_path):
     job = simulation.prepare_job(bpy.context)
     job.start()
     job.cancel()
-    assert job.wait(30.0)
+    assert job.wait(600.0)
     assert simulation.finish_job(bpy.context, job) is None
     assert data_snapshot() == before
     assert settings.result_collection == previous

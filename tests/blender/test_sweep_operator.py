@@ -155,14 +155,14 @@ def test_cancel_adds_nothing(ep, tmp_path):
     s.betas, s.store = "0:60:5", 2_000_000
     job = sweep_job.prepare_sweep(bpy.context)
     job.start()
-    deadline = time.monotonic() + 60.0
+    deadline = time.monotonic() + 600.0   # a hang guard, not a verdict on speed (issue 13)
     while job.progress().done == 0 and not job.done and time.monotonic() < deadline:
         time.sleep(0.02)
     assert job.progress().done > 0 and not job.done   # the engine is running
     labels = _sidebar_labels_while_running(job)
     assert labels[0].startswith("Sweep β=0° (1/12)") and "packets · ETA --" in labels[1]
     job.cancel()                                      # what Esc does
-    assert job.wait(60.0)
+    assert job.wait(600.0)
     assert sweep_job.finish_sweep(bpy.context, job) is None
     assert job.cancelled and job.error is None and job.paths is None
     assert data_snapshot() == before

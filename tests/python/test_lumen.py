@@ -80,6 +80,11 @@ PINNED = {
 }
 
 
+#: Tallies accumulated per interaction into a per-packet sum before the unit sum
+#: (issue 13): their last bits differ from c5bae16's single running sum.
+SUMMED_PER_PACKET = ("absorbed", "roulette")
+
+
 @pytest.mark.parametrize("lumen", [True, False])
 @pytest.mark.parametrize("name", sorted(PINNED))
 def test_convex_scenes_are_bit_identical_to_the_engine_before_the_lumen_rule(name, lumen):
@@ -91,8 +96,18 @@ def test_convex_scenes_are_bit_identical_to_the_engine_before_the_lumen_rule(nam
             assert len(res.escapes["weight"]) == v
         elif k == "digest":
             assert _digest(res.escapes) == v
+        elif k in SUMMED_PER_PACKET:
+            # Issue 13 sums these per packet first (Σw, Σw² per packet for the
+            # stderr), which changes only the rounding of the sum: 1e-13 relative.
+            assert float(getattr(res, k)) == pytest.approx(float.fromhex(v), rel=1e-13, abs=1e-300), k
         else:
             assert float(getattr(res, k)).hex() == v, k
+    # The rule on and off: bit-identical in today's engine, every tally.
+    other = ep.run(scene, source, photons=20000, seed=5, threads=1, record_escapes=True, lumen=not lumen)
+    for k in ep.FRACTIONS:
+        assert float(getattr(res, k)).hex() == float(getattr(other, k)).hex(), k
+        assert float(getattr(res, k + "_stderr")).hex() == float(getattr(other, k + "_stderr")).hex(), k
+    assert _digest(res.escapes) == _digest(other.escapes)
     assert res.occluded == 0.0 and res.camera_collected == 0.0
     # Every exit of a convex scene is a first exit whose ray goes away.
     assert np.all(res.escapes["exit_order"] == 1)
