@@ -8,8 +8,8 @@ created, so a rejected run leaves the scene untouched.
 
 import bpy
 
-from . import engine, properties, results, rig, simulation, sweep_job
-from .engine import EngineMissing
+from . import package_finder, properties, results, rig, simulation, sweep_job
+from .package_finder import EngineMissing
 from .export import InputError
 
 # The job being run (one at a time); "modal" is True from invoke until the
@@ -118,8 +118,8 @@ class ENDOPHOTON_OT_retry_engine_import(bpy.types.Operator):
     bl_label = "Find Engine Again"
 
     def execute(self, context):
-        engine.forget()
-        module, message = engine.status()
+        package_finder.forget()
+        module, message = package_finder.status()
         if module is None:
             self.report({"ERROR"}, message)
             return {"CANCELLED"}
@@ -157,15 +157,17 @@ class ENDOPHOTON_OT_clear_results(bpy.types.Operator):
 
 
 class _JobOperator:
-    """The modal machinery shared by Run and Sweep β.
+    """The one job operator behind Run and Sweep β.
 
-    Subclasses give ``_prepare(context, interactive)`` (a job, or None after
-    reporting the error) and ``_finish(context, job)`` (an operator return
-    set).  A job has ``start()``, ``cancel()``, ``wait(timeout)``, ``done`` and
+    ``job_module`` (simulation or sweep_job) gives ``prepare_job(context,
+    interactive)`` (raises InputError / EngineMissing) and ``report_finished(context,
+    job)`` -> ``(level, message)``, level "INFO" when something was added.  A
+    job has ``start()``, ``cancel()``, ``wait(timeout)``, ``done`` and
     ``progress()`` (with ``fraction`` and ``text()``); its worker thread never
     calls bpy.
     """
 
+    job_module = None
     _timer = None
     _job = None
     _area = None
@@ -229,6 +231,24 @@ class _JobOperator:
             self._job.wait(10.0)
         self._cleanup(context)
 
+    def _prepare(self, context, interactive=False):
+        try:
+            return self.job_module.prepare_job(context, interactive=interactive)
+        except (InputError, EngineMissing) as exc:
+            self.report({"ERROR"}, str(exc))
+            return None
+
+    def _finish(self, context, job):
+        try:
+            level, message = self.job_module.report_finished(context, job)
+        except Exception as exc:  # engine failure or result import error
+            if job.error_traceback:
+                print(job.error_traceback)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({level}, message)
+        return {"FINISHED"} if level == "INFO" else {"CANCELLED"}
+
     def _status(self, _context, text):
         if self._workspace is not None:
             self._workspace.status_text_set(text)
@@ -252,29 +272,7 @@ class ENDOPHOTON_OT_run(_JobOperator, bpy.types.Operator):
     bl_idname = "endophoton.run_simulation"
     bl_label = "Run Simulation"
     bl_options = {"REGISTER", "UNDO"}
-
-    def _prepare(self, context, interactive=False):
-        try:
-            return simulation.prepare_job(context, interactive=interactive)
-        except (InputError, EngineMissing) as exc:
-            self.report({"ERROR"}, str(exc))
-            return None
-
-    def _finish(self, context, job):
-        try:
-            collection = simulation.finish_job(context, job)
-        except Exception as exc:  # engine failure or result import error
-            if job.error_traceback:
-                print(job.error_traceback)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        if collection is None:
-            self.report({"WARNING"}, "EndoPhoton run cancelled; nothing was added")
-            return {"CANCELLED"}
-        summary = collection.get(results.SUMMARY_KEY, {})
-        self.report({"INFO"}, f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
-                              f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
-        return {"FINISHED"}
+    job_module = simulation
 
 
 class ENDOPHOTON_OT_sweep(_JobOperator, bpy.types.Operator):
@@ -284,28 +282,7 @@ class ENDOPHOTON_OT_sweep(_JobOperator, bpy.types.Operator):
     bl_idname = "endophoton.sweep_beta"
     bl_label = "Sweep β"
     bl_options = {"REGISTER", "UNDO"}
-
-    def _prepare(self, context, interactive=False):
-        try:
-            return sweep_job.prepare_sweep(context, interactive=interactive)
-        except (InputError, EngineMissing) as exc:
-            self.report({"ERROR"}, str(exc))
-            return None
-
-    def _finish(self, context, job):
-        try:
-            images = sweep_job.finish_sweep(context, job)
-        except Exception as exc:  # sweep failure or image load error
-            if job.error_traceback:
-                print(job.error_traceback)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        if images is None:
-            self.report({"WARNING"}, "EndoPhoton sweep cancelled; nothing was written or added")
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
-                              f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'")
-        return {"FINISHED"}
+    job_module = sweep_job
 
 
 CLASSES = (
@@ -320,12 +297,3 @@ CLASSES = (
     ENDOPHOTON_OT_sweep,
 )
 
-
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -3,7 +3,7 @@
 
 import bpy
 
-from . import engine, operators, results, rig, sweep_job
+from . import package_finder, operators, results, rig, sweep_job
 from .utils import wrap_text
 
 
@@ -26,7 +26,7 @@ class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        module, message = engine.status()
+        module, message = package_finder.status()
         if module is None:
             box = layout.box()
             box.label(text="Engine package not found", icon="ERROR")
@@ -134,7 +134,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         sub.prop(s, "grid_dir", text="")
         row = layout.row()
         row.scale_y = 1.5
-        row.enabled = engine.get() is not None
+        row.enabled = package_finder.get() is not None
         row.operator("endophoton.run_simulation", icon="PLAY")
 
 
@@ -158,7 +158,7 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "output_dir", text="")
         row = layout.row()
         row.scale_y = 1.5
-        row.enabled = engine.get() is not None
+        row.enabled = package_finder.get() is not None
         row.operator("endophoton.sweep_beta", icon="GRAPH")
         rows = sweep_job.summary_rows(context.scene)
         if not rows:
@@ -206,12 +206,3 @@ CLASSES = (
     ENDOPHOTON_PT_sweep,
 )
 
-
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -269,17 +269,9 @@ CLASSES = (
 )
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-    bpy.types.Object.endophoton = PointerProperty(type=EndoPhotonObjectSettings)
-    bpy.types.Object.endophoton_rig = PointerProperty(type=EndoPhotonRigSettings)
-    bpy.types.Scene.endophoton = PointerProperty(type=EndoPhotonSceneSettings)
-
-
-def unregister():
-    del bpy.types.Scene.endophoton
-    del bpy.types.Object.endophoton_rig
-    del bpy.types.Object.endophoton
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+# (owner type, attribute, group): attached by the add-on's registration loop.
+POINTERS = (
+    (bpy.types.Object, "endophoton", EndoPhotonObjectSettings),
+    (bpy.types.Object, "endophoton_rig", EndoPhotonRigSettings),
+    (bpy.types.Scene, "endophoton", EndoPhotonSceneSettings),
+)

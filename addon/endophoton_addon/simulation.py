@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import engine, export, presets, rig
+from . import package_finder, export, presets, rig
 from .export import InputError
 
 _ACTIVE_JOBS = set()
@@ -300,6 +300,17 @@ class BackgroundJob:
     def wait(self, timeout=None):
         return self._finished.wait(timeout)
 
+    def _work(self):
+        """Worker thread: ``self._body()`` (no bpy); any error is kept for the main thread."""
+        try:
+            self._body()
+        except BaseException as exc:  # reported by the main thread
+            self.error = exc
+            self.error_traceback = traceback.format_exc()
+        finally:
+            untrack_job(self)
+            self._finished.set()
+
 
 class SimulationJob(BackgroundJob):
     """A run of the engine in a worker thread.  Only ``start``/``cancel``/``progress``
@@ -343,23 +354,16 @@ class SimulationJob(BackgroundJob):
         with self._lock:
             self._progress = (int(done), int(total))
 
-    def _work(self):
-        try:
-            if self.inputs.grid_path:
-                os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
-            self.result = self.ep.run(
-                self.engine_scene, self.engine_rig,
-                progress=self._on_progress, cancel=self.token, **self.run_kwargs,
-            )
-            grid_path = getattr(self.result, "grid_path", None)
-            if grid_path and not getattr(self.result, "cancelled", False):
-                self.grid_info = read_grid_info(grid_path)
-        except BaseException as exc:  # reported by the main thread
-            self.error = exc
-            self.error_traceback = traceback.format_exc()
-        finally:
-            untrack_job(self)
-            self._finished.set()
+    def _body(self):
+        if self.inputs.grid_path:
+            os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
+        self.result = self.ep.run(
+            self.engine_scene, self.engine_rig,
+            progress=self._on_progress, cancel=self.token, **self.run_kwargs,
+        )
+        grid_path = getattr(self.result, "grid_path", None)
+        if grid_path and not getattr(self.result, "cancelled", False):
+            self.grid_info = read_grid_info(grid_path)
 
 
 def read_grid_info(path):
@@ -393,7 +397,7 @@ def prepare_job(context, interactive=False):
     inputs = collect_inputs(context)
     if interactive:
         inputs.threads = interactive_threads(inputs.threads)
-    ep = engine.require()
+    ep = package_finder.require()
     return SimulationJob(ep, inputs)
 
 
@@ -423,13 +427,17 @@ def _discard_partial_grid(job):
         os.remove(path)
 
 
-def run_blocking(context, poll_interval=0.05):
-    """Run synchronously (scripts, tests, ``execute``): same job, waited for."""
-    job = prepare_job(context)
-    job.start()
-    while not job.wait(poll_interval):
-        pass
-    return finish_job(context, job)
+def report_finished(context, job):
+    """Finish the job (main thread) and say what happened: ``(level, message)``
+    for the operator's report, level "INFO" when a collection was added."""
+    from . import results
+
+    collection = finish_job(context, job)
+    if collection is None:
+        return "WARNING", "EndoPhoton run cancelled; nothing was added"
+    summary = collection.get(results.SUMMARY_KEY, {})
+    return "INFO", (f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
+                    f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
 
 
 def track_job(job):

@@ -20,13 +20,12 @@ import os
 import tempfile
 import threading
 import time
-import traceback
 from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
-from . import engine, export, rig, simulation
+from . import package_finder, export, rig, simulation
 from .export import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -284,27 +283,20 @@ class SweepJob(simulation.BackgroundJob):
             self._finished_betas = index + 1
             self._packets_per_beta = int(row["packets_traced"])
 
-    def _work(self):
-        try:
-            bs = self.ep.beta_sweep
-            result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
-                              cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs())
-            if (self.token.cancelled or result.meta.get("cancelled")
-                    or any(row["cancelled"] for row in result.rows)):
-                self.cancelled = True   # nothing is written, nothing will be added
-                return
-            with self._lock:
-                self._phase = "writing"
-            paths = bs.write_outputs(result, self.inputs.out_dir)
-            self.summary = sweep_summary(self.ep, result, paths, self.inputs.out_dir)
-            self.paths = paths
-            self.result = result
-        except BaseException as exc:  # reported by the main thread
-            self.error = exc
-            self.error_traceback = traceback.format_exc()
-        finally:
-            simulation.untrack_job(self)
-            self._finished.set()
+    def _body(self):
+        bs = self.ep.beta_sweep
+        result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
+                          cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs())
+        if (self.token.cancelled or result.meta.get("cancelled")
+                or any(row["cancelled"] for row in result.rows)):
+            self.cancelled = True   # nothing is written, nothing will be added
+            return
+        with self._lock:
+            self._phase = "writing"
+        paths = bs.write_outputs(result, self.inputs.out_dir)
+        self.summary = sweep_summary(self.ep, result, paths, self.inputs.out_dir)
+        self.paths = paths
+        self.result = result
 
 
 def sweep_summary(ep, result, paths, out_dir):
@@ -344,15 +336,15 @@ def sweep_summary(ep, result, paths, out_dir):
 
 
 # --- main thread: start, finish ----------------------------------------------------
-def prepare_sweep(context, interactive=False):
+def prepare_job(context, interactive=False):
     """Validate, export once and build the job; raises InputError / EngineMissing.
 
     ``interactive``: the modal operator's run; threads = 0 then leaves one core
     to the UI (simulation.interactive_threads; the numbers do not depend on it).
     """
-    ep = engine.require()
+    ep = package_finder.require()
     if not hasattr(ep, "beta_sweep"):
-        raise engine.EngineMissing(f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
+        raise package_finder.EngineMissing(f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
                                    "it has no β sweep (endophoton.beta_sweep)")
     inputs, engine_scene = collect_sweep_inputs(context, ep)
     if interactive:
@@ -423,13 +415,13 @@ def finish_sweep(context, job):
     return images
 
 
-def run_sweep_blocking(context, poll_interval=0.05):
-    """Run synchronously (scripts, tests, ``execute``): the same job, waited for."""
-    job = prepare_sweep(context)
-    job.start()
-    while not job.wait(poll_interval):
-        pass
-    return finish_sweep(context, job)
+def report_finished(context, job):
+    """Finish the sweep (main thread) and say what happened: ``(level, message)``."""
+    images = finish_sweep(context, job)
+    if images is None:
+        return "WARNING", "EndoPhoton sweep cancelled; nothing was written or added"
+    return "INFO", (f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
+                    f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'")
 
 
 def summary_rows(scene):

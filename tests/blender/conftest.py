@@ -73,9 +73,9 @@ def fresh_blender():
 @pytest.fixture
 def ep():
     """The real engine; the test fails (not skips) when it cannot be imported."""
-    from endophoton_addon import engine
+    from endophoton_addon import package_finder
 
-    module, message = engine.status()
+    module, message = package_finder.status()
     if module is None:
         pytest.fail(f"engine required: {message}")
     return module

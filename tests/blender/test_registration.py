@@ -74,6 +74,26 @@ def test_register_unregister_twice():
         bpy.data.objects.remove(obj)
 
 
+def test_register_rolls_back_when_a_class_fails(monkeypatch):
+    """One registration loop for all modules: a failing class (here a panel
+    without bl_space_type, which Blender refuses) leaves nothing registered."""
+    import endophoton_addon
+    from endophoton_addon import panels
+
+    class ENDOPHOTON_PT_broken(bpy.types.Panel):
+        bl_label = "Broken"
+
+    endophoton_addon.unregister()
+    monkeypatch.setattr(panels, "CLASSES", (*panels.CLASSES, ENDOPHOTON_PT_broken))
+    with pytest.raises(Exception):
+        endophoton_addon.register()
+    types, props = _registered()
+    assert types == set() and not any(props.values()), (types, props)
+    monkeypatch.undo()
+    endophoton_addon.register()
+    assert _registered()[0] == _all_names()
+
+
 def test_addon_utils_disable_enable_twice():
     import addon_utils
 
@@ -184,15 +204,15 @@ def _draw_all_panels():
 
 
 def test_panel_says_plainly_when_package_missing(tmp_path):
-    from endophoton_addon import engine
+    from endophoton_addon import package_finder
 
     saved = {k: v for k, v in sys.modules.items() if k == "endophoton" or k.startswith("endophoton.")}
     for k in saved:
         del sys.modules[k]
     try:
         ensure_addon(package_path=str(tmp_path))  # an existing folder without the package
-        engine.forget()
-        module, message = engine.status()
+        package_finder.forget()
+        module, message = package_finder.status()
         assert module is None
         assert "EndoPhoton engine not found" in message and str(tmp_path) in message
         log = _draw_all_panels()
@@ -213,7 +233,7 @@ def test_panel_says_plainly_when_package_missing(tmp_path):
     finally:
         sys.modules.update(saved)
         ensure_addon()
-        engine.forget()
+        package_finder.forget()
 
 
 def test_panels_draw_with_objects_and_rig():

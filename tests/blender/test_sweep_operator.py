@@ -32,7 +32,7 @@ def _setup(tmp_path, betas=BETAS, store=STORE):
 
 def _run_job(context):
     """Start, poll like the modal timer, finish.  Returns (job, images, progress seen)."""
-    job = sweep_job.prepare_sweep(context)
+    job = sweep_job.prepare_job(context)
     job.start()
     seen = []
     while not job.wait(0.05):
@@ -153,7 +153,7 @@ def test_cancel_adds_nothing(ep, tmp_path):
 
     s = scene.endophoton.sweep
     s.betas, s.store = "0:60:5", 2_000_000
-    job = sweep_job.prepare_sweep(bpy.context)
+    job = sweep_job.prepare_job(bpy.context)
     job.start()
     deadline = time.monotonic() + 60.0
     while job.progress().done == 0 and not job.done and time.monotonic() < deadline:
