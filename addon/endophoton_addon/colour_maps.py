@@ -56,12 +56,15 @@ def wavelength_linear_srgb(nm):
     Gamut rule in the module docstring: desaturate toward white, normalise the
     largest channel to 1, fade linearly to black over 420 -> 380 nm and 700 -> 780 nm.
     """
-    xyz = cie_xyz(nm)
+    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
+    # Above 650 nm the CIE 1931 chromaticity barely moves (x 0.726 -> 0.735 at
+    # 700 nm), but the fit's single-lobe tails drift green there (ȳ/x̄ doubles by
+    # 700 nm): keep 650 nm's hue, where the fit still matches the table.
+    xyz = cie_xyz(np.minimum(nm, 650.0))
     rgb = xyz @ _XYZ_TO_SRGB.T
     rgb -= np.minimum(rgb.min(axis=1, keepdims=True), 0.0)
     peak = rgb.max(axis=1, keepdims=True)
     rgb = np.divide(rgb, peak, out=np.zeros_like(rgb), where=peak > 0)
-    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
     fade = np.clip((nm - 380.0) / 40.0, 0.0, 1.0) * np.clip((780.0 - nm) / 80.0, 0.0, 1.0)
     return rgb * fade[:, None]
 
@@ -218,8 +221,8 @@ def _range(values):
 
 
 def legend_figure(legend, path, image=None, title=None):
-    """Write a PNG with the colour bar (and ``image``, an (H, W, 3) linear-RGB
-    render, to its left when given) via matplotlib.  Returns ``path``."""
+    """Write a PNG with the colour bar (and ``image``, an (H, W, 3) display-encoded
+    sRGB render in [0, 1], to its left when given) via matplotlib.  Returns ``path``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -234,7 +237,7 @@ def legend_figure(legend, path, image=None, title=None):
     fig = plt.figure(figsize=(width, 4.0), dpi=100)
     if image is not None:
         ax_img = fig.add_axes([0.02, 0.05, 0.6, 0.85])
-        ax_img.imshow(to_display(image[..., :3]), origin="upper")
+        ax_img.imshow(np.clip(image[..., :3], 0.0, 1.0), origin="upper")
         ax_img.set_axis_off()
         if title:
             ax_img.set_title(title, fontsize=9)

@@ -6,6 +6,8 @@ the object (or scene) and the field.  Validation runs before any datablock is
 created, so a rejected run leaves the scene untouched.
 """
 
+import os
+
 import bpy
 
 from . import package_finder, properties, results, rig, simulation, sweep_job
@@ -156,6 +158,34 @@ class ENDOPHOTON_OT_clear_results(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
+    """Render the scene camera and save the picture with the colour bar of the active result beside it"""
+
+    bl_idname = "endophoton.render_legend"
+    bl_label = "Render with Legend"
+
+    filepath: bpy.props.StringProperty(
+        name="File", subtype="FILE_PATH", default="",
+        description="PNG to write; empty = '<result name>_legend.png' in the grid folder",
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.endophoton.result_collection is not None
+
+    def execute(self, context):
+        collection = context.scene.endophoton.result_collection
+        path = self.filepath or os.path.join(simulation.grid_folder(context.scene.endophoton),
+                                             bpy.path.clean_name(collection.name) + "_legend.png")
+        try:
+            image = results.render_with_legend(context.scene, collection, bpy.path.abspath(path))
+        except RuntimeError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"EndoPhoton: render with legend -> '{image.filepath}' (image '{image.name}')")
+        return {"FINISHED"}
+
+
 class _JobOperator:
     """The one job operator behind Run and Sweep β.
 
@@ -293,6 +323,7 @@ CLASSES = (
     ENDOPHOTON_OT_retry_engine_import,
     ENDOPHOTON_OT_cancel_run,
     ENDOPHOTON_OT_clear_results,
+    ENDOPHOTON_OT_render_legend,
     ENDOPHOTON_OT_run,
     ENDOPHOTON_OT_sweep,
 )

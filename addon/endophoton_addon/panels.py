@@ -179,7 +179,23 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         s = context.scene.endophoton
-        layout.prop(s, "color_by", expand=True)
+        layout.prop(s, "color_by")
+        col = layout.column(heading="Show")
+        col.prop(s, "filter_fluorescent")
+        col.prop(s, "filter_fluorophore")
+        col.prop(s, "filter_region")
+        if s.legend_header:
+            box = layout.box()
+            col = box.column(align=True)
+            for line in wrap_text(s.legend_header, 36):
+                col.label(text=line, icon="NONE")
+            grid = box.grid_flow(columns=2, even_columns=True, align=True)
+            for entry in s.legend:
+                row = grid.row(align=True)
+                split = row.split(factor=0.25, align=True)
+                split.prop(entry, "colour", text="")
+                split.label(text=entry.name)
+            box.operator("endophoton.render_legend", icon="RENDER_STILL")
         layout.prop(s, "point_radius")
         layout.prop(s, "volume_density")
         collection = s.result_collection

@@ -13,7 +13,7 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import presets
+from . import colour_maps, presets
 
 ROLE_ITEMS = (
     ("NONE", "None", "Not part of the simulation"),
@@ -145,6 +145,22 @@ def _is_rig(_self, obj):
     return obj.type == "EMPTY" and obj.endophoton_rig.is_rig
 
 
+_NAME_ITEMS = {}   # Blender needs the dynamic enum's strings kept alive
+
+
+def _name_items(settings, kind):
+    """"Any" plus the names of the active result's fluorophores / regions."""
+    from . import results
+
+    names = []
+    collection = settings.result_collection
+    if collection is not None:
+        for obj in results.points_objects(collection):
+            names = results.point_names(obj).get(kind, [])
+    items = [("ANY", "Any", f"Records of every {kind}")] + [(n, n, f"Only the {kind} '{n}'") for n in names]
+    return _NAME_ITEMS.setdefault((kind, tuple(names)), items)
+
+
 def _display_changed(self, _context):
     from . import results
 
@@ -191,6 +207,12 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
                     "'//endophoton_sweep' next to the .blend, or the temporary folder for an unsaved file",
         subtype="DIR_PATH", default="",
     )
+
+
+class EndoPhotonLegendEntry(bpy.types.PropertyGroup):
+    """One row of the active result's colour bar (the panel draws the swatch)."""
+
+    colour: FloatVectorProperty(name="Colour", subtype="COLOR", size=3, min=0.0, max=1.0)
 
 
 class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
@@ -247,9 +269,23 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     color_by: EnumProperty(
         name="Colour By",
-        items=(("WAVELENGTH", "Wavelength", "Colour each photon by its wavelength"),
-               ("ENERGY", "Energy", "Colour each photon by its energy")),
+        items=tuple((m.key, m.label, f"Colour each record by its {m.label.lower()}"
+                     + (f" [{m.unit}]" if m.unit else "")
+                     + (" (wavelength -> CIE 1931 -> sRGB)" if m.kind == "wavelength" else ""))
+                    for m in colour_maps.COLOUR_MAPS.values()),
         default="WAVELENGTH", update=_display_changed,
+    )
+    filter_fluorescent: BoolProperty(
+        name="Fluorescent Only", description="Show only fluorescence records",
+        default=False, update=_display_changed,
+    )
+    filter_fluorophore: EnumProperty(
+        name="Fluorophore", description="Show only records of this fluorophore",
+        items=lambda self, context: _name_items(self, "fluorophore"), update=_display_changed,
+    )
+    filter_region: EnumProperty(
+        name="Region", description="Show only records that left this region",
+        items=lambda self, context: _name_items(self, "region"), update=_display_changed,
     )
     volume_density: FloatProperty(
         name="Volume Density",
@@ -257,6 +293,8 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         default=0.2, min=0.0, soft_max=10.0, update=_display_changed,
     )
     result_collection: PointerProperty(name="Result", type=bpy.types.Collection)
+    legend: CollectionProperty(type=EndoPhotonLegendEntry)
+    legend_header: StringProperty(name="Legend", default="")
 
 
 CLASSES = (
@@ -265,6 +303,7 @@ CLASSES = (
     EndoPhotonObjectSettings,
     EndoPhotonRigSettings,
     EndoPhotonSweepSettings,
+    EndoPhotonLegendEntry,
     EndoPhotonSceneSettings,
 )
 

@@ -18,13 +18,14 @@ Everything the run creates is tagged with the run id (ID property
 import bpy
 import numpy as np
 
+from . import colour_maps
+
 RESULT_KEY = "endophoton_result"    # on the run's collection
 RUN_KEY = "endophoton_run"          # on every datablock the run created
 SUMMARY_KEY = "endophoton_summary"  # on the run's collection
 POINTS_GROUP = "EP Photon Points"
-COLOUR_MODE_NODE = "EP Colour Mode"
 DENSITY_NODE = "EP Density Scale"
-ENERGY_RANGE_NODE = "EP Energy Range"
+EMISSION_NODE = "EP Point Emission"
 
 TOTAL_NAMES = (
     "diffuse_reflectance",
@@ -51,7 +52,12 @@ POINT_ATTRIBUTES = (
     ("kind", "kind", "INT", np.int32, 1),
     ("region", "region", "INT", np.int32, 1),
     ("scatterings", "scatterings", "INT", np.int32, 1),
+    ("exit_order", "exit_order", "INT", np.int32, 1),      # only if the engine gives it
 )
+COLOUR_ATTR = "ep_colour"   # linear RGB of the chosen mapping (colour_maps.colour_records)
+SHOW_ATTR = "ep_show"       # False = hidden by the filters (Mesh to Points' selection)
+NAMES_KEY = "endophoton_names"    # on the points object: {"fluorophore": [...], "region": [...]}
+LEGEND_KEY = "endophoton_legend"  # on the points object: colour_maps.Legend.to_dict()
 
 
 # --- pure numpy ----------------------------------------------------------------
@@ -115,10 +121,10 @@ def _new_socket(group, in_out, socket_type, name):
 
 def _points_group():
     group = bpy.data.node_groups.get(POINTS_GROUP)
-    if group is not None and group.bl_idname == "GeometryNodeTree" and group.get("endophoton_version") == 1:
+    if group is not None and group.bl_idname == "GeometryNodeTree" and group.get("endophoton_version") == 3:
         return group
     group = bpy.data.node_groups.new(POINTS_GROUP, "GeometryNodeTree")
-    group["endophoton_version"] = 1
+    group["endophoton_version"] = 3
     _new_socket(group, "INPUT", "NodeSocketGeometry", "Geometry")
     radius = _new_socket(group, "INPUT", "NodeSocketFloat", "Radius")
     radius.default_value = 0.0001
@@ -128,6 +134,10 @@ def _points_group():
     nodes, links = group.nodes, group.links
     gin = nodes.new("NodeGroupInput")
     gin.location = (-400, 0)
+    show = nodes.new("GeometryNodeInputNamedAttribute")
+    show.data_type = "BOOLEAN"
+    show.inputs["Name"].default_value = SHOW_ATTR
+    show.location = (-400, -200)
     to_points = nodes.new("GeometryNodeMeshToPoints")
     to_points.mode = "VERTICES"
     to_points.location = (-150, 0)
@@ -136,6 +146,9 @@ def _points_group():
     gout = nodes.new("NodeGroupOutput")
     gout.location = (320, 0)
     links.new(gin.outputs["Geometry"], to_points.inputs["Mesh"])
+    # Named Attribute has one "Attribute" output per data type; only the BOOLEAN one is enabled.
+    shown = next(o for o in show.outputs if o.name == "Attribute" and o.enabled)
+    links.new(shown, to_points.inputs["Selection"])
     links.new(gin.outputs["Radius"], to_points.inputs["Radius"])
     links.new(to_points.outputs["Points"], set_mat.inputs["Geometry"])
     links.new(gin.outputs["Material"], set_mat.inputs["Material"])
@@ -150,61 +163,158 @@ def _group_input_identifiers(group):
     return {s.name: s.identifier for s in group.inputs}
 
 
-def _points_material(name, color_by, energy_max, run_id):
+def _attribute_material(name, run_id, attribute_name):
+    """New node material reading the geometry attribute ``attribute_name``:
+    returns (material, nodes, links, output node, attribute node)."""
     mat = bpy.data.materials.new(name)
     mat[RUN_KEY] = run_id
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (700, 0)
-    mix = nodes.new("ShaderNodeMixShader")
-    mix.location = (500, 0)
-    mode = nodes.new("ShaderNodeValue")
-    mode.name = mode.label = COLOUR_MODE_NODE
-    mode.outputs[0].default_value = 1.0 if color_by == "ENERGY" else 0.0
-    mode.location = (300, 200)
+    out.location = (600, 0)
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_type = "GEOMETRY"
+    attr.attribute_name = attribute_name
+    attr.location = (-400, 0)
+    return mat, nodes, links, out, attr
 
-    wl_attr = nodes.new("ShaderNodeAttribute")
-    wl_attr.attribute_type = "GEOMETRY"
-    wl_attr.attribute_name = "wavelength"
-    wl_attr.location = (-300, 100)
-    wavelength = nodes.new("ShaderNodeWavelength")
-    wavelength.location = (-80, 100)
-    wl_emit = nodes.new("ShaderNodeEmission")
-    wl_emit.inputs["Strength"].default_value = 2.0
-    wl_emit.location = (150, 100)
-    links.new(wl_attr.outputs["Fac"], wavelength.inputs["Wavelength"])
-    links.new(wavelength.outputs["Color"], wl_emit.inputs["Color"])
 
-    en_attr = nodes.new("ShaderNodeAttribute")
-    en_attr.attribute_type = "GEOMETRY"
-    en_attr.attribute_name = "energy"
-    en_attr.location = (-500, -150)
-    en_range = nodes.new("ShaderNodeMapRange")
-    en_range.name = en_range.label = ENERGY_RANGE_NODE
-    en_range.inputs["From Max"].default_value = energy_max if energy_max > 0 else 1.0
-    en_range.location = (-300, -150)
-    ramp = nodes.new("ShaderNodeValToRGB")
-    ramp.color_ramp.elements[0].color = (0.02, 0.02, 0.25, 1.0)
-    ramp.color_ramp.elements[1].color = (1.0, 0.9, 0.2, 1.0)
-    ramp.location = (-100, -150)
-    en_emit = nodes.new("ShaderNodeEmission")
-    en_emit.inputs["Strength"].default_value = 2.0
-    en_emit.location = (200, -150)
-    links.new(en_attr.outputs["Fac"], en_range.inputs["Value"])
-    links.new(en_range.outputs["Result"], ramp.inputs["Fac"])
-    links.new(ramp.outputs["Color"], en_emit.inputs["Color"])
-
-    links.new(mode.outputs[0], mix.inputs["Fac"])
-    links.new(wl_emit.outputs["Emission"], mix.inputs[1])
-    links.new(en_emit.outputs["Emission"], mix.inputs[2])
-    links.new(mix.outputs["Shader"], out.inputs["Surface"])
+def _points_material(name, run_id):
+    """Emission coloured by the point attribute ``ep_colour`` (written by :func:`recolour`)."""
+    mat, nodes, links, out, colour = _attribute_material(name, run_id, COLOUR_ATTR)
+    emit = nodes.new("ShaderNodeEmission")
+    emit.name = emit.label = EMISSION_NODE
+    emit.inputs["Strength"].default_value = 2.0
+    emit.location = (100, 0)
+    links.new(colour.outputs["Color"], emit.inputs["Color"])
+    links.new(emit.outputs["Emission"], out.inputs["Surface"])
     return mat
 
 
-def create_point_cloud(name, positions, attrs, radius, material, run_id):
-    """Vertices-only mesh with named attributes + Mesh to Points modifier."""
+def read_point_columns(mesh):
+    """The record attributes of a points mesh as numpy arrays (foreach_get)."""
+    columns = {}
+    for _column, name, bl_type, dtype, width in POINT_ATTRIBUTES:
+        attribute = mesh.attributes.get(name)
+        if attribute is None:
+            continue
+        values = np.empty(len(attribute.data) * width, dtype=dtype)
+        attribute.data.foreach_get("vector" if width == 3 else "value", values)
+        columns[name] = values.reshape(-1, 3) if width == 3 else values
+    return columns
+
+
+def _set_attribute(mesh, name, bl_type, values):
+    attribute = mesh.attributes.get(name)
+    if attribute is not None and attribute.data_type != bl_type:
+        mesh.attributes.remove(attribute)
+        attribute = None
+    if attribute is None:
+        attribute = mesh.attributes.new(name, bl_type, "POINT")
+    key = "color" if bl_type == "FLOAT_COLOR" else ("vector" if bl_type == "FLOAT_VECTOR" else "value")
+    attribute.data.foreach_set(key, values.ravel())
+
+
+def display_filters(settings, names):
+    """colour_maps.Filters from the scene's filter settings and the run's names."""
+    fluorophores = list(names.get("fluorophore", ()))
+    regions = list(names.get("region", ()))
+    pick = settings.filter_fluorophore
+    reg = settings.filter_region
+    return colour_maps.Filters(
+        fluorescent_only=bool(settings.filter_fluorescent),
+        fluorophore=fluorophores.index(pick) if pick in fluorophores else (-2 if pick == "ANY" else -3),
+        region=regions.index(reg) if reg in regions else (-2 if reg == "ANY" else -3),
+    )
+
+
+def point_names(obj):
+    names = obj.get(NAMES_KEY)
+    if names is None:
+        return {}
+    return {k: list(v) for k, v in (names.to_dict() if hasattr(names, "to_dict") else dict(names)).items()}
+
+
+def recolour(obj, settings):
+    """Write ``ep_colour`` / ``ep_show`` of a points object for the scene's
+    Colour By and filters; store and return its legend (colour_maps.Legend)."""
+    mesh = obj.data
+    columns = read_point_columns(mesh)
+    names = point_names(obj)
+    key = settings.color_by
+    if colour_maps.COLOUR_MAPS[key].column not in columns:
+        key = "WAVELENGTH"   # e.g. "Exit Order" on a result without that column
+    rgb, show, legend = colour_maps.colour_records(key, columns, display_filters(settings, names), names,
+                                                   count=len(mesh.vertices))
+    rgba = np.ones((len(rgb), 4), dtype=np.float32)
+    rgba[:, :3] = rgb
+    _set_attribute(mesh, COLOUR_ATTR, "FLOAT_COLOR", rgba)
+    _set_attribute(mesh, SHOW_ATTR, "BOOLEAN", show)
+    mesh.update()
+    obj[LEGEND_KEY] = legend.to_dict()
+    obj.update_tag()
+    if settings.result_collection is not None and obj.name in settings.result_collection.all_objects:
+        show_legend(settings, legend)
+    return legend
+
+
+def show_legend(settings, legend):
+    """Copy a legend into the scene's panel rows (colour swatch + label)."""
+    settings.legend.clear()
+    settings.legend_header = f"{legend.header()} · {legend.shown:,}/{legend.total:,} shown"
+    for colour, label in legend.entries:
+        entry = settings.legend.add()
+        entry.name = label
+        entry.colour = tuple(float(c) for c in colour)
+
+
+def render_with_legend(scene, collection, path):
+    """Render the scene's camera (its render settings) and write ``path``: the
+    render with the colour bar of ``collection``'s points beside it, loaded as
+    an Image tagged with the run (removed with it).  Returns the Image."""
+    import os
+
+    points = points_objects(collection)
+    legend = legend_of(points[0]) if points else None
+    if legend is None:
+        raise RuntimeError(f"Collection '{collection.name}' has no coloured point cloud to make a legend of")
+    if scene.camera is None:
+        raise RuntimeError(f"Scene '{scene.name}' has no camera to render from")
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    raw = os.path.splitext(path)[0] + "_raw.png"
+    saved = scene.render.filepath, scene.render.image_settings.file_format
+    try:
+        scene.render.filepath = raw
+        scene.render.image_settings.file_format = "PNG"
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+    finally:
+        scene.render.filepath, scene.render.image_settings.file_format = saved
+    rendered = bpy.data.images.load(raw)
+    try:
+        w, h = rendered.size
+        pixels = np.empty(w * h * 4, np.float32)
+        rendered.pixels.foreach_get(pixels)
+    finally:
+        bpy.data.images.remove(rendered)
+    picture = pixels.reshape(h, w, 4)[::-1, :, :3]   # Blender's rows run bottom-up
+    colour_maps.legend_figure(legend, path, image=picture, title=collection.name)
+    image = bpy.data.images.load(path, check_existing=True)
+    image.reload()
+    image[RUN_KEY] = collection.get(RUN_KEY)
+    return image
+
+
+def legend_of(obj):
+    data = obj.get(LEGEND_KEY)
+    if data is None:
+        return None
+    return colour_maps.Legend.from_dict(data.to_dict() if hasattr(data, "to_dict") else dict(data))
+
+
+def create_point_cloud(name, positions, attrs, radius, material, run_id, names=None):
+    """Vertices-only mesh with named attributes + Mesh to Points modifier.
+    ``names``: {"fluorophore": [...], "region": [...]} for legends and filters."""
     mesh = bpy.data.meshes.new(name)
     mesh[RUN_KEY] = run_id
     mesh.vertices.add(len(positions))
@@ -213,9 +323,11 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id):
         attribute = mesh.attributes.new(attr_name, bl_type, "POINT")
         key = "vector" if bl_type == "FLOAT_VECTOR" else "value"
         attribute.data.foreach_set(key, values)
+    _set_attribute(mesh, SHOW_ATTR, "BOOLEAN", np.ones(len(positions), dtype=bool))  # until recolour()
     mesh.update()
     obj = bpy.data.objects.new(name, mesh)
     obj[RUN_KEY] = run_id
+    obj[NAMES_KEY] = {k: list(v) for k, v in (names or {}).items()}
     group = _points_group()
     modifier = obj.modifiers.new("EP Mesh to Points", "NODES")
     modifier.node_group = group
@@ -227,17 +339,7 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id):
 
 
 def _volume_material(name, grid_name, vmax, voxel_bu, density, run_id):
-    mat = bpy.data.materials.new(name)
-    mat[RUN_KEY] = run_id
-    mat.use_nodes = True
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (600, 0)
-    attr = nodes.new("ShaderNodeAttribute")
-    attr.attribute_type = "GEOMETRY"
-    attr.attribute_name = grid_name
-    attr.location = (-400, 0)
+    mat, nodes, links, out, attr = _attribute_material(name, run_id, grid_name)
     normalise = nodes.new("ShaderNodeMath")
     normalise.operation = "MULTIPLY"
     # Grid max -> 1 per voxel length: "Volume Density" is then the optical depth
@@ -274,6 +376,12 @@ def create_volume(name, path, grid_name, vmax, voxel_m, density, scale_length, r
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
     volume.filepath = path
+    # Load up front: a missing or unreadable file is reported here, not at render time.
+    if not volume.grids.load():
+        raise RuntimeError(f"grid file '{path}' could not be read: {volume.grids.error_message}")
+    if volume.grids.find(grid_name) < 0:
+        raise RuntimeError(f"grid file '{path}' has no grid '{grid_name}'")
+    volume.grids.active_index = volume.grids.find(grid_name)
     # Cycles treats voxels below render.clipping (default 1e-3) as empty, and
     # tallies per launched packet are far smaller: clip relative to the peak.
     volume.render.clipping = 1e-4 * vmax if vmax > 0 else 0.0
@@ -297,7 +405,7 @@ def remove_run(collection):
     for obj in list(collection.all_objects):
         if obj.get(RUN_KEY) == run_id:
             bpy.data.objects.remove(obj)
-    for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials):
+    for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials, bpy.data.images):
         for block in list(datablocks):
             if run_id is not None and block.get(RUN_KEY) == run_id and block.users == 0:
                 datablocks.remove(block)
@@ -352,11 +460,10 @@ def apply_result(context, inputs, result, grid_info=()):
     scene.collection.children.link(collection)
     try:
         if positions is not None:
-            energy = attrs.get("energy", (None, np.zeros(0)))[1]
-            energy_max = float(energy.max()) if energy.size else 1.0
-            material = _points_material(f"EP Photons {beta}", settings.color_by, energy_max, run_id)
-            obj = create_point_cloud(f"EP Photons {beta}", positions, attrs,
-                                     settings.point_radius, material, run_id)
+            material = _points_material(f"EP Photons {beta}", run_id)
+            obj = create_point_cloud(f"EP Photons {beta}", positions, attrs, settings.point_radius,
+                                     material, run_id, names=record_names(result, inputs))
+            recolour(obj, settings)
             collection.objects.link(obj)
         for grid_name, _active, vmax in grids:
             if grid_name is None:
@@ -372,6 +479,13 @@ def apply_result(context, inputs, result, grid_info=()):
     return collection
 
 
+def record_names(result, inputs):
+    """Names behind the integer record columns: fluorophore ids and region indices."""
+    fluorophores = list(getattr(result, "fluorophore_names", None) or [])
+    return {"fluorophore": [str(n) for n in fluorophores],
+            "region": [str(r.name) for r in inputs.regions]}
+
+
 def _first_grid_name(path):
     probe = bpy.data.volumes.new("EP probe")
     try:
@@ -384,8 +498,12 @@ def _first_grid_name(path):
         bpy.data.volumes.remove(probe)
 
 
+def points_objects(collection):
+    return [obj for obj in collection.all_objects if obj.type == "MESH" and obj.get(NAMES_KEY) is not None]
+
+
 def update_display(scene):
-    """Apply point radius, colour mode and volume density to the scene's results."""
+    """Apply point radius, colour mapping, filters and volume density to the scene's results."""
     settings = scene.endophoton
     for collection in result_collections(scene):
         for obj in collection.all_objects:
@@ -395,13 +513,12 @@ def update_display(scene):
                     ids = _group_input_identifiers(modifier.node_group)
                     modifier[ids["Radius"]] = float(settings.point_radius)
                     obj.update_tag()
+            if obj.get(NAMES_KEY) is not None:
+                recolour(obj, settings)
             for slot in obj.material_slots:
                 mat = slot.material
                 if mat is None or not mat.use_nodes:
                     continue
-                node = mat.node_tree.nodes.get(COLOUR_MODE_NODE)
-                if node is not None:
-                    node.outputs[0].default_value = 1.0 if settings.color_by == "ENERGY" else 0.0
                 node = mat.node_tree.nodes.get(DENSITY_NODE)
                 if node is not None:
                     node.outputs[0].default_value = settings.volume_density

@@ -53,7 +53,7 @@ class RunInputs:
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
-def _grid_dir(settings):
+def grid_folder(settings):
     import bpy
 
     if settings.grid_dir.strip():
@@ -156,7 +156,7 @@ def collect_inputs(context):
             raise InputError(f"{who}: simulation.voxel_size = {voxel:g} must be a finite number > 0")
         voxel_m = voxel * scale
         inputs_stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")
-        grid_path = os.path.join(_grid_dir(settings), f"endophoton_{inputs_stamp}.vdb")
+        grid_path = os.path.join(grid_folder(settings), f"endophoton_{inputs_stamp}.vdb")
 
     return RunInputs(
         scene_name=scene.name,

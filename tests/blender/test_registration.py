@@ -173,7 +173,7 @@ class FakeLayout:
     def _child(self, *_args, **_kwargs):
         return FakeLayout(self.log)
 
-    row = column = box = split = _child
+    row = column = box = split = grid_flow = _child
 
     def label(self, text="", icon="NONE"):
         self.log.append(("label", text))
