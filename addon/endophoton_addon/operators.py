@@ -158,6 +158,97 @@ class ENDOPHOTON_OT_clear_results(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def _result_by_name(context, name):
+    """The scene's result collection called ``name`` ('' = the active one), or None."""
+    if not name:
+        return context.scene.endophoton.result_collection
+    return next((c for c in results.result_collections(context.scene) if c.name == name), None)
+
+
+class ENDOPHOTON_OT_result_activate(bpy.types.Operator):
+    """Make this run the active result (panel summary, legend, filters, export)"""
+
+    bl_idname = "endophoton.result_activate"
+    bl_label = "Show Result"
+
+    name: bpy.props.StringProperty(name="Result", default="")
+
+    def execute(self, context):
+        collection = _result_by_name(context, self.name)
+        if collection is None:
+            self.report({"ERROR"}, f"Scene '{context.scene.name}': no EndoPhoton result named '{self.name}'")
+            return {"CANCELLED"}
+        context.scene.endophoton.result_collection = collection
+        results.update_display(context.scene)
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_result_delete(bpy.types.Operator):
+    """Delete this run: its collection, its data and its .vdb file"""
+
+    bl_idname = "endophoton.result_delete"
+    bl_label = "Delete Result"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: bpy.props.StringProperty(name="Result", default="")
+
+    def execute(self, context):
+        collection = _result_by_name(context, self.name)
+        if collection is None:
+            self.report({"ERROR"}, f"Scene '{context.scene.name}': no EndoPhoton result named '{self.name}'")
+            return {"CANCELLED"}
+        name = collection.name
+        results.remove_run(collection)
+        remaining = results.result_collections(context.scene)
+        settings = context.scene.endophoton
+        if settings.result_collection is None and remaining:
+            settings.result_collection = remaining[-1]
+        self.report({"INFO"}, f"EndoPhoton: deleted result '{name}'")
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_export_result(bpy.types.Operator):
+    """Export the active run's photon map and summary (CSV, NPZ or JSON)"""
+
+    bl_idname = "endophoton.export_result"
+    bl_label = "Export Result"
+
+    filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH", default="")
+    format: bpy.props.EnumProperty(
+        name="Format",
+        items=(("CSV", "CSV", "One row per record (+ <file>.json with the summary)"),
+               ("NPZ", "NPZ", "numpy arrays per record column + the summary as JSON"),
+               ("JSON", "JSON", "Summary, parameters and names only")),
+        default="CSV",
+    )
+    name: bpy.props.StringProperty(name="Result", default="")
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.endophoton.result_collection is not None
+
+    def invoke(self, context, _event):
+        if not self.filepath:
+            collection = _result_by_name(context, self.name)
+            self.filepath = bpy.path.clean_name(collection.name if collection else "result") + "." + self.format.lower()
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        collection = _result_by_name(context, self.name)
+        if collection is None or not self.filepath:
+            self.report({"ERROR"}, f"export: result '{self.name}' or file '{self.filepath}' missing")
+            return {"CANCELLED"}
+        try:
+            paths = results.export_result(package_finder.require(), collection,
+                                          bpy.path.abspath(self.filepath), self.format)
+        except (OSError, ValueError, EngineMissing) as exc:
+            self.report({"ERROR"}, f"Export of '{collection.name}' to '{self.filepath}' failed: {exc}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"EndoPhoton: exported '{collection.name}' -> {', '.join(paths)}")
+        return {"FINISHED"}
+
+
 class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
     """Render the scene camera and save the picture with the colour bar of the active result beside it"""
 
@@ -324,6 +415,9 @@ CLASSES = (
     ENDOPHOTON_OT_cancel_run,
     ENDOPHOTON_OT_clear_results,
     ENDOPHOTON_OT_render_legend,
+    ENDOPHOTON_OT_result_activate,
+    ENDOPHOTON_OT_result_delete,
+    ENDOPHOTON_OT_export_result,
     ENDOPHOTON_OT_run,
     ENDOPHOTON_OT_sweep,
 )

@@ -202,6 +202,16 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
         if collection is None:
             layout.label(text="No results yet")
             return
+        runs = results.result_collections(context.scene)
+        if len(runs) > 1:
+            col = layout.column(align=True)
+            col.label(text=f"{len(runs)} runs kept", icon="OUTLINER_COLLECTION")
+            for run in runs:
+                row = col.row(align=True)
+                op = row.operator("endophoton.result_activate", text=run.name,
+                                  depress=run == collection, emboss=True)
+                op.name = run.name
+                row.operator("endophoton.result_delete", text="", icon="X").name = run.name
         box = layout.box()
         box.label(text=collection.name, icon="OUTLINER_COLLECTION")
         col = box.column(align=True)
@@ -209,6 +219,9 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             row = col.split(factor=0.34, align=True)
             row.label(text=label)
             row.label(text=value)
+        row = layout.row(align=True)
+        row.operator("endophoton.export_result", icon="EXPORT").name = collection.name
+        row.operator("endophoton.result_delete", icon="X").name = collection.name
         layout.operator("endophoton.clear_results", icon="TRASH")
 
 

@@ -23,6 +23,7 @@ from . import colour_maps
 RESULT_KEY = "endophoton_result"    # on the run's collection
 RUN_KEY = "endophoton_run"          # on every datablock the run created
 SUMMARY_KEY = "endophoton_summary"  # on the run's collection
+PARAMS_KEY = "endophoton_params"    # on the run's collection: what the run was asked to do
 POINTS_GROUP = "EP Photon Points"
 DENSITY_NODE = "EP Density Scale"
 EMISSION_NODE = "EP Point Emission"
@@ -305,6 +306,60 @@ def render_with_legend(scene, collection, path):
     return image
 
 
+EXPORT_FORMATS = ("CSV", "NPZ", "JSON")
+
+
+def _plain(value):
+    return value.to_dict() if hasattr(value, "to_dict") else value
+
+
+def _atomic_writer(ep):
+    """The package's atomic writes: endophoton.io (issue 12), else where they lived before."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"{ep.__name__}.io")
+    except ImportError:
+        return ep.beta_sweep
+
+
+def export_result(ep, collection, path, fmt):
+    """Write the run's photon map and summary: CSV (one row per record, header
+    names the columns; summary in ``<path>.json`` beside it), NPZ (record
+    columns + ``summary_json``) or JSON (summary, parameters and legend only).
+    Atomic writes through the package.  Returns the paths written."""
+    import io
+    import json
+
+    if fmt not in EXPORT_FORMATS:
+        raise ValueError(f"export format = '{fmt}' must be one of {', '.join(EXPORT_FORMATS)}")
+    points = points_objects(collection)
+    columns = read_point_columns(points[0].data) if points else {}
+    info = {"name": collection.name, "summary": _plain(collection.get(SUMMARY_KEY, {})),
+            "parameters": _plain(collection.get(PARAMS_KEY, {})),
+            "names": point_names(points[0]) if points else {}}
+    summary_text = json.dumps(info, indent=1, sort_keys=True)
+    writer = _atomic_writer(ep)
+    if fmt == "JSON":
+        return [writer.atomic_write_text(path, summary_text)]
+    if fmt == "NPZ":
+        buffer = io.BytesIO()
+        np.savez(buffer, summary_json=np.array(summary_text), **columns)
+        return [writer.atomic_write_bytes(path, buffer.getvalue())]
+    flat = {}
+    for name, values in columns.items():
+        if values.ndim == 2:
+            for j, axis in enumerate("xyz"):
+                flat[f"{name}_{axis}"] = values[:, j]
+        else:
+            flat[name] = values
+    table = np.column_stack([v.astype(np.float64) for v in flat.values()]) if flat else np.zeros((0, 0))
+    buffer = io.StringIO()
+    np.savetxt(buffer, table, delimiter=",", header=",".join(flat), comments="", fmt="%.9g")
+    return [writer.atomic_write_text(path, buffer.getvalue()),
+            writer.atomic_write_text(path + ".json", summary_text)]
+
+
 def legend_of(obj):
     data = obj.get(LEGEND_KEY)
     if data is None:
@@ -399,9 +454,21 @@ def result_collections(scene):
     return [c for c in scene.collection.children_recursive if c.get(RESULT_KEY)]
 
 
+def run_files(collection):
+    """Files the run wrote that only it uses: its .vdb (a fresh name per run)."""
+    summary = collection.get(SUMMARY_KEY)
+    path = summary.get("grid_path", "") if summary is not None else ""
+    return [path] if path else []
+
+
 def remove_run(collection):
-    """Delete a run's collection and every datablock tagged with its run id."""
+    """Delete a run's collection, every datablock tagged with its run id and its .vdb file."""
+    import os
+
     run_id = collection.get(RUN_KEY)
+    for path in run_files(collection):
+        if os.path.isfile(path):
+            os.remove(path)
     for obj in list(collection.all_objects):
         if obj.get(RUN_KEY) == run_id:
             bpy.data.objects.remove(obj)
@@ -451,7 +518,6 @@ def apply_result(context, inputs, result, grid_info=()):
     records = 0 if positions is None else len(positions)
     summary = summary_from_result(result, inputs, records)
 
-    remove_results(scene)
     run_id = _unique_run_id(inputs)
     beta = f"β={inputs.beta_deg:+.1f}°"
     collection = bpy.data.collections.new(f"EP {beta} {inputs.timestamp}")
@@ -472,11 +538,24 @@ def apply_result(context, inputs, result, grid_info=()):
                                 inputs.grid_voxel_m, settings.volume_density, inputs.scale_length, run_id)
             collection.objects.link(obj)
         collection[SUMMARY_KEY] = summary
+        collection[PARAMS_KEY] = run_parameters(inputs)
     except Exception:
         remove_run(collection)
         raise
     settings.result_collection = collection
     return collection
+
+
+def run_parameters(inputs):
+    """The run's parameters as plain values (the tag that tells runs apart)."""
+    return {
+        "beta_deg": float(inputs.beta_deg), "rig": inputs.rig_name, "kind": inputs.kind,
+        "count": int(inputs.count), "target_error": float(inputs.target_error or 0.0),
+        "seed": int(inputs.seed), "fluorescent_only": bool(inputs.fluorescent_only),
+        "fluorescence_rule": inputs.fluorescence_rule, "scale_length_m": float(inputs.scale_length),
+        "voxel_size_m": float(inputs.grid_voxel_m or 0.0),
+        "regions": [r.name for r in inputs.regions],
+    }
 
 
 def record_names(result, inputs):

@@ -10,6 +10,7 @@ import bpy
 import pytest
 
 import numpy as np
+from types import SimpleNamespace
 
 from conftest import ADDON, REPO, data_snapshot, ensure_addon, mesh_object
 
@@ -186,6 +187,7 @@ class FakeLayout:
         module, name = idname.split(".")
         getattr(getattr(bpy.ops, module), name).get_rna_type()  # KeyError if not registered
         self.log.append(("operator", idname))
+        return SimpleNamespace()  # operator properties the panel sets
 
     def template_list(self, *args, **_kwargs):
         assert args[3] in args[2].bl_rna.properties
