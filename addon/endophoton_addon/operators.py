@@ -165,37 +165,43 @@ def _result_by_name(context, name):
     return next((c for c in results.result_collections(context.scene) if c.name == name), None)
 
 
-class ENDOPHOTON_OT_result_activate(bpy.types.Operator):
+class _NamedResult:
+    """Operators on one kept run, chosen by ``name`` ('' = the active result)."""
+
+    name: bpy.props.StringProperty(name="Result", default="")
+
+    def _collection(self, context):
+        collection = _result_by_name(context, self.name)
+        if collection is None:
+            self.report({"ERROR"}, f"Scene '{context.scene.name}': no EndoPhoton result named '{self.name}'")
+        return collection
+
+
+class ENDOPHOTON_OT_result_activate(_NamedResult, bpy.types.Operator):
     """Make this run the active result (panel summary, legend, filters, export)"""
 
     bl_idname = "endophoton.result_activate"
     bl_label = "Show Result"
 
-    name: bpy.props.StringProperty(name="Result", default="")
-
     def execute(self, context):
-        collection = _result_by_name(context, self.name)
+        collection = self._collection(context)
         if collection is None:
-            self.report({"ERROR"}, f"Scene '{context.scene.name}': no EndoPhoton result named '{self.name}'")
             return {"CANCELLED"}
         context.scene.endophoton.result_collection = collection
         results.update_display(context.scene)
         return {"FINISHED"}
 
 
-class ENDOPHOTON_OT_result_delete(bpy.types.Operator):
+class ENDOPHOTON_OT_result_delete(_NamedResult, bpy.types.Operator):
     """Delete this run: its collection, its data and its .vdb file"""
 
     bl_idname = "endophoton.result_delete"
     bl_label = "Delete Result"
     bl_options = {"REGISTER", "UNDO"}
 
-    name: bpy.props.StringProperty(name="Result", default="")
-
     def execute(self, context):
-        collection = _result_by_name(context, self.name)
+        collection = self._collection(context)
         if collection is None:
-            self.report({"ERROR"}, f"Scene '{context.scene.name}': no EndoPhoton result named '{self.name}'")
             return {"CANCELLED"}
         name = collection.name
         results.remove_run(collection)
@@ -207,7 +213,7 @@ class ENDOPHOTON_OT_result_delete(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class ENDOPHOTON_OT_export_result(bpy.types.Operator):
+class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
     """Export the active run's photon map and summary (CSV, NPZ or JSON)"""
 
     bl_idname = "endophoton.export_result"
@@ -221,7 +227,6 @@ class ENDOPHOTON_OT_export_result(bpy.types.Operator):
                ("JSON", "JSON", "Summary, parameters and names only")),
         default="CSV",
     )
-    name: bpy.props.StringProperty(name="Result", default="")
 
     @classmethod
     def poll(cls, context):
@@ -235,9 +240,11 @@ class ENDOPHOTON_OT_export_result(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        collection = _result_by_name(context, self.name)
-        if collection is None or not self.filepath:
-            self.report({"ERROR"}, f"export: result '{self.name}' or file '{self.filepath}' missing")
+        collection = self._collection(context)
+        if collection is None:
+            return {"CANCELLED"}
+        if not self.filepath:
+            self.report({"ERROR"}, f"Export of '{collection.name}': filepath is empty")
             return {"CANCELLED"}
         try:
             paths = results.export_result(package_finder.require(), collection,
