@@ -10,7 +10,7 @@ import os
 
 import bpy
 
-from . import package_finder, properties, results, rig, simulation, sweep_job
+from . import export, guards, package_finder, properties, results, rig, simulation, sweep_job
 from .package_finder import EngineMissing
 from .export import InputError
 
@@ -256,6 +256,29 @@ class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
         return {"FINISHED"}
 
 
+class ENDOPHOTON_OT_check_scene(bpy.types.Operator):
+    """Show each region's size and wall thickness in mm and the run's estimate; run the guards"""
+
+    bl_idname = "endophoton.check_scene"
+    bl_label = "Check Scene"
+
+    def execute(self, context):
+        settings = context.scene.endophoton
+        lines = []
+        try:
+            regions = export.export_regions(context.scene, context.view_layer, context.evaluated_depsgraph_get())
+            lines += guards.size_lines(regions)
+            inputs = simulation.collect_inputs(context)
+            lines.append("Run: " + guards.estimate_text(guards.estimate(inputs, simulation.last_rate(context.scene))))
+        except InputError as exc:
+            lines.append(f"Problem: {exc}")
+            self.report({"WARNING"}, str(exc))
+        else:
+            self.report({"INFO"}, "; ".join(lines))
+        settings.scene_report = "\n".join(lines)
+        return {"FINISHED"}
+
+
 class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
     """Render the scene camera and save the picture with the colour bar of the active result beside it"""
 
@@ -273,11 +296,11 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
 
     def execute(self, context):
         collection = context.scene.endophoton.result_collection
-        path = self.filepath or os.path.join(simulation.grid_folder(context.scene.endophoton),
-                                             bpy.path.clean_name(collection.name) + "_legend.png")
         try:
+            path = self.filepath or os.path.join(simulation.grid_folder(context.scene.endophoton),
+                                                 bpy.path.clean_name(collection.name) + "_legend.png")
             image = results.render_with_legend(context.scene, collection, bpy.path.abspath(path))
-        except RuntimeError as exc:
+        except (RuntimeError, InputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"EndoPhoton: render with legend -> '{image.filepath}' (image '{image.name}')")
@@ -422,6 +445,7 @@ CLASSES = (
     ENDOPHOTON_OT_cancel_run,
     ENDOPHOTON_OT_clear_results,
     ENDOPHOTON_OT_render_legend,
+    ENDOPHOTON_OT_check_scene,
     ENDOPHOTON_OT_result_activate,
     ENDOPHOTON_OT_result_delete,
     ENDOPHOTON_OT_export_result,

@@ -132,6 +132,16 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         sub.prop(s, "voxel_size")
         sub.prop(s, "grid_per_fluorophore")
         sub.prop(s, "grid_dir", text="")
+        col = layout.column(heading="Guards")
+        col.prop(s, "allow_unusual_scale")
+        col.prop(s, "allow_large_runs")
+        layout.operator("endophoton.check_scene", icon="VIEWZOOM")
+        if s.scene_report:
+            box = layout.box()
+            col = box.column(align=True)
+            for paragraph in s.scene_report.split("\n"):
+                for line in wrap_text(paragraph, 40):
+                    col.label(text=line)
         row = layout.row()
         row.scale_y = 1.5
         row.enabled = package_finder.get() is not None

@@ -249,6 +249,18 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=1, min=0)
     threads: IntProperty(name="Threads", description="0 = all cores (all but one while the UI runs, to keep it responsive)", default=0, min=0, max=1024)
 
+    allow_unusual_scale: BoolProperty(
+        name="Allow Unusual Scale",
+        description="Run even when a region is thinner than one transport mean free path or "
+                    "thicker than 1e5 (usually a wrong Unit Scale)", default=False,
+    )
+    allow_large_runs: BoolProperty(
+        name="Allow Large Runs",
+        description="Run even above 5 million records or 100 million packets (memory and time estimate "
+                    "in the panel's Check Scene)", default=False,
+    )
+    scene_report: StringProperty(name="Scene Check", default="", options={"SKIP_SAVE"})
+
     output_points: BoolProperty(name="Surface Point Cloud", default=True)
     output_grids: BoolProperty(name="Volume Grids", default=True)
     voxel_size: FloatProperty(

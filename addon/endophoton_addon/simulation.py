@@ -11,7 +11,6 @@ returns the engine's Result.  The modal operator (operators.py), the blocking
 import inspect
 import math
 import os
-import tempfile
 import threading
 import time
 import traceback
@@ -21,7 +20,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import package_finder, export, presets, rig
+from . import export, guards, package_finder, presets, rig
 from .export import InputError
 
 _ACTIVE_JOBS = set()
@@ -53,14 +52,9 @@ class RunInputs:
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
-def grid_folder(settings):
-    import bpy
-
-    if settings.grid_dir.strip():
-        return bpy.path.abspath(settings.grid_dir.strip())
-    if bpy.data.filepath:
-        return bpy.path.abspath("//endophoton_cache")
-    return os.path.join(tempfile.gettempdir(), "endophoton_cache")
+def grid_folder(settings, who="Scene"):
+    """The .vdb folder of the grid_dir field, checked writable (guards.resolve_folder)."""
+    return guards.resolve_folder(settings.grid_dir, f"{who}: simulation.grid_dir", "endophoton_cache")
 
 
 def _pick_rig(scene):
@@ -156,9 +150,9 @@ def collect_inputs(context):
             raise InputError(f"{who}: simulation.voxel_size = {voxel:g} must be a finite number > 0")
         voxel_m = voxel * scale
         inputs_stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")
-        grid_path = os.path.join(grid_folder(settings), f"endophoton_{inputs_stamp}.vdb")
+        grid_path = os.path.join(grid_folder(settings, who), f"endophoton_{inputs_stamp}.vdb")
 
-    return RunInputs(
+    inputs = RunInputs(
         scene_name=scene.name,
         regions=regions,
         rig_name=rig_obj.name,
@@ -178,6 +172,30 @@ def collect_inputs(context):
         scale_length=float(scale),
         target_error=target_error,
     )
+    check_before_run(scene, inputs)
+    return inputs
+
+
+def last_rate(scene):
+    """Packets per second of the active result (a measured rate for estimates), or None."""
+    collection = scene.endophoton.result_collection
+    summary = collection.get("endophoton_summary") if collection is not None else None
+    if summary is None or not summary.get("seconds"):
+        return None
+    return summary.get("packets_traced", 0) / summary["seconds"] or None
+
+
+def check_before_run(scene, inputs):
+    """The guards (guards.py): unit scale, overlaps, voxel count, size of the run."""
+    settings = scene.endophoton
+    who = f"Scene '{scene.name}'"
+    if not settings.allow_unusual_scale:
+        guards.check_unit_scale(inputs.regions, inputs.scale_length, who)
+    guards.check_overlaps(inputs.regions)
+    if inputs.grid_voxel_m is not None:
+        guards.check_voxels(inputs.regions, inputs.grid_voxel_m, who)
+    if not settings.allow_large_runs:
+        guards.check_budget(inputs, who, last_rate(scene))
 
 
 def _accepted_kwargs(func, kwargs):

@@ -17,7 +17,6 @@ values in :class:`SweepInputs`, runs the sweep, writes the output files with
 import argparse
 import math
 import os
-import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import package_finder, export, rig, simulation
+from . import export, guards, package_finder, rig, simulation
 from .export import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -89,36 +88,6 @@ def parse_betas(ep, text, who):
     return [float(b) for b in values]
 
 
-def resolve_output_dir(raw, who):
-    """Absolute output folder for the ``output_dir`` field; raises InputError.  Creates nothing."""
-    import bpy
-
-    raw = raw.strip()
-    field = f"{who}: sweep.output_dir = '{raw}'"
-    if not raw:
-        if bpy.data.filepath:
-            path = bpy.path.abspath("//" + DEFAULT_DIR_NAME)
-        else:
-            path = os.path.join(tempfile.gettempdir(), DEFAULT_DIR_NAME)
-    else:
-        if raw.startswith("//") and not bpy.data.filepath:
-            raise InputError(f"{field} is relative to the .blend file, which is not saved; "
-                             "save the file or choose an absolute folder")
-        path = bpy.path.abspath(raw)
-    path = os.path.normpath(os.path.abspath(path))
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise InputError(f"{field} is a file, not a folder")
-    existing = path
-    while not os.path.exists(existing):
-        parent = os.path.dirname(existing)
-        if parent == existing:
-            break
-        existing = parent
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"{field}: '{existing}' is not writable")
-    return path
-
-
 def _rig_geometry(rig_obj, scale_length):
     """Target (m), normal, tilt axis, distance (m) and tip of the rig; raises InputError."""
     simulation._check_rig(rig_obj, scale_length)   # finite values, light guides inside the head
@@ -166,10 +135,13 @@ def collect_sweep_inputs(context, ep):
                          f"{settings.batches} (one record per batch at least)")
     if settings.threads < 0:
         raise InputError(f"{who}: sweep.threads = {settings.threads} must be >= 0")
-    out_dir = resolve_output_dir(settings.output_dir, who)
+    out_dir = guards.resolve_folder(settings.output_dir, f"{who}: sweep.output_dir", DEFAULT_DIR_NAME)
 
     depsgraph = context.evaluated_depsgraph_get()
     regions = export.export_regions(scene, context.view_layer, depsgraph)
+    if not scene.endophoton.allow_unusual_scale:
+        guards.check_unit_scale(regions, scale, who)
+    guards.check_overlaps(regions)
     rig_obj = simulation._pick_rig(scene)
     geometry = _rig_geometry(rig_obj, scale)
 

@@ -241,6 +241,7 @@ def test_cancelled_run_leaves_nothing(ep, tmp_path):
     settings = scene.endophoton
     settings.quality = "CUSTOM"
     settings.photons = 200_000_000           # far longer than the test waits
+    settings.allow_large_runs = True    # the guard would ask first
     before = data_snapshot()
     job = simulation.prepare_job(bpy.context)
     job.start()
@@ -264,6 +265,7 @@ def test_cancel_keeps_previous_result(ep, tmp_path):
     _job, previous, _ = _run_job(bpy.context)
     before = data_snapshot()
     settings.photons = 200_000_000
+    settings.allow_large_runs = True
     job = simulation.prepare_job(bpy.context)
     job.start()
     job.cancel()
