@@ -307,6 +307,54 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
         return {"FINISHED"}
 
 
+PROGRESS_EVERY_S = 2.0   # background runs print a progress line this often
+
+
+def _wait_printing_progress(job):
+    """Wait for the job; in background mode print its progress line to stdout."""
+    import time
+
+    last = time.monotonic()
+    while not job.wait(0.2):
+        if bpy.app.background and time.monotonic() - last >= PROGRESS_EVERY_S:
+            last = time.monotonic()
+            print(job.progress().text().replace(" · Esc to cancel", " · Ctrl-C to cancel"), flush=True)
+
+
+class _ctrl_c_cancels:
+    """While a blocking run waits in the main thread, one Ctrl-C (SIGINT) cancels
+    it cleanly: the worker stops, the partial result is discarded and the
+    previous result is kept.  Blender's own handler (first Ctrl-C ignored, the
+    second kills Blender) is put back afterwards when Python knows it, else
+    the default (Ctrl-C ends the process)."""
+
+    def __init__(self, job):
+        self.job = job
+        self.previous = None
+
+    def _handler(self, _signum, _frame):
+        print("EndoPhoton: Ctrl-C -> cancelling the run (the previous result is kept)", flush=True)
+        self.job.cancel()
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handler)
+            self.installed = True
+        else:
+            self.installed = False
+        return self
+
+    def __exit__(self, *_exc):
+        import signal
+
+        if self.installed:
+            signal.signal(signal.SIGINT, self.previous if self.previous is not None else signal.SIG_DFL)
+        return False
+
+
 class _JobOperator:
     """The one job operator behind Run and Sweep β.
 
@@ -334,8 +382,9 @@ class _JobOperator:
         if job is None:
             return {"CANCELLED"}
         _running["job"] = job
-        job.start()
-        job.wait()
+        with _ctrl_c_cancels(job):
+            job.start()
+            _wait_printing_progress(job)
         return self._finish(context, job)
 
     # Interactive: worker thread + timer; the UI keeps running.
