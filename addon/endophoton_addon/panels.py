@@ -208,6 +208,10 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             box.operator("endophoton.render_legend", icon="RENDER_STILL")
         layout.prop(s, "point_radius")
         layout.prop(s, "volume_density")
+        row = layout.row(align=True)
+        row.prop(s, "volume_scale", expand=True)
+        if s.volume_scale == "LOG":
+            layout.prop(s, "volume_decades")
         collection = s.result_collection
         if collection is None:
             layout.label(text="No results yet")

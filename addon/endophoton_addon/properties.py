@@ -299,6 +299,17 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         name="Region", description="Show only records that left this region",
         items=lambda self, context: _name_items(self, "region"), update=_display_changed,
     )
+    volume_scale: EnumProperty(
+        name="Volume Scale",
+        items=(("OWN", "Own Max", "Each grid from 0 to its own maximum"),
+               ("SHARED", "Shared", "Every grid of a run on one scale: the largest maximum of its grids"),
+               ("LOG", "Log", "Each grid on a log scale: its maximum and the decades below it")),
+        default="OWN", update=_display_changed,
+    )
+    volume_decades: FloatProperty(
+        name="Decades", description="Decades below the maximum the log scale shows",
+        default=3.0, min=0.1, soft_max=8.0, update=_display_changed,
+    )
     volume_density: FloatProperty(
         name="Volume Density",
         description="Optical depth of one voxel at the grid's maximum (density and glow of the grids)",

@@ -393,40 +393,102 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id, names=N
     return obj
 
 
-def _volume_material(name, grid_name, vmax, voxel_bu, density, run_id):
+# Each grid's own colour ramp (dark -> bright, linear RGB); other names get the last one.
+GRID_RAMPS = {
+    "absorbed": ((0.5, 0.06, 0.0), (1.0, 0.4, 0.03), (1.0, 0.95, 0.6)),
+    "fluorescence": ((0.05, 0.5, 0.05), (0.2, 1.0, 0.3), (0.85, 1.0, 0.75)),
+    "fluorescence_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
+    "fluorescence_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
+}
+OTHER_RAMP = ((0.3, 0.05, 0.5), (0.7, 0.2, 1.0), (0.95, 0.85, 1.0))
+INV_PEAK_NODE = "EP 1/peak"        # value: 1 / (the grid's or the run's maximum)
+LOG_NODE = "EP log scale"          # value: 0 = linear, 1 = log
+DECADES_NODE = "EP decades"        # value: decades shown by the log scale
+
+
+def _math(nodes, links, operation, a, b=None, location=(0, 0), clamp=False):
+    node = nodes.new("ShaderNodeMath")
+    node.operation = operation
+    node.use_clamp = clamp
+    node.location = location
+    for socket, value in ((node.inputs[0], a), (node.inputs[1], b)):
+        if value is None:
+            continue
+        if isinstance(value, (int, float)):
+            socket.default_value = value
+        else:
+            links.new(value, socket)
+    return node.outputs[0]
+
+
+def _value(nodes, name, value, location):
+    node = nodes.new("ShaderNodeValue")
+    node.name = node.label = name
+    node.outputs[0].default_value = value
+    node.location = location
+    return node.outputs[0]
+
+
+def _volume_material(name, grid_name, voxel_bu, run_id):
+    """Grid value v -> t in [0, 1]: linear t = v/peak, or log t = 1 + log10(v/peak)/decades;
+    colour = the grid's ramp at t, density = emission strength = t · Volume Density / voxel
+    (Volume Density is then the optical depth of one voxel at t = 1)."""
     mat, nodes, links, out, attr = _attribute_material(name, run_id, grid_name)
-    normalise = nodes.new("ShaderNodeMath")
-    normalise.operation = "MULTIPLY"
-    # Grid max -> 1 per voxel length: "Volume Density" is then the optical depth
-    # of one voxel at the grid's maximum, whatever the units and tally values.
-    peak = vmax if vmax > 0 else 1.0
-    normalise.inputs[1].default_value = 1.0 / (peak * voxel_bu)
-    normalise.label = "1 / (grid max · voxel size)"
-    normalise.location = (-200, 0)
-    scale = nodes.new("ShaderNodeValue")
-    scale.name = scale.label = DENSITY_NODE
-    scale.outputs[0].default_value = density
-    scale.location = (-200, -200)
-    density_mul = nodes.new("ShaderNodeMath")
-    density_mul.operation = "MULTIPLY"
-    density_mul.location = (0, 0)
+    out.location = (900, 0)
+    inv_peak = _value(nodes, INV_PEAK_NODE, 1.0, (-400, -200))
+    use_log = _value(nodes, LOG_NODE, 0.0, (-400, -300))
+    decades = _value(nodes, DECADES_NODE, 3.0, (-400, -400))
+    scale = _value(nodes, DENSITY_NODE, 0.2, (300, -300))
+    rel = _math(nodes, links, "MULTIPLY", attr.outputs["Fac"], inv_peak, (-200, 0))
+    t_lin = _math(nodes, links, "MULTIPLY", rel, 1.0, (0, 100), clamp=True)
+    log10 = _math(nodes, links, "LOGARITHM", _math(nodes, links, "MAXIMUM", rel, 1e-12, (-100, -100)), 10.0,
+                  (0, -100))
+    t_log = _math(nodes, links, "ADD", _math(nodes, links, "DIVIDE", log10, decades, (100, -100)), 1.0,
+                  (200, -100), clamp=True)
+    t = _math(nodes, links, "ADD", t_lin,
+              _math(nodes, links, "MULTIPLY", use_log, _math(nodes, links, "SUBTRACT", t_log, t_lin, (300, -50)),
+                    (400, -50)), (500, 0))
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.location = (550, 250)
+    stops = GRID_RAMPS.get(grid_name, OTHER_RAMP)
+    elements = ramp.color_ramp.elements
+    elements.new(0.5)
+    for element, colour in zip(elements, stops):
+        element.color = (*colour, 1.0)
+    links.new(t, ramp.inputs["Fac"])
+    density = _math(nodes, links, "MULTIPLY", _math(nodes, links, "MULTIPLY", t, scale, (600, -200)),
+                    1.0 / voxel_bu, (700, -200))
     volume = nodes.new("ShaderNodeVolumePrincipled")
-    volume.inputs["Color"].default_value = (0.3, 0.9, 0.4, 1.0)
-    volume.inputs["Emission Color"].default_value = (0.2, 1.0, 0.3, 1.0)
     # Density comes from the link below; the node's own "density" attribute
     # lookup would multiply it by a grid that does not exist (= 0).
     volume.inputs["Density Attribute"].default_value = ""
-    volume.location = (250, 0)
-    links.new(attr.outputs["Fac"], normalise.inputs[0])
-    links.new(normalise.outputs[0], density_mul.inputs[0])
-    links.new(scale.outputs[0], density_mul.inputs[1])
-    links.new(density_mul.outputs[0], volume.inputs["Density"])
-    links.new(density_mul.outputs[0], volume.inputs["Emission Strength"])
+    volume.location = (750, 100)
+    links.new(ramp.outputs["Color"], volume.inputs["Color"])
+    links.new(ramp.outputs["Color"], volume.inputs["Emission Color"])
+    links.new(density, volume.inputs["Density"])
+    links.new(density, volume.inputs["Emission Strength"])
     links.new(volume.outputs["Volume"], out.inputs["Volume"])
     return mat
 
 
-def create_volume(name, path, grid_name, vmax, voxel_m, density, scale_length, run_id):
+def set_volume_scale(collection, settings):
+    """Apply Volume Scale (own maximum, the run's shared maximum, log), decades and density."""
+    volumes = [o for o in collection.all_objects if o.type == "VOLUME" and "endophoton_grid_max" in o]
+    shared = max([o["endophoton_grid_max"] for o in volumes] or [0.0])
+    for obj in volumes:
+        peak = shared if settings.volume_scale == "SHARED" else obj["endophoton_grid_max"]
+        values = {INV_PEAK_NODE: 1.0 / peak if peak > 0 else 1.0, LOG_NODE: float(settings.volume_scale == "LOG"),
+                  DECADES_NODE: float(settings.volume_decades), DENSITY_NODE: float(settings.volume_density)}
+        for slot in obj.material_slots:
+            if slot.material is None or not slot.material.use_nodes:
+                continue
+            for node_name, value in values.items():
+                node = slot.material.node_tree.nodes.get(node_name)
+                if node is not None:
+                    node.outputs[0].default_value = value
+
+
+def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id):
     """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units)."""
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
@@ -441,10 +503,11 @@ def create_volume(name, path, grid_name, vmax, voxel_m, density, scale_length, r
     # tallies per launched packet are far smaller: clip relative to the peak.
     volume.render.clipping = 1e-4 * vmax if vmax > 0 else 0.0
     voxel_bu = voxel_m / scale_length
-    volume.materials.append(_volume_material(name, grid_name, vmax, voxel_bu, density, run_id))
+    volume.materials.append(_volume_material(name, grid_name, voxel_bu, run_id))
     obj = bpy.data.objects.new(name, volume)
     obj[RUN_KEY] = run_id
     obj["endophoton_grid"] = grid_name
+    obj["endophoton_grid_max"] = float(vmax)
     inv = 1.0 / scale_length
     obj.scale = (inv, inv, inv)
     return obj
@@ -535,8 +598,9 @@ def apply_result(context, inputs, result, grid_info=()):
             if grid_name is None:
                 grid_name = _first_grid_name(grid_path)
             obj = create_volume(f"EP Grid {grid_name} {beta}", grid_path, grid_name, vmax,
-                                inputs.grid_voxel_m, settings.volume_density, inputs.scale_length, run_id)
+                                inputs.grid_voxel_m, inputs.scale_length, run_id)
             collection.objects.link(obj)
+        set_volume_scale(collection, settings)
         collection[SUMMARY_KEY] = summary
         collection[PARAMS_KEY] = run_parameters(inputs)
     except Exception:
@@ -594,13 +658,7 @@ def update_display(scene):
                     obj.update_tag()
             if obj.get(NAMES_KEY) is not None:
                 recolour(obj, settings)
-            for slot in obj.material_slots:
-                mat = slot.material
-                if mat is None or not mat.use_nodes:
-                    continue
-                node = mat.node_tree.nodes.get(DENSITY_NODE)
-                if node is not None:
-                    node.outputs[0].default_value = settings.volume_density
+        set_volume_scale(collection, settings)
 
 
 # Short labels: the sidebar is narrow (Rsp + Rd + Tt + A + missed + cut + roulette = 1).

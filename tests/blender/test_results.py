@@ -222,7 +222,7 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     path = tmp_path / "grid.vdb"
     active = _write_vdb(path, "absorbed", 0.001)   # 1 mm voxels, file in metres
     assert active > 0
-    obj = results.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, 50.0, scale_length, "run")
+    obj = results.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, scale_length, "run")
     bpy.context.scene.collection.objects.link(obj)
     volume = obj.data
     assert volume.grids.load()
@@ -242,6 +242,44 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     nodes = volume.materials[0].node_tree.nodes
     attribute = next(n for n in nodes if n.bl_idname == "ShaderNodeAttribute")
     assert attribute.attribute_name == "absorbed"
-    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(50.0)
+    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
     bpy.context.scene.endophoton.volume_density = 5.0   # no result collection: untouched
-    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(50.0)
+    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
+
+
+def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
+    """Two grids of one run, maxima 2 and 8: Own Max divides each by its own,
+    Shared by 8, Log switches the log branch; each grid has its own ramp."""
+    coll = bpy.data.collections.new("EP run")
+    coll[results.RESULT_KEY] = True
+    bpy.context.scene.collection.children.link(coll)
+    objs = {}
+    for name, peak in (("absorbed", 2.0), ("fluorescence", 8.0)):
+        path = tmp_path / f"{name}.vdb"
+        _write_vdb(path, name, 0.001)
+        objs[name] = results.create_volume(f"EP Grid {name}", str(path), name, peak, 0.001, 1.0, "run")
+        coll.objects.link(objs[name])
+    settings = bpy.context.scene.endophoton
+
+    def node(name, key):
+        return objs[name].data.materials[0].node_tree.nodes[key].outputs[0].default_value
+
+    settings.volume_scale = "SHARED"
+    assert node("absorbed", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("fluorescence", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("absorbed", results.LOG_NODE) == 0.0
+    settings.volume_scale = "OWN"
+    assert node("absorbed", results.INV_PEAK_NODE) == pytest.approx(0.5)
+    assert node("fluorescence", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    settings.volume_scale, settings.volume_decades = "LOG", 4.0
+    assert node("absorbed", results.LOG_NODE) == 1.0 and node("absorbed", results.DECADES_NODE) == 4.0
+    settings.volume_density = 3.0
+    assert node("fluorescence", results.DENSITY_NODE) == pytest.approx(3.0)
+
+    def ramp(name):
+        nodes = objs[name].data.materials[0].node_tree.nodes
+        r = next(n for n in nodes if n.bl_idname == "ShaderNodeValToRGB")
+        return [tuple(e.color)[:3] for e in r.color_ramp.elements]
+
+    assert ramp("absorbed") != ramp("fluorescence")
+    assert ramp("absorbed")[-1] == pytest.approx(results.GRID_RAMPS["absorbed"][-1])
