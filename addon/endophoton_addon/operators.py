@@ -27,16 +27,22 @@ def running_job():
     return job
 
 
-def _redraw_sidebars(context):
-    """Redraw only the 3D views' sidebars (the progress box), not the viewports."""
-    screen = context.screen
-    if screen is None:
-        return
-    for area in screen.areas:
-        if area.type == "VIEW_3D":
-            for region in area.regions:
-                if region.type == "UI":
-                    region.tag_redraw()
+def _redraw_sidebars(_context=None):
+    """Redraw the 3D views' sidebars (progress box, Run button) in every window:
+    a finished job must re-enable the buttons without waiting for the mouse."""
+    wm = bpy.context.window_manager
+    for window in (wm.windows if wm is not None else ()):
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                for region in area.regions:
+                    if region.type == "UI":
+                        region.tag_redraw()
+
+
+def _redraw_soon():
+    """Redraw once more from a timer, after the modal handler is gone (the poll
+    of Run / Sweep β reads the finished state only then)."""
+    bpy.app.timers.register(lambda: _redraw_sidebars() or None, first_interval=0.05)
 
 
 class ENDOPHOTON_OT_add_endoscope(bpy.types.Operator):
@@ -423,6 +429,7 @@ class _JobOperator:
         finally:
             self._cleanup(context)
             _redraw_sidebars(context)
+            _redraw_soon()
 
     def cancel(self, context):
         # Blender cancels modal operators when the file is closed.

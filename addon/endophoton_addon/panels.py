@@ -3,7 +3,7 @@
 
 import bpy
 
-from . import package_finder, operators, results, rig, sweep_job
+from . import operators, package_finder, presets, results, rig, sweep_job
 from .utils import wrap_text
 
 
@@ -15,10 +15,9 @@ class _EndoPhotonPanel:
 
 class ENDOPHOTON_UL_fluorophores(bpy.types.UIList):
     def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index=0):
-        row = layout.row(align=True)
-        row.prop(item, "species", text="")
-        row.prop(item, "d")
-        row.prop(item, "c")
+        # Read-only summary that fits the default sidebar width; the active
+        # item is edited with full-width fields below the list.
+        layout.label(text=f"{item.species.capitalize()}  d {item.d:.2f}  c {item.c:.2f}")
 
 
 class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
@@ -60,6 +59,12 @@ class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "role")
         if s.role == "NONE":
             return
+        layout.prop(s, "tissue_preset", text="Preset")
+        preset = presets.TISSUE_PRESETS.get(s.tissue_preset)
+        if preset is not None:
+            box = layout.box()
+            for line in wrap_text(preset.source, 40):
+                box.label(text=line)
         col = layout.column(align=True)
         col.label(text="Medium (μa, μs in cm⁻¹)")
         col.prop(s.medium, "mua")
@@ -73,6 +78,13 @@ class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
         col = row.column(align=True)
         col.operator("endophoton.fluorophore_add", icon="ADD", text="")
         col.operator("endophoton.fluorophore_remove", icon="REMOVE", text="")
+        if 0 <= s.active_fluorophore < len(s.fluorophores):
+            item = s.fluorophores[s.active_fluorophore]
+            col = layout.column(align=True)
+            col.prop(item, "species")
+            col.prop(item, "d", text="d (excitation)")
+            col.prop(item, "c", text="c (emission)")
+
         layout.operator("endophoton.role_defaults", icon="LOOP_BACK")
 
 

@@ -78,8 +78,23 @@ def apply_role_defaults(settings):
     settings.active_fluorophore = 0
 
 
+def _tissue_preset_chosen(self, _context):
+    """Load the chosen published medium into the object's medium (then back to 'Choose')."""
+    preset = presets.TISSUE_PRESETS.get(self.tissue_preset)
+    if preset is None:
+        return
+    for key, value in preset.medium.items():
+        setattr(self.medium, key, value)
+
+
 class EndoPhotonObjectSettings(bpy.types.PropertyGroup):
     role: EnumProperty(name="Role", items=ROLE_ITEMS, default="NONE", update=_role_changed)
+    tissue_preset: EnumProperty(
+        name="Tissue Preset", description="Load published optical properties into the medium",
+        items=(("CUSTOM", "Custom", "The medium as edited"),)
+        + tuple((key, p.label, p.source) for key, p in presets.TISSUE_PRESETS.items()),
+        default="CUSTOM", update=_tissue_preset_chosen,
+    )
     medium: PointerProperty(type=EndoPhotonMedium)
     priority: IntProperty(
         name="Priority", default=0,

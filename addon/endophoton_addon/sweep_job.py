@@ -271,23 +271,41 @@ class SweepJob(simulation.BackgroundJob):
         self.result = result
 
 
+MIN_FIT_POINTS = FIT_DEGREE + 3    # the degree-6 fit keeps >= 2 degrees of freedom
+BOOTSTRAP = 200                     # parametric bootstrap replicas for the peak's standard error
+
+
+def best_beta(an, betas, y, y_se, seed=0):
+    """β of the fitted energy maximum, its standard error and whether it is interior.
+
+    Only with at least MIN_FIT_POINTS angles (else NaN): a degree-6 polynomial
+    through fewer points interpolates the noise.  The standard error comes from
+    refitting BOOTSTRAP curves drawn from N(y, y_se) per β (a fixed seed, so the
+    summary is reproducible).  Returns (beta, se, interior)."""
+    ok = np.isfinite(y) & np.isfinite(y_se)
+    if ok.sum() < MIN_FIT_POINTS:
+        return float("nan"), float("nan"), False
+    x, y, y_se = betas[ok], y[ok], y_se[ok]
+    fit = an.poly_peak(x, y, deg=FIT_DEGREE)
+    rng = np.random.default_rng(seed)
+    peaks = [an.poly_peak(x, y + rng.normal(0.0, 1.0, len(y)) * y_se, deg=FIT_DEGREE, n_grid=1001)["x_peak"]
+             for _ in range(BOOTSTRAP)]
+    return float(fit["x_peak"]), float(np.std(peaks, ddof=1)), bool(fit["interior"])
+
+
 def sweep_summary(ep, result, paths, out_dir):
     """Plain-value summary of a finished sweep (no bpy): the β of the energy
     maximum by the paper's degree-6 fit (sum over stored records, and per packet
-    traced), the range of packets traced, times and where the files are."""
+    traced) with its bootstrap standard error when there are enough angles, the
+    range of packets traced, times and where the files are."""
     an = ep.analysis
     betas = result.betas
-
-    def best(column):
-        y = result.column(column)
-        ok = np.isfinite(y)
-        if ok.sum() < 2:
-            return float("nan"), 0
-        fit = an.poly_peak(betas[ok], y[ok], deg=FIT_DEGREE)
-        return float(fit["x_peak"]), int(fit["deg"])
-
-    best_total, degree = best("energy_total_rel")
-    best_packet, _ = best("energy_per_packet_rel")
+    best = {}
+    for key, column in (("energy_total", "energy_total_rel"), ("energy_per_packet", "energy_per_packet_rel")):
+        beta, se, interior = best_beta(an, betas, result.column(column), result.column(column + "_stderr"))
+        best.update({f"best_beta_{key}": beta, f"best_beta_{key}_se": se, f"best_beta_{key}_interior": interior})
+    best_total, best_packet = best["best_beta_energy_total"], best["best_beta_energy_per_packet"]
+    degree = FIT_DEGREE if math.isfinite(best_total) else 0
     packets = result.column("packets_traced")
     return {
         "out_dir": out_dir,
@@ -297,8 +315,7 @@ def sweep_summary(ep, result, paths, out_dir):
         "beta_max": float(betas.max()),
         "store": int(result.meta.get("store", 0)),
         "seed": int(result.meta.get("seed", 0)),
-        "best_beta_energy_total": best_total,
-        "best_beta_energy_per_packet": best_packet,
+        **best,
         "fit_degree": degree,
         "packets_min": float(np.nanmin(packets)),
         "packets_max": float(np.nanmax(packets)),
@@ -403,15 +420,19 @@ def summary_rows(scene):
         return []
     s = summary.to_dict() if hasattr(summary, "to_dict") else dict(summary)
 
-    def angle(value):
-        return "–" if value is None or not math.isfinite(value) else f"{value:.1f}°"
+    def angle(key):
+        value, se = s.get(f"best_beta_{key}"), s.get(f"best_beta_{key}_se")
+        if value is None or not math.isfinite(value):
+            return f"– (needs ≥ {MIN_FIT_POINTS} β values)"
+        edge = "" if s.get(f"best_beta_{key}_interior") else " at range edge"
+        return f"{value:.1f} ± {se:.1f}°{edge}"
 
     degree = s.get("fit_degree", 0)
     rows = [
         ("β", f"{s.get('beta_min', 0):g}…{s.get('beta_max', 0):g}° ({s.get('n_betas', 0)} values)"),
         ("Store N", f"{s.get('store', 0):,} · seed {s.get('seed', 0)}"),
-        ("Best β (sum)", angle(s.get("best_beta_energy_total")) + (f" deg-{degree} fit" if degree else "")),
-        ("Best β (/packet)", angle(s.get("best_beta_energy_per_packet"))),
+        ("Best β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
+        ("Best β (/packet)", angle("energy_per_packet")),
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
         ("Time", f"{s.get('seconds', 0.0):.1f} s"),
         ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),

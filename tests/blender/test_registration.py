@@ -256,3 +256,34 @@ def test_panels_draw_with_objects_and_rig():
     # The Sweep β sub-panel: the command line's options and the operator.
     assert {"betas", "store", "batches", "fluorescent_only", "fluorescence_rule", "output_dir"} <= props
     assert ("operator", "endophoton.sweep_beta") in log
+
+
+def test_tissue_presets_load_published_media_with_their_source():
+    from endophoton_addon import presets
+
+    obj = bpy.data.objects.new("Tissue", bpy.data.meshes.new("Tissue"))
+    bpy.context.scene.collection.objects.link(obj)
+    obj.endophoton.role = "TISSUE"
+    obj.endophoton.tissue_preset = "COLON_800"
+    m = obj.endophoton.medium
+    # Marchesini et al. 1994 at 800 nm: μa = 1.0, μs' = 6.2 cm⁻¹; μs = μs'/(1 − g) with the assumed g = 0.9.
+    assert (m.mua, m.g, m.n) == pytest.approx((1.0, 0.9, 1.4))
+    assert m.mus * (1 - m.g) == pytest.approx(6.2, rel=1e-5)
+    assert "Marchesini" in presets.TISSUE_PRESETS["COLON_800"].source
+    obj.endophoton.tissue_preset = "PAPER"
+    assert (m.mua, m.mus, m.g, m.n) == pytest.approx((20.0, 200.0, 0.9, 1.1))
+
+
+def test_fluorophore_rows_fit_the_default_sidebar():
+    """Each row of the fluorophore list is one short label (no truncated fields);
+    the active row is edited with full-width fields below the list."""
+    obj = bpy.data.objects.new("Polyp", bpy.data.meshes.new("Polyp"))
+    bpy.context.scene.collection.objects.link(obj)
+    obj.endophoton.role = "POLYP"
+    log = []
+    ui_list = bpy.types.ENDOPHOTON_UL_fluorophores
+    for item in obj.endophoton.fluorophores:
+        ui_list.draw_item(None, None, FakeLayout(log), None, item, None, None, None)
+    labels = [text for kind, text in log if kind == "label"]
+    assert labels == ["Collagen  d 0.20  c 0.40", "Photofrin  d 0.10  c 0.33"]
+    assert max(len(t) for t in labels) <= 26   # the default sidebar shows ~30 characters
