@@ -7,6 +7,11 @@ from . import operators, package_finder, presets, results, rig, sweep_job
 from .utils import wrap_text
 
 
+# Characters a label shows at the default sidebar width (measured on the
+# screenshots of tests/blender/test_screenshots.py); longer lines are wrapped.
+SIDEBAR_CHARS = 28
+
+
 class _EndoPhotonPanel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
@@ -63,7 +68,7 @@ class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
         preset = presets.TISSUE_PRESETS.get(s.tissue_preset)
         if preset is not None:
             box = layout.box()
-            for line in wrap_text(preset.source, 40):
+            for line in wrap_text(preset.source, SIDEBAR_CHARS):
                 box.label(text=line)
         col = layout.column(align=True)
         col.label(text="Medium (μa, μs in cm⁻¹)")
@@ -81,7 +86,7 @@ class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
         if 0 <= s.active_fluorophore < len(s.fluorophores):
             item = s.fluorophores[s.active_fluorophore]
             col = layout.column(align=True)
-            col.prop(item, "species")
+            col.prop(item, "species", text="Species")
             col.prop(item, "d", text="d (excitation)")
             col.prop(item, "c", text="c (emission)")
 
@@ -152,7 +157,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
             box = layout.box()
             col = box.column(align=True)
             for paragraph in s.scene_report.split("\n"):
-                for line in wrap_text(paragraph, 40):
+                for line in wrap_text(paragraph, SIDEBAR_CHARS):
                     col.label(text=line)
         row = layout.row()
         row.scale_y = 1.5
@@ -201,7 +206,7 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         s = context.scene.endophoton
-        layout.prop(s, "color_by")
+        layout.prop(s, "color_by", text="Colour")
         col = layout.column(heading="Show")
         col.prop(s, "filter_fluorescent")
         col.prop(s, "filter_fluorophore")
@@ -209,7 +214,7 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
         if s.legend_header:
             box = layout.box()
             col = box.column(align=True)
-            for line in wrap_text(s.legend_header, 36):
+            for line in wrap_text(s.legend_header, SIDEBAR_CHARS):
                 col.label(text=line, icon="NONE")
             grid = box.grid_flow(columns=2, even_columns=True, align=True)
             for entry in s.legend:
