@@ -158,6 +158,24 @@ def _out_dir():
     return HERE
 
 
+def _frame_views(objects):
+    """Open framed: every 3D view looks at the objects from 1.5× their size,
+    with clip distances for a mm-sized scene (0.1 mm to 10 m)."""
+    from mathutils import Vector
+
+    corners = [obj.matrix_world @ Vector(c) for obj in objects for c in obj.bound_box]
+    lo = Vector(tuple(min(c[i] for c in corners) for i in range(3)))
+    hi = Vector(tuple(max(c[i] for c in corners) for i in range(3)))
+    for screen in bpy.data.screens:
+        for area in screen.areas:
+            for space in area.spaces:
+                if space.type != "VIEW_3D":
+                    continue
+                space.clip_start, space.clip_end = 0.1 * MM, 10.0
+                space.region_3d.view_location = (lo + hi) / 2
+                space.region_3d.view_distance = 1.5 * (hi - lo).length
+
+
 def _save(name):
     os.makedirs(_out_dir(), exist_ok=True)
     path = os.path.join(_out_dir(), name)
@@ -180,6 +198,7 @@ def make_flat_tissue():
     polyp_top = (0.0, 0.0, 2 * MM)
     rig.create_rig(bpy.context, target=polyp_top, normal=(0, 0, 1), tilt_axis=(0, 1, 0),
                    beta=0.0, distance=10 * MM)
+    _frame_views((tissue, polyp))
     return _save("flat_tissue.blend")
 
 
@@ -199,6 +218,7 @@ def make_colon_polyp():
     top = (x_polyp, 0.0, -radius + 2.5 * MM)
     rig.create_rig(bpy.context, target=top, normal=(0, 0, 1), tilt_axis=(0, 1, 0),
                    beta=math.radians(20.0), distance=10 * MM)
+    _frame_views((colon, polyp))
     return _save("colon_polyp.blend")
 
 

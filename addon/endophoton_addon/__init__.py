@@ -25,7 +25,9 @@ bl_info = {
 import importlib
 
 # Registration order matters: preferences and properties first (operators and
-# panels refer to them), panels last.
+# panels refer to them), panels last.  Each module lists its classes in
+# CLASSES; properties.py also lists the PointerProperties it attaches to
+# Blender's types in POINTERS.  This file holds the only registration loop.
 _MODULE_NAMES = ("preferences", "properties", "operators", "panels")
 
 
@@ -33,16 +35,33 @@ def _modules():
     return [importlib.import_module(f"{__name__}.{name}") for name in _MODULE_NAMES]
 
 
+def _steps():
+    """(do, undo) pairs in registration order: every class, then every pointer."""
+    import bpy
+
+    steps = []
+    modules = _modules()
+    for module in modules:
+        for cls in module.CLASSES:
+            steps.append((lambda c=cls: bpy.utils.register_class(c),
+                          lambda c=cls: bpy.utils.unregister_class(c)))
+    for module in modules:
+        for owner, name, group in getattr(module, "POINTERS", ()):
+            steps.append((lambda o=owner, n=name, g=group: setattr(o, n, bpy.props.PointerProperty(type=g)),
+                          lambda o=owner, n=name: delattr(o, n)))
+    return steps
+
+
 def register():
-    registered = []
+    done = []
     try:
-        for module in _modules():
-            module.register()
-            registered.append(module)
+        for do, undo in _steps():
+            do()
+            done.append(undo)
     except Exception:
         # Leave Blender as it was: undo what was registered so far.
-        for module in reversed(registered):
-            module.unregister()
+        for undo in reversed(done):
+            undo()
         raise
 
 
@@ -50,5 +69,5 @@ def unregister():
     from . import simulation
 
     simulation.cancel_all_jobs()
-    for module in reversed(_modules()):
-        module.unregister()
+    for _do, undo in reversed(_steps()):
+        undo()

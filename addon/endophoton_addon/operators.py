@@ -6,10 +6,12 @@ the object (or scene) and the field.  Validation runs before any datablock is
 created, so a rejected run leaves the scene untouched.
 """
 
+import os
+
 import bpy
 
-from . import engine, properties, results, rig, simulation, sweep_job
-from .engine import EngineMissing
+from . import export, guards, package_finder, properties, results, rig, simulation, sweep_job
+from .package_finder import EngineMissing
 from .export import InputError
 
 # The job being run (one at a time); "modal" is True from invoke until the
@@ -25,16 +27,22 @@ def running_job():
     return job
 
 
-def _redraw_sidebars(context):
-    """Redraw only the 3D views' sidebars (the progress box), not the viewports."""
-    screen = context.screen
-    if screen is None:
-        return
-    for area in screen.areas:
-        if area.type == "VIEW_3D":
-            for region in area.regions:
-                if region.type == "UI":
-                    region.tag_redraw()
+def _redraw_sidebars(_context=None):
+    """Redraw the 3D views' sidebars (progress box, Run button) in every window:
+    a finished job must re-enable the buttons without waiting for the mouse."""
+    wm = bpy.context.window_manager
+    for window in (wm.windows if wm is not None else ()):
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                for region in area.regions:
+                    if region.type == "UI":
+                        region.tag_redraw()
+
+
+def _redraw_soon():
+    """Redraw once more from a timer, after the modal handler is gone (the poll
+    of Run / Sweep β reads the finished state only then)."""
+    bpy.app.timers.register(lambda: _redraw_sidebars() or None, first_interval=0.05)
 
 
 class ENDOPHOTON_OT_add_endoscope(bpy.types.Operator):
@@ -118,8 +126,8 @@ class ENDOPHOTON_OT_retry_engine_import(bpy.types.Operator):
     bl_label = "Find Engine Again"
 
     def execute(self, context):
-        engine.forget()
-        module, message = engine.status()
+        package_finder.forget()
+        module, message = package_finder.status()
         if module is None:
             self.report({"ERROR"}, message)
             return {"CANCELLED"}
@@ -156,16 +164,215 @@ class ENDOPHOTON_OT_clear_results(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class _JobOperator:
-    """The modal machinery shared by Run and Sweep β.
+def _result_by_name(context, name):
+    """The scene's result collection called ``name`` ('' = the active one), or None."""
+    if not name:
+        return context.scene.endophoton.result_collection
+    return next((c for c in results.result_collections(context.scene) if c.name == name), None)
 
-    Subclasses give ``_prepare(context, interactive)`` (a job, or None after
-    reporting the error) and ``_finish(context, job)`` (an operator return
-    set).  A job has ``start()``, ``cancel()``, ``wait(timeout)``, ``done`` and
+
+class _NamedResult:
+    """Operators on one kept run, chosen by ``name`` ('' = the active result)."""
+
+    name: bpy.props.StringProperty(name="Result", default="")
+
+    def _collection(self, context):
+        collection = _result_by_name(context, self.name)
+        if collection is None:
+            self.report({"ERROR"}, f"Scene '{context.scene.name}': no EndoPhoton result named '{self.name}'")
+        return collection
+
+
+class ENDOPHOTON_OT_result_activate(_NamedResult, bpy.types.Operator):
+    """Make this run the active result (panel summary, legend, filters, export)"""
+
+    bl_idname = "endophoton.result_activate"
+    bl_label = "Show Result"
+
+    def execute(self, context):
+        collection = self._collection(context)
+        if collection is None:
+            return {"CANCELLED"}
+        context.scene.endophoton.result_collection = collection
+        results.update_display(context.scene)
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_result_delete(_NamedResult, bpy.types.Operator):
+    """Delete this run: its collection, its data and its .vdb file"""
+
+    bl_idname = "endophoton.result_delete"
+    bl_label = "Delete Result"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        collection = self._collection(context)
+        if collection is None:
+            return {"CANCELLED"}
+        name = collection.name
+        results.remove_run(collection)
+        remaining = results.result_collections(context.scene)
+        settings = context.scene.endophoton
+        if settings.result_collection is None and remaining:
+            settings.result_collection = remaining[-1]
+        self.report({"INFO"}, f"EndoPhoton: deleted result '{name}'")
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
+    """Export the active run's photon map and summary (CSV, NPZ or JSON)"""
+
+    bl_idname = "endophoton.export_result"
+    bl_label = "Export Result"
+
+    filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH", default="")
+    format: bpy.props.EnumProperty(
+        name="Format",
+        items=(("CSV", "CSV", "One row per record (+ <file>.json with the summary)"),
+               ("NPZ", "NPZ", "numpy arrays per record column + the summary as JSON"),
+               ("JSON", "JSON", "Summary, parameters and names only")),
+        default="CSV",
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.endophoton.result_collection is not None
+
+    def invoke(self, context, _event):
+        if not self.filepath:
+            collection = _result_by_name(context, self.name)
+            self.filepath = bpy.path.clean_name(collection.name if collection else "result") + "." + self.format.lower()
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        collection = self._collection(context)
+        if collection is None:
+            return {"CANCELLED"}
+        if not self.filepath:
+            self.report({"ERROR"}, f"Export of '{collection.name}': filepath is empty")
+            return {"CANCELLED"}
+        try:
+            paths = results.export_result(package_finder.require(), collection,
+                                          bpy.path.abspath(self.filepath), self.format)
+        except (OSError, ValueError, EngineMissing) as exc:
+            self.report({"ERROR"}, f"Export of '{collection.name}' to '{self.filepath}' failed: {exc}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"EndoPhoton: exported '{collection.name}' -> {', '.join(paths)}")
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_check_scene(bpy.types.Operator):
+    """Show each region's size and wall thickness in mm and the run's estimate; run the guards"""
+
+    bl_idname = "endophoton.check_scene"
+    bl_label = "Check Scene"
+
+    def execute(self, context):
+        settings = context.scene.endophoton
+        lines = []
+        try:
+            regions = export.export_regions(context.scene, context.view_layer, context.evaluated_depsgraph_get())
+            lines += guards.size_lines(regions)
+            inputs = simulation.collect_inputs(context)
+            lines.append("Run: " + guards.estimate_text(guards.estimate(inputs, simulation.last_rate(context.scene))))
+        except InputError as exc:
+            lines.append(f"Problem: {exc}")
+            self.report({"WARNING"}, str(exc))
+        else:
+            self.report({"INFO"}, "; ".join(lines))
+        settings.scene_report = "\n".join(lines)
+        return {"FINISHED"}
+
+
+class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
+    """Render the scene camera and save the picture with the colour bar of the active result beside it"""
+
+    bl_idname = "endophoton.render_legend"
+    bl_label = "Render with Legend"
+
+    filepath: bpy.props.StringProperty(
+        name="File", subtype="FILE_PATH", default="",
+        description="PNG to write; empty = '<result name>_legend.png' in the grid folder",
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.endophoton.result_collection is not None
+
+    def execute(self, context):
+        collection = context.scene.endophoton.result_collection
+        try:
+            path = self.filepath or os.path.join(simulation.grid_folder(context.scene.endophoton),
+                                                 bpy.path.clean_name(collection.name) + "_legend.png")
+            image = results.render_with_legend(context.scene, collection, bpy.path.abspath(path))
+        except (RuntimeError, InputError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"EndoPhoton: render with legend -> '{image.filepath}' (image '{image.name}')")
+        return {"FINISHED"}
+
+
+PROGRESS_EVERY_S = 2.0   # background runs print a progress line this often
+
+
+def _wait_printing_progress(job):
+    """Wait for the job; in background mode print its progress line to stdout."""
+    import time
+
+    last = time.monotonic()
+    while not job.wait(0.2):
+        if bpy.app.background and time.monotonic() - last >= PROGRESS_EVERY_S:
+            last = time.monotonic()
+            print(job.progress().text().replace(" · Esc to cancel", " · Ctrl-C to cancel"), flush=True)
+
+
+class _ctrl_c_cancels:
+    """While a blocking run waits in the main thread, one Ctrl-C (SIGINT) cancels
+    it cleanly: the worker stops, the partial result is discarded and the
+    previous result is kept.  Blender's own handler (first Ctrl-C ignored, the
+    second kills Blender) is put back afterwards when Python knows it, else
+    the default (Ctrl-C ends the process)."""
+
+    def __init__(self, job):
+        self.job = job
+        self.previous = None
+
+    def _handler(self, _signum, _frame):
+        print("EndoPhoton: Ctrl-C -> cancelling the run (the previous result is kept)", flush=True)
+        self.job.cancel()
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handler)
+            self.installed = True
+        else:
+            self.installed = False
+        return self
+
+    def __exit__(self, *_exc):
+        import signal
+
+        if self.installed:
+            signal.signal(signal.SIGINT, self.previous if self.previous is not None else signal.SIG_DFL)
+        return False
+
+
+class _JobOperator:
+    """The one job operator behind Run and Sweep β.
+
+    ``job_module`` (simulation or sweep_job) gives ``prepare_job(context,
+    interactive)`` (raises InputError / EngineMissing) and ``report_finished(context,
+    job)`` -> ``(level, message)``, level "INFO" when something was added.  A
+    job has ``start()``, ``cancel()``, ``wait(timeout)``, ``done`` and
     ``progress()`` (with ``fraction`` and ``text()``); its worker thread never
     calls bpy.
     """
 
+    job_module = None
     _timer = None
     _job = None
     _area = None
@@ -181,8 +388,9 @@ class _JobOperator:
         if job is None:
             return {"CANCELLED"}
         _running["job"] = job
-        job.start()
-        job.wait()
+        with _ctrl_c_cancels(job):
+            job.start()
+            _wait_printing_progress(job)
         return self._finish(context, job)
 
     # Interactive: worker thread + timer; the UI keeps running.
@@ -221,6 +429,7 @@ class _JobOperator:
         finally:
             self._cleanup(context)
             _redraw_sidebars(context)
+            _redraw_soon()
 
     def cancel(self, context):
         # Blender cancels modal operators when the file is closed.
@@ -228,6 +437,24 @@ class _JobOperator:
             self._job.cancel()
             self._job.wait(10.0)
         self._cleanup(context)
+
+    def _prepare(self, context, interactive=False):
+        try:
+            return self.job_module.prepare_job(context, interactive=interactive)
+        except (InputError, EngineMissing) as exc:
+            self.report({"ERROR"}, str(exc))
+            return None
+
+    def _finish(self, context, job):
+        try:
+            level, message = self.job_module.report_finished(context, job)
+        except Exception as exc:  # engine failure or result import error
+            if job.error_traceback:
+                print(job.error_traceback)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({level}, message)
+        return {"FINISHED"} if level == "INFO" else {"CANCELLED"}
 
     def _status(self, _context, text):
         if self._workspace is not None:
@@ -252,29 +479,7 @@ class ENDOPHOTON_OT_run(_JobOperator, bpy.types.Operator):
     bl_idname = "endophoton.run_simulation"
     bl_label = "Run Simulation"
     bl_options = {"REGISTER", "UNDO"}
-
-    def _prepare(self, context, interactive=False):
-        try:
-            return simulation.prepare_job(context, interactive=interactive)
-        except (InputError, EngineMissing) as exc:
-            self.report({"ERROR"}, str(exc))
-            return None
-
-    def _finish(self, context, job):
-        try:
-            collection = simulation.finish_job(context, job)
-        except Exception as exc:  # engine failure or result import error
-            if job.error_traceback:
-                print(job.error_traceback)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        if collection is None:
-            self.report({"WARNING"}, "EndoPhoton run cancelled; nothing was added")
-            return {"CANCELLED"}
-        summary = collection.get(results.SUMMARY_KEY, {})
-        self.report({"INFO"}, f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
-                              f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
-        return {"FINISHED"}
+    job_module = simulation
 
 
 class ENDOPHOTON_OT_sweep(_JobOperator, bpy.types.Operator):
@@ -284,28 +489,7 @@ class ENDOPHOTON_OT_sweep(_JobOperator, bpy.types.Operator):
     bl_idname = "endophoton.sweep_beta"
     bl_label = "Sweep β"
     bl_options = {"REGISTER", "UNDO"}
-
-    def _prepare(self, context, interactive=False):
-        try:
-            return sweep_job.prepare_sweep(context, interactive=interactive)
-        except (InputError, EngineMissing) as exc:
-            self.report({"ERROR"}, str(exc))
-            return None
-
-    def _finish(self, context, job):
-        try:
-            images = sweep_job.finish_sweep(context, job)
-        except Exception as exc:  # sweep failure or image load error
-            if job.error_traceback:
-                print(job.error_traceback)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        if images is None:
-            self.report({"WARNING"}, "EndoPhoton sweep cancelled; nothing was written or added")
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
-                              f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'")
-        return {"FINISHED"}
+    job_module = sweep_job
 
 
 CLASSES = (
@@ -316,16 +500,12 @@ CLASSES = (
     ENDOPHOTON_OT_retry_engine_import,
     ENDOPHOTON_OT_cancel_run,
     ENDOPHOTON_OT_clear_results,
+    ENDOPHOTON_OT_render_legend,
+    ENDOPHOTON_OT_check_scene,
+    ENDOPHOTON_OT_result_activate,
+    ENDOPHOTON_OT_result_delete,
+    ENDOPHOTON_OT_export_result,
     ENDOPHOTON_OT_run,
     ENDOPHOTON_OT_sweep,
 )
 
-
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -3,8 +3,13 @@
 
 import bpy
 
-from . import engine, operators, results, rig, sweep_job
+from . import operators, package_finder, presets, results, rig, sweep_job
 from .utils import wrap_text
+
+
+# Characters a label shows at the default sidebar width (measured on the
+# screenshots of tests/blender/test_screenshots.py); longer lines are wrapped.
+SIDEBAR_CHARS = 28
 
 
 class _EndoPhotonPanel:
@@ -15,10 +20,9 @@ class _EndoPhotonPanel:
 
 class ENDOPHOTON_UL_fluorophores(bpy.types.UIList):
     def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index=0):
-        row = layout.row(align=True)
-        row.prop(item, "species", text="")
-        row.prop(item, "d")
-        row.prop(item, "c")
+        # Read-only summary that fits the default sidebar width; the active
+        # item is edited with full-width fields below the list.
+        layout.label(text=f"{item.species.capitalize()}  d {item.d:.2f}  c {item.c:.2f}")
 
 
 class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
@@ -26,7 +30,7 @@ class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        module, message = engine.status()
+        module, message = package_finder.status()
         if module is None:
             box = layout.box()
             box.label(text="Engine package not found", icon="ERROR")
@@ -60,6 +64,12 @@ class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "role")
         if s.role == "NONE":
             return
+        layout.prop(s, "tissue_preset", text="Preset")
+        preset = presets.TISSUE_PRESETS.get(s.tissue_preset)
+        if preset is not None:
+            box = layout.box()
+            for line in wrap_text(preset.source, SIDEBAR_CHARS):
+                box.label(text=line)
         col = layout.column(align=True)
         col.label(text="Medium (μa, μs in cm⁻¹)")
         col.prop(s.medium, "mua")
@@ -73,6 +83,13 @@ class ENDOPHOTON_PT_object(_EndoPhotonPanel, bpy.types.Panel):
         col = row.column(align=True)
         col.operator("endophoton.fluorophore_add", icon="ADD", text="")
         col.operator("endophoton.fluorophore_remove", icon="REMOVE", text="")
+        if 0 <= s.active_fluorophore < len(s.fluorophores):
+            item = s.fluorophores[s.active_fluorophore]
+            col = layout.column(align=True)
+            col.prop(item, "species", text="Species")
+            col.prop(item, "d", text="d (excitation)")
+            col.prop(item, "c", text="c (emission)")
+
         layout.operator("endophoton.role_defaults", icon="LOOP_BACK")
 
 
@@ -132,9 +149,19 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         sub.prop(s, "voxel_size")
         sub.prop(s, "grid_per_fluorophore")
         sub.prop(s, "grid_dir", text="")
+        col = layout.column(heading="Guards")
+        col.prop(s, "allow_unusual_scale")
+        col.prop(s, "allow_large_runs")
+        layout.operator("endophoton.check_scene", icon="VIEWZOOM")
+        if s.scene_report:
+            box = layout.box()
+            col = box.column(align=True)
+            for paragraph in s.scene_report.split("\n"):
+                for line in wrap_text(paragraph, SIDEBAR_CHARS):
+                    col.label(text=line)
         row = layout.row()
         row.scale_y = 1.5
-        row.enabled = engine.get() is not None
+        row.enabled = package_finder.get() is not None
         row.operator("endophoton.run_simulation", icon="PLAY")
 
 
@@ -158,7 +185,7 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "output_dir", text="")
         row = layout.row()
         row.scale_y = 1.5
-        row.enabled = engine.get() is not None
+        row.enabled = package_finder.get() is not None
         row.operator("endophoton.sweep_beta", icon="GRAPH")
         rows = sweep_job.summary_rows(context.scene)
         if not rows:
@@ -179,13 +206,43 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         s = context.scene.endophoton
-        layout.prop(s, "color_by", expand=True)
+        layout.prop(s, "color_by", text="Colour")
+        col = layout.column(heading="Show")
+        col.prop(s, "filter_fluorescent")
+        col.prop(s, "filter_fluorophore")
+        col.prop(s, "filter_region")
+        if s.legend_header:
+            box = layout.box()
+            col = box.column(align=True)
+            for line in wrap_text(s.legend_header, SIDEBAR_CHARS):
+                col.label(text=line, icon="NONE")
+            grid = box.grid_flow(columns=2, even_columns=True, align=True)
+            for entry in s.legend:
+                row = grid.row(align=True)
+                split = row.split(factor=0.25, align=True)
+                split.prop(entry, "colour", text="")
+                split.label(text=entry.name)
+            box.operator("endophoton.render_legend", icon="RENDER_STILL")
         layout.prop(s, "point_radius")
         layout.prop(s, "volume_density")
+        row = layout.row(align=True)
+        row.prop(s, "volume_scale", expand=True)
+        if s.volume_scale == "LOG":
+            layout.prop(s, "volume_decades")
         collection = s.result_collection
         if collection is None:
             layout.label(text="No results yet")
             return
+        runs = results.result_collections(context.scene)
+        if len(runs) > 1:
+            col = layout.column(align=True)
+            col.label(text=f"{len(runs)} runs kept", icon="OUTLINER_COLLECTION")
+            for run in runs:
+                row = col.row(align=True)
+                op = row.operator("endophoton.result_activate", text=run.name,
+                                  depress=run == collection, emboss=True)
+                op.name = run.name
+                row.operator("endophoton.result_delete", text="", icon="X").name = run.name
         box = layout.box()
         box.label(text=collection.name, icon="OUTLINER_COLLECTION")
         col = box.column(align=True)
@@ -193,6 +250,9 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             row = col.split(factor=0.34, align=True)
             row.label(text=label)
             row.label(text=value)
+        row = layout.row(align=True)
+        row.operator("endophoton.export_result", icon="EXPORT").name = collection.name
+        row.operator("endophoton.result_delete", icon="X").name = collection.name
         layout.operator("endophoton.clear_results", icon="TRASH")
 
 
@@ -206,12 +266,3 @@ CLASSES = (
     ENDOPHOTON_PT_sweep,
 )
 
-
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

@@ -4,12 +4,12 @@
 import bpy
 from bpy.props import StringProperty
 
-from . import engine
+from . import package_finder
 from .utils import wrap_text
 
 
 def _package_path_changed(_self, _context):
-    engine.forget()
+    package_finder.forget()
 
 
 class EndoPhotonPreferences(bpy.types.AddonPreferences):
@@ -30,7 +30,7 @@ class EndoPhotonPreferences(bpy.types.AddonPreferences):
     def draw(self, _context):
         layout = self.layout
         layout.prop(self, "package_path")
-        module, message = engine.status()
+        module, message = package_finder.status()
         if module is None:
             box = layout.box()
             box.label(text="EndoPhoton engine not available", icon="ERROR")
@@ -43,9 +43,4 @@ class EndoPhotonPreferences(bpy.types.AddonPreferences):
         layout.operator("endophoton.retry_engine_import", icon="FILE_REFRESH")
 
 
-def register():
-    bpy.utils.register_class(EndoPhotonPreferences)
-
-
-def unregister():
-    bpy.utils.unregister_class(EndoPhotonPreferences)
+CLASSES = (EndoPhotonPreferences,)

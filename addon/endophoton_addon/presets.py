@@ -2,7 +2,7 @@
 """Defaults that are plain data (no bpy): role defaults, rig geometry, quality presets."""
 
 from dataclasses import dataclass
-from typing import Optional
+
 
 # --- roles -----------------------------------------------------------------
 #
@@ -24,6 +24,30 @@ ROLE_DEFAULTS = {
         "priority": 1,
         "fluorophores": (("collagen", 0.2, 0.4), ("photofrin", 0.1, 0.33)),
     },
+}
+
+# --- tissue presets (medium only; chosen per object) ------------------------
+@dataclass(frozen=True)
+class TissuePreset:
+    label: str
+    medium: dict          # mua, mus in cm^-1, g, n
+    source: str           # where the numbers come from, and what is assumed
+
+
+TISSUE_PRESETS = {
+    "PAPER": TissuePreset(
+        "Paper's tissue", {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.1},
+        "Seed paper §3 (after its ref. [3]): single-layer tissue, n = 1.1, μa = 20 cm⁻¹, μs = 200 cm⁻¹, "
+        "g = 0.9, under air"),
+    "COLON_800": TissuePreset(
+        "Colon ex vivo, 800 nm", {"mua": 1.0, "mus": 62.0, "g": 0.9, "n": 1.4},
+        "Marchesini et al., Lasers Surg. Med. 15(4):351–357 (1994), ex vivo human colon, integrating "
+        "sphere: μa = 1.0 cm⁻¹ and μs' = 6.2 cm⁻¹ at 800 nm. The paper gives μs' only: g = 0.9 and "
+        "n = 1.4 are assumed (typical soft tissue), so μs = μs'/(1 − g) = 62 cm⁻¹"),
+    "COLON_300": TissuePreset(
+        "Colon ex vivo, 300 nm", {"mua": 47.7, "mus": 142.0, "g": 0.9, "n": 1.4},
+        "Marchesini et al., Lasers Surg. Med. 15(4):351–357 (1994), ex vivo human colon: μa = 47.7 cm⁻¹ "
+        "and μs' = 14.2 cm⁻¹ at 300 nm; g = 0.9 and n = 1.4 assumed, μs = μs'/(1 − g) = 142 cm⁻¹"),
 }
 
 # Fluorophore names with a default excitation-emission matrix in the package

@@ -13,7 +13,7 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import presets
+from . import colour_maps, presets
 
 ROLE_ITEMS = (
     ("NONE", "None", "Not part of the simulation"),
@@ -78,8 +78,23 @@ def apply_role_defaults(settings):
     settings.active_fluorophore = 0
 
 
+def _tissue_preset_chosen(self, _context):
+    """Load the chosen published medium into the object's medium (then back to 'Choose')."""
+    preset = presets.TISSUE_PRESETS.get(self.tissue_preset)
+    if preset is None:
+        return
+    for key, value in preset.medium.items():
+        setattr(self.medium, key, value)
+
+
 class EndoPhotonObjectSettings(bpy.types.PropertyGroup):
     role: EnumProperty(name="Role", items=ROLE_ITEMS, default="NONE", update=_role_changed)
+    tissue_preset: EnumProperty(
+        name="Tissue Preset", description="Load published optical properties into the medium",
+        items=(("CUSTOM", "Custom", "The medium as edited"),)
+        + tuple((key, p.label, p.source) for key, p in presets.TISSUE_PRESETS.items()),
+        default="CUSTOM", update=_tissue_preset_chosen,
+    )
     medium: PointerProperty(type=EndoPhotonMedium)
     priority: IntProperty(
         name="Priority", default=0,
@@ -145,6 +160,22 @@ def _is_rig(_self, obj):
     return obj.type == "EMPTY" and obj.endophoton_rig.is_rig
 
 
+_NAME_ITEMS = {}   # Blender needs the dynamic enum's strings kept alive
+
+
+def _name_items(settings, kind):
+    """"Any" plus the names of the active result's fluorophores / regions."""
+    from . import results
+
+    names = []
+    collection = settings.result_collection
+    if collection is not None:
+        for obj in results.points_objects(collection):
+            names = results.point_names(obj).get(kind, [])
+    items = [("ANY", "Any", f"Records of every {kind}")] + [(n, n, f"Only the {kind} '{n}'") for n in names]
+    return _NAME_ITEMS.setdefault((kind, tuple(names)), items)
+
+
 def _display_changed(self, _context):
     from . import results
 
@@ -193,6 +224,12 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
     )
 
 
+class EndoPhotonLegendEntry(bpy.types.PropertyGroup):
+    """One row of the active result's colour bar (the panel draws the swatch)."""
+
+    colour: FloatVectorProperty(name="Colour", subtype="COLOR", size=3, min=0.0, max=1.0)
+
+
 class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     rig: PointerProperty(name="Endoscope", type=bpy.types.Object, poll=_is_rig)
     sweep: PointerProperty(type=EndoPhotonSweepSettings)
@@ -227,6 +264,18 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=1, min=0)
     threads: IntProperty(name="Threads", description="0 = all cores (all but one while the UI runs, to keep it responsive)", default=0, min=0, max=1024)
 
+    allow_unusual_scale: BoolProperty(
+        name="Allow Unusual Scale",
+        description="Run even when a region is thinner than one transport mean free path or "
+                    "thicker than 1e5 (usually a wrong Unit Scale)", default=False,
+    )
+    allow_large_runs: BoolProperty(
+        name="Allow Large Runs",
+        description="Run even above 5 million records or 100 million packets (memory and time estimate "
+                    "in the panel's Check Scene)", default=False,
+    )
+    scene_report: StringProperty(name="Scene Check", default="", options={"SKIP_SAVE"})
+
     output_points: BoolProperty(name="Surface Point Cloud", default=True)
     output_grids: BoolProperty(name="Volume Grids", default=True)
     voxel_size: FloatProperty(
@@ -247,9 +296,34 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     color_by: EnumProperty(
         name="Colour By",
-        items=(("WAVELENGTH", "Wavelength", "Colour each photon by its wavelength"),
-               ("ENERGY", "Energy", "Colour each photon by its energy")),
+        items=tuple((m.key, m.label, f"Colour each record by its {m.label.lower()}"
+                     + (f" [{m.unit}]" if m.unit else "")
+                     + (" (wavelength -> CIE 1931 -> sRGB)" if m.kind == "wavelength" else ""))
+                    for m in colour_maps.COLOUR_MAPS.values()),
         default="WAVELENGTH", update=_display_changed,
+    )
+    filter_fluorescent: BoolProperty(
+        name="Fluorescent Only", description="Show only fluorescence records",
+        default=False, update=_display_changed,
+    )
+    filter_fluorophore: EnumProperty(
+        name="Fluorophore", description="Show only records of this fluorophore",
+        items=lambda self, context: _name_items(self, "fluorophore"), update=_display_changed,
+    )
+    filter_region: EnumProperty(
+        name="Region", description="Show only records that left this region",
+        items=lambda self, context: _name_items(self, "region"), update=_display_changed,
+    )
+    volume_scale: EnumProperty(
+        name="Volume Scale",
+        items=(("OWN", "Own Max", "Each grid from 0 to its own maximum"),
+               ("SHARED", "Shared", "Every grid of a run on one scale: the largest maximum of its grids"),
+               ("LOG", "Log", "Each grid on a log scale: its maximum and the decades below it")),
+        default="OWN", update=_display_changed,
+    )
+    volume_decades: FloatProperty(
+        name="Decades", description="Decades below the maximum the log scale shows",
+        default=3.0, min=0.1, soft_max=8.0, update=_display_changed,
     )
     volume_density: FloatProperty(
         name="Volume Density",
@@ -257,6 +331,8 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         default=0.2, min=0.0, soft_max=10.0, update=_display_changed,
     )
     result_collection: PointerProperty(name="Result", type=bpy.types.Collection)
+    legend: CollectionProperty(type=EndoPhotonLegendEntry)
+    legend_header: StringProperty(name="Legend", default="")
 
 
 CLASSES = (
@@ -265,21 +341,14 @@ CLASSES = (
     EndoPhotonObjectSettings,
     EndoPhotonRigSettings,
     EndoPhotonSweepSettings,
+    EndoPhotonLegendEntry,
     EndoPhotonSceneSettings,
 )
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-    bpy.types.Object.endophoton = PointerProperty(type=EndoPhotonObjectSettings)
-    bpy.types.Object.endophoton_rig = PointerProperty(type=EndoPhotonRigSettings)
-    bpy.types.Scene.endophoton = PointerProperty(type=EndoPhotonSceneSettings)
-
-
-def unregister():
-    del bpy.types.Scene.endophoton
-    del bpy.types.Object.endophoton_rig
-    del bpy.types.Object.endophoton
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+# (owner type, attribute, group): attached by the add-on's registration loop.
+POINTERS = (
+    (bpy.types.Object, "endophoton", EndoPhotonObjectSettings),
+    (bpy.types.Object, "endophoton_rig", EndoPhotonRigSettings),
+    (bpy.types.Scene, "endophoton", EndoPhotonSceneSettings),
+)

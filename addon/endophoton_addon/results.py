@@ -18,13 +18,15 @@ Everything the run creates is tagged with the run id (ID property
 import bpy
 import numpy as np
 
+from . import colour_maps
+
 RESULT_KEY = "endophoton_result"    # on the run's collection
 RUN_KEY = "endophoton_run"          # on every datablock the run created
 SUMMARY_KEY = "endophoton_summary"  # on the run's collection
+PARAMS_KEY = "endophoton_params"    # on the run's collection: what the run was asked to do
 POINTS_GROUP = "EP Photon Points"
-COLOUR_MODE_NODE = "EP Colour Mode"
 DENSITY_NODE = "EP Density Scale"
-ENERGY_RANGE_NODE = "EP Energy Range"
+EMISSION_NODE = "EP Point Emission"
 
 TOTAL_NAMES = (
     "diffuse_reflectance",
@@ -54,6 +56,10 @@ POINT_ATTRIBUTES = (
     ("exit_order", "exit_order", "INT", np.int32, 1),  # 1st, 2nd, ... exit of its packet into the ambient
     ("next_hit", "next_hit", "INT", np.int32, 1),      # where its ray went: 0 away, 1 tissue, 2 head, 3 camera
 )
+COLOUR_ATTR = "ep_colour"   # linear RGB of the chosen mapping (colour_maps.colour_records)
+SHOW_ATTR = "ep_show"       # False = hidden by the filters (Mesh to Points' selection)
+NAMES_KEY = "endophoton_names"    # on the points object: {"fluorophore": [...], "region": [...]}
+LEGEND_KEY = "endophoton_legend"  # on the points object: colour_maps.Legend.to_dict()
 
 
 # --- pure numpy ----------------------------------------------------------------
@@ -117,10 +123,10 @@ def _new_socket(group, in_out, socket_type, name):
 
 def _points_group():
     group = bpy.data.node_groups.get(POINTS_GROUP)
-    if group is not None and group.bl_idname == "GeometryNodeTree" and group.get("endophoton_version") == 1:
+    if group is not None and group.bl_idname == "GeometryNodeTree" and group.get("endophoton_version") == 3:
         return group
     group = bpy.data.node_groups.new(POINTS_GROUP, "GeometryNodeTree")
-    group["endophoton_version"] = 1
+    group["endophoton_version"] = 3
     _new_socket(group, "INPUT", "NodeSocketGeometry", "Geometry")
     radius = _new_socket(group, "INPUT", "NodeSocketFloat", "Radius")
     radius.default_value = 0.0001
@@ -130,6 +136,10 @@ def _points_group():
     nodes, links = group.nodes, group.links
     gin = nodes.new("NodeGroupInput")
     gin.location = (-400, 0)
+    show = nodes.new("GeometryNodeInputNamedAttribute")
+    show.data_type = "BOOLEAN"
+    show.inputs["Name"].default_value = SHOW_ATTR
+    show.location = (-400, -200)
     to_points = nodes.new("GeometryNodeMeshToPoints")
     to_points.mode = "VERTICES"
     to_points.location = (-150, 0)
@@ -138,6 +148,9 @@ def _points_group():
     gout = nodes.new("NodeGroupOutput")
     gout.location = (320, 0)
     links.new(gin.outputs["Geometry"], to_points.inputs["Mesh"])
+    # Named Attribute has one "Attribute" output per data type; only the BOOLEAN one is enabled.
+    shown = next(o for o in show.outputs if o.name == "Attribute" and o.enabled)
+    links.new(shown, to_points.inputs["Selection"])
     links.new(gin.outputs["Radius"], to_points.inputs["Radius"])
     links.new(to_points.outputs["Points"], set_mat.inputs["Geometry"])
     links.new(gin.outputs["Material"], set_mat.inputs["Material"])
@@ -152,61 +165,212 @@ def _group_input_identifiers(group):
     return {s.name: s.identifier for s in group.inputs}
 
 
-def _points_material(name, color_by, energy_max, run_id):
+def _attribute_material(name, run_id, attribute_name):
+    """New node material reading the geometry attribute ``attribute_name``:
+    returns (material, nodes, links, output node, attribute node)."""
     mat = bpy.data.materials.new(name)
     mat[RUN_KEY] = run_id
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (700, 0)
-    mix = nodes.new("ShaderNodeMixShader")
-    mix.location = (500, 0)
-    mode = nodes.new("ShaderNodeValue")
-    mode.name = mode.label = COLOUR_MODE_NODE
-    mode.outputs[0].default_value = 1.0 if color_by == "ENERGY" else 0.0
-    mode.location = (300, 200)
+    out.location = (600, 0)
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_type = "GEOMETRY"
+    attr.attribute_name = attribute_name
+    attr.location = (-400, 0)
+    return mat, nodes, links, out, attr
 
-    wl_attr = nodes.new("ShaderNodeAttribute")
-    wl_attr.attribute_type = "GEOMETRY"
-    wl_attr.attribute_name = "wavelength"
-    wl_attr.location = (-300, 100)
-    wavelength = nodes.new("ShaderNodeWavelength")
-    wavelength.location = (-80, 100)
-    wl_emit = nodes.new("ShaderNodeEmission")
-    wl_emit.inputs["Strength"].default_value = 2.0
-    wl_emit.location = (150, 100)
-    links.new(wl_attr.outputs["Fac"], wavelength.inputs["Wavelength"])
-    links.new(wavelength.outputs["Color"], wl_emit.inputs["Color"])
 
-    en_attr = nodes.new("ShaderNodeAttribute")
-    en_attr.attribute_type = "GEOMETRY"
-    en_attr.attribute_name = "energy"
-    en_attr.location = (-500, -150)
-    en_range = nodes.new("ShaderNodeMapRange")
-    en_range.name = en_range.label = ENERGY_RANGE_NODE
-    en_range.inputs["From Max"].default_value = energy_max if energy_max > 0 else 1.0
-    en_range.location = (-300, -150)
-    ramp = nodes.new("ShaderNodeValToRGB")
-    ramp.color_ramp.elements[0].color = (0.02, 0.02, 0.25, 1.0)
-    ramp.color_ramp.elements[1].color = (1.0, 0.9, 0.2, 1.0)
-    ramp.location = (-100, -150)
-    en_emit = nodes.new("ShaderNodeEmission")
-    en_emit.inputs["Strength"].default_value = 2.0
-    en_emit.location = (200, -150)
-    links.new(en_attr.outputs["Fac"], en_range.inputs["Value"])
-    links.new(en_range.outputs["Result"], ramp.inputs["Fac"])
-    links.new(ramp.outputs["Color"], en_emit.inputs["Color"])
-
-    links.new(mode.outputs[0], mix.inputs["Fac"])
-    links.new(wl_emit.outputs["Emission"], mix.inputs[1])
-    links.new(en_emit.outputs["Emission"], mix.inputs[2])
-    links.new(mix.outputs["Shader"], out.inputs["Surface"])
+def _points_material(name, run_id):
+    """Emission coloured by the point attribute ``ep_colour`` (written by :func:`recolour`)."""
+    mat, nodes, links, out, colour = _attribute_material(name, run_id, COLOUR_ATTR)
+    emit = nodes.new("ShaderNodeEmission")
+    emit.name = emit.label = EMISSION_NODE
+    emit.inputs["Strength"].default_value = 2.0
+    emit.location = (100, 0)
+    links.new(colour.outputs["Color"], emit.inputs["Color"])
+    links.new(emit.outputs["Emission"], out.inputs["Surface"])
     return mat
 
 
-def create_point_cloud(name, positions, attrs, radius, material, run_id):
-    """Vertices-only mesh with named attributes + Mesh to Points modifier."""
+def read_point_columns(mesh):
+    """The record attributes of a points mesh as numpy arrays (foreach_get)."""
+    columns = {}
+    for _column, name, bl_type, dtype, width in POINT_ATTRIBUTES:
+        attribute = mesh.attributes.get(name)
+        if attribute is None:
+            continue
+        values = np.empty(len(attribute.data) * width, dtype=dtype)
+        attribute.data.foreach_get("vector" if width == 3 else "value", values)
+        columns[name] = values.reshape(-1, 3) if width == 3 else values
+    return columns
+
+
+def _set_attribute(mesh, name, bl_type, values):
+    attribute = mesh.attributes.get(name)
+    if attribute is not None and attribute.data_type != bl_type:
+        mesh.attributes.remove(attribute)
+        attribute = None
+    if attribute is None:
+        attribute = mesh.attributes.new(name, bl_type, "POINT")
+    key = "color" if bl_type == "FLOAT_COLOR" else ("vector" if bl_type == "FLOAT_VECTOR" else "value")
+    attribute.data.foreach_set(key, values.ravel())
+
+
+def display_filters(settings, names):
+    """colour_maps.Filters from the scene's filter settings and the run's names."""
+    fluorophores = list(names.get("fluorophore", ()))
+    regions = list(names.get("region", ()))
+    pick = settings.filter_fluorophore
+    reg = settings.filter_region
+    return colour_maps.Filters(
+        fluorescent_only=bool(settings.filter_fluorescent),
+        fluorophore=fluorophores.index(pick) if pick in fluorophores else (-2 if pick == "ANY" else -3),
+        region=regions.index(reg) if reg in regions else (-2 if reg == "ANY" else -3),
+    )
+
+
+def point_names(obj):
+    names = obj.get(NAMES_KEY)
+    if names is None:
+        return {}
+    return {k: list(v) for k, v in (names.to_dict() if hasattr(names, "to_dict") else dict(names)).items()}
+
+
+def recolour(obj, settings):
+    """Write ``ep_colour`` / ``ep_show`` of a points object for the scene's
+    Colour By and filters; store and return its legend (colour_maps.Legend)."""
+    mesh = obj.data
+    columns = read_point_columns(mesh)
+    names = point_names(obj)
+    key = settings.color_by
+    if colour_maps.COLOUR_MAPS[key].column not in columns:
+        key = "WAVELENGTH"   # e.g. "Exit Order" on a result without that column
+    rgb, show, legend = colour_maps.colour_records(key, columns, display_filters(settings, names), names,
+                                                   count=len(mesh.vertices))
+    rgba = np.ones((len(rgb), 4), dtype=np.float32)
+    rgba[:, :3] = rgb
+    _set_attribute(mesh, COLOUR_ATTR, "FLOAT_COLOR", rgba)
+    _set_attribute(mesh, SHOW_ATTR, "BOOLEAN", show)
+    mesh.update()
+    obj[LEGEND_KEY] = legend.to_dict()
+    obj.update_tag()
+    if settings.result_collection is not None and obj.name in settings.result_collection.all_objects:
+        show_legend(settings, legend)
+    return legend
+
+
+def show_legend(settings, legend):
+    """Copy a legend into the scene's panel rows (colour swatch + label)."""
+    settings.legend.clear()
+    settings.legend_header = f"{legend.header()} · {legend.shown:,}/{legend.total:,} shown"
+    for colour, label in legend.entries:
+        entry = settings.legend.add()
+        entry.name = label
+        entry.colour = tuple(float(c) for c in colour)
+
+
+def render_with_legend(scene, collection, path):
+    """Render the scene's camera (its render settings) and write ``path``: the
+    render with the colour bar of ``collection``'s points beside it, loaded as
+    an Image tagged with the run (removed with it).  Returns the Image."""
+    import os
+
+    points = points_objects(collection)
+    legend = legend_of(points[0]) if points else None
+    if legend is None:
+        raise RuntimeError(f"Collection '{collection.name}' has no coloured point cloud to make a legend of")
+    if scene.camera is None:
+        raise RuntimeError(f"Scene '{scene.name}' has no camera to render from")
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    raw = os.path.splitext(path)[0] + "_raw.png"
+    saved = scene.render.filepath, scene.render.image_settings.file_format
+    try:
+        scene.render.filepath = raw
+        scene.render.image_settings.file_format = "PNG"
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+    finally:
+        scene.render.filepath, scene.render.image_settings.file_format = saved
+    rendered = bpy.data.images.load(raw)
+    try:
+        w, h = rendered.size
+        pixels = np.empty(w * h * 4, np.float32)
+        rendered.pixels.foreach_get(pixels)
+    finally:
+        bpy.data.images.remove(rendered)
+    picture = pixels.reshape(h, w, 4)[::-1, :, :3]   # Blender's rows run bottom-up
+    colour_maps.legend_figure(legend, path, image=picture, title=collection.name)
+    image = bpy.data.images.load(path, check_existing=True)
+    image.reload()
+    image[RUN_KEY] = collection.get(RUN_KEY)
+    return image
+
+
+EXPORT_FORMATS = ("CSV", "NPZ", "JSON")
+
+
+def _plain(value):
+    return value.to_dict() if hasattr(value, "to_dict") else value
+
+
+def _atomic_writer(ep):
+    """The package's atomic writes: endophoton.io (issue 12), else where they lived before."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"{ep.__name__}.io")
+    except ImportError:
+        return ep.beta_sweep
+
+
+def export_result(ep, collection, path, fmt):
+    """Write the run's photon map and summary: CSV (one row per record, header
+    names the columns; summary in ``<path>.json`` beside it), NPZ (record
+    columns + ``summary_json``) or JSON (summary, parameters and legend only).
+    Atomic writes through the package.  Returns the paths written."""
+    import io
+    import json
+
+    if fmt not in EXPORT_FORMATS:
+        raise ValueError(f"export format = '{fmt}' must be one of {', '.join(EXPORT_FORMATS)}")
+    points = points_objects(collection)
+    columns = read_point_columns(points[0].data) if points else {}
+    info = {"name": collection.name, "summary": _plain(collection.get(SUMMARY_KEY, {})),
+            "parameters": _plain(collection.get(PARAMS_KEY, {})),
+            "names": point_names(points[0]) if points else {}}
+    summary_text = json.dumps(info, indent=1, sort_keys=True)
+    writer = _atomic_writer(ep)
+    if fmt == "JSON":
+        return [writer.atomic_write_text(path, summary_text)]
+    if fmt == "NPZ":
+        buffer = io.BytesIO()
+        np.savez(buffer, summary_json=np.array(summary_text), **columns)
+        return [writer.atomic_write_bytes(path, buffer.getvalue())]
+    flat = {}
+    for name, values in columns.items():
+        if values.ndim == 2:
+            for j, axis in enumerate("xyz"):
+                flat[f"{name}_{axis}"] = values[:, j]
+        else:
+            flat[name] = values
+    table = np.column_stack([v.astype(np.float64) for v in flat.values()]) if flat else np.zeros((0, 0))
+    buffer = io.StringIO()
+    np.savetxt(buffer, table, delimiter=",", header=",".join(flat), comments="", fmt="%.9g")
+    return [writer.atomic_write_text(path, buffer.getvalue()),
+            writer.atomic_write_text(path + ".json", summary_text)]
+
+
+def legend_of(obj):
+    data = obj.get(LEGEND_KEY)
+    if data is None:
+        return None
+    return colour_maps.Legend.from_dict(data.to_dict() if hasattr(data, "to_dict") else dict(data))
+
+
+def create_point_cloud(name, positions, attrs, radius, material, run_id, names=None):
+    """Vertices-only mesh with named attributes + Mesh to Points modifier.
+    ``names``: {"fluorophore": [...], "region": [...]} for legends and filters."""
     mesh = bpy.data.meshes.new(name)
     mesh[RUN_KEY] = run_id
     mesh.vertices.add(len(positions))
@@ -215,9 +379,11 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id):
         attribute = mesh.attributes.new(attr_name, bl_type, "POINT")
         key = "vector" if bl_type == "FLOAT_VECTOR" else "value"
         attribute.data.foreach_set(key, values)
+    _set_attribute(mesh, SHOW_ATTR, "BOOLEAN", np.ones(len(positions), dtype=bool))  # until recolour()
     mesh.update()
     obj = bpy.data.objects.new(name, mesh)
     obj[RUN_KEY] = run_id
+    obj[NAMES_KEY] = {k: list(v) for k, v in (names or {}).items()}
     group = _points_group()
     modifier = obj.modifiers.new("EP Mesh to Points", "NODES")
     modifier.node_group = group
@@ -228,62 +394,121 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id):
     return obj
 
 
-def _volume_material(name, grid_name, vmax, voxel_bu, density, run_id):
-    mat = bpy.data.materials.new(name)
-    mat[RUN_KEY] = run_id
-    mat.use_nodes = True
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (600, 0)
-    attr = nodes.new("ShaderNodeAttribute")
-    attr.attribute_type = "GEOMETRY"
-    attr.attribute_name = grid_name
-    attr.location = (-400, 0)
-    normalise = nodes.new("ShaderNodeMath")
-    normalise.operation = "MULTIPLY"
-    # Grid max -> 1 per voxel length: "Volume Density" is then the optical depth
-    # of one voxel at the grid's maximum, whatever the units and tally values.
-    peak = vmax if vmax > 0 else 1.0
-    normalise.inputs[1].default_value = 1.0 / (peak * voxel_bu)
-    normalise.label = "1 / (grid max · voxel size)"
-    normalise.location = (-200, 0)
-    scale = nodes.new("ShaderNodeValue")
-    scale.name = scale.label = DENSITY_NODE
-    scale.outputs[0].default_value = density
-    scale.location = (-200, -200)
-    density_mul = nodes.new("ShaderNodeMath")
-    density_mul.operation = "MULTIPLY"
-    density_mul.location = (0, 0)
+# Each grid's own colour ramp (dark -> bright, linear RGB); other names get the last one.
+GRID_RAMPS = {
+    "absorbed": ((0.5, 0.06, 0.0), (1.0, 0.4, 0.03), (1.0, 0.95, 0.6)),
+    "fluorescence": ((0.05, 0.5, 0.05), (0.2, 1.0, 0.3), (0.85, 1.0, 0.75)),
+    "fluorescence_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
+    "fluorescence_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
+}
+OTHER_RAMP = ((0.3, 0.05, 0.5), (0.7, 0.2, 1.0), (0.95, 0.85, 1.0))
+INV_PEAK_NODE = "EP 1/peak"        # value: 1 / (the grid's or the run's maximum)
+LOG_NODE = "EP log scale"          # value: 0 = linear, 1 = log
+DECADES_NODE = "EP decades"        # value: decades shown by the log scale
+
+
+def _math(nodes, links, operation, a, b=None, location=(0, 0), clamp=False):
+    node = nodes.new("ShaderNodeMath")
+    node.operation = operation
+    node.use_clamp = clamp
+    node.location = location
+    for socket, value in ((node.inputs[0], a), (node.inputs[1], b)):
+        if value is None:
+            continue
+        if isinstance(value, (int, float)):
+            socket.default_value = value
+        else:
+            links.new(value, socket)
+    return node.outputs[0]
+
+
+def _value(nodes, name, value, location):
+    node = nodes.new("ShaderNodeValue")
+    node.name = node.label = name
+    node.outputs[0].default_value = value
+    node.location = location
+    return node.outputs[0]
+
+
+def _volume_material(name, grid_name, voxel_bu, run_id):
+    """Grid value v -> t in [0, 1]: linear t = v/peak, or log t = 1 + log10(v/peak)/decades;
+    colour = the grid's ramp at t, density = emission strength = t · Volume Density / voxel
+    (Volume Density is then the optical depth of one voxel at t = 1)."""
+    mat, nodes, links, out, attr = _attribute_material(name, run_id, grid_name)
+    out.location = (900, 0)
+    inv_peak = _value(nodes, INV_PEAK_NODE, 1.0, (-400, -200))
+    use_log = _value(nodes, LOG_NODE, 0.0, (-400, -300))
+    decades = _value(nodes, DECADES_NODE, 3.0, (-400, -400))
+    scale = _value(nodes, DENSITY_NODE, 0.2, (300, -300))
+    rel = _math(nodes, links, "MULTIPLY", attr.outputs["Fac"], inv_peak, (-200, 0))
+    t_lin = _math(nodes, links, "MULTIPLY", rel, 1.0, (0, 100), clamp=True)
+    log10 = _math(nodes, links, "LOGARITHM", _math(nodes, links, "MAXIMUM", rel, 1e-12, (-100, -100)), 10.0,
+                  (0, -100))
+    t_log = _math(nodes, links, "ADD", _math(nodes, links, "DIVIDE", log10, decades, (100, -100)), 1.0,
+                  (200, -100), clamp=True)
+    t = _math(nodes, links, "ADD", t_lin,
+              _math(nodes, links, "MULTIPLY", use_log, _math(nodes, links, "SUBTRACT", t_log, t_lin, (300, -50)),
+                    (400, -50)), (500, 0))
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.location = (550, 250)
+    stops = GRID_RAMPS.get(grid_name, OTHER_RAMP)
+    elements = ramp.color_ramp.elements
+    elements.new(0.5)
+    for element, colour in zip(elements, stops):
+        element.color = (*colour, 1.0)
+    links.new(t, ramp.inputs["Fac"])
+    density = _math(nodes, links, "MULTIPLY", _math(nodes, links, "MULTIPLY", t, scale, (600, -200)),
+                    1.0 / voxel_bu, (700, -200))
     volume = nodes.new("ShaderNodeVolumePrincipled")
-    volume.inputs["Color"].default_value = (0.3, 0.9, 0.4, 1.0)
-    volume.inputs["Emission Color"].default_value = (0.2, 1.0, 0.3, 1.0)
     # Density comes from the link below; the node's own "density" attribute
     # lookup would multiply it by a grid that does not exist (= 0).
     volume.inputs["Density Attribute"].default_value = ""
-    volume.location = (250, 0)
-    links.new(attr.outputs["Fac"], normalise.inputs[0])
-    links.new(normalise.outputs[0], density_mul.inputs[0])
-    links.new(scale.outputs[0], density_mul.inputs[1])
-    links.new(density_mul.outputs[0], volume.inputs["Density"])
-    links.new(density_mul.outputs[0], volume.inputs["Emission Strength"])
+    volume.location = (750, 100)
+    links.new(ramp.outputs["Color"], volume.inputs["Color"])
+    links.new(ramp.outputs["Color"], volume.inputs["Emission Color"])
+    links.new(density, volume.inputs["Density"])
+    links.new(density, volume.inputs["Emission Strength"])
     links.new(volume.outputs["Volume"], out.inputs["Volume"])
     return mat
 
 
-def create_volume(name, path, grid_name, vmax, voxel_m, density, scale_length, run_id):
+def set_volume_scale(collection, settings):
+    """Apply Volume Scale (own maximum, the run's shared maximum, log), decades and density."""
+    volumes = [o for o in collection.all_objects if o.type == "VOLUME" and "endophoton_grid_max" in o]
+    shared = max([o["endophoton_grid_max"] for o in volumes] or [0.0])
+    for obj in volumes:
+        peak = shared if settings.volume_scale == "SHARED" else obj["endophoton_grid_max"]
+        values = {INV_PEAK_NODE: 1.0 / peak if peak > 0 else 1.0, LOG_NODE: float(settings.volume_scale == "LOG"),
+                  DECADES_NODE: float(settings.volume_decades), DENSITY_NODE: float(settings.volume_density)}
+        for slot in obj.material_slots:
+            if slot.material is None or not slot.material.use_nodes:
+                continue
+            for node_name, value in values.items():
+                node = slot.material.node_tree.nodes.get(node_name)
+                if node is not None:
+                    node.outputs[0].default_value = value
+
+
+def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id):
     """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units)."""
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
     volume.filepath = path
+    # Load up front: a missing or unreadable file is reported here, not at render time.
+    if not volume.grids.load():
+        raise RuntimeError(f"grid file '{path}' could not be read: {volume.grids.error_message}")
+    if volume.grids.find(grid_name) < 0:
+        raise RuntimeError(f"grid file '{path}' has no grid '{grid_name}'")
+    volume.grids.active_index = volume.grids.find(grid_name)
     # Cycles treats voxels below render.clipping (default 1e-3) as empty, and
     # tallies per launched packet are far smaller: clip relative to the peak.
     volume.render.clipping = 1e-4 * vmax if vmax > 0 else 0.0
     voxel_bu = voxel_m / scale_length
-    volume.materials.append(_volume_material(name, grid_name, vmax, voxel_bu, density, run_id))
+    volume.materials.append(_volume_material(name, grid_name, voxel_bu, run_id))
     obj = bpy.data.objects.new(name, volume)
     obj[RUN_KEY] = run_id
     obj["endophoton_grid"] = grid_name
+    obj["endophoton_grid_max"] = float(vmax)
     inv = 1.0 / scale_length
     obj.scale = (inv, inv, inv)
     return obj
@@ -293,13 +518,25 @@ def result_collections(scene):
     return [c for c in scene.collection.children_recursive if c.get(RESULT_KEY)]
 
 
+def run_files(collection):
+    """Files the run wrote that only it uses: its .vdb (a fresh name per run)."""
+    summary = collection.get(SUMMARY_KEY)
+    path = summary.get("grid_path", "") if summary is not None else ""
+    return [path] if path else []
+
+
 def remove_run(collection):
-    """Delete a run's collection and every datablock tagged with its run id."""
+    """Delete a run's collection, every datablock tagged with its run id and its .vdb file."""
+    import os
+
     run_id = collection.get(RUN_KEY)
+    for path in run_files(collection):
+        if os.path.isfile(path):
+            os.remove(path)
     for obj in list(collection.all_objects):
         if obj.get(RUN_KEY) == run_id:
             bpy.data.objects.remove(obj)
-    for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials):
+    for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials, bpy.data.images):
         for block in list(datablocks):
             if run_id is not None and block.get(RUN_KEY) == run_id and block.users == 0:
                 datablocks.remove(block)
@@ -345,7 +582,6 @@ def apply_result(context, inputs, result, grid_info=()):
     records = 0 if positions is None else len(positions)
     summary = summary_from_result(result, inputs, records)
 
-    remove_results(scene)
     run_id = _unique_run_id(inputs)
     beta = f"β={inputs.beta_deg:+.1f}°"
     collection = bpy.data.collections.new(f"EP {beta} {inputs.timestamp}")
@@ -354,24 +590,44 @@ def apply_result(context, inputs, result, grid_info=()):
     scene.collection.children.link(collection)
     try:
         if positions is not None:
-            energy = attrs.get("energy", (None, np.zeros(0)))[1]
-            energy_max = float(energy.max()) if energy.size else 1.0
-            material = _points_material(f"EP Photons {beta}", settings.color_by, energy_max, run_id)
-            obj = create_point_cloud(f"EP Photons {beta}", positions, attrs,
-                                     settings.point_radius, material, run_id)
+            material = _points_material(f"EP Photons {beta}", run_id)
+            obj = create_point_cloud(f"EP Photons {beta}", positions, attrs, settings.point_radius,
+                                     material, run_id, names=record_names(result, inputs))
+            recolour(obj, settings)
             collection.objects.link(obj)
         for grid_name, _active, vmax in grids:
             if grid_name is None:
                 grid_name = _first_grid_name(grid_path)
             obj = create_volume(f"EP Grid {grid_name} {beta}", grid_path, grid_name, vmax,
-                                inputs.grid_voxel_m, settings.volume_density, inputs.scale_length, run_id)
+                                inputs.grid_voxel_m, inputs.scale_length, run_id)
             collection.objects.link(obj)
+        set_volume_scale(collection, settings)
         collection[SUMMARY_KEY] = summary
+        collection[PARAMS_KEY] = run_parameters(inputs)
     except Exception:
         remove_run(collection)
         raise
     settings.result_collection = collection
     return collection
+
+
+def run_parameters(inputs):
+    """The run's parameters as plain values (the tag that tells runs apart)."""
+    return {
+        "beta_deg": float(inputs.beta_deg), "rig": inputs.rig_name, "kind": inputs.kind,
+        "count": int(inputs.count), "target_error": float(inputs.target_error or 0.0),
+        "seed": int(inputs.seed), "fluorescent_only": bool(inputs.fluorescent_only),
+        "fluorescence_rule": inputs.fluorescence_rule, "scale_length_m": float(inputs.scale_length),
+        "voxel_size_m": float(inputs.grid_voxel_m or 0.0),
+        "regions": [r.name for r in inputs.regions],
+    }
+
+
+def record_names(result, inputs):
+    """Names behind the integer record columns: fluorophore ids and region indices."""
+    fluorophores = list(getattr(result, "fluorophore_names", None) or [])
+    return {"fluorophore": [str(n) for n in fluorophores],
+            "region": [str(r.name) for r in inputs.regions]}
 
 
 def _first_grid_name(path):
@@ -386,8 +642,12 @@ def _first_grid_name(path):
         bpy.data.volumes.remove(probe)
 
 
+def points_objects(collection):
+    return [obj for obj in collection.all_objects if obj.type == "MESH" and obj.get(NAMES_KEY) is not None]
+
+
 def update_display(scene):
-    """Apply point radius, colour mode and volume density to the scene's results."""
+    """Apply point radius, colour mapping, filters and volume density to the scene's results."""
     settings = scene.endophoton
     for collection in result_collections(scene):
         for obj in collection.all_objects:
@@ -397,16 +657,9 @@ def update_display(scene):
                     ids = _group_input_identifiers(modifier.node_group)
                     modifier[ids["Radius"]] = float(settings.point_radius)
                     obj.update_tag()
-            for slot in obj.material_slots:
-                mat = slot.material
-                if mat is None or not mat.use_nodes:
-                    continue
-                node = mat.node_tree.nodes.get(COLOUR_MODE_NODE)
-                if node is not None:
-                    node.outputs[0].default_value = 1.0 if settings.color_by == "ENERGY" else 0.0
-                node = mat.node_tree.nodes.get(DENSITY_NODE)
-                if node is not None:
-                    node.outputs[0].default_value = settings.volume_density
+            if obj.get(NAMES_KEY) is not None:
+                recolour(obj, settings)
+        set_volume_scale(collection, settings)
 
 
 # Short labels: the sidebar is narrow (Rsp + Rd + Tt + A + missed + cut + roulette = 1).

@@ -102,6 +102,7 @@ def update_rig(obj):
         camera_obj.location = (0.0, 0.0, 0.0)
         camera_obj.rotation_euler = (0.0, 0.0, 0.0)
         camera_obj.data.angle = settings.camera_fov
+        camera_obj.data.display_size = settings.head_diameter   # drawn at the head's size, not 1 m
     head = parts.get("head")
     if head is not None:
         r = 0.5 * settings.head_diameter

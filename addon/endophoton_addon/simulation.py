@@ -10,7 +10,6 @@ returns the engine's Result.  The modal operator (operators.py), the blocking
 
 import math
 import os
-import tempfile
 import threading
 import time
 import traceback
@@ -20,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import engine, export, presets, rig, sweep_blend
+from . import export, guards, package_finder, presets, rig, sweep_blend
 from .export import InputError
 
 _ACTIVE_JOBS = set()
@@ -52,14 +51,9 @@ class RunInputs:
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
-def _grid_dir(settings):
-    import bpy
-
-    if settings.grid_dir.strip():
-        return bpy.path.abspath(settings.grid_dir.strip())
-    if bpy.data.filepath:
-        return bpy.path.abspath("//endophoton_cache")
-    return os.path.join(tempfile.gettempdir(), "endophoton_cache")
+def grid_folder(settings, who="Scene"):
+    """The .vdb folder of the grid_dir field, checked writable (guards.resolve_folder)."""
+    return guards.resolve_folder(settings.grid_dir, f"{who}: simulation.grid_dir", "endophoton_cache")
 
 
 def _pick_rig(scene):
@@ -155,9 +149,9 @@ def collect_inputs(context):
             raise InputError(f"{who}: simulation.voxel_size = {voxel:g} must be a finite number > 0")
         voxel_m = voxel * scale
         inputs_stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")
-        grid_path = os.path.join(_grid_dir(settings), f"endophoton_{inputs_stamp}.vdb")
+        grid_path = os.path.join(grid_folder(settings, who), f"endophoton_{inputs_stamp}.vdb")
 
-    return RunInputs(
+    inputs = RunInputs(
         scene_name=scene.name,
         regions=regions,
         rig_name=rig_obj.name,
@@ -177,6 +171,30 @@ def collect_inputs(context):
         scale_length=float(scale),
         target_error=target_error,
     )
+    check_before_run(scene, inputs)
+    return inputs
+
+
+def last_rate(scene):
+    """Packets per second of the active result (a measured rate for estimates), or None."""
+    collection = scene.endophoton.result_collection
+    summary = collection.get("endophoton_summary") if collection is not None else None
+    if summary is None or not summary.get("seconds"):
+        return None
+    return summary.get("packets_traced", 0) / summary["seconds"] or None
+
+
+def check_before_run(scene, inputs):
+    """The guards (guards.py): unit scale, overlaps, voxel count, size of the run."""
+    settings = scene.endophoton
+    who = f"Scene '{scene.name}'"
+    if not settings.allow_unusual_scale:
+        guards.check_unit_scale(inputs.regions, inputs.scale_length, who)
+    guards.check_overlaps(inputs.regions)
+    if inputs.grid_voxel_m is not None:
+        guards.check_voxels(inputs.regions, inputs.grid_voxel_m, who)
+    if not settings.allow_large_runs:
+        guards.check_budget(inputs, who, last_rate(scene))
 
 
 def build_engine_scene(ep, regions):
@@ -270,6 +288,17 @@ class BackgroundJob:
     def wait(self, timeout=None):
         return self._finished.wait(timeout)
 
+    def _work(self):
+        """Worker thread: ``self._body()`` (no bpy); any error is kept for the main thread."""
+        try:
+            self._body()
+        except BaseException as exc:  # reported by the main thread
+            self.error = exc
+            self.error_traceback = traceback.format_exc()
+        finally:
+            untrack_job(self)
+            self._finished.set()
+
 
 class SimulationJob(BackgroundJob):
     """A run of the engine in a worker thread.  Only ``start``/``cancel``/``progress``
@@ -313,23 +342,16 @@ class SimulationJob(BackgroundJob):
         with self._lock:
             self._progress = (int(done), int(total))
 
-    def _work(self):
-        try:
-            if self.inputs.grid_path:
-                os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
-            self.result = self.ep.run(
-                self.engine_scene, self.engine_rig,
-                progress=self._on_progress, cancel=self.token, **self.run_kwargs,
-            )
-            grid_path = getattr(self.result, "grid_path", None)
-            if grid_path and not getattr(self.result, "cancelled", False):
-                self.grid_info = read_grid_info(grid_path)
-        except BaseException as exc:  # reported by the main thread
-            self.error = exc
-            self.error_traceback = traceback.format_exc()
-        finally:
-            untrack_job(self)
-            self._finished.set()
+    def _body(self):
+        if self.inputs.grid_path:
+            os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
+        self.result = self.ep.run(
+            self.engine_scene, self.engine_rig,
+            progress=self._on_progress, cancel=self.token, **self.run_kwargs,
+        )
+        grid_path = getattr(self.result, "grid_path", None)
+        if grid_path and not getattr(self.result, "cancelled", False):
+            self.grid_info = read_grid_info(grid_path)
 
 
 def read_grid_info(path):
@@ -363,7 +385,7 @@ def prepare_job(context, interactive=False):
     inputs = collect_inputs(context)
     if interactive:
         inputs.threads = interactive_threads(inputs.threads)
-    ep = engine.require()
+    ep = package_finder.require()
     return SimulationJob(ep, inputs)
 
 
@@ -391,6 +413,19 @@ def _discard_partial_grid(job):
     path = job.inputs.grid_path
     if path and os.path.isfile(path):
         os.remove(path)
+
+
+def report_finished(context, job):
+    """Finish the job (main thread) and say what happened: ``(level, message)``
+    for the operator's report, level "INFO" when a collection was added."""
+    from . import results
+
+    collection = finish_job(context, job)
+    if collection is None:
+        return "WARNING", "EndoPhoton run cancelled; nothing was added"
+    summary = collection.get(results.SUMMARY_KEY, {})
+    return "INFO", (f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
+                    f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
 
 
 def track_job(job):

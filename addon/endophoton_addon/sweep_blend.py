@@ -18,7 +18,7 @@ import argparse
 import os
 import sys
 
-from . import engine, export, rig
+from . import export, package_finder, rig
 
 __all__ = ["blender_regions_to_scene", "rig_sweep_geometry", "enable_addon", "sweep_blend", "main"]
 
@@ -119,7 +119,7 @@ def sweep_blend(blend=None, use_blend_rig=True, **kwargs):
     """
     import bpy
 
-    ep = engine.require()
+    ep = package_finder.require()
     bscene = _open_scene(blend)
     if not hasattr(bscene, "endophoton"):
         raise RuntimeError("the EndoPhoton add-on is not registered (scene.endophoton is missing); "
@@ -138,7 +138,7 @@ def main(argv):
     """Inside ``blender -b FILE``: parse the ``sweep`` arguments forwarded by the package's CLI,
     register the add-on, sweep the open scene and write the outputs.  Returns the exit code."""
     enable_addon()
-    ep = engine.require()
+    ep = package_finder.require()
     from endophoton import sweep_cli
 
     parser = argparse.ArgumentParser(prog="endophoton sweep (blender)")

@@ -17,16 +17,14 @@ values in :class:`SweepInputs`, runs the sweep, writes the output files with
 import argparse
 import math
 import os
-import tempfile
 import threading
 import time
-import traceback
 from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
-from . import engine, export, simulation, sweep_blend
+from . import export, guards, package_finder, simulation, sweep_blend
 from .export import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -90,36 +88,6 @@ def parse_betas(ep, text, who):
     return [float(b) for b in values]
 
 
-def resolve_output_dir(raw, who):
-    """Absolute output folder for the ``output_dir`` field; raises InputError.  Creates nothing."""
-    import bpy
-
-    raw = raw.strip()
-    field = f"{who}: sweep.output_dir = '{raw}'"
-    if not raw:
-        if bpy.data.filepath:
-            path = bpy.path.abspath("//" + DEFAULT_DIR_NAME)
-        else:
-            path = os.path.join(tempfile.gettempdir(), DEFAULT_DIR_NAME)
-    else:
-        if raw.startswith("//") and not bpy.data.filepath:
-            raise InputError(f"{field} is relative to the .blend file, which is not saved; "
-                             "save the file or choose an absolute folder")
-        path = bpy.path.abspath(raw)
-    path = os.path.normpath(os.path.abspath(path))
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise InputError(f"{field} is a file, not a folder")
-    existing = path
-    while not os.path.exists(existing):
-        parent = os.path.dirname(existing)
-        if parent == existing:
-            break
-        existing = parent
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"{field}: '{existing}' is not writable")
-    return path
-
-
 def _rig_geometry(rig_obj, scale_length):
     """Target (m), normal, tilt axis, distance (m) and tip of the rig; raises InputError."""
     simulation._check_rig(rig_obj, scale_length)   # finite values, light guides inside the head
@@ -161,10 +129,13 @@ def collect_sweep_inputs(context, ep):
                          f"{settings.batches} (one record per batch at least)")
     if settings.threads < 0:
         raise InputError(f"{who}: sweep.threads = {settings.threads} must be >= 0")
-    out_dir = resolve_output_dir(settings.output_dir, who)
+    out_dir = guards.resolve_folder(settings.output_dir, f"{who}: sweep.output_dir", DEFAULT_DIR_NAME)
 
     depsgraph = context.evaluated_depsgraph_get()
     regions = export.export_regions(scene, context.view_layer, depsgraph)
+    if not scene.endophoton.allow_unusual_scale:
+        guards.check_unit_scale(regions, scale, who)
+    guards.check_overlaps(regions)
     rig_obj = simulation._pick_rig(scene)
     geometry = _rig_geometry(rig_obj, scale)
 
@@ -278,46 +249,57 @@ class SweepJob(simulation.BackgroundJob):
             self._finished_betas = index + 1
             self._packets_per_beta = int(row["packets_traced"])
 
-    def _work(self):
-        try:
-            bs = self.ep.beta_sweep
-            result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
-                              cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs())
-            if (self.token.cancelled or result.meta.get("cancelled")
-                    or any(row["cancelled"] for row in result.rows)):
-                self.cancelled = True   # nothing is written, nothing will be added
-                return
-            with self._lock:
-                self._phase = "writing"
-            paths = bs.write_outputs(result, self.inputs.out_dir)
-            self.summary = sweep_summary(self.ep, result, paths, self.inputs.out_dir)
-            self.paths = paths
-            self.result = result
-        except BaseException as exc:  # reported by the main thread
-            self.error = exc
-            self.error_traceback = traceback.format_exc()
-        finally:
-            simulation.untrack_job(self)
-            self._finished.set()
+    def _body(self):
+        bs = self.ep.beta_sweep
+        result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
+                          cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs())
+        if (self.token.cancelled or result.meta.get("cancelled")
+                or any(row["cancelled"] for row in result.rows)):
+            self.cancelled = True   # nothing is written, nothing will be added
+            return
+        with self._lock:
+            self._phase = "writing"
+        paths = bs.write_outputs(result, self.inputs.out_dir)
+        self.summary = sweep_summary(self.ep, result, paths, self.inputs.out_dir)
+        self.paths = paths
+        self.result = result
+
+
+MIN_FIT_POINTS = FIT_DEGREE + 3    # the degree-6 fit keeps >= 2 degrees of freedom
+BOOTSTRAP = 200                     # parametric bootstrap replicas for the peak's standard error
+
+
+def best_beta(an, betas, y, y_se, seed=0):
+    """β of the fitted energy maximum, its standard error and whether it is interior.
+
+    Only with at least MIN_FIT_POINTS angles (else NaN): a degree-6 polynomial
+    through fewer points interpolates the noise.  The standard error comes from
+    refitting BOOTSTRAP curves drawn from N(y, y_se) per β (a fixed seed, so the
+    summary is reproducible).  Returns (beta, se, interior)."""
+    ok = np.isfinite(y) & np.isfinite(y_se)
+    if ok.sum() < MIN_FIT_POINTS:
+        return float("nan"), float("nan"), False
+    x, y, y_se = betas[ok], y[ok], y_se[ok]
+    fit = an.poly_peak(x, y, deg=FIT_DEGREE)
+    rng = np.random.default_rng(seed)
+    peaks = [an.poly_peak(x, y + rng.normal(0.0, 1.0, len(y)) * y_se, deg=FIT_DEGREE, n_grid=1001)["x_peak"]
+             for _ in range(BOOTSTRAP)]
+    return float(fit["x_peak"]), float(np.std(peaks, ddof=1)), bool(fit["interior"])
 
 
 def sweep_summary(ep, result, paths, out_dir):
     """Plain-value summary of a finished sweep (no bpy): the β of the energy
     maximum by the paper's degree-6 fit (sum over stored records, and per packet
-    traced), the range of packets traced, times and where the files are."""
+    traced) with its bootstrap standard error when there are enough angles, the
+    range of packets traced, times and where the files are."""
     an = ep.analysis
     betas = result.betas
-
-    def best(column):
-        y = result.column(column)
-        ok = np.isfinite(y)
-        if ok.sum() < 2:
-            return float("nan"), 0
-        fit = an.poly_peak(betas[ok], y[ok], deg=FIT_DEGREE)
-        return float(fit["x_peak"]), int(fit["deg"])
-
-    best_total, degree = best("energy_total_rel")
-    best_packet, _ = best("energy_per_packet_rel")
+    best = {}
+    for key, column in (("energy_total", "energy_total_rel"), ("energy_per_packet", "energy_per_packet_rel")):
+        beta, se, interior = best_beta(an, betas, result.column(column), result.column(column + "_stderr"))
+        best.update({f"best_beta_{key}": beta, f"best_beta_{key}_se": se, f"best_beta_{key}_interior": interior})
+    best_total, best_packet = best["best_beta_energy_total"], best["best_beta_energy_per_packet"]
+    degree = FIT_DEGREE if math.isfinite(best_total) else 0
     packets = result.column("packets_traced")
     return {
         "out_dir": out_dir,
@@ -327,8 +309,7 @@ def sweep_summary(ep, result, paths, out_dir):
         "beta_max": float(betas.max()),
         "store": int(result.meta.get("store", 0)),
         "seed": int(result.meta.get("seed", 0)),
-        "best_beta_energy_total": best_total,
-        "best_beta_energy_per_packet": best_packet,
+        **best,
         "fit_degree": degree,
         "packets_min": float(np.nanmin(packets)),
         "packets_max": float(np.nanmax(packets)),
@@ -338,15 +319,15 @@ def sweep_summary(ep, result, paths, out_dir):
 
 
 # --- main thread: start, finish ----------------------------------------------------
-def prepare_sweep(context, interactive=False):
+def prepare_job(context, interactive=False):
     """Validate, export once and build the job; raises InputError / EngineMissing.
 
     ``interactive``: the modal operator's run; threads = 0 then leaves one core
     to the UI (simulation.interactive_threads; the numbers do not depend on it).
     """
-    ep = engine.require()
+    ep = package_finder.require()
     if not hasattr(ep, "beta_sweep"):
-        raise engine.EngineMissing(f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
+        raise package_finder.EngineMissing(f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
                                    "it has no β sweep (endophoton.beta_sweep)")
     inputs, engine_scene = collect_sweep_inputs(context, ep)
     if interactive:
@@ -417,6 +398,15 @@ def finish_sweep(context, job):
     return images
 
 
+def report_finished(context, job):
+    """Finish the sweep (main thread) and say what happened: ``(level, message)``."""
+    images = finish_sweep(context, job)
+    if images is None:
+        return "WARNING", "EndoPhoton sweep cancelled; nothing was written or added"
+    return "INFO", (f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
+                    f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'")
+
+
 def summary_rows(scene):
     """(label, value) rows of the last sweep's summary for the panel; [] if none."""
     summary = scene.get(SUMMARY_KEY)
@@ -424,15 +414,19 @@ def summary_rows(scene):
         return []
     s = summary.to_dict() if hasattr(summary, "to_dict") else dict(summary)
 
-    def angle(value):
-        return "–" if value is None or not math.isfinite(value) else f"{value:.1f}°"
+    def angle(key):
+        value, se = s.get(f"best_beta_{key}"), s.get(f"best_beta_{key}_se")
+        if value is None or not math.isfinite(value):
+            return f"– (needs ≥ {MIN_FIT_POINTS} β values)"
+        edge = "" if s.get(f"best_beta_{key}_interior") else " at range edge"
+        return f"{value:.1f} ± {se:.1f}°{edge}"
 
     degree = s.get("fit_degree", 0)
     rows = [
         ("β", f"{s.get('beta_min', 0):g}…{s.get('beta_max', 0):g}° ({s.get('n_betas', 0)} values)"),
         ("Store N", f"{s.get('store', 0):,} · seed {s.get('seed', 0)}"),
-        ("Best β (sum)", angle(s.get("best_beta_energy_total")) + (f" deg-{degree} fit" if degree else "")),
-        ("Best β (/packet)", angle(s.get("best_beta_energy_per_packet"))),
+        ("Best β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
+        ("Best β (/packet)", angle("energy_per_packet")),
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
         ("Time", f"{s.get('seconds', 0.0):.1f} s"),
         ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),

@@ -2,11 +2,9 @@
 from __future__ import annotations
 
 import math
-import numbers
 import os
 from dataclasses import dataclass
 
-import numpy as np
 
 from . import _core
 from .quality import quality_preset

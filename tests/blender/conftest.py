@@ -73,9 +73,9 @@ def fresh_blender():
 @pytest.fixture
 def ep():
     """The real engine; the test fails (not skips) when it cannot be imported."""
-    from endophoton_addon import engine
+    from endophoton_addon import package_finder
 
-    module, message = engine.status()
+    module, message = package_finder.status()
     if module is None:
         pytest.fail(f"engine required: {message}")
     return module
@@ -115,3 +115,27 @@ def mesh_object(name, verts, faces, collection=None):
     obj = bpy.data.objects.new(name, meshutil.mesh_from_arrays(name, verts, faces))
     (collection or bpy.context.scene.collection).objects.link(obj)
     return obj
+
+
+def run_windowed(blend, driver, args, screen="1280x800", timeout=360):
+    """Run ``driver`` in a windowed Blender under xvfb-run (skips the test when
+    xvfb-run/xauth are missing).  Returns (returncode, stdout, stderr); on a
+    timeout the whole process group (Xvfb and Blender) is killed."""
+    import shutil
+    import signal
+    import subprocess
+
+    xvfb = shutil.which("xvfb-run")
+    if xvfb is None or shutil.which("xauth") is None:
+        pytest.skip("xvfb-run/xauth not installed (apt-get install xvfb xauth): windowed test not run")
+    cmd = [xvfb, "-a", "-s", f"-screen 0 {screen}x24", bpy.app.binary_path, "--factory-startup",
+           "--enable-event-simulate", os.path.join(BLEND_DIR, blend),
+           "--python", os.path.join(HERE, driver), "--", *map(str, args)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        stdout, stderr = proc.communicate()
+    return proc.returncode, stdout, stderr

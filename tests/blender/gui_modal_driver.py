@@ -47,6 +47,7 @@ def view3d():
 def invoke(photons):
     settings = bpy.context.scene.endophoton
     settings.quality, settings.photons, settings.grid_dir = "CUSTOM", photons, GRID_DIR
+    settings.allow_large_runs = photons > 5_000_000   # the run ESC cancels is "large" on purpose
     window, area, region = view3d()
     with bpy.context.temp_override(window=window, area=area, region=region):
         return sorted(bpy.ops.endophoton.run_simulation("INVOKE_DEFAULT"))

@@ -120,25 +120,60 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
     assert any(line.startswith("A Polyp: ") for line in lines)
 
 
-def test_rerun_replaces_previous_collection(ep, tmp_path):
+def test_two_runs_coexist_delete_removes_files_export_round_trips(ep, tmp_path):
+    """Issue 15, acceptance 3: each run is its own collection tagged with its
+    parameters; deleting one removes its data and its .vdb, not the other's;
+    the photon map and summary export to CSV / NPZ / JSON and read back equal
+    to the engine's escape records."""
+    import json
+
     scene = open_blend("flat_tissue.blend", tmp_path)
     settings = scene.endophoton
-    settings.quality = "CUSTOM"
-    settings.photons = 5_000
-    settings.output_grids = False
-    _job, first, _seen = _run_job(bpy.context)
-    first_name = first.name
-    first_objects = [o.name for o in first.objects]
-    time.sleep(1.1)   # a new timestamp
+    settings.quality, settings.photons, settings.voxel_size = "CUSTOM", 5_000, 0.001
+    first_job, first, _seen = _run_job(bpy.context)
+    first_name, first_vdb = first.name, first_job.inputs.grid_path
     scene.objects["EP Endoscope"].endophoton_rig.beta = math.radians(20.0)
-    _job, second, _seen = _run_job(bpy.context)
+    settings.seed = 7
+    second_job, second, _seen = _run_job(bpy.context)
+    assert {c.name for c in _result_collections()} == {first_name, second.name}
+    params = [c[results.PARAMS_KEY].to_dict() for c in (first, second)]
+    assert np.allclose([p["beta_deg"] for p in params], [0.0, 20.0], atol=1e-4) and [p["seed"] for p in params] == [1, 7]
+    assert os.path.isfile(first_vdb) and os.path.isfile(second_job.inputs.grid_path)
+    assert settings.result_collection == second
+
+    # Export the second run, then read the files back.
+    escapes = second_job.result.escapes
+    paths = {}
+    for fmt in ("CSV", "NPZ", "JSON"):
+        path = str(tmp_path / f"second.{fmt.lower()}")
+        assert bpy.ops.endophoton.export_result(filepath=path, format=fmt) == {"FINISHED"}
+        paths[fmt] = path
+    table = np.genfromtxt(paths["CSV"], delimiter=",", names=True)
+    np.testing.assert_allclose(table["wavelength"], escapes["wavelength"], rtol=1e-6)
+    np.testing.assert_array_equal(table["region"], escapes["region"])
+    np.testing.assert_allclose(table["depth"], escapes["max_depth"], rtol=1e-6)
+    np.testing.assert_allclose(table["direction_z"], np.asarray(escapes["direction"])[:, 2], rtol=1e-6, atol=1e-7)
+    with np.load(paths["NPZ"]) as npz:
+        np.testing.assert_allclose(npz["energy"], escapes["energy"], rtol=1e-6)
+        np.testing.assert_array_equal(npz["fluorescent"], np.asarray(escapes["fluorescent"]).astype(bool))
+        info = json.loads(str(npz["summary_json"]))
+    with open(paths["JSON"]) as f:
+        assert json.load(f) == info
+    with open(paths["CSV"] + ".json") as f:
+        assert json.load(f) == info
+    assert info["summary"]["records"] == len(escapes["weight"])
+    assert info["summary"]["totals"]["diffuse_reflectance"][0] == pytest.approx(second_job.result.diffuse_reflectance)
+    assert info["parameters"]["seed"] == 7 and info["names"]["region"] == ["Tissue", "Polyp"]
+
+    # Delete the first run: its objects, data and .vdb go, the second stays whole.
+    first_objects = {o.name for o in first.all_objects}
+    assert bpy.ops.endophoton.result_delete(name=first_name) == {"FINISHED"}
     assert [c.name for c in _result_collections()] == [second.name]
-    assert second.name.startswith("EP β=+20.0° ") and second.name != first_name
-    assert first_name not in bpy.data.collections
-    remaining = {o.name for o in bpy.data.objects}
-    assert not (set(first_objects) - {o.name for o in second.objects}) & remaining
-    assert len([m for m in bpy.data.meshes if m.get(results.RUN_KEY)]) == 1
-    assert len([m for m in bpy.data.materials if m.get(results.RUN_KEY)]) == 1
+    assert not os.path.exists(first_vdb) and os.path.isfile(second_job.inputs.grid_path)
+    assert not first_objects & {o.name for o in bpy.data.objects}
+    run_ids = {b.get(results.RUN_KEY) for kind in (bpy.data.meshes, bpy.data.materials, bpy.data.volumes)
+               for b in kind if b.get(results.RUN_KEY)}
+    assert run_ids == {second[results.RUN_KEY]}
 
 
 def test_operator_execute_store_mode(ep, tmp_path):
@@ -206,6 +241,7 @@ def test_cancelled_run_leaves_nothing(ep, tmp_path):
     settings = scene.endophoton
     settings.quality = "CUSTOM"
     settings.photons = 200_000_000           # far longer than the test waits
+    settings.allow_large_runs = True    # the guard would ask first
     before = data_snapshot()
     job = simulation.prepare_job(bpy.context)
     job.start()
@@ -229,6 +265,7 @@ def test_cancel_keeps_previous_result(ep, tmp_path):
     _job, previous, _ = _run_job(bpy.context)
     before = data_snapshot()
     settings.photons = 200_000_000
+    settings.allow_large_runs = True
     job = simulation.prepare_job(bpy.context)
     job.start()
     job.cancel()

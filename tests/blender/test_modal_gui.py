@@ -5,35 +5,18 @@ cancels and leaves nothing behind.  Needs xvfb-run (Debian package xvfb)."""
 
 import json
 import os
-import shutil
-import signal
-import subprocess
 
-import bpy
-import pytest
 
-from conftest import BLEND_DIR, ENGINE_FOLDER, HERE
+from conftest import ENGINE_FOLDER, run_windowed
 
 
 def test_modal_operator_in_window(ep, tmp_path):
-    xvfb = shutil.which("xvfb-run")
-    if xvfb is None or shutil.which("xauth") is None:
-        pytest.skip("xvfb-run/xauth not installed (apt-get install xvfb xauth): windowed modal test not run")
     out = tmp_path / "modal.json"
     grids = tmp_path / "grids"
     engine_folder = ENGINE_FOLDER or os.path.dirname(os.path.dirname(ep.__file__))
-    cmd = [xvfb, "-a", "-s", "-screen 0 1280x800x24", bpy.app.binary_path, "--factory-startup",
-           "--enable-event-simulate", os.path.join(BLEND_DIR, "flat_tissue.blend"),
-           "--python", os.path.join(HERE, "gui_modal_driver.py"), "--", str(out), str(grids), engine_folder]
-    # Own process group: on a timeout, Xvfb and Blender are ended together.
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
-    try:
-        stdout, stderr = proc.communicate(timeout=360)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        stdout, stderr = proc.communicate()
-    assert out.exists(), f"driver wrote nothing (rc {proc.returncode}):\n{stdout[-3000:]}\n{stderr[-3000:]}"
+    returncode, stdout, stderr = run_windowed("flat_tissue.blend", "gui_modal_driver.py",
+                                              [out, grids, engine_folder])
+    assert out.exists(), f"driver wrote nothing (rc {returncode}):\n{stdout[-3000:]}\n{stderr[-3000:]}"
     report = json.loads(out.read_text())
     assert "error" not in report, report
 

@@ -10,6 +10,7 @@ import bpy
 import pytest
 
 import numpy as np
+from types import SimpleNamespace
 
 from conftest import ADDON, REPO, data_snapshot, ensure_addon, mesh_object
 
@@ -72,6 +73,26 @@ def test_register_unregister_twice():
         obj.endophoton.role = "TISSUE"
         assert obj.endophoton.fluorophores[0].species == "collagen"
         bpy.data.objects.remove(obj)
+
+
+def test_register_rolls_back_when_a_class_fails(monkeypatch):
+    """One registration loop for all modules: a failing class (here a panel
+    without bl_space_type, which Blender refuses) leaves nothing registered."""
+    import endophoton_addon
+    from endophoton_addon import panels
+
+    class ENDOPHOTON_PT_broken(bpy.types.Panel):
+        bl_label = "Broken"
+
+    endophoton_addon.unregister()
+    monkeypatch.setattr(panels, "CLASSES", (*panels.CLASSES, ENDOPHOTON_PT_broken))
+    with pytest.raises(Exception):
+        endophoton_addon.register()
+    types, props = _registered()
+    assert types == set() and not any(props.values()), (types, props)
+    monkeypatch.undo()
+    endophoton_addon.register()
+    assert _registered()[0] == _all_names()
 
 
 def test_addon_utils_disable_enable_twice():
@@ -153,7 +174,7 @@ class FakeLayout:
     def _child(self, *_args, **_kwargs):
         return FakeLayout(self.log)
 
-    row = column = box = split = _child
+    row = column = box = split = grid_flow = _child
 
     def label(self, text="", icon="NONE"):
         self.log.append(("label", text))
@@ -166,6 +187,7 @@ class FakeLayout:
         module, name = idname.split(".")
         getattr(getattr(bpy.ops, module), name).get_rna_type()  # KeyError if not registered
         self.log.append(("operator", idname))
+        return SimpleNamespace()  # operator properties the panel sets
 
     def template_list(self, *args, **_kwargs):
         assert args[3] in args[2].bl_rna.properties
@@ -184,15 +206,15 @@ def _draw_all_panels():
 
 
 def test_panel_says_plainly_when_package_missing(tmp_path):
-    from endophoton_addon import engine
+    from endophoton_addon import package_finder
 
     saved = {k: v for k, v in sys.modules.items() if k == "endophoton" or k.startswith("endophoton.")}
     for k in saved:
         del sys.modules[k]
     try:
         ensure_addon(package_path=str(tmp_path))  # an existing folder without the package
-        engine.forget()
-        module, message = engine.status()
+        package_finder.forget()
+        module, message = package_finder.status()
         assert module is None
         assert "EndoPhoton engine not found" in message and str(tmp_path) in message
         log = _draw_all_panels()
@@ -213,7 +235,7 @@ def test_panel_says_plainly_when_package_missing(tmp_path):
     finally:
         sys.modules.update(saved)
         ensure_addon()
-        engine.forget()
+        package_finder.forget()
 
 
 def test_panels_draw_with_objects_and_rig():
@@ -234,3 +256,34 @@ def test_panels_draw_with_objects_and_rig():
     # The Sweep β sub-panel: the command line's options and the operator.
     assert {"betas", "store", "batches", "fluorescent_only", "fluorescence_rule", "output_dir"} <= props
     assert ("operator", "endophoton.sweep_beta") in log
+
+
+def test_tissue_presets_load_published_media_with_their_source():
+    from endophoton_addon import presets
+
+    obj = bpy.data.objects.new("Tissue", bpy.data.meshes.new("Tissue"))
+    bpy.context.scene.collection.objects.link(obj)
+    obj.endophoton.role = "TISSUE"
+    obj.endophoton.tissue_preset = "COLON_800"
+    m = obj.endophoton.medium
+    # Marchesini et al. 1994 at 800 nm: μa = 1.0, μs' = 6.2 cm⁻¹; μs = μs'/(1 − g) with the assumed g = 0.9.
+    assert (m.mua, m.g, m.n) == pytest.approx((1.0, 0.9, 1.4))
+    assert m.mus * (1 - m.g) == pytest.approx(6.2, rel=1e-5)
+    assert "Marchesini" in presets.TISSUE_PRESETS["COLON_800"].source
+    obj.endophoton.tissue_preset = "PAPER"
+    assert (m.mua, m.mus, m.g, m.n) == pytest.approx((20.0, 200.0, 0.9, 1.1))
+
+
+def test_fluorophore_rows_fit_the_default_sidebar():
+    """Each row of the fluorophore list is one short label (no truncated fields);
+    the active row is edited with full-width fields below the list."""
+    obj = bpy.data.objects.new("Polyp", bpy.data.meshes.new("Polyp"))
+    bpy.context.scene.collection.objects.link(obj)
+    obj.endophoton.role = "POLYP"
+    log = []
+    ui_list = bpy.types.ENDOPHOTON_UL_fluorophores
+    for item in obj.endophoton.fluorophores:
+        ui_list.draw_item(None, None, FakeLayout(log), None, item, None, None, None)
+    labels = [text for kind, text in log if kind == "label"]
+    assert labels == ["Collagen  d 0.20  c 0.40", "Photofrin  d 0.10  c 0.33"]
+    assert max(len(t) for t in labels) <= 26   # the default sidebar shows ~30 characters

@@ -51,7 +51,7 @@ def test_point_cloud_from_records(scale_length):
     bpy.context.scene.unit_settings.scale_length = scale_length
     rec = _records(np.random.default_rng(7))
     positions, attrs = results.point_cloud_arrays(rec, scale_length)
-    material = results._points_material("m", "WAVELENGTH", float(rec["energy"].max()), "run")
+    material = results._points_material("m", "run")
     obj = results.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run")
     bpy.context.scene.collection.objects.link(obj)
 
@@ -96,20 +96,112 @@ def test_point_cloud_rejects_mismatched_columns():
     assert len(bpy.data.meshes) == before
 
 
-def test_colour_mode_and_radius_update_results():
-    rec = _records(np.random.default_rng(3), k=50)
+# CIE 1931 2° colour-matching functions, tabulated (CIE 15): nm -> (x̄, ȳ, z̄).
+CIE_TABLE = {450: (0.3362, 0.0380, 1.7721), 500: (0.0049, 0.3230, 0.2720), 550: (0.4334, 0.9950, 0.0087),
+             600: (1.0622, 0.6310, 0.0008), 650: (0.2835, 0.1070, 0.0000)}
+
+
+def test_wavelength_colour_follows_cie_1931():
+    """The analytic CMF fit matches the CIE table (Wyman et al. report a few %
+    error), and the display colour has the hue of the spectral line: red at
+    photofrin's 630 nm, green at 530 nm, blue at collagen's 450 nm."""
+    from endophoton_addon import colour_maps
+
+    nm = np.array(sorted(CIE_TABLE))
+    np.testing.assert_allclose(colour_maps.cie_xyz(nm), np.array([CIE_TABLE[k] for k in nm]), atol=0.04)
+    rgb = colour_maps.wavelength_colours([630.0, 530.0, 450.0])
+    assert rgb.argmax(axis=1).tolist() == [0, 1, 2]
+    assert rgb[0, 1] < 0.1 * rgb[0, 0]            # 630 nm is red, not orange
+    deep_red = colour_maps.wavelength_colours([690.0, 720.0, 760.0])
+    assert np.all(deep_red[:, 0] > 5 * deep_red[:, 1])   # photofrin's 690 nm band stays red
+    assert np.all(rgb >= 0) and np.all(rgb <= 1)
+    # Outside the visible range: black.
+    assert np.all(colour_maps.wavelength_colours([300.0, 900.0]) == 0)
+
+
+def _points_in_collection(rec):
     positions, attrs = results.point_cloud_arrays(rec, 1.0)
-    material = results._points_material("m", "WAVELENGTH", 1.0, "run")
-    obj = results.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run")
+    material = results._points_material("m", "run")
+    names = {"fluorophore": ["collagen", "photofrin"], "region": ["Colon", "Polyp"]}
+    obj = results.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run", names=names)
     coll = bpy.data.collections.new("EP run")
     coll[results.RESULT_KEY] = True
     bpy.context.scene.collection.children.link(coll)
     coll.objects.link(obj)
-    mode = material.node_tree.nodes[results.COLOUR_MODE_NODE].outputs[0]
-    assert mode.default_value == 0.0
+    bpy.context.scene.endophoton.result_collection = coll
+    results.recolour(obj, bpy.context.scene.endophoton)
+    return obj
+
+
+def _colours(obj):
+    attribute = obj.data.attributes[results.COLOUR_ATTR]
+    out = np.empty(len(attribute.data) * 4, np.float32)
+    attribute.data.foreach_get("color", out)
+    return out.reshape(-1, 4)[:, :3]
+
+
+@pytest.mark.parametrize("color_by", ["WAVELENGTH", "FLUORESCENT", "FLUOROPHORE", "REGION", "DEPTH",
+                                      "ENERGY", "SCATTERINGS"])
+def test_colour_by_each_attribute_with_legend(color_by):
+    """Each mapping writes one colour per record into the named attribute
+    ep_colour; records alike in the attribute get one colour, the legend gives
+    the attribute's range (recomputed here) with units."""
+    rec = _records(np.random.default_rng(3), k=400)
+    obj = _points_in_collection(rec)
     settings = bpy.context.scene.endophoton
-    settings.color_by = "ENERGY"
-    assert mode.default_value == 1.0
+    settings.color_by = color_by
+    rgb = _colours(obj)
+    legend = results.legend_of(obj)
+    assert legend is not None and legend.entries and legend.shown == legend.total == 400
+    if color_by == "WAVELENGTH":
+        red = rgb[rec["wavelength"] > 615]
+        green = rgb[(rec["wavelength"] > 520) & (rec["wavelength"] < 545)]
+        assert np.all(red[:, 0] > red[:, 1]) and np.all(green[:, 1] > green[:, 0])
+        assert legend.unit == "nm"
+        assert legend.lo == pytest.approx(rec["wavelength"].min()) and legend.hi == pytest.approx(rec["wavelength"].max())
+    elif color_by in ("FLUORESCENT", "FLUOROPHORE", "REGION"):
+        column = {"FLUORESCENT": "fluorescent", "FLUOROPHORE": "fluorophore", "REGION": "region"}[color_by]
+        codes = rec[column].astype(int)
+        for code in np.unique(codes):
+            assert len(np.unique(rgb[codes == code], axis=0)) == 1
+        assert len(np.unique(rgb, axis=0)) == len(np.unique(codes))
+        labels = [label for _c, label in legend.entries]
+        expected = {"FLUORESCENT": ["excitation light", "fluorescence"],
+                    "FLUOROPHORE": ["none", "collagen", "photofrin"], "REGION": ["Colon", "Polyp"]}[color_by]
+        assert labels == expected
+    else:
+        column, scale, unit = {"DEPTH": ("max_depth", 10.0, "mm"), "ENERGY": ("energy", 1.0, "500 nm photons"),
+                               "SCATTERINGS": ("scatterings", 1.0, "events")}[color_by]
+        values = rec[column].astype(np.float64) * scale
+        assert legend.unit == unit
+        assert legend.lo == pytest.approx(values.min(), rel=1e-5) and legend.hi == pytest.approx(values.max(), rel=1e-5)
+        # Monotone ramp: the brightest colour (sum) belongs to the largest value's end.
+        order = np.argsort(values)
+        assert rgb[order[-1]].sum() > rgb[order[0]].sum()
+
+
+def test_filters_and_radius_update_results():
+    """Filters hide records through the named attribute ep_show (the points
+    modifier's selection): counts recomputed from the records."""
+    rec = _records(np.random.default_rng(5), k=300)
+    obj = _points_in_collection(rec)
+    settings = bpy.context.scene.endophoton
+
+    def shown():
+        attribute = obj.data.attributes[results.SHOW_ATTR]
+        out = np.empty(len(attribute.data), bool)
+        attribute.data.foreach_get("value", out)
+        return out
+
+    settings.filter_fluorescent = True
+    np.testing.assert_array_equal(shown(), rec["fluorescent"].astype(bool))
+    settings.filter_fluorophore = "photofrin"
+    np.testing.assert_array_equal(shown(), rec["fluorescent"].astype(bool) & (rec["fluorophore"] == 1))
+    settings.filter_fluorescent = False
+    settings.filter_fluorophore = "ANY"
+    settings.filter_region = "Polyp"
+    np.testing.assert_array_equal(shown(), rec["region"] == 1)
+    assert results.legend_of(obj).shown == int((rec["region"] == 1).sum())
     settings.point_radius = 0.0007
     ids = results._group_input_identifiers(obj.modifiers[0].node_group)
     assert obj.modifiers[0][ids["Radius"]] == pytest.approx(0.0007)
@@ -134,7 +226,7 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     path = tmp_path / "grid.vdb"
     active = _write_vdb(path, "absorbed", 0.001)   # 1 mm voxels, file in metres
     assert active > 0
-    obj = results.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, 50.0, scale_length, "run")
+    obj = results.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, scale_length, "run")
     bpy.context.scene.collection.objects.link(obj)
     volume = obj.data
     assert volume.grids.load()
@@ -154,6 +246,44 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     nodes = volume.materials[0].node_tree.nodes
     attribute = next(n for n in nodes if n.bl_idname == "ShaderNodeAttribute")
     assert attribute.attribute_name == "absorbed"
-    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(50.0)
+    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
     bpy.context.scene.endophoton.volume_density = 5.0   # no result collection: untouched
-    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(50.0)
+    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
+
+
+def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
+    """Two grids of one run, maxima 2 and 8: Own Max divides each by its own,
+    Shared by 8, Log switches the log branch; each grid has its own ramp."""
+    coll = bpy.data.collections.new("EP run")
+    coll[results.RESULT_KEY] = True
+    bpy.context.scene.collection.children.link(coll)
+    objs = {}
+    for name, peak in (("absorbed", 2.0), ("fluorescence", 8.0)):
+        path = tmp_path / f"{name}.vdb"
+        _write_vdb(path, name, 0.001)
+        objs[name] = results.create_volume(f"EP Grid {name}", str(path), name, peak, 0.001, 1.0, "run")
+        coll.objects.link(objs[name])
+    settings = bpy.context.scene.endophoton
+
+    def node(name, key):
+        return objs[name].data.materials[0].node_tree.nodes[key].outputs[0].default_value
+
+    settings.volume_scale = "SHARED"
+    assert node("absorbed", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("fluorescence", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("absorbed", results.LOG_NODE) == 0.0
+    settings.volume_scale = "OWN"
+    assert node("absorbed", results.INV_PEAK_NODE) == pytest.approx(0.5)
+    assert node("fluorescence", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    settings.volume_scale, settings.volume_decades = "LOG", 4.0
+    assert node("absorbed", results.LOG_NODE) == 1.0 and node("absorbed", results.DECADES_NODE) == 4.0
+    settings.volume_density = 3.0
+    assert node("fluorescence", results.DENSITY_NODE) == pytest.approx(3.0)
+
+    def ramp(name):
+        nodes = objs[name].data.materials[0].node_tree.nodes
+        r = next(n for n in nodes if n.bl_idname == "ShaderNodeValToRGB")
+        return [tuple(e.color)[:3] for e in r.color_ramp.elements]
+
+    assert ramp("absorbed") != ramp("fluorescence")
+    assert ramp("absorbed")[-1] == pytest.approx(results.GRID_RAMPS["absorbed"][-1])

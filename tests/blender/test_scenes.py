@@ -127,3 +127,20 @@ def test_colon_polyp_scene():
     axis = -np.array(head.matrix_world)[:3, 2]
     angle = math.atan2(np.linalg.norm(np.cross(axis, (0, 0, -1))), axis @ (0, 0, -1))
     assert angle == pytest.approx(abs(head.endophoton_rig.beta), abs=1e-6)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_scene_opens_framed_in_mm(name):
+    """The 3D views look at the tissue from about its size, clip at 0.1 mm, and
+    the rig's camera is drawn at the head's size (12 mm), not 1 m."""
+    _open(os.path.join(BLEND_DIR, name))
+    tissue = [o for o in bpy.data.objects if o.type == "MESH" and o.endophoton.role == "TISSUE"][0]
+    size = max(tissue.dimensions)
+    views = [space for screen in bpy.data.screens for area in screen.areas for space in area.spaces
+             if space.type == "VIEW_3D"]
+    assert views
+    for space in views:
+        assert space.clip_start <= 0.0001 + 1e-9 and space.clip_end >= 1.0
+        assert 0.5 * size <= space.region_3d.view_distance <= 5 * size
+    camera = [o for o in bpy.data.objects if o.type == "CAMERA"][0]
+    assert camera.data.display_size == pytest.approx(0.012, rel=1e-3)

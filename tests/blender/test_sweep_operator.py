@@ -32,7 +32,7 @@ def _setup(tmp_path, betas=BETAS, store=STORE):
 
 def _run_job(context):
     """Start, poll like the modal timer, finish.  Returns (job, images, progress seen)."""
-    job = sweep_job.prepare_sweep(context)
+    job = sweep_job.prepare_job(context)
     job.start()
     seen = []
     while not job.wait(0.05):
@@ -107,7 +107,8 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     packets = [int(r["packets_traced"]) for r in rows]
     assert summary["n_betas"] == 2 and summary["images"] == len(files)
     assert (summary["packets_min"], summary["packets_max"]) == (min(packets), max(packets))
-    assert summary["best_beta_energy_total"] in (0.0, 30.0)   # a line through 2 points peaks at an end
+    assert math.isnan(summary["best_beta_energy_total"])   # 2 angles: no degree-6 fit
+    assert sweep_job.summary_rows(scene)[2][1].startswith(f"– (needs ≥ {sweep_job.MIN_FIT_POINTS} β values)")
     assert summary["out_dir"] == str(out)
     labels = dict(sweep_job.summary_rows(scene))
     assert labels["Packets"] == f"{min(packets):,} – {max(packets):,}"
@@ -153,7 +154,7 @@ def test_cancel_adds_nothing(ep, tmp_path):
 
     s = scene.endophoton.sweep
     s.betas, s.store = "0:60:5", 2_000_000
-    job = sweep_job.prepare_sweep(bpy.context)
+    job = sweep_job.prepare_job(bpy.context)
     job.start()
     deadline = time.monotonic() + 600.0   # a hang guard, not a verdict on speed (issue 13)
     while job.progress().done == 0 and not job.done and time.monotonic() < deadline:
@@ -251,3 +252,17 @@ def test_no_tissue_rejected(ep, tmp_path):
         if obj.type == "MESH":
             obj.endophoton.role = "NONE"
     _assert_rejected(r"Scene '[^']+': no object has role 'tissue'", tmp_path / "sweep")
+
+
+def test_best_beta_needs_enough_angles_and_has_uncertainty(ep):
+    """A parabola peaking at β = 25° (12 angles, 1 % noise bars): the fit finds
+    25° within its bootstrap error, which is small and positive; with fewer
+    angles than the fit needs there is no best β."""
+    betas = np.arange(0.0, 60.0, 5.0)
+    y = 1.0 - ((betas - 25.0) / 40.0) ** 2
+    se = np.full_like(y, 0.01)
+    beta, beta_se, interior = sweep_job.best_beta(ep.analysis, betas, y, se)
+    assert interior and 0.0 < beta_se < 2.0
+    assert abs(beta - 25.0) < max(3 * beta_se, 0.1)
+    few = slice(0, sweep_job.MIN_FIT_POINTS - 1)
+    assert math.isnan(sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few])[0])

@@ -1,0 +1,254 @@
+# SPDX-License-Identifier: MIT
+"""Colour by any record attribute (no bpy): wavelength as its physical colour,
+categories (fluorescent or not, fluorophore, region) and continuous values
+(depth, energy, scatterings, exit order), with the filters and the legend
+each mapping shows.
+
+The point cloud stores the engine's record columns as named attributes
+(results.POINT_ATTRIBUTES); :func:`colour_records` turns them into one linear
+RGB colour and one "shown" flag per point, which results.py writes back as the
+named attributes ``ep_colour`` and ``ep_show`` with ``foreach_set`` — the way
+Molecular Nodes colours atoms.  Nothing here depends on Blender, so the tests
+recompute every colour independently.
+
+Wavelength colour (:func:`wavelength_linear_srgb`): CIE 1931 2° colour-matching
+functions by the analytic fit of Wyman, Sloan & Shirley (JCGT 2(2), 2013),
+XYZ -> linear sRGB by IEC 61966-2-1 (D65).  A single wavelength lies outside
+the sRGB gamut; the rule here: add white until no channel is negative (keeps
+the hue, loses saturation), then scale so the largest channel is 1 (every
+visible wavelength equally bright, so the hue reads at any intensity), and
+fade linearly to black at the ends of the visible range (420 -> 380 nm, 700 -> 780 nm).
+TODO(colour): call ``endophoton.colour`` (the endoscope-view images' CIE ->
+sRGB) once that module is in the package, so both use one conversion.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# --- wavelength -> colour (the one place this conversion lives) -------------
+# (weight, mean nm, sigma below the mean, sigma above) per lobe; Wyman et al. 2013, eq. 2.
+_CMF_LOBES = {
+    "x": ((1.056, 599.8, 37.9, 31.0), (0.362, 442.0, 16.0, 26.7), (-0.065, 501.1, 20.4, 26.2)),
+    "y": ((0.821, 568.8, 46.9, 40.5), (0.286, 530.9, 16.3, 31.1)),
+    "z": ((1.217, 437.0, 11.8, 36.0), (0.681, 459.0, 26.0, 13.8)),
+}
+# XYZ -> linear sRGB, IEC 61966-2-1 (D65 white).
+_XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986],
+                         [-0.9689, 1.8758, 0.0415],
+                         [0.0557, -0.2040, 1.0570]])
+
+
+def cie_xyz(nm):
+    """CIE 1931 2° colour-matching functions x̄, ȳ, z̄ at ``nm`` (analytic fit): (N, 3)."""
+    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
+    out = np.zeros((len(nm), 3))
+    for j, lobes in enumerate(_CMF_LOBES.values()):
+        for weight, mu, s_lo, s_hi in lobes:
+            sigma = np.where(nm < mu, s_lo, s_hi)
+            out[:, j] += weight * np.exp(-0.5 * ((nm - mu) / sigma) ** 2)
+    return out
+
+
+def wavelength_linear_srgb(nm):
+    """Display colour (linear sRGB in [0, 1]) of monochromatic light at ``nm``: (N, 3).
+
+    Gamut rule in the module docstring: desaturate toward white, normalise the
+    largest channel to 1, fade linearly to black over 420 -> 380 nm and 700 -> 780 nm.
+    """
+    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
+    # Above 650 nm the CIE 1931 chromaticity barely moves (x 0.726 -> 0.735 at
+    # 700 nm), but the fit's single-lobe tails drift green there (ȳ/x̄ doubles by
+    # 700 nm): keep 650 nm's hue, where the fit still matches the table.
+    xyz = cie_xyz(np.minimum(nm, 650.0))
+    rgb = xyz @ _XYZ_TO_SRGB.T
+    rgb -= np.minimum(rgb.min(axis=1, keepdims=True), 0.0)
+    peak = rgb.max(axis=1, keepdims=True)
+    rgb = np.divide(rgb, peak, out=np.zeros_like(rgb), where=peak > 0)
+    fade = np.clip((nm - 380.0) / 40.0, 0.0, 1.0) * np.clip((780.0 - nm) / 80.0, 0.0, 1.0)
+    return rgb * fade[:, None]
+
+
+# Baked once at import: 1 nm steps over the CMFs' domain, interpolated per record.
+TABLE_NM = np.arange(360.0, 831.0)
+TABLE_RGB = wavelength_linear_srgb(TABLE_NM)
+
+
+def wavelength_colours(nm):
+    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
+    return np.stack([np.interp(nm, TABLE_NM, TABLE_RGB[:, j], left=0.0, right=0.0) for j in range(3)], axis=1)
+
+
+# --- other colourings -------------------------------------------------------
+# Viridis at 0, 1/4, 1/2, 3/4, 1 (linear-light values of the published map).
+_RAMP = np.array([[0.0630, 0.0000, 0.0766], [0.0497, 0.0997, 0.2345], [0.0168, 0.2961, 0.2302],
+                  [0.1480, 0.6510, 0.1043], [0.9734, 0.8227, 0.0164]])
+# Distinct categorical colours (linear sRGB).
+PALETTE = np.array([[0.80, 0.80, 0.80], [0.90, 0.05, 0.02], [0.02, 0.35, 0.95], [0.05, 0.75, 0.10],
+                    [0.95, 0.55, 0.00], [0.60, 0.10, 0.80], [0.00, 0.75, 0.75], [0.75, 0.65, 0.05]])
+
+
+def ramp_colours(t):
+    t = np.clip(np.asarray(t, dtype=np.float64).reshape(-1), 0.0, 1.0)
+    x = np.linspace(0.0, 1.0, len(_RAMP))
+    return np.stack([np.interp(t, x, _RAMP[:, j]) for j in range(3)], axis=1)
+
+
+@dataclass(frozen=True)
+class ColourMap:
+    key: str            # the "Colour By" enum value
+    label: str
+    column: str         # point attribute it reads
+    kind: str           # "wavelength", "category" or "continuous"
+    unit: str = ""
+    scale: float = 1.0  # attribute value * scale = value in `unit`
+
+
+COLOUR_MAPS = {m.key: m for m in (
+    ColourMap("WAVELENGTH", "Wavelength", "wavelength", "wavelength", "nm"),
+    ColourMap("FLUORESCENT", "Fluorescent", "fluorescent", "category"),
+    ColourMap("FLUOROPHORE", "Fluorophore", "fluorophore", "category"),
+    ColourMap("REGION", "Region", "region", "category"),
+    ColourMap("DEPTH", "Depth", "depth", "continuous", "mm", 10.0),   # engine reports cm
+    ColourMap("ENERGY", "Energy", "energy", "continuous", "500 nm photons"),
+    ColourMap("SCATTERINGS", "Scatterings", "scatterings", "continuous", "events"),
+    ColourMap("EXIT_ORDER", "Exit Order", "exit_order", "continuous", "rank"),
+)}
+
+
+@dataclass
+class Legend:
+    """What a colour bar shows: title with units, range, and (colour, label) entries."""
+
+    title: str
+    unit: str
+    lo: float = 0.0
+    hi: float = 0.0
+    entries: list = field(default_factory=list)   # [(linear rgb tuple, label)]
+    shown: int = 0
+    total: int = 0
+
+    def header(self):
+        unit = f" [{self.unit}]" if self.unit else ""
+        if self.entries and self.lo == self.hi == 0.0:
+            return f"{self.title}{unit}"
+        return f"{self.title}{unit}: {self.lo:.4g} – {self.hi:.4g}"
+
+    def to_dict(self):
+        return dict(title=self.title, unit=self.unit, lo=float(self.lo), hi=float(self.hi),
+                    entries=[[list(map(float, c)), str(t)] for c, t in self.entries],
+                    shown=int(self.shown), total=int(self.total))
+
+    @classmethod
+    def from_dict(cls, d):
+        return cls(d["title"], d["unit"], d["lo"], d["hi"], [(tuple(c), t) for c, t in d["entries"]],
+                   d.get("shown", 0), d.get("total", 0))
+
+
+@dataclass(frozen=True)
+class Filters:
+    fluorescent_only: bool = False
+    fluorophore: int = -2        # -2 = any; else the engine's fluorophore id
+    region: int = -2             # -2 = any; else the region index
+
+
+def shown_mask(columns, filters, count):
+    show = np.ones(count, dtype=bool)
+    if filters.fluorescent_only and "fluorescent" in columns:
+        show &= np.asarray(columns["fluorescent"]).astype(bool)
+    if filters.fluorophore != -2 and "fluorophore" in columns:
+        show &= np.asarray(columns["fluorophore"]) == filters.fluorophore
+    if filters.region != -2 and "region" in columns:
+        show &= np.asarray(columns["region"]) == filters.region
+    return show
+
+
+def _category_names(cmap, names):
+    if cmap.key == "FLUORESCENT":
+        return {0: "excitation light", 1: "fluorescence"}
+    listed = {i: n for i, n in enumerate(names.get(cmap.column, ()))}
+    if cmap.key == "FLUOROPHORE":
+        listed[-1] = "none"
+    return listed
+
+
+def colour_records(key, columns, filters=Filters(), names=None, count=None):
+    """Colours, shown flags and legend for the records in ``columns``.
+
+    ``columns``: {attribute name: array}; ``names``: {"fluorophore": [...],
+    "region": [...]} for the legend labels.  Returns ``(rgb (N,3) float32,
+    show (N,) bool, Legend)``.  Continuous ranges are those of the shown records.
+    Raises KeyError naming the attribute when the result lacks the column.
+    """
+    cmap = COLOUR_MAPS[key]
+    names = names or {}
+    if cmap.column not in columns:
+        raise KeyError(f"colour_by = '{key}': the result has no '{cmap.column}' attribute")
+    values = np.asarray(columns[cmap.column]).reshape(-1)
+    n = len(values) if count is None else count
+    show = shown_mask(columns, filters, n)
+    legend = Legend(cmap.label, cmap.unit, shown=int(show.sum()), total=n)
+    if cmap.kind == "wavelength":
+        rgb = wavelength_colours(values)
+        lo, hi = _range(values[show])
+        legend.lo, legend.hi = lo, hi
+        ticks = np.linspace(lo, hi, 6) if hi > lo else np.array([lo])
+        legend.entries = [(tuple(c), f"{t:.0f} nm") for c, t in zip(wavelength_colours(ticks), ticks)]
+    elif cmap.kind == "category":
+        codes = values.astype(np.int64)
+        labels = _category_names(cmap, names)
+        # Fluorescent: 0 grey, 1 red; ids (from -1 = none): -1 grey, 0 red, 1 blue, ...
+        slot = (codes if cmap.key == "FLUORESCENT" else codes + 1) % len(PALETTE)
+        rgb = PALETTE[slot]
+        present = sorted(set(codes[show].tolist()))
+        legend.entries = [(tuple(PALETTE[(c if cmap.key == "FLUORESCENT" else c + 1) % len(PALETTE)]),
+                           labels.get(c, f"#{c}")) for c in present]
+    else:
+        scaled = values.astype(np.float64) * cmap.scale
+        lo, hi = _range(scaled[show])
+        rgb = ramp_colours((scaled - lo) / (hi - lo) if hi > lo else np.zeros_like(scaled))
+        legend.lo, legend.hi = lo, hi
+        ticks = np.linspace(lo, hi, 5) if hi > lo else np.array([lo])
+        legend.entries = [(tuple(c), f"{t:.3g}") for c, t in zip(ramp_colours(np.linspace(0, 1, len(ticks))), ticks)]
+    return np.ascontiguousarray(rgb, dtype=np.float32), show, legend
+
+
+def _range(values):
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return 0.0, 0.0
+    return float(values.min()), float(values.max())
+
+
+def legend_figure(legend, path, image=None, title=None):
+    """Write a PNG with the colour bar (and ``image``, an (H, W, 3) display-encoded
+    sRGB render in [0, 1], to its left when given) via matplotlib.  Returns ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    def to_display(rgb):
+        rgb = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
+        return np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * rgb ** (1 / 2.4) - 0.055)
+
+    width = 3.0 + (5.0 if image is not None else 0.0)
+    fig = plt.figure(figsize=(width, 4.0), dpi=100)
+    if image is not None:
+        ax_img = fig.add_axes([0.02, 0.05, 0.6, 0.85])
+        ax_img.imshow(np.clip(image[..., :3], 0.0, 1.0), origin="upper")
+        ax_img.set_axis_off()
+        if title:
+            ax_img.set_title(title, fontsize=9)
+    ax = fig.add_axes([0.66 if image is not None else 0.05, 0.05, 0.3 if image is not None else 0.9, 0.85])
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, max(1, len(legend.entries)))
+    ax.set_axis_off()
+    ax.set_title(legend.header(), fontsize=8)
+    for i, (colour, label) in enumerate(reversed(legend.entries)):
+        ax.add_patch(Rectangle((0.0, i + 0.1), 0.25, 0.8, color=to_display(colour)))
+        ax.text(0.32, i + 0.5, label, va="center", fontsize=8)
+    fig.savefig(path)
+    plt.close(fig)
+    return path

@@ -1,0 +1,214 @@
+# SPDX-License-Identifier: MIT
+"""Checks before a run starts, so a mistake costs a message, not a run.
+
+Every check reads the exported regions (export.RegionExport: metres, world
+space) or plain settings and raises :class:`export.InputError` naming the
+scene or object and the field; none creates a datablock or a file.
+
+- :func:`region_sizes`: each region's extent and wall thickness in mm.  The
+  thickness of a closed surface is estimated as 2·V/A (exact for a thin shell
+  or slab of uniform thickness t: its area counts both faces, A ≈ 2·S, V = S·t).
+- :func:`check_unit_scale`: the thinnest region against the transport mean
+  free path 1/(μa + μs(1 − g)) — a colon modelled in metres but with the unit
+  scale of millimetres is 1000 times too thin, and light goes straight through.
+- :func:`check_overlaps`: regions of equal priority that overlap (a vertex of
+  or face centre of one strictly inside the other) are ambiguous: the engine could not say which
+  medium owns the overlap.  Vertices and face centres of each are tested
+  against the other by ray parity (points on the other's surface are allowed,
+  so touching layers pass).
+- :func:`estimate` / :func:`check_budget`: packets, records, memory and (from
+  the last run's measured rate) time; a fixed packet or store-N run above a
+  threshold is refused unless the scene allows large runs (quality presets run
+  to a target: their packet count is only a cap, so they are not refused).
+- :func:`check_voxels`: the grid's voxel count and a minimum voxel size.
+"""
+
+import math
+import os
+import tempfile
+
+import numpy as np
+
+from .export import InputError
+
+# A region thinner than this many transport mean free paths, or thicker than
+# the upper bound, is almost surely a unit-scale mistake (the paper's colon
+# wall, 3 mm, is 12 transport mean free paths; a 1 m slab is 4000).
+MIN_THICKNESS_MFP = 1.0
+MAX_THICKNESS_MFP = 1e5
+# A run above these asks first (scene setting "Allow Large Runs").
+MAX_RECORDS = 5_000_000
+MAX_PACKETS = 100_000_000
+RECORD_BYTES = 200          # engine record (~100 B) + Blender point attributes (~100 B)
+MAX_VOXELS = 256 ** 3
+MIN_VOXEL_M = 1e-7          # below 0.1 µm OpenVDB's transform becomes singular in float
+
+
+def _volume_area(vertices, triangles):
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0
+    area = float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()) / 2.0
+    return volume, area
+
+
+def region_sizes(regions):
+    """[(name, extent_mm (3,), thickness_mm, transport mfp mm)] of the exported regions."""
+    out = []
+    for r in regions:
+        volume, area = _volume_area(r.vertices, r.triangles)
+        extent = (r.vertices.max(axis=0) - r.vertices.min(axis=0)).astype(np.float64) * 1e3
+        thickness = 2.0 * volume / area * 1e3 if area > 0 else 0.0
+        m = r.medium
+        mu_tr = m["mua"] + m["mus"] * (1.0 - m["g"])      # cm^-1
+        mfp_mm = 10.0 / mu_tr if mu_tr > 0 else math.inf
+        out.append((r.name, extent, thickness, mfp_mm))
+    return out
+
+
+def size_lines(regions):
+    """Human-readable lines for the panel."""
+    lines = []
+    for name, extent, thickness, mfp_mm in region_sizes(regions):
+        ratio = thickness / mfp_mm if math.isfinite(mfp_mm) else math.inf
+        lines.append(f"{name}: {extent[0]:.3g}×{extent[1]:.3g}×{extent[2]:.3g} mm, "
+                     f"thickness ≈ {thickness:.3g} mm = {ratio:.3g} transport mfp")
+    return lines
+
+
+def check_unit_scale(regions, scale_length, who):
+    for name, _extent, thickness, mfp_mm in region_sizes(regions):
+        if not math.isfinite(mfp_mm):
+            continue
+        ratio = thickness / mfp_mm
+        if ratio < MIN_THICKNESS_MFP or ratio > MAX_THICKNESS_MFP:
+            raise InputError(
+                f"{who}: unit_settings.scale_length = {scale_length:g} m per unit makes region '{name}' "
+                f"{thickness:.3g} mm thick, {ratio:.3g} transport mean free paths "
+                f"(1/(μa + μs(1−g)) = {mfp_mm:.3g} mm); expected {MIN_THICKNESS_MFP:g}–{MAX_THICKNESS_MFP:g}. "
+                "Check the scene's Unit Scale (1.0 = metres, 0.001 = millimetres) or tick Allow Unusual Scale")
+
+
+def _inside(bvh, points, eps):
+    """Ray-parity test against a closed BVHTree: True where a point is strictly inside."""
+    from mathutils import Vector
+
+    inside = np.zeros(len(points), dtype=bool)
+    direction = Vector((0.5773, 0.5774, 0.5773))   # off-axis: avoids grazing axis-aligned faces
+    for i, p in enumerate(points):
+        origin = Vector(p)
+        near = bvh.find_nearest(origin)
+        if near[0] is not None and near[3] <= eps:
+            continue   # on the surface: touching is allowed
+        hits, start = 0, origin
+        while True:
+            location, _normal, _index, _dist = bvh.ray_cast(start, direction)
+            if location is None:
+                break
+            hits += 1
+            start = location + direction * eps
+        inside[i] = hits % 2 == 1
+    return inside
+
+
+def check_overlaps(regions, max_points=400):
+    """Raise InputError naming two regions of equal priority that overlap."""
+    from mathutils.bvhtree import BVHTree
+
+    by_priority = {}
+    for r in regions:
+        by_priority.setdefault(r.priority, []).append(r)
+    for priority, group in by_priority.items():
+        for i, a in enumerate(group):
+            for b in group[i + 1:]:
+                lo = np.maximum(a.vertices.min(axis=0), b.vertices.min(axis=0))
+                hi = np.minimum(a.vertices.max(axis=0), b.vertices.max(axis=0))
+                if np.any(lo >= hi):
+                    continue   # bounding boxes apart (or only touching)
+                size = float(np.max(np.maximum(a.vertices.max(axis=0), b.vertices.max(axis=0))
+                                    - np.minimum(a.vertices.min(axis=0), b.vertices.min(axis=0))))
+                eps = 1e-6 * size
+                for inner, outer in ((a, b), (b, a)):
+                    bvh = BVHTree.FromPolygons(outer.vertices.tolist(), outer.triangles.tolist())
+                    v = inner.vertices.astype(np.float64)
+                    samples = np.concatenate([v, v[inner.triangles.astype(np.int64)].mean(axis=1)])
+                    pts = samples[np.all((samples >= lo) & (samples <= hi), axis=1)]
+                    if len(pts) > max_points:
+                        pts = pts[np.linspace(0, len(pts) - 1, max_points).astype(int)]
+                    if len(pts) and _inside(bvh, pts, eps).any():
+                        raise InputError(
+                            f"Objects '{a.name}' and '{b.name}' overlap with the same priority = {priority}; "
+                            "the engine could not tell which medium owns the overlap. Give the one that "
+                            "should win a higher priority (e.g. the polyp above the wall)")
+
+
+def estimate(inputs, last_rate=None):
+    """Packets, records, memory (bytes) and seconds (None without a measured rate) of a run."""
+    packets = inputs.count if inputs.kind in ("photons", "target") else None
+    records = inputs.count   # store N: N records; otherwise one record per packet at most
+    seconds = packets / last_rate if packets and last_rate else None
+    return {"packets": packets, "records": records, "memory_bytes": records * RECORD_BYTES,
+            "seconds": seconds}
+
+
+def estimate_text(est):
+    packets = "open-ended (store N)" if est["packets"] is None else f"≤ {est['packets']:,}"
+    seconds = "unknown until a first run" if est["seconds"] is None else f"≈ {est['seconds']:.0f} s"
+    return (f"packets {packets}, records ≤ {est['records']:,}, memory ≤ "
+            f"{est['memory_bytes'] / 2**20:,.0f} MiB, time {seconds}")
+
+
+def check_budget(inputs, who, last_rate=None):
+    est = estimate(inputs, last_rate)
+    if inputs.kind == "target":
+        return est   # a quality preset: its packet count is a cap, the target usually stops far earlier
+    large = est["records"] > MAX_RECORDS or (est["packets"] or 0) > MAX_PACKETS
+    if large:
+        raise InputError(
+            f"{who}: this run is large: {estimate_text(est)} (limits {MAX_RECORDS:,} records, "
+            f"{MAX_PACKETS:,} packets). Tick Allow Large Runs to run it anyway")
+    return est
+
+
+def check_voxels(regions, voxel_m, who):
+    if voxel_m < MIN_VOXEL_M:
+        raise InputError(f"{who}: simulation.voxel_size = {voxel_m:g} m is below {MIN_VOXEL_M:g} m; "
+                         "check the voxel size and the scene's Unit Scale")
+    lo = np.min([r.vertices.min(axis=0) for r in regions], axis=0).astype(np.float64)
+    hi = np.max([r.vertices.max(axis=0) for r in regions], axis=0).astype(np.float64)
+    voxels = float(np.prod(np.ceil((hi - lo) / voxel_m) + 1))
+    if voxels > MAX_VOXELS:
+        raise InputError(f"{who}: simulation.voxel_size = {voxel_m * 1e3:g} mm gives up to {voxels:.3g} voxels "
+                         f"over the scene's {((hi - lo) * 1e3).round(3).tolist()} mm (limit {MAX_VOXELS:.3g}); "
+                         "choose a larger voxel size")
+
+
+def resolve_folder(raw, field, default_name):
+    """Absolute output folder for a folder field ('' = //default_name next to the
+    saved .blend, else in the temp folder).  Checks it can be created and written;
+    creates nothing.  ``field`` names owner and field for the message."""
+    import bpy
+
+    raw = raw.strip()
+    field = f"{field} = '{raw}'"
+    if not raw:
+        path = bpy.path.abspath("//" + default_name) if bpy.data.filepath else \
+            os.path.join(tempfile.gettempdir(), default_name)
+    else:
+        if raw.startswith("//") and not bpy.data.filepath:
+            raise InputError(f"{field} is relative to the .blend file, which is not saved; "
+                             "save the file or choose an absolute folder")
+        path = bpy.path.abspath(raw)
+    path = os.path.normpath(os.path.abspath(path))
+    existing = path
+    while not os.path.exists(existing):
+        parent = os.path.dirname(existing)
+        if parent == existing:
+            break
+        existing = parent
+    if not os.path.isdir(existing):
+        raise InputError(f"{field}: '{existing}' is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"{field}: '{existing}' is not writable")
+    return path

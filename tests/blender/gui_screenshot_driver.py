@@ -1,0 +1,157 @@
+# SPDX-License-Identifier: MIT
+"""Screenshots of each EndoPhoton panel in a real (windowed) Blender; run by
+test_screenshots.py under Xvfb:
+
+    xvfb-run -a blender --factory-startup BLEND --python tests/blender/gui_screenshot_driver.py \
+        -- OUT_DIR GRID_DIR ENGINE_FOLDER
+
+After a small run (so Results has a legend), the sidebar is opened on the
+EndoPhoton tab and, for each sub-panel, only the main panel and that one are
+registered; the 3D view is captured with screen.screenshot_area and cropped to
+the sidebar.  Everything runs in bpy.app.timers callbacks (Blender's own event
+loop) so the UI has drawn before each capture.  OUT_DIR/screenshots.json lists
+the files."""
+
+import json
+import os
+import sys
+
+import bpy
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon"))
+OUT_DIR, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1:][:3]
+PANELS = ("ENDOPHOTON_PT_object", "ENDOPHOTON_PT_endoscope", "ENDOPHOTON_PT_simulation",
+          "ENDOPHOTON_PT_results", "ENDOPHOTON_PT_sweep")
+state = {"step": 0, "shots": [], "ticks": 0}
+
+
+def view3d():
+    window = bpy.context.window_manager.windows[0]
+    area = max((a for a in window.screen.areas if a.type == "VIEW_3D"), key=lambda a: a.width * a.height)
+    return window, area
+
+
+def only_panel(name):
+    from endophoton_addon import panels
+
+    for cls in panels.CLASSES:
+        if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" \
+                and cls.is_registered:
+            bpy.utils.unregister_class(cls)
+    cls = next(c for c in panels.CLASSES if c.__name__ == name)
+    cls.bl_options = set()   # open, even the Sweep β panel that starts closed
+    bpy.utils.register_class(cls)
+
+
+def hide_other_sidebar_tabs():
+    """Unregister the 3D view's other Python sidebar panels (this Blender process
+    only): "Item" (native) and "EndoPhoton" are the only tabs left, so the
+    EndoPhoton tab sits at a known place.  Blender's own modules complain when
+    they unregister these at quit; that noise is expected."""
+    def subclasses(cls):
+        for sub in cls.__subclasses__():
+            yield sub
+            yield from subclasses(sub)
+
+    for cls in list(subclasses(bpy.types.Panel)):
+        if getattr(cls, "bl_space_type", "") == "VIEW_3D" and getattr(cls, "bl_region_type", "") == "UI" \
+                and getattr(cls, "bl_category", "") != "EndoPhoton" and cls.is_registered:
+            bpy.utils.unregister_class(cls)
+
+
+
+def restore_panels():
+    from endophoton_addon import panels
+
+    for cls in panels.CLASSES:
+        if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" \
+                and cls.is_registered:
+            bpy.utils.unregister_class(cls)
+    for cls in panels.CLASSES:
+        if not cls.is_registered:
+            bpy.utils.register_class(cls)
+
+
+
+def capture(name):
+    import numpy as np
+
+    window, area = view3d()
+    path = os.path.join(OUT_DIR, f"panel_{name}.png")
+    with bpy.context.temp_override(window=window, area=area):
+        bpy.ops.screen.screenshot_area(filepath=path)
+    ui = next(r for r in area.regions if r.type == "UI")
+    image = bpy.data.images.load(path)
+    w, h = image.size
+    px = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(px)
+    bpy.data.images.remove(image)
+    px = px.reshape(h, w, 4)
+    x0 = max(0, ui.x - area.x)
+    crop = px[:, x0:x0 + ui.width]
+    out = bpy.data.images.new(f"crop {name}", crop.shape[1], crop.shape[0], alpha=True)
+    out.pixels.foreach_set(np.ascontiguousarray(crop).ravel())
+    out.filepath_raw = path
+    out.file_format = "PNG"
+    out.save()
+    state["shots"].append({"panel": name, "file": path, "size": [int(crop.shape[1]), int(crop.shape[0])],
+                           "std": float(crop[..., :3].std())})
+
+
+def tick():
+    state["ticks"] += 1
+    step = state["step"]
+    if step == 0:
+        s = bpy.context.scene.endophoton
+        s.quality, s.photons, s.grid_dir, s.output_grids = "CUSTOM", 5_000, GRID_DIR, False
+        bpy.ops.endophoton.run_simulation()
+        s.color_by, s.filter_fluorescent = "WAVELENGTH", True
+        bpy.ops.endophoton.check_scene()
+        polyp = bpy.data.objects["Polyp"]
+        bpy.context.view_layer.objects.active = polyp
+        window, area = view3d()
+        space = area.spaces.active
+        space.show_region_ui = True
+        hide_other_sidebar_tabs()
+        state["step"] = -1
+        return 1.0
+    if step in (-1, -2):
+        # Blender 3.4 has no API for the sidebar's tab: click the EndoPhoton tab
+        # (below "Item", the one native tab left) on the region's right edge;
+        # move first, click on the next tick.
+        window, area = view3d()
+        ui = next(r for r in area.regions if r.type == "UI")
+        x, y = area.x + area.width - 9, area.y + area.height - 140
+        if step == -1:
+            window.event_simulate(type="MOUSEMOVE", value="NOTHING", x=x, y=y)
+            state["step"] = -2
+            return 0.5
+        window.event_simulate(type="LEFTMOUSE", value="PRESS", x=x, y=y)
+        window.event_simulate(type="LEFTMOUSE", value="RELEASE", x=x, y=y)
+        state["step"] = 1
+        return 1.0
+    index = (step - 1) // 2
+    if index >= len(PANELS):
+        with open(os.path.join(OUT_DIR, "screenshots.json"), "w") as f:
+            json.dump(state["shots"], f, indent=1)
+        restore_panels()   # the add-on unregisters cleanly on quit
+        bpy.ops.wm.quit_blender()
+        return None
+    if (step - 1) % 2 == 0:
+        only_panel(PANELS[index])
+        for window in bpy.context.window_manager.windows:
+            for area in window.screen.areas:
+                area.tag_redraw()
+    else:
+        capture(PANELS[index])
+    state["step"] += 1
+    return 0.7
+
+
+import addon_utils  # noqa: E402
+
+addon_utils.enable("endophoton_addon", default_set=True)
+bpy.context.preferences.addons["endophoton_addon"].preferences.package_path = ENGINE_FOLDER
+os.makedirs(OUT_DIR, exist_ok=True)
+bpy.app.timers.register(tick, first_interval=1.0)
