@@ -58,6 +58,7 @@ POINT_ATTRIBUTES = (
 )
 COLOUR_ATTR = "ep_colour"   # linear RGB of the chosen mapping (colour_maps.colour_records)
 SHOW_ATTR = "ep_show"       # False = hidden by the filters (Mesh to Points' selection)
+STRENGTH_ATTR = "ep_strength"  # emission strength: the record's weight over the shown records' mean
 NAMES_KEY = "endophoton_names"    # on the points object: {"fluorophore": [...], "region": [...]}
 LEGEND_KEY = "endophoton_legend"  # on the points object: colour_maps.Legend.to_dict()
 
@@ -183,13 +184,25 @@ def _attribute_material(name, run_id, attribute_name):
 
 
 def _points_material(name, run_id):
-    """Emission coloured by the point attribute ``ep_colour`` (written by :func:`recolour`)."""
+    """Emission coloured by the point attribute ``ep_colour`` and as bright as the
+    record's weight (``ep_strength``, written by :func:`recolour`): a packet that
+    landed on tissue across the lumen and left again carries little weight and
+    glows accordingly, as the light it stands for does."""
     mat, nodes, links, out, colour = _attribute_material(name, run_id, COLOUR_ATTR)
+    strength = nodes.new("ShaderNodeAttribute")
+    strength.attribute_type = "GEOMETRY"
+    strength.attribute_name = STRENGTH_ATTR
+    strength.location = (-400, -200)
+    scale = nodes.new("ShaderNodeMath")
+    scale.operation = "MULTIPLY"
+    scale.inputs[1].default_value = 1.0
+    scale.location = (-150, -200)
     emit = nodes.new("ShaderNodeEmission")
     emit.name = emit.label = EMISSION_NODE
-    emit.inputs["Strength"].default_value = 2.0
     emit.location = (100, 0)
     links.new(colour.outputs["Color"], emit.inputs["Color"])
+    links.new(strength.outputs["Fac"], scale.inputs[0])
+    links.new(scale.outputs["Value"], emit.inputs["Strength"])
     links.new(emit.outputs["Emission"], out.inputs["Surface"])
     return mat
 
@@ -238,6 +251,19 @@ def point_names(obj):
     return {k: list(v) for k, v in (names.to_dict() if hasattr(names, "to_dict") else dict(names)).items()}
 
 
+def emission_strength(weight, show, count):
+    """Per-point emission strength: weight / mean weight of the shown points
+    (1 where the weight column is missing or no shown point has weight)."""
+    if weight is None or len(weight) != count:
+        return np.ones(count, dtype=np.float32)
+    w = np.asarray(weight, dtype=np.float64)
+    shown = w[np.asarray(show, dtype=bool)] if count else w
+    mean = shown.mean() if shown.size else 0.0
+    if not (mean > 0 and np.isfinite(mean)):
+        return np.ones(count, dtype=np.float32)
+    return (w / mean).astype(np.float32)
+
+
 def recolour(obj, settings):
     """Write ``ep_colour`` / ``ep_show`` of a points object for the scene's
     Colour By and filters; store and return its legend (colour_maps.Legend)."""
@@ -253,6 +279,7 @@ def recolour(obj, settings):
     rgba[:, :3] = rgb
     _set_attribute(mesh, COLOUR_ATTR, "FLOAT_COLOR", rgba)
     _set_attribute(mesh, SHOW_ATTR, "BOOLEAN", show)
+    _set_attribute(mesh, STRENGTH_ATTR, "FLOAT", emission_strength(columns.get("weight"), show, len(rgb)))
     mesh.update()
     obj[LEGEND_KEY] = legend.to_dict()
     obj.update_tag()
