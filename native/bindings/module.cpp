@@ -18,6 +18,7 @@
 #include "scene.h"
 #include "source.h"
 #include "spectrum.h"
+#include "run_binding.h"
 
 namespace py = pybind11;
 using namespace ep;
@@ -37,10 +38,6 @@ std::shared_ptr<const Tabulated1D> table_or_null(const py::object& obj, const st
     auto tup = obj.cast<std::pair<std::vector<double>, std::vector<double>>>();
     return std::make_shared<Tabulated1D>(tup.first, tup.second, field);
 }
-
-struct CancelToken {
-    std::atomic<bool> flag{false};
-};
 
 py::dict estimates_dict(const RunResult& r, const Scene& scene) {
     py::dict d;
@@ -86,6 +83,69 @@ py::dict records_dict(EscapeRecords&& rec) {
 }
 
 }  // namespace
+
+RunConfig ep::run_config_from_options(const py::dict& opts) {
+    RunConfig c;
+    for (auto item : opts) {
+        const std::string k = item.first.cast<std::string>();
+        py::handle v = item.second;
+        if (k == "photons") c.photons = v.cast<uint64_t>();
+        else if (k == "store") c.store = v.cast<uint64_t>();
+        else if (k == "fluorescent_only") c.fluorescent_only = v.cast<bool>();
+        else if (k == "record_escapes") c.record_escapes = v.cast<bool>();
+        else if (k == "max_records") c.max_records = v.cast<uint64_t>();
+        else if (k == "seed") c.seed = v.cast<uint64_t>();
+        else if (k == "threads") c.threads = v.cast<int>();
+        else if (k == "roulette_threshold") c.roulette_threshold = v.cast<double>();
+        else if (k == "roulette_chance") c.roulette_chance = v.cast<double>();
+        else if (k == "max_steps") c.max_steps = v.cast<uint64_t>();
+        else if (k == "max_path_cm") c.max_path_cm = v.cast<double>();
+        else if (k == "fluorescence_rule") {
+            const std::string r = v.cast<std::string>();
+            if (r == "paper") c.rule = FluorescenceRule::kPaper;
+            else if (r == "eem") c.rule = FluorescenceRule::kEEM;
+            else throw std::invalid_argument("fluorescence_rule = '" + r + "' must be 'paper' or 'eem'");
+        } else if (k == "force_spectral") c.force_spectral = v.cast<bool>();
+        else if (k == "grid_voxel_size") c.grid_voxel_size = v.cast<double>();
+        else if (k == "grid_per_fluorophore") c.grid_per_fluorophore = v.cast<bool>();
+        else if (k == "grid_path") c.grid_path = v.cast<std::string>();
+        else if (k == "target_tally") {
+            const std::string name = v.cast<std::string>();
+            c.target_tally = -1;
+            for (int i = 0; i < kScalarTallies; ++i)
+                if (name == tally_name(i)) c.target_tally = i;
+            if (c.target_tally < 0) throw std::invalid_argument("target tally '" + name + "' is not a tally name");
+        } else if (k == "target_rel_error") c.target_rel_error = v.cast<double>();
+        else if (k == "time_budget_s") c.time_budget_s = v.cast<double>();
+        else if (k == "max_photons") c.max_photons = v.cast<uint64_t>();
+        else if (k == "unit_size") c.unit_size = v.cast<uint64_t>();
+        else if (k == "batches") c.batches = v.cast<int>();
+        else if (k == "safe_distance") c.safe_distance = v.cast<bool>();
+        else throw std::invalid_argument("run option '" + k + "' is unknown");
+    }
+    return c;
+}
+
+py::dict ep::run_result_dict(RunResult& r, const Scene& scene, const RunConfig& c) {
+    py::dict d = estimates_dict(r, scene);
+    d["photons"] = r.packets;
+    d["packets_traced"] = r.packets_traced;
+    d["cancelled"] = r.cancelled;
+    d["target_reached"] = r.target_reached;
+    d["store_reached"] = r.store_reached;
+    d["stop_reason"] = r.stop_reason;
+    d["seconds"] = r.seconds;
+    d["spectral"] = r.spectral;
+    d["unit_size"] = r.unit_size;
+    d["threads"] = r.threads;
+    d["grid_path"] = r.grid_path.empty() ? py::object(py::none()) : py::object(py::str(r.grid_path));
+    d["grid_names"] = r.grid_names;
+    d["grid_absorbed_sum"] = r.grid_absorbed_sum;
+    d["record_bytes"] = r.peak_record_bytes;
+    if (c.record_escapes) d["escapes"] = records_dict(std::move(r.records));
+    else d["escapes"] = py::none();
+    return d;
+}
 
 PYBIND11_MODULE(_core, m) {
     m.doc() = "EndoPhoton native engine (thin binding; use the endophoton package API)";
@@ -199,44 +259,7 @@ PYBIND11_MODULE(_core, m) {
         "run",
         [](std::shared_ptr<Scene> scene, std::shared_ptr<Source> source, const py::dict& opts, py::object progress,
            std::shared_ptr<CancelToken> cancel) {
-            RunConfig c;
-            for (auto item : opts) {
-                const std::string k = item.first.cast<std::string>();
-                py::handle v = item.second;
-                if (k == "photons") c.photons = v.cast<uint64_t>();
-                else if (k == "store") c.store = v.cast<uint64_t>();
-                else if (k == "fluorescent_only") c.fluorescent_only = v.cast<bool>();
-                else if (k == "record_escapes") c.record_escapes = v.cast<bool>();
-                else if (k == "max_records") c.max_records = v.cast<uint64_t>();
-                else if (k == "seed") c.seed = v.cast<uint64_t>();
-                else if (k == "threads") c.threads = v.cast<int>();
-                else if (k == "roulette_threshold") c.roulette_threshold = v.cast<double>();
-                else if (k == "roulette_chance") c.roulette_chance = v.cast<double>();
-                else if (k == "max_steps") c.max_steps = v.cast<uint64_t>();
-                else if (k == "max_path_cm") c.max_path_cm = v.cast<double>();
-                else if (k == "fluorescence_rule") {
-                    const std::string r = v.cast<std::string>();
-                    if (r == "paper") c.rule = FluorescenceRule::kPaper;
-                    else if (r == "eem") c.rule = FluorescenceRule::kEEM;
-                    else throw std::invalid_argument("fluorescence_rule = '" + r + "' must be 'paper' or 'eem'");
-                } else if (k == "force_spectral") c.force_spectral = v.cast<bool>();
-                else if (k == "grid_voxel_size") c.grid_voxel_size = v.cast<double>();
-                else if (k == "grid_per_fluorophore") c.grid_per_fluorophore = v.cast<bool>();
-                else if (k == "grid_path") c.grid_path = v.cast<std::string>();
-                else if (k == "target_tally") {
-                    const std::string name = v.cast<std::string>();
-                    c.target_tally = -1;
-                    for (int i = 0; i < kScalarTallies; ++i)
-                        if (name == tally_name(i)) c.target_tally = i;
-                    if (c.target_tally < 0) throw std::invalid_argument("target tally '" + name + "' is not a tally name");
-                } else if (k == "target_rel_error") c.target_rel_error = v.cast<double>();
-                else if (k == "time_budget_s") c.time_budget_s = v.cast<double>();
-                else if (k == "max_photons") c.max_photons = v.cast<uint64_t>();
-                else if (k == "unit_size") c.unit_size = v.cast<uint64_t>();
-                else if (k == "batches") c.batches = v.cast<int>();
-                else if (k == "safe_distance") c.safe_distance = v.cast<bool>();
-                else throw std::invalid_argument("run option '" + k + "' is unknown");
-            }
+            const RunConfig c = run_config_from_options(opts);
             std::atomic<bool>* flag = cancel ? &cancel->flag : nullptr;
             ProgressFn fn;
             std::string py_error;
@@ -258,27 +281,11 @@ PYBIND11_MODULE(_core, m) {
                 r = ep::run(*scene, *source, c, fn, flag);
             }
             if (!py_error.empty()) throw std::runtime_error("progress callback raised: " + py_error);
-            py::dict d = estimates_dict(r, *scene);
-            d["photons"] = r.packets;
-            d["packets_traced"] = r.packets_traced;
-            d["cancelled"] = r.cancelled;
-            d["target_reached"] = r.target_reached;
-            d["store_reached"] = r.store_reached;
-            d["stop_reason"] = r.stop_reason;
-            d["seconds"] = r.seconds;
-            d["spectral"] = r.spectral;
-            d["unit_size"] = r.unit_size;
-            d["threads"] = r.threads;
-            d["grid_path"] = r.grid_path.empty() ? py::object(py::none()) : py::object(py::str(r.grid_path));
-            d["grid_names"] = r.grid_names;
-            d["grid_absorbed_sum"] = r.grid_absorbed_sum;
-            d["record_bytes"] = r.peak_record_bytes;
-            if (c.record_escapes) d["escapes"] = records_dict(std::move(r.records));
-            else d["escapes"] = py::none();
-            return d;
+            return run_result_dict(r, *scene, c);
         },
         py::arg("scene"), py::arg("source"), py::arg("options"), py::arg("progress") = py::none(),
         py::arg("cancel") = nullptr);
+    register_distributed(m);
 
     m.def(
         "sample_hg_cos",
