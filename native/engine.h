@@ -6,6 +6,7 @@
 #include <atomic>
 #include <functional>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -16,6 +17,42 @@
 #include "tally.h"
 
 namespace ep {
+
+// Why a run stopped. Every mode ends with one of these; the name is what the
+// Python result's `stop_reason` says.
+enum class StopReason {
+    kNone,        // still running
+    kPhotons,     // fixed count reached
+    kStore,       // "store N": N escape records stored
+    kStoreZero,   // "store N": no record at all after kZeroUnits units (the request is impossible)
+    kTarget,      // target accuracy reached
+    kTargetZero,  // target tally still exactly 0 after kZeroUnits units (relative error undefined)
+    kTime,        // time budget used up
+    kMaxPhotons,  // packet cap of a store/target run reached
+    kCancelled,   // cancel token, progress callback or signal
+};
+const char* stop_reason_name(StopReason r);
+
+// The stop rule of store and target runs, checked after every merged unit.
+// It never looks at the clock itself: the caller passes the elapsed time, so
+// the rule is a pure function of the merged units (testable without timing).
+class StopRule {
+  public:
+    static constexpr size_t kMinTargetUnits = 20;   // units before a target can be met
+    static constexpr size_t kZeroUnits = 1000;      // units before "store_zero" / "target_zero"
+    StopRule(const RunConfig& cfg, uint64_t n_units_max);
+    // `unit` was just merged as unit number `units_merged` - 1; `records` are
+    // stored so far. Returns kNone to go on.
+    StopReason after_merge(const UnitTally& unit, size_t units_merged, uint64_t records, double elapsed_s);
+
+  private:
+    const RunConfig& cfg_;
+    uint64_t n_units_max_;
+    // Prefix sums of the target tally over merged units: the target test is
+    // then O(batches) per unit instead of O(units).
+    std::vector<uint64_t> prefix_n_{0};
+    std::vector<double> prefix_sum_{0.0};
+};
 
 struct RunResult {
     uint64_t packets = 0;         // packets whose tallies are included
@@ -29,7 +66,9 @@ struct RunResult {
     bool target_reached = false;
     bool spectral = false;
     bool store_reached = false;
-    std::string stop_reason;      // "photons", "store", "target", "time", "max_photons", "cancelled"
+    StopReason stop = StopReason::kNone;
+    uint64_t capped_packets = 0;  // packets that ended at the step or path cap (their weight is `cut`)
+    std::vector<std::string> warnings;  // conditions a reader of the result must know about
     double seconds = 0;
     std::string grid_path;
     std::vector<std::string> grid_names;
@@ -41,7 +80,8 @@ struct RunResult {
 
 // progress(done_packets, total_packets_or_0) is called on the calling thread
 // about every 100 ms; returning false cancels the run. `cancel` may be set from
-// any thread. Both may be empty/null.
+// any thread. Both may be empty/null. The scene and the source are checked
+// against float32 ray-tracing limits (scale_check.h) before any ray is cast.
 using ProgressFn = std::function<bool(uint64_t, uint64_t)>;
 
 RunResult run(const Scene& scene, const Source& source, const RunConfig& config, const ProgressFn& progress,
@@ -60,8 +100,13 @@ struct UnitPlan {
     uint64_t limit = 0;        // packet index bound
     uint64_t n_units_max = 0;  // units a run may use at most
 };
-// Validates `config` (std::invalid_argument naming the field) and plans its units.
-UnitPlan plan_units(const RunConfig& config);
+// The configuration a run really uses: validated (std::invalid_argument naming
+// the field), scale-checked, with the event cap of pathological scenes applied
+// (its warning appended to `warnings` if not null).
+RunConfig prepare_config(const Scene& scene, const Source& source, const RunConfig& config,
+                         std::vector<std::string>* warnings);
+// Cuts a prepared request into units.
+UnitPlan plan_units(const RunConfig& prepared);
 
 struct UnitOutput;
 struct UnitBatch;
@@ -72,10 +117,10 @@ UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig&
                       uint64_t count, std::atomic<bool>* cancel);
 
 // Merges finished units strictly in unit order, applies the stop rule after
-// each, and ends the run (estimates, grid file). Not thread-safe.
+// each (UnitMerger), and ends the run (estimates, grid file). Not thread-safe.
 class UnitReducer {
   public:
-    UnitReducer(const Scene& scene, const RunConfig& config);
+    UnitReducer(const Scene& scene, const Source& source, const RunConfig& config);
     ~UnitReducer();
     // Takes unit `index`; it is merged once every unit before it is. Returns
     // true once the run must stop; later units are then discarded, exactly as
@@ -85,6 +130,7 @@ class UnitReducer {
     uint64_t merged_units() const;
     uint64_t records() const;
     const UnitPlan& plan() const;
+    const RunConfig& config() const;  // prepared
     // Ends the run. A run its stop rule did not end is marked cancelled.
     RunResult finish(int threads);
 

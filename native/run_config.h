@@ -34,11 +34,26 @@ struct RunConfig {
     int batches = 50;             // batches for the batch-means standard errors
     // Use the closest-surface distance to skip ray queries deep inside regions.
     bool safe_distance = true;
+    // Test hook: cancel right after this many units are merged (0 = never), so
+    // a cancelled partial result can be tested without depending on timing.
+    uint64_t test_cancel_after_units = 0;
 };
+
+// Largest packet count any request may name (photons, store, max_photons):
+// unit arithmetic (index + unit size) then cannot wrap around 2^64.
+constexpr uint64_t kMaxPacketRequest = uint64_t(1) << 62;
 
 // Hard ceiling on events per packet whatever the user cap: a packet trapped by
 // total internal reflection in a non-absorbing region would otherwise loop
-// forever. Weight removed here is tallied as `cut`.
+// forever. Weight removed here is tallied as `cut`; the run counts the packets
+// that were cut and warns.
 constexpr uint64_t kSafetyMaxEvents = 10000000;
+
+// A region more than this many mean free paths across (mus x largest side)
+// cannot be followed by diffusion (~(mus L)^2 events per packet): the run then
+// caps packets at kPathologicalMaxEvents events unless the user set max_steps,
+// so its cost stays bounded, and says so in the result's warnings.
+constexpr double kPathologicalOpticalSize = 1e9;
+constexpr uint64_t kPathologicalMaxEvents = 100000;
 
 }  // namespace ep

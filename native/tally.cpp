@@ -1,5 +1,6 @@
 #include "tally.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace ep {
@@ -19,22 +20,46 @@ const char* energy_tally_name(int i) {
     return names[i];
 }
 
-Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums, int batches) {
+void UnitTally::record_packet() {
+    if (scalar[kCut] != 0) ++capped_packets;
+    for (int k = 0; k < kScalarTallies; ++k) {
+        scalar_m[k].add_packet(scalar[k]);
+        scalar[k] = 0;
+    }
+    for (int k = 0; k < kEnergyTallies; ++k) {
+        energy_m[k].add_packet(energy[k]);
+        energy[k] = 0;
+    }
+    for (size_t k = 0; k < absorbed_by_region.size(); ++k) {
+        absorbed_by_region_m[k].add_packet(absorbed_by_region[k]);
+        absorbed_by_region[k] = 0;
+    }
+}
+
+double per_packet_stderr(uint64_t n, double sum, double sum_sq) {
+    if (n == 0) return 0;
+    const double dn = double(n);
+    if (n == 1) return std::sqrt(sum_sq);
+    // Sample variance s^2 = (sum_sq - sum^2 / n) / (n - 1); rounding can make
+    // the difference slightly negative for a constant tally.
+    const double var = std::max(0.0, (sum_sq - sum * sum / dn) / (dn - 1));
+    return std::sqrt(var / dn);
+}
+
+Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums,
+                             const std::vector<double>& sum_sq, int batches) {
     Estimate e;
     uint64_t total = 0;
-    double total_sum = 0;
+    double total_sum = 0, total_sq = 0;
     for (size_t i = 0; i < packets.size(); ++i) {
         total += packets[i];
         total_sum += sums[i];
+        if (!sum_sq.empty()) total_sq += sum_sq[i];
     }
     if (total == 0) return e;
     e.mean = total_sum / double(total);
     const size_t K = packets.size();
     const size_t B = std::min<size_t>(K, size_t(std::max(batches, 2)));
-    if (B < 2) {
-        e.stderr_ = std::nan("");
-        return e;
-    }
     // Contiguous groups: unit i goes to batch floor(i * B / K).
     std::vector<double> bsum(B, 0.0);
     std::vector<uint64_t> bn(B, 0);
@@ -53,7 +78,10 @@ Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::ve
         acc += w * w * (xb - e.mean) * (xb - e.mean);
         ++used;
     }
-    e.stderr_ = used >= 2 ? std::sqrt(acc * double(used) / double(used - 1)) : std::nan("");
+    if (used >= 2)
+        e.stderr_ = std::sqrt(acc * double(used) / double(used - 1));
+    else if (!sum_sq.empty())
+        e.stderr_ = per_packet_stderr(total, total_sum, total_sq);
     return e;
 }
 
@@ -69,7 +97,7 @@ Estimate batch_estimate_prefix(const std::vector<uint64_t>& prefix_n, const std:
         bn[b] = prefix_n[hi] - prefix_n[lo];
         bs[b] = prefix_sum[hi] - prefix_sum[lo];
     }
-    return batch_estimate_impl(bn, bs, batches);
+    return batch_estimate_impl(bn, bs, {}, batches);
 }
 
 }  // namespace ep

@@ -37,32 +37,61 @@ enum EnergyIndex : int {
 };
 const char* energy_tally_name(int i);
 
-struct UnitTally {
-    uint64_t packets = 0;
-    double scalar[kScalarTallies] = {};
-    double energy[kEnergyTallies] = {};
-    std::vector<double> absorbed_by_region;
-    void reset(size_t regions) {
-        packets = 0;
-        for (double& s : scalar) s = 0;
-        for (double& e : energy) e = 0;
-        absorbed_by_region.assign(regions, 0.0);
+// Sum of one tally over a unit's packets and the sum of the squares of each
+// packet's contribution: the second gives the per-packet variance, the only
+// standard error a run of fewer than two batches has.
+struct Moments {
+    double sum = 0, sum_sq = 0;
+    void add_packet(double w) {
+        sum += w;
+        sum_sq += w * w;
     }
 };
 
-// Mean per launched packet and its batch-means standard error.
+struct UnitTally {
+    uint64_t packets = 0;
+    uint64_t capped_packets = 0;  // packets that ended at the step or path cap
+    // Running sums the tracer adds to during a packet; record_packet() moves
+    // each packet's contribution into the moments.
+    double scalar[kScalarTallies] = {};
+    double energy[kEnergyTallies] = {};
+    std::vector<double> absorbed_by_region;
+    Moments scalar_m[kScalarTallies];
+    Moments energy_m[kEnergyTallies];
+    std::vector<Moments> absorbed_by_region_m;
+    void reset(size_t regions) {
+        *this = UnitTally{};
+        absorbed_by_region.assign(regions, 0.0);
+        absorbed_by_region_m.assign(regions, Moments{});
+    }
+    // Ends one packet: its contribution (the running sums) goes to the moments,
+    // and the running sums are cleared for the next packet.
+    void record_packet();
+};
+
+// Mean per launched packet and its standard error.
 struct Estimate {
     double mean = 0, stderr_ = 0;
 };
 
 // Groups consecutive units into at most `batches` batches of (nearly) equal
 // packet counts and returns mean and standard error of sum/packets for the
-// value picked by `value(unit)`.
+// moments picked by `value(unit)`. The standard error comes from batch means
+// when there are at least two non-empty batches, else from the per-packet
+// variance (always finite).
 template <class F>
 Estimate batch_estimate(const std::vector<UnitTally>& units, int batches, F value);
 
-// Implementation.
-Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums, int batches);
+// Implementation. `sum_sq` (per-packet squares, summed per unit) may be empty
+// when only batch means are wanted (the stop rule, which waits for 20 units);
+// then fewer than two batches give a standard error of 0.
+Estimate batch_estimate_impl(const std::vector<uint64_t>& packets, const std::vector<double>& sums,
+                             const std::vector<double>& sum_sq, int batches);
+
+// Standard error of the mean of n packets from the per-packet moments:
+// sqrt(sample variance / n); with one packet, sqrt(sum_sq) (the variance is
+// bounded by the second moment), so the value is finite and conservative.
+double per_packet_stderr(uint64_t n, double sum, double sum_sq);
 
 // The same estimate from prefix sums over units (prefix_n[0] = prefix_sum[0] = 0,
 // K + 1 entries): O(batches) per call, for stop rules checked after every unit.
@@ -72,12 +101,14 @@ Estimate batch_estimate_prefix(const std::vector<uint64_t>& prefix_n, const std:
 template <class F>
 Estimate batch_estimate(const std::vector<UnitTally>& units, int batches, F value) {
     std::vector<uint64_t> packets(units.size());
-    std::vector<double> sums(units.size());
+    std::vector<double> sums(units.size()), sum_sq(units.size());
     for (size_t i = 0; i < units.size(); ++i) {
+        const Moments& m = value(units[i]);
         packets[i] = units[i].packets;
-        sums[i] = value(units[i]);
+        sums[i] = m.sum;
+        sum_sq[i] = m.sum_sq;
     }
-    return batch_estimate_impl(packets, sums, batches);
+    return batch_estimate_impl(packets, sums, sum_sq, batches);
 }
 
 }  // namespace ep

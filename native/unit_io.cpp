@@ -121,9 +121,13 @@ std::string pack_units(const UnitBatch& batch) {
         w.put(u->first_packet);
         const UnitTally& t = u->tally;
         w.put(t.packets);
+        w.put(t.capped_packets);
         w.put(t.scalar);
         w.put(t.energy);
         w.put_vec(t.absorbed_by_region);
+        w.put(t.scalar_m);
+        w.put(t.energy_m);
+        w.put_vec(t.absorbed_by_region_m);
         for_each_column(u->records, [&](const auto& col) { w.put_vec(col); });
         const bool grids = bool(u->absorbed_grid);
         w.put(uint8_t(grids));
@@ -149,9 +153,13 @@ UnitBatch unpack_units(const std::string& bytes, double voxel_size) {
         u->first_packet = r.get<uint64_t>();
         UnitTally& t = u->tally;
         t.packets = r.get<uint64_t>();
+        t.capped_packets = r.get<uint64_t>();
         r.get_into(t.scalar);
         r.get_into(t.energy);
         r.get_vec(t.absorbed_by_region);
+        r.get_into(t.scalar_m);
+        r.get_into(t.energy_m);
+        r.get_vec(t.absorbed_by_region_m);
         for_each_column(u->records, [&](auto& col) { r.get_vec(col); });
         const size_t nrec = u->records.weight.size();
         for_each_column(u->records, [&](const auto& col) {

@@ -22,13 +22,14 @@ namespace {
 // Keeps the scene alive as long as the reducer that refers to it.
 struct PyUnitReducer {
     std::shared_ptr<Scene> scene;
+    std::shared_ptr<Source> source;
     RunConfig config;
     std::unique_ptr<UnitReducer> reducer;
     bool finished = false;
 
-    PyUnitReducer(std::shared_ptr<Scene> s, const py::dict& opts)
-        : scene(std::move(s)), config(run_config_from_options(opts)),
-          reducer(std::make_unique<UnitReducer>(*scene, config)) {}
+    PyUnitReducer(std::shared_ptr<Scene> sc, std::shared_ptr<Source> so, const py::dict& opts)
+        : scene(std::move(sc)), source(std::move(so)), config(run_config_from_options(opts)),
+          reducer(std::make_unique<UnitReducer>(*scene, *source, config)) {}
     UnitReducer& live() {
         if (finished) throw std::invalid_argument("UnitReducer: the run is already finished");
         return *reducer;
@@ -40,11 +41,12 @@ struct PyUnitReducer {
 void register_distributed(py::module_& m) {
     m.def(
         "unit_plan",
-        [](const py::dict& opts) {
-            const UnitPlan p = plan_units(run_config_from_options(opts));
+        [](std::shared_ptr<Scene> scene, std::shared_ptr<Source> source, const py::dict& opts) {
+            const UnitPlan p = plan_units(prepare_config(*scene, *source, run_config_from_options(opts), nullptr));
             return py::make_tuple(p.unit_size, p.n_units_max);
         },
-        py::arg("options"), "(unit_size, n_units_max) of a request; validates it like run().");
+        py::arg("scene"), py::arg("source"), py::arg("options"),
+        "(unit_size, n_units_max) of a request; validates it like run().");
 
     m.def(
         "trace_units",
@@ -62,7 +64,8 @@ void register_distributed(py::module_& m) {
         "Traces units first_unit .. first_unit+count-1 (GIL released); returns them as bytes for UnitReducer.add.");
 
     py::class_<PyUnitReducer>(m, "UnitReducer")
-        .def(py::init<std::shared_ptr<Scene>, const py::dict&>(), py::arg("scene"), py::arg("options"))
+        .def(py::init<std::shared_ptr<Scene>, std::shared_ptr<Source>, const py::dict&>(), py::arg("scene"),
+             py::arg("source"), py::arg("options"))
         .def(
             "add",
             [](PyUnitReducer& r, const py::bytes& data) {

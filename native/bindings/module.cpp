@@ -121,6 +121,7 @@ RunConfig ep::run_config_from_options(const py::dict& opts) {
         else if (k == "unit_size") c.unit_size = v.cast<uint64_t>();
         else if (k == "batches") c.batches = v.cast<int>();
         else if (k == "safe_distance") c.safe_distance = v.cast<bool>();
+        else if (k == "test_cancel_after_units") c.test_cancel_after_units = v.cast<uint64_t>();
         else throw std::invalid_argument("run option '" + k + "' is unknown");
     }
     return c;
@@ -133,7 +134,9 @@ py::dict ep::run_result_dict(RunResult& r, const Scene& scene, const RunConfig& 
     d["cancelled"] = r.cancelled;
     d["target_reached"] = r.target_reached;
     d["store_reached"] = r.store_reached;
-    d["stop_reason"] = r.stop_reason;
+    d["stop_reason"] = stop_reason_name(r.stop);
+    d["capped_packets"] = r.capped_packets;
+    d["warnings"] = r.warnings;
     d["seconds"] = r.seconds;
     d["spectral"] = r.spectral;
     d["unit_size"] = r.unit_size;
@@ -151,6 +154,8 @@ PYBIND11_MODULE(_core, m) {
     m.doc() = "EndoPhoton native engine (thin binding; use the endophoton package API)";
     m.attr("__version__") = engine_version();
     py::register_exception<std::invalid_argument>(m, "InvalidArgument", PyExc_ValueError);
+    m.attr("MAX_REGIONS") = int(Scene::kMaxRegions);
+    m.attr("MAX_PACKET_REQUEST") = kMaxPacketRequest;
 
     py::class_<CancelToken, std::shared_ptr<CancelToken>>(m, "CancelToken")
         .def(py::init<>())
@@ -261,26 +266,29 @@ PYBIND11_MODULE(_core, m) {
            std::shared_ptr<CancelToken> cancel) {
             const RunConfig c = run_config_from_options(opts);
             std::atomic<bool>* flag = cancel ? &cancel->flag : nullptr;
-            ProgressFn fn;
-            std::string py_error;
-            if (!progress.is_none()) {
-                fn = [&](uint64_t done, uint64_t total) {
-                    py::gil_scoped_acquire gil;
-                    try {
-                        py::object r = progress(done, total);
-                        return r.is_none() || r.cast<bool>();
-                    } catch (py::error_already_set& e) {
-                        py_error = e.what();
-                        return false;
-                    }
-                };
-            }
+            // Every watcher tick also runs Python's signal handlers, so Ctrl-C
+            // (or a handler that cancels) stops the run within ~0.1 s.
+            std::unique_ptr<py::error_already_set> py_error;
+            ProgressFn fn = [&](uint64_t done, uint64_t total) {
+                py::gil_scoped_acquire gil;
+                try {
+                    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+                    if (progress.is_none()) return true;
+                    py::object r = progress(done, total);
+                    return r.is_none() || r.cast<bool>();
+                } catch (py::error_already_set& e) {
+                    py_error = std::make_unique<py::error_already_set>(std::move(e));
+                    return false;
+                }
+            };
             RunResult r;
             {
                 py::gil_scoped_release release;
                 r = ep::run(*scene, *source, c, fn, flag);
             }
-            if (!py_error.empty()) throw std::runtime_error("progress callback raised: " + py_error);
+            // A KeyboardInterrupt (or an error of the callback) is re-raised once
+            // the workers have stopped; a cancelled run writes no grid file.
+            if (py_error) throw std::move(*py_error);
             return run_result_dict(r, *scene, c);
         },
         py::arg("scene"), py::arg("source"), py::arg("options"), py::arg("progress") = py::none(),

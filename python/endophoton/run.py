@@ -56,6 +56,7 @@ class Result:
     from batch means over consecutive blocks of packets."""
 
     def __init__(self, raw: dict, scene: Scene, source, options: dict):
+        _require_finite(raw)
         self._raw = raw
         self.scene = scene
         self.source = source
@@ -79,9 +80,6 @@ class Result:
         out = {k: v for k, v in self._raw.items() if k != "escapes"}
         out["unit"] = self.scene.unit
         out["escape_records"] = 0 if self.escapes is None else int(len(self.escapes["weight"]))
-        for k, v in list(out.items()):
-            if isinstance(v, float) and not math.isfinite(v):
-                out[k] = None
         return out
 
     def __repr__(self):
@@ -89,6 +87,18 @@ class Result:
         for k in FRACTIONS[:4]:
             parts.append(f"{k}={getattr(self, k):.6f}±{getattr(self, k + '_stderr'):.6f}")
         return "Result(" + ", ".join(parts) + ")"
+
+
+def _require_finite(raw: dict, path: str = "result") -> None:
+    """Every number of a result, nested ones included, is finite (no NaN ever reaches a
+    result): an engine bug is reported here, naming the field, rather than passed on."""
+    for k, v in raw.items():
+        if k == "escapes":
+            continue
+        if isinstance(v, dict):
+            _require_finite(v, f"{path}.{k}")
+        elif isinstance(v, float) and not math.isfinite(v):
+            raise RuntimeError(f"{path}.{k} = {v!r} is not finite (engine bug: please report)")
 
 
 def run(scene: Scene, source, photons: int | None = None, *, store: int | None = None, seed: int = 1,

@@ -125,8 +125,13 @@ def assert_no_nan(res):
     """No NaN / inf in any numeric output, including the escape records."""
     for k in BALANCE_KEYS:
         assert math.isfinite(_get(res, k)) and math.isfinite(_get(res, k + "_stderr")), k
-    for name, v in _get(res, "absorbed_by_region").items():
-        assert math.isfinite(v), f"absorbed_by_region[{name}] = {v}"
+    for field in ("absorbed_by_region", "absorbed_by_region_stderr"):
+        for name, v in _get(res, field).items():
+            assert math.isfinite(v), f"{field}[{name}] = {v}"
+    summary = res if isinstance(res, dict) else res.to_dict()
+    for k, v in summary.items():
+        if isinstance(v, float):
+            assert math.isfinite(v), f"{k} = {v}"
     esc = _get(res, "escapes")
     if esc:
         for key, arr in esc.items():

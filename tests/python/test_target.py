@@ -121,9 +121,8 @@ def test_time_budget_stops_the_run():
     assert r.stop_reason == "time" and r.target_reached is False
     assert r.photons > 0 and rel(r, "diffuse_reflectance") > 1e-7
     assert r.seconds >= budget
-    # Generous upper bound: the machine is shared; the rule is checked after every unit
-    # of 1024 packets (~ms each), so a run far past the budget means the budget is ignored.
-    assert r.seconds < budget + 20.0
+    # No upper bound on the time here (it would depend on load): that the rule stops at the
+    # first unit merged after the budget is tested with a fake clock in tests/cpp (StopRule).
     assert_energy_conserved(r)
 
 
