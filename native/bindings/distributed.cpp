@@ -71,11 +71,14 @@ void register_distributed(py::module_& m) {
             [](PyUnitReducer& r, const py::bytes& data) {
                 UnitReducer& red = r.live();
                 std::string s = data;
-                py::gil_scoped_release release;
-                UnitBatch b = unpack_units(s, r.config.grid_voxel_size);
-                const uint64_t n = b.units.size();
-                for (uint64_t i = 0; i < n; ++i)
-                    if (red.add(b.first_unit + i, std::move(b.units[i]))) break;
+                uint64_t n = 0;
+                {
+                    py::gil_scoped_release release;
+                    UnitBatch b = unpack_units(s, r.config.grid_voxel_size);
+                    n = b.units.size();
+                    for (uint64_t i = 0; i < n; ++i)
+                        if (red.add(b.first_unit + i, std::move(b.units[i]))) break;
+                }
                 return py::make_tuple(red.stopped(), n);
             },
             py::arg("batch"), "Takes trace_units bytes; returns (stopped, units in the batch).")
