@@ -42,7 +42,11 @@ def _run_main(args) -> int:
         photons = None
     if args.time_budget is not None:
         kwargs["time_budget_s"] = args.time_budget
-    res = run(scene, source, photons=photons, record_escapes=False, **kwargs)
+    if args.scheduler is not None:  # the same result, traced on a Dask cluster
+        from .distributed import run_on_scheduler
+        res = run_on_scheduler(args.scheduler, scene, source, photons=photons, record_escapes=False, **kwargs)
+    else:
+        res = run(scene, source, photons=photons, record_escapes=False, **kwargs)
     out = res.to_dict()
     print(json.dumps(out, indent=None, sort_keys=True, allow_nan=False))
     return 0
@@ -64,6 +68,9 @@ def main(argv=None) -> int:
     p_run.add_argument("--quality", choices=("preview", "standard", "reference"), default=None,
                        help="run to a preset accuracy: 5 %%, 1 %% or 0.2 %% relative error on the diffuse reflectance")
     p_run.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds")
+    p_run.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="trace on a Dask cluster: tcp://host:port, or local:N for N local worker processes "
+                            "(docs/distributed.md); the result is bit-identical to a local run")
     p_run.set_defaults(func=_run_main)
     try:
         from .beta_sweep import add_sweep_arguments, sweep_main

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import sys
 import time
 import uuid
 from collections import OrderedDict
@@ -151,7 +152,7 @@ def connect(address: str, timeout_s: float = 10.0):
             raise ValueError(f"scheduler = {address!r}: N in local:N must be a positive integer")
         package_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         path = os.pathsep.join(p for p in (package_parent, os.environ.get("PYTHONPATH", "")) if p)
-        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=None,
+        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=":0",
                                env={"PYTHONPATH": path})
         try:
             with Client(cluster) as client:
@@ -167,3 +168,18 @@ def connect(address: str, timeout_s: float = 10.0):
         yield client
     finally:
         client.close()
+
+
+def run_on_scheduler(address: str, scene, source, **kwargs):
+    """``endophoton.run(scene, source, **kwargs)`` on the cluster at ``address``
+    (see connect), with a tqdm progress bar on stderr."""
+    from tqdm import tqdm
+
+    from .run import run as run_local
+
+    with connect(address) as client, tqdm(unit="packet", unit_scale=True, file=sys.stderr,
+                                          disable=None, desc="endophoton") as bar:
+        def progress(done, total):
+            bar.total = total or None
+            bar.update(done - bar.n)
+        return run_local(scene, source, client=client, progress=progress, **kwargs)
