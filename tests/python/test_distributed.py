@@ -174,3 +174,20 @@ def test_unreachable_scheduler_exits_2_naming_the_address():
 def test_bad_local_worker_count_exits_2():
     out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "local:zero")
     assert out.returncode == 2 and "local:zero" in out.stderr
+
+
+def test_sweep_on_two_workers_matches_the_local_sweep_csv(client, tmp_path):
+    import csv
+
+    scene, _ = fluorescent_endoscope()
+    kw = dict(betas=[0, 30], store=400, seed=3, progress=False, plots=False, report=False)
+    ep.sweep(scene, out_dir=tmp_path / "dist", run_kwargs={"client": client, "chunk_units": 1}, **kw)
+    ep.sweep(scene, out_dir=tmp_path / "local", threads=1, **kw)
+
+    def rows(d):
+        with open(tmp_path / d / "sweep.csv", newline="") as fh:
+            return [{k: v for k, v in r.items() if k != "seconds"} for r in csv.DictReader(fh)]
+
+    dist, local = rows("dist"), rows("local")
+    assert len(dist) == 2 and dist == local  # every column but the wall-clock seconds, as text
+    assert all(int(r["cancelled"]) == 0 for r in dist)
