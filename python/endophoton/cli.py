@@ -44,7 +44,7 @@ def _run_main(args) -> int:
         kwargs["time_budget_s"] = args.time_budget
     if args.scheduler is not None:  # the same result, traced on a Dask cluster
         from .distributed import run_on_scheduler
-        res = run_on_scheduler(args.scheduler, scene, source, photons=photons, record_escapes=False, **kwargs)
+        res = run_on_scheduler(args.scheduler, run, scene, source, photons=photons, record_escapes=False, **kwargs)
     else:
         res = run(scene, source, photons=photons, record_escapes=False, **kwargs)
     out = res.to_dict()

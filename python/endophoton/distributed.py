@@ -170,16 +170,15 @@ def connect(address: str, timeout_s: float = 10.0):
         client.close()
 
 
-def run_on_scheduler(address: str, scene, source, **kwargs):
-    """``endophoton.run(scene, source, **kwargs)`` on the cluster at ``address``
-    (see connect), with a tqdm progress bar on stderr."""
+def run_on_scheduler(address: str, run_fn, scene, source, **kwargs):
+    """``run_fn(scene, source, client=..., **kwargs)`` (endophoton.run, passed in
+    so that this module does not import the one that imports it) on the cluster
+    at ``address`` (see connect), with a tqdm progress bar on stderr."""
     from tqdm import tqdm
-
-    from .run import run as run_local
 
     with connect(address) as client, tqdm(unit="packet", unit_scale=True, file=sys.stderr,
                                           disable=None, desc="endophoton") as bar:
         def progress(done, total):
             bar.total = total or None
             bar.update(done - bar.n)
-        return run_local(scene, source, client=client, progress=progress, **kwargs)
+        return run_fn(scene, source, client=client, progress=progress, **kwargs)
