@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "transport.h"
+#include "voxel_grid.h"  // UnitOutput owns accumulators
 
 namespace ep {
 
