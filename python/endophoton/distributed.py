@@ -27,7 +27,6 @@ import contextlib
 import math
 import os
 import sys
-import time
 import uuid
 from collections import OrderedDict
 
@@ -77,6 +76,19 @@ def default_chunk_units(n_units: int, unit_size: int, fixed: bool, threads: int)
     return max(1, OPEN_CHUNK_PACKETS // unit_size)
 
 
+def _wait_unless_cancelled(future, cancel) -> bool:
+    """Blocks until ``future`` is done (True) or ``cancel`` is set (False)."""
+    from distributed import wait
+
+    while not (cancel is not None and cancel.cancelled):
+        try:
+            wait(future, timeout=0.1)
+            return True
+        except TimeoutError:
+            pass
+    return False
+
+
 def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=None, cancel=None) -> dict:
     """Run the request ``options`` (as endophoton.run builds it) on ``client``'s
     workers; returns the engine's raw result dict (what ``_core.run`` returns)."""
@@ -108,11 +120,7 @@ def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=
                     min(chunk, n_units - first), key=f"endophoton-units-{run_id}-{first}", pure=False)
                 next_submit += 1
             fut = futures[next_merge]
-            while not fut.done():
-                if cancel is not None and cancel.cancelled:
-                    break
-                time.sleep(0.02)
-            if cancel is not None and cancel.cancelled:
+            if not _wait_unless_cancelled(fut, cancel):
                 break
             version, data = fut.result()
             if version != _core.__version__:
