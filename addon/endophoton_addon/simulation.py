@@ -8,6 +8,8 @@ returns the engine's Result.  The modal operator (operators.py), the blocking
 ``execute`` path and the tests all drive the same :class:`SimulationJob`.
 """
 
+import contextlib
+import importlib
 import inspect
 import math
 import os
@@ -21,7 +23,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import engine, export, presets, rig
+from . import engine, export, preferences, presets, rig
 from .export import InputError
 
 _ACTIVE_JOBS = set()
@@ -312,6 +314,7 @@ class SimulationJob(BackgroundJob):
         self.ep = ep
         self.inputs = inputs
         self.engine_scene, self.engine_rig, self.run_kwargs = build_engine_call(ep, inputs)
+        self.scheduler = preferences.scheduler_address()  # read here: the worker thread has no bpy
         self.token = ep.CancelToken()
         self.result = None
         self.error = None
@@ -347,10 +350,14 @@ class SimulationJob(BackgroundJob):
         try:
             if self.inputs.grid_path:
                 os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
-            self.result = self.ep.run(
-                self.engine_scene, self.engine_rig,
-                progress=self._on_progress, cancel=self.token, **self.run_kwargs,
-            )
+            with contextlib.ExitStack() as stack:
+                kwargs = dict(self.run_kwargs)
+                if self.scheduler:  # trace on the Dask cluster; cancel stops its tasks
+                    connect = importlib.import_module(self.ep.__name__ + ".distributed").connect
+                    kwargs["client"] = stack.enter_context(connect(self.scheduler))
+                self.result = self.ep.run(
+                    self.engine_scene, self.engine_rig, progress=self._on_progress, cancel=self.token, **kwargs,
+                )
             grid_path = getattr(self.result, "grid_path", None)
             if grid_path and not getattr(self.result, "cancelled", False):
                 self.grid_info = read_grid_info(grid_path)
