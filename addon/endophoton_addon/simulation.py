@@ -352,9 +352,9 @@ class SimulationJob(BackgroundJob):
                 os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
             with contextlib.ExitStack() as stack:
                 kwargs = dict(self.run_kwargs)
-                if self.scheduler:  # trace on the Dask cluster; cancel stops its tasks
-                    connect = importlib.import_module(self.ep.__name__ + ".distributed").connect
-                    kwargs["client"] = stack.enter_context(connect(self.scheduler))
+                client = cluster_client(stack, self.ep, self.scheduler)
+                if client is not None:  # trace on the Dask cluster; cancel stops its tasks
+                    kwargs["client"] = client
                 self.result = self.ep.run(
                     self.engine_scene, self.engine_rig, progress=self._on_progress, cancel=self.token, **kwargs,
                 )
@@ -367,6 +367,15 @@ class SimulationJob(BackgroundJob):
         finally:
             untrack_job(self)
             self._finished.set()
+
+
+def cluster_client(stack, ep, address):
+    """A Dask client for the preferences' scheduler ``address`` (worker thread),
+    closed by ``stack``; None when the address is empty (run locally)."""
+    if not address:
+        return None
+    connect = importlib.import_module(ep.__name__ + ".distributed").connect
+    return stack.enter_context(connect(address))
 
 
 def read_grid_info(path):
