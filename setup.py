@@ -44,6 +44,9 @@ class BuildPyWithData(build_py):
         for name in os.listdir(src):
             if name.endswith(".csv"):
                 shutil.copy2(os.path.join(src, name), dst)
+        # The SCENE.json schema the loader enforces (endophoton.scene_schema).
+        shutil.copy2(os.path.join(ROOT, "docs", "scene.schema.json"),
+                     os.path.join(self.build_lib, "endophoton", "data", "scene.schema.json"))
 
 
 setup(ext_modules=[CMakeExtension("endophoton._core")],

@@ -1,5 +1,6 @@
 #include "engine.h"
 
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <memory>
@@ -271,15 +272,15 @@ std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, u
 }
 
 // Traces the packets of unit `u` (local threads and trace_units alike).
-// `tick(k)` is called every 256 packets with the index about to be traced;
-// returning false abandons the unit (nullptr).
+// `tick(k)` is called before every packet with its index; returning false
+// abandons the unit (nullptr).
 template <class Tick>
 std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg,
                                        const UnitPlan& plan, uint64_t u, Tick&& tick) {
     auto out = new_unit(scene, cfg, plan.unit_size, u);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     for (uint64_t k = first; k < end; ++k) {
-        if ((k & 255) == 0 && !tick(k)) return nullptr;
+        if (!tick(k)) return nullptr;
         tracer.trace(k, *out);
         out->tally.record_packet();
     }
@@ -298,9 +299,13 @@ void worker(RunState& st) {
             uint64_t counted = first;
             auto out = trace_unit(tracer, st.scene, st.cfg, UnitPlan{st.unit_size, st.limit, st.n_units_max}, u,
                                   [&](uint64_t k) {
-                                      if (st.cancelled() || st.stop.load()) return false;
-                                      st.done_packets.fetch_add(k - counted);  // progress every 256 packets
-                                      counted = k;
+                                      // Cancel is checked before every packet (two relaxed loads), so a
+                                      // Ctrl-C lands within one packet even when packets are slow.
+                                      if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
+                                      if ((k & 255) == 0) {
+                                          st.done_packets.fetch_add(k - counted);  // progress every 256 packets
+                                          counted = k;
+                                      }
                                       return true;
                                   });
             if (!out) return;
@@ -322,6 +327,8 @@ void run_workers(RunState& st, int threads, uint64_t total, const ProgressFn& pr
     std::vector<std::thread> pool;
     for (int t = 0; t < threads; ++t) {
         try {
+            if (st.cfg.test_fail_thread > 0 && t + 1 >= st.cfg.test_fail_thread)
+                throw std::system_error(EAGAIN, std::generic_category(), "Resource temporarily unavailable");
             active.fetch_add(1);
             pool.emplace_back([&st, &active]() {
                 worker(st);
@@ -386,7 +393,7 @@ UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig&
     const Halton halton(cfg.seed);
     Tracer tracer(scene, source, halton, cfg);
     for (uint64_t u = first_unit; u < first_unit + count; ++u) {
-        auto out = trace_unit(tracer, scene, cfg, plan, u, [&](uint64_t) { return !(cancel && cancel->load()); });
+        auto out = trace_unit(tracer, scene, cfg, plan, u, [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); });
         if (!out) break;
         batch.units.push_back(std::move(out));
     }
@@ -439,6 +446,9 @@ RunResult UnitReducer::finish(int threads) {
     result.packets_traced = cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
     const Scene& scene = impl_->scene;
     result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+    if (result.packets == 0)
+        result.warnings.push_back("no work unit finished before the run stopped: the result holds no estimate "
+                                  "(every fraction and its stderr is 0, photons = 0)");
     if (result.capped_packets > 0)
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");

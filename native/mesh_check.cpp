@@ -1,6 +1,7 @@
 #include "mesh_check.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <sstream>
@@ -27,6 +28,87 @@ struct PosHash {
 
 [[noreturn]] void fail(const std::string& owner, const std::string& what) {
     throw std::invalid_argument(owner + ": " + what);
+}
+
+using P3 = std::array<double, 3>;
+
+double orient3d(const P3& a, const P3& b, const P3& c, const P3& d) {
+    const double ab[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    const double ac[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    const double ad[3] = {d[0] - a[0], d[1] - a[1], d[2] - a[2]};
+    return ab[0] * (ac[1] * ad[2] - ac[2] * ad[1]) - ab[1] * (ac[0] * ad[2] - ac[2] * ad[0]) +
+           ab[2] * (ac[0] * ad[1] - ac[1] * ad[0]);
+}
+
+// True if segment pq crosses triangle abc: p and q strictly on opposite sides
+// of its plane and the line through the closed triangle (on an edge counts).
+// Touching (a vertex on a face, coplanar contact) does not count, so meshes
+// that only touch themselves are not rejected.
+bool segment_pierces(const P3& p, const P3& q, const P3& a, const P3& b, const P3& c) {
+    const double sp = orient3d(a, b, c, p), sq = orient3d(a, b, c, q);
+    if (!((sp > 0 && sq < 0) || (sp < 0 && sq > 0))) return false;
+    const double s1 = orient3d(p, q, a, b), s2 = orient3d(p, q, b, c), s3 = orient3d(p, q, c, a);
+    if (s1 == 0 && s2 == 0 && s3 == 0) return false;
+    return (s1 >= 0 && s2 >= 0 && s3 >= 0) || (s1 <= 0 && s2 <= 0 && s3 <= 0);
+}
+
+// Two triangles without a shared (welded) vertex intersect if an edge of one
+// pierces the other. Broad phase: sweep over the triangles' intervals along
+// the longest axis.
+void check_self_intersection(const std::string& owner, const float* v, const uint32_t* tri, size_t nt,
+                             const std::vector<uint32_t>& canon) {
+    struct Box {
+        double lo[3], hi[3];
+        uint32_t idx[3];
+        size_t t;
+    };
+    std::vector<Box> boxes(nt);
+    for (size_t t = 0; t < nt; ++t) {
+        Box& b = boxes[t];
+        b.t = t;
+        for (int k = 0; k < 3; ++k) b.idx[k] = canon[tri[3 * t + k]];
+        for (int a = 0; a < 3; ++a) {
+            b.lo[a] = b.hi[a] = v[3 * size_t(b.idx[0]) + a];
+            for (int k = 1; k < 3; ++k) {
+                b.lo[a] = std::min(b.lo[a], double(v[3 * size_t(b.idx[k]) + a]));
+                b.hi[a] = std::max(b.hi[a], double(v[3 * size_t(b.idx[k]) + a]));
+            }
+        }
+    }
+    // Sweep along the mesh's longest axis: a long tube (a colon) then meets
+    // only its neighbouring rings in the sweep window.
+    double ext[3] = {0, 0, 0};
+    for (int a = 0; a < 3; ++a) {
+        double lo = INFINITY, hi = -INFINITY;
+        for (const Box& b : boxes) lo = std::min(lo, b.lo[a]), hi = std::max(hi, b.hi[a]);
+        ext[a] = hi - lo;
+    }
+    const int ax = ext[0] >= ext[1] && ext[0] >= ext[2] ? 0 : (ext[1] >= ext[2] ? 1 : 2);
+    const int o1 = (ax + 1) % 3, o2 = (ax + 2) % 3;
+    std::sort(boxes.begin(), boxes.end(), [ax](const Box& a, const Box& b) { return a.lo[ax] < b.lo[ax]; });
+    auto point = [&](uint32_t i) { return P3{v[3 * size_t(i)], v[3 * size_t(i) + 1], v[3 * size_t(i) + 2]}; };
+    auto pierces = [&](const Box& e, const Box& f) {
+        const P3 a = point(f.idx[0]), b = point(f.idx[1]), c = point(f.idx[2]);
+        for (int k = 0; k < 3; ++k)
+            if (segment_pierces(point(e.idx[k]), point(e.idx[(k + 1) % 3]), a, b, c)) return true;
+        return false;
+    };
+    for (size_t i = 0; i < nt; ++i) {
+        const Box& A = boxes[i];
+        for (size_t j = i + 1; j < nt && boxes[j].lo[ax] <= A.hi[ax]; ++j) {
+            const Box& B = boxes[j];
+            if (B.lo[o1] > A.hi[o1] || A.lo[o1] > B.hi[o1] || B.lo[o2] > A.hi[o2] || A.lo[o2] > B.hi[o2]) continue;
+            bool shared = false;
+            for (uint32_t x : A.idx)
+                for (uint32_t y : B.idx) shared = shared || x == y;
+            if (shared) continue;
+            if (pierces(A, B) || pierces(B, A)) {
+                const size_t t1 = std::min(A.t, B.t), t2 = std::max(A.t, B.t);
+                fail(owner, "mesh intersects itself: mesh.triangles[" + std::to_string(t1) + "] and mesh.triangles[" +
+                                std::to_string(t2) + "] cross (split overlapping parts into separate regions)");
+            }
+        }
+    }
 }
 
 }  // namespace
@@ -132,6 +214,7 @@ MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const
            << " must be > 0 (flip the triangle winding / recalculate normals outside)";
         fail(owner, os.str());
     }
+    check_self_intersection(owner, v, tri, nt, canon);
     return rep;
 }
 

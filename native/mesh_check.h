@@ -18,6 +18,9 @@ struct MeshReport {
 // Throws std::invalid_argument naming `owner`, the field and the offending value.
 // Vertices that share an exact position are welded before the topology checks,
 // so meshes exported with split vertices (OBJ/STL style) are accepted.
+// A mesh whose triangles cross each other (say two overlapping cubes in one
+// mesh) is rejected: "inside" would count both. Triangles that share a vertex
+// and contacts that only touch are not tested (docs/numerics.md).
 MeshReport check_mesh(const std::string& owner, const float* vertices, size_t n_vertices,
                       const uint32_t* triangles, size_t n_triangles);
 

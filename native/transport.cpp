@@ -127,7 +127,7 @@ void Tracer::trace_impl(uint64_t index, UnitOutput& out) {
         const Float energy = W * energy_per_weight;
         tally[kEscapedEnergy] += energy;
         if (fluorescent) tally[kFluorescentEscaped] += W;
-        if (cfg_.record_escapes && (!cfg_.fluorescent_only || fluorescent)) {
+        if (cfg_.record_escapes && W > 0 && (!cfg_.fluorescent_only || fluorescent)) {  // no zero-weight records
             EscapeRecord r;
             r.position = p;
             r.direction = d;

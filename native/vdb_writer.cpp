@@ -4,6 +4,9 @@
 #include <openvdb/openvdb.h>
 
 #include <fcntl.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -11,6 +14,7 @@
 #include <cfloat>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <mutex>
 #include <set>
 #include <sstream>
@@ -146,6 +150,40 @@ void sync_file(const std::string& tmp, const std::string& path) {
     ::close(fd);
 }
 
+// The likely cause of a failed write when the stream did not leave errno set:
+// found from the filesystem and the process limits.
+std::string likely_cause(const std::string& tmp) {
+    struct statvfs fs;
+    if (::statvfs(tmp.c_str(), &fs) == 0 && uint64_t(fs.f_bavail) * uint64_t(fs.f_frsize) < (uint64_t(1) << 20))
+        return std::strerror(ENOSPC);
+    struct rlimit lim;
+    struct stat st;
+    if (::getrlimit(RLIMIT_FSIZE, &lim) == 0 && lim.rlim_cur != RLIM_INFINITY && ::stat(tmp.c_str(), &st) == 0 &&
+        uint64_t(st.st_size) >= uint64_t(lim.rlim_cur))
+        return std::string(std::strerror(EFBIG)) + " (the process file-size limit, ulimit -f)";
+    return "the data did not reach the disk";
+}
+
+// openvdb::io::File::write streams into an std::ofstream it never checks, so a
+// full disk or a file-size limit would leave a short file reported as written.
+// This archive writes the same (seekable) format into a stream we own, and
+// every failure of that stream is an error naming the cause.
+class CheckedArchive : public openvdb::io::Archive {
+  public:
+    void write_checked(const std::string& tmp, const std::string& path, const openvdb::GridCPtrVec& grids,
+                       const openvdb::MetaMap& meta) const {
+        std::ofstream os(tmp, std::ios_base::out | std::ios_base::binary | std::ios_base::trunc);
+        if (!os) throw path_error(path, "cannot open the temporary file '" + tmp + "': " + std::strerror(errno));
+        errno = 0;
+        Archive::write(os, grids, /*seekable=*/true, meta);
+        os.flush();
+        const int err = errno;
+        if (!os) throw path_error(path, "write failed: " + (err ? std::string(std::strerror(err)) : likely_cause(tmp)));
+        os.close();
+        if (os.fail()) throw path_error(path, "write failed on close: " + likely_cause(tmp));
+    }
+};
+
 }  // namespace
 
 void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
@@ -163,9 +201,7 @@ void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
 
     const std::string tmp = create_temp_file(path);
     try {
-        openvdb::io::File file(tmp);
-        file.write(out, file_meta);
-        file.close();
+        CheckedArchive().write_checked(tmp, path, out, file_meta);
         sync_file(tmp, path);
     } catch (const openvdb::Exception& e) {
         std::remove(tmp.c_str());

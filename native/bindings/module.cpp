@@ -122,6 +122,7 @@ RunConfig ep::run_config_from_options(const py::dict& opts) {
         else if (k == "batches") c.batches = v.cast<int>();
         else if (k == "safe_distance") c.safe_distance = v.cast<bool>();
         else if (k == "test_cancel_after_units") c.test_cancel_after_units = v.cast<uint64_t>();
+        else if (k == "test_fail_thread") c.test_fail_thread = v.cast<int>();
         else throw std::invalid_argument("run option '" + k + "' is unknown");
     }
     return c;

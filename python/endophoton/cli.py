@@ -1,39 +1,100 @@
-"""Command line: ``python3 -m endophoton run SCENE.json`` and ``... sweep``."""
+"""Command line: ``python3 -m endophoton run SCENE.json`` and ``... sweep``.
+
+Exit status: 0 success; 2 bad input (the message names the field and the value);
+1 a failure of the run itself (e.g. a grid file that could not be written);
+130 interrupted (Ctrl-C: the partial result, marked ``cancelled``, is printed; no grid).
+Every subcommand runs through :func:`run_guarded`, which maps errors to these codes.
+"""
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
+import signal
 import sys
+
+#: Errors of the input: exit 2 with the message (which names the field and value).
+INPUT_ERRORS = (ValueError, OSError, RecursionError, UnicodeError, OverflowError)
+EXIT_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED = 2, 1, 130
+
+
+def run_guarded(func, args) -> int:
+    """Run a subcommand: bad input -> exit 2, a failed run -> exit 1, Ctrl-C -> 130; never a
+    traceback for either. Other exceptions are bugs and keep their traceback."""
+    try:
+        return int(func(args) or 0)
+    except KeyboardInterrupt:
+        print("endophoton: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except RecursionError:
+        print("endophoton: error: input nested too deeply", file=sys.stderr)
+        return EXIT_INPUT
+    except INPUT_ERRORS as e:
+        print(f"endophoton: error: {e}", file=sys.stderr)
+        return EXIT_INPUT
+    except RuntimeError as e:
+        print(f"endophoton: error: {e}", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+def int_arg(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi] (argparse names the option in its error)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{text} must be in [{lo}, {hi}]")
+        return v
+    return parse
+
+
+def real_arg(lo: float, hi: float = math.inf, lo_open: bool = False):
+    """argparse type: a finite number in [lo, hi] (or (lo, hi])."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not math.isfinite(v) or not (lo < v if lo_open else lo <= v) or v > hi:
+            raise argparse.ArgumentTypeError(f"{text} must be a finite number {'>' if lo_open else '>='} {lo}")
+        return v
+    return parse
+
+
+def _load_scene_file(path: str) -> dict:
+    with open(path, "r", encoding="utf-8") as fh:
+        try:
+            return json.load(fh)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"scene file {path!r}: not JSON: {e}") from None
+        except RecursionError:
+            raise ValueError(f"scene file {path!r}: nested too deeply to be a SCENE.json") from None
 
 
 def _run_main(args) -> int:
-    from .scene import Scene
-    from .sources import source_from_dict
-    from .run import run
     import os
 
-    with open(args.scene, "r", encoding="utf-8") as fh:
-        data = json.load(fh)
+    from .run import Target, run
+    from .scene import Scene
+    from .sources import source_from_dict
+
+    data = _load_scene_file(args.scene)
     scene = Scene.from_dict(data, base_dir=os.path.dirname(os.path.abspath(args.scene)))
     if "source" not in data:
         raise ValueError("scene: missing key 'source'")
     source = source_from_dict(data["source"])
-    defaults = data.get("run", {})
-    if not isinstance(defaults, dict):
-        raise ValueError(f"scene.run = {defaults!r} must be an object")
-    allowed = {"photons", "seed", "threads", "roulette_threshold", "roulette_chance", "max_steps", "max_path_cm"}
-    for k in defaults:
-        if k not in allowed:
-            raise ValueError(f"scene.run: unknown key {k!r} (allowed: {', '.join(sorted(allowed))})")
-    photons = args.photons if args.photons is not None else int(defaults.get("photons", 100000))
-    kwargs = {k: v for k, v in defaults.items() if k != "photons"}
+    defaults = dict(data.get("run", {}))
+    photons = args.photons if args.photons is not None else defaults.pop("photons", 100000)
+    defaults.pop("photons", None)
+    kwargs = dict(defaults)
     if args.seed is not None:
         kwargs["seed"] = args.seed
     if args.threads is not None:
         kwargs["threads"] = args.threads
     if args.target_rel_error is not None:
-        from .run import Target
         kwargs["target"] = Target(tally=args.target_tally, rel_error=args.target_rel_error)
         kwargs["max_photons"] = args.max_photons
         photons = None
@@ -42,47 +103,60 @@ def _run_main(args) -> int:
         photons = None
     if args.time_budget is not None:
         kwargs["time_budget_s"] = args.time_budget
+    if args.progress:
+        kwargs["progress"] = lambda done, total: print(f"progress {done} {total}", file=sys.stderr, flush=True)
     if args.scheduler is not None:  # the same result, traced on a Dask cluster
         from .distributed import run_on_scheduler
-        res = run_on_scheduler(args.scheduler, run, scene, source, photons=photons, record_escapes=False, **kwargs)
-    else:
-        res = run(scene, source, photons=photons, record_escapes=False, **kwargs)
-    out = res.to_dict()
-    print(json.dumps(out, indent=None, sort_keys=True, allow_nan=False))
-    return 0
+        run = functools.partial(run_on_scheduler, args.scheduler, run)
+    res = _run_interruptible(run, scene, source, photons=photons, record_escapes=False, **kwargs)
+    print(json.dumps(res.to_dict(), indent=None, sort_keys=True, allow_nan=False))
+    return EXIT_INTERRUPTED if res.cancelled else 0
+
+
+def _run_interruptible(run, *a, **kw):
+    """Ctrl-C cancels the run (within ~0.1 s: the engine runs signal handlers at every
+    progress tick); the partial result, marked cancelled, is returned."""
+    from .run import CancelToken
+
+    token = CancelToken()
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: token.cancel())
+    try:
+        return run(*a, cancel=token, **kw)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m endophoton", description=__doc__)
+    from .run import MAX_PACKETS, MAX_THREADS
+
+    parser = argparse.ArgumentParser(prog="python3 -m endophoton", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run one scene file and print the totals as JSON")
     p_run.add_argument("scene", help="SCENE.json")
-    p_run.add_argument("--photons", type=int, default=None, help="packets to launch (default: run.photons or 1e5)")
-    p_run.add_argument("--seed", type=int, default=None)
-    p_run.add_argument("--threads", type=int, default=None, help="0 = all cores")
-    p_run.add_argument("--target-rel-error", type=float, default=None,
+    p_run.add_argument("--photons", type=int_arg(1, MAX_PACKETS), default=None,
+                       help="packets to launch (default: run.photons or 1e5)")
+    p_run.add_argument("--seed", type=int_arg(0, 2 ** 64 - 1), default=None)
+    p_run.add_argument("--threads", type=int_arg(0, MAX_THREADS), default=None, help="0 = all cores")
+    p_run.add_argument("--target-rel-error", type=real_arg(0.0, lo_open=True), default=None,
                        help="target-accuracy mode: run until stderr/mean of --target-tally is at most this")
     p_run.add_argument("--target-tally", default="diffuse_reflectance",
                        help="tally for --target-rel-error (default diffuse_reflectance)")
-    p_run.add_argument("--max-photons", type=int, default=0, help="upper bound in target mode (0 = none)")
+    p_run.add_argument("--max-photons", type=int_arg(0, MAX_PACKETS), default=0,
+                       help="upper bound in target mode (0 = none)")
     p_run.add_argument("--quality", choices=("preview", "standard", "reference"), default=None,
                        help="run to a preset accuracy: 5 %%, 1 %% or 0.2 %% relative error on the diffuse reflectance")
-    p_run.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds")
+    p_run.add_argument("--time-budget", type=real_arg(0.0), default=None, help="stop after this many seconds")
+    p_run.add_argument("--progress", action="store_true",
+                       help="print 'progress DONE TOTAL' lines to stderr about 10 times a second")
     p_run.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="trace on a Dask cluster: tcp://host:port, or local:N for N local worker processes "
                             "(docs/distributed.md); the result is bit-identical to a local run")
     p_run.set_defaults(func=_run_main)
-    try:
-        from .beta_sweep import add_sweep_arguments, sweep_main
-    except ImportError:  # pragma: no cover - the sweep module is part of the package
-        add_sweep_arguments = None
-    if add_sweep_arguments is not None:
-        p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
-        add_sweep_arguments(p_sweep)
-        p_sweep.set_defaults(func=sweep_main)
+    from .beta_sweep import add_sweep_arguments, sweep_main
+
+    p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
+    add_sweep_arguments(p_sweep)
+    p_sweep.set_defaults(func=sweep_main)
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, json.JSONDecodeError) as e:
-        print(f"endophoton: error: {e}", file=sys.stderr)
-        return 2
+    return run_guarded(args.func, args)

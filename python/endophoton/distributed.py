@@ -178,15 +178,16 @@ def connect(address: str, timeout_s: float = 10.0):
         client.close()
 
 
-def run_on_scheduler(address: str, run_fn, scene, source, **kwargs):
+def run_on_scheduler(address: str, run_fn, scene, source, progress=None, **kwargs):
     """``run_fn(scene, source, client=..., **kwargs)`` (endophoton.run, passed in
     so that this module does not import the one that imports it) on the cluster
-    at ``address`` (see connect), with a tqdm progress bar on stderr."""
+    at ``address`` (see connect). Without a ``progress`` callback a tqdm bar on
+    stderr shows the merged packets."""
     from tqdm import tqdm
 
     with connect(address) as client, tqdm(unit="packet", unit_scale=True, file=sys.stderr,
-                                          disable=None, desc="endophoton") as bar:
-        def progress(done, total):
+                                          disable=None if progress is None else True, desc="endophoton") as bar:
+        def show(done, total):
             bar.total = total or None
             bar.update(done - bar.n)
-        return run_fn(scene, source, client=client, progress=progress, **kwargs)
+        return run_fn(scene, source, client=client, progress=progress or show, **kwargs)

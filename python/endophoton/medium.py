@@ -43,7 +43,7 @@ class Medium:
         """Raise ValueError naming ``owner`` (e.g. "region 'tissue': "), the field and the value."""
         _check_coefficient(owner, "mua", self.mua)
         _check_coefficient(owner, "mus", self.mus)
-        for field, lo, hi, rule in (("g", -1.0, 1.0, "must be in [-1, 1]"), ("n", 1.0, math.inf, "must be >= 1")):
+        for field, lo, hi, rule in (("g", -1.0, 1.0, "must be in [-1, 1]"), ("n", 1.0, 100.0, "must be in [1, 100]")):
             v = getattr(self, field)
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise ValueError(f"{owner}medium.{field} = {v!r} must be a number")

@@ -47,11 +47,20 @@ def load_mesh(path: str):
     ext = os.path.splitext(path)[1].lower()
     if not os.path.isfile(path):
         raise ValueError(f"mesh = {path!r}: file not found")
-    if ext == ".obj":
-        return _load_obj(path)
-    if ext == ".ply":
-        return _load_ply(path)
-    raise ValueError(f"mesh = {path!r}: unsupported format {ext!r} (use .ply or .obj)")
+    if ext not in (".obj", ".ply"):
+        raise ValueError(f"mesh = {path!r}: unsupported format {ext!r} (use .ply or .obj)")
+    try:
+        v, t = _load_obj(path) if ext == ".obj" else _load_ply(path)
+    except ValueError as e:
+        msg = str(e)
+        raise ValueError(msg if msg.startswith("mesh = ") else f"mesh = {path!r}: {msg}") from None
+    except (IndexError, KeyError, struct.error, OverflowError, UnicodeError) as e:
+        raise ValueError(f"mesh = {path!r}: malformed or truncated {ext[1:].upper()} file "
+                         f"({type(e).__name__}: {e})") from None
+    if t.size and int(t.max()) >= len(v):
+        raise ValueError(f"mesh = {path!r}: triangle index {int(t.max())} is not a vertex index "
+                         f"(the file has {len(v)} vertices)")
+    return v, t
 
 
 def _fan(poly):
@@ -66,12 +75,26 @@ def _load_obj(path):
             if not parts:
                 continue
             if parts[0] == "v":
-                verts.append([float(x) for x in parts[1:4]])
+                if len(parts) < 4:
+                    raise ValueError(f"line {lineno}: vertex has fewer than 3 coordinates")
+                try:
+                    verts.append([float(x) for x in parts[1:4]])
+                except ValueError:
+                    raise ValueError(f"line {lineno}: vertex {parts[1:4]} is not 3 numbers") from None
             elif parts[0] == "f":
                 idx = []
                 for tok in parts[1:]:
-                    i = int(tok.split("/")[0])
-                    idx.append(i - 1 if i > 0 else len(verts) + i)
+                    try:
+                        i = int(tok.split("/")[0])
+                    except ValueError:
+                        raise ValueError(f"line {lineno}: face index {tok!r} is not an integer") from None
+                    j = i - 1 if i > 0 else len(verts) + i
+                    # Checked before narrowing to uint32: an index beyond the vertices read so far
+                    # (or 0, which OBJ does not allow) is an error, never wrapped.
+                    if i == 0 or not 0 <= j < len(verts):
+                        raise ValueError(f"line {lineno}: face index {tok!r} names no vertex "
+                                         f"({len(verts)} vertices so far)")
+                    idx.append(j)
                 if len(idx) < 3:
                     raise ValueError(f"mesh = {path!r}: face on line {lineno} has fewer than 3 vertices")
                 tris += _fan(idx)
@@ -96,10 +119,19 @@ def _load_ply(path):
             if not words:
                 continue
             if words[0] == "format":
+                if len(words) < 2:
+                    raise ValueError("PLY 'format' line has no format")
                 fmt = words[1]
             elif words[0] == "element":
+                if len(words) < 3 or not words[2].isdigit():
+                    raise ValueError(f"PLY element line {line!r} must be 'element NAME COUNT'")
                 elements.append([words[1], int(words[2]), []])
             elif words[0] == "property":
+                if not elements:
+                    raise ValueError("PLY property before any element")
+                types = [w for w in words[1:-1] if w != "list"]
+                if not types or any(w not in _PLY_TYPES for w in types):
+                    raise ValueError(f"PLY property {' '.join(words[1:])!r} has an unknown type")
                 elements[-1][2].append(words[1:])
             elif words[0] == "end_header":
                 break

@@ -2,13 +2,45 @@
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from dataclasses import dataclass
+
+import numpy as np
 
 from . import _core
 from .scene import Scene
 
 CancelToken = _core.CancelToken
+#: Largest packet count a request may name (photons, store, max_photons): 2^62.
+MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
+#: Largest thread count a run accepts (a count the system cannot start is a named error too).
+MAX_THREADS = 4096
+
+
+def check_int(name: str, v, lo: int, hi: int) -> int:
+    """``v`` is an integer (not a bool, not a float, not a string) in [lo, hi]."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"{name} = {v!r} must be an integer")
+    if not lo <= int(v) <= hi:
+        raise ValueError(f"{name} = {v!r} must be in [{lo}, {hi}]")
+    return int(v)
+
+
+def check_real(name: str, v, lo: float, hi: float, lo_open: bool = False) -> float:
+    """``v`` is a finite real number (not a bool, not a string) in [lo, hi] (or (lo, hi])."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+        raise ValueError(f"{name} = {v!r} must be a finite number")
+    if not (lo < v if lo_open else lo <= v) or not v <= hi:
+        raise ValueError(f"{name} = {v!r} must be in {'(' if lo_open else '['}{lo}, {hi}]")
+    return float(v)
+
+
+def check_bool(name: str, v) -> bool:
+    """``v`` is True or False (not 0/1, not a string)."""
+    if not isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"{name} = {v!r} must be true or false")
+    return bool(v)
 
 #: The fractions every run reports, each with ``<name>_stderr``.
 FRACTIONS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
@@ -30,11 +62,10 @@ class GridRequest:
     per_fluorophore: bool = False
 
     def __post_init__(self):
-        v = self.voxel_size
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ValueError(f"grids.voxel_size = {v!r} must be a positive finite number (scene units)")
+        check_real("grids.voxel_size", self.voxel_size, 0.0, math.inf, lo_open=True)
         if not isinstance(self.path, (str, os.PathLike)) or not str(self.path):
             raise ValueError(f"grids.path = {self.path!r} must be a file path")
+        check_bool("grids.per_fluorophore", self.per_fluorophore)
 
 
 @dataclass
@@ -46,9 +77,7 @@ class Target:
     def __post_init__(self):
         if self.tally not in TARGET_TALLIES:
             raise ValueError(f"target.tally = {self.tally!r} must be one of {', '.join(TARGET_TALLIES)}")
-        r = self.rel_error
-        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r <= 0:
-            raise ValueError(f"target.rel_error = {r!r} must be a positive number")
+        check_real("target.rel_error", self.rel_error, 0.0, math.inf, lo_open=True)
 
 
 class Result:
@@ -142,11 +171,22 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     if len(modes) > 1 and not (modes == ["photons", "target"]):
         raise ValueError(f"{' and '.join(modes)} are exclusive: give one")
     for name, v in (("photons", photons), ("store", store)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v <= 0):
-            raise ValueError(f"{name} = {v!r} must be a positive integer")
-    for name, v in (("seed", seed), ("threads", threads), ("max_steps", max_steps), ("max_photons", max_photons)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise ValueError(f"{name} = {v!r} must be a non-negative integer")
+        if v is not None:
+            check_int(name, v, 1, MAX_PACKETS)
+    check_int("seed", seed, 0, 2 ** 64 - 1)
+    check_int("threads", threads, 0, MAX_THREADS)
+    for name, v in (("max_steps", max_steps), ("max_photons", max_photons), ("unit_size", unit_size)):
+        check_int(name, v, 0, MAX_PACKETS)
+    check_int("batches", batches, 2, 1_000_000)
+    check_real("roulette_threshold", roulette_threshold, 0.0, 1.0)
+    check_real("roulette_chance", roulette_chance, 0.0, 1.0, lo_open=True)
+    check_real("max_path_cm", max_path_cm, 0.0, math.inf)
+    check_real("time_budget_s", time_budget_s, 0.0, math.inf)
+    for name, v in (("record_escapes", record_escapes), ("fluorescent_only", fluorescent_only),
+                    ("safe_distance", safe_distance)):
+        check_bool(name, v)
+    if spectral is not None:
+        check_bool("spectral", spectral)
     if fluorescence_rule not in ("paper", "eem"):
         raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
     opts = dict(seed=seed, threads=threads, roulette_threshold=float(roulette_threshold),

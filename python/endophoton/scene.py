@@ -19,7 +19,11 @@ import numpy as np
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
 from .spectra import EEM, Fluorophore, Spectrum
+from .scene_schema import MAX_REGIONS, validate_document
 from .units import unit_cm
+
+#: Largest refractive index (ambient or medium): beyond, Fresnel terms overflow to NaN.
+MAX_REFRACTIVE_INDEX = 100.0
 
 
 @dataclass
@@ -43,6 +47,13 @@ def _as_mesh_arrays(owner, vertices, triangles):
         raise ValueError(f"{owner}: mesh.triangles must hold integers, got dtype {t.dtype}")
     if t.size and t.min() < 0:
         raise ValueError(f"{owner}: mesh.triangles contains the negative index {int(t.min())}")
+    # Checked before narrowing to uint32, so an index >= 2^32 cannot wrap to a valid one.
+    if t.size and int(t.max()) >= len(v):
+        i, k = map(int, np.argwhere(t == t.max())[0])
+        raise ValueError(f"{owner}: mesh.triangles[{i}][{k}] = {int(t[i, k])} is not a vertex index "
+                         f"(the mesh has {len(v)} vertices)")
+    if not np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_:
+        raise ValueError(f"{owner}: mesh.vertices must hold numbers, got dtype {v.dtype}")
     bad = ~np.isfinite(v)
     if bad.any():
         i, k = map(int, np.argwhere(bad)[0])
@@ -63,19 +74,26 @@ class Scene:
         self.unit = unit
         self.unit_cm = unit_cm(unit)
         if isinstance(ambient_n, bool) or not isinstance(ambient_n, (int, float)) or not math.isfinite(ambient_n) \
-                or ambient_n < 1:
-            raise ValueError(f"scene.ambient_n = {ambient_n!r} must be a finite number >= 1")
+                or not 1 <= ambient_n <= MAX_REFRACTIVE_INDEX:
+            raise ValueError(f"scene.ambient_n = {ambient_n!r} must be a finite number in [1, {MAX_REFRACTIVE_INDEX}]")
         self.ambient_n = float(ambient_n)
         self.regions: list[Region] = []
+        self._names: set[str] = set()
 
     # ---- building ---------------------------------------------------------
     def add_mesh(self, name: str, vertices, triangles, medium: Medium, priority: int = 0,
                  fluorophores: Sequence[Fluorophore] = ()) -> Region:
         """Add a region bounded by a closed triangle mesh (vertices in scene units)."""
+        if len(self.regions) >= MAX_REGIONS:   # cheapest check first
+            raise ValueError(f"region {name!r}: a scene holds at most {MAX_REGIONS} regions")
         if not isinstance(name, str) or not name:
             raise ValueError(f"region.name = {name!r} must be a non-empty string")
+        try:
+            name.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ValueError(f"region.name = {name!r} holds a lone surrogate: not valid text") from None
         owner = f"region '{name}'"
-        if any(r.name == name for r in self.regions):
+        if name in self._names:
             raise ValueError(f"{owner}: name is used by another region")
         if not isinstance(medium, Medium):
             raise ValueError(f"{owner}: medium = {medium!r} must be an endophoton.Medium")
@@ -87,8 +105,11 @@ class Scene:
             if not isinstance(f, Fluorophore):
                 raise ValueError(f"{owner}: fluorophores entry {f!r} must be an endophoton.Fluorophore")
         v, t = _as_mesh_arrays(owner, vertices, triangles)
+        if not -2 ** 31 <= int(priority) < 2 ** 31:
+            raise ValueError(f"{owner}: priority = {priority!r} must be a 32-bit integer")
         region = Region(name, v, t, medium, int(priority), fl)
         self.regions.append(region)
+        self._names.add(name)
         return region
 
     def add_box(self, name: str, min, max, medium: Medium, priority: int = 0,
@@ -163,7 +184,9 @@ class Scene:
 
     @classmethod
     def from_dict(cls, data: dict, base_dir: str = ".") -> "Scene":
-        """Build a scene from the SCENE.json structure (see README). Unknown keys are errors."""
+        """Build a scene from the SCENE.json structure (docs/scene.schema.json, enforced here:
+        ValueError naming the region, field and value). Unknown keys are errors."""
+        validate_document(data)
         _check_keys("scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description"})
         scene = cls(unit=data.get("unit", "cm"), ambient_n=data.get("ambient_n", 1.0))
         regions = data.get("regions")
@@ -182,7 +205,12 @@ class Scene:
                 eem = None
                 if "eem" in fd:
                     path = fd["eem"] if os.path.isabs(fd["eem"]) else os.path.join(base_dir, fd["eem"])
-                    eem = EEM.from_csv(path, name=fd["name"])
+                    if not os.path.isfile(path):
+                        raise ValueError(f"{owner}: fluorophores[{j}].eem = {fd['eem']!r} is not a file")
+                    try:
+                        eem = EEM.from_csv(path, name=fd["name"])
+                    except (OSError, UnicodeError) as e:
+                        raise ValueError(f"{owner}: fluorophores[{j}].eem = {fd['eem']!r}: {e}") from None
                 try:
                     fl.append(Fluorophore(fd["name"], fd["d"], fd["c"], eem=eem))
                 except ValueError as e:

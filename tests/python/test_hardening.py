@@ -1,0 +1,361 @@
+"""Regression corpus of issue 13 (hardening): every class of defect found by the hostile-user
+trial has a case here. Contract: a sound result (finite, energy conserved) or a ValueError /
+exit status 2 whose message names the field and the value; never a crash, hang or traceback.
+No verdict depends on timing: runs that would take long are requests that can never finish,
+stopped by a deterministic rule or a named error."""
+import copy
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton import _core
+from endophoton.cli import main as cli_main
+from physics_helpers import assert_energy_conserved, assert_no_nan, cube_mesh
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+TISSUE = ep.Medium(mua=1.0, mus=10.0, g=0.9, n=1.4)
+DOWN = ep.PencilSource((0, 0, 1), (0, 0, -1))
+NEVER_ENDS = 2 ** 40
+
+
+def slab(thickness=0.02, top=0.0, width=2.0, medium=TISSUE):
+    s = ep.Scene("cm")
+    s.add_box("slab", (-width / 2, -width / 2, top - thickness), (width / 2, width / 2, top), medium)
+    return s
+
+
+def _subprocess(code, timeout=300):
+    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python") + os.pathsep
+               + os.path.join(ROOT, "tests", "python"))
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+# ---------------------------------------------------------------- crashes (float32 Embree)
+@pytest.mark.parametrize("source,field", [
+    (ep.PencilSource((0, 0, 1e19), (0, 0, -1)), "position"),
+    (ep.DiskSource((0, 0, 1), (0, 0, -1), radius=1e20), "radius"),
+    (ep.ConeSource((0, 0, 1), (0, 0, -1), 7.5, radius=1e30), "radius"),
+    (ep.EndoscopeRig.from_beta(0.0, 1e308), "position"),
+])
+def test_huge_source_coordinates_are_named_errors(source, field):
+    with pytest.raises(ValueError, match=rf"source.lights\[\d\].*{field}.*beyond the limit 1e\+12"):
+        ep.run(slab(1.0), source, photons=10)
+
+
+def test_thread_creation_failure_is_a_named_error():
+    """The engine's test hook makes the 3rd thread fail to start, as std::thread does when the
+    system has no threads or memory left: the run stops the started workers and raises a
+    named error (it used to end in std::terminate)."""
+    opts = dict(photons=NEVER_ENDS, threads=8, unit_size=64, record_escapes=False, test_fail_thread=3)
+    with pytest.raises(RuntimeError, match=r"threads = 8: could not start thread 3 \(.*\); ask for fewer threads"):
+        _core.run(slab(1.0).to_native(), _core.Source(DOWN.native_lights(1.0)), opts)
+
+
+# ---------------------------------------------------------------- corrupt output
+def test_grid_write_beyond_the_file_size_limit_fails_and_leaves_no_file(tmp_path):
+    out = tmp_path / "g.vdb"
+    p = _subprocess(f"""
+        import resource, signal
+        import endophoton as ep
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        s = ep.Scene("cm"); s.add_box("a", (-1, -1, -1), (1, 1, 0), ep.Medium(1, 10, 0.9, 1.4))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.RLIM_INFINITY))
+        try:
+            ep.run(s, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=20000, record_escapes=False,
+                   grids=ep.GridRequest(0.01, {str(out)!r}))
+            print("RETURNED")
+        except RuntimeError as e:
+            print("ERR", e)
+    """)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("ERR vdb file '" + str(out) + "': write failed: File too large"), p.stdout
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------- NaN
+def test_refractive_index_beyond_100_is_refused():
+    with pytest.raises(ValueError, match=r"scene.ambient_n = 1e\+155 must be a finite number in \[1, 100"):
+        ep.Scene("cm", ambient_n=1e155)
+    with pytest.raises(ValueError, match=r"medium.n = 1e\+155 must be in \[1, 100\]"):
+        ep.Medium(1, 1, 0, 1e155)
+    assert _core.fresnel(1.0, 1.0, 100.0) == pytest.approx((99 / 101) ** 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("photons", [1, 2, 63, 64, 65])
+def test_runs_of_one_work_unit_are_finite(photons):
+    """1-64 packets are one unit: stderrs come from the per-packet variance. Independent
+    check: for the specular tally every packet contributes the same Rsp, so its sample variance
+    is 0; a single packet has no sample variance and reports the bound sqrt(w^2) = Rsp."""
+    r = ep.run(slab(1.0), DOWN, photons=photons, seed=3, threads=2)
+    assert_no_nan(r)
+    assert_energy_conserved(r)
+    assert r.specular_reflectance == pytest.approx(((1.4 - 1) / 2.4) ** 2, rel=1e-12)
+    expected = r.specular_reflectance if photons == 1 else 0.0
+    assert r.specular_reflectance_stderr == pytest.approx(expected, abs=1e-8)   # rounding of sum w^2 - (sum w)^2/N
+    json.dumps(r.to_dict(), allow_nan=False)
+
+
+@pytest.mark.parametrize("store", [1, 65])
+def test_store_runs_of_one_unit_are_finite(store):
+    r = ep.run(slab(1.0), DOWN, store=store, seed=2)
+    assert r.stop_reason == "store" and len(r.escapes["weight"]) == store
+    assert_no_nan(r)
+    json.dumps(r.to_dict(), allow_nan=False)
+
+
+def test_per_packet_stderr_matches_numpy_on_the_records():
+    """One unit of 50 packets on a clear slab: every packet escapes once, so the transmitted
+    weight per packet is in the records; the stderr must equal numpy's std(ddof=1)/sqrt(N)."""
+    s = slab(0.5, medium=ep.Medium(mua=0.7, mus=20.0, g=0.8, n=1.3))
+    r = ep.run(s, DOWN, photons=50, seed=9, threads=1, roulette_threshold=0.0)
+    esc = r.escapes
+    per_packet = np.zeros(50)
+    mask = esc["kind"] == 1
+    np.add.at(per_packet, esc["packet"][mask], esc["weight"][mask])
+    assert r.transmittance == pytest.approx(per_packet.mean(), rel=1e-12)
+    assert r.transmittance_stderr == pytest.approx(per_packet.std(ddof=1) / math.sqrt(50), rel=1e-9)
+
+
+# ---------------------------------------------------------------- hangs
+def test_fluorescent_only_store_without_fluorophores_is_refused():
+    with pytest.raises(ValueError, match=r"store = 10 with fluorescent_only = True needs a fluorophore"):
+        ep.run(slab(1.0), DOWN, store=10, fluorescent_only=True)
+
+
+def test_store_that_never_gets_a_record_stops_and_says_so():
+    """A pencil that misses every region: no record ever; the run stops after 1000 units."""
+    r = ep.run(slab(1.0), ep.PencilSource((5, 5, 1), (0, 0, 1)), store=10, unit_size=64)
+    assert r.stop_reason == "store_zero" and r.photons == 64_000 and r.missed == 1.0
+    assert_no_nan(r)
+
+
+def test_pathological_mus_is_capped_with_a_warning():
+    """mus = 1e30 cm^-1 over 0.02 cm (2e28 mean free paths): packets are capped at 1e5
+    events, the result warns, and the balance still closes (the cut weight is tallied)."""
+    r = ep.run(slab(0.02, medium=ep.Medium(mua=1.0, mus=1e30, g=0.0, n=1.0)), DOWN, photons=200, seed=1)
+    assert any("region 'slab': medium.mus = 1e+30" in w and "100000 events" in w for w in r.warnings), r.warnings
+    assert_no_nan(r)
+    assert_energy_conserved(r)
+    if r.cut > 0:
+        assert r.capped_packets > 0
+
+
+def test_region_count_is_checked_before_anything_else():
+    """100,000 regions whose entries are themselves invalid: the count error comes first
+    (the cheapest check), so validation cannot spend time on the entries."""
+    d = {"regions": [{"bogus": 1}] * 100_000}
+    with pytest.raises(ValueError, match=r"scene.regions holds 100000 regions; a scene holds at most 64"):
+        ep.Scene.from_dict(d)
+
+
+# ---------------------------------------------------------------- silent wrong answers
+def test_source_far_above_a_thin_slab_is_refused():
+    s = ep.Scene("cm")
+    s.add_box("slab", (-500, -500, -0.02), (500, 500, 0), TISSUE)
+    with pytest.raises(ValueError, match=r"source.lights\[0\].*too far from the scene.*'slab'"):
+        ep.run(s, ep.PencilSource((0, 0, 5000), (0, 0, -1)), photons=10)
+    r = ep.run(s, ep.PencilSource((0, 0, 10), (0, 0, -1)), photons=200)   # near: fine
+    assert r.missed == 0
+
+
+def test_thin_region_far_from_the_origin_is_refused():
+    s = ep.Scene("cm")
+    s.add_box("slab", (-1, -1, 1e6 - 0.5), (1, 1, 1e6), TISSUE)    # float32 spacing there: 0.0625
+    with pytest.raises(ValueError, match=r"region 'slab': thinnest side 0.5 scene units at \|coordinate\| up to 1e\+06"):
+        ep.run(s, ep.PencilSource((0, 0, 1e6 + 1), (0, 0, -1)), photons=10)
+
+
+def test_box_spanning_float_range_is_refused():
+    s = ep.Scene("cm")
+    s.add_box("huge", (-3e38, -3e38, -3e38), (3e38, 3e38, 0), TISSUE)
+    with pytest.raises(ValueError, match=r"region 'huge': mesh.vertices reach \|coordinate\| = 3e\+38"):
+        ep.run(s, DOWN, photons=10)
+
+
+@pytest.mark.parametrize("n", [2 ** 64 - 65_535, 2 ** 64, 2 ** 62 + 1])
+def test_packet_requests_beyond_2_pow_62_are_refused(n):
+    with pytest.raises(ValueError, match=rf"photons = {n} must be in \[1, {2 ** 62}\]"):
+        ep.run(slab(1.0), DOWN, photons=n)
+    with pytest.raises(ValueError, match=r"photons = \d+ exceeds the limit 2\^62"):
+        _core.run(slab(1.0).to_native(), _core.Source(DOWN.native_lights(1.0)), dict(photons=2 ** 62 + 1))
+
+
+def test_triangle_index_beyond_2_pow_32_is_refused_before_narrowing():
+    v, t = cube_mesh((-1, -1, -1), (1, 1, 0))
+    t = t.astype(np.int64)
+    t[3, 1] += 2 ** 32    # would wrap to a valid index
+    s = ep.Scene("cm")
+    with pytest.raises(ValueError, match=rf"mesh.triangles\[3\]\[1\] = {int(t[3, 1])} is not a vertex index"):
+        s.add_mesh("m", v, t, TISSUE)
+
+
+def test_self_intersecting_mesh_is_refused():
+    v1, t1 = cube_mesh((0, 0, 0), (1, 1, 1))
+    v2, t2 = cube_mesh((0.3, 0.4, 0.45), (1.3, 1.4, 1.45))
+    v = np.vstack([v1, v2])
+    t = np.vstack([t1, t2 + len(v1)])
+    s = ep.Scene("cm")
+    s.add_mesh("two_cubes", v, t, TISSUE)
+    with pytest.raises(ValueError, match=r"region 'two_cubes': mesh intersects itself: mesh.triangles\[\d+\] and"):
+        ep.run(s, DOWN, photons=10)
+    # Control: the same cubes apart are one valid (two-part) region.
+    s2 = ep.Scene("cm")
+    s2.add_mesh("apart", np.vstack([v1, v2 + 2.0]), t, TISSUE)
+    r = ep.run(s2, ep.PencilSource((0.5, 0.5, 2), (0, 0, -1)), photons=100)
+    assert_energy_conserved(r)
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(max_path_cm=True), r"max_path_cm = True must be a finite number"),
+    (dict(roulette_threshold=True), r"roulette_threshold = True must be a finite number"),
+    (dict(roulette_chance="0.5"), r"roulette_chance = '0.5' must be a finite number"),
+    (dict(time_budget_s=-1.0), r"time_budget_s = -1.0 must be in \[0.0, inf\]"),
+    (dict(time_budget_s=float("nan")), r"time_budget_s = nan must be a finite number"),
+    (dict(seed=1.5), r"seed = 1.5 must be an integer"),
+    (dict(threads=2 ** 31), r"threads = 2147483648 must be in \[0, 4096\]"),
+    (dict(record_escapes=1), r"record_escapes = 1 must be true or false"),
+])
+def test_strict_types_in_the_api(kw, match):
+    with pytest.raises(ValueError, match=match):
+        ep.run(slab(1.0), DOWN, photons=10, **kw)
+
+
+def test_run_cancelled_before_it_starts_says_it_has_no_estimate():
+    token = ep.CancelToken()
+    token.cancel()
+    r = ep.run(slab(1.0), DOWN, photons=NEVER_ENDS, cancel=token)
+    assert r.cancelled and r.stop_reason == "cancelled" and r.photons == 0
+    assert any("no work unit finished" in w for w in r.warnings)
+    assert_no_nan(r)
+
+
+# ---------------------------------------------------------------- signals
+def test_keyboard_interrupt_in_the_api_cleans_up_and_writes_no_grid(tmp_path):
+    path = tmp_path / "never.vdb"
+
+    def progress(done, total):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        ep.run(slab(1.0), DOWN, photons=NEVER_ENDS, progress=progress,
+               grids=ep.GridRequest(0.1, str(path)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_on_the_cli_prints_a_cancelled_result_and_exits_130(tmp_path):
+    """The run cannot finish; SIGINT is sent once the CLI reports progress, so the verdict
+    does not depend on timing."""
+    scene = tmp_path / "s.json"
+    scene.write_text(json.dumps(_scene_doc()))
+    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
+    proc = subprocess.Popen([sys.executable, "-m", "endophoton", "run", str(scene), "--photons", str(NEVER_ENDS),
+                             "--progress"], env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    line = proc.stderr.readline()
+    assert line.startswith("progress "), line
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    data = json.loads(out)
+    assert data["cancelled"] is True and data["stop_reason"] == "cancelled"
+    assert "Traceback" not in err
+
+
+# ---------------------------------------------------------------- tracebacks -> exit 2
+def _scene_doc():
+    return {"unit": "cm", "ambient_n": 1.0,
+            "regions": [{"name": "polyp_7", "medium": {"mua": 1.0, "mus": 10.0, "g": 0.9, "n": 1.4},
+                         "box": {"min": [-1, -1, -1], "max": [1, 1, 0]}}],
+            "source": {"type": "pencil", "position": [0, 0, 1], "direction": [0, 0, -1]},
+            "run": {"photons": 100}}
+
+
+CLI_CASES = [  # (mutation of the document, expected text of the message)
+    ("mus null", lambda d: d["regions"][0]["medium"].update(mus=None), "medium.mus = None"),
+    ("mus list", lambda d: d["regions"][0]["medium"].update(mus=[1]), "medium.mus = [1]"),
+    ("g inf", lambda d: d["regions"][0]["medium"].update(g=float("inf")), "medium.g = inf"),
+    ("priority 2^31", lambda d: d["regions"][0].update(priority=2 ** 31), "priority = 2147483648"),
+    ("seed 2^64", lambda d: d["run"].update(seed=2 ** 64), "run.seed = 18446744073709551616"),
+    ("photons abc", lambda d: d["run"].update(photons="abc"), "run.photons = 'abc'"),
+    ("max_path_cm true", lambda d: d["run"].update(max_path_cm=True), "run.max_path_cm = True"),
+    ("roulette bool", lambda d: d["run"].update(roulette_chance=False), "run.roulette_chance = False"),
+    ("roulette string", lambda d: d["run"].update(roulette_threshold="1e-4"), "run.roulette_threshold = '1e-4'"),
+    ("deep nesting", "deep", "nested too deeply"),
+    ("lone surrogate", lambda d: d["regions"][0].update(name="\ud800"), "lone surrogate"),
+    ("fluorophores 5", lambda d: d["regions"][0].update(fluorophores=5), "fluorophores = 5"),
+    ("short box.min", lambda d: d["regions"][0]["box"].update(min=[1, 2]), "box.min = [1, 2]"),
+    ("eem is a directory", lambda d: d["regions"][0].update(fluorophores=[{"name": "f", "d": 0.1, "c": 0.1,
+                                                                           "eem": "."}]),
+     "fluorophores[0].eem = '.' is not a file"),
+]
+
+
+@pytest.mark.parametrize("name,mutate,text", CLI_CASES, ids=[c[0] for c in CLI_CASES])
+def test_bad_scene_files_exit_2_naming_the_field(tmp_path, capsys, name, mutate, text):
+    path = tmp_path / "s.json"
+    if mutate == "deep":   # 1000 levels: too deep for json.dumps itself, so written by hand
+        path.write_text('{"regions": ' + '{"x": ' * 1000 + "{}" + "}" * 1000 + "}")
+    else:
+        d = _scene_doc()
+        mutate(d)
+        path.write_text(json.dumps(d))
+    code = cli_main(["run", str(path)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert text in err, err
+
+
+@pytest.mark.parametrize("args,text", [
+    (["--photons", str(2 ** 64 - 65_535)], "argument --photons"),
+    (["--photons", "abc"], "argument --photons: 'abc' is not an integer"),
+    (["--time-budget", "-1"], "argument --time-budget"),
+    (["--time-budget", "nan"], "argument --time-budget"),
+    (["--threads", "1e9"], "argument --threads"),
+    (["--seed", "-1"], "argument --seed"),
+])
+def test_bad_cli_options_exit_2_naming_the_option(tmp_path, capsys, args, text):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(_scene_doc()))
+    with pytest.raises(SystemExit) as ei:
+        cli_main(["run", str(path), *args])
+    assert ei.value.code == 2
+    assert text in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name,content,text", [
+    ("trunc.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 8\nproperty float x\nproperty float y\n"
+                  b"property float z\nend_header\n\x00\x00", "malformed or truncated PLY"),
+    ("type.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quux x\nend_header\n1\n", "unknown type"),
+    ("fmt.ply", b"ply\nformat\nend_header\n", "'format' line has no format"),
+    ("big.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1e23\n", "face index '1e23' is not an integer"),
+    ("wrap.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4294967297\n", "face index '4294967297' names no vertex"),
+])
+def test_bad_mesh_files_are_named_errors(tmp_path, capsys, name, content, text):
+    (tmp_path / name).write_bytes(content)
+    d = _scene_doc()
+    del d["regions"][0]["box"]
+    d["regions"][0]["mesh"] = name
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(d))
+    assert cli_main(["run", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "region 'polyp_7'" in err and name in err and text in err, err
+
+
+def test_zero_weight_escapes_are_not_records():
+    """A clear region with mua = 1e10 cm^-1: the transmitted weight exp(-1e10) is exactly 0 in
+    double, so no packet carries weight out and no record may be stored (a zero-weight record
+    used to count towards store N)."""
+    s = slab(1.0, medium=ep.Medium(mua=1e10, mus=0.0, g=0.0, n=1.0))
+    r = ep.run(s, DOWN, photons=100, seed=1)
+    assert r.transmittance == 0.0 and r.absorbed == 1.0
+    assert len(r.escapes["weight"]) == 0
