@@ -12,6 +12,7 @@
 
 #include "scale_check.h"
 #include "transport.h"
+#include "unit_io.h"
 #include "vdb_writer.h"
 #include "voxel_grid.h"
 
@@ -237,7 +238,7 @@ struct RunState {
     const RunConfig& cfg;
     const Halton halton;
     uint64_t unit_size, limit, n_units_max;
-    UnitMerger& merger;
+    UnitReducer& merger;
     std::atomic<bool>* cancel;
     std::mutex mu;
     std::atomic<uint64_t> next_unit{0}, done_packets{0};
@@ -245,7 +246,7 @@ struct RunState {
     std::string error;
 
     RunState(const Scene& sc, const Source& so, const RunConfig& c, uint64_t usize, uint64_t lim, uint64_t nmax,
-             UnitMerger& m, std::atomic<bool>* cancel_flag)
+             UnitReducer& m, std::atomic<bool>* cancel_flag)
         : scene(sc), source(so), cfg(c), halton(c.seed), unit_size(usize), limit(lim), n_units_max(nmax),
           merger(m), cancel(cancel_flag) {}
     bool cancelled() const { return user_cancel.load() || (cancel && cancel->load()); }
@@ -256,16 +257,32 @@ struct RunState {
     }
 };
 
-std::unique_ptr<UnitOutput> new_unit(const RunState& st, uint64_t u) {
+std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, uint64_t unit_size, uint64_t u) {
     auto out = std::make_unique<UnitOutput>();
-    out->tally.reset(st.scene.region_count());
-    out->first_packet = u * st.unit_size;
-    if (st.cfg.grid_voxel_size > 0) {
-        out->absorbed_grid = std::make_unique<VoxelAccumulator>(st.cfg.grid_voxel_size);
-        out->fluorescence_grid = std::make_unique<VoxelAccumulator>(st.cfg.grid_voxel_size);
-        if (st.cfg.grid_per_fluorophore)
-            for (size_t f = 0; f < st.scene.fluorophore_count(); ++f)
-                out->per_fluorophore.push_back(std::make_unique<VoxelAccumulator>(st.cfg.grid_voxel_size));
+    out->tally.reset(scene.region_count());
+    out->first_packet = u * unit_size;
+    if (cfg.grid_voxel_size > 0) {
+        out->absorbed_grid = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
+        out->fluorescence_grid = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
+        if (cfg.grid_per_fluorophore)
+            for (size_t f = 0; f < scene.fluorophore_count(); ++f)
+                out->per_fluorophore.push_back(std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size));
+    }
+    return out;
+}
+
+// Traces the packets of unit `u` (local threads and trace_units alike).
+// `tick(k)` is called before every packet with its index; returning false
+// abandons the unit (nullptr).
+template <class Tick>
+std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg,
+                                       const UnitPlan& plan, uint64_t u, Tick&& tick) {
+    auto out = new_unit(scene, cfg, plan.unit_size, u);
+    const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
+    for (uint64_t k = first; k < end; ++k) {
+        if (!tick(k)) return nullptr;
+        tracer.trace(k, *out);
+        out->tally.record_packet();
     }
     return out;
 }
@@ -278,20 +295,20 @@ void worker(RunState& st) {
             if (st.cancelled()) return;
             const uint64_t u = st.next_unit.fetch_add(1);
             if (u >= st.n_units_max) return;
-            auto out = new_unit(st, u);
             const uint64_t first = u * st.unit_size, end = std::min(st.limit, first + st.unit_size);
             uint64_t counted = first;
-            for (uint64_t k = first; k < end; ++k) {
-                // Cancel is checked before every packet (two relaxed loads), so a
-                // Ctrl-C lands within one packet even when packets are slow.
-                if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return;
-                if ((k & 255) == 0) {
-                    st.done_packets.fetch_add(k - counted);  // progress every 256 packets
-                    counted = k;
-                }
-                tracer.trace(k, *out);
-                out->tally.record_packet();
-            }
+            auto out = trace_unit(tracer, st.scene, st.cfg, UnitPlan{st.unit_size, st.limit, st.n_units_max}, u,
+                                  [&](uint64_t k) {
+                                      // Cancel is checked before every packet (two relaxed loads), so a
+                                      // Ctrl-C lands within one packet even when packets are slow.
+                                      if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
+                                      if ((k & 255) == 0) {
+                                          st.done_packets.fetch_add(k - counted);  // progress every 256 packets
+                                          counted = k;
+                                      }
+                                      return true;
+                                  });
+            if (!out) return;
             st.done_packets.fetch_add(end - counted);
             std::lock_guard<std::mutex> lock(st.mu);
             if (st.stop.load()) return;
@@ -338,46 +355,96 @@ void run_workers(RunState& st, int threads, uint64_t total, const ProgressFn& pr
 
 }  // namespace
 
-RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in, const ProgressFn& progress,
-              std::atomic<bool>* cancel) {
+RunConfig prepare_config(const Scene& scene, const Source& source, const RunConfig& cfg_in,
+                         std::vector<std::string>* warnings) {
     RunConfig cfg = cfg_in;
     validate_config(cfg, scene);
     check_scale(scene, source, cfg);
-    const auto t_start = std::chrono::steady_clock::now();
-    RunResult result;
-    if (cfg.max_steps == 0) cfg.max_steps = pathological_event_cap(scene, result.warnings);
+    std::vector<std::string> ignored;
+    if (cfg.max_steps == 0) cfg.max_steps = pathological_event_cap(scene, warnings ? *warnings : ignored);
+    return cfg;
+}
 
+UnitPlan plan_units(const RunConfig& cfg) {
     const bool fixed = cfg.photons > 0;
-    uint64_t unit_size = cfg.unit_size;
-    if (unit_size == 0) {
+    UnitPlan p;
+    p.unit_size = cfg.unit_size;
+    if (p.unit_size == 0) {
         // Depends only on the request, never on the thread count.
         // Store and target runs check their stop rule after every merged unit:
         // 1024-packet units for "store N", 256 for targets so that a loose target
         // can stop after its minimum of 20 units (5120 packets).
-        unit_size = fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536)
-                          : (cfg.target_tally >= 0 ? 256 : 1024);
+        p.unit_size = fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536)
+                            : (cfg.target_tally >= 0 ? 256 : 1024);
     }
-    const uint64_t limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : kMaxPacketRequest);
-    const uint64_t n_units_max = (limit + unit_size - 1) / unit_size;
-    int threads = cfg.threads > 0 ? cfg.threads : int(std::max(1u, std::thread::hardware_concurrency()));
-    threads = int(std::min<uint64_t>(uint64_t(threads), n_units_max));
-    result.unit_size = unit_size;
-    result.threads = threads;
+    p.limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : kMaxPacketRequest);
+    p.n_units_max = (p.limit + p.unit_size - 1) / p.unit_size;
+    return p;
+}
 
+UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig& cfg_in, uint64_t first_unit,
+                      uint64_t count, std::atomic<bool>* cancel) {
+    const RunConfig cfg = prepare_config(scene, source, cfg_in, nullptr);
+    const UnitPlan plan = plan_units(cfg);
+    UnitBatch batch;
+    batch.first_unit = first_unit;
+    if (first_unit >= plan.n_units_max) return batch;
+    count = std::min(count, plan.n_units_max - first_unit);
+    const Halton halton(cfg.seed);
+    Tracer tracer(scene, source, halton, cfg);
+    for (uint64_t u = first_unit; u < first_unit + count; ++u) {
+        auto out = trace_unit(tracer, scene, cfg, plan, u, [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); });
+        if (!out) break;
+        batch.units.push_back(std::move(out));
+    }
+    return batch;
+}
+
+struct UnitReducer::Impl {
+    const Scene& scene;
+    RunResult result;
+    const RunConfig cfg;
+    const UnitPlan plan;
+    const std::chrono::steady_clock::time_point t_start;
     std::unique_ptr<RunGrids> grids;
-    if (cfg.grid_voxel_size > 0)
-        grids = std::make_unique<RunGrids>(cfg.grid_voxel_size, cfg.grid_per_fluorophore ? scene.fluorophore_count() : 0);
-    UnitMerger merger(cfg, n_units_max, result, grids.get(), t_start);
-    RunState st(scene, source, cfg, unit_size, limit, n_units_max, merger, cancel);
-    run_workers(st, threads, fixed ? cfg.photons : 0, progress);
-    if (!st.error.empty()) throw std::runtime_error(st.error);
+    UnitMerger merger;
 
+    Impl(const Scene& sc, const Source& so, const RunConfig& c)
+        : scene(sc), cfg(prepare_config(sc, so, c, &result.warnings)), plan(plan_units(cfg)),
+          t_start(std::chrono::steady_clock::now()),
+          grids(cfg.grid_voxel_size > 0 ? std::make_unique<RunGrids>(cfg.grid_voxel_size, cfg.grid_per_fluorophore
+                                                                                              ? sc.fluorophore_count()
+                                                                                              : 0)
+                                        : nullptr),
+          merger(cfg, plan.n_units_max, result, grids.get(), t_start) {
+        result.unit_size = plan.unit_size;
+    }
+};
+
+UnitReducer::UnitReducer(const Scene& scene, const Source& source, const RunConfig& cfg)
+    : impl_(std::make_unique<Impl>(scene, source, cfg)) {}
+UnitReducer::~UnitReducer() = default;
+bool UnitReducer::add(uint64_t index, std::unique_ptr<UnitOutput> unit) {
+    if (impl_->result.stop != StopReason::kNone) return true;  // past the stop point: discarded
+    return impl_->merger.add(index, std::move(unit));
+}
+bool UnitReducer::stopped() const { return impl_->result.stop != StopReason::kNone; }
+uint64_t UnitReducer::merged_units() const { return impl_->result.units.size(); }
+uint64_t UnitReducer::records() const { return impl_->merger.records(); }
+const UnitPlan& UnitReducer::plan() const { return impl_->plan; }
+const RunConfig& UnitReducer::config() const { return impl_->cfg; }
+
+RunResult UnitReducer::finish(int threads) {
+    RunResult& result = impl_->result;
+    const RunConfig& cfg = impl_->cfg;
+    result.threads = threads;
     if (result.stop == StopReason::kNone) result.stop = StopReason::kCancelled;  // workers left early: cancelled
     result.cancelled = result.stop == StopReason::kCancelled;
     result.target_reached = result.stop == StopReason::kTarget;
     result.store_reached = result.stop == StopReason::kStore;
     finalize_estimates(result, cfg.batches);
     result.packets_traced = cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
+    const Scene& scene = impl_->scene;
     result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     if (result.packets == 0)
         result.warnings.push_back("no work unit finished before the run stopped: the result holds no estimate "
@@ -385,9 +452,22 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
     if (result.capped_packets > 0)
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");
-    if (grids && result.packets > 0 && !result.cancelled) grids->write(scene, cfg, result);  // cancelled: no file
-    result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-    return result;
+    if (impl_->grids && result.packets > 0 && !result.cancelled) impl_->grids->write(scene, cfg, result);  // cancelled: no file
+    result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - impl_->t_start).count();
+    return std::move(result);
+}
+
+RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in, const ProgressFn& progress,
+              std::atomic<bool>* cancel) {
+    UnitReducer reducer(scene, source, cfg_in);
+    const RunConfig& cfg = reducer.config();
+    const UnitPlan& plan = reducer.plan();
+    int threads = cfg.threads > 0 ? cfg.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+    threads = int(std::min<uint64_t>(uint64_t(threads), plan.n_units_max));
+    RunState st(scene, source, cfg, plan.unit_size, plan.limit, plan.n_units_max, reducer, cancel);
+    run_workers(st, threads, cfg.photons > 0 ? cfg.photons : 0, progress);
+    if (!st.error.empty()) throw std::runtime_error(st.error);
+    return reducer.finish(threads);
 }
 
 }  // namespace ep

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <functional>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -89,6 +90,55 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& config,
 
 // Recomputes the estimates of `r` from r.units (used after merging).
 void finalize_estimates(RunResult& r, int batches);
+
+// ---- A run in pieces (python/endophoton/distributed.py runs one on a Dask
+// cluster). Units depend only on the request, so they can be traced anywhere;
+// UnitReducer is the one place that merges them, for ep::run's threads and for
+// units traced in other processes alike, so both give the same bits.
+
+struct UnitPlan {
+    uint64_t unit_size = 0;    // packets per unit (depends only on the request)
+    uint64_t limit = 0;        // packet index bound
+    uint64_t n_units_max = 0;  // units a run may use at most
+};
+// The configuration a run really uses: validated (std::invalid_argument naming
+// the field), scale-checked, with the event cap of pathological scenes applied
+// (its warning appended to `warnings` if not null).
+RunConfig prepare_config(const Scene& scene, const Source& source, const RunConfig& config,
+                         std::vector<std::string>* warnings);
+// Cuts a prepared request into units.
+UnitPlan plan_units(const RunConfig& prepared);
+
+struct UnitOutput;
+struct UnitBatch;
+
+// Traces units [first_unit, first_unit + count) on the calling thread. Returns
+// early (fewer units) once `cancel` is set.
+UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig& config, uint64_t first_unit,
+                      uint64_t count, std::atomic<bool>* cancel);
+
+// Merges finished units strictly in unit order, applies the stop rule after
+// each (UnitMerger), and ends the run (estimates, grid file). Not thread-safe.
+class UnitReducer {
+  public:
+    UnitReducer(const Scene& scene, const Source& source, const RunConfig& config);
+    ~UnitReducer();
+    // Takes unit `index`; it is merged once every unit before it is. Returns
+    // true once the run must stop; later units are then discarded, exactly as
+    // a local run discards the units its threads traced past the stop point.
+    bool add(uint64_t index, std::unique_ptr<UnitOutput> unit);
+    bool stopped() const;
+    uint64_t merged_units() const;
+    uint64_t records() const;
+    const UnitPlan& plan() const;
+    const RunConfig& config() const;  // prepared
+    // Ends the run. A run its stop rule did not end is marked cancelled.
+    RunResult finish(int threads);
+
+  private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
 
 std::string engine_version();
 

@@ -123,6 +123,13 @@ public:
     // Removes all voxels and counters; keeps the voxel size.
     void clear();
 
+    // Adds to the dropped counters (restoring an accumulator from its byte
+    // form, unit_io.cpp, keeps them exact).
+    void add_dropped(uint64_t count, double value) {
+        dropped_ += count;
+        dropped_value_ += value;
+    }
+
 private:
     struct Slot {
         Coord key;

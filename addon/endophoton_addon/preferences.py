@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: MIT
-"""Add-on preferences: where to find the ``endophoton`` package."""
+"""Add-on preferences: where to find the ``endophoton`` package, and an optional
+Dask scheduler that runs trace on (docs/distributed.md)."""
 
 import bpy
 from bpy.props import StringProperty
@@ -27,9 +28,19 @@ class EndoPhotonPreferences(bpy.types.AddonPreferences):
         update=_package_path_changed,
     )
 
+    scheduler_address: StringProperty(
+        name="Dask Scheduler",
+        description=(
+            "tcp://host:port of a Dask scheduler whose workers trace the runs (same results as a "
+            "local run, bit for bit). Leave empty to run on this machine"
+        ),
+        default="",
+    )
+
     def draw(self, _context):
         layout = self.layout
         layout.prop(self, "package_path")
+        layout.prop(self, "scheduler_address")
         module, message = package_finder.status()
         if module is None:
             box = layout.box()
@@ -44,3 +55,9 @@ class EndoPhotonPreferences(bpy.types.AddonPreferences):
 
 
 CLASSES = (EndoPhotonPreferences,)
+
+
+def scheduler_address(context=None):
+    """The preferences' Dask scheduler address ('' = run locally); main thread only."""
+    addon = (context or bpy.context).preferences.addons.get(__package__)
+    return addon.preferences.scheduler_address.strip() if addon is not None else ""

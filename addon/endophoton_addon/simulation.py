@@ -8,6 +8,8 @@ returns the engine's Result.  The modal operator (operators.py), the blocking
 ``execute`` path and the tests all drive the same :class:`SimulationJob`.
 """
 
+import contextlib
+import importlib
 import math
 import os
 import threading
@@ -19,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, presets, rig, sweep_blend
+from . import export, guards, package_finder, preferences, presets, rig, sweep_blend
 from .export import InputError
 
 _ACTIVE_JOBS = set()
@@ -311,6 +313,7 @@ class SimulationJob(BackgroundJob):
         self.ep = ep
         self.inputs = inputs
         self.engine_scene, self.engine_rig, self.run_kwargs = build_engine_call(ep, inputs)
+        self.scheduler = preferences.scheduler_address()  # read here: the worker thread has no bpy
         self.token = ep.CancelToken()
         self.result = None
         self.error = None
@@ -345,13 +348,26 @@ class SimulationJob(BackgroundJob):
     def _body(self):
         if self.inputs.grid_path:
             os.makedirs(os.path.dirname(self.inputs.grid_path), exist_ok=True)
-        self.result = self.ep.run(
-            self.engine_scene, self.engine_rig,
-            progress=self._on_progress, cancel=self.token, **self.run_kwargs,
-        )
+        with contextlib.ExitStack() as stack:
+            kwargs = dict(self.run_kwargs)
+            client = cluster_client(stack, self.ep, self.scheduler)
+            if client is not None:  # trace on the Dask cluster; cancel stops its tasks
+                kwargs["client"] = client
+            self.result = self.ep.run(
+                self.engine_scene, self.engine_rig, progress=self._on_progress, cancel=self.token, **kwargs,
+            )
         grid_path = getattr(self.result, "grid_path", None)
         if grid_path and not getattr(self.result, "cancelled", False):
             self.grid_info = read_grid_info(grid_path)
+
+
+def cluster_client(stack, ep, address):
+    """A Dask client for the preferences' scheduler ``address`` (worker thread),
+    closed by ``stack``; None when the address is empty (run locally)."""
+    if not address:
+        return None
+    connect = importlib.import_module(ep.__name__ + ".distributed").connect
+    return stack.enter_context(connect(address))
 
 
 def read_grid_info(path):

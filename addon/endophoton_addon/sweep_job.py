@@ -15,6 +15,7 @@ values in :class:`SweepInputs`, runs the sweep, writes the output files with
 """
 
 import argparse
+import contextlib
 import math
 import os
 import threading
@@ -24,7 +25,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, simulation, sweep_blend
+from . import export, guards, package_finder, preferences, simulation, sweep_blend
 from .export import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -199,6 +200,7 @@ class SweepJob(simulation.BackgroundJob):
         self.ep = ep
         self.inputs = inputs
         self.engine_scene = engine_scene
+        self.scheduler = preferences.scheduler_address()  # read here: the worker thread has no bpy
         self.token = ep.CancelToken()
         self.result = None
         self.paths = None
@@ -251,8 +253,11 @@ class SweepJob(simulation.BackgroundJob):
 
     def _body(self):
         bs = self.ep.beta_sweep
-        result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
-                          cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs())
+        with contextlib.ExitStack() as stack:
+            client = simulation.cluster_client(stack, self.ep, self.scheduler)
+            extra = {"run_kwargs": {"client": client}} if client is not None else {}
+            result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
+                              cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs(), **extra)
         if (self.token.cancelled or result.meta.get("cancelled")
                 or any(row["cancelled"] for row in result.rows)):
             self.cancelled = True   # nothing is written, nothing will be added

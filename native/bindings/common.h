@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "engine.h"
 #include "spectrum.h"
 
 namespace ep::bind {
@@ -35,6 +36,9 @@ struct CancelToken {
 using FloatArray = py::array_t<float, py::array::c_style | py::array::forcecast>;
 using IndexArray = py::array_t<uint32_t, py::array::c_style | py::array::forcecast>;
 
+// The result dict of a run (run.cpp); moves the records out of `r`.
+py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records);
+
 // Throws std::invalid_argument unless `a` has shape (N, 3); `what` names the field.
 void require_rows_of_3(const py::array& a, const std::string& what);
 
@@ -43,6 +47,7 @@ void bind_source(py::module_& m);      // source.cpp: Source
 void bind_run(py::module_& m);         // run.cpp: CancelToken, RunConfig, run
 void bind_mesh_check(py::module_& m);  // mesh_check.cpp: check_mesh
 void bind_testing(py::module_& m);
-void bind_surface_hits(py::module_& m);  // surface_hits.cpp: first_surfaces (endoscope view rays)     // testing.cpp: the _testing submodule (test-only hooks)
+void bind_surface_hits(py::module_& m);  
+void bind_distributed(py::module_& m);  // distributed.cpp: unit_plan, trace_units, UnitReducer  // surface_hits.cpp: first_surfaces (endoscope view rays)     // testing.cpp: the _testing submodule (test-only hooks)
 
 }  // namespace ep::bind

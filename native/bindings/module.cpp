@@ -36,6 +36,7 @@ PYBIND11_MODULE(_core, m) {
     ep::bind::bind_run(m);
     ep::bind::bind_mesh_check(m);
     ep::bind::bind_surface_hits(m);
+    ep::bind::bind_distributed(m);
     py::module_ testing = m.def_submodule("_testing", "Test-only hooks into the engine's samplers and scene queries");
     ep::bind::bind_testing(testing);
 }

@@ -55,28 +55,6 @@ py::dict records_dict(EscapeRecords&& rec) {
     return d;
 }
 
-py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
-    py::dict d = estimates_dict(r, scene);
-    d["photons"] = r.packets;
-    d["packets_traced"] = r.packets_traced;
-    d["cancelled"] = r.cancelled;
-    d["target_reached"] = r.target_reached;
-    d["store_reached"] = r.store_reached;
-    d["stop_reason"] = stop_reason_name(r.stop);
-    d["capped_packets"] = r.capped_packets;
-    d["warnings"] = r.warnings;
-    d["seconds"] = r.seconds;
-    d["spectral"] = r.spectral;
-    d["unit_size"] = r.unit_size;
-    d["threads"] = r.threads;
-    d["grid_path"] = r.grid_path.empty() ? py::object(py::none()) : py::object(py::str(r.grid_path));
-    d["grid_names"] = r.grid_names;
-    d["grid_absorbed_sum"] = r.grid_absorbed_sum;
-    d["record_bytes"] = r.peak_record_bytes;
-    if (with_records) d["escapes"] = records_dict(std::move(r.records));
-    else d["escapes"] = py::none();
-    return d;
-}
 
 std::string rule_name(FluorescenceRule r) { return r == FluorescenceRule::kEEM ? "eem" : "paper"; }
 
@@ -141,6 +119,29 @@ void bind_config(py::module_& m) {
 }
 
 }  // namespace
+
+py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
+    py::dict d = estimates_dict(r, scene);
+    d["photons"] = r.packets;
+    d["packets_traced"] = r.packets_traced;
+    d["cancelled"] = r.cancelled;
+    d["target_reached"] = r.target_reached;
+    d["store_reached"] = r.store_reached;
+    d["stop_reason"] = stop_reason_name(r.stop);
+    d["capped_packets"] = r.capped_packets;
+    d["warnings"] = r.warnings;
+    d["seconds"] = r.seconds;
+    d["spectral"] = r.spectral;
+    d["unit_size"] = r.unit_size;
+    d["threads"] = r.threads;
+    d["grid_path"] = r.grid_path.empty() ? py::object(py::none()) : py::object(py::str(r.grid_path));
+    d["grid_names"] = r.grid_names;
+    d["grid_absorbed_sum"] = r.grid_absorbed_sum;
+    d["record_bytes"] = r.peak_record_bytes;
+    if (with_records) d["escapes"] = records_dict(std::move(r.records));
+    else d["escapes"] = py::none();
+    return d;
+}
 
 void bind_run(py::module_& m) {
     py::class_<CancelToken, std::shared_ptr<CancelToken>>(m, "CancelToken")

@@ -8,6 +8,7 @@ Every subcommand runs through :func:`run_guarded`, which maps errors to these co
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import signal
@@ -106,6 +107,9 @@ def _run_main(args) -> int:
         kwargs["time_budget_s"] = args.time_budget
     if args.progress:
         kwargs["progress"] = lambda done, total: print(f"progress {done} {total}", file=sys.stderr, flush=True)
+    if args.scheduler is not None:  # the same result, traced on a Dask cluster
+        from .distributed import run_on_scheduler
+        run = functools.partial(run_on_scheduler, args.scheduler, run)
     res = _run_interruptible(run, scene, source, photons=photons, record_escapes=False, **kwargs)
     print(json.dumps(res.to_dict(), indent=None, sort_keys=True, allow_nan=False))
     return EXIT_INTERRUPTED if res.cancelled else 0
@@ -163,6 +167,9 @@ def _main(argv) -> int:
     p_run.add_argument("--time-budget", type=real_arg(0.0), default=None, help="stop after this many seconds")
     p_run.add_argument("--progress", action="store_true",
                        help="print 'progress DONE TOTAL' lines to stderr about 10 times a second")
+    p_run.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="trace on a Dask cluster: tcp://host:port, or local:N for N local worker processes "
+                            "(docs/distributed.md); the result is bit-identical to a local run")
     p_run.set_defaults(func=_run_main)
     p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
     add_sweep_arguments(p_sweep)

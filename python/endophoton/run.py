@@ -89,7 +89,7 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         fluorescence_rule: str = "paper", grids: GridRequest | None = None, target: Target | None = None,
         time_budget_s: float = 0.0, max_photons: int = 0, batches: int = 50, spectral: bool | None = None,
         safe_distance: bool = True, unit_size: int = 0, quality: str | None = None, progress=None,
-        cancel=None, lumen: bool = True) -> Result:
+        cancel=None, lumen: bool = True, client=None, chunk_units: int = 0) -> Result:
     """Trace photon packets through ``scene`` from ``source``.
 
     Exactly one of ``photons`` (launch that many packets), ``store`` (launch
@@ -99,6 +99,10 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     called about 10 times a second from the calling thread and may return False
     to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
     partial result then has ``cancelled=True``.
+
+    ``client`` (a dask.distributed.Client) traces the packets on its workers in
+    chunks of ``chunk_units`` units (0 = automatic) and gives bit-for-bit the
+    result of a local run with the same seed (endophoton.distributed).
 
     ``quality`` ("preview", "standard", "reference") is a shortcut for a target
     accuracy with a packet cap (endophoton.quality); it cannot be combined with
@@ -169,6 +173,10 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         opts["grid_voxel_size"] = float(grids.voxel_size)
         opts["grid_path"] = os.fspath(grids.path)
         opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
+    if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
+        from . import distributed
+        raw = distributed.run(scene, source, opts, client, chunk_units=chunk_units, progress=progress, cancel=cancel)
+        return Result(raw, scene, source, opts)
     native_scene = scene.to_native()
     native_source = _core.Source(source.native_lights(scene.unit_cm), body=source.native_body(scene.unit_cm))
     raw = _core.run(native_scene, native_source, _core.RunConfig(**opts), progress, cancel)

@@ -356,3 +356,22 @@ def test_render_result_png(ep, tmp_path, out_dir):
     rgb = pixels.reshape(-1, 4)[:, :3]
     assert rgb.std() > 0.01, f"grid render is (nearly) one flat colour: std {rgb.std():.4f}"
     assert rgb[:, 1].max() > 2 * rgb[:, 1].mean(), "no glowing grid in the render"
+
+
+def test_unreachable_scheduler_preference_is_named(ep, tmp_path):
+    """With the preferences' Dask scheduler set, the run goes there; one that
+    cannot be reached fails the run with a message naming the address, and the
+    scene is left as it was."""
+    from endophoton_addon import preferences
+
+    open_blend("flat_tissue.blend", tmp_path)
+    prefs = bpy.context.preferences.addons["endophoton_addon"].preferences
+    prefs.scheduler_address = " tcp://127.0.0.1:9 "
+    try:
+        assert preferences.scheduler_address() == "tcp://127.0.0.1:9"
+        before = data_snapshot()
+        with pytest.raises(RuntimeError, match=r"scheduler = 'tcp://127.0.0.1:9': cannot connect"):
+            _run_job(bpy.context)
+        assert data_snapshot() == before
+    finally:
+        prefs.scheduler_address = ""

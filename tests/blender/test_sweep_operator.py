@@ -266,3 +266,37 @@ def test_best_beta_needs_enough_angles_and_has_uncertainty(ep):
     assert abs(beta - 25.0) < max(3 * beta_se, 0.1)
     few = slice(0, sweep_job.MIN_FIT_POINTS - 1)
     assert math.isnan(sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few])[0])
+
+
+def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
+    """With the preferences' Dask Scheduler set, the sweep's runs trace on that
+    cluster (2 single-threaded worker processes started outside Blender, importing
+    the same package) and give the local sweep's rows and histograms."""
+    import subprocess
+    import sys
+
+    from conftest import engine_folder
+
+    scene = _setup(tmp_path)
+    local, _, _ = _run_job(bpy.context)
+    assert local.error is None, local.error_traceback
+    starter = ("import sys; from distributed import LocalCluster; "
+               "c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=':0', "
+               "env={'PYTHONPATH': sys.argv[1]}); print(c.scheduler_address, flush=True); sys.stdin.read(); c.close()")
+    folder = engine_folder() or ""
+    cluster = subprocess.Popen(["/usr/bin/python3", "-c", starter, folder], stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONPATH=folder))
+    prefs = bpy.context.preferences.addons["endophoton_addon"].preferences
+    try:
+        address = cluster.stdout.readline().strip()
+        assert address.startswith("tcp://"), address
+        prefs.scheduler_address = address
+        scene.endophoton.sweep.output_dir = str(tmp_path / "sweep_cluster")
+        remote, _, _ = _run_job(bpy.context)
+    finally:
+        prefs.scheduler_address = ""
+        cluster.stdin.close()
+        cluster.wait(timeout=120)
+    assert remote.scheduler == address and local.scheduler == ""   # the runs really went there
+    assert remote.error is None and not remote.cancelled, remote.error_traceback
+    _assert_same_rows(remote.result, local.result)

@@ -1,0 +1,184 @@
+#include "unit_io.h"
+
+#include <cstring>
+#include <stdexcept>
+#include <type_traits>
+
+#include "engine.h"
+#include "voxel_grid.h"
+
+namespace ep {
+
+namespace {
+
+// Bumped whenever the layout below changes; a worker with another build is
+// then refused by name instead of producing garbage.
+constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '2'};
+
+class Writer {
+  public:
+    template <class T>
+    void put(const T& v) {
+        static_assert(std::is_trivially_copyable_v<T>);
+        out_.append(reinterpret_cast<const char*>(&v), sizeof(T));
+    }
+    template <class T>
+    void put_vec(const std::vector<T>& v) {
+        put(uint64_t(v.size()));
+        out_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
+    }
+    void put_raw(const char* p, size_t n) { out_.append(p, n); }
+    std::string take() { return std::move(out_); }
+
+  private:
+    std::string out_;
+};
+
+class Reader {
+  public:
+    explicit Reader(const std::string& s) : s_(s) {}
+    template <class T>
+    T get() {
+        T v;
+        need(sizeof(T));
+        std::memcpy(&v, s_.data() + pos_, sizeof(T));
+        pos_ += sizeof(T);
+        return v;
+    }
+    template <class T>
+    void get_into(T& v) {  // a fixed-size array
+        need(sizeof(T));
+        std::memcpy(&v, s_.data() + pos_, sizeof(T));
+        pos_ += sizeof(T);
+    }
+    template <class T>
+    void get_vec(std::vector<T>& v) {
+        const uint64_t n = get<uint64_t>();
+        if (n > (s_.size() - pos_) / sizeof(T)) fail();
+        v.resize(n);
+        std::memcpy(v.data(), s_.data() + pos_, n * sizeof(T));
+        pos_ += n * sizeof(T);
+    }
+    void expect_raw(const char* p, size_t n) {
+        need(n);
+        if (std::memcmp(s_.data() + pos_, p, n) != 0)
+            throw std::invalid_argument("unit batch: not an endophoton unit batch of engine " + engine_version() +
+                                        " (a worker runs another build?)");
+        pos_ += n;
+    }
+    bool at_end() const { return pos_ == s_.size(); }
+    [[noreturn]] static void fail() { throw std::invalid_argument("unit batch: truncated or corrupt bytes"); }
+
+  private:
+    void need(size_t n) const {
+        if (n > s_.size() - pos_) fail();
+    }
+    const std::string& s_;
+    size_t pos_ = 0;
+};
+
+// Every column of the surface photon map, in one place for both directions.
+template <class R, class F>
+void for_each_column(R& r, F&& f) {
+    f(r.position), f(r.direction), f(r.normal), f(r.entry), f(r.weight), f(r.energy), f(r.wavelength),
+        f(r.max_depth), f(r.fluorescent), f(r.light), f(r.kind), f(r.fluorophore), f(r.region),
+        f(r.scatterings), f(r.packet);
+}
+
+void put_grid(Writer& w, const VoxelAccumulator& g) {
+    const auto voxels = g.sorted();  // sorted: the bytes do not depend on the hash layout
+    w.put(uint64_t(voxels.size()));
+    for (const auto& [c, v] : voxels) {
+        w.put(c);
+        w.put(v);
+    }
+    w.put(g.dropped());
+    w.put(g.dropped_value());
+}
+
+std::unique_ptr<VoxelAccumulator> get_grid(Reader& r, double voxel_size) {
+    auto g = std::make_unique<VoxelAccumulator>(voxel_size);
+    const uint64_t n = r.get<uint64_t>();
+    for (uint64_t i = 0; i < n; ++i) {
+        const auto c = r.get<VoxelAccumulator::Coord>();
+        const double v = r.get<double>();
+        g->add_index(c, v);
+    }
+    const uint64_t dropped = r.get<uint64_t>();
+    const double dropped_value = r.get<double>();
+    g->add_dropped(dropped, dropped_value);
+    return g;
+}
+
+}  // namespace
+
+std::string pack_units(const UnitBatch& batch) {
+    Writer w;
+    w.put_raw(kMagic, sizeof(kMagic));
+    w.put(batch.first_unit);
+    w.put(uint64_t(batch.units.size()));
+    for (const auto& u : batch.units) {
+        w.put(u->first_packet);
+        const UnitTally& t = u->tally;
+        w.put(t.packets);
+        w.put(t.capped_packets);
+        w.put(t.scalar);
+        w.put(t.energy);
+        w.put_vec(t.absorbed_by_region);
+        w.put(t.scalar_m);
+        w.put(t.energy_m);
+        w.put_vec(t.absorbed_by_region_m);
+        for_each_column(u->records, [&](const auto& col) { w.put_vec(col); });
+        const bool grids = bool(u->absorbed_grid);
+        w.put(uint8_t(grids));
+        if (grids) {
+            put_grid(w, *u->absorbed_grid);
+            put_grid(w, *u->fluorescence_grid);
+            w.put(uint64_t(u->per_fluorophore.size()));
+            for (const auto& g : u->per_fluorophore) put_grid(w, *g);
+        }
+    }
+    return w.take();
+}
+
+UnitBatch unpack_units(const std::string& bytes, double voxel_size) {
+    Reader r(bytes);
+    r.expect_raw(kMagic, sizeof(kMagic));
+    UnitBatch batch;
+    batch.first_unit = r.get<uint64_t>();
+    const uint64_t n = r.get<uint64_t>();
+    if (n > bytes.size()) Reader::fail();
+    for (uint64_t i = 0; i < n; ++i) {
+        auto u = std::make_unique<UnitOutput>();
+        u->first_packet = r.get<uint64_t>();
+        UnitTally& t = u->tally;
+        t.packets = r.get<uint64_t>();
+        t.capped_packets = r.get<uint64_t>();
+        r.get_into(t.scalar);
+        r.get_into(t.energy);
+        r.get_vec(t.absorbed_by_region);
+        r.get_into(t.scalar_m);
+        r.get_into(t.energy_m);
+        r.get_vec(t.absorbed_by_region_m);
+        for_each_column(u->records, [&](auto& col) { r.get_vec(col); });
+        const size_t nrec = u->records.weight.size();
+        for_each_column(u->records, [&](const auto& col) {
+            if (col.size() != nrec && col.size() != 3 * nrec) Reader::fail();
+        });
+        if (r.get<uint8_t>()) {
+            if (!(voxel_size > 0)) throw std::invalid_argument("unit batch: holds grids, but the run asks for none");
+            u->absorbed_grid = get_grid(r, voxel_size);
+            u->fluorescence_grid = get_grid(r, voxel_size);
+            const uint64_t nf = r.get<uint64_t>();
+            if (nf > bytes.size()) Reader::fail();
+            for (uint64_t f = 0; f < nf; ++f) u->per_fluorophore.push_back(get_grid(r, voxel_size));
+        } else if (voxel_size > 0) {
+            throw std::invalid_argument("unit batch: holds no grids, but the run asks for grids");
+        }
+        batch.units.push_back(std::move(u));
+    }
+    if (!r.at_end()) Reader::fail();
+    return batch;
+}
+
+}  // namespace ep

@@ -1,0 +1,193 @@
+"""Runs on a Dask cluster (issue 14): bit-identical to a local run with the same
+seed, for fixed counts, "store N" and target runs, with grids and records; a
+worker killed mid-run loses nothing; an unreachable scheduler is named.
+
+Clusters are small (2 single-threaded worker processes) and runs short. No
+verdict depends on timing: the worker is killed from the progress callback,
+which runs on the client right after a chunk is merged.
+"""
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton import distributed
+from endophoton.beta_sweep import default_flat_scene
+from endophoton.vdb import grid_to_numpy
+
+pytest.importorskip("distributed")
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+MCML_SLAB = os.path.join(ROOT, "examples", "mcml_slab.json")
+ESTIMATES = ep.FRACTIONS + ("fluorescent_escaped", "escaped_energy")
+
+
+@pytest.fixture(scope="module")
+def client():
+    with distributed.connect("local:2") as c:
+        yield c
+
+
+def fluorescent_endoscope():
+    """The seed's §5 scene, shrunk: collagen everywhere, photofrin in a dome polyp."""
+    scene = default_flat_scene(polyp="dome", half_width_cm=2.0, thickness_cm=1.0, mesh_resolution=(8, 16))
+    return scene, ep.EndoscopeRig.from_beta(20, 1.0)
+
+
+def assert_same_result(a, b):
+    """Every estimate and stderr (energies too), counts, stop reason and record: the same bits."""
+    for k in ESTIMATES:
+        assert getattr(a, k) == getattr(b, k), k
+        assert getattr(a, k + "_stderr") == getattr(b, k + "_stderr"), k + "_stderr"
+    ra, rb = a.to_dict(), b.to_dict()
+    for k in ("seconds", "threads", "grid_path"):  # how, not what: these may differ
+        ra.pop(k), rb.pop(k)
+    assert ra == rb
+    assert (a.escapes is None) == (b.escapes is None)
+    if a.escapes is not None:
+        assert set(a.escapes) == set(b.escapes)
+        for k in a.escapes:
+            assert a.escapes[k].dtype == b.escapes[k].dtype, k
+            assert np.array_equal(a.escapes[k], b.escapes[k]), k
+
+
+def cli(*args):
+    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
+    return subprocess.run([sys.executable, "-m", "endophoton", *args], capture_output=True, text=True, env=env,
+                          timeout=600)
+
+
+def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
+    dist = cli("run", MCML_SLAB, "--photons", "20000", "--seed", "7", "--scheduler", "local:2")
+    assert dist.returncode == 0, dist.stderr
+    local = cli("run", MCML_SLAB, "--photons", "20000", "--seed", "7", "--threads", "1")
+    assert local.returncode == 0, local.stderr
+    d, loc = json.loads(dist.stdout), json.loads(local.stdout)
+    for k in ep.FRACTIONS:
+        assert d[k] == loc[k], k
+        assert d[k + "_stderr"] == loc[k + "_stderr"], k
+    # And the numbers are MCML's: van de Hulst's Rd = 0.09739, Tt = 0.66096 (oracles §1).
+    assert abs(d["diffuse_reflectance"] - 0.09739) < 4 * d["diffuse_reflectance_stderr"]
+    assert abs(d["transmittance"] - 0.66096) < 4 * d["transmittance_stderr"]
+
+
+def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
+    scene, rig = fluorescent_endoscope()
+    grids = dict(voxel_size=0.05, per_fluorophore=True)
+    dist = ep.run(scene, rig, photons=3000, seed=5, client=client, chunk_units=7,
+                  grids=ep.GridRequest(path=str(tmp_path / "dist.vdb"), **grids))
+    local = ep.run(scene, rig, photons=3000, seed=5, threads=1,
+                   grids=ep.GridRequest(path=str(tmp_path / "local.vdb"), **grids))
+    assert_same_result(dist, local)
+    assert dist.fluorescent_escaped > 0 and len(dist.escapes["weight"]) > 0
+    assert dist.grid_names == local.grid_names == ["absorbed", "fluorescence", "fluorescence_collagen",
+                                                   "fluorescence_photofrin"]
+    assert dist.grid_absorbed_sum == local.grid_absorbed_sum
+    for name in dist.grid_names:
+        a, oa, ha = grid_to_numpy(dist.grid_path, name)
+        b, ob, hb = grid_to_numpy(local.grid_path, name)
+        assert a.shape == b.shape and oa == ob and ha == hb, name
+        assert np.array_equal(a, b), name
+    # The absorbed grid holds the absorbed energy per launched packet (numpy sum of the float32 voxels).
+    a, _, _ = grid_to_numpy(dist.grid_path, "absorbed")
+    assert float(a.sum(dtype=np.float64)) == pytest.approx(dist.absorbed_energy, rel=1e-5)
+    assert dist.energy_balance == pytest.approx(1.0, abs=1e-12)
+
+
+def test_store_n_is_bit_identical_and_stops_where_the_local_run_stops(client):
+    scene, rig = fluorescent_endoscope()
+    kw = dict(store=300, fluorescent_only=True, seed=2)
+    dist = ep.run(scene, rig, client=client, chunk_units=1, **kw)
+    local = ep.run(scene, rig, threads=1, **kw)
+    assert_same_result(dist, local)
+    assert dist.stop_reason == "store" and len(dist.escapes["weight"]) == 300
+    assert np.all(dist.escapes["fluorescent"] == 1)
+    assert np.all(np.diff(dist.escapes["packet"].astype(np.int64)) >= 0)
+    assert dist.escapes["packet"][-1] + 1 == dist.packets_traced
+
+
+def test_target_accuracy_is_bit_identical(client):
+    scene, rig = fluorescent_endoscope()
+    kw = dict(target=ep.Target("diffuse_reflectance", 0.05), seed=4, record_escapes=False)
+    dist = ep.run(scene, rig, client=client, chunk_units=3, **kw)
+    local = ep.run(scene, rig, threads=2, **kw)
+    assert_same_result(dist, local)
+    assert dist.stop_reason == "target"
+    assert dist.diffuse_reflectance_stderr <= 0.05 * dist.diffuse_reflectance
+
+
+def test_killed_worker_loses_nothing():
+    scene, rig = fluorescent_endoscope()
+    kw = dict(photons=4000, seed=9, record_escapes=True)
+    killed = []
+    with distributed.connect("local:2") as c:
+        pids = c.run(os.getpid)
+        before = set(pids)
+
+        def progress(done, total):
+            if not killed:  # right after the first chunk is merged: the others are queued or running
+                addr, pid = sorted(pids.items())[0]
+                os.kill(pid, signal.SIGKILL)
+                killed.append(addr)
+            return True
+
+        dist = ep.run(scene, rig, client=c, chunk_units=4, progress=progress, **kw)
+        c.wait_for_workers(2, timeout=60)
+        after = set(c.scheduler_info()["workers"])
+    assert killed and killed[0] in before and killed[0] not in after  # the worker really died
+    assert not dist.cancelled
+    assert_same_result(dist, ep.run(scene, rig, threads=1, **kw))
+
+
+def test_cancel_stops_a_distributed_run(client):
+    scene, rig = fluorescent_endoscope()
+    token = ep.CancelToken()
+
+    def progress(done, total):
+        token.cancel()
+        return True
+
+    res = ep.run(scene, rig, photons=4000, seed=1, client=client, chunk_units=4, progress=progress, cancel=token)
+    assert res.cancelled and res.stop_reason == "cancelled"
+    # What was merged before the cancel is a prefix of units, in order.
+    assert 0 < res.photons < 4000 and res.photons % res.unit_size == 0
+
+
+def test_bad_chunk_units_is_named(client):
+    scene, rig = fluorescent_endoscope()
+    with pytest.raises(ValueError, match="chunk_units = -1"):
+        ep.run(scene, rig, photons=100, client=client, chunk_units=-1)
+
+
+def test_unreachable_scheduler_exits_2_naming_the_address():
+    out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "tcp://127.0.0.1:9")
+    assert out.returncode == 2
+    assert "tcp://127.0.0.1:9" in out.stderr and "cannot connect" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_bad_local_worker_count_exits_2():
+    out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "local:zero")
+    assert out.returncode == 2 and "local:zero" in out.stderr
+
+
+def test_sweep_on_two_workers_matches_the_local_sweep_csv(client, tmp_path):
+    import csv
+
+    scene, _ = fluorescent_endoscope()
+    kw = dict(betas=[0, 30], store=400, seed=3, progress=False, plots=False, report=False)
+    ep.sweep(scene, out_dir=tmp_path / "dist", run_kwargs={"client": client, "chunk_units": 1}, **kw)
+    ep.sweep(scene, out_dir=tmp_path / "local", threads=1, **kw)
+
+    def rows(d):
+        with open(tmp_path / d / "sweep.csv", newline="") as fh:
+            return [{k: v for k, v in r.items() if k != "seconds"} for r in csv.DictReader(fh)]
+
+    dist, local = rows("dist"), rows("local")
+    assert len(dist) == 2 and dist == local  # every column but the wall-clock seconds, as text
+    assert all(int(r["cancelled"]) == 0 for r in dist)
