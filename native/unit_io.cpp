@@ -82,7 +82,7 @@ template <class R, class F>
 void for_each_column(R& r, F&& f) {
     f(r.position), f(r.direction), f(r.normal), f(r.entry), f(r.weight), f(r.energy), f(r.wavelength),
         f(r.max_depth), f(r.fluorescent), f(r.light), f(r.kind), f(r.fluorophore), f(r.region),
-        f(r.scatterings), f(r.packet);
+        f(r.scatterings), f(r.packet), f(r.exit_order), f(r.next_hit);
 }
 
 void put_grid(Writer& w, const VoxelAccumulator& g) {
