@@ -1,0 +1,89 @@
+#include "triangle_cache.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "scene.h"
+
+namespace ep {
+
+void TriangleCache::reset(const Vec3& center, Float radius) {
+    tris_.clear();
+    planes_.clear();
+    center_ = center;
+    radius_ = radius;
+}
+
+void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region,
+                        uint32_t prim) {
+    // Join the plane of an earlier triangle when this one lies in it (the two
+    // triangles of a quad, a flat face): vertices within a relative 1e-9 of
+    // the plane. The margin records how far they really are, so the plane
+    // test stays conservative for every member.
+    const Float scale = max_abs_component(v0) + max_abs_component(v1) + max_abs_component(v2);
+    const Float tol = 1e-9 * (scale + radius_);
+    uint32_t plane = uint32_t(planes_.size());
+    for (uint32_t k = 0; k < planes_.size(); ++k) {
+        const Plane& p = planes_[k];
+        if (dot(p.n, n) < 1 - 1e-12) continue;
+        const Float e = std::max({std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off),
+                                  std::fabs(dot(p.n, v2) - p.off)});
+        if (e <= tol) {
+            planes_[k].margin = std::max(p.margin, e);
+            plane = k;
+            break;
+        }
+    }
+    if (plane == planes_.size()) {
+        const Float off = dot(n, v0);
+        const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
+        planes_.push_back(Plane{n, off, e});
+    }
+    tris_.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+}
+
+void TriangleCache::intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
+    out.clear();
+    if (tris_.empty()) return;
+    // The same ray as Scene::intersect_all: a negative tnear backs the origin
+    // up, and distances are measured from there and shifted back at the end,
+    // so the refined distances are bit-identical to the full query's.
+    const Float back = tnear < 0 ? -tnear : Float(0);
+    const Vec3 org = back > 0 ? o - d * back : o;
+    const Float t_end = tfar + back;
+    const Vec3 end = org + d * t_end;
+    // Rounding allowance of the plane distances below (a few ulps of the
+    // magnitudes involved).
+    const Float eps = 1e-13 * (max_abs_component(org) + max_abs_component(end) + radius_);
+    // Plane test first: a segment whose two ends lie strictly on one side of a
+    // plane's slab crosses none of its triangles.
+    uint64_t open = 0;  // planes the segment may cross (bit k), for the first 64 planes
+    for (size_t k = 0; k < planes_.size(); ++k) {
+        const Plane& p = planes_[k];
+        const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
+        const Float m = p.margin + eps;
+        const bool apart = (da > m && db > m) || (da < -m && db < -m);
+        if (!apart || k >= 64) open |= uint64_t(1) << std::min<size_t>(k, 63);
+    }
+    if (!open) return;
+    for (const Triangle& tri : tris_) {
+        if (!((open >> std::min<uint32_t>(tri.plane, 63)) & 1)) continue;
+        // Watertight test in double (signed volumes of the ray and each edge):
+        // an edge shared by two triangles gives exactly opposite values in
+        // both (cross(b, c) = -cross(c, b) bit for bit), so a ray through the
+        // edge is inside at least one of them, never neither.
+        const Vec3 a = tri.v0 - org, b = tri.v1 - org, c = tri.v2 - org;
+        const Float e0 = dot(d, cross(b, c)), e1 = dot(d, cross(c, a)), e2 = dot(d, cross(a, b));
+        const bool inside = (e0 >= 0 && e1 >= 0 && e2 >= 0) || (e0 <= 0 && e1 <= 0 && e2 <= 0);
+        if (!inside || (e0 == 0 && e1 == 0 && e2 == 0)) continue;
+        const Float cos_dn = dot(d, tri.n);
+        if (cos_dn == 0) continue;
+        // Distance along the ray to the triangle's plane, as collect_filter refines it.
+        const Float t = dot(a, tri.n) / cos_dn;
+        if (!(t >= 0 && t <= t_end)) continue;
+        out.push_back(Hit{t - back, tri.region, tri.prim, cos_dn});
+    }
+    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& x, const Hit& y) { return x.t < y.t; });
+}
+
+}  // namespace ep
