@@ -61,7 +61,7 @@ struct PacketState {
     bool reuse_hits = false;  // the hits in the buffer are this step's (no new query)
 };
 
-// The local triangle cache (triangle_cache.h): its ball spans up to
+// The local triangle cache (triangle_cache.h): its ball spans a multiple of
 // kBallFreePaths mean free paths of the region the packet is in, so a packet
 // walks many steps before it leaves the ball. The local triangle size sets
 // the rest: the thread remembers a fraction of that radius (halved when more
@@ -70,6 +70,7 @@ struct PacketState {
 // When even a ball of two steps holds too many, the step falls back to the
 // full query and the next kGatherCooldown steps do not try again.
 constexpr Float kBallFreePaths = 16;
+constexpr Float kMaxFraction = 4;  // a ball of up to 64 free paths around few triangles
 constexpr size_t kMaxCached = 16;
 constexpr int kGatherCooldown = 16;
 constexpr size_t kMaxTrianglesForCache = 4096;
@@ -285,7 +286,7 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
             }
             local_.fraction *= Float(0.5);
         }
-        if (cache.size() <= kMaxCached / 4) local_.fraction = std::min(Float(1), 2 * local_.fraction);
+        if (cache.size() <= kMaxCached / 4) local_.fraction = std::min(kMaxFraction, 2 * local_.fraction);
         if (!cache.covers(a, b)) return false;
     }
     cache.intersect(st.p, st.d, -back, s, hits_);
