@@ -12,6 +12,9 @@ void TriangleCache::reset(const Vec3& center, Float radius) {
     planes_.clear();
     center_ = center;
     radius_ = radius;
+    // Rounding allowance of the plane distances in intersect(): a few ulps of
+    // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
+    eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
 }
 
 void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region,
@@ -52,9 +55,7 @@ void TriangleCache::intersect(const Vec3& o, const Vec3& d, Float tnear, Float t
     const Vec3 org = back > 0 ? o - d * back : o;
     const Float t_end = tfar + back;
     const Vec3 end = org + d * t_end;
-    // Rounding allowance of the plane distances below (a few ulps of the
-    // magnitudes involved).
-    const Float eps = 1e-13 * (max_abs_component(org) + max_abs_component(end) + radius_);
+    const Float eps = eps_;
     // Plane test first: a segment whose two ends lie strictly on one side of a
     // plane's slab crosses none of its triangles.
     uint64_t open = 0;  // planes the segment may cross (bit k), for the first 64 planes

@@ -58,7 +58,7 @@ class TriangleCache {
 
   private:
     Vec3 center_;
-    Float radius_ = 0;
+    Float radius_ = 0, eps_ = 0;
     std::vector<Triangle> tris_;
     std::vector<Plane> planes_;
 };
