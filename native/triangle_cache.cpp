@@ -33,6 +33,7 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
                                   std::fabs(dot(p.n, v2) - p.off)});
         if (e <= tol) {
             planes_[k].margin = std::max(p.margin, e);
+            planes_[k].reach = planes_[k].margin + eps_;
             plane = k;
             break;
         }
@@ -40,33 +41,14 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     if (plane == planes_.size()) {
         const Float off = dot(n, v0);
         const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
-        planes_.push_back(Plane{n, off, e});
+        planes_.push_back(Plane{n, off, e, e + eps_});
     }
     tris_.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
 }
 
-void TriangleCache::intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
+void TriangleCache::intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
+                                   std::vector<Hit>& out) const {
     out.clear();
-    if (tris_.empty()) return;
-    // The same ray as Scene::intersect_all: a negative tnear backs the origin
-    // up, and distances are measured from there and shifted back at the end,
-    // so the refined distances are bit-identical to the full query's.
-    const Float back = tnear < 0 ? -tnear : Float(0);
-    const Vec3 org = back > 0 ? o - d * back : o;
-    const Float t_end = tfar + back;
-    const Vec3 end = org + d * t_end;
-    const Float eps = eps_;
-    // Plane test first: a segment whose two ends lie strictly on one side of a
-    // plane's slab crosses none of its triangles.
-    uint64_t open = 0;  // planes the segment may cross (bit k), for the first 64 planes
-    for (size_t k = 0; k < planes_.size(); ++k) {
-        const Plane& p = planes_[k];
-        const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
-        const Float m = p.margin + eps;
-        const bool apart = (da > m && db > m) || (da < -m && db < -m);
-        if (!apart || k >= 64) open |= uint64_t(1) << std::min<size_t>(k, 63);
-    }
-    if (!open) return;
     for (const Triangle& tri : tris_) {
         if (!((open >> std::min<uint32_t>(tri.plane, 63)) & 1)) continue;
         // Watertight test in double (signed volumes of the ray and each edge):

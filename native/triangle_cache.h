@@ -12,11 +12,10 @@
 #include <cstdint>
 #include <vector>
 
+#include "scene.h"
 #include "vecmath.h"
 
 namespace ep {
-
-struct Hit;
 
 class TriangleCache {
   public:
@@ -31,6 +30,7 @@ class TriangleCache {
     struct Plane {
         Vec3 n;
         Float off, margin;
+        Float reach;  // margin + the rounding allowance of the plane test
     };
 
     // Empty and covering nothing.
@@ -49,7 +49,27 @@ class TriangleCache {
     }
     // Scene::intersect_all restricted to the cached triangles: valid only for
     // a segment that covers() accepts ([o + tnear d, o + tfar d], tnear <= 0).
-    void intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const;
+    // Inline: the plane test, which answers almost every step by itself.
+    void intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
+        // The same ray as Scene::intersect_all: a negative tnear backs the
+        // origin up, and distances are measured from there and shifted back at
+        // the end, so the refined distances are bit-identical to the full query's.
+        const Float back = tnear < 0 ? -tnear : Float(0);
+        const Vec3 org = back > 0 ? o - d * back : o;
+        const Float t_end = tfar + back;
+        const Vec3 end = org + d * t_end;
+        // A segment whose two ends lie strictly on one side of a plane's slab
+        // crosses none of its triangles.
+        uint64_t open = 0;  // planes the segment may cross (bit k; planes beyond 63 share bit 63)
+        for (size_t k = 0; k < planes_.size(); ++k) {
+            const Plane& p = planes_[k];
+            const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
+            const bool apart = (da > p.reach && db > p.reach) || (da < -p.reach && db < -p.reach);
+            if (!apart || k >= 63) open |= uint64_t(1) << std::min<size_t>(k, 63);
+        }
+        if (open) intersect_open(org, d, back, t_end, open, out);
+        else out.clear();
+    }
 
     const Vec3& center() const { return center_; }
     Float radius() const { return radius_; }
@@ -57,6 +77,10 @@ class TriangleCache {
     size_t plane_count() const { return planes_.size(); }
 
   private:
+    // The triangle tests of the planes in `open` (bit k = plane k).
+    void intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
+                        std::vector<Hit>& out) const;
+
     Vec3 center_;
     Float radius_ = 0, eps_ = 0;
     std::vector<Triangle> tris_;
