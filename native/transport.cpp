@@ -369,6 +369,7 @@ uint64_t PacketWalk<kSpectral, kGrids>::inside_just_ahead(uint64_t regions, Floa
 // interface ends the scan.
 template <bool kSpectral, bool kGrids>
 Crossing PacketWalk<kSpectral, kGrids>::cross_interfaces(Float s) {
+    if (hits_.empty()) return Crossing::kNone;  // most steps in tissue: nothing ahead
     const Interface f = next_interface(s, st_.set, st_.med.region);
     st_.set = f.set_before;
     return f.found ? cross_interface(f) : Crossing::kNone;
