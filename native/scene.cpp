@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "eem.h"
+#include "triangle_cache.h"
 
 namespace ep {
 
@@ -37,14 +38,15 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
         }
     // Embree's distance is float precision (~1e-7 relative). Refine it in double
     // against the triangle's plane, t = (v0 - o).n / (d.n), so that straight
-    // paths (Beer-Lambert, thin layers) are exact to double rounding. Near-grazing
-    // rays keep Embree's value, where the plane division is ill-conditioned.
+    // paths (Beer-Lambert, thin layers) are exact to double rounding. The
+    // plane distance is the double ray's own (also for grazing rays, where
+    // Embree's float distance is the less accurate one), and it is the value
+    // the local triangle cache computes, so both give identical hits.
     const Float cos_dn = dot(ctx->dir, n);
     Float t_hit = Float(t);
-    if (std::fabs(cos_dn) > 1e-3) {
+    if (cos_dn != 0) {
         const float* v = &(*ctx->vertices)[region][3 * size_t((*ctx->triangles)[region][3 * size_t(prim)])];
-        const Float tr = dot(Vec3(v[0], v[1], v[2]) - ctx->org, n) / cos_dn;
-        if (std::fabs(tr - t_hit) <= 1e-5 * (std::fabs(t_hit) + 1)) t_hit = tr;
+        t_hit = dot(Vec3(v[0], v[1], v[2]) - ctx->org, n) / cos_dn;
     }
     ctx->hits->push_back(Hit{t_hit, region, prim, cos_dn});
     args->valid[0] = 0;  // reject: traversal goes on and collects every crossing
@@ -105,6 +107,35 @@ bool closest_callback(RTCPointQueryFunctionArguments* args) {
     return false;
 }
 
+struct GatherData {
+    const std::vector<Region>* regions;
+    const std::vector<std::vector<float>>* vertices;
+    const std::vector<std::vector<uint32_t>>* triangles;
+    Vec3 c;
+    Float r2;
+    TriangleCache* cache;
+    size_t max_count;
+    bool overflow;
+};
+
+// Keeps every triangle within the ball (exact double distance); the query
+// radius never shrinks, so Embree visits every candidate.
+bool gather_callback(RTCPointQueryFunctionArguments* args) {
+    auto* q = static_cast<GatherData*>(args->userPtr);
+    if (q->overflow) return false;
+    const unsigned region = args->geomID;
+    const auto& v = (*q->vertices)[region];
+    const uint32_t* tri = &(*q->triangles)[region][3 * size_t(args->primID)];
+    auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
+    const Vec3 a = vert(tri[0]), b = vert(tri[1]), c = vert(tri[2]);
+    if (closest_distance2(q->c, a, b, c) > q->r2) return false;
+    if (q->cache->size() >= q->max_count) {
+        q->overflow = true;
+        return false;
+    }
+    q->cache->add(a, b, c, (*q->regions)[region].normals[args->primID], region, args->primID);
+    return false;
+}
 
 }  // namespace
 
@@ -291,6 +322,26 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
     PointQueryData data{&vertices_, &triangles_, p, radius * radius};
     rtcPointQuery(scene_, &q, &qc, closest_callback, &data);
     return std::min(radius, std::sqrt(data.best2));
+}
+
+bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+    cache.reset(c, radius);
+    // The ball handed to Embree is a little larger than the cache's, so that
+    // float rounding of its bounds tests can never drop a triangle that meets
+    // the cache's ball; the exact test in the callback is in double.
+    const Float r_gather = radius * (1 + 1e-5) + 1e-6 * (max_abs_component(c) + radius);
+    RTCPointQuery q;
+    q.x = float(c.x);
+    q.y = float(c.y);
+    q.z = float(c.z);
+    q.time = 0;
+    q.radius = float(r_gather * (1 + 1e-5));
+    RTCPointQueryContext qc;
+    rtcInitPointQueryContext(&qc);
+    GatherData data{&regions_, &vertices_, &triangles_, c, r_gather * r_gather, &cache, max_count, false};
+    rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
+    if (data.overflow) cache.clear();
+    return !data.overflow;
 }
 
 }  // namespace ep

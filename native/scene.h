@@ -15,6 +15,7 @@
 namespace ep {
 
 class EEM;
+class TriangleCache;
 
 // A fluorophore of a region: the seed's d (probability of interaction) and
 // c (concentration), and the scene-wide id of its EEM.
@@ -89,6 +90,11 @@ class Scene {
     // Distance from p to the nearest triangle of any region (scene units),
     // searched within `radius`; returns `radius` if nothing is closer.
     Float distance_to_surface(const Vec3& p, Float radius) const;
+
+    // Fills `cache` with every triangle that meets the ball (c, radius), for
+    // steps that stay inside it (triangle_cache.h). False, and an empty cache
+    // that covers nothing, when more than max_count triangles meet the ball.
+    bool gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
 
   private:
     Float unit_cm_, ambient_n_;

@@ -59,18 +59,21 @@ struct PacketState {
     Float tau = 0;            // remaining dimensionless step (MCML's carried step)
     bool need_tau = true;
     bool reuse_hits = false;  // the hits in the buffer are this step's (no new query)
-    // Safe ball: no surface lies within safe_r of safe_c (from a closest-point
-    // query). A step whose end stays inside the ball cannot cross a surface,
-    // because the ball is convex; so no ray query is needed for it.
-    Vec3 safe_c;
-    Float safe_r = 0;
-    // After a closest-point query that did not cover the step (the packet is
-    // near a surface), go straight to ray queries for a few steps instead of
-    // paying for both queries every step.
-    int point_query_cooldown = 0;
 };
 
-constexpr int kCooldownSteps = 32;
+// The local triangle cache (triangle_cache.h): its ball spans a multiple of
+// kBallFreePaths mean free paths of the region the packet is in, so a packet
+// walks many steps before it leaves the ball. The local triangle size sets
+// the rest: the thread remembers a fraction of that radius (halved when more
+// than kMaxCached triangles meet the ball, doubled when it holds few), so a
+// finely tessellated wall gets a small ball and a big flat face a large one.
+// When even a ball of two steps holds too many, the step falls back to the
+// full query and the next kGatherCooldown steps do not try again.
+constexpr Float kBallFreePaths = 16;
+constexpr Float kMaxFraction = 4;  // a ball of up to 64 free paths around few triangles
+constexpr size_t kMaxCached = 16;
+constexpr int kGatherCooldown = 16;
+constexpr size_t kMaxTrianglesForCache = 4096;
 
 // What a step through the crossings ahead ended with.
 enum class Crossing { kNone, kBoundary, kEnded };
@@ -92,9 +95,9 @@ class PacketWalk {
   public:
     PacketWalk(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg,
                std::vector<Hit>& hits, std::vector<Float>& cuts, const std::vector<uint8_t>& enclosed,
-               UnitOutput& out)
+               LocalGeometry& local, UnitOutput& out)
         : scene_(scene), source_(source), halton_(halton), cfg_(cfg), hits_(hits), cuts_(cuts),
-          enclosed_(enclosed), out_(out),
+          enclosed_(enclosed), local_(local), out_(out),
           unit_cm_(scene.unit_cm()), extent_(scene.extent()),
           max_events_(cfg.max_steps > 0 ? std::min<uint64_t>(cfg.max_steps, kSafetyMaxEvents) : kSafetyMaxEvents) {}
 
@@ -104,6 +107,7 @@ class PacketWalk {
     void launch(uint64_t index);
     bool locate_start();
     void find_crossings(Float s);
+    bool cached_crossings(Float s);
     Interface next_interface(Float s, uint64_t set, int region) const;
     uint64_t inside_just_ahead(uint64_t regions, Float t) const;
     Crossing cross_interfaces(Float s);
@@ -144,6 +148,7 @@ class PacketWalk {
     std::vector<Hit>& hits_;
     std::vector<Float>& cuts_;
     const std::vector<uint8_t>& enclosed_;
+    LocalGeometry& local_;
     UnitOutput& out_;
     const Float unit_cm_, extent_;
     const uint64_t max_events_;
@@ -208,7 +213,6 @@ void PacketWalk<kSpectral, kGrids>::launch(uint64_t index) {
     st.energy_per_weight = kSpectral && st.lambda > 0 ? kEnergyReferenceNm / st.lambda : Float(1);
     if constexpr (kSpectral) out_.tally.energy[kEnergyLaunched] += st.energy_per_weight;
     st.entry_p = st.p;
-    st.safe_c = st.p;
 }
 
 // Where does the packet start? One query to infinity along its direction: a
@@ -244,38 +248,49 @@ bool PacketWalk<kSpectral, kGrids>::locate_start() {
     return true;
 }
 
-// Fills hits_ with the crossings along a step of length s, or clears it when
-// the safe ball proves there are none.
+// Fills hits_ with the crossings along a step of length s: from the local
+// triangle cache when the step stays inside its ball, else by a full query.
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
     PacketState& st = st_;
-    bool query = true;
-    if (!st.reuse_hits && cfg_.safe_distance && st.med.region >= 0 && std::isfinite(s)) {
-        const Vec3 end = st.p + st.d * s;
-        const Vec3 off = end - st.safe_c;
-        if (dot(off, off) < st.safe_r * st.safe_r) {
-            query = false;
-        } else if (st.point_query_cooldown > 0) {
-            --st.point_query_cooldown;
-        } else {
-            const Float radius = std::min(extent_, Float(64) * s);
-            const Float dist = scene_.distance_to_surface(st.p, radius) * (1 - 1e-5) - ray_offset(st.p, extent_);
-            if (s < dist) {
-                st.safe_c = st.p;
-                st.safe_r = dist;
-                query = false;
-            } else {
-                st.point_query_cooldown = kCooldownSteps;
-            }
-        }
-    }
-    if (query) {
-        if (!st.reuse_hits) scene_.intersect_all(st.p, st.d, -ray_offset(st.p, extent_), s, hits_);
+    if (st.reuse_hits) {
         st.reuse_hits = false;
-        st.safe_r = 0;
-    } else {
-        hits_.clear();
+        return;
     }
+    if (local_.enabled && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
+    scene_.intersect_all(st.p, st.d, -ray_offset(st.p, extent_), s, hits_);
+}
+
+// The crossings of the step [-offset, s] from the cache, re-gathered around
+// the packet when the step leaves its ball. False when the cache cannot
+// answer (too many triangles near the packet): the caller queries Embree.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
+    const PacketState& st = st_;
+    TriangleCache& cache = local_.cache;
+    const Float back = ray_offset(st.p, extent_);
+    const Vec3 a = st.p - st.d * back, b = st.p + st.d * s;
+    if (!cache.covers(a, b)) {
+        if (local_.cooldown > 0) {
+            --local_.cooldown;
+            return false;
+        }
+        // A ball of (fraction x kBallFreePaths) mean free paths, at least
+        // twice this step, at most the scene.
+        const Float mfp = 1 / (st.med.mut * unit_cm_), min_r = 2 * (s + back);
+        while (!scene_.gather_triangles(
+            st.p, std::min(extent_, std::max(local_.fraction * kBallFreePaths * mfp, min_r)), kMaxCached, cache)) {
+            if (local_.fraction * kBallFreePaths * mfp <= min_r) {
+                local_.cooldown = kGatherCooldown;
+                return false;
+            }
+            local_.fraction *= Float(0.5);
+        }
+        if (cache.size() <= kMaxCached / 4) local_.fraction = std::min(kMaxFraction, 2 * local_.fraction);
+        if (!cache.covers(a, b)) return false;
+    }
+    cache.intersect(st.p, st.d, -back, s, hits_);
+    return true;
 }
 
 // The first crossing before s that changes the top region, for a packet in
@@ -354,6 +369,7 @@ uint64_t PacketWalk<kSpectral, kGrids>::inside_just_ahead(uint64_t regions, Floa
 // interface ends the scan.
 template <bool kSpectral, bool kGrids>
 Crossing PacketWalk<kSpectral, kGrids>::cross_interfaces(Float s) {
+    if (hits_.empty()) return Crossing::kNone;  // most steps in tissue: nothing ahead
     const Interface f = next_interface(s, st_.set, st_.med.region);
     st_.set = f.set_before;
     return f.found ? cross_interface(f) : Crossing::kNone;
@@ -491,7 +507,6 @@ Crossing PacketWalk<kSpectral, kGrids>::through_ambient(NextHit next) {
     switch (next) {
         case kNextTissue:
             st_.reuse_hits = true;
-            st_.safe_r = 0;
             return Crossing::kBoundary;
         case kNextHead: add(kOccluded, st_.W); return Crossing::kEnded;
         case kNextCamera: add(kCameraCollected, st_.W); return Crossing::kEnded;
@@ -705,6 +720,14 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     grids_ = cfg.grid_voxel_size > 0;
     hits_.reserve(64);
+    // The local triangle cache pays where a gather (a fixed-radius point query)
+    // is cheap against the ray queries it saves: scenes of few triangles
+    // (boxes, slabs, coarse meshes). On finely tessellated scenes (the colon
+    // tube's 12 800 triangles) a gather costs about two all-hits ray queries
+    // (callgrind, docs/performance.md), so every step queries Embree directly.
+    size_t triangles = 0;
+    for (size_t i = 0; i < scene.region_count(); ++i) triangles += scene.region(i).normals.size();
+    local_.enabled = cfg.safe_distance && triangles <= kMaxTrianglesForCache;
     // A light is enclosed when every one of 64 probe rays from its centre
     // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
     // with an opening larger than about 1/64 of the sphere is seen as open.
@@ -725,7 +748,7 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
 void Tracer::trace(uint64_t index, UnitOutput& out) {
     auto walk = [&](auto spectral, auto grids) {
         PacketWalk<decltype(spectral)::value, decltype(grids)::value>(scene_, source_, halton_, cfg_, hits_, cuts_,
-                                                                      enclosed_, out)
+                                                                      enclosed_, local_, out)
             .run(index);
     };
     using T = std::true_type;

@@ -17,6 +17,7 @@
 #include "scene.h"
 #include "source.h"
 #include "tally.h"
+#include "triangle_cache.h"
 
 namespace ep {
 
@@ -30,6 +31,15 @@ struct UnitOutput {
     std::unique_ptr<VoxelAccumulator> fluorescence_grid;  // fluorescent packet weight at every step
     std::vector<std::unique_ptr<VoxelAccumulator>> per_fluorophore;
     uint64_t first_packet = 0;
+};
+
+// The triangles near the last packet of this thread (triangle_cache.h); the
+// geometry is static, so the cache stays valid from one packet to the next.
+struct LocalGeometry {
+    bool enabled = false;  // chosen per scene (Tracer's constructor)
+    TriangleCache cache;
+    int cooldown = 0;  // steps before the next gather after one that failed
+    double fraction = 1;  // of the ball radius in free paths (transport.cpp)
 };
 
 class Tracer {
@@ -47,7 +57,8 @@ class Tracer {
     const RunConfig& cfg_;
     bool spectral_, grids_;
     std::vector<Hit> hits_;
-    std::vector<Float> cuts_;  // voxel-face crossings of a clear segment (grids)
+    std::vector<Float> cuts_;
+    LocalGeometry local_;  // voxel-face crossings of a clear segment (grids)
     // Per light: its ambient pocket is closed (every probe ray meets a region),
     // so light that leaves the scene went through the tissue: transmitted.
     std::vector<uint8_t> enclosed_;

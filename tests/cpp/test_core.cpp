@@ -1,6 +1,8 @@
 // Unit tests of the engine's building blocks against analytic references.
 #include <gtest/gtest.h>
 
+#include "test_meshes.h"
+
 #include <cmath>
 #include <algorithm>
 #include <set>
@@ -30,20 +32,6 @@ double fresnel_sin_tan(double theta_i, double n1, double n2) {
     return 0.5 * (a * a + b * b);
 }
 
-void box(float x0, float y0, float z0, float x1, float y1, float z1, std::vector<float>& v, std::vector<uint32_t>& t) {
-    v.clear();
-    for (int k = 0; k < 8; ++k) {
-        v.push_back(k & 1 ? x1 : x0);
-        v.push_back(k & 2 ? y1 : y0);
-        v.push_back(k & 4 ? z1 : z0);
-    }
-    const uint32_t q[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
-    t.clear();
-    for (auto& f : q) {
-        t.insert(t.end(), {f[0], f[1], f[2]});
-        t.insert(t.end(), {f[0], f[2], f[3]});
-    }
-}
 
 }  // namespace
 

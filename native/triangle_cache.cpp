@@ -1,0 +1,72 @@
+#include "triangle_cache.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "scene.h"
+
+namespace ep {
+
+void TriangleCache::reset(const Vec3& center, Float radius) {
+    tris_.clear();
+    planes_.clear();
+    center_ = center;
+    radius_ = radius;
+    // Rounding allowance of the plane distances in intersect(): a few ulps of
+    // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
+    eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
+}
+
+void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region,
+                        uint32_t prim) {
+    // Join the plane of an earlier triangle when this one lies in it (the two
+    // triangles of a quad, a flat face): vertices within a relative 1e-9 of
+    // the plane. The margin records how far they really are, so the plane
+    // test stays conservative for every member.
+    const Float scale = max_abs_component(v0) + max_abs_component(v1) + max_abs_component(v2);
+    const Float tol = 1e-9 * (scale + radius_);
+    uint32_t plane = uint32_t(planes_.size());
+    for (uint32_t k = 0; k < planes_.size(); ++k) {
+        const Plane& p = planes_[k];
+        if (dot(p.n, n) < 1 - 1e-12) continue;
+        const Float e = std::max({std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off),
+                                  std::fabs(dot(p.n, v2) - p.off)});
+        if (e <= tol) {
+            planes_[k].margin = std::max(p.margin, e);
+            planes_[k].reach = planes_[k].margin + eps_;
+            plane = k;
+            break;
+        }
+    }
+    if (plane == planes_.size()) {
+        const Float off = dot(n, v0);
+        const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
+        planes_.push_back(Plane{n, off, e, e + eps_});
+    }
+    tris_.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+}
+
+void TriangleCache::intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
+                                   std::vector<Hit>& out) const {
+    out.clear();
+    for (const Triangle& tri : tris_) {
+        if (!((open >> std::min<uint32_t>(tri.plane, 63)) & 1)) continue;
+        // Watertight test in double (signed volumes of the ray and each edge):
+        // an edge shared by two triangles gives exactly opposite values in
+        // both (cross(b, c) = -cross(c, b) bit for bit), so a ray through the
+        // edge is inside at least one of them, never neither.
+        const Vec3 a = tri.v0 - org, b = tri.v1 - org, c = tri.v2 - org;
+        const Float e0 = dot(d, cross(b, c)), e1 = dot(d, cross(c, a)), e2 = dot(d, cross(a, b));
+        const bool inside = (e0 >= 0 && e1 >= 0 && e2 >= 0) || (e0 <= 0 && e1 <= 0 && e2 <= 0);
+        if (!inside || (e0 == 0 && e1 == 0 && e2 == 0)) continue;
+        const Float cos_dn = dot(d, tri.n);
+        if (cos_dn == 0) continue;
+        // Distance along the ray to the triangle's plane, as collect_filter refines it.
+        const Float t = dot(a, tri.n) / cos_dn;
+        if (!(t >= 0 && t <= t_end)) continue;
+        out.push_back(Hit{t - back, tri.region, tri.prim, cos_dn});
+    }
+    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& x, const Hit& y) { return x.t < y.t; });
+}
+
+}  // namespace ep

@@ -1,0 +1,90 @@
+// A local copy of the triangles that meet a ball around a packet (issue 11).
+// In tissue a packet lives within a few mean free paths of a surface, where a
+// closest-point "safe ball" rarely covers a step; but a segment that stays
+// inside a ball can only cross the triangles that meet that ball. Those are
+// few (one or two for a flat wall, a handful on a curved wall), so a step
+// tests them directly -- first against their plane, which rejects almost every
+// step with two dot products -- instead of a full Embree all-hits traversal.
+// The answer is the same list of crossings Scene::intersect_all gives: the
+// triangle test is watertight (shared edges use bit-identical edge functions)
+// and the distance is the same double-precision plane refinement.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "scene.h"
+#include "vecmath.h"
+
+namespace ep {
+
+class TriangleCache {
+  public:
+    struct Triangle {
+        Vec3 v0, v1, v2;   // vertices (float mesh data, exactly as Embree sees them)
+        Vec3 n;            // outward unit normal (Region::normals)
+        uint32_t region, prim;
+        uint32_t plane;    // index into planes_
+    };
+    // Coplanar triangles share one plane test: n.x = off within +-margin holds
+    // every vertex of every member triangle.
+    struct Plane {
+        Vec3 n;
+        Float off, margin;
+        Float reach;  // margin + the rounding allowance of the plane test
+    };
+
+    // Empty and covering nothing.
+    void clear() { tris_.clear(); planes_.clear(); radius_ = 0; }
+    // Starts a gather around `center`: every triangle meeting the ball of
+    // `radius` must then be added (Scene::gather_triangles does this).
+    void reset(const Vec3& center, Float radius);
+    void add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim);
+
+    // True when the segment from a to b lies inside the ball (a ball is convex:
+    // both ends inside suffices).
+    bool covers(const Vec3& a, const Vec3& b) const {
+        const Vec3 da = a - center_, db = b - center_;
+        const Float r2 = radius_ * radius_;
+        return dot(da, da) < r2 && dot(db, db) < r2;
+    }
+    // Scene::intersect_all restricted to the cached triangles: valid only for
+    // a segment that covers() accepts ([o + tnear d, o + tfar d], tnear <= 0).
+    // Inline: the plane test, which answers almost every step by itself.
+    void intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
+        // The same ray as Scene::intersect_all: a negative tnear backs the
+        // origin up, and distances are measured from there and shifted back at
+        // the end, so the refined distances are bit-identical to the full query's.
+        const Float back = tnear < 0 ? -tnear : Float(0);
+        const Vec3 org = back > 0 ? o - d * back : o;
+        const Float t_end = tfar + back;
+        const Vec3 end = org + d * t_end;
+        // A segment whose two ends lie strictly on one side of a plane's slab
+        // crosses none of its triangles.
+        uint64_t open = 0;  // planes the segment may cross (bit k; planes beyond 63 share bit 63)
+        for (size_t k = 0; k < planes_.size(); ++k) {
+            const Plane& p = planes_[k];
+            const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
+            const bool apart = (da > p.reach && db > p.reach) || (da < -p.reach && db < -p.reach);
+            if (!apart || k >= 63) open |= uint64_t(1) << std::min<size_t>(k, 63);
+        }
+        if (open) intersect_open(org, d, back, t_end, open, out);
+        else out.clear();
+    }
+
+    const Vec3& center() const { return center_; }
+    Float radius() const { return radius_; }
+    size_t size() const { return tris_.size(); }
+    size_t plane_count() const { return planes_.size(); }
+
+  private:
+    // The triangle tests of the planes in `open` (bit k = plane k).
+    void intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
+                        std::vector<Hit>& out) const;
+
+    Vec3 center_;
+    Float radius_ = 0, eps_ = 0;
+    std::vector<Triangle> tris_;
+    std::vector<Plane> planes_;
+};
+
+}  // namespace ep
