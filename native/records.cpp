@@ -38,23 +38,9 @@ void EscapeRecords::push(const EscapeRecord& r) {
 
 void EscapeRecords::append(const EscapeRecords& o, size_t count) {
     const size_t n = std::min(count, o.size());
-    append_n(position, o.position, 3 * n);
-    append_n(direction, o.direction, 3 * n);
-    append_n(normal, o.normal, 3 * n);
-    append_n(entry, o.entry, 3 * n);
-    append_n(weight, o.weight, n);
-    append_n(energy, o.energy, n);
-    append_n(wavelength, o.wavelength, n);
-    append_n(max_depth, o.max_depth, n);
-    append_n(fluorescent, o.fluorescent, n);
-    append_n(light, o.light, n);
-    append_n(kind, o.kind, n);
-    append_n(fluorophore, o.fluorophore, n);
-    append_n(region, o.region, n);
-    append_n(scatterings, o.scatterings, n);
-    append_n(packet, o.packet, n);
-    append_n(exit_order, o.exit_order, n);
-    append_n(next_hit, o.next_hit, n);
+    if (n == 0) return;
+    // Each column holds size() * width values (width 3 for vectors, else 1).
+    zip_columns(*this, o, [&](auto& dst, const auto& src) { append_n(dst, src, src.size() / o.size() * n); });
 }
 
 void EscapeRecords::clear() { *this = EscapeRecords(); }

@@ -37,6 +37,21 @@ struct EscapeRecords {
     std::vector<uint8_t> next_hit;
 
     size_t size() const { return weight.size(); }
+    // Calls f(a.column, b.column) for every column, in one fixed order: the one
+    // list of columns that appending, serialising (unit_io) and any other
+    // column-wise operation share, so a new column cannot be forgotten.
+    template <class A, class B, class F>
+    static void zip_columns(A& a, B& b, F&& f) {
+        f(a.position, b.position), f(a.direction, b.direction), f(a.normal, b.normal), f(a.entry, b.entry);
+        f(a.weight, b.weight), f(a.energy, b.energy), f(a.wavelength, b.wavelength), f(a.max_depth, b.max_depth);
+        f(a.fluorescent, b.fluorescent), f(a.light, b.light), f(a.kind, b.kind), f(a.fluorophore, b.fluorophore);
+        f(a.region, b.region), f(a.scatterings, b.scatterings), f(a.packet, b.packet);
+        f(a.exit_order, b.exit_order), f(a.next_hit, b.next_hit);
+    }
+    template <class R, class F>
+    static void for_each_column(R& r, F&& f) {
+        zip_columns(r, r, [&](auto& col, auto&) { f(col); });
+    }
     void push(const EscapeRecord& r);
     // Appends the first `count` records of `other` (all if count exceeds its size).
     void append(const EscapeRecords& other, size_t count = SIZE_MAX);

@@ -77,14 +77,6 @@ class Reader {
     size_t pos_ = 0;
 };
 
-// Every column of the surface photon map, in one place for both directions.
-template <class R, class F>
-void for_each_column(R& r, F&& f) {
-    f(r.position), f(r.direction), f(r.normal), f(r.entry), f(r.weight), f(r.energy), f(r.wavelength),
-        f(r.max_depth), f(r.fluorescent), f(r.light), f(r.kind), f(r.fluorophore), f(r.region),
-        f(r.scatterings), f(r.packet), f(r.exit_order), f(r.next_hit);
-}
-
 void put_grid(Writer& w, const VoxelAccumulator& g) {
     const auto voxels = g.sorted();  // sorted: the bytes do not depend on the hash layout
     w.put(uint64_t(voxels.size()));
@@ -128,7 +120,7 @@ std::string pack_units(const UnitBatch& batch) {
         w.put(t.scalar_m);
         w.put(t.energy_m);
         w.put_vec(t.absorbed_by_region_m);
-        for_each_column(u->records, [&](const auto& col) { w.put_vec(col); });
+        EscapeRecords::for_each_column(u->records, [&](const auto& col) { w.put_vec(col); });
         const bool grids = bool(u->absorbed_grid);
         w.put(uint8_t(grids));
         if (grids) {
@@ -160,9 +152,9 @@ UnitBatch unpack_units(const std::string& bytes, double voxel_size) {
         r.get_into(t.scalar_m);
         r.get_into(t.energy_m);
         r.get_vec(t.absorbed_by_region_m);
-        for_each_column(u->records, [&](auto& col) { r.get_vec(col); });
+        EscapeRecords::for_each_column(u->records, [&](auto& col) { r.get_vec(col); });
         const size_t nrec = u->records.weight.size();
-        for_each_column(u->records, [&](const auto& col) {
+        EscapeRecords::for_each_column(u->records, [&](const auto& col) {
             if (col.size() != nrec && col.size() != 3 * nrec) Reader::fail();
         });
         if (r.get<uint8_t>()) {
