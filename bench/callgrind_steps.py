@@ -36,18 +36,38 @@ def child(scene_name, n, py):
     sys.path.insert(0, py)
     import endophoton as ep
     import colon_scene as cs
-    scene, src = {"seed_tissue": cs.seed_tissue_box, "mcml_slab": cs.mcml_slab,
-                  "colon": cs.colon_scene}[scene_name]()
+
+    scene, src = {"seed_tissue": cs.seed_tissue_box, "mcml_slab": cs.mcml_slab, "colon": cs.colon_scene}[scene_name]()
     r = ep.run(scene, src, photons=n, threads=1, seed=1, record_escapes=False)
-    print("RESULT " + json.dumps(dict(rd=r.diffuse_reflectance, rd_se=r.diffuse_reflectance_stderr,
-                                      interactions=float(r.interactions) * r.photons)))
+    print(
+        "RESULT "
+        + json.dumps(
+            dict(
+                rd=r.diffuse_reflectance,
+                rd_se=r.diffuse_reflectance_stderr,
+                interactions=float(r.interactions) * r.photons,
+            )
+        )
+    )
 
 
 def profile(scene_name, n, py):
     from callgrind_summary import parse
+
     out = os.path.join(tempfile.gettempdir(), f"ep-cg-steps-{os.getpid()}-{scene_name}.out")
-    cmd = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", "--toggle-collect=ep::Tracer::trace(*",
-           sys.executable, os.path.abspath(__file__), "--child", scene_name, str(n), "--py", py]
+    cmd = [
+        "valgrind",
+        "--tool=callgrind",
+        f"--callgrind-out-file={out}",
+        "--toggle-collect=ep::Tracer::trace(*",
+        sys.executable,
+        os.path.abspath(__file__),
+        "--child",
+        scene_name,
+        str(n),
+        "--py",
+        py,
+    ]
     p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     if p.returncode:
         raise RuntimeError(p.stderr[-2000:])
@@ -57,8 +77,17 @@ def profile(scene_name, n, py):
     packets = prof.calls("ep::Tracer::trace(")
     total = prof.inclusive("ep::Tracer::trace(")
     steps = res["interactions"] or prof.calls("log@@")
-    row = dict(scene=scene_name, packets=packets, ir_packet=total / packets, steps_packet=steps / packets,
-               ir_step=total / steps, rd=res["rd"], rd_se=res["rd_se"], parts={}, calls={})
+    row = dict(
+        scene=scene_name,
+        packets=packets,
+        ir_packet=total / packets,
+        steps_packet=steps / packets,
+        ir_step=total / steps,
+        rd=res["rd"],
+        rd_se=res["rd_se"],
+        parts={},
+        calls={},
+    )
     rest = total
     for label, pat in GROUPS.items():
         v = prof.inclusive(pat)
@@ -83,8 +112,10 @@ def main():
         name, n = spec.split(":")
         row = profile(name, int(n), a.py)
         rows.append(row)
-        print(f"{name}: {row['ir_packet']:.0f} Ir/packet, {row['steps_packet']:.1f} interactions/packet, "
-              f"{row['ir_step']:.0f} Ir per interaction; Rd {row['rd']:.5f} ± {row['rd_se']:.5f}")
+        print(
+            f"{name}: {row['ir_packet']:.0f} Ir/packet, {row['steps_packet']:.1f} interactions/packet, "
+            f"{row['ir_step']:.0f} Ir per interaction; Rd {row['rd']:.5f} ± {row['rd_se']:.5f}"
+        )
         for k, v in row["parts"].items():
             c = row["calls"].get(k)
             print(f"    {k:32s} {v:8.1f} Ir/interaction" + (f"   {c:8.2f} calls/packet" if c is not None else ""))

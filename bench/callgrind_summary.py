@@ -22,9 +22,9 @@ _PLAIN = re.compile(r"^(ob|fl|fi|fe|fn|cob|cfi|cfl|cfn)=(.*)$")
 class Profile:
     def __init__(self):
         self.self_cost = defaultdict(int)
-        self.call_cost = defaultdict(int)     # (caller, callee) -> inclusive cost of those calls
-        self.call_count = defaultdict(int)    # callee -> calls
-        self.objects = {}                     # function -> object file
+        self.call_cost = defaultdict(int)  # (caller, callee) -> inclusive cost of those calls
+        self.call_count = defaultdict(int)  # callee -> calls
+        self.objects = {}  # function -> object file
         self.total = 0
 
     def functions(self):
@@ -64,8 +64,17 @@ def parse(path) -> Profile:
     prof = Profile()
     prof._call_pairs = defaultdict(int)
     names = {k: {} for k in ("ob", "fl", "fn")}
-    kind_of = {"ob": "ob", "cob": "ob", "fl": "fl", "fi": "fl", "fe": "fl", "cfi": "fl", "cfl": "fl",
-               "fn": "fn", "cfn": "fn"}
+    kind_of = {
+        "ob": "ob",
+        "cob": "ob",
+        "fl": "fl",
+        "fi": "fl",
+        "fe": "fl",
+        "cfi": "fl",
+        "cfl": "fl",
+        "fn": "fn",
+        "cfn": "fn",
+    }
     cur_fn = cur_ob = None
     callee = callee_ob = None
     pending_calls = None

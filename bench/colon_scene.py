@@ -44,9 +44,9 @@ def tube_mesh(length, radius, fold_depth, fold_period, wall, n_x=100, n_theta=64
     v = np.vstack(rings)
     n = n_x * n_theta
     idx = np.arange(n).reshape(n_x, n_theta)
-    i0, i1 = idx[:-1, :], idx[1:, :]                       # ring i, ring i+1
-    j0, j1 = i0, np.roll(i0, -1, axis=1)                   # angle j, j+1 on ring i
-    k0, k1 = i1, np.roll(i1, -1, axis=1)                   # angle j, j+1 on ring i+1
+    i0, i1 = idx[:-1, :], idx[1:, :]  # ring i, ring i+1
+    j0, j1 = i0, np.roll(i0, -1, axis=1)  # angle j, j+1 on ring i
+    k0, k1 = i1, np.roll(i1, -1, axis=1)  # angle j, j+1 on ring i+1
     tris = []
     # Outer skin, normal away from the axis: with e_x the x tangent and e_t the angular one,
     # e_t x e_x is the outward radial direction, so (i,j) -> (i+1,j+1) -> (i+1,j) and
@@ -73,25 +73,34 @@ def tube_mesh(length, radius, fold_depth, fold_period, wall, n_x=100, n_theta=64
     return v32, t32
 
 
-def colon_scene(beta_deg=20.0, length_cm=8.0, radius_cm=2.5, fold_depth_cm=0.5, fold_period_cm=2.0, wall_cm=0.3,
-                polyp_radii_cm=(0.3, 0.3, 0.2), distance_cm=1.0, n_x=100, n_theta=64):
+def colon_scene(
+    beta_deg=20.0,
+    length_cm=8.0,
+    radius_cm=2.5,
+    fold_depth_cm=0.5,
+    fold_period_cm=2.0,
+    wall_cm=0.3,
+    polyp_radii_cm=(0.3, 0.3, 0.2),
+    distance_cm=1.0,
+    n_x=100,
+    n_theta=64,
+):
     """(scene in metres, EndoscopeRig) of the colon-like tube with a polyp and the rig."""
     tissue = ep.Medium(mua=20.0, mus=200.0, g=0.9, n=1.1)
     collagen = ep.Fluorophore("collagen", 0.2, 0.4)
     photofrin = ep.Fluorophore("photofrin", 0.1, 0.33)
-    v, t = tube_mesh(length_cm * CM, radius_cm * CM, fold_depth_cm * CM, fold_period_cm * CM, wall_cm * CM,
-                     n_x=n_x, n_theta=n_theta)
+    v, t = tube_mesh(
+        length_cm * CM, radius_cm * CM, fold_depth_cm * CM, fold_period_cm * CM, wall_cm * CM, n_x=n_x, n_theta=n_theta
+    )
     scene = ep.Scene(unit="m", ambient_n=1.0)
     scene.add_mesh("colon", v, t, tissue, priority=0, fluorophores=[collagen])
     # Polyp half inside the wall at the bottom, in the valley between two folds (r_in = radius).
     x0 = (math.floor(length_cm / fold_period_cm / 2) + 0.5) * fold_period_cm
     base = np.array([x0, 0.0, -radius_cm]) * CM
     pv, pt = meshes.ellipsoid(tuple(base), tuple(r * CM for r in polyp_radii_cm), n_lat=24, n_lon=48)
-    scene.add_mesh("polyp", pv, pt, tissue, priority=1,
-                   fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), photofrin])
+    scene.add_mesh("polyp", pv, pt, tissue, priority=1, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), photofrin])
     top = base + np.array([0.0, 0.0, polyp_radii_cm[2] * CM])
-    rig = ep.EndoscopeRig.from_beta(beta_deg, distance_cm * CM, point=tuple(top), normal=(0, 0, 1),
-                                    tilt_axis=(0, 1, 0))
+    rig = ep.EndoscopeRig.from_beta(beta_deg, distance_cm * CM, point=tuple(top), normal=(0, 0, 1), tilt_axis=(0, 1, 0))
     return scene, rig
 
 

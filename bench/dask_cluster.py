@@ -54,8 +54,10 @@ def main():
     scene, src = scene_and_source()
     n, R = args.photons, args.repeats
     kw = dict(photons=n, seed=1, record_escapes=False)
-    print(f"# {n} packets, {R} repeats, machine load: {os.getloadavg()[0]:.2f} (1-min average) on "
-          f"{os.cpu_count()} cores")
+    print(
+        f"# {n} packets, {R} repeats, machine load: {os.getloadavg()[0]:.2f} (1-min average) on "
+        f"{os.cpu_count()} cores"
+    )
     ref = None
     print("\n## throughput (packets/s)")
     for threads in (1, 2):
@@ -75,13 +77,14 @@ def main():
             _, t_few, s_few = timed(lambda: ep.run(scene, src, client=client, chunk_units=-(-n_units // 2), **kw), R)
             _, t_many, s_many = timed(lambda: ep.run(scene, src, client=client, chunk_units=1, **kw), R)
             per = (t_many - t_few) / (n_units - 2)
-            print(f"2 chunks: {fmt(t_few, s_few)} s; {n_units} chunks: {fmt(t_many, s_many)} s; "
-                  f"per chunk: {per * 1e3:.2f} ms (sigma {1e3 * (s_few + s_many) / (n_units - 2):.2f} ms)")
+            print(
+                f"2 chunks: {fmt(t_few, s_few)} s; {n_units} chunks: {fmt(t_many, s_many)} s; "
+                f"per chunk: {per * 1e3:.2f} ms (sigma {1e3 * (s_few + s_many) / (n_units - 2):.2f} ms)"
+            )
             print("\n## chunk size against balance (2 workers): seconds")
             for per_worker in (1, 2, 4, 16, 64):
                 chunks = 2 * per_worker
-                _, m, s = timed(lambda: ep.run(scene, src, client=client, chunk_units=-(-n_units // chunks), **kw),
-                                R)
+                _, m, s = timed(lambda: ep.run(scene, src, client=client, chunk_units=-(-n_units // chunks), **kw), R)
                 print(f"{chunks:4d} chunks ({-(-n_units // chunks):4d} units each): {fmt(m, s)}")
 
 

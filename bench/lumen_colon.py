@@ -77,8 +77,9 @@ def main(argv=None):
     n = args.photons
     order = e["exit_order"]
     out["share_second_or_later_exits"] = float(np.mean(order >= 2))
-    out["next_hit_counts"] = {name: int(np.count_nonzero(e["next_hit"] == c))
-                              for c, name in enumerate(("away", "tissue", "head", "camera"))}
+    out["next_hit_counts"] = {
+        name: int(np.count_nonzero(e["next_hit"] == c)) for c, name in enumerate(("away", "tissue", "head", "camera"))
+    }
     w = e["weight"].astype(np.float64)
     packet = e["packet"].astype(np.int64)
     lands = e["next_hit"] == 1

@@ -40,7 +40,7 @@ def measure(photons: int) -> tuple[list[dict], dict]:
     run_s = time.perf_counter() - t0
     rows = []
     for n in (64, 128, 256):
-        footprint = render_view(res, None, n, n).kernel["radius"] / 2   # the default radius is 2 footprints
+        footprint = render_view(res, None, n, n).kernel["radius"] / 2  # the default radius is 2 footprints
         for factor in (1, 2, 4):
             best = float("inf")
             for _ in range(2):
@@ -55,38 +55,70 @@ def measure(photons: int) -> tuple[list[dict], dict]:
             bias = view.kernel_summary()["bias"].get("polyp", {})
             z = bias["white_bias"] / bias["white_bias_stderr"] if bias.get("white_bias_stderr") else float("nan")
             polyp = view.regions().get("polyp", {})
-            rows.append(dict(pixels=n, factor=factor, radius_mm=view.kernel["radius"] * scene.unit_cm * 10,
-                             seconds=best, median_rel_se=float(rel), lit=float(lit.mean()), polyp_bias_sigma=float(z),
-                             polyp_rel_se=polyp.get("white_radiance_stderr", 0) / polyp["white_radiance"]
-                             if polyp.get("white_radiance") else float("nan")))
-            print(f"{n:4d}^2  r = {factor} px ({rows[-1]['radius_mm']:.3f} mm): {best:6.2f} s  "
-                  f"lit {lit.mean():.2f}  median rel. se {rel:.3f}  polyp rel. se {rows[-1]['polyp_rel_se']:.4f}  "
-                  f"polyp bias {z:+.2f} sigma", flush=True)
+            rows.append(
+                dict(
+                    pixels=n,
+                    factor=factor,
+                    radius_mm=view.kernel["radius"] * scene.unit_cm * 10,
+                    seconds=best,
+                    median_rel_se=float(rel),
+                    lit=float(lit.mean()),
+                    polyp_bias_sigma=float(z),
+                    polyp_rel_se=polyp.get("white_radiance_stderr", 0) / polyp["white_radiance"]
+                    if polyp.get("white_radiance")
+                    else float("nan"),
+                )
+            )
+            print(
+                f"{n:4d}^2  r = {factor} px ({rows[-1]['radius_mm']:.3f} mm): {best:6.2f} s  "
+                f"lit {lit.mean():.2f}  median rel. se {rel:.3f}  polyp rel. se {rows[-1]['polyp_rel_se']:.4f}  "
+                f"polyp bias {z:+.2f} sigma",
+                flush=True,
+            )
     load = os.getloadavg()
-    meta = dict(photons=photons, records=int(len(res.escapes["weight"])), run_s=run_s,
-                date=_dt.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC"), load=load)
+    meta = dict(
+        photons=photons,
+        records=int(len(res.escapes["weight"])),
+        run_s=run_s,
+        date=_dt.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC"),
+        load=load,
+    )
     return rows, meta
 
 
 def table(rows, meta) -> str:
-    lines = [BEGIN, "", "## Endoscope view: seconds per image (`bench/render_speed.py`)", "",
-             f"Measured {meta['date']} **under load** (load average {meta['load'][0]:.1f} / {meta['load'][1]:.1f} / "
-             f"{meta['load'][2]:.1f}: other jobs shared the 2 cores), so the seconds are indicative only. "
-             f"Colon scene (bench/colon_scene.py, metres), rig at beta = 20 deg, {meta['photons']:,} packets, "
-             f"{meta['records']:,} escape records (run {meta['run_s']:.1f} s). `ep.render_view` with the rig's "
-             "camera, kernel angle 15 deg, all cores; best of 2. The kernel radius is in pixel footprints at the "
-             "median surface depth (2 is the default). `lit`: share of the pixels that see tissue whose kernel "
-             "holds records (the rig's 120 deg view is mostly dark wall beyond the two light spots); "
-             "`median rel. se`: median over the lit pixels of the white image's batch-means relative "
-             "standard error; `polyp bias`: the kernel's estimated "
-             "bias of the polyp's mean white radiance, 4/3 (L(r) - L(r/2)), in units of its standard error.", "",
-             "| pixels | kernel radius | seconds / image | lit | median rel. se (pixel) | polyp rel. se (region) | "
-             "polyp bias / σ |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        BEGIN,
+        "",
+        "## Endoscope view: seconds per image (`bench/render_speed.py`)",
+        "",
+        f"Measured {meta['date']} **under load** (load average {meta['load'][0]:.1f} / {meta['load'][1]:.1f} / "
+        f"{meta['load'][2]:.1f}: other jobs shared the 2 cores), so the seconds are indicative only. "
+        f"Colon scene (bench/colon_scene.py, metres), rig at beta = 20 deg, {meta['photons']:,} packets, "
+        f"{meta['records']:,} escape records (run {meta['run_s']:.1f} s). `ep.render_view` with the rig's "
+        "camera, kernel angle 15 deg, all cores; best of 2. The kernel radius is in pixel footprints at the "
+        "median surface depth (2 is the default). `lit`: share of the pixels that see tissue whose kernel "
+        "holds records (the rig's 120 deg view is mostly dark wall beyond the two light spots); "
+        "`median rel. se`: median over the lit pixels of the white image's batch-means relative "
+        "standard error; `polyp bias`: the kernel's estimated "
+        "bias of the polyp's mean white radiance, 4/3 (L(r) - L(r/2)), in units of its standard error.",
+        "",
+        "| pixels | kernel radius | seconds / image | lit | median rel. se (pixel) | polyp rel. se (region) | "
+        "polyp bias / σ |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['pixels']}² | {r['factor']} px ({r['radius_mm']:.3f} mm) | {r['seconds']:.2f} | "
-                     f"{100 * r['lit']:.0f} % | {r['median_rel_se']:.3f} | {r['polyp_rel_se']:.4f} | {r['polyp_bias_sigma']:+.2f} |")
-    lines += ["", "Larger kernels gather more records per pixel (lower noise, more time in the gather) and blur "
-              "more (bias grows as r²); more pixels cost primary rays and gathers in proportion.", "", END]
+        lines.append(
+            f"| {r['pixels']}² | {r['factor']} px ({r['radius_mm']:.3f} mm) | {r['seconds']:.2f} | "
+            f"{100 * r['lit']:.0f} % | {r['median_rel_se']:.3f} | {r['polyp_rel_se']:.4f} | {r['polyp_bias_sigma']:+.2f} |"
+        )
+    lines += [
+        "",
+        "Larger kernels gather more records per pixel (lower noise, more time in the gather) and blur "
+        "more (bias grows as r²); more pixels cost primary rays and gathers in proportion.",
+        "",
+        END,
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -96,7 +128,7 @@ def write(text: str) -> None:
     path = os.path.join(ROOT, "docs", "performance.md")
     doc = open(path, encoding="utf-8").read()
     if BEGIN in doc and END in doc:
-        doc = doc[:doc.index(BEGIN)] + text + doc[doc.index(END) + len(END) + 1:]
+        doc = doc[: doc.index(BEGIN)] + text + doc[doc.index(END) + len(END) + 1 :]
     else:
         doc = doc.rstrip("\n") + "\n\n" + text
     atomic_write_text(path, doc)

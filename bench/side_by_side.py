@@ -17,9 +17,12 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import run_all  # noqa: E402  (run_child: one measured run in a fresh process)
 
-PLAN = [("seed_tissue", dict(scene="seed_tissue"), 200_000), ("mcml_slab", dict(scene="mcml_slab"), 1_000_000),
-        ("colon", dict(scene="colon"), 60_000),
-        ("colon+grids", dict(scene="colon", voxel=2e-4, grid_path="/tmp/ep-sbs-grid.vdb"), 60_000)]
+PLAN = [
+    ("seed_tissue", dict(scene="seed_tissue"), 200_000),
+    ("mcml_slab", dict(scene="mcml_slab"), 1_000_000),
+    ("colon", dict(scene="colon"), 60_000),
+    ("colon+grids", dict(scene="colon", voxel=2e-4, grid_path="/tmp/ep-sbs-grid.vdb"), 60_000),
+]
 
 
 def main():
@@ -35,14 +38,17 @@ def main():
             row = dict(config=key, threads=threads, packets=n)
             for rep in range(a.repeats):
                 for tag, py in (("before", a.before), ("after", a.after)):
-                    r = run_all.run_child(dict(cfg, key=key, photons=n, threads=threads, py=os.path.abspath(py),
-                                               warmup=2000))
+                    r = run_all.run_child(
+                        dict(cfg, key=key, photons=n, threads=threads, py=os.path.abspath(py), warmup=2000)
+                    )
                     row[tag] = max(row.get(tag, 0), r["pps"])
                     row[tag + "_cpu"] = max(row.get(tag + "_cpu", 0), r["pp_cpu_s"])
             rows.append(row)
-            print(f"{key:12s} {threads} thr: before {row['before']:9.0f}/s ({row['before_cpu']:9.0f}/CPU-s)  "
-                  f"after {row['after']:9.0f}/s ({row['after_cpu']:9.0f}/CPU-s)  x{row['after'] / row['before']:.2f}",
-                  flush=True)
+            print(
+                f"{key:12s} {threads} thr: before {row['before']:9.0f}/s ({row['before_cpu']:9.0f}/CPU-s)  "
+                f"after {row['after']:9.0f}/s ({row['after_cpu']:9.0f}/CPU-s)  x{row['after'] / row['before']:.2f}",
+                flush=True,
+            )
     if a.json:
         with open(a.json + ".tmp", "w") as fh:
             json.dump(rows, fh, indent=1)

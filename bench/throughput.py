@@ -50,22 +50,39 @@ def main():
     ap.add_argument("--json", default=None, help="also write the rows as JSON here")
     args = ap.parse_args()
     rows = []
-    base = dict(photons=args.photons, fluorescence=False, grids=False, records=False, safe_distance=True,
-                grid_path=os.path.join("/tmp", "endophoton_bench.vdb"))
-    configs = [dict(base, threads=1), dict(base, threads=2), dict(base, threads=1, safe_distance=False),
-               dict(base, threads=2, fluorescence=True), dict(base, threads=2, fluorescence=True, grids=True),
-               dict(base, threads=2, records=True)]
-    print(f"{'threads':>7} {'safe':>5} {'fluor':>5} {'grids':>5} {'records':>7} {'packets/s':>11} "
-          f"{'peak MB':>8} {'Rd':>9} {'+-':>8}")
+    base = dict(
+        photons=args.photons,
+        fluorescence=False,
+        grids=False,
+        records=False,
+        safe_distance=True,
+        grid_path=os.path.join("/tmp", "endophoton_bench.vdb"),
+    )
+    configs = [
+        dict(base, threads=1),
+        dict(base, threads=2),
+        dict(base, threads=1, safe_distance=False),
+        dict(base, threads=2, fluorescence=True),
+        dict(base, threads=2, fluorescence=True, grids=True),
+        dict(base, threads=2, records=True),
+    ]
+    print(
+        f"{'threads':>7} {'safe':>5} {'fluor':>5} {'grids':>5} {'records':>7} {'packets/s':>11} "
+        f"{'peak MB':>8} {'Rd':>9} {'+-':>8}"
+    )
     for cfg in configs:
         r = measure(cfg)
         rows.append(r)
-        print(f"{r['threads']:>7} {str(r['safe_distance']):>5} {str(r['fluorescence']):>5} {str(r['grids']):>5} "
-              f"{str(r['records']):>7} {r['packets_per_s']:>11.0f} {r['peak_rss_mb']:>8.1f} "
-              f"{r['diffuse_reflectance']:>9.5f} {r['rd_stderr']:>8.5f}")
+        print(
+            f"{r['threads']:>7} {str(r['safe_distance']):>5} {str(r['fluorescence']):>5} {str(r['grids']):>5} "
+            f"{str(r['records']):>7} {r['packets_per_s']:>11.0f} {r['peak_rss_mb']:>8.1f} "
+            f"{r['diffuse_reflectance']:>9.5f} {r['rd_stderr']:>8.5f}"
+        )
     one, two = rows[0]["packets_per_s"], rows[1]["packets_per_s"]
-    print(f"scaling 1 -> 2 threads: {two / one:.2f}x; per core (1 thread): {one:.0f} packets/s; "
-          f"os.cpu_count() = {os.cpu_count()}")
+    print(
+        f"scaling 1 -> 2 threads: {two / one:.2f}x; per core (1 thread): {one:.0f} packets/s; "
+        f"os.cpu_count() = {os.cpu_count()}"
+    )
     if args.json:
         tmp = args.json + ".tmp"
         with open(tmp, "w") as fh:

@@ -47,16 +47,16 @@ def _enable_addon():
 # --- geometry (numpy) ---------------------------------------------------------
 def box_arrays(lo, hi):
     (x0, y0, z0), (x1, y1, z1) = lo, hi
-    v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
-                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
-    quads = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4],
-                      [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
+    v = np.array(
+        [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0], [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]]
+    )
+    quads = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
     return v, [quads]
 
 
 def ellipsoid_arrays(center, radii, n_lon=48, n_lat=24):
     """Closed UV ellipsoid: quads between latitude rings, triangle fans at the poles."""
-    lat = np.linspace(0.0, np.pi, n_lat + 1)[1:-1]          # ring polar angles
+    lat = np.linspace(0.0, np.pi, n_lat + 1)[1:-1]  # ring polar angles
     lon = np.linspace(0.0, 2.0 * np.pi, n_lon, endpoint=False)
     st, ct = np.sin(lat)[:, None], np.cos(lat)[:, None]
     ring = np.stack([st * np.cos(lon), st * np.sin(lon), np.broadcast_to(ct, (len(lat), n_lon))], axis=-1)
@@ -84,21 +84,22 @@ def colon_arrays(length, radius, fold_depth, fold_period, wall, n_x=100, n_theta
     ct, st = np.cos(theta)[None, :], np.sin(theta)[None, :]
 
     def surface(r):
-        return np.stack([np.broadcast_to(x[:, None], (n_x, n_theta)),
-                         r[:, None] * ct, r[:, None] * st], axis=-1).reshape(-1, 3)
+        return np.stack(
+            [np.broadcast_to(x[:, None], (n_x, n_theta)), r[:, None] * ct, r[:, None] * st], axis=-1
+        ).reshape(-1, 3)
 
     verts = np.concatenate([surface(r_out), surface(r_in)])
     n = n_x * n_theta
     grid = np.arange(n).reshape(n_x, n_theta)
     a, b = grid[:-1], np.roll(grid, -1, axis=1)[:-1]
     c, d = np.roll(grid, -1, axis=1)[1:], grid[1:]
-    outer = np.stack([a, b, c, d], axis=-1).reshape(-1, 4)           # faces away from the axis
-    inner = np.stack([a, d, c, b], axis=-1).reshape(-1, 4) + n       # faces the lumen
+    outer = np.stack([a, b, c, d], axis=-1).reshape(-1, 4)  # faces away from the axis
+    inner = np.stack([a, d, c, b], axis=-1).reshape(-1, 4) + n  # faces the lumen
     ring0_out, ring0_in = grid[0], grid[0] + n
     ring1_out, ring1_in = grid[-1], grid[-1] + n
     nxt = np.roll(np.arange(n_theta), -1)
-    cap0 = np.stack([ring0_out, ring0_in, ring0_in[nxt], ring0_out[nxt]], axis=-1)   # faces -x
-    cap1 = np.stack([ring1_out, ring1_out[nxt], ring1_in[nxt], ring1_in], axis=-1)   # faces +x
+    cap0 = np.stack([ring0_out, ring0_in, ring0_in[nxt], ring0_out[nxt]], axis=-1)  # faces -x
+    cap1 = np.stack([ring1_out, ring1_out[nxt], ring1_in[nxt], ring1_in], axis=-1)  # faces +x
     return verts, [outer, inner, cap0, cap1]
 
 
@@ -118,7 +119,7 @@ def _add_object(meshutil, name, arrays, role, material, collection):
     mesh.materials.append(material)
     obj = bpy.data.objects.new(name, mesh)
     collection.objects.link(obj)
-    obj.endophoton.role = role   # loads the role's defaults (medium, priority, fluorophores)
+    obj.endophoton.role = role  # loads the role's defaults (medium, priority, fluorophores)
     return obj
 
 
@@ -148,11 +149,11 @@ def _fresh_scene():
 def _check_closed(export, obj):
     depsgraph = bpy.context.evaluated_depsgraph_get()
     verts, tris = export.mesh_arrays(obj, depsgraph, 1.0)
-    export.check_closed(obj.name, verts, tris)   # raises if open or inward
+    export.check_closed(obj.name, verts, tris)  # raises if open or inward
 
 
 def _out_dir():
-    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
     if "--out" in argv:
         return os.path.abspath(argv[argv.index("--out") + 1])
     return HERE
@@ -179,7 +180,7 @@ def _frame_views(objects):
 def _save(name):
     os.makedirs(_out_dir(), exist_ok=True)
     path = os.path.join(_out_dir(), name)
-    bpy.context.preferences.filepaths.save_version = 0   # no .blend1 backups
+    bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backups
     bpy.ops.wm.save_as_mainfile(filepath=path, compress=True, relative_remap=True)
     print(f"wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB)")
     return path
@@ -188,16 +189,26 @@ def _save(name):
 def make_flat_tissue():
     scene, export, meshutil, rig = _fresh_scene()
     coll = scene.collection
-    tissue = _add_object(meshutil, "Tissue", box_arrays((-0.02, -0.02, -0.02), (0.02, 0.02, 0.0)),
-                         "TISSUE", _material("Tissue", (0.80, 0.38, 0.33)), coll)
-    polyp = _add_object(meshutil, "Polyp",
-                        ellipsoid_arrays((0.0, 0.0, 0.0), (3 * MM, 3 * MM, 2 * MM)),
-                        "POLYP", _material("Polyp", (0.70, 0.20, 0.22)), coll)
+    tissue = _add_object(
+        meshutil,
+        "Tissue",
+        box_arrays((-0.02, -0.02, -0.02), (0.02, 0.02, 0.0)),
+        "TISSUE",
+        _material("Tissue", (0.80, 0.38, 0.33)),
+        coll,
+    )
+    polyp = _add_object(
+        meshutil,
+        "Polyp",
+        ellipsoid_arrays((0.0, 0.0, 0.0), (3 * MM, 3 * MM, 2 * MM)),
+        "POLYP",
+        _material("Polyp", (0.70, 0.20, 0.22)),
+        coll,
+    )
     for obj in (tissue, polyp):
         _check_closed(export, obj)
     polyp_top = (0.0, 0.0, 2 * MM)
-    rig.create_rig(bpy.context, target=polyp_top, normal=(0, 0, 1), tilt_axis=(0, 1, 0),
-                   beta=0.0, distance=10 * MM)
+    rig.create_rig(bpy.context, target=polyp_top, normal=(0, 0, 1), tilt_axis=(0, 1, 0), beta=0.0, distance=10 * MM)
     _frame_views((tissue, polyp))
     return _save("flat_tissue.blend")
 
@@ -206,18 +217,31 @@ def make_colon_polyp():
     scene, export, meshutil, rig = _fresh_scene()
     coll = scene.collection
     length, radius, fold_depth, period, wall = 0.08, 0.025, 4 * MM, 0.02, 3 * MM
-    colon = _add_object(meshutil, "Colon", colon_arrays(length, radius, fold_depth, period, wall),
-                        "TISSUE", _material("Colon", (0.80, 0.40, 0.35)), coll)
+    colon = _add_object(
+        meshutil,
+        "Colon",
+        colon_arrays(length, radius, fold_depth, period, wall),
+        "TISSUE",
+        _material("Colon", (0.80, 0.40, 0.35)),
+        coll,
+    )
     # Between two folds (cos = -1 at x = 5 cm, inner radius = `radius`), on the bottom.
     x_polyp = 0.05
     center = (x_polyp, 0.0, -radius)
-    polyp = _add_object(meshutil, "Polyp", ellipsoid_arrays(center, (4 * MM, 4 * MM, 2.5 * MM)),
-                        "POLYP", _material("Polyp", (0.70, 0.20, 0.22)), coll)
+    polyp = _add_object(
+        meshutil,
+        "Polyp",
+        ellipsoid_arrays(center, (4 * MM, 4 * MM, 2.5 * MM)),
+        "POLYP",
+        _material("Polyp", (0.70, 0.20, 0.22)),
+        coll,
+    )
     for obj in (colon, polyp):
         _check_closed(export, obj)
     top = (x_polyp, 0.0, -radius + 2.5 * MM)
-    rig.create_rig(bpy.context, target=top, normal=(0, 0, 1), tilt_axis=(0, 1, 0),
-                   beta=math.radians(20.0), distance=10 * MM)
+    rig.create_rig(
+        bpy.context, target=top, normal=(0, 0, 1), tilt_axis=(0, 1, 0), beta=math.radians(20.0), distance=10 * MM
+    )
     _frame_views((colon, polyp))
     return _save("colon_polyp.blend")
 

@@ -22,7 +22,7 @@ if not hasattr(bpy.types.Scene, "endophoton"):
     addon_utils.enable("endophoton_addon", default_set=True)
 from endophoton_addon import results  # noqa: E402
 
-argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
 packets = int(argv[0]) if argv else 20_000
 scene = bpy.context.scene
 s = scene.endophoton
@@ -44,5 +44,5 @@ for collection in results.result_collections(scene):
     fluorescent = polyp & columns["fluorescent"].astype(bool)
     photofrin = fluorescent & (columns["fluorophore"] == names["fluorophore"].index("photofrin"))
     share = photofrin.sum() / max(1, fluorescent.sum())
-    share_se = math.sqrt(share * (1 - share) / max(1, fluorescent.sum()))   # binomial
+    share_se = math.sqrt(share * (1 - share) / max(1, fluorescent.sum()))  # binomial
     print(f"{params['beta_deg']:8.1f} {rd:8.4f} {rd_se:7.4f} {share:31.3f} ± {share_se:.3f}")

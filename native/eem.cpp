@@ -20,16 +20,14 @@ void check_wavelengths(const std::string& where, const char* field, const std::v
                        std::size_t min_size) {
     if (w.size() < min_size)
         throw std::invalid_argument(where + field + " needs at least " + std::to_string(min_size) +
-                                    (min_size == 1 ? " entry" : " entries") + ", got " +
-                                    std::to_string(w.size()));
+                                    (min_size == 1 ? " entry" : " entries") + ", got " + std::to_string(w.size()));
     for (std::size_t i = 0; i < w.size(); ++i) {
         const std::string at = std::string(field) + "[" + std::to_string(i) + "] = " + fmt(w[i]);
         if (!std::isfinite(w[i])) throw std::invalid_argument(where + at + " must be finite");
         if (!(w[i] > 0.0)) throw std::invalid_argument(where + at + " must be > 0");
         if (i > 0 && !(w[i] > w[i - 1]))
-            throw std::invalid_argument(where + at + " must be greater than " + field + "[" +
-                                        std::to_string(i - 1) + "] = " + fmt(w[i - 1]) +
-                                        " (wavelengths must be strictly increasing)");
+            throw std::invalid_argument(where + at + " must be greater than " + field + "[" + std::to_string(i - 1) +
+                                        "] = " + fmt(w[i - 1]) + " (wavelengths must be strictly increasing)");
     }
 }
 
@@ -48,30 +46,27 @@ EEM::EEM(std::string name, std::vector<double> excitation_nm, std::vector<double
 
     const std::size_t n_ex = excitation_.size(), n_em = emission_.size();
     if (values_.size() != n_ex * n_em)
-        throw std::invalid_argument(where + "values has " + std::to_string(values_.size()) +
-                                    " entries, expected " + std::to_string(n_ex) + " x " +
-                                    std::to_string(n_em) + " = " + std::to_string(n_ex * n_em));
+        throw std::invalid_argument(where + "values has " + std::to_string(values_.size()) + " entries, expected " +
+                                    std::to_string(n_ex) + " x " + std::to_string(n_em) + " = " +
+                                    std::to_string(n_ex * n_em));
     bool any_positive = false;
     for (std::size_t i = 0; i < n_ex; ++i)
         for (std::size_t j = 0; j < n_em; ++j) {
             const double v = values_[i * n_em + j];
-            const std::string at = "values[" + std::to_string(i) + "][" + std::to_string(j) +
-                                   "] (ex " + fmt(excitation_[i]) + " nm, em " +
-                                   fmt(emission_[j]) + " nm) = " + fmt(v);
+            const std::string at = "values[" + std::to_string(i) + "][" + std::to_string(j) + "] (ex " +
+                                   fmt(excitation_[i]) + " nm, em " + fmt(emission_[j]) + " nm) = " + fmt(v);
             if (!std::isfinite(v)) throw std::invalid_argument(where + at + " must be finite");
             if (v < 0.0) throw std::invalid_argument(where + at + " must be >= 0");
             any_positive = any_positive || v > 0.0;
         }
-    if (!any_positive)
-        throw std::invalid_argument(where + "values are all 0; at least one must be positive");
+    if (!any_positive) throw std::invalid_argument(where + "values are all 0; at least one must be positive");
 
     rows_.reserve(n_ex);
     row_integral_.reserve(n_ex);
     for (std::size_t i = 0; i < n_ex; ++i) {
         std::vector<double> row(values_.begin() + static_cast<std::ptrdiff_t>(i * n_em),
                                 values_.begin() + static_cast<std::ptrdiff_t>((i + 1) * n_em));
-        rows_.emplace_back(emission_, std::move(row),
-                           where + "row ex " + fmt(excitation_[i]) + " nm");
+        rows_.emplace_back(emission_, std::move(row), where + "row ex " + fmt(excitation_[i]) + " nm");
         row_integral_.push_back(rows_.back().integral());
         max_row_integral_ = std::max(max_row_integral_, row_integral_.back());
     }
@@ -83,8 +78,7 @@ double EEM::efficiency(double lambda_ex) const {
     // I(lambda_ex) is linear between rows because integration over emission
     // commutes with the linear interpolation in excitation.
     const auto it = std::upper_bound(excitation_.begin(), excitation_.end(), lambda_ex);
-    const std::size_t i = std::min(static_cast<std::size_t>(it - excitation_.begin()) - 1,
-                                   excitation_.size() - 2);
+    const std::size_t i = std::min(static_cast<std::size_t>(it - excitation_.begin()) - 1, excitation_.size() - 2);
     const double t = (lambda_ex - excitation_[i]) / (excitation_[i + 1] - excitation_[i]);
     const double I = (1.0 - t) * row_integral_[i] + t * row_integral_[i + 1];
     return std::min(1.0, I / max_row_integral_);
@@ -99,8 +93,7 @@ EEM::RowMix EEM::mix(double lambda_ex) const {
 
     if (n_ex > 1) {
         const auto it = std::upper_bound(excitation_.begin(), excitation_.end(), lam);
-        const std::size_t i =
-            std::min(static_cast<std::size_t>(it - excitation_.begin()) - 1, n_ex - 2);
+        const std::size_t i = std::min(static_cast<std::size_t>(it - excitation_.begin()) - 1, n_ex - 2);
         const double t = (lam - excitation_[i]) / (excitation_[i + 1] - excitation_[i]);
         // The interpolated row (1-t) F_i + t F_{i+1}, normalised, is the
         // mixture of the normalised rows with weights (1-t) I_i and t I_{i+1}.
@@ -127,8 +120,7 @@ EEM::RowMix EEM::mix(double lambda_ex) const {
 
 double EEM::sample_emission(double lambda_ex, double u1, double u2) const {
     if (!(u1 >= 0.0 && u1 <= 1.0))
-        throw std::invalid_argument("eem '" + name_ + "': sample_emission u1 = " + fmt(u1) +
-                                    " must be in [0, 1]");
+        throw std::invalid_argument("eem '" + name_ + "': sample_emission u1 = " + fmt(u1) + " must be in [0, 1]");
     const RowMix m = mix(lambda_ex);
     // Row i1 only if it carries probability: with p0 = 1 a u1 of exactly 1
     // must not pick a row that does not emit.

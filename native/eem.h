@@ -79,9 +79,7 @@ class EEM {
     const std::vector<double>& values() const { return values_; }  // row-major
     std::size_t n_excitation() const { return excitation_.size(); }
     std::size_t n_emission() const { return emission_.size(); }
-    double value(std::size_t i_ex, std::size_t i_em) const {
-        return values_[i_ex * emission_.size() + i_em];
-    }
+    double value(std::size_t i_ex, std::size_t i_em) const { return values_[i_ex * emission_.size() + i_em]; }
     // Integral over emission of row i, I_i (value units x nm).
     double row_integral(std::size_t i_ex) const { return row_integral_[i_ex]; }
 

@@ -28,15 +28,24 @@ std::string engine_version() {
 
 const char* stop_reason_name(StopReason r) {
     switch (r) {
-        case StopReason::kNone: return "";
-        case StopReason::kPhotons: return "photons";
-        case StopReason::kStore: return "store";
-        case StopReason::kStoreZero: return "store_zero";
-        case StopReason::kTarget: return "target";
-        case StopReason::kTargetZero: return "target_zero";
-        case StopReason::kTime: return "time";
-        case StopReason::kMaxPhotons: return "max_photons";
-        case StopReason::kCancelled: return "cancelled";
+        case StopReason::kNone:
+            return "";
+        case StopReason::kPhotons:
+            return "photons";
+        case StopReason::kStore:
+            return "store";
+        case StopReason::kStoreZero:
+            return "store_zero";
+        case StopReason::kTarget:
+            return "target";
+        case StopReason::kTargetZero:
+            return "target_zero";
+        case StopReason::kTime:
+            return "time";
+        case StopReason::kMaxPhotons:
+            return "max_photons";
+        case StopReason::kCancelled:
+            return "cancelled";
     }
     return "";
 }
@@ -49,9 +58,11 @@ void finalize_estimates(RunResult& r, int batches) {
         r.capped_packets += u.capped_packets;
     }
     for (int k = 0; k < kScalarTallies; ++k)
-        r.scalar[k] = batch_estimate(r.units, batches, [k](const UnitTally& u) -> const Moments& { return u.scalar_m[k]; });
+        r.scalar[k] =
+            batch_estimate(r.units, batches, [k](const UnitTally& u) -> const Moments& { return u.scalar_m[k]; });
     for (int k = 0; k < kEnergyTallies; ++k)
-        r.energy[k] = batch_estimate(r.units, batches, [k](const UnitTally& u) -> const Moments& { return u.energy_m[k]; });
+        r.energy[k] =
+            batch_estimate(r.units, batches, [k](const UnitTally& u) -> const Moments& { return u.energy_m[k]; });
     const size_t nreg = r.units.empty() ? 0 : r.units.front().absorbed_by_region_m.size();
     r.absorbed_by_region.assign(nreg, Estimate{});
     for (size_t k = 0; k < nreg; ++k)
@@ -101,14 +112,17 @@ void validate_config(const RunConfig& c, const Scene& scene) {
     const int modes = (c.photons > 0) + (c.store > 0) + (c.target_tally >= 0);
     if (modes == 0) throw std::invalid_argument("photons = 0: give photons > 0, store > 0 or a target accuracy");
     if (c.photons > 0 && c.store > 0) throw std::invalid_argument("photons and store are exclusive: give one");
-    for (auto [name, v] : {std::pair<const char*, uint64_t>{"photons", c.photons}, {"store", c.store},
-                           {"max_photons", c.max_photons}, {"unit_size", c.unit_size}})
+    for (auto [name, v] : {std::pair<const char*, uint64_t>{"photons", c.photons},
+                           {"store", c.store},
+                           {"max_photons", c.max_photons},
+                           {"unit_size", c.unit_size}})
         if (v > kMaxPacketRequest)
-            throw std::invalid_argument(std::string(name) + " = " + std::to_string(v) + " exceeds the limit 2^62 = " +
-                                        std::to_string(kMaxPacketRequest));
+            throw std::invalid_argument(std::string(name) + " = " + std::to_string(v) +
+                                        " exceeds the limit 2^62 = " + std::to_string(kMaxPacketRequest));
     if (!(c.roulette_threshold >= 0) || !std::isfinite(c.roulette_threshold))
         bad("roulette_threshold", c.roulette_threshold, "must be a finite number >= 0");
-    if (!(c.roulette_chance > 0 && c.roulette_chance <= 1)) bad("roulette_chance", c.roulette_chance, "must be in (0, 1]");
+    if (!(c.roulette_chance > 0 && c.roulette_chance <= 1))
+        bad("roulette_chance", c.roulette_chance, "must be in (0, 1]");
     if (!(c.max_path_cm >= 0) || !std::isfinite(c.max_path_cm)) bad("max_path_cm", c.max_path_cm, "must be >= 0");
     if (!(c.grid_voxel_size >= 0) || !std::isfinite(c.grid_voxel_size))
         bad("grids.voxel_size", c.grid_voxel_size, "must be a positive finite number");
@@ -155,8 +169,14 @@ struct RunGrids {
         auto fl_n = scaled(*fluorescence, s);
         std::vector<std::unique_ptr<VoxelAccumulator>> per_n;
         std::vector<GridOutput> outs;
-        outs.push_back({"absorbed", "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet", abs_n.get()});
-        outs.push_back({"fluorescence", "weight of fluorescent packets summed over their interaction sites (volume photon map density), per launched packet", fl_n.get()});
+        outs.push_back(
+            {"absorbed",
+             "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet",
+             abs_n.get()});
+        outs.push_back({"fluorescence",
+                        "weight of fluorescent packets summed over their interaction sites (volume photon map "
+                        "density), per launched packet",
+                        fl_n.get()});
         for (size_t f = 0; f < per_fluorophore.size(); ++f) {
             per_n.push_back(scaled(*per_fluorophore[f], s));
             outs.push_back({"fluorescence_" + scene.fluorophore_name(int(f)),
@@ -247,8 +267,15 @@ struct RunState {
 
     RunState(const Scene& sc, const Source& so, const RunConfig& c, uint64_t usize, uint64_t lim, uint64_t nmax,
              UnitReducer& m, std::atomic<bool>* cancel_flag)
-        : scene(sc), source(so), cfg(c), halton(c.seed), unit_size(usize), limit(lim), n_units_max(nmax),
-          merger(m), cancel(cancel_flag) {}
+        : scene(sc),
+          source(so),
+          cfg(c),
+          halton(c.seed),
+          unit_size(usize),
+          limit(lim),
+          n_units_max(nmax),
+          merger(m),
+          cancel(cancel_flag) {}
     bool cancelled() const { return user_cancel.load() || (cancel && cancel->load()); }
     void fail(const std::string& what) {
         std::lock_guard<std::mutex> lock(mu);
@@ -275,8 +302,8 @@ std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, u
 // `tick(k)` is called before every packet with its index; returning false
 // abandons the unit (nullptr).
 template <class Tick>
-std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg,
-                                       const UnitPlan& plan, uint64_t u, Tick&& tick) {
+std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg, const UnitPlan& plan,
+                                       uint64_t u, Tick&& tick) {
     auto out = new_unit(scene, cfg, plan.unit_size, u);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     for (uint64_t k = first; k < end; ++k) {
@@ -374,8 +401,8 @@ UnitPlan plan_units(const RunConfig& cfg) {
         // Store and target runs check their stop rule after every merged unit:
         // 1024-packet units for "store N", 256 for targets so that a loose target
         // can stop after its minimum of 20 units (5120 packets).
-        p.unit_size = fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536)
-                            : (cfg.target_tally >= 0 ? 256 : 1024);
+        p.unit_size =
+            fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536) : (cfg.target_tally >= 0 ? 256 : 1024);
     }
     p.limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : kMaxPacketRequest);
     p.n_units_max = (p.limit + p.unit_size - 1) / p.unit_size;
@@ -393,7 +420,8 @@ UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig&
     const Halton halton(cfg.seed);
     Tracer tracer(scene, source, halton, cfg);
     for (uint64_t u = first_unit; u < first_unit + count; ++u) {
-        auto out = trace_unit(tracer, scene, cfg, plan, u, [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); });
+        auto out = trace_unit(tracer, scene, cfg, plan, u,
+                              [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); });
         if (!out) break;
         batch.units.push_back(std::move(out));
     }
@@ -410,12 +438,14 @@ struct UnitReducer::Impl {
     UnitMerger merger;
 
     Impl(const Scene& sc, const Source& so, const RunConfig& c)
-        : scene(sc), cfg(prepare_config(sc, so, c, &result.warnings)), plan(plan_units(cfg)),
+        : scene(sc),
+          cfg(prepare_config(sc, so, c, &result.warnings)),
+          plan(plan_units(cfg)),
           t_start(std::chrono::steady_clock::now()),
-          grids(cfg.grid_voxel_size > 0 ? std::make_unique<RunGrids>(cfg.grid_voxel_size, cfg.grid_per_fluorophore
-                                                                                              ? sc.fluorophore_count()
-                                                                                              : 0)
-                                        : nullptr),
+          grids(cfg.grid_voxel_size > 0
+                    ? std::make_unique<RunGrids>(cfg.grid_voxel_size,
+                                                 cfg.grid_per_fluorophore ? sc.fluorophore_count() : 0)
+                    : nullptr),
           merger(cfg, plan.n_units_max, result, grids.get(), t_start) {
         result.unit_size = plan.unit_size;
     }
@@ -443,16 +473,19 @@ RunResult UnitReducer::finish(int threads) {
     result.target_reached = result.stop == StopReason::kTarget;
     result.store_reached = result.stop == StopReason::kStore;
     finalize_estimates(result, cfg.batches);
-    result.packets_traced = cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
+    result.packets_traced =
+        cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
     const Scene& scene = impl_->scene;
     result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     if (result.packets == 0)
-        result.warnings.push_back("no work unit finished before the run stopped: the result holds no estimate "
-                                  "(every fraction and its stderr is 0, photons = 0)");
+        result.warnings.push_back(
+            "no work unit finished before the run stopped: the result holds no estimate "
+            "(every fraction and its stderr is 0, photons = 0)");
     if (result.capped_packets > 0)
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");
-    if (impl_->grids && result.packets > 0 && !result.cancelled) impl_->grids->write(scene, cfg, result);  // cancelled: no file
+    if (impl_->grids && result.packets > 0 && !result.cancelled)
+        impl_->grids->write(scene, cfg, result);  // cancelled: no file
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - impl_->t_start).count();
     return std::move(result);
 }

@@ -35,12 +35,12 @@ const char* stop_reason_name(StopReason r);
 
 // The stop rule of every run, checked after every merged unit (fixed runs:
 // the count and the time budget; store and target runs: their goal, the
-// "zero" rules, the packet cap and the budget). It never looks at the clock itself: the caller passes the elapsed time, so
-// the rule is a pure function of the merged units (testable without timing).
+// "zero" rules, the packet cap and the budget). It never looks at the clock itself: the caller passes the elapsed time,
+// so the rule is a pure function of the merged units (testable without timing).
 class StopRule {
   public:
-    static constexpr size_t kMinTargetUnits = 20;   // units before a target can be met
-    static constexpr size_t kZeroUnits = 1000;      // units before "store_zero" / "target_zero"
+    static constexpr size_t kMinTargetUnits = 20;  // units before a target can be met
+    static constexpr size_t kZeroUnits = 1000;     // units before "store_zero" / "target_zero"
     StopRule(const RunConfig& cfg, uint64_t n_units_max);
     // `unit` was just merged, making `units_merged` units; `records` are
     // stored so far. Returns kNone to go on.
@@ -56,9 +56,9 @@ class StopRule {
 };
 
 struct RunResult {
-    uint64_t packets = 0;         // packets whose tallies are included
-    uint64_t packets_traced = 0;  // store-N mode: index of the packet that made the N-th record + 1
-    std::vector<UnitTally> units; // per-unit tallies, in order (for batch means)
+    uint64_t packets = 0;          // packets whose tallies are included
+    uint64_t packets_traced = 0;   // store-N mode: index of the packet that made the N-th record + 1
+    std::vector<UnitTally> units;  // per-unit tallies, in order (for batch means)
     Estimate scalar[kScalarTallies];
     Estimate energy[kEnergyTallies];  // meaningful in spectral runs
     std::vector<Estimate> absorbed_by_region;
@@ -68,12 +68,12 @@ struct RunResult {
     bool spectral = false;
     bool store_reached = false;
     StopReason stop = StopReason::kNone;
-    uint64_t capped_packets = 0;  // packets that ended at the step or path cap (their weight is `cut`)
+    uint64_t capped_packets = 0;        // packets that ended at the step or path cap (their weight is `cut`)
     std::vector<std::string> warnings;  // conditions a reader of the result must know about
     double seconds = 0;
     std::string grid_path;
     std::vector<std::string> grid_names;
-    double grid_absorbed_sum = 0; // sum of the absorbed (energy) grid, per launched packet
+    double grid_absorbed_sum = 0;  // sum of the absorbed (energy) grid, per launched packet
     uint64_t unit_size = 0;
     int threads = 0;
     size_t peak_record_bytes = 0;

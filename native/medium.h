@@ -12,10 +12,10 @@ namespace ep {
 class Tabulated1D;
 
 struct Medium {
-    Float mua = 0;  // absorption coefficient, cm^-1 (used when mua_table is null)
-    Float mus = 0;  // scattering coefficient, cm^-1
-    Float g = 0;    // HG anisotropy, [-1, 1]
-    Float n = 1;    // refractive index, >= 1
+    Float mua = 0;                                 // absorption coefficient, cm^-1 (used when mua_table is null)
+    Float mus = 0;                                 // scattering coefficient, cm^-1
+    Float g = 0;                                   // HG anisotropy, [-1, 1]
+    Float n = 1;                                   // refractive index, >= 1
     std::shared_ptr<const Tabulated1D> mua_table;  // optional, over wavelength in nm
     std::shared_ptr<const Tabulated1D> mus_table;
 

@@ -113,8 +113,7 @@ void check_self_intersection(const std::string& owner, const float* v, const uin
 
 }  // namespace
 
-MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const uint32_t* tri,
-                      size_t nt) {
+MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const uint32_t* tri, size_t nt) {
     MeshReport rep;
     if (nv < 4) fail(owner, "mesh.vertices has " + std::to_string(nv) + " rows; a closed mesh needs at least 4");
     if (nt < 4) fail(owner, "mesh.triangles has " + std::to_string(nt) + " rows; a closed mesh needs at least 4");
@@ -136,8 +135,8 @@ MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const
             rep.bbox_min[k] = std::min(rep.bbox_min[k], double(v[3 * i + k]));
             rep.bbox_max[k] = std::max(rep.bbox_max[k], double(v[3 * i + k]));
         }
-    const double extent = std::max({rep.bbox_max[0] - rep.bbox_min[0], rep.bbox_max[1] - rep.bbox_min[1],
-                                    rep.bbox_max[2] - rep.bbox_min[2]});
+    const double extent = std::max(
+        {rep.bbox_max[0] - rep.bbox_min[0], rep.bbox_max[1] - rep.bbox_min[1], rep.bbox_max[2] - rep.bbox_min[2]});
     if (!(extent > 0)) fail(owner, "mesh has zero extent");
 
     // Exact welding: canonical index per distinct position.
@@ -163,8 +162,8 @@ MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const
             idx[k] = tri[3 * t + k];
             if (idx[k] >= nv) {
                 std::ostringstream os;
-                os << "mesh.triangles[" << t << "][" << k << "] = " << idx[k] << " is out of range (vertices: "
-                   << nv << ")";
+                os << "mesh.triangles[" << t << "][" << k << "] = " << idx[k] << " is out of range (vertices: " << nv
+                   << ")";
                 fail(owner, os.str());
             }
             idx[k] = canon[idx[k]];

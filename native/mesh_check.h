@@ -21,7 +21,7 @@ struct MeshReport {
 // A mesh whose triangles cross each other (say two overlapping cubes in one
 // mesh) is rejected: "inside" would count both. Triangles that share a vertex
 // and contacts that only touch are not tested (docs/numerics.md).
-MeshReport check_mesh(const std::string& owner, const float* vertices, size_t n_vertices,
-                      const uint32_t* triangles, size_t n_triangles);
+MeshReport check_mesh(const std::string& owner, const float* vertices, size_t n_vertices, const uint32_t* triangles,
+                      size_t n_triangles);
 
 }  // namespace ep

@@ -8,30 +8,30 @@ namespace ep {
 enum class FluorescenceRule { kPaper, kEEM };
 
 struct RunConfig {
-    uint64_t photons = 0;         // fixed-count mode: packets to launch
-    uint64_t store = 0;           // "store N" mode: stop once N escape records are stored
-    bool fluorescent_only = false;  // store only fluorescent escapes (the seed's surface map)
-    bool record_escapes = true;   // keep the surface photon map (records)
+    uint64_t photons = 0;             // fixed-count mode: packets to launch
+    uint64_t store = 0;               // "store N" mode: stop once N escape records are stored
+    bool fluorescent_only = false;    // store only fluorescent escapes (the seed's surface map)
+    bool record_escapes = true;       // keep the surface photon map (records)
     uint64_t max_records = 50000000;  // refuse to grow the map beyond this (memory guard)
     uint64_t seed = 1;
-    int threads = 0;              // 0 = all hardware threads
+    int threads = 0;  // 0 = all hardware threads
     double roulette_threshold = 1e-4;
     double roulette_chance = 0.1;
-    uint64_t max_steps = 0;       // 0 = no user cap; counts interactions and boundary events
-    double max_path_cm = 0;       // 0 = no cap
+    uint64_t max_steps = 0;  // 0 = no user cap; counts interactions and boundary events
+    double max_path_cm = 0;  // 0 = no cap
     FluorescenceRule rule = FluorescenceRule::kPaper;
     bool force_spectral = false;  // trace wavelengths even without fluorophores/spectral media
     // Grids (none unless voxel_size > 0).
-    double grid_voxel_size = 0;   // scene units
+    double grid_voxel_size = 0;  // scene units
     bool grid_per_fluorophore = false;
     std::string grid_path;
     // Target-accuracy mode: stop once stderr/mean of `target_tally` <= target_rel_error.
-    int target_tally = -1;        // a TallyIndex, or -1
+    int target_tally = -1;  // a TallyIndex, or -1
     double target_rel_error = 0;
-    double time_budget_s = 0;     // 0 = none
-    uint64_t max_photons = 0;     // upper bound for store/target modes; 0 = unlimited
-    uint64_t unit_size = 0;       // packets per work unit; 0 = automatic
-    int batches = 50;             // batches for the batch-means standard errors
+    double time_budget_s = 0;  // 0 = none
+    uint64_t max_photons = 0;  // upper bound for store/target modes; 0 = unlimited
+    uint64_t unit_size = 0;    // packets per work unit; 0 = automatic
+    int batches = 50;          // batches for the batch-means standard errors
     // Use the closest-surface distance to skip ray queries deep inside regions.
     bool safe_distance = true;
     // Light crosses the lumen (issue 9): exits go on through the ambient and the

@@ -37,8 +37,8 @@ void check_scale(const Scene& scene, const Source& source, const RunConfig& cfg)
         const std::string owner = "region '" + scene.region(i).name + "'";
         if (!(mag <= kMaxCoordinate)) {
             std::ostringstream os;
-            os << owner << ": mesh.vertices reach |coordinate| = " << mag << ", beyond the limit "
-               << kMaxCoordinate << " scene units of float32 ray tracing";
+            os << owner << ": mesh.vertices reach |coordinate| = " << mag << ", beyond the limit " << kMaxCoordinate
+               << " scene units of float32 ray tracing";
             throw std::invalid_argument(os.str());
         }
         double side = INFINITY;
@@ -62,8 +62,8 @@ void check_scale(const Scene& scene, const Source& source, const RunConfig& cfg)
     const auto& lights = source.lights();
     for (size_t i = 0; i < lights.size(); ++i) {
         const Light& l = lights[i];
-        const double reach = std::max({std::fabs(l.center.x), std::fabs(l.center.y), std::fabs(l.center.z)}) +
-                             double(l.radius);
+        const double reach =
+            std::max({std::fabs(l.center.x), std::fabs(l.center.y), std::fabs(l.center.z)}) + double(l.radius);
         std::ostringstream pre;
         pre << "source.lights[" << i << "]: position = " << vec_str(l.center) << ", radius = " << l.radius;
         if (!(reach <= kMaxCoordinate)) {

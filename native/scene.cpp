@@ -162,8 +162,8 @@ Scene::~Scene() {
     if (device_) rtcReleaseDevice(device_);
 }
 
-int Scene::add_region(const std::string& name, const float* vertices, size_t nv, const uint32_t* triangles,
-                      size_t nt, const Medium& medium, int priority) {
+int Scene::add_region(const std::string& name, const float* vertices, size_t nv, const uint32_t* triangles, size_t nt,
+                      const Medium& medium, int priority) {
     if (committed_) throw std::logic_error("Scene::add_region after commit");
     const std::string owner = "region '" + name + "'";
     if (regions_.size() >= size_t(kMaxRegions)) {
@@ -306,8 +306,7 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
     rtcIntersect1(scene_, &ctx.base, &rh);
     if (back > 0)
         for (Hit& h : out) h.t -= back;
-    if (out.size() > 1)
-        std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
+    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
 }
 
 Float Scene::distance_to_surface(const Vec3& p, Float radius) const {

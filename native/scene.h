@@ -36,10 +36,10 @@ struct Region {
 
 // One surface crossing found along a ray.
 struct Hit {
-    Float t;           // ray parameter, scene units
-    uint32_t region;   // region index
-    uint32_t prim;     // triangle index within the region
-    Float cos_dn;      // dot(ray direction, outward normal): < 0 entering, > 0 leaving
+    Float t;          // ray parameter, scene units
+    uint32_t region;  // region index
+    uint32_t prim;    // triangle index within the region
+    Float cos_dn;     // dot(ray direction, outward normal): < 0 entering, > 0 leaving
 };
 
 class Scene {
@@ -53,8 +53,8 @@ class Scene {
 
     // Validates the mesh and the medium (std::invalid_argument naming the region)
     // and adds it. Vertices are float32 (N,3) in scene units, triangles uint32 (M,3).
-    int add_region(const std::string& name, const float* vertices, size_t n_vertices,
-                   const uint32_t* triangles, size_t n_triangles, const Medium& medium, int priority);
+    int add_region(const std::string& name, const float* vertices, size_t n_vertices, const uint32_t* triangles,
+                   size_t n_triangles, const Medium& medium, int priority);
     int add_fluorophore(const std::string& name, std::shared_ptr<const EEM> eem);
     void set_region_fluorophores(int region, const std::vector<FluorophoreRef>& refs);
     void commit();

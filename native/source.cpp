@@ -92,7 +92,8 @@ Source::Source(std::vector<Light> lights, const RigBody* body) : lights_(std::mo
         pre << "source.lights[" << i << "].";
         if (!is_finite(l.center)) throw std::invalid_argument(pre.str() + "position is not finite");
         const Float len = length(l.axis);
-        if (!std::isfinite(len) || len < 1e-12) throw std::invalid_argument(pre.str() + "direction has zero length or is not finite");
+        if (!std::isfinite(len) || len < 1e-12)
+            throw std::invalid_argument(pre.str() + "direction has zero length or is not finite");
         l.axis = l.axis / len;
         if (!std::isfinite(l.radius) || l.radius < 0) {
             std::ostringstream os;

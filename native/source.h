@@ -15,10 +15,10 @@ namespace ep {
 class Tabulated1D;
 
 struct Light {
-    Vec3 center;                // scene units
-    Vec3 axis{0, 0, -1};        // unit emission axis
-    Float radius = 0;           // disk radius, scene units; 0 = point
-    Float half_angle = 0;       // cone half angle, radians; 0 = collimated
+    Vec3 center;                                  // scene units
+    Vec3 axis{0, 0, -1};                          // unit emission axis
+    Float radius = 0;                             // disk radius, scene units; 0 = point
+    Float half_angle = 0;                         // cone half angle, radians; 0 = collimated
     std::shared_ptr<const Tabulated1D> spectrum;  // relative SPD over nm; null = flat 400-700 nm
 };
 

@@ -22,24 +22,18 @@ std::string fmt(double v) { return format_g(v); }
 Tabulated1D::Tabulated1D(std::vector<double> x, std::vector<double> y, std::string field)
     : x_(std::move(x)), y_(std::move(y)), field_(std::move(field)) {
     if (x_.size() != y_.size())
-        throw std::invalid_argument(field_ + ": x has " + std::to_string(x_.size()) +
-                                    " entries but y has " + std::to_string(y_.size()) +
-                                    "; they must have the same length");
-    if (x_.empty())
-        throw std::invalid_argument(field_ +
-                                    ": needs at least 1 node (1 = constant, >= 2 = table), got 0");
+        throw std::invalid_argument(field_ + ": x has " + std::to_string(x_.size()) + " entries but y has " +
+                                    std::to_string(y_.size()) + "; they must have the same length");
+    if (x_.empty()) throw std::invalid_argument(field_ + ": needs at least 1 node (1 = constant, >= 2 = table), got 0");
     for (std::size_t i = 0; i < x_.size(); ++i) {
         const std::string at = "[" + std::to_string(i) + "] = ";
-        if (!std::isfinite(x_[i]))
-            throw std::invalid_argument(field_ + ": x" + at + fmt(x_[i]) + " must be finite");
-        if (!std::isfinite(y_[i]))
-            throw std::invalid_argument(field_ + ": y" + at + fmt(y_[i]) + " must be finite");
-        if (y_[i] < 0.0)
-            throw std::invalid_argument(field_ + ": y" + at + fmt(y_[i]) + " must be >= 0");
+        if (!std::isfinite(x_[i])) throw std::invalid_argument(field_ + ": x" + at + fmt(x_[i]) + " must be finite");
+        if (!std::isfinite(y_[i])) throw std::invalid_argument(field_ + ": y" + at + fmt(y_[i]) + " must be finite");
+        if (y_[i] < 0.0) throw std::invalid_argument(field_ + ": y" + at + fmt(y_[i]) + " must be >= 0");
         if (i > 0 && !(x_[i] > x_[i - 1]))
-            throw std::invalid_argument(field_ + ": x" + at + fmt(x_[i]) +
-                                        " must be greater than x[" + std::to_string(i - 1) +
-                                        "] = " + fmt(x_[i - 1]) + " (x must be strictly increasing)");
+            throw std::invalid_argument(field_ + ": x" + at + fmt(x_[i]) + " must be greater than x[" +
+                                        std::to_string(i - 1) + "] = " + fmt(x_[i - 1]) +
+                                        " (x must be strictly increasing)");
     }
     // Running integral at the nodes.  Each segment contributes its trapezoid
     // h (y_i + y_{i+1}) / 2, which is the exact area under a straight line.
@@ -72,21 +66,18 @@ void Tabulated1D::require_normalisable(const char* what) const {
     if (is_constant())
         throw std::logic_error(field_ + ": cannot " + what +
                                " a constant (wavelength-independent) value; it has no finite integral");
-    if (!(cdf_.back() > 0.0))
-        throw std::logic_error(field_ + ": cannot " + what + " a function that is 0 everywhere");
+    if (!(cdf_.back() > 0.0)) throw std::logic_error(field_ + ": cannot " + what + " a function that is 0 everywhere");
 }
 
 double Tabulated1D::integral() const {
     if (is_constant())
-        throw std::logic_error(field_ +
-                               ": a constant (wavelength-independent) value has no finite integral");
+        throw std::logic_error(field_ + ": a constant (wavelength-independent) value has no finite integral");
     return cdf_.back();
 }
 
 double Tabulated1D::sample(double u) const {
     require_normalisable("sample");
-    if (!(u >= 0.0 && u <= 1.0))
-        throw std::invalid_argument(field_ + ": sample u = " + fmt(u) + " must be in [0, 1]");
+    if (!(u >= 0.0 && u <= 1.0)) throw std::invalid_argument(field_ + ": sample u = " + fmt(u) + " must be in [0, 1]");
     const double total = cdf_.back();
     const double target = u * total;
 
@@ -96,8 +87,7 @@ double Tabulated1D::sample(double u) const {
     // equal.  target == total (u = 1, or rounding) falls off the end; use
     // the last segment with positive area, at its right end.
     const std::size_t n = x_.size();
-    std::size_t k = static_cast<std::size_t>(
-        std::upper_bound(cdf_.begin(), cdf_.end(), target) - cdf_.begin());
+    std::size_t k = static_cast<std::size_t>(std::upper_bound(cdf_.begin(), cdf_.end(), target) - cdf_.begin());
     std::size_t i;
     double r;  // area still to cover inside segment i
     if (k >= n) {
@@ -134,12 +124,8 @@ double Tabulated1D::pdf(double x) const {
     return eval(x) / cdf_.back();
 }
 
-double Tabulated1D::x_min() const {
-    return is_constant() ? -std::numeric_limits<double>::infinity() : x_.front();
-}
+double Tabulated1D::x_min() const { return is_constant() ? -std::numeric_limits<double>::infinity() : x_.front(); }
 
-double Tabulated1D::x_max() const {
-    return is_constant() ? std::numeric_limits<double>::infinity() : x_.back();
-}
+double Tabulated1D::x_max() const { return is_constant() ? std::numeric_limits<double>::infinity() : x_.back(); }
 
 }  // namespace ep

@@ -72,7 +72,7 @@ class Tabulated1D {
     void require_normalisable(const char* what) const;
 
     std::vector<double> x_, y_;
-    std::vector<double> cdf_;   // cdf_[i] = integral of the function over [x_0, x_i]
+    std::vector<double> cdf_;  // cdf_[i] = integral of the function over [x_0, x_i]
     std::string field_;
 };
 

@@ -52,9 +52,8 @@ SurfaceHit first_surface(const Scene& scene, const Vec3& o, const Vec3& d_in, Fl
     return out;
 }
 
-void first_surfaces(const Scene& scene, const double* org, const double* dir, const double* tfar, size_t n,
-                    Float tnear, int threads, double* t_out, int32_t* region_out, int32_t* prim_out,
-                    double* normal_out) {
+void first_surfaces(const Scene& scene, const double* org, const double* dir, const double* tfar, size_t n, Float tnear,
+                    int threads, double* t_out, int32_t* region_out, int32_t* prim_out, double* normal_out) {
     auto work = [&](size_t lo, size_t hi) {
         for (size_t k = lo; k < hi; ++k) {
             const Vec3 o(org[3 * k], org[3 * k + 1], org[3 * k + 2]);

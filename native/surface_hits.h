@@ -16,10 +16,10 @@ constexpr int32_t kStartsInside = -2;
 constexpr int32_t kNoSurface = -1;
 
 struct SurfaceHit {
-    Float t = kInf;              // ray parameter of the entry point, scene units (direction normalised)
-    int32_t region = kNoSurface; // region the ray enters there (the top-priority one if several coincide)
-    int32_t prim = -1;           // triangle of that region's mesh
-    Vec3 normal;                 // outward unit normal of that triangle
+    Float t = kInf;               // ray parameter of the entry point, scene units (direction normalised)
+    int32_t region = kNoSurface;  // region the ray enters there (the top-priority one if several coincide)
+    int32_t prim = -1;            // triangle of that region's mesh
+    Vec3 normal;                  // outward unit normal of that triangle
 };
 
 // First entry into tissue along o + t d, t in [tnear, tfar]. Crossings closer
@@ -32,8 +32,8 @@ SurfaceHit first_surface(const Scene& scene, const Vec3& o, const Vec3& d, Float
 // ray, may be +inf), split over `threads` threads (0 = all cores). Outputs:
 // t (n), region (n), prim (n), normal (n,3). Deterministic: each ray is
 // independent of the split.
-void first_surfaces(const Scene& scene, const double* origins, const double* directions, const double* tfar,
-                    size_t n, Float tnear, int threads, double* t_out, int32_t* region_out, int32_t* prim_out,
+void first_surfaces(const Scene& scene, const double* origins, const double* directions, const double* tfar, size_t n,
+                    Float tnear, int threads, double* t_out, int32_t* region_out, int32_t* prim_out,
                     double* normal_out);
 
 }  // namespace ep

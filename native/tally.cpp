@@ -6,18 +6,35 @@
 namespace ep {
 
 const char* tally_name(int i) {
-    static const char* names[kScalarTallies] = {"specular_reflectance", "diffuse_reflectance", "transmittance",
-                                                "absorbed", "missed", "cut", "roulette", "occluded", "camera_collected",
-                                                "fluorescent_escaped", "escaped_energy", "interactions",
-                                                "fluorescence_trials", "fluorescence_events"};
+    static const char* names[kScalarTallies] = {"specular_reflectance",
+                                                "diffuse_reflectance",
+                                                "transmittance",
+                                                "absorbed",
+                                                "missed",
+                                                "cut",
+                                                "roulette",
+                                                "occluded",
+                                                "camera_collected",
+                                                "fluorescent_escaped",
+                                                "escaped_energy",
+                                                "interactions",
+                                                "fluorescence_trials",
+                                                "fluorescence_events"};
     return names[i];
 }
 
 const char* energy_tally_name(int i) {
-    static const char* names[kEnergyTallies] = {"specular_reflectance_energy", "diffuse_reflectance_energy",
-                                                "transmittance_energy", "absorbed_energy", "missed_energy",
-                                                "cut_energy", "roulette_energy", "occluded_energy",
-                                                "camera_collected_energy", "stokes_loss", "launched_energy"};
+    static const char* names[kEnergyTallies] = {"specular_reflectance_energy",
+                                                "diffuse_reflectance_energy",
+                                                "transmittance_energy",
+                                                "absorbed_energy",
+                                                "missed_energy",
+                                                "cut_energy",
+                                                "roulette_energy",
+                                                "occluded_energy",
+                                                "camera_collected_energy",
+                                                "stokes_loss",
+                                                "launched_energy"};
     return names[i];
 }
 

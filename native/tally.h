@@ -10,15 +10,15 @@
 namespace ep {
 
 enum TallyIndex : int {
-    kSpecular = 0,   // Rsp: specular reflection at the first boundary
-    kDiffuse,        // Rd: escaped back (direction against the source axis)
-    kTransmitted,    // Tt: escaped forward
-    kAbsorbed,       // A
-    kMissed,         // never met a region
-    kCut,            // removed by the step / path cap
-    kRoulette,       // net weight destroyed (+) or created (-) by Russian roulette
-    kOccluded,       // landed on the endoscope head (opaque, black) after leaving the tissue or by specular reflection
-    kCameraCollected,  // landed on the camera's aperture: the camera's signal
+    kSpecular = 0,  // Rsp: specular reflection at the first boundary
+    kDiffuse,       // Rd: escaped back (direction against the source axis)
+    kTransmitted,   // Tt: escaped forward
+    kAbsorbed,      // A
+    kMissed,        // never met a region
+    kCut,           // removed by the step / path cap
+    kRoulette,      // net weight destroyed (+) or created (-) by Russian roulette
+    kOccluded,      // landed on the endoscope head (opaque, black) after leaving the tissue or by specular reflection
+    kCameraCollected,     // landed on the camera's aperture: the camera's signal
     kFluorescentEscaped,  // weight of escaping fluorescent packets
     kEscapedEnergy,       // energy (weight x 500/lambda) of escaping packets
     kInteractions,        // count of interaction events (not weighted)
@@ -37,8 +37,18 @@ const char* tally_name(int i);
 // fluorescence removed by lengthening wavelengths, kLaunched the energy that
 // was emitted. Launched = sum of the others, to rounding.
 enum EnergyIndex : int {
-    kEnergySpecular = 0, kEnergyDiffuse, kEnergyTransmitted, kEnergyAbsorbed, kEnergyMissed, kEnergyCut,
-    kEnergyRoulette, kEnergyOccluded, kEnergyCameraCollected, kEnergyStokes, kEnergyLaunched, kEnergyTallies
+    kEnergySpecular = 0,
+    kEnergyDiffuse,
+    kEnergyTransmitted,
+    kEnergyAbsorbed,
+    kEnergyMissed,
+    kEnergyCut,
+    kEnergyRoulette,
+    kEnergyOccluded,
+    kEnergyCameraCollected,
+    kEnergyStokes,
+    kEnergyLaunched,
+    kEnergyTallies
 };
 const char* energy_tally_name(int i);
 

@@ -23,9 +23,7 @@ constexpr Float kEnergyReferenceNm = 500;
 // rounding put just behind it is still seen, and re-seeing the surface just
 // crossed is harmless because region membership updates are idempotent
 // (entering sets a bit, leaving clears it).
-inline Float ray_offset(const Vec3& p, Float extent) {
-    return 4e-7 * (max_abs_component(p) + 1e-3 * extent);
-}
+inline Float ray_offset(const Vec3& p, Float extent) { return 4e-7 * (max_abs_component(p) + 1e-3 * extent); }
 
 // Hits closer than this are one crossing: coincident faces of touching regions,
 // or the two triangles of an edge.
@@ -56,7 +54,7 @@ struct PacketState {
     uint32_t scatterings = 0;
     uint32_t exits = 0;  // exits into the ambient so far
     uint64_t events = 0;
-    Float tau = 0;            // remaining dimensionless step (MCML's carried step)
+    Float tau = 0;  // remaining dimensionless step (MCML's carried step)
     bool need_tau = true;
     bool reuse_hits = false;  // the hits in the buffer are this step's (no new query)
 };
@@ -96,9 +94,17 @@ class PacketWalk {
     PacketWalk(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg,
                std::vector<Hit>& hits, std::vector<Float>& cuts, const std::vector<uint8_t>& enclosed,
                LocalGeometry& local, UnitOutput& out)
-        : scene_(scene), source_(source), halton_(halton), cfg_(cfg), hits_(hits), cuts_(cuts),
-          enclosed_(enclosed), local_(local), out_(out),
-          unit_cm_(scene.unit_cm()), extent_(scene.extent()),
+        : scene_(scene),
+          source_(source),
+          halton_(halton),
+          cfg_(cfg),
+          hits_(hits),
+          cuts_(cuts),
+          enclosed_(enclosed),
+          local_(local),
+          out_(out),
+          unit_cm_(scene.unit_cm()),
+          extent_(scene.extent()),
           max_events_(cfg.max_steps > 0 ? std::min<uint64_t>(cfg.max_steps, kSafetyMaxEvents) : kSafetyMaxEvents) {}
 
     void run(uint64_t index);
@@ -122,9 +128,7 @@ class PacketWalk {
     void escape();
     // The rig head, when the lumen rule is on and the source has one.
     const RigBody* body() const { return cfg_.lumen ? source_.body() : nullptr; }
-    bool reflected() const {
-        return !enclosed_[size_t(st_.light)] && dot(st_.d, st_.entry_reference) < 0;
-    }
+    bool reflected() const { return !enclosed_[size_t(st_.light)] && dot(st_.d, st_.entry_reference) < 0; }
     void record_exit(int from_region, const Vec3& normal_out, NextHit next);
     void load_medium(int region);
     void attenuate_clear(Float t);
@@ -310,8 +314,10 @@ Interface PacketWalk<kSpectral, kGrids>::next_interface(Float s, uint64_t set, i
         uint64_t enter = 0, leave = 0;
         while (j < hits.size() && hits[j].t <= t0 + tol) {
             const uint64_t bit = uint64_t(1) << hits[j].region;
-            if (hits[j].cos_dn < 0) enter |= bit;
-            else if (hits[j].cos_dn > 0) leave |= bit;
+            if (hits[j].cos_dn < 0)
+                enter |= bit;
+            else if (hits[j].cos_dn > 0)
+                leave |= bit;
             ++j;
         }
         // A region entered and left at the same point was only touched
@@ -508,12 +514,19 @@ Crossing PacketWalk<kSpectral, kGrids>::through_ambient(NextHit next) {
         case kNextTissue:
             st_.reuse_hits = true;
             return Crossing::kBoundary;
-        case kNextHead: add(kOccluded, st_.W); return Crossing::kEnded;
-        case kNextCamera: add(kCameraCollected, st_.W); return Crossing::kEnded;
-        case kNextAway: break;
+        case kNextHead:
+            add(kOccluded, st_.W);
+            return Crossing::kEnded;
+        case kNextCamera:
+            add(kCameraCollected, st_.W);
+            return Crossing::kEnded;
+        case kNextAway:
+            break;
     }
-    if (st_.entered) escape();
-    else add(kMissed, st_.W);  // never entered any region
+    if (st_.entered)
+        escape();
+    else
+        add(kMissed, st_.W);  // never entered any region
     return Crossing::kEnded;
 }
 
@@ -754,11 +767,15 @@ void Tracer::trace(uint64_t index, UnitOutput& out) {
     using T = std::true_type;
     using F = std::false_type;
     if (spectral_) {
-        if (grids_) walk(T{}, T{});
-        else walk(T{}, F{});
+        if (grids_)
+            walk(T{}, T{});
+        else
+            walk(T{}, F{});
     } else {
-        if (grids_) walk(F{}, T{});
-        else walk(F{}, F{});
+        if (grids_)
+            walk(F{}, T{});
+        else
+            walk(F{}, F{});
     }
 }
 

@@ -27,7 +27,7 @@ class VoxelAccumulator;
 struct UnitOutput {
     UnitTally tally;
     EscapeRecords records;
-    std::unique_ptr<VoxelAccumulator> absorbed_grid;     // absorbed weight
+    std::unique_ptr<VoxelAccumulator> absorbed_grid;      // absorbed weight
     std::unique_ptr<VoxelAccumulator> fluorescence_grid;  // fluorescent packet weight at every step
     std::vector<std::unique_ptr<VoxelAccumulator>> per_fluorophore;
     uint64_t first_packet = 0;
@@ -38,7 +38,7 @@ struct UnitOutput {
 struct LocalGeometry {
     bool enabled = false;  // chosen per scene (Tracer's constructor)
     TriangleCache cache;
-    int cooldown = 0;  // steps before the next gather after one that failed
+    int cooldown = 0;     // steps before the next gather after one that failed
     double fraction = 1;  // of the ball radius in free paths (transport.cpp)
 };
 

@@ -17,8 +17,7 @@ void TriangleCache::reset(const Vec3& center, Float radius) {
     eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
 }
 
-void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region,
-                        uint32_t prim) {
+void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim) {
     // Join the plane of an earlier triangle when this one lies in it (the two
     // triangles of a quad, a flat face): vertices within a relative 1e-9 of
     // the plane. The margin records how far they really are, so the plane
@@ -29,8 +28,8 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     for (uint32_t k = 0; k < planes_.size(); ++k) {
         const Plane& p = planes_[k];
         if (dot(p.n, n) < 1 - 1e-12) continue;
-        const Float e = std::max({std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off),
-                                  std::fabs(dot(p.n, v2) - p.off)});
+        const Float e = std::max(
+            {std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off), std::fabs(dot(p.n, v2) - p.off)});
         if (e <= tol) {
             planes_[k].margin = std::max(p.margin, e);
             planes_[k].reach = planes_[k].margin + eps_;

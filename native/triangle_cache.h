@@ -20,10 +20,10 @@ namespace ep {
 class TriangleCache {
   public:
     struct Triangle {
-        Vec3 v0, v1, v2;   // vertices (float mesh data, exactly as Embree sees them)
-        Vec3 n;            // outward unit normal (Region::normals)
+        Vec3 v0, v1, v2;  // vertices (float mesh data, exactly as Embree sees them)
+        Vec3 n;           // outward unit normal (Region::normals)
         uint32_t region, prim;
-        uint32_t plane;    // index into planes_
+        uint32_t plane;  // index into planes_
     };
     // Coplanar triangles share one plane test: n.x = off within +-margin holds
     // every vertex of every member triangle.
@@ -34,7 +34,11 @@ class TriangleCache {
     };
 
     // Empty and covering nothing.
-    void clear() { tris_.clear(); planes_.clear(); radius_ = 0; }
+    void clear() {
+        tris_.clear();
+        planes_.clear();
+        radius_ = 0;
+    }
     // Starts a gather around `center`: every triangle meeting the ball of
     // `radius` must then be added (Scene::gather_triangles does this).
     void reset(const Vec3& center, Float radius);
@@ -67,8 +71,10 @@ class TriangleCache {
             const bool apart = (da > p.reach && db > p.reach) || (da < -p.reach && db < -p.reach);
             if (!apart || k >= 63) open |= uint64_t(1) << std::min<size_t>(k, 63);
         }
-        if (open) intersect_open(org, d, back, t_end, open, out);
-        else out.clear();
+        if (open)
+            intersect_open(org, d, back, t_end, open, out);
+        else
+            out.clear();
     }
 
     const Vec3& center() const { return center_; }

@@ -38,25 +38,31 @@ std::runtime_error path_error(const std::string& path, const std::string& what) 
 // Metadata names OpenVDB itself writes into grids; a user key with one of these
 // names would be silently overwritten or would corrupt how the grid is read.
 bool is_reserved_key(const std::string& key) {
-    static const std::set<std::string> reserved = {
-        openvdb::GridBase::META_GRID_CLASS,      openvdb::GridBase::META_GRID_CREATOR,
-        openvdb::GridBase::META_GRID_NAME,       openvdb::GridBase::META_SAVE_HALF_FLOAT,
-        openvdb::GridBase::META_IS_LOCAL_SPACE,  openvdb::GridBase::META_VECTOR_TYPE,
-        openvdb::GridBase::META_FILE_BBOX_MIN,   openvdb::GridBase::META_FILE_BBOX_MAX,
-        openvdb::GridBase::META_FILE_COMPRESSION, openvdb::GridBase::META_FILE_MEM_BYTES,
-        openvdb::GridBase::META_FILE_VOXEL_COUNT, openvdb::GridBase::META_FILE_DELAYED_LOAD,
-        "meaning", "accumulator_sum", "dropped_deposits", "dropped_value"};
+    static const std::set<std::string> reserved = {openvdb::GridBase::META_GRID_CLASS,
+                                                   openvdb::GridBase::META_GRID_CREATOR,
+                                                   openvdb::GridBase::META_GRID_NAME,
+                                                   openvdb::GridBase::META_SAVE_HALF_FLOAT,
+                                                   openvdb::GridBase::META_IS_LOCAL_SPACE,
+                                                   openvdb::GridBase::META_VECTOR_TYPE,
+                                                   openvdb::GridBase::META_FILE_BBOX_MIN,
+                                                   openvdb::GridBase::META_FILE_BBOX_MAX,
+                                                   openvdb::GridBase::META_FILE_COMPRESSION,
+                                                   openvdb::GridBase::META_FILE_MEM_BYTES,
+                                                   openvdb::GridBase::META_FILE_VOXEL_COUNT,
+                                                   openvdb::GridBase::META_FILE_DELAYED_LOAD,
+                                                   "meaning",
+                                                   "accumulator_sum",
+                                                   "dropped_deposits",
+                                                   "dropped_value"};
     return reserved.count(key) != 0;
 }
 
-void validate(const std::vector<GridOutput>& grids,
-              const std::map<std::string, std::string>& metadata) {
+void validate(const std::vector<GridOutput>& grids, const std::map<std::string, std::string>& metadata) {
     if (grids.empty()) throw std::invalid_argument("grids: no grid to write (the list is empty)");
     std::set<std::string> names;
     for (size_t i = 0; i < grids.size(); ++i) {
         const GridOutput& g = grids[i];
-        if (g.name.empty())
-            throw std::invalid_argument("grid #" + std::to_string(i) + ": name = '' must not be empty");
+        if (g.name.empty()) throw std::invalid_argument("grid #" + std::to_string(i) + ": name = '' must not be empty");
         if (!names.insert(g.name).second)
             throw std::invalid_argument("grid '" + g.name + "': name is used by more than one grid");
         if (g.data == nullptr)
@@ -64,24 +70,20 @@ void validate(const std::vector<GridOutput>& grids,
         if (g.data->voxel_size() != grids[0].data->voxel_size()) {
             std::ostringstream msg;
             msg.precision(17);
-            msg << "grid '" << g.name << "': voxel_size = " << g.data->voxel_size()
-                << " differs from grid '" << grids[0].name
-                << "' voxel_size = " << grids[0].data->voxel_size()
+            msg << "grid '" << g.name << "': voxel_size = " << g.data->voxel_size() << " differs from grid '"
+                << grids[0].name << "' voxel_size = " << grids[0].data->voxel_size()
                 << "; all grids of a file must share one voxel size";
             throw std::invalid_argument(msg.str());
         }
     }
     for (const auto& kv : metadata) {
-        if (kv.first.empty())
-            throw std::invalid_argument("metadata key '' must not be empty");
+        if (kv.first.empty()) throw std::invalid_argument("metadata key '' must not be empty");
         if (is_reserved_key(kv.first))
-            throw std::invalid_argument("metadata key '" + kv.first +
-                                        "' is reserved by the VDB writer or OpenVDB");
+            throw std::invalid_argument("metadata key '" + kv.first + "' is reserved by the VDB writer or OpenVDB");
     }
 }
 
-openvdb::FloatGrid::Ptr build_grid(const GridOutput& g,
-                                   const std::map<std::string, std::string>& metadata) {
+openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::string, std::string>& metadata) {
     auto grid = openvdb::FloatGrid::create(/*background=*/0.0f);
     grid->setName(g.name);
     grid->setGridClass(openvdb::GRID_FOG_VOLUME);
@@ -95,8 +97,8 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g,
     g.data->for_each_sorted([&](const VoxelAccumulator::Coord& c, double v) {
         if (!(std::fabs(v) <= double(FLT_MAX))) {
             std::ostringstream msg;
-            msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2]
-                << ") value = " << v << " is beyond the float range of a VDB grid";
+            msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2] << ") value = " << v
+                << " is beyond the float range of a VDB grid";
             throw std::invalid_argument(msg.str());
         }
         acc.setValue(openvdb::Coord(c[0], c[1], c[2]), static_cast<float>(v));
@@ -104,8 +106,7 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g,
 
     grid->insertMeta("meaning", openvdb::StringMetadata(g.meaning));
     grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(g.data->sum()));
-    grid->insertMeta("dropped_deposits",
-                     openvdb::Int64Metadata(static_cast<int64_t>(g.data->dropped())));
+    grid->insertMeta("dropped_deposits", openvdb::Int64Metadata(static_cast<int64_t>(g.data->dropped())));
     grid->insertMeta("dropped_value", openvdb::DoubleMetadata(g.data->dropped_value()));
 #ifdef ENDOPHOTON_VERSION
     grid->setCreator("EndoPhoton " ENDOPHOTON_VERSION);
@@ -132,8 +133,7 @@ std::string create_temp_file(const std::string& path) {
             return tmp;
         }
         if (errno != EEXIST)
-            throw path_error(path, std::string("cannot create a temporary file next to it: ") +
-                                       std::strerror(errno));
+            throw path_error(path, std::string("cannot create a temporary file next to it: ") + std::strerror(errno));
     }
     throw path_error(path, "cannot find a free temporary file name next to it");
 }

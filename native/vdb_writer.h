@@ -15,9 +15,9 @@
 namespace ep {
 
 struct GridOutput {
-    std::string name;                 // grid name in the file (unique, non-empty)
-    std::string meaning;              // stored as per-grid string metadata "meaning"
-    const VoxelAccumulator* data;     // not owned; must outlive the write_vdb call
+    std::string name;              // grid name in the file (unique, non-empty)
+    std::string meaning;           // stored as per-grid string metadata "meaning"
+    const VoxelAccumulator* data;  // not owned; must outlive the write_vdb call
 };
 
 // Writes one openvdb::FloatGrid per entry of `grids` to `path`.

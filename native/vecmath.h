@@ -23,8 +23,18 @@ struct Vec3 {
     Vec3 operator-() const { return {-x, -y, -z}; }
     Vec3 operator*(Float s) const { return {x * s, y * s, z * s}; }
     Vec3 operator/(Float s) const { return {x / s, y / s, z / s}; }
-    Vec3& operator+=(const Vec3& o) { x += o.x; y += o.y; z += o.z; return *this; }
-    Vec3& operator-=(const Vec3& o) { x -= o.x; y -= o.y; z -= o.z; return *this; }
+    Vec3& operator+=(const Vec3& o) {
+        x += o.x;
+        y += o.y;
+        z += o.z;
+        return *this;
+    }
+    Vec3& operator-=(const Vec3& o) {
+        x -= o.x;
+        y -= o.y;
+        z -= o.z;
+        return *this;
+    }
 };
 
 inline Vec3 operator*(Float s, const Vec3& v) { return v * s; }
@@ -37,9 +47,7 @@ inline Vec3 normalize(const Vec3& v) { return v / length(v); }
 inline Float max_abs_component(const Vec3& v) {
     return std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z)));
 }
-inline bool is_finite(const Vec3& v) {
-    return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
-}
+inline bool is_finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
 // Orthonormal basis around a unit vector n (Duff et al. 2017, "Building an
 // orthonormal basis, revisited"): branch-free and stable for every n, including

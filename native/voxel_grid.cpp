@@ -145,8 +145,7 @@ std::vector<std::pair<VoxelAccumulator::Coord, double>> VoxelAccumulator::sorted
     for (const Slot& s : slots_)
         if (s.used) out.emplace_back(s.key, s.value);
     // Keys are unique, so comparing keys alone gives a total order.
-    std::sort(out.begin(), out.end(),
-              [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
     return out;
 }
 
@@ -168,9 +167,7 @@ double VoxelAccumulator::sum() const {
     return s + comp;
 }
 
-size_t VoxelAccumulator::memory_bytes() const {
-    return sizeof(*this) + slots_.capacity() * sizeof(Slot);
-}
+size_t VoxelAccumulator::memory_bytes() const { return sizeof(*this) + slots_.capacity() * sizeof(Slot); }
 
 void VoxelAccumulator::clear() {
     std::vector<Slot>().swap(slots_);

@@ -24,7 +24,7 @@
 namespace ep {
 
 class VoxelAccumulator {
-public:
+  public:
     using Coord = std::array<int32_t, 3>;
 
     // Largest |index| accepted on any axis. OpenVDB uses int32 coordinates and
@@ -78,8 +78,7 @@ public:
         const double f[3] = {x / voxel_size_, y / voxel_size_, z / voxel_size_};
         // One predictable branch for all axes; the comparison is false for
         // NaN, so NaN and +-inf are rejected here too.
-        const bool in_range = (std::fabs(f[0]) <= double(kMaxIndex)) &
-                              (std::fabs(f[1]) <= double(kMaxIndex)) &
+        const bool in_range = (std::fabs(f[0]) <= double(kMaxIndex)) & (std::fabs(f[1]) <= double(kMaxIndex)) &
                               (std::fabs(f[2]) <= double(kMaxIndex));
         if (!in_range) return false;
         for (int a = 0; a < 3; ++a) {
@@ -88,8 +87,8 @@ public:
             // Not floor(f + 0.5): that sum itself rounds, sending the largest
             // double below 0.5 into voxel 1. f - floor(f) is exact, so the
             // half-way test sees the true fractional part.
-            int64_t i = static_cast<int64_t>(f[a]);        // truncation toward zero
-            i -= static_cast<int64_t>(f[a] < double(i));   // -> floor
+            int64_t i = static_cast<int64_t>(f[a]);       // truncation toward zero
+            i -= static_cast<int64_t>(f[a] < double(i));  // -> floor
             i += static_cast<int64_t>(f[a] - double(i) >= 0.5);
             out[a] = static_cast<int32_t>(i);
         }
@@ -130,7 +129,7 @@ public:
         dropped_value_ += value;
     }
 
-private:
+  private:
     struct Slot {
         Coord key;
         uint32_t used;  // 0 = empty; a flag instead of a sentinel key keeps every coordinate legal
@@ -140,9 +139,7 @@ private:
 
     // std::array's operator== lowers to a memcmp call; three integer
     // compares are several times cheaper on the probe path.
-    static bool same(const Coord& a, const Coord& b) {
-        return ((a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2])) == 0;
-    }
+    static bool same(const Coord& a, const Coord& b) { return ((a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2])) == 0; }
 
     void add_at(const Coord& c, double value);
     size_t find_or_insert(const Coord& c);

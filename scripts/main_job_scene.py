@@ -33,6 +33,7 @@ def main(argv):
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     sys.path.append(os.environ.get("ENDOPHOTON_ADDON_PATH") or os.path.join(repo, "addon"))
     from endophoton_addon.sweep_blend import enable_addon
+
     enable_addon()
     from endophoton_addon import simulation
 
@@ -78,8 +79,10 @@ def main(argv):
 
     lines = ["", f"## One angle in Blender: beta = {args.beta:g} deg", ""]
     lines.append(f"- Scene with the surface point cloud and the volume grids: `{os.path.basename(blend_path)}`")
-    lines.append(f"- Cycles render ({args.samples} samples, 640x480, pixel std {rgb_std:.3f}): "
-                 f"`{os.path.basename(render.filepath)}`")
+    lines.append(
+        f"- Cycles render ({args.samples} samples, 640x480, pixel std {rgb_std:.3f}): "
+        f"`{os.path.basename(render.filepath)}`"
+    )
     if result is not None:
         lines.append(f"- Packets traced to store {args.store} fluorescent surface photons: {result.packets_traced}")
         for k in ("specular_reflectance", "diffuse_reflectance", "absorbed"):
@@ -88,11 +91,12 @@ def main(argv):
             lines.append(f"- Volume grids: `{os.path.basename(result.grid_path)}` ({', '.join(result.grid_names)})")
     report = os.path.join(out, "report.md")
     text = open(report, encoding="utf-8").read() if os.path.exists(report) else "# EndoPhoton main job\n"
-    from endophoton.io import atomic_write_text   # the package the add-on runs (found by enable_addon)
+    from endophoton.io import atomic_write_text  # the package the add-on runs (found by enable_addon)
+
     atomic_write_text(report, text.rstrip("\n") + "\n" + "\n".join(lines) + "\n")
     print(f"main job scene: {blend_path}, {render.filepath}")
 
 
 if __name__ == "__main__":
-    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
     main(argv)

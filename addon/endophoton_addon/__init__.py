@@ -43,12 +43,15 @@ def _steps():
     modules = _modules()
     for module in modules:
         for cls in module.CLASSES:
-            steps.append((lambda c=cls: bpy.utils.register_class(c),
-                          lambda c=cls: bpy.utils.unregister_class(c)))
+            steps.append((lambda c=cls: bpy.utils.register_class(c), lambda c=cls: bpy.utils.unregister_class(c)))
     for module in modules:
         for owner, name, group in getattr(module, "POINTERS", ()):
-            steps.append((lambda o=owner, n=name, g=group: setattr(o, n, bpy.props.PointerProperty(type=g)),
-                          lambda o=owner, n=name: delattr(o, n)))
+            steps.append(
+                (
+                    lambda o=owner, n=name, g=group: setattr(o, n, bpy.props.PointerProperty(type=g)),
+                    lambda o=owner, n=name: delattr(o, n),
+                )
+            )
     return steps
 
 

@@ -34,9 +34,7 @@ _CMF_LOBES = {
     "z": ((1.217, 437.0, 11.8, 36.0), (0.681, 459.0, 26.0, 13.8)),
 }
 # XYZ -> linear sRGB, IEC 61966-2-1 (D65 white).
-_XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986],
-                         [-0.9689, 1.8758, 0.0415],
-                         [0.0557, -0.2040, 1.0570]])
+_XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
 
 
 def cie_xyz(nm):
@@ -81,11 +79,28 @@ def wavelength_colours(nm):
 
 # --- other colourings -------------------------------------------------------
 # Viridis at 0, 1/4, 1/2, 3/4, 1 (linear-light values of the published map).
-_RAMP = np.array([[0.0630, 0.0000, 0.0766], [0.0497, 0.0997, 0.2345], [0.0168, 0.2961, 0.2302],
-                  [0.1480, 0.6510, 0.1043], [0.9734, 0.8227, 0.0164]])
+_RAMP = np.array(
+    [
+        [0.0630, 0.0000, 0.0766],
+        [0.0497, 0.0997, 0.2345],
+        [0.0168, 0.2961, 0.2302],
+        [0.1480, 0.6510, 0.1043],
+        [0.9734, 0.8227, 0.0164],
+    ]
+)
 # Distinct categorical colours (linear sRGB).
-PALETTE = np.array([[0.80, 0.80, 0.80], [0.90, 0.05, 0.02], [0.02, 0.35, 0.95], [0.05, 0.75, 0.10],
-                    [0.95, 0.55, 0.00], [0.60, 0.10, 0.80], [0.00, 0.75, 0.75], [0.75, 0.65, 0.05]])
+PALETTE = np.array(
+    [
+        [0.80, 0.80, 0.80],
+        [0.90, 0.05, 0.02],
+        [0.02, 0.35, 0.95],
+        [0.05, 0.75, 0.10],
+        [0.95, 0.55, 0.00],
+        [0.60, 0.10, 0.80],
+        [0.00, 0.75, 0.75],
+        [0.75, 0.65, 0.05],
+    ]
+)
 
 
 def ramp_colours(t):
@@ -96,24 +111,27 @@ def ramp_colours(t):
 
 @dataclass(frozen=True)
 class ColourMap:
-    key: str            # the "Colour By" enum value
+    key: str  # the "Colour By" enum value
     label: str
-    column: str         # point attribute it reads
-    kind: str           # "wavelength", "category" or "continuous"
+    column: str  # point attribute it reads
+    kind: str  # "wavelength", "category" or "continuous"
     unit: str = ""
     scale: float = 1.0  # attribute value * scale = value in `unit`
 
 
-COLOUR_MAPS = {m.key: m for m in (
-    ColourMap("WAVELENGTH", "Wavelength", "wavelength", "wavelength", "nm"),
-    ColourMap("FLUORESCENT", "Fluorescent", "fluorescent", "category"),
-    ColourMap("FLUOROPHORE", "Fluorophore", "fluorophore", "category"),
-    ColourMap("REGION", "Region", "region", "category"),
-    ColourMap("DEPTH", "Depth", "depth", "continuous", "mm", 10.0),   # engine reports cm
-    ColourMap("ENERGY", "Energy", "energy", "continuous", "500 nm photons"),
-    ColourMap("SCATTERINGS", "Scatterings", "scatterings", "continuous", "events"),
-    ColourMap("EXIT_ORDER", "Exit Order", "exit_order", "continuous", "rank"),
-)}
+COLOUR_MAPS = {
+    m.key: m
+    for m in (
+        ColourMap("WAVELENGTH", "Wavelength", "wavelength", "wavelength", "nm"),
+        ColourMap("FLUORESCENT", "Fluorescent", "fluorescent", "category"),
+        ColourMap("FLUOROPHORE", "Fluorophore", "fluorophore", "category"),
+        ColourMap("REGION", "Region", "region", "category"),
+        ColourMap("DEPTH", "Depth", "depth", "continuous", "mm", 10.0),  # engine reports cm
+        ColourMap("ENERGY", "Energy", "energy", "continuous", "500 nm photons"),
+        ColourMap("SCATTERINGS", "Scatterings", "scatterings", "continuous", "events"),
+        ColourMap("EXIT_ORDER", "Exit Order", "exit_order", "continuous", "rank"),
+    )
+}
 
 
 @dataclass
@@ -124,7 +142,7 @@ class Legend:
     unit: str
     lo: float = 0.0
     hi: float = 0.0
-    entries: list = field(default_factory=list)   # [(linear rgb tuple, label)]
+    entries: list = field(default_factory=list)  # [(linear rgb tuple, label)]
     shown: int = 0
     total: int = 0
 
@@ -135,21 +153,34 @@ class Legend:
         return f"{self.title}{unit}: {self.lo:.4g} – {self.hi:.4g}"
 
     def to_dict(self):
-        return dict(title=self.title, unit=self.unit, lo=float(self.lo), hi=float(self.hi),
-                    entries=[[list(map(float, c)), str(t)] for c, t in self.entries],
-                    shown=int(self.shown), total=int(self.total))
+        return dict(
+            title=self.title,
+            unit=self.unit,
+            lo=float(self.lo),
+            hi=float(self.hi),
+            entries=[[list(map(float, c)), str(t)] for c, t in self.entries],
+            shown=int(self.shown),
+            total=int(self.total),
+        )
 
     @classmethod
     def from_dict(cls, d):
-        return cls(d["title"], d["unit"], d["lo"], d["hi"], [(tuple(c), t) for c, t in d["entries"]],
-                   d.get("shown", 0), d.get("total", 0))
+        return cls(
+            d["title"],
+            d["unit"],
+            d["lo"],
+            d["hi"],
+            [(tuple(c), t) for c, t in d["entries"]],
+            d.get("shown", 0),
+            d.get("total", 0),
+        )
 
 
 @dataclass(frozen=True)
 class Filters:
     fluorescent_only: bool = False
-    fluorophore: int = -2        # -2 = any; else the engine's fluorophore id
-    region: int = -2             # -2 = any; else the region index
+    fluorophore: int = -2  # -2 = any; else the engine's fluorophore id
+    region: int = -2  # -2 = any; else the region index
 
 
 def shown_mask(columns, filters, count):
@@ -201,8 +232,10 @@ def colour_records(key, columns, filters=Filters(), names=None, count=None):
         slot = (codes if cmap.key == "FLUORESCENT" else codes + 1) % len(PALETTE)
         rgb = PALETTE[slot]
         present = sorted(set(codes[show].tolist()))
-        legend.entries = [(tuple(PALETTE[(c if cmap.key == "FLUORESCENT" else c + 1) % len(PALETTE)]),
-                           labels.get(c, f"#{c}")) for c in present]
+        legend.entries = [
+            (tuple(PALETTE[(c if cmap.key == "FLUORESCENT" else c + 1) % len(PALETTE)]), labels.get(c, f"#{c}"))
+            for c in present
+        ]
     else:
         scaled = values.astype(np.float64) * cmap.scale
         lo, hi = _range(scaled[show])

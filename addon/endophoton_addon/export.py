@@ -26,9 +26,9 @@ class InputError(ValueError):
 @dataclass
 class RegionExport:
     name: str
-    vertices: np.ndarray           # float32 (N,3), metres, world space
-    triangles: np.ndarray          # uint32 (M,3), outward CCW
-    medium: dict                   # mua, mus (cm^-1), g, n
+    vertices: np.ndarray  # float32 (N,3), metres, world space
+    triangles: np.ndarray  # uint32 (M,3), outward CCW
+    medium: dict  # mua, mus (cm^-1), g, n
     priority: int
     fluorophores: list = field(default_factory=list)  # [(species, d, c)]
     role: str = "TISSUE"
@@ -60,8 +60,7 @@ def validate_object_settings(obj):
             value = getattr(f, name)
             if not _finite(value) or not 0.0 <= value <= 1.0:
                 raise InputError(
-                    f"{who}: fluorophores[{i}] ({f.species}).{name} = {value:g} "
-                    "must be a finite number in [0, 1]"
+                    f"{who}: fluorophores[{i}] ({f.species}).{name} = {value:g} " "must be a finite number in [0, 1]"
                 )
         if f.species not in presets.FLUOROPHORE_NAMES:
             raise InputError(f"{who}: fluorophores[{i}].species = '{f.species}' is unknown")
@@ -127,10 +126,7 @@ def check_closed(name, vertices, triangles):
     a, b, c = v[tris[:, 0]], v[tris[:, 1]], v[tris[:, 2]]
     volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0
     if not volume > 0.0:
-        raise InputError(
-            f"{who}: normals point inward (signed volume {volume:.3g} m³); "
-            "recalculate normals outside"
-        )
+        raise InputError(f"{who}: normals point inward (signed volume {volume:.3g} m³); " "recalculate normals outside")
 
 
 def export_regions(scene, view_layer, depsgraph):
@@ -153,7 +149,5 @@ def export_regions(scene, view_layer, depsgraph):
         check_closed(obj.name, vertices, triangles)
         regions.append(RegionExport(obj.name, vertices, triangles, medium, priority, fluorophores, role))
     if not any(r.role == "TISSUE" for r in regions):
-        raise InputError(
-            f"Scene '{scene.name}': no object has role 'tissue'; set Object > EndoPhoton > Role"
-        )
+        raise InputError(f"Scene '{scene.name}': no object has role 'tissue'; set Object > EndoPhoton > Role")
     return regions

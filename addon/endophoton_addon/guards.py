@@ -39,9 +39,9 @@ MAX_THICKNESS_MFP = 1e5
 # A run above these asks first (scene setting "Allow Large Runs").
 MAX_RECORDS = 5_000_000
 MAX_PACKETS = 100_000_000
-RECORD_BYTES = 200          # engine record (~100 B) + Blender point attributes (~100 B)
-MAX_VOXELS = 256 ** 3
-MIN_VOXEL_M = 1e-7          # below 0.1 µm OpenVDB's transform becomes singular in float
+RECORD_BYTES = 200  # engine record (~100 B) + Blender point attributes (~100 B)
+MAX_VOXELS = 256**3
+MIN_VOXEL_M = 1e-7  # below 0.1 µm OpenVDB's transform becomes singular in float
 
 
 def _volume_area(vertices, triangles):
@@ -61,7 +61,7 @@ def region_sizes(regions):
         extent = (r.vertices.max(axis=0) - r.vertices.min(axis=0)).astype(np.float64) * 1e3
         thickness = 2.0 * volume / area * 1e3 if area > 0 else 0.0
         m = r.medium
-        mu_tr = m["mua"] + m["mus"] * (1.0 - m["g"])      # cm^-1
+        mu_tr = m["mua"] + m["mus"] * (1.0 - m["g"])  # cm^-1
         mfp_mm = 10.0 / mu_tr if mu_tr > 0 else math.inf
         out.append((r.name, extent, thickness, mfp_mm))
     return out
@@ -72,8 +72,10 @@ def size_lines(regions):
     lines = []
     for name, extent, thickness, mfp_mm in region_sizes(regions):
         ratio = thickness / mfp_mm if math.isfinite(mfp_mm) else math.inf
-        lines.append(f"{name}: {extent[0]:.3g}×{extent[1]:.3g}×{extent[2]:.3g} mm, "
-                     f"thickness ≈ {thickness:.3g} mm = {ratio:.3g} transport mfp")
+        lines.append(
+            f"{name}: {extent[0]:.3g}×{extent[1]:.3g}×{extent[2]:.3g} mm, "
+            f"thickness ≈ {thickness:.3g} mm = {ratio:.3g} transport mfp"
+        )
     return lines
 
 
@@ -87,7 +89,8 @@ def check_unit_scale(regions, scale_length, who):
                 f"{who}: unit_settings.scale_length = {scale_length:g} m per unit makes region '{name}' "
                 f"{thickness:.3g} mm thick, {ratio:.3g} transport mean free paths "
                 f"(1/(μa + μs(1−g)) = {mfp_mm:.3g} mm); expected {MIN_THICKNESS_MFP:g}–{MAX_THICKNESS_MFP:g}. "
-                "Check the scene's Unit Scale (1.0 = metres, 0.001 = millimetres) or tick Allow Unusual Scale")
+                "Check the scene's Unit Scale (1.0 = metres, 0.001 = millimetres) or tick Allow Unusual Scale"
+            )
 
 
 def _inside(bvh, points, eps):
@@ -95,12 +98,12 @@ def _inside(bvh, points, eps):
     from mathutils import Vector
 
     inside = np.zeros(len(points), dtype=bool)
-    direction = Vector((0.5773, 0.5774, 0.5773))   # off-axis: avoids grazing axis-aligned faces
+    direction = Vector((0.5773, 0.5774, 0.5773))  # off-axis: avoids grazing axis-aligned faces
     for i, p in enumerate(points):
         origin = Vector(p)
         near = bvh.find_nearest(origin)
         if near[0] is not None and near[3] <= eps:
-            continue   # on the surface: touching is allowed
+            continue  # on the surface: touching is allowed
         hits, start = 0, origin
         while True:
             location, _normal, _index, _dist = bvh.ray_cast(start, direction)
@@ -121,13 +124,17 @@ def check_overlaps(regions, max_points=400):
         by_priority.setdefault(r.priority, []).append(r)
     for priority, group in by_priority.items():
         for i, a in enumerate(group):
-            for b in group[i + 1:]:
+            for b in group[i + 1 :]:
                 lo = np.maximum(a.vertices.min(axis=0), b.vertices.min(axis=0))
                 hi = np.minimum(a.vertices.max(axis=0), b.vertices.max(axis=0))
                 if np.any(lo >= hi):
-                    continue   # bounding boxes apart (or only touching)
-                size = float(np.max(np.maximum(a.vertices.max(axis=0), b.vertices.max(axis=0))
-                                    - np.minimum(a.vertices.min(axis=0), b.vertices.min(axis=0))))
+                    continue  # bounding boxes apart (or only touching)
+                size = float(
+                    np.max(
+                        np.maximum(a.vertices.max(axis=0), b.vertices.max(axis=0))
+                        - np.minimum(a.vertices.min(axis=0), b.vertices.min(axis=0))
+                    )
+                )
                 eps = 1e-6 * size
                 for inner, outer in ((a, b), (b, a)):
                     bvh = BVHTree.FromPolygons(outer.vertices.tolist(), outer.triangles.tolist())
@@ -140,48 +147,55 @@ def check_overlaps(regions, max_points=400):
                         raise InputError(
                             f"Objects '{a.name}' and '{b.name}' overlap with the same priority = {priority}; "
                             "the engine could not tell which medium owns the overlap. Give the one that "
-                            "should win a higher priority (e.g. the polyp above the wall)")
+                            "should win a higher priority (e.g. the polyp above the wall)"
+                        )
 
 
 def estimate(inputs, last_rate=None):
     """Packets, records, memory (bytes) and seconds (None without a measured rate) of a run."""
     packets = inputs.count if inputs.kind in ("photons", "target") else None
-    records = inputs.count   # store N: N records; otherwise one record per packet at most
+    records = inputs.count  # store N: N records; otherwise one record per packet at most
     seconds = packets / last_rate if packets and last_rate else None
-    return {"packets": packets, "records": records, "memory_bytes": records * RECORD_BYTES,
-            "seconds": seconds}
+    return {"packets": packets, "records": records, "memory_bytes": records * RECORD_BYTES, "seconds": seconds}
 
 
 def estimate_text(est):
     packets = "open-ended (store N)" if est["packets"] is None else f"≤ {est['packets']:,}"
     seconds = "unknown until a first run" if est["seconds"] is None else f"≈ {est['seconds']:.0f} s"
-    return (f"packets {packets}, records ≤ {est['records']:,}, memory ≤ "
-            f"{est['memory_bytes'] / 2**20:,.0f} MiB, time {seconds}")
+    return (
+        f"packets {packets}, records ≤ {est['records']:,}, memory ≤ "
+        f"{est['memory_bytes'] / 2**20:,.0f} MiB, time {seconds}"
+    )
 
 
 def check_budget(inputs, who, last_rate=None):
     est = estimate(inputs, last_rate)
     if inputs.kind == "target":
-        return est   # a quality preset: its packet count is a cap, the target usually stops far earlier
+        return est  # a quality preset: its packet count is a cap, the target usually stops far earlier
     large = est["records"] > MAX_RECORDS or (est["packets"] or 0) > MAX_PACKETS
     if large:
         raise InputError(
             f"{who}: this run is large: {estimate_text(est)} (limits {MAX_RECORDS:,} records, "
-            f"{MAX_PACKETS:,} packets). Tick Allow Large Runs to run it anyway")
+            f"{MAX_PACKETS:,} packets). Tick Allow Large Runs to run it anyway"
+        )
     return est
 
 
 def check_voxels(regions, voxel_m, who):
     if voxel_m < MIN_VOXEL_M:
-        raise InputError(f"{who}: simulation.voxel_size = {voxel_m:g} m is below {MIN_VOXEL_M:g} m; "
-                         "check the voxel size and the scene's Unit Scale")
+        raise InputError(
+            f"{who}: simulation.voxel_size = {voxel_m:g} m is below {MIN_VOXEL_M:g} m; "
+            "check the voxel size and the scene's Unit Scale"
+        )
     lo = np.min([r.vertices.min(axis=0) for r in regions], axis=0).astype(np.float64)
     hi = np.max([r.vertices.max(axis=0) for r in regions], axis=0).astype(np.float64)
     voxels = float(np.prod(np.ceil((hi - lo) / voxel_m) + 1))
     if voxels > MAX_VOXELS:
-        raise InputError(f"{who}: simulation.voxel_size = {voxel_m * 1e3:g} mm gives up to {voxels:.3g} voxels "
-                         f"over the scene's {((hi - lo) * 1e3).round(3).tolist()} mm (limit {MAX_VOXELS:.3g}); "
-                         "choose a larger voxel size")
+        raise InputError(
+            f"{who}: simulation.voxel_size = {voxel_m * 1e3:g} mm gives up to {voxels:.3g} voxels "
+            f"over the scene's {((hi - lo) * 1e3).round(3).tolist()} mm (limit {MAX_VOXELS:.3g}); "
+            "choose a larger voxel size"
+        )
 
 
 def resolve_folder(raw, field, default_name):
@@ -193,12 +207,17 @@ def resolve_folder(raw, field, default_name):
     raw = raw.strip()
     field = f"{field} = '{raw}'"
     if not raw:
-        path = bpy.path.abspath("//" + default_name) if bpy.data.filepath else \
-            os.path.join(tempfile.gettempdir(), default_name)
+        path = (
+            bpy.path.abspath("//" + default_name)
+            if bpy.data.filepath
+            else os.path.join(tempfile.gettempdir(), default_name)
+        )
     else:
         if raw.startswith("//") and not bpy.data.filepath:
-            raise InputError(f"{field} is relative to the .blend file, which is not saved; "
-                             "save the file or choose an absolute folder")
+            raise InputError(
+                f"{field} is relative to the .blend file, which is not saved; "
+                "save the file or choose an absolute folder"
+            )
         path = bpy.path.abspath(raw)
     path = os.path.normpath(os.path.abspath(path))
     existing = path

@@ -12,8 +12,9 @@ def mesh_from_arrays(name, vertices, faces):
     blocks = faces if isinstance(faces, (list, tuple)) else [faces]
     blocks = [np.asarray(b, dtype=np.int32) for b in blocks if len(b)]
     loops = np.concatenate([b.reshape(-1) for b in blocks]) if blocks else np.zeros(0, np.int32)
-    totals = np.concatenate([np.full(len(b), b.shape[1], np.int32) for b in blocks]) \
-        if blocks else np.zeros(0, np.int32)
+    totals = (
+        np.concatenate([np.full(len(b), b.shape[1], np.int32) for b in blocks]) if blocks else np.zeros(0, np.int32)
+    )
     starts = np.zeros(len(totals), np.int32)
     if len(totals):
         starts[1:] = np.cumsum(totals)[:-1]
@@ -38,6 +39,6 @@ def cylinder_arrays(segments, length):
     i = np.arange(segments)
     j = (i + 1) % segments
     sides = np.stack([i, j, j + segments, i + segments], axis=1)
-    front = np.arange(segments)[::-1].reshape(1, -1)           # faces -Z
-    back = (np.arange(segments) + segments).reshape(1, -1)     # faces +Z
+    front = np.arange(segments)[::-1].reshape(1, -1)  # faces -Z
+    back = (np.arange(segments) + segments).reshape(1, -1)  # faces +Z
     return verts, [sides, front, back]

@@ -31,7 +31,7 @@ def _redraw_sidebars(_context=None):
     """Redraw the 3D views' sidebars (progress box, Run button) in every window:
     a finished job must re-enable the buttons without waiting for the mouse."""
     wm = bpy.context.window_manager
-    for window in (wm.windows if wm is not None else ()):
+    for window in wm.windows if wm is not None else ():
         for area in window.screen.areas:
             if area.type == "VIEW_3D":
                 for region in area.regions:
@@ -88,15 +88,20 @@ class ENDOPHOTON_OT_fluorophore_remove(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return (context.object is not None and context.object.type == "MESH"
-                and len(context.object.endophoton.fluorophores) > 0)
+        return (
+            context.object is not None
+            and context.object.type == "MESH"
+            and len(context.object.endophoton.fluorophores) > 0
+        )
 
     def execute(self, context):
         settings = context.object.endophoton
         index = settings.active_fluorophore
         if not 0 <= index < len(settings.fluorophores):
-            self.report({"ERROR"}, f"Object '{context.object.name}': active_fluorophore = {index} "
-                                   "is not a fluorophore of this object")
+            self.report(
+                {"ERROR"},
+                f"Object '{context.object.name}': active_fluorophore = {index} " "is not a fluorophore of this object",
+            )
             return {"CANCELLED"}
         settings.fluorophores.remove(index)
         settings.active_fluorophore = max(0, index - 1)
@@ -228,9 +233,11 @@ class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
     filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH", default="")
     format: bpy.props.EnumProperty(
         name="Format",
-        items=(("CSV", "CSV", "One row per record (+ <file>.json with the summary)"),
-               ("NPZ", "NPZ", "numpy arrays per record column + the summary as JSON"),
-               ("JSON", "JSON", "Summary, parameters and names only")),
+        items=(
+            ("CSV", "CSV", "One row per record (+ <file>.json with the summary)"),
+            ("NPZ", "NPZ", "numpy arrays per record column + the summary as JSON"),
+            ("JSON", "JSON", "Summary, parameters and names only"),
+        ),
         default="CSV",
     )
 
@@ -253,8 +260,9 @@ class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
             self.report({"ERROR"}, f"Export of '{collection.name}': filepath is empty")
             return {"CANCELLED"}
         try:
-            paths = results.export_result(package_finder.require(), collection,
-                                          bpy.path.abspath(self.filepath), self.format)
+            paths = results.export_result(
+                package_finder.require(), collection, bpy.path.abspath(self.filepath), self.format
+            )
         except (OSError, ValueError, EngineMissing) as exc:
             self.report({"ERROR"}, f"Export of '{collection.name}' to '{self.filepath}' failed: {exc}")
             return {"CANCELLED"}
@@ -292,7 +300,9 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
     bl_label = "Render with Legend"
 
     filepath: bpy.props.StringProperty(
-        name="File", subtype="FILE_PATH", default="",
+        name="File",
+        subtype="FILE_PATH",
+        default="",
         description="PNG to write; empty = '<result name>_legend.png' in the grid folder",
     )
 
@@ -303,8 +313,9 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
     def execute(self, context):
         collection = context.scene.endophoton.result_collection
         try:
-            path = self.filepath or os.path.join(simulation.grid_folder(context.scene.endophoton),
-                                                 bpy.path.clean_name(collection.name) + "_legend.png")
+            path = self.filepath or os.path.join(
+                simulation.grid_folder(context.scene.endophoton), bpy.path.clean_name(collection.name) + "_legend.png"
+            )
             image = results.render_with_legend(context.scene, collection, bpy.path.abspath(path))
         except (RuntimeError, InputError) as exc:
             self.report({"ERROR"}, str(exc))
@@ -313,7 +324,7 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
         return {"FINISHED"}
 
 
-PROGRESS_EVERY_S = 2.0   # background runs print a progress line this often
+PROGRESS_EVERY_S = 2.0  # background runs print a progress line this often
 
 
 def _wait_printing_progress(job):
@@ -508,4 +519,3 @@ CLASSES = (
     ENDOPHOTON_OT_run,
     ENDOPHOTON_OT_sweep,
 )
-

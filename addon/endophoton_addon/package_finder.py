@@ -91,16 +91,14 @@ def _try_import(path):
     missing = [name for name in REQUIRED_NAMES if not hasattr(module, name)]
     if missing:
         return None, (
-            f"EndoPhoton package at '{getattr(module, '__file__', '?')}' is too old: "
-            f"it lacks {', '.join(missing)}."
+            f"EndoPhoton package at '{getattr(module, '__file__', '?')}' is too old: " f"it lacks {', '.join(missing)}."
         )
     return module, None
 
 
 def _is_inside(file_path, folder):
     try:
-        return os.path.commonpath([os.path.realpath(file_path), os.path.realpath(folder)]) \
-            == os.path.realpath(folder)
+        return os.path.commonpath([os.path.realpath(file_path), os.path.realpath(folder)]) == os.path.realpath(folder)
     except ValueError:
         return False
 

@@ -239,8 +239,7 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             col.label(text=f"{len(runs)} runs kept", icon="OUTLINER_COLLECTION")
             for run in runs:
                 row = col.row(align=True)
-                op = row.operator("endophoton.result_activate", text=run.name,
-                                  depress=run == collection, emboss=True)
+                op = row.operator("endophoton.result_activate", text=run.name, depress=run == collection, emboss=True)
                 op.name = run.name
                 row.operator("endophoton.result_delete", text="", icon="X").name = run.name
         box = layout.box()
@@ -265,4 +264,3 @@ CLASSES = (
     ENDOPHOTON_PT_results,
     ENDOPHOTON_PT_sweep,
 )
-

@@ -48,9 +48,7 @@ class EndoPhotonPreferences(bpy.types.AddonPreferences):
             for line in wrap_text(message, 90):
                 box.label(text=line)
         else:
-            layout.label(
-                text=f"Engine: {getattr(module, '__file__', 'endophoton')}", icon="CHECKMARK"
-            )
+            layout.label(text=f"Engine: {getattr(module, '__file__', 'endophoton')}", icon="CHECKMARK")
         layout.operator("endophoton.retry_engine_import", icon="FILE_REFRESH")
 
 

@@ -26,28 +26,35 @@ ROLE_DEFAULTS = {
     },
 }
 
+
 # --- tissue presets (medium only; chosen per object) ------------------------
 @dataclass(frozen=True)
 class TissuePreset:
     label: str
-    medium: dict          # mua, mus in cm^-1, g, n
-    source: str           # where the numbers come from, and what is assumed
+    medium: dict  # mua, mus in cm^-1, g, n
+    source: str  # where the numbers come from, and what is assumed
 
 
 TISSUE_PRESETS = {
     "PAPER": TissuePreset(
-        "Paper's tissue", {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.1},
+        "Paper's tissue",
+        {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.1},
         "Seed paper §3 (after its ref. [3]): single-layer tissue, n = 1.1, μa = 20 cm⁻¹, μs = 200 cm⁻¹, "
-        "g = 0.9, under air"),
+        "g = 0.9, under air",
+    ),
     "COLON_800": TissuePreset(
-        "Colon ex vivo, 800 nm", {"mua": 1.0, "mus": 62.0, "g": 0.9, "n": 1.4},
+        "Colon ex vivo, 800 nm",
+        {"mua": 1.0, "mus": 62.0, "g": 0.9, "n": 1.4},
         "Marchesini et al., Lasers Surg. Med. 15(4):351–357 (1994), ex vivo human colon, integrating "
         "sphere: μa = 1.0 cm⁻¹ and μs' = 6.2 cm⁻¹ at 800 nm. The paper gives μs' only: g = 0.9 and "
-        "n = 1.4 are assumed (typical soft tissue), so μs = μs'/(1 − g) = 62 cm⁻¹"),
+        "n = 1.4 are assumed (typical soft tissue), so μs = μs'/(1 − g) = 62 cm⁻¹",
+    ),
     "COLON_300": TissuePreset(
-        "Colon ex vivo, 300 nm", {"mua": 47.7, "mus": 142.0, "g": 0.9, "n": 1.4},
+        "Colon ex vivo, 300 nm",
+        {"mua": 47.7, "mus": 142.0, "g": 0.9, "n": 1.4},
         "Marchesini et al., Lasers Surg. Med. 15(4):351–357 (1994), ex vivo human colon: μa = 47.7 cm⁻¹ "
-        "and μs' = 14.2 cm⁻¹ at 300 nm; g = 0.9 and n = 1.4 assumed, μs = μs'/(1 − g) = 142 cm⁻¹"),
+        "and μs' = 14.2 cm⁻¹ at 300 nm; g = 0.9 and n = 1.4 assumed, μs = μs'/(1 − g) = 142 cm⁻¹",
+    ),
 }
 
 # Fluorophore names with a default excitation-emission matrix in the package
@@ -67,8 +74,8 @@ RIG_DEFAULT_DISTANCE_MM = 10.0
 @dataclass(frozen=True)
 class QualityPreset:
     label: str
-    packets: int          # records kept in "store" mode; in packet mode the cap of the target run
-    target_error: float   # relative standard error goal of the diffuse reflectance
+    packets: int  # records kept in "store" mode; in packet mode the cap of the target run
+    target_error: float  # relative standard error goal of the diffuse reflectance
 
 
 # The presets run in target-accuracy mode (the engine stops once the relative

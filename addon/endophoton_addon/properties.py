@@ -21,20 +21,29 @@ ROLE_ITEMS = (
     ("POLYP", "Polyp", "Closed mesh of a polyp; give it a higher priority than the tissue it overlaps"),
 )
 
-FLUOROPHORE_ITEMS = tuple((name, name.capitalize(), f"Default {name} excitation-emission matrix")
-                          for name in presets.FLUOROPHORE_NAMES)
+FLUOROPHORE_ITEMS = tuple(
+    (name, name.capitalize(), f"Default {name} excitation-emission matrix") for name in presets.FLUOROPHORE_NAMES
+)
 
 
 # --- per object --------------------------------------------------------------
 class EndoPhotonFluorophore(bpy.types.PropertyGroup):
     species: EnumProperty(name="Fluorophore", items=FLUOROPHORE_ITEMS, default="collagen")
     d: FloatProperty(
-        name="d", description="Probability that an interaction can excite this fluorophore",
-        default=0.2, min=0.0, max=1.0, precision=3,
+        name="d",
+        description="Probability that an interaction can excite this fluorophore",
+        default=0.2,
+        min=0.0,
+        max=1.0,
+        precision=3,
     )
     c: FloatProperty(
-        name="c", description="Probability that an excitation emits a fluorescence photon",
-        default=0.4, min=0.0, max=1.0, precision=3,
+        name="c",
+        description="Probability that an excitation emits a fluorescence photon",
+        default=0.4,
+        min=0.0,
+        max=1.0,
+        precision=3,
     )
 
 
@@ -42,20 +51,36 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
     # Hard limits are left open on purpose: validation reports bad values
     # (naming object and field) instead of Blender silently clamping them.
     mua: FloatProperty(
-        name="μa [cm⁻¹]", description="Absorption coefficient in cm⁻¹",
-        default=20.0, soft_min=0.0, soft_max=1000.0, precision=3,
+        name="μa [cm⁻¹]",
+        description="Absorption coefficient in cm⁻¹",
+        default=20.0,
+        soft_min=0.0,
+        soft_max=1000.0,
+        precision=3,
     )
     mus: FloatProperty(
-        name="μs [cm⁻¹]", description="Scattering coefficient in cm⁻¹",
-        default=200.0, soft_min=0.0, soft_max=10000.0, precision=3,
+        name="μs [cm⁻¹]",
+        description="Scattering coefficient in cm⁻¹",
+        default=200.0,
+        soft_min=0.0,
+        soft_max=10000.0,
+        precision=3,
     )
     g: FloatProperty(
-        name="g", description="Scattering anisotropy (Henyey-Greenstein), -1..1",
-        default=0.9, soft_min=-1.0, soft_max=1.0, precision=3,
+        name="g",
+        description="Scattering anisotropy (Henyey-Greenstein), -1..1",
+        default=0.9,
+        soft_min=-1.0,
+        soft_max=1.0,
+        precision=3,
     )
     n: FloatProperty(
-        name="n", description="Refractive index (>= 1)",
-        default=1.1, soft_min=1.0, soft_max=3.0, precision=3,
+        name="n",
+        description="Refractive index (>= 1)",
+        default=1.1,
+        soft_min=1.0,
+        soft_max=3.0,
+        precision=3,
     )
 
 
@@ -90,14 +115,17 @@ def _tissue_preset_chosen(self, _context):
 class EndoPhotonObjectSettings(bpy.types.PropertyGroup):
     role: EnumProperty(name="Role", items=ROLE_ITEMS, default="NONE", update=_role_changed)
     tissue_preset: EnumProperty(
-        name="Tissue Preset", description="Load published optical properties into the medium",
+        name="Tissue Preset",
+        description="Load published optical properties into the medium",
         items=(("CUSTOM", "Custom", "The medium as edited"),)
         + tuple((key, p.label, p.source) for key, p in presets.TISSUE_PRESETS.items()),
-        default="CUSTOM", update=_tissue_preset_chosen,
+        default="CUSTOM",
+        update=_tissue_preset_chosen,
     )
     medium: PointerProperty(type=EndoPhotonMedium)
     priority: IntProperty(
-        name="Priority", default=0,
+        name="Priority",
+        default=0,
         description="Where regions overlap, the higher priority owns the space",
     )
     fluorophores: CollectionProperty(type=EndoPhotonFluorophore)
@@ -114,43 +142,88 @@ def _rig_changed(self, _context):
 class EndoPhotonRigSettings(bpy.types.PropertyGroup):
     is_rig: BoolProperty(default=False, options={"HIDDEN"})
     beta: FloatProperty(
-        name="β", description="Tilt of the viewing axis from the surface normal at the target",
-        subtype="ANGLE", default=0.0, min=-1.5707963, max=1.5707963, update=_rig_changed,
+        name="β",
+        description="Tilt of the viewing axis from the surface normal at the target",
+        subtype="ANGLE",
+        default=0.0,
+        min=-1.5707963,
+        max=1.5707963,
+        update=_rig_changed,
     )
     distance: FloatProperty(
-        name="Distance", description="Distance from the target point to the tip along the viewing axis",
-        subtype="DISTANCE", unit="LENGTH", default=0.01, min=0.0, update=_rig_changed,
+        name="Distance",
+        description="Distance from the target point to the tip along the viewing axis",
+        subtype="DISTANCE",
+        unit="LENGTH",
+        default=0.01,
+        min=0.0,
+        update=_rig_changed,
     )
     target: FloatVectorProperty(
-        name="Target", description="Point on the tissue surface the endoscope orbits around",
-        subtype="TRANSLATION", unit="LENGTH", size=3, default=(0.0, 0.0, 0.0), update=_rig_changed,
+        name="Target",
+        description="Point on the tissue surface the endoscope orbits around",
+        subtype="TRANSLATION",
+        unit="LENGTH",
+        size=3,
+        default=(0.0, 0.0, 0.0),
+        update=_rig_changed,
     )
     normal: FloatVectorProperty(
-        name="Surface Normal", description="Outward surface normal at the target (β = 0 looks along −normal)",
-        subtype="XYZ", size=3, default=(0.0, 0.0, 1.0), update=_rig_changed,
+        name="Surface Normal",
+        description="Outward surface normal at the target (β = 0 looks along −normal)",
+        subtype="XYZ",
+        size=3,
+        default=(0.0, 0.0, 1.0),
+        update=_rig_changed,
     )
     tilt_axis: FloatVectorProperty(
-        name="Tilt Axis", description="Axis β rotates about (made perpendicular to the normal)",
-        subtype="XYZ", size=3, default=(0.0, 1.0, 0.0), update=_rig_changed,
+        name="Tilt Axis",
+        description="Axis β rotates about (made perpendicular to the normal)",
+        subtype="XYZ",
+        size=3,
+        default=(0.0, 1.0, 0.0),
+        update=_rig_changed,
     )
     head_diameter: FloatProperty(
-        name="Head Diameter", subtype="DISTANCE", unit="LENGTH", default=0.012, min=0.0,
+        name="Head Diameter",
+        subtype="DISTANCE",
+        unit="LENGTH",
+        default=0.012,
+        min=0.0,
         update=_rig_changed,
     )
     light_diameter: FloatProperty(
-        name="Light Guide Diameter", subtype="DISTANCE", unit="LENGTH", default=0.003, min=0.0,
+        name="Light Guide Diameter",
+        subtype="DISTANCE",
+        unit="LENGTH",
+        default=0.003,
+        min=0.0,
         update=_rig_changed,
     )
     light_offset: FloatProperty(
-        name="Light Offset", description="Distance of each light guide from the head's axis",
-        subtype="DISTANCE", unit="LENGTH", default=0.0035, min=0.0, update=_rig_changed,
+        name="Light Offset",
+        description="Distance of each light guide from the head's axis",
+        subtype="DISTANCE",
+        unit="LENGTH",
+        default=0.0035,
+        min=0.0,
+        update=_rig_changed,
     )
     cone_angle: FloatProperty(
-        name="Cone Angle", description="Full apex angle of each light's emission cone",
-        subtype="ANGLE", default=0.2617994, min=0.0, max=3.1415926, update=_rig_changed,
+        name="Cone Angle",
+        description="Full apex angle of each light's emission cone",
+        subtype="ANGLE",
+        default=0.2617994,
+        min=0.0,
+        max=3.1415926,
+        update=_rig_changed,
     )
     camera_fov: FloatProperty(
-        name="Camera FOV", subtype="ANGLE", default=2.0943951, min=0.0174533, max=3.0,
+        name="Camera FOV",
+        subtype="ANGLE",
+        default=2.0943951,
+        min=0.0174533,
+        max=3.0,
         update=_rig_changed,
     )
 
@@ -160,11 +233,11 @@ def _is_rig(_self, obj):
     return obj.type == "EMPTY" and obj.endophoton_rig.is_rig
 
 
-_NAME_ITEMS = {}   # Blender needs the dynamic enum's strings kept alive
+_NAME_ITEMS = {}  # Blender needs the dynamic enum's strings kept alive
 
 
 def _name_items(settings, kind):
-    """"Any" plus the names of the active result's fluorophores / regions."""
+    """ "Any" plus the names of the active result's fluorophores / regions."""
     from . import results
 
     names = []
@@ -190,37 +263,48 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
     betas: StringProperty(
         name="β Values",
         description="Tilt angles in degrees: a list '0,10,20' or 'start:stop:step' (stop excluded, "
-                    "like --betas of the command line)",
+        "like --betas of the command line)",
         default="0:60:5",
     )
     store: IntProperty(
-        name="Store N", description="Records stored per β (store-N mode)",
-        default=500_000, soft_min=1,
+        name="Store N",
+        description="Records stored per β (store-N mode)",
+        default=500_000,
+        soft_min=1,
     )
     seed: IntProperty(name="Seed", description="Engine seed, the same for every β", default=1, min=0)
     threads: IntProperty(
-        name="Threads", description="0 = all cores (all but one while the UI runs)",
-        default=0, min=0, max=1024,
+        name="Threads",
+        description="0 = all cores (all but one while the UI runs)",
+        default=0,
+        min=0,
+        max=1024,
     )
     batches: IntProperty(
-        name="Batches", description="Batches for the batch-means standard errors",
-        default=20, soft_min=2,
+        name="Batches",
+        description="Batches for the batch-means standard errors",
+        default=20,
+        soft_min=2,
     )
     fluorescent_only: BoolProperty(
-        name="Fluorescent Only", description="Store only fluorescence records (the paper's photon map)",
+        name="Fluorescent Only",
+        description="Store only fluorescence records (the paper's photon map)",
         default=True,
     )
     fluorescence_rule: EnumProperty(
         name="Fluorescence Rule",
-        items=(("paper", "Paper", "ξ1 < d and ξ2 < c"),
-               ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η")),
+        items=(
+            ("paper", "Paper", "ξ1 < d and ξ2 < c"),
+            ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
+        ),
         default="paper",
     )
     output_dir: StringProperty(
         name="Output Folder",
         description="Where sweep.csv, sweep.json, the plots and report.md are written; empty = "
-                    "'//endophoton_sweep' next to the .blend, or the temporary folder for an unsaved file",
-        subtype="DIR_PATH", default="",
+        "'//endophoton_sweep' next to the .blend, or the temporary folder for an unsaved file",
+        subtype="DIR_PATH",
+        default="",
     )
 
 
@@ -236,8 +320,10 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
 
     quality: EnumProperty(
         name="Quality",
-        items=tuple((key, p.label, f"run to {100 * p.target_error:g} % relative error of the diffuse reflectance")
-                    for key, p in presets.QUALITY_PRESETS.items())
+        items=tuple(
+            (key, p.label, f"run to {100 * p.target_error:g} % relative error of the diffuse reflectance")
+            for key, p in presets.QUALITY_PRESETS.items()
+        )
         + (("CUSTOM", "Custom", "Use the packet / record count below"),),
         default="PREVIEW",
     )
@@ -252,83 +338,127 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     photons: IntProperty(name="Packets", default=100_000, min=0, soft_min=1)
     store: IntProperty(name="Store N", default=100_000, min=0, soft_min=1)
     fluorescent_only: BoolProperty(
-        name="Fluorescent Only", description="Keep only fluorescence records in the surface map",
+        name="Fluorescent Only",
+        description="Keep only fluorescence records in the surface map",
         default=False,
     )
     fluorescence_rule: EnumProperty(
         name="Fluorescence Rule",
-        items=(("paper", "Paper", "ξ1 < d and ξ2 < c"),
-               ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η")),
+        items=(
+            ("paper", "Paper", "ξ1 < d and ξ2 < c"),
+            ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
+        ),
         default="paper",
     )
     seed: IntProperty(name="Seed", default=1, min=0)
-    threads: IntProperty(name="Threads", description="0 = all cores (all but one while the UI runs, to keep it responsive)", default=0, min=0, max=1024)
+    threads: IntProperty(
+        name="Threads",
+        description="0 = all cores (all but one while the UI runs, to keep it responsive)",
+        default=0,
+        min=0,
+        max=1024,
+    )
 
     allow_unusual_scale: BoolProperty(
         name="Allow Unusual Scale",
         description="Run even when a region is thinner than one transport mean free path or "
-                    "thicker than 1e5 (usually a wrong Unit Scale)", default=False,
+        "thicker than 1e5 (usually a wrong Unit Scale)",
+        default=False,
     )
     allow_large_runs: BoolProperty(
         name="Allow Large Runs",
         description="Run even above 5 million records or 100 million packets (memory and time estimate "
-                    "in the panel's Check Scene)", default=False,
+        "in the panel's Check Scene)",
+        default=False,
     )
     scene_report: StringProperty(name="Scene Check", default="", options={"SKIP_SAVE"})
 
     output_points: BoolProperty(name="Surface Point Cloud", default=True)
     output_grids: BoolProperty(name="Volume Grids", default=True)
     voxel_size: FloatProperty(
-        name="Voxel Size", subtype="DISTANCE", unit="LENGTH", default=0.0005, min=0.0,
+        name="Voxel Size",
+        subtype="DISTANCE",
+        unit="LENGTH",
+        default=0.0005,
+        min=0.0,
         precision=5,
     )
     grid_per_fluorophore: BoolProperty(name="Grid per Fluorophore", default=False)
     grid_dir: StringProperty(
         name="Grid Folder",
         description="Where .vdb files are written; empty = '//endophoton_cache' next to the "
-                    ".blend, or the temporary folder for an unsaved file",
-        subtype="DIR_PATH", default="",
+        ".blend, or the temporary folder for an unsaved file",
+        subtype="DIR_PATH",
+        default="",
     )
 
     point_radius: FloatProperty(
-        name="Point Radius", subtype="DISTANCE", unit="LENGTH", default=0.0001, min=0.0,
-        precision=5, update=_display_changed,
+        name="Point Radius",
+        subtype="DISTANCE",
+        unit="LENGTH",
+        default=0.0001,
+        min=0.0,
+        precision=5,
+        update=_display_changed,
     )
     color_by: EnumProperty(
         name="Colour By",
-        items=tuple((m.key, m.label, f"Colour each record by its {m.label.lower()}"
-                     + (f" [{m.unit}]" if m.unit else "")
-                     + (" (wavelength -> CIE 1931 -> sRGB)" if m.kind == "wavelength" else ""))
-                    for m in colour_maps.COLOUR_MAPS.values()),
-        default="WAVELENGTH", update=_display_changed,
+        items=tuple(
+            (
+                m.key,
+                m.label,
+                f"Colour each record by its {m.label.lower()}"
+                + (f" [{m.unit}]" if m.unit else "")
+                + (" (wavelength -> CIE 1931 -> sRGB)" if m.kind == "wavelength" else ""),
+            )
+            for m in colour_maps.COLOUR_MAPS.values()
+        ),
+        default="WAVELENGTH",
+        update=_display_changed,
     )
     filter_fluorescent: BoolProperty(
-        name="Fluorescent Only", description="Show only fluorescence records",
-        default=False, update=_display_changed,
+        name="Fluorescent Only",
+        description="Show only fluorescence records",
+        default=False,
+        update=_display_changed,
     )
     filter_fluorophore: EnumProperty(
-        name="Fluorophore", description="Show only records of this fluorophore",
-        items=lambda self, context: _name_items(self, "fluorophore"), update=_display_changed,
+        name="Fluorophore",
+        description="Show only records of this fluorophore",
+        items=lambda self, context: _name_items(self, "fluorophore"),
+        update=_display_changed,
     )
     filter_region: EnumProperty(
-        name="Region", description="Show only records that left this region",
-        items=lambda self, context: _name_items(self, "region"), update=_display_changed,
+        name="Region",
+        description="Show only records that left this region",
+        items=lambda self, context: _name_items(self, "region"),
+        update=_display_changed,
     )
     volume_scale: EnumProperty(
         name="Volume Scale",
-        items=(("OWN", "Own Max", "Each grid from 0 to its own maximum"),
-               ("SHARED", "Shared", "Every grid of a run on one scale: the largest maximum of its grids"),
-               ("LOG", "Log", "Each grid on a log scale: its maximum and the decades below it")),
-        default="OWN", update=_display_changed,
+        items=(
+            ("OWN", "Own Max", "Each grid from 0 to its own maximum"),
+            ("SHARED", "Shared", "Every grid of a run on one scale: the largest maximum of its grids"),
+            ("LOG", "Log", "Each grid on a log scale: its maximum and the decades below it"),
+        ),
+        default="OWN",
+        update=_display_changed,
     )
     volume_decades: FloatProperty(
-        name="Decades", description="Decades below the maximum the log scale shows",
-        default=3.0, min=0.1, soft_max=8.0, update=_display_changed,
+        name="Decades",
+        description="Decades below the maximum the log scale shows",
+        default=3.0,
+        min=0.1,
+        soft_max=8.0,
+        update=_display_changed,
     )
     volume_density: FloatProperty(
         name="Volume Density",
         description="Optical depth of one voxel at the grid's maximum (density and glow of the grids)",
-        default=0.2, min=0.0, soft_max=10.0, update=_display_changed,
+        default=0.2,
+        min=0.0,
+        soft_max=10.0,
+        update=_display_changed,
     )
     result_collection: PointerProperty(name="Result", type=bpy.types.Collection)
     legend: CollectionProperty(type=EndoPhotonLegendEntry)

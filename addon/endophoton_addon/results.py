@@ -20,10 +20,10 @@ import numpy as np
 
 from . import colour_maps
 
-RESULT_KEY = "endophoton_result"    # on the run's collection
-RUN_KEY = "endophoton_run"          # on every datablock the run created
+RESULT_KEY = "endophoton_result"  # on the run's collection
+RUN_KEY = "endophoton_run"  # on every datablock the run created
 SUMMARY_KEY = "endophoton_summary"  # on the run's collection
-PARAMS_KEY = "endophoton_params"    # on the run's collection: what the run was asked to do
+PARAMS_KEY = "endophoton_params"  # on the run's collection: what the run was asked to do
 POINTS_GROUP = "EP Photon Points"
 DENSITY_NODE = "EP Density Scale"
 EMISSION_NODE = "EP Point Emission"
@@ -47,19 +47,19 @@ POINT_ATTRIBUTES = (
     ("wavelength", "wavelength", "FLOAT", np.float32, 1),
     ("fluorescent", "fluorescent", "BOOLEAN", np.bool_, 1),
     ("fluorophore", "fluorophore", "INT", np.int32, 1),
-    ("max_depth", "depth", "FLOAT", np.float32, 1),       # cm, as the engine reports it
+    ("max_depth", "depth", "FLOAT", np.float32, 1),  # cm, as the engine reports it
     ("direction", "direction", "FLOAT_VECTOR", np.float32, 3),
     ("light", "light", "INT", np.int32, 1),
     ("kind", "kind", "INT", np.int32, 1),
     ("region", "region", "INT", np.int32, 1),
     ("scatterings", "scatterings", "INT", np.int32, 1),
     ("exit_order", "exit_order", "INT", np.int32, 1),  # 1st, 2nd, ... exit of its packet into the ambient
-    ("next_hit", "next_hit", "INT", np.int32, 1),      # where its ray went: 0 away, 1 tissue, 2 head, 3 camera
+    ("next_hit", "next_hit", "INT", np.int32, 1),  # where its ray went: 0 away, 1 tissue, 2 head, 3 camera
 )
-COLOUR_ATTR = "ep_colour"   # linear RGB of the chosen mapping (colour_maps.colour_records)
-SHOW_ATTR = "ep_show"       # False = hidden by the filters (Mesh to Points' selection)
+COLOUR_ATTR = "ep_colour"  # linear RGB of the chosen mapping (colour_maps.colour_records)
+SHOW_ATTR = "ep_show"  # False = hidden by the filters (Mesh to Points' selection)
 STRENGTH_ATTR = "ep_strength"  # emission strength: the record's weight over the shown records' mean
-NAMES_KEY = "endophoton_names"    # on the points object: {"fluorophore": [...], "region": [...]}
+NAMES_KEY = "endophoton_names"  # on the points object: {"fluorophore": [...], "region": [...]}
 LEGEND_KEY = "endophoton_legend"  # on the points object: colour_maps.Legend.to_dict()
 
 
@@ -161,8 +161,11 @@ def _points_group():
 
 def _group_input_identifiers(group):
     if hasattr(group, "interface"):
-        return {item.name: item.identifier for item in group.interface.items_tree
-                if getattr(item, "in_out", None) == "INPUT"}
+        return {
+            item.name: item.identifier
+            for item in group.interface.items_tree
+            if getattr(item, "in_out", None) == "INPUT"
+        }
     return {s.name: s.identifier for s in group.inputs}
 
 
@@ -272,9 +275,10 @@ def recolour(obj, settings):
     names = point_names(obj)
     key = settings.color_by
     if colour_maps.COLOUR_MAPS[key].column not in columns:
-        key = "WAVELENGTH"   # e.g. "Exit Order" on a result without that column
-    rgb, show, legend = colour_maps.colour_records(key, columns, display_filters(settings, names), names,
-                                                   count=len(mesh.vertices))
+        key = "WAVELENGTH"  # e.g. "Exit Order" on a result without that column
+    rgb, show, legend = colour_maps.colour_records(
+        key, columns, display_filters(settings, names), names, count=len(mesh.vertices)
+    )
     rgba = np.ones((len(rgb), 4), dtype=np.float32)
     rgba[:, :3] = rgb
     _set_attribute(mesh, COLOUR_ATTR, "FLOAT_COLOR", rgba)
@@ -326,7 +330,7 @@ def render_with_legend(scene, collection, path):
         rendered.pixels.foreach_get(pixels)
     finally:
         bpy.data.images.remove(rendered)
-    picture = pixels.reshape(h, w, 4)[::-1, :, :3]   # Blender's rows run bottom-up
+    picture = pixels.reshape(h, w, 4)[::-1, :, :3]  # Blender's rows run bottom-up
     colour_maps.legend_figure(legend, path, image=picture, title=collection.name)
     image = bpy.data.images.load(path, check_existing=True)
     image.reload()
@@ -363,9 +367,12 @@ def export_result(ep, collection, path, fmt):
         raise ValueError(f"export format = '{fmt}' must be one of {', '.join(EXPORT_FORMATS)}")
     points = points_objects(collection)
     columns = read_point_columns(points[0].data) if points else {}
-    info = {"name": collection.name, "summary": _plain(collection.get(SUMMARY_KEY, {})),
-            "parameters": _plain(collection.get(PARAMS_KEY, {})),
-            "names": point_names(points[0]) if points else {}}
+    info = {
+        "name": collection.name,
+        "summary": _plain(collection.get(SUMMARY_KEY, {})),
+        "parameters": _plain(collection.get(PARAMS_KEY, {})),
+        "names": point_names(points[0]) if points else {},
+    }
     summary_text = json.dumps(info, indent=1, sort_keys=True)
     writer = _atomic_writer(ep)
     if fmt == "JSON":
@@ -384,8 +391,7 @@ def export_result(ep, collection, path, fmt):
     table = np.column_stack([v.astype(np.float64) for v in flat.values()]) if flat else np.zeros((0, 0))
     buffer = io.StringIO()
     np.savetxt(buffer, table, delimiter=",", header=",".join(flat), comments="", fmt="%.9g")
-    return [writer.atomic_write_text(path, buffer.getvalue()),
-            writer.atomic_write_text(path + ".json", summary_text)]
+    return [writer.atomic_write_text(path, buffer.getvalue()), writer.atomic_write_text(path + ".json", summary_text)]
 
 
 def legend_of(obj):
@@ -429,9 +435,9 @@ GRID_RAMPS = {
     "fluorescence_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
 }
 OTHER_RAMP = ((0.3, 0.05, 0.5), (0.7, 0.2, 1.0), (0.95, 0.85, 1.0))
-INV_PEAK_NODE = "EP 1/peak"        # value: 1 / (the grid's or the run's maximum)
-LOG_NODE = "EP log scale"          # value: 0 = linear, 1 = log
-DECADES_NODE = "EP decades"        # value: decades shown by the log scale
+INV_PEAK_NODE = "EP 1/peak"  # value: 1 / (the grid's or the run's maximum)
+LOG_NODE = "EP log scale"  # value: 0 = linear, 1 = log
+DECADES_NODE = "EP decades"  # value: decades shown by the log scale
 
 
 def _math(nodes, links, operation, a, b=None, location=(0, 0), clamp=False):
@@ -469,13 +475,18 @@ def _volume_material(name, grid_name, voxel_bu, run_id):
     scale = _value(nodes, DENSITY_NODE, 0.2, (300, -300))
     rel = _math(nodes, links, "MULTIPLY", attr.outputs["Fac"], inv_peak, (-200, 0))
     t_lin = _math(nodes, links, "MULTIPLY", rel, 1.0, (0, 100), clamp=True)
-    log10 = _math(nodes, links, "LOGARITHM", _math(nodes, links, "MAXIMUM", rel, 1e-12, (-100, -100)), 10.0,
-                  (0, -100))
-    t_log = _math(nodes, links, "ADD", _math(nodes, links, "DIVIDE", log10, decades, (100, -100)), 1.0,
-                  (200, -100), clamp=True)
-    t = _math(nodes, links, "ADD", t_lin,
-              _math(nodes, links, "MULTIPLY", use_log, _math(nodes, links, "SUBTRACT", t_log, t_lin, (300, -50)),
-                    (400, -50)), (500, 0))
+    log10 = _math(nodes, links, "LOGARITHM", _math(nodes, links, "MAXIMUM", rel, 1e-12, (-100, -100)), 10.0, (0, -100))
+    t_log = _math(
+        nodes, links, "ADD", _math(nodes, links, "DIVIDE", log10, decades, (100, -100)), 1.0, (200, -100), clamp=True
+    )
+    t = _math(
+        nodes,
+        links,
+        "ADD",
+        t_lin,
+        _math(nodes, links, "MULTIPLY", use_log, _math(nodes, links, "SUBTRACT", t_log, t_lin, (300, -50)), (400, -50)),
+        (500, 0),
+    )
     ramp = nodes.new("ShaderNodeValToRGB")
     ramp.location = (550, 250)
     stops = GRID_RAMPS.get(grid_name, OTHER_RAMP)
@@ -484,8 +495,9 @@ def _volume_material(name, grid_name, voxel_bu, run_id):
     for element, colour in zip(elements, stops):
         element.color = (*colour, 1.0)
     links.new(t, ramp.inputs["Fac"])
-    density = _math(nodes, links, "MULTIPLY", _math(nodes, links, "MULTIPLY", t, scale, (600, -200)),
-                    1.0 / voxel_bu, (700, -200))
+    density = _math(
+        nodes, links, "MULTIPLY", _math(nodes, links, "MULTIPLY", t, scale, (600, -200)), 1.0 / voxel_bu, (700, -200)
+    )
     volume = nodes.new("ShaderNodeVolumePrincipled")
     # Density comes from the link below; the node's own "density" attribute
     # lookup would multiply it by a grid that does not exist (= 0).
@@ -505,8 +517,12 @@ def set_volume_scale(collection, settings):
     shared = max([o["endophoton_grid_max"] for o in volumes] or [0.0])
     for obj in volumes:
         peak = shared if settings.volume_scale == "SHARED" else obj["endophoton_grid_max"]
-        values = {INV_PEAK_NODE: 1.0 / peak if peak > 0 else 1.0, LOG_NODE: float(settings.volume_scale == "LOG"),
-                  DECADES_NODE: float(settings.volume_decades), DENSITY_NODE: float(settings.volume_density)}
+        values = {
+            INV_PEAK_NODE: 1.0 / peak if peak > 0 else 1.0,
+            LOG_NODE: float(settings.volume_scale == "LOG"),
+            DECADES_NODE: float(settings.volume_decades),
+            DENSITY_NODE: float(settings.volume_density),
+        }
         for slot in obj.material_slots:
             if slot.material is None or not slot.material.use_nodes:
                 continue
@@ -618,15 +634,29 @@ def apply_result(context, inputs, result, grid_info=()):
     try:
         if positions is not None:
             material = _points_material(f"EP Photons {beta}", run_id)
-            obj = create_point_cloud(f"EP Photons {beta}", positions, attrs, settings.point_radius,
-                                     material, run_id, names=record_names(result, inputs))
+            obj = create_point_cloud(
+                f"EP Photons {beta}",
+                positions,
+                attrs,
+                settings.point_radius,
+                material,
+                run_id,
+                names=record_names(result, inputs),
+            )
             recolour(obj, settings)
             collection.objects.link(obj)
         for grid_name, _active, vmax in grids:
             if grid_name is None:
                 grid_name = _first_grid_name(grid_path)
-            obj = create_volume(f"EP Grid {grid_name} {beta}", grid_path, grid_name, vmax,
-                                inputs.grid_voxel_m, inputs.scale_length, run_id)
+            obj = create_volume(
+                f"EP Grid {grid_name} {beta}",
+                grid_path,
+                grid_name,
+                vmax,
+                inputs.grid_voxel_m,
+                inputs.scale_length,
+                run_id,
+            )
             collection.objects.link(obj)
         set_volume_scale(collection, settings)
         collection[SUMMARY_KEY] = summary
@@ -641,10 +671,15 @@ def apply_result(context, inputs, result, grid_info=()):
 def run_parameters(inputs):
     """The run's parameters as plain values (the tag that tells runs apart)."""
     return {
-        "beta_deg": float(inputs.beta_deg), "rig": inputs.rig_name, "kind": inputs.kind,
-        "count": int(inputs.count), "target_error": float(inputs.target_error or 0.0),
-        "seed": int(inputs.seed), "fluorescent_only": bool(inputs.fluorescent_only),
-        "fluorescence_rule": inputs.fluorescence_rule, "scale_length_m": float(inputs.scale_length),
+        "beta_deg": float(inputs.beta_deg),
+        "rig": inputs.rig_name,
+        "kind": inputs.kind,
+        "count": int(inputs.count),
+        "target_error": float(inputs.target_error or 0.0),
+        "seed": int(inputs.seed),
+        "fluorescent_only": bool(inputs.fluorescent_only),
+        "fluorescence_rule": inputs.fluorescence_rule,
+        "scale_length_m": float(inputs.scale_length),
         "voxel_size_m": float(inputs.grid_voxel_m or 0.0),
         "regions": [r.name for r in inputs.regions],
     }
@@ -653,8 +688,7 @@ def run_parameters(inputs):
 def record_names(result, inputs):
     """Names behind the integer record columns: fluorophore ids and region indices."""
     fluorophores = list(getattr(result, "fluorophore_names", None) or [])
-    return {"fluorophore": [str(n) for n in fluorophores],
-            "region": [str(r.name) for r in inputs.regions]}
+    return {"fluorophore": [str(n) for n in fluorophores], "region": [str(r.name) for r in inputs.regions]}
 
 
 def _first_grid_name(path):
@@ -679,8 +713,11 @@ def update_display(scene):
     for collection in result_collections(scene):
         for obj in collection.all_objects:
             for modifier in obj.modifiers:
-                if modifier.type == "NODES" and modifier.node_group is not None \
-                        and modifier.node_group.name.startswith(POINTS_GROUP):
+                if (
+                    modifier.type == "NODES"
+                    and modifier.node_group is not None
+                    and modifier.node_group.name.startswith(POINTS_GROUP)
+                ):
                     ids = _group_input_identifiers(modifier.node_group)
                     modifier[ids["Radius"]] = float(settings.point_radius)
                     obj.update_tag()

@@ -81,8 +81,7 @@ def update_rig(obj):
         return
     settings = obj.endophoton_rig
     try:
-        frame = beta_frame(settings.beta, settings.distance, settings.target,
-                           settings.normal, settings.tilt_axis)
+        frame = beta_frame(settings.beta, settings.distance, settings.target, settings.normal, settings.tilt_axis)
     except ValueError:
         return  # a zero normal while the user types: keep the last pose
     obj.matrix_world = frame
@@ -102,7 +101,7 @@ def update_rig(obj):
         camera_obj.location = (0.0, 0.0, 0.0)
         camera_obj.rotation_euler = (0.0, 0.0, 0.0)
         camera_obj.data.angle = settings.camera_fov
-        camera_obj.data.display_size = settings.head_diameter   # drawn at the head's size, not 1 m
+        camera_obj.data.display_size = settings.head_diameter  # drawn at the head's size, not 1 m
     head = parts.get("head")
     if head is not None:
         r = 0.5 * settings.head_diameter
@@ -116,8 +115,15 @@ def _head_mesh(name):
     return meshutil.mesh_from_arrays(name, verts, faces)
 
 
-def create_rig(context, target=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0),
-               tilt_axis=(0.0, 1.0, 0.0), beta=0.0, distance=None, name="EP Endoscope"):
+def create_rig(
+    context,
+    target=(0.0, 0.0, 0.0),
+    normal=(0.0, 0.0, 1.0),
+    tilt_axis=(0.0, 1.0, 0.0),
+    beta=0.0,
+    distance=None,
+    name="EP Endoscope",
+):
     """Create the rig in the active collection and return its empty.
 
     Sizes are converted from the colonoscope defaults in mm to Blender units

@@ -35,20 +35,20 @@ class RunInputs:
     scene_name: str
     regions: list
     rig_name: str
-    rig_matrix: np.ndarray          # 4x4 float64, head frame -> world, metres
-    rig_params: dict                # head_diameter_mm, ... (engine keyword units)
-    beta_deg: float                 # the rig's tilt from its surface normal, for naming
-    kind: str                       # "photons", "store" or "target"
-    count: int                      # packets, records, or the packet cap of a target run
+    rig_matrix: np.ndarray  # 4x4 float64, head frame -> world, metres
+    rig_params: dict  # head_diameter_mm, ... (engine keyword units)
+    beta_deg: float  # the rig's tilt from its surface normal, for naming
+    kind: str  # "photons", "store" or "target"
+    count: int  # packets, records, or the packet cap of a target run
     seed: int
     threads: int
     fluorescent_only: bool
     fluorescence_rule: str
     output_points: bool
-    grid_voxel_m: Optional[float]   # None = no grids
+    grid_voxel_m: Optional[float]  # None = no grids
     grid_path: Optional[str]
     grid_per_fluorophore: bool
-    scale_length: float             # metres per Blender unit
+    scale_length: float  # metres per Blender unit
     target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
@@ -70,8 +70,7 @@ def _pick_rig(scene):
     rigs = rig.find_rigs(scene)
     if not rigs:
         raise InputError(
-            f"Scene '{scene.name}': simulation.rig is not set and the scene has no endoscope rig; "
-            "use Add Endoscope"
+            f"Scene '{scene.name}': simulation.rig is not set and the scene has no endoscope rig; " "use Add Endoscope"
         )
     if len(rigs) > 1:
         raise InputError(
@@ -84,8 +83,7 @@ def _pick_rig(scene):
 def _check_rig(obj, scale_length):
     s = obj.endophoton_rig
     who = f"Object '{obj.name}'"
-    for name in ("beta", "distance", "head_diameter", "light_diameter", "light_offset",
-                 "cone_angle", "camera_fov"):
+    for name in ("beta", "distance", "head_diameter", "light_diameter", "light_offset", "cone_angle", "camera_fov"):
         value = getattr(s, name)
         if not math.isfinite(value):
             raise InputError(f"{who}: endophoton_rig.{name} = {value:g} must be a finite number")
@@ -133,8 +131,9 @@ def collect_inputs(context):
     rig_obj = _pick_rig(scene)
     rig_matrix, rig_params, beta_deg = _check_rig(rig_obj, scale)
 
-    kind, count, target_error = presets.resolve_budget(settings.quality, settings.mode, settings.photons,
-                                                       settings.store)
+    kind, count, target_error = presets.resolve_budget(
+        settings.quality, settings.mode, settings.photons, settings.store
+    )
     if count <= 0:
         field_name = "store" if kind == "store" else "photons"
         raise InputError(f"{who}: simulation.{field_name} = {count} must be > 0")
@@ -242,7 +241,7 @@ class Progress:
     done: int
     total: int
     elapsed: float
-    rate: float           # packets (or records) per second
+    rate: float  # packets (or records) per second
     eta: Optional[float]  # seconds, None when unknown
 
     @property
@@ -251,11 +250,14 @@ class Progress:
 
     def text(self):
         if self.total <= 0:  # "store N" runs: the packet count is open-ended
-            return (f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · "
-                    "ETA -- (store N) · Esc to cancel")
+            return (
+                f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · " "ETA -- (store N) · Esc to cancel"
+            )
         eta = "--" if self.eta is None else format_seconds(self.eta)
-        return (f"EndoPhoton: {self.done:,}/{self.total:,} packets · {self.rate:,.0f} packets/s · "
-                f"ETA {eta} · Esc to cancel")
+        return (
+            f"EndoPhoton: {self.done:,}/{self.total:,} packets · {self.rate:,.0f} packets/s · "
+            f"ETA {eta} · Esc to cancel"
+        )
 
 
 def format_seconds(seconds):
@@ -354,7 +356,11 @@ class SimulationJob(BackgroundJob):
             if client is not None:  # trace on the Dask cluster; cancel stops its tasks
                 kwargs["client"] = client
             self.result = self.ep.run(
-                self.engine_scene, self.engine_rig, progress=self._on_progress, cancel=self.token, **kwargs,
+                self.engine_scene,
+                self.engine_rig,
+                progress=self._on_progress,
+                cancel=self.token,
+                **kwargs,
             )
         grid_path = getattr(self.result, "grid_path", None)
         if grid_path and not getattr(self.result, "cancelled", False):
@@ -440,8 +446,10 @@ def report_finished(context, job):
     if collection is None:
         return "WARNING", "EndoPhoton run cancelled; nothing was added"
     summary = collection.get(results.SUMMARY_KEY, {})
-    return "INFO", (f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
-                    f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'")
+    return "INFO", (
+        f"EndoPhoton: {summary.get('packets_traced', 0):,} packets traced "
+        f"in {summary.get('seconds', 0.0):.1f} s -> '{collection.name}'"
+    )
 
 
 def track_job(job):

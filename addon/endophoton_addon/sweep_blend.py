@@ -31,8 +31,14 @@ def blender_regions_to_scene(ep, regions):
     scene = ep.Scene(unit="m")
     for region in regions:
         fluorophores = [ep.Fluorophore(name, d, c) for name, d, c in region.fluorophores]
-        scene.add_mesh(region.name, region.vertices, region.triangles, ep.Medium(**region.medium),
-                       priority=region.priority, fluorophores=fluorophores)
+        scene.add_mesh(
+            region.name,
+            region.vertices,
+            region.triangles,
+            ep.Medium(**region.medium),
+            priority=region.priority,
+            fluorophores=fluorophores,
+        )
     return scene
 
 
@@ -122,8 +128,9 @@ def sweep_blend(blend=None, use_blend_rig=True, **kwargs):
     ep = package_finder.require()
     bscene = _open_scene(blend)
     if not hasattr(bscene, "endophoton"):
-        raise RuntimeError("the EndoPhoton add-on is not registered (scene.endophoton is missing); "
-                           "call enable_addon() first")
+        raise RuntimeError(
+            "the EndoPhoton add-on is not registered (scene.endophoton is missing); " "call enable_addon() first"
+        )
     current = bscene == bpy.context.scene
     view_layer = bpy.context.view_layer if current else bscene.view_layers[0]
     depsgraph = bpy.context.evaluated_depsgraph_get() if current else bscene.view_layers[0].depsgraph

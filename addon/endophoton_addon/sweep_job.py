@@ -28,11 +28,11 @@ import numpy as np
 from . import export, guards, package_finder, preferences, simulation, sweep_blend
 from .export import InputError
 
-IMAGE_PREFIX = "EndoPhoton Sweep: "   # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
-IMAGE_KEY = "endophoton_sweep_plot"   # ID property on every image the sweep loaded
-SUMMARY_KEY = "endophoton_sweep"      # ID property on the scene: the last finished sweep
+IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
+IMAGE_KEY = "endophoton_sweep_plot"  # ID property on every image the sweep loaded
+SUMMARY_KEY = "endophoton_sweep"  # ID property on the scene: the last finished sweep
 DEFAULT_DIR_NAME = "endophoton_sweep"
-FIT_DEGREE = 6                        # the paper's polynomial fit of the energy curve
+FIT_DEGREE = 6  # the paper's polynomial fit of the energy curve
 
 
 @dataclass
@@ -42,28 +42,36 @@ class SweepInputs:
     scene_name: str
     regions: list
     rig_name: str
-    betas: list                 # degrees
+    betas: list  # degrees
     store: int
     seed: int
     threads: int
     n_batches: int
     fluorescent_only: bool
     fluorescence_rule: str
-    distance_m: float           # head distance from the target, metres (the engine unit)
-    point_m: tuple              # target point, metres
+    distance_m: float  # head distance from the target, metres (the engine unit)
+    point_m: tuple  # target point, metres
     normal: tuple
     tilt_axis: tuple
-    rig_params: dict            # head_diameter_mm, ... (EndoscopeRig keywords)
+    rig_params: dict  # head_diameter_mm, ... (EndoscopeRig keywords)
     out_dir: str
     scale_length: float
 
     def sweep_kwargs(self):
         """Keyword arguments of ``endophoton.sweep`` (all but the scene, progress and cancel)."""
         return dict(
-            betas=list(self.betas), store=self.store, seed=self.seed, threads=self.threads,
-            fluorescent_only=self.fluorescent_only, fluorescence_rule=self.fluorescence_rule,
-            distance=self.distance_m, point=self.point_m, normal=self.normal, tilt_axis=self.tilt_axis,
-            rig_kwargs=dict(self.rig_params), n_batches=self.n_batches,
+            betas=list(self.betas),
+            store=self.store,
+            seed=self.seed,
+            threads=self.threads,
+            fluorescent_only=self.fluorescent_only,
+            fluorescence_rule=self.fluorescence_rule,
+            distance=self.distance_m,
+            point=self.point_m,
+            normal=self.normal,
+            tilt_axis=self.tilt_axis,
+            rig_kwargs=dict(self.rig_params),
+            n_batches=self.n_batches,
         )
 
 
@@ -77,8 +85,10 @@ def parse_betas(ep, text, who):
     try:
         values = ep.beta_sweep.parse_betas(text)
     except (ValueError, argparse.ArgumentTypeError):
-        raise InputError(f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
-                         "(degrees, stop excluded) giving at least one angle") from None
+        raise InputError(
+            f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
+            "(degrees, stop excluded) giving at least one angle"
+        ) from None
     seen = set()
     for beta in values:
         if not math.isfinite(beta) or not -90.0 < beta < 90.0:
@@ -91,7 +101,7 @@ def parse_betas(ep, text, who):
 
 def _rig_geometry(rig_obj, scale_length):
     """Target (m), normal, tilt axis, distance (m) and tip of the rig; raises InputError."""
-    simulation._check_rig(rig_obj, scale_length)   # finite values, light guides inside the head
+    simulation._check_rig(rig_obj, scale_length)  # finite values, light guides inside the head
     s = rig_obj.endophoton_rig
     who = f"Object '{rig_obj.name}'"
     if not s.distance > 0.0:
@@ -102,8 +112,9 @@ def _rig_geometry(rig_obj, scale_length):
         raise InputError(f"{who}: endophoton_rig.tilt_axis has zero length; the sweep tilts about it")
     n = normal / np.linalg.norm(normal)
     if np.linalg.norm(tilt - (tilt @ n) * n) < 1e-9 * np.linalg.norm(tilt):
-        raise InputError(f"{who}: endophoton_rig.tilt_axis is parallel to endophoton_rig.normal; "
-                         "the sweep tilts about it")
+        raise InputError(
+            f"{who}: endophoton_rig.tilt_axis is parallel to endophoton_rig.normal; " "the sweep tilts about it"
+        )
     return sweep_blend.rig_sweep_geometry(rig_obj, scale_length)
 
 
@@ -126,8 +137,10 @@ def collect_sweep_inputs(context, ep):
     if settings.batches < 2:
         raise InputError(f"{who}: sweep.batches = {settings.batches} must be >= 2")
     if settings.store < settings.batches:
-        raise InputError(f"{who}: sweep.store = {settings.store} must be >= sweep.batches = "
-                         f"{settings.batches} (one record per batch at least)")
+        raise InputError(
+            f"{who}: sweep.store = {settings.store} must be >= sweep.batches = "
+            f"{settings.batches} (one record per batch at least)"
+        )
     if settings.threads < 0:
         raise InputError(f"{who}: sweep.threads = {settings.threads} must be >= 0")
     out_dir = guards.resolve_folder(settings.output_dir, f"{who}: sweep.output_dir", DEFAULT_DIR_NAME)
@@ -141,10 +154,18 @@ def collect_sweep_inputs(context, ep):
     geometry = _rig_geometry(rig_obj, scale)
 
     inputs = SweepInputs(
-        scene_name=scene.name, regions=regions, rig_name=rig_obj.name, betas=betas,
-        store=int(settings.store), seed=int(settings.seed), threads=int(settings.threads),
-        n_batches=int(settings.batches), fluorescent_only=bool(settings.fluorescent_only),
-        fluorescence_rule=settings.fluorescence_rule, out_dir=out_dir, scale_length=float(scale),
+        scene_name=scene.name,
+        regions=regions,
+        rig_name=rig_obj.name,
+        betas=betas,
+        store=int(settings.store),
+        seed=int(settings.seed),
+        threads=int(settings.threads),
+        n_batches=int(settings.batches),
+        fluorescent_only=bool(settings.fluorescent_only),
+        fluorescence_rule=settings.fluorescence_rule,
+        out_dir=out_dir,
+        scale_length=float(scale),
         **geometry,
     )
     try:
@@ -155,8 +176,14 @@ def collect_sweep_inputs(context, ep):
     # run here, before anything starts.
     for beta in betas:
         try:
-            ep.EndoscopeRig.from_beta(beta_deg=beta, distance=inputs.distance_m, point=inputs.point_m,
-                                      normal=inputs.normal, tilt_axis=inputs.tilt_axis, **inputs.rig_params)
+            ep.EndoscopeRig.from_beta(
+                beta_deg=beta,
+                distance=inputs.distance_m,
+                point=inputs.point_m,
+                normal=inputs.normal,
+                tilt_axis=inputs.tilt_axis,
+                **inputs.rig_params,
+            )
         except ValueError as exc:
             raise InputError(f"Object '{rig_obj.name}': at β = {beta:g}°: {exc}") from exc
     return inputs, engine_scene
@@ -165,28 +192,28 @@ def collect_sweep_inputs(context, ep):
 # --- the job ----------------------------------------------------------------------
 @dataclass
 class SweepProgress:
-    index: int              # β being run (0-based)
+    index: int  # β being run (0-based)
     n: int
     beta: float
-    done: int               # packets of the current β so far
-    fraction: float         # of the whole sweep
+    done: int  # packets of the current β so far
+    fraction: float  # of the whole sweep
     elapsed: float
-    eta: Optional[float]    # seconds, None when unknown (first β in store-N mode)
-    phase: str              # "running" or "writing"
+    eta: Optional[float]  # seconds, None when unknown (first β in store-N mode)
+    phase: str  # "running" or "writing"
 
     def text(self):
         if self.phase == "writing":
             return f"Sweep: all {self.n} β done, writing CSV, JSON, plots and report…"
         eta = "--" if self.eta is None else simulation.format_seconds(self.eta)
-        return (f"Sweep β={self.beta:g}° ({self.index + 1}/{self.n}), ETA {eta} · "
-                f"{self.done:,} packets · Esc to cancel")
+        return (
+            f"Sweep β={self.beta:g}° ({self.index + 1}/{self.n}), ETA {eta} · " f"{self.done:,} packets · Esc to cancel"
+        )
 
     def panel_lines(self):
         if self.phase == "writing":
             return [f"Sweep: {self.n}/{self.n} β done", "Writing outputs…"]
         eta = "--" if self.eta is None else simulation.format_seconds(self.eta)
-        return [f"Sweep β={self.beta:g}° ({self.index + 1}/{self.n})",
-                f"{self.done:,} packets · ETA {eta}"]
+        return [f"Sweep β={self.beta:g}° ({self.index + 1}/{self.n})", f"{self.done:,} packets · ETA {eta}"]
 
 
 class SweepJob(simulation.BackgroundJob):
@@ -209,10 +236,10 @@ class SweepJob(simulation.BackgroundJob):
         self.error = None
         self.error_traceback = None
         self._lock = threading.Lock()
-        self._finished_betas = 0     # β values run and analysed
-        self._engine_index = 0       # β of the engine's last progress report
-        self._done = 0               # packets of that β so far
-        self._packets_per_beta = 0   # packets the last finished β needed (estimate for the current one)
+        self._finished_betas = 0  # β values run and analysed
+        self._engine_index = 0  # β of the engine's last progress report
+        self._done = 0  # packets of that β so far
+        self._packets_per_beta = 0  # packets the last finished β needed (estimate for the current one)
         self._phase = "running"
         self._t0 = None
         self._finished = threading.Event()
@@ -245,7 +272,7 @@ class SweepJob(simulation.BackgroundJob):
             self._done = int(done)
 
     def _on_beta(self, index, _n, row):
-        if row["cancelled"]:   # a cancelled partial run: the sweep ends here
+        if row["cancelled"]:  # a cancelled partial run: the sweep ends here
             return
         with self._lock:
             self._finished_betas = index + 1
@@ -256,11 +283,17 @@ class SweepJob(simulation.BackgroundJob):
         with contextlib.ExitStack() as stack:
             client = simulation.cluster_client(stack, self.ep, self.scheduler)
             extra = {"run_kwargs": {"client": client}} if client is not None else {}
-            result = bs.sweep(self.engine_scene, progress=self._on_progress, on_beta=self._on_beta,
-                              cancel=self.token, out_dir=None, **self.inputs.sweep_kwargs(), **extra)
-        if (self.token.cancelled or result.meta.get("cancelled")
-                or any(row["cancelled"] for row in result.rows)):
-            self.cancelled = True   # nothing is written, nothing will be added
+            result = bs.sweep(
+                self.engine_scene,
+                progress=self._on_progress,
+                on_beta=self._on_beta,
+                cancel=self.token,
+                out_dir=None,
+                **self.inputs.sweep_kwargs(),
+                **extra,
+            )
+        if self.token.cancelled or result.meta.get("cancelled") or any(row["cancelled"] for row in result.rows):
+            self.cancelled = True  # nothing is written, nothing will be added
             return
         with self._lock:
             self._phase = "writing"
@@ -270,8 +303,8 @@ class SweepJob(simulation.BackgroundJob):
         self.result = result
 
 
-MIN_FIT_POINTS = FIT_DEGREE + 3    # the degree-6 fit keeps >= 2 degrees of freedom
-BOOTSTRAP = 200                     # parametric bootstrap replicas for the peak's standard error
+MIN_FIT_POINTS = FIT_DEGREE + 3  # the degree-6 fit keeps >= 2 degrees of freedom
+BOOTSTRAP = 200  # parametric bootstrap replicas for the peak's standard error
 
 
 def best_beta(an, betas, y, y_se, seed=0):
@@ -287,8 +320,10 @@ def best_beta(an, betas, y, y_se, seed=0):
     x, y, y_se = betas[ok], y[ok], y_se[ok]
     fit = an.poly_peak(x, y, deg=FIT_DEGREE)
     rng = np.random.default_rng(seed)
-    peaks = [an.poly_peak(x, y + rng.normal(0.0, 1.0, len(y)) * y_se, deg=FIT_DEGREE, n_grid=1001)["x_peak"]
-             for _ in range(BOOTSTRAP)]
+    peaks = [
+        an.poly_peak(x, y + rng.normal(0.0, 1.0, len(y)) * y_se, deg=FIT_DEGREE, n_grid=1001)["x_peak"]
+        for _ in range(BOOTSTRAP)
+    ]
     return float(fit["x_peak"]), float(np.std(peaks, ddof=1)), bool(fit["interior"])
 
 
@@ -332,8 +367,10 @@ def prepare_job(context, interactive=False):
     """
     ep = package_finder.require()
     if not hasattr(ep, "beta_sweep"):
-        raise package_finder.EngineMissing(f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
-                                   "it has no β sweep (endophoton.beta_sweep)")
+        raise package_finder.EngineMissing(
+            f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
+            "it has no β sweep (endophoton.beta_sweep)"
+        )
     inputs, engine_scene = collect_sweep_inputs(context, ep)
     if interactive:
         inputs.threads = simulation.interactive_threads(inputs.threads)
@@ -408,8 +445,10 @@ def report_finished(context, job):
     images = finish_sweep(context, job)
     if images is None:
         return "WARNING", "EndoPhoton sweep cancelled; nothing was written or added"
-    return "INFO", (f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
-                    f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'")
+    return "INFO", (
+        f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
+        f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'"
+    )
 
 
 def summary_rows(scene):

@@ -47,7 +47,9 @@ void bind_source(py::module_& m);      // source.cpp: Source
 void bind_run(py::module_& m);         // run.cpp: CancelToken, RunConfig, run
 void bind_mesh_check(py::module_& m);  // mesh_check.cpp: check_mesh
 void bind_testing(py::module_& m);
-void bind_surface_hits(py::module_& m);  
-void bind_distributed(py::module_& m);  // distributed.cpp: unit_plan, trace_units, UnitReducer  // surface_hits.cpp: first_surfaces (endoscope view rays)     // testing.cpp: the _testing submodule (test-only hooks)
+void bind_surface_hits(py::module_& m);
+void bind_distributed(
+    py::module_& m);  // distributed.cpp: unit_plan, trace_units, UnitReducer  // surface_hits.cpp: first_surfaces
+                      // (endoscope view rays)     // testing.cpp: the _testing submodule (test-only hooks)
 
 }  // namespace ep::bind

@@ -5,8 +5,8 @@
 #include <memory>
 #include <string>
 
-#include "engine.h"
 #include "common.h"
+#include "engine.h"
 #include "unit_io.h"
 #include "voxel_grid.h"
 
@@ -23,7 +23,9 @@ struct PyUnitReducer {
     bool finished = false;
 
     PyUnitReducer(std::shared_ptr<Scene> sc, std::shared_ptr<Source> so, const RunConfig& opts)
-        : scene(std::move(sc)), source(std::move(so)), config(opts),
+        : scene(std::move(sc)),
+          source(std::move(so)),
+          config(opts),
           reducer(std::make_unique<UnitReducer>(*scene, *source, config)) {}
     UnitReducer& live() {
         if (finished) throw std::invalid_argument("UnitReducer: the run is already finished");

@@ -1,7 +1,7 @@
 // Binding of ep::check_mesh, the one owner of the closed-mesh rule
 // (endophoton.meshes.check_closed_mesh calls it).
-#include "common.h"
 #include "mesh_check.h"
+#include "common.h"
 
 namespace ep::bind {
 

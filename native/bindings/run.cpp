@@ -55,7 +55,6 @@ py::dict records_dict(EscapeRecords&& rec) {
     return d;
 }
 
-
 std::string rule_name(FluorescenceRule r) { return r == FluorescenceRule::kEEM ? "eem" : "paper"; }
 
 FluorescenceRule rule_from_name(const std::string& r) {
@@ -75,16 +74,16 @@ void bind_config(py::module_& m) {
     py::class_<RunConfig> cls(m, "RunConfig", "Options of one run (native/run_config.h); lengths in scene units.");
     cls.def(py::init<>())
         .def(py::init([](const py::kwargs& kwargs) {
-                 // Keyword construction: every key must name an attribute (a field of RunConfig).
-                 py::object self = py::cast(RunConfig{});
-                 for (auto item : kwargs) {
-                     const std::string key = item.first.cast<std::string>();
-                     if (key.rfind("__", 0) == 0 || !py::hasattr(self, key.c_str()))
-                         throw std::invalid_argument("run option '" + key + "' is unknown");
-                     py::setattr(self, key.c_str(), item.second);
-                 }
-                 return self.cast<RunConfig>();
-             }))
+            // Keyword construction: every key must name an attribute (a field of RunConfig).
+            py::object self = py::cast(RunConfig{});
+            for (auto item : kwargs) {
+                const std::string key = item.first.cast<std::string>();
+                if (key.rfind("__", 0) == 0 || !py::hasattr(self, key.c_str()))
+                    throw std::invalid_argument("run option '" + key + "' is unknown");
+                py::setattr(self, key.c_str(), item.second);
+            }
+            return self.cast<RunConfig>();
+        }))
         .def_readwrite("photons", &RunConfig::photons)
         .def_readwrite("store", &RunConfig::store)
         .def_readwrite("fluorescent_only", &RunConfig::fluorescent_only)
@@ -113,7 +112,8 @@ void bind_config(py::module_& m) {
             "fluorescence_rule", [](const RunConfig& c) { return rule_name(c.rule); },
             [](RunConfig& c, const std::string& r) { c.rule = rule_from_name(r); }, "'paper' or 'eem'")
         .def_property(
-            "target_tally", [](const RunConfig& c) { return c.target_tally < 0 ? std::string() : tally_name(c.target_tally); },
+            "target_tally",
+            [](const RunConfig& c) { return c.target_tally < 0 ? std::string() : tally_name(c.target_tally); },
             [](RunConfig& c, const std::string& name) { c.target_tally = tally_from_name(name); },
             "name of the tally a target-accuracy run aims at, '' for none");
 }
@@ -138,15 +138,18 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
     d["grid_names"] = r.grid_names;
     d["grid_absorbed_sum"] = r.grid_absorbed_sum;
     d["record_bytes"] = r.peak_record_bytes;
-    if (with_records) d["escapes"] = records_dict(std::move(r.records));
-    else d["escapes"] = py::none();
+    if (with_records)
+        d["escapes"] = records_dict(std::move(r.records));
+    else
+        d["escapes"] = py::none();
     return d;
 }
 
 void bind_run(py::module_& m) {
     py::class_<CancelToken, std::shared_ptr<CancelToken>>(m, "CancelToken")
         .def(py::init<>())
-        .def("cancel", [](CancelToken& t) { t.flag.store(true); }, "Ask the running simulation to stop.")
+        .def(
+            "cancel", [](CancelToken& t) { t.flag.store(true); }, "Ask the running simulation to stop.")
         .def_property_readonly("cancelled", [](const CancelToken& t) { return t.flag.load(); });
     bind_config(m);
     m.def(

@@ -1,7 +1,7 @@
 // Binding of ep::Scene: regions (closed meshes with a medium), fluorophores, commit.
+#include "scene.h"
 #include "common.h"
 #include "eem.h"
-#include "scene.h"
 
 namespace ep::bind {
 
@@ -25,8 +25,7 @@ void bind_scene(py::module_& m) {
                 return s.add_region(name, v.data(), size_t(v.shape(0)), t.data(), size_t(t.shape(0)), med, priority);
             },
             py::arg("name"), py::arg("vertices"), py::arg("triangles"), py::arg("mua"), py::arg("mus"), py::arg("g"),
-            py::arg("n"), py::arg("priority") = 0, py::arg("mua_table") = py::none(),
-            py::arg("mus_table") = py::none())
+            py::arg("n"), py::arg("priority") = 0, py::arg("mua_table") = py::none(), py::arg("mus_table") = py::none())
         .def(
             "add_fluorophore",
             [](Scene& s, const std::string& name, std::vector<double> ex, std::vector<double> em,

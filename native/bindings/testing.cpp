@@ -51,8 +51,8 @@ void bind_testing(py::module_& m) {
                 light.push_back(e.light);
             }
             const py::ssize_t n = py::ssize_t(count);
-            return py::make_tuple(take(std::move(pos), {n, 3}), take(std::move(dir), {n, 3}),
-                                  take(std::move(wl), {n}), take(std::move(light), {n}));
+            return py::make_tuple(take(std::move(pos), {n, 3}), take(std::move(dir), {n, 3}), take(std::move(wl), {n}),
+                                  take(std::move(light), {n}));
         },
         py::arg("source"), py::arg("seed"), py::arg("first"), py::arg("count"), py::arg("spectral") = false,
         "Emission samples of packets first..first+count (positions, directions, wavelengths, light).");

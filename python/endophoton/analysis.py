@@ -72,8 +72,10 @@ DEFAULT_BATCHES = 20
 # validation helpers
 # --------------------------------------------------------------------------
 
-def _column(escapes: Mapping[str, Any], key: str, ndim: int, width: int | None = None,
-            n: int | None = None) -> np.ndarray:
+
+def _column(
+    escapes: Mapping[str, Any], key: str, ndim: int, width: int | None = None, n: int | None = None
+) -> np.ndarray:
     """Return ``escapes[key]`` as a numpy array after checking its shape.
 
     Raises ``ValueError`` naming ``key`` when it is missing, has the wrong shape,
@@ -123,8 +125,10 @@ def _check_batches(n_batches: int) -> int:
 # batch means
 # --------------------------------------------------------------------------
 
-def batch_index(packet: np.ndarray, n_batches: int = DEFAULT_BATCHES,
-                n_packets: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+
+def batch_index(
+    packet: np.ndarray, n_batches: int = DEFAULT_BATCHES, n_packets: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Assign each record to a contiguous packet-index batch.
 
     Parameters
@@ -184,6 +188,7 @@ def _ratio_with_se(num_b: np.ndarray, den_b: np.ndarray) -> tuple[float, float, 
 # exit directions
 # --------------------------------------------------------------------------
 
+
 def ring_bin_edges(n_elev: int = 10, n_azim: int = 36) -> tuple[np.ndarray, np.ndarray]:
     """Bin edges in degrees: elevation ``[0, 90]`` in ``n_elev`` bins, azimuth ``[0, 360]`` in ``n_azim``."""
     return np.linspace(0.0, 90.0, n_elev + 1), np.linspace(0.0, 360.0, n_azim + 1)
@@ -200,8 +205,9 @@ def _light_positions(light_positions: Any) -> np.ndarray:
     return lp
 
 
-def exit_angles(escapes: Mapping[str, Any], light_positions: Any,
-                inward_tol: float = 1e-3, reference: Any = None) -> tuple[np.ndarray, np.ndarray]:
+def exit_angles(
+    escapes: Mapping[str, Any], light_positions: Any, inward_tol: float = 1e-3, reference: Any = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Elevation and azimuth (degrees) of every exit direction in its local surface frame.
 
     Frame at each exit point (all vectors in world/scene coordinates):
@@ -238,8 +244,9 @@ def exit_angles(escapes: Mapping[str, Any], light_positions: Any,
         lp = _light_positions(light_positions)
         light = light.astype(np.int64)
         if K and (light.min() < 0 or light.max() >= lp.shape[0]):
-            raise ValueError(f"escapes['light']: index {int(light.max())} out of range for "
-                             f"{lp.shape[0]} light position(s)")
+            raise ValueError(
+                f"escapes['light']: index {int(light.max())} out of range for " f"{lp.shape[0]} light position(s)"
+            )
         to_light = lp[light] - pos
     else:
         ref = np.asarray(reference, dtype=np.float64)
@@ -249,8 +256,9 @@ def exit_angles(escapes: Mapping[str, Any], light_positions: Any,
     cos_el = np.einsum("ij,ij->i", d, nrm)
     if K and cos_el.min() < -inward_tol:
         i = int(np.argmin(cos_el))
-        raise ValueError(f"escapes['direction']: row {i} points into the surface "
-                         f"(direction . normal = {cos_el[i]:.3g})")
+        raise ValueError(
+            f"escapes['direction']: row {i} points into the surface " f"(direction . normal = {cos_el[i]:.3g})"
+        )
     elev = np.degrees(np.arcsin(np.clip(cos_el, 0.0, 1.0)))
 
     dist = np.linalg.norm(to_light, axis=1)
@@ -282,10 +290,16 @@ def _bin_angles(elev: np.ndarray, az: np.ndarray, n_elev: int, n_azim: int) -> t
     return ie, ia
 
 
-def exit_direction_histogram(escapes: Mapping[str, Any], light_positions: Any,
-                             n_elev: int = 10, n_azim: int = 36,
-                             n_batches: int = DEFAULT_BATCHES, n_packets: int | None = None,
-                             return_batches: bool = False, reference: Any = None):
+def exit_direction_histogram(
+    escapes: Mapping[str, Any],
+    light_positions: Any,
+    n_elev: int = 10,
+    n_azim: int = 36,
+    n_batches: int = DEFAULT_BATCHES,
+    n_packets: int | None = None,
+    return_batches: bool = False,
+    reference: Any = None,
+):
     """Histogram of exit directions over (elevation ring, azimuth bin), as the seed's Fig. 8/9.
 
     Parameters
@@ -355,6 +369,7 @@ def azimuth_asymmetry(counts: np.ndarray, rings: Sequence[int] | slice | None = 
 # --------------------------------------------------------------------------
 # chi-square test (regularised incomplete gamma written out, no scipy)
 # --------------------------------------------------------------------------
+
 
 def _gammainc_lower_series(a: float, x: float) -> float:
     """Regularised lower incomplete gamma P(a, x) by its power series (x < a + 1)."""
@@ -439,6 +454,7 @@ def azimuthal_uniformity_test(counts: np.ndarray) -> np.ndarray:
 # camera importance
 # --------------------------------------------------------------------------
 
+
 def _camera_field(camera: Any, name: str) -> Any:
     if isinstance(camera, Mapping):
         if name not in camera:
@@ -515,9 +531,14 @@ def important_mask(escapes: Mapping[str, Any], camera: Any, max_angle_deg: float
     return visible & (cosang >= math.cos(math.radians(float(max_angle_deg))) - 1e-12)
 
 
-def important_fraction(escapes: Mapping[str, Any], camera: Any, max_angle_deg: float = 15.0,
-                       n_batches: int = DEFAULT_BATCHES, n_packets: int | None = None,
-                       return_batches: bool = False):
+def important_fraction(
+    escapes: Mapping[str, Any],
+    camera: Any,
+    max_angle_deg: float = 15.0,
+    n_batches: int = DEFAULT_BATCHES,
+    n_packets: int | None = None,
+    return_batches: bool = False,
+):
     """Fraction of stored records that are *important* (see :func:`important_mask`).
 
     Ratio statistic: value = (#important) / (#records); stderr = sd over the B
@@ -543,8 +564,14 @@ def important_fraction(escapes: Mapping[str, Any], camera: Any, max_angle_deg: f
 # energy, record rate, depth
 # --------------------------------------------------------------------------
 
-def total_energy(escapes: Mapping[str, Any], n_packets: int | None = None, per_packet: bool = False,
-                 n_batches: int = DEFAULT_BATCHES, return_batches: bool = False):
+
+def total_energy(
+    escapes: Mapping[str, Any],
+    n_packets: int | None = None,
+    per_packet: bool = False,
+    n_batches: int = DEFAULT_BATCHES,
+    return_batches: bool = False,
+):
     """Total energy of the escape records (units of ``energy``: weight x 500 nm / lambda).
 
     ``per_packet=False`` (default): value = sum of ``energy`` over all records.
@@ -572,8 +599,12 @@ def total_energy(escapes: Mapping[str, Any], n_packets: int | None = None, per_p
     return (*out, per) if return_batches else out
 
 
-def mean_energy_per_record(escapes: Mapping[str, Any], n_packets: int | None = None,
-                           n_batches: int = DEFAULT_BATCHES, return_batches: bool = False):
+def mean_energy_per_record(
+    escapes: Mapping[str, Any],
+    n_packets: int | None = None,
+    n_batches: int = DEFAULT_BATCHES,
+    return_batches: bool = False,
+):
     """Mean ``energy`` per stored record (ratio statistic: per-batch ratio, sd/sqrt(B)).
 
     The seed's "total energy of the N stored photons" is N times this value.
@@ -588,8 +619,9 @@ def mean_energy_per_record(escapes: Mapping[str, Any], n_packets: int | None = N
     return (value, se, ratios) if return_batches else (value, se)
 
 
-def record_rate(escapes: Mapping[str, Any], n_packets: int, n_batches: int = DEFAULT_BATCHES,
-                return_batches: bool = False):
+def record_rate(
+    escapes: Mapping[str, Any], n_packets: int, n_batches: int = DEFAULT_BATCHES, return_batches: bool = False
+):
     """Records stored per packet traced (records / P), with batch-means stderr.
 
     In store-N mode the number of packets traced is N / rate, so its relative
@@ -615,8 +647,12 @@ def max_depth(escapes: Mapping[str, Any]) -> float:
     return float(md.max())
 
 
-def max_depth_spread(escapes: Mapping[str, Any], n_batches: int = DEFAULT_BATCHES,
-                     n_packets: int | None = None, return_batches: bool = False):
+def max_depth_spread(
+    escapes: Mapping[str, Any],
+    n_batches: int = DEFAULT_BATCHES,
+    n_packets: int | None = None,
+    return_batches: bool = False,
+):
     """Uncertainty proxy for :func:`max_depth`: mean and sd (ddof=1) of the B per-batch maxima (cm).
 
     A sample maximum has no batch-means standard error (it is not an average);
@@ -644,6 +680,7 @@ def max_depth_spread(escapes: Mapping[str, Any], n_batches: int = DEFAULT_BATCHE
 # trends over the sweep (plain least squares, used by plots and report)
 # --------------------------------------------------------------------------
 
+
 def linear_fit(x: Sequence[float], y: Sequence[float]) -> dict:
     """Least-squares line y = slope x + intercept; returns slope, intercept and R^2 (nan-safe)."""
     x = np.asarray(x, dtype=np.float64)
@@ -655,7 +692,7 @@ def linear_fit(x: Sequence[float], y: Sequence[float]) -> dict:
     slope, intercept = np.polyfit(x, y, 1)
     resid = y - (slope * x + intercept)
     sst = float(np.sum((y - y.mean()) ** 2))
-    r2 = 1.0 - float(np.sum(resid ** 2)) / sst if sst > 0 else float("nan")
+    r2 = 1.0 - float(np.sum(resid**2)) / sst if sst > 0 else float("nan")
     return {"slope": float(slope), "intercept": float(intercept), "r2": r2, "n": int(x.size)}
 
 
@@ -685,8 +722,14 @@ def poly_peak(x: Sequence[float], y: Sequence[float], deg: int = 6, n_grid: int 
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
     if x.size < 2:
-        return {"deg": 0, "coeffs": [], "x_peak": float("nan"), "y_peak": float("nan"),
-                "interior": False, "local_maxima": []}
+        return {
+            "deg": 0,
+            "coeffs": [],
+            "x_peak": float("nan"),
+            "y_peak": float("nan"),
+            "interior": False,
+            "local_maxima": [],
+        }
     d = int(min(deg, x.size - 1))
     coeffs = np.polyfit(x, y, d)
     grid = np.linspace(x.min(), x.max(), n_grid)
@@ -697,8 +740,17 @@ def poly_peak(x: Sequence[float], y: Sequence[float], deg: int = 6, n_grid: int 
     local = []
     if dp.size > 1:
         for r in np.roots(dp):
-            if abs(r.imag) < 1e-9 * max(1.0, abs(r.real)) and x.min() < r.real < x.max() \
-                    and np.polyval(ddp, r.real) < 0:
+            if (
+                abs(r.imag) < 1e-9 * max(1.0, abs(r.real))
+                and x.min() < r.real < x.max()
+                and np.polyval(ddp, r.real) < 0
+            ):
                 local.append(float(r.real))
-    return {"deg": d, "coeffs": [float(c) for c in coeffs], "x_peak": float(grid[k]),
-            "y_peak": float(vals[k]), "interior": 0 < k < n_grid - 1, "local_maxima": sorted(local)}
+    return {
+        "deg": d,
+        "coeffs": [float(c) for c in coeffs],
+        "x_peak": float(grid[k]),
+        "y_peak": float(vals[k]),
+        "interior": 0 < k < n_grid - 1,
+        "local_maxima": sorted(local),
+    }

@@ -60,9 +60,15 @@ __all__ = [
 ]
 
 
-def default_flat_scene(unit: str = "cm", polyp: str | None = "dome", polyp_radius_cm: float = 0.3,
-                       polyp_height_cm: float = 0.15, half_width_cm: float = 50.0,
-                       thickness_cm: float = 10.0, mesh_resolution: tuple[int, int] = (24, 48)):
+def default_flat_scene(
+    unit: str = "cm",
+    polyp: str | None = "dome",
+    polyp_radius_cm: float = 0.3,
+    polyp_height_cm: float = 0.15,
+    half_width_cm: float = 50.0,
+    thickness_cm: float = 10.0,
+    mesh_resolution: tuple[int, int] = (24, 48),
+):
     """The seed's §5 scene, built with the package's scene API (``ep.Scene``).
 
     * ambient: air, n = 1;
@@ -94,25 +100,29 @@ def default_flat_scene(unit: str = "cm", polyp: str | None = "dome", polyp_radiu
     tissue_fl = [Fluorophore(name, d, c) for name, d, c in FLUOROPHORES["tissue"]]
     polyp_fl = [Fluorophore(name, d, c) for name, d, c in FLUOROPHORES["polyp"]]
     w, t = half_width_cm * s, thickness_cm * s
-    scene.add_box("tissue", min=(-w, -w, -t), max=(w, w, 0.0), medium=medium, priority=0,
-                  fluorophores=tissue_fl)
+    scene.add_box("tissue", min=(-w, -w, -t), max=(w, w, 0.0), medium=medium, priority=0, fluorophores=tissue_fl)
     if polyp is not None:
         n_lat, n_lon = mesh_resolution
         radii = (polyp_radius_cm * s, polyp_radius_cm * s, polyp_height_cm * s)
         if polyp == "dome":
             v, tri = meshes.ellipsoid((0.0, 0.0, 0.0), radii, n_lat=n_lat, n_lon=n_lon)
         else:
-            v, tri = meshes.half_ellipsoid((0.0, 0.0, -1e-4 * s), radii, n_lat=max(1, n_lat // 2),
-                                           n_lon=n_lon, upper=False)
+            v, tri = meshes.half_ellipsoid(
+                (0.0, 0.0, -1e-4 * s), radii, n_lat=max(1, n_lat // 2), n_lon=n_lon, upper=False
+            )
         scene.add_mesh("polyp", v, tri, medium, priority=1, fluorophores=polyp_fl)
     return scene
 
 
 def _call_builder(builder: Callable, beta: float):
     try:
-        n_params = len([p for p in inspect.signature(builder).parameters.values()
-                        if p.default is inspect.Parameter.empty
-                        and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)])
+        n_params = len(
+            [
+                p
+                for p in inspect.signature(builder).parameters.values()
+                if p.default is inspect.Parameter.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)
+            ]
+        )
     except (TypeError, ValueError):
         n_params = 1
     return builder(beta) if n_params >= 1 else builder()
@@ -120,9 +130,14 @@ def _call_builder(builder: Callable, beta: float):
 
 def _rig_from_beta(beta: float, distance: float, point, normal, tilt_axis, rig_kwargs: Mapping[str, Any]):
     """``EndoscopeRig.from_beta(...)`` for one tilt angle (lengths in scene units)."""
-    return EndoscopeRig.from_beta(beta_deg=float(beta), distance=float(distance), point=tuple(map(float, point)),
-                                  normal=tuple(map(float, normal)), tilt_axis=tuple(map(float, tilt_axis)),
-                                  **rig_kwargs)
+    return EndoscopeRig.from_beta(
+        beta_deg=float(beta),
+        distance=float(distance),
+        point=tuple(map(float, point)),
+        normal=tuple(map(float, normal)),
+        tilt_axis=tuple(map(float, tilt_axis)),
+        **rig_kwargs,
+    )
 
 
 def _scene_unit(scene: Any) -> str:
@@ -144,8 +159,8 @@ class _Progress:
         if enabled:
             try:
                 from tqdm import tqdm
-                self.bar = tqdm(total=len(betas), desc="beta sweep", unit="beta", file=sys.stderr,
-                                dynamic_ncols=True)
+
+                self.bar = tqdm(total=len(betas), desc="beta sweep", unit="beta", file=sys.stderr, dynamic_ncols=True)
             except ImportError:  # pragma: no cover - tqdm is a dependency
                 self.bar = None
 
@@ -173,27 +188,57 @@ class _Progress:
             self.bar.close()
 
 
-def _sweep_meta(scene_or_builder: Any, static_scene: Any, seed: int, store: int, threads: int, n_batches: int,
-                fluorescent_only: bool, fluorescence_rule: str, max_angle_deg: float, point, normal, tilt_axis,
-                rig_kwargs: Mapping[str, Any]) -> dict:
+def _sweep_meta(
+    scene_or_builder: Any,
+    static_scene: Any,
+    seed: int,
+    store: int,
+    threads: int,
+    n_batches: int,
+    fluorescent_only: bool,
+    fluorescence_rule: str,
+    max_angle_deg: float,
+    point,
+    normal,
+    tilt_axis,
+    rig_kwargs: Mapping[str, Any],
+) -> dict:
     """The run settings recorded in ``SweepResult.meta``."""
     return {
-        "seed": int(seed), "store": int(store), "threads": int(threads), "n_batches": int(n_batches),
-        "fluorescent_only": bool(fluorescent_only), "fluorescence_rule": fluorescence_rule,
-        "max_angle_deg": float(max_angle_deg), "point": list(map(float, point)),
-        "normal": list(map(float, normal)), "tilt_axis": list(map(float, tilt_axis)),
+        "seed": int(seed),
+        "store": int(store),
+        "threads": int(threads),
+        "n_batches": int(n_batches),
+        "fluorescent_only": bool(fluorescent_only),
+        "fluorescence_rule": fluorescence_rule,
+        "max_angle_deg": float(max_angle_deg),
+        "point": list(map(float, point)),
+        "normal": list(map(float, normal)),
+        "tilt_axis": list(map(float, tilt_axis)),
         "rig_kwargs": {k: v for k, v in rig_kwargs.items() if isinstance(v, (int, float, str, tuple, list))},
-        "scene": "default_flat_scene(unit='cm', polyp='dome')" if scene_or_builder is None else
-                 ("builder" if static_scene is None else "user scene"),
+        "scene": "default_flat_scene(unit='cm', polyp='dome')"
+        if scene_or_builder is None
+        else ("builder" if static_scene is None else "user scene"),
         "engine_version": _core.__version__,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "n_elev": 10, "n_azim": 36,
+        "n_elev": 10,
+        "n_azim": 36,
     }
 
 
-def _sweep_one_beta(scene: Any, beta: float, rig: Any, unit: str, normal, run_kwargs: dict, meta: dict,
-                    n_batches: int, max_angle_deg: float, visibility: Mapping[str, Any] | None = None,
-                    out_dir: str | os.PathLike | None = None):
+def _sweep_one_beta(
+    scene: Any,
+    beta: float,
+    rig: Any,
+    unit: str,
+    normal,
+    run_kwargs: dict,
+    meta: dict,
+    n_batches: int,
+    max_angle_deg: float,
+    visibility: Mapping[str, Any] | None = None,
+    out_dir: str | os.PathLike | None = None,
+):
     """Run the engine for one beta and reduce it; returns ``(row, hist, batches, cancelled)``
     or ``None`` when a cancel landed before the first record (no row)."""
     geo = rig_geometry(rig, unit, normal)
@@ -209,12 +254,20 @@ def _sweep_one_beta(scene: Any, beta: float, rig: Any, unit: str, normal, run_kw
     P = int(getattr(res, "packets_traced", 0) or 0)
     if P <= 0:
         P = int(np.asarray(esc["packet"]).max()) + 1
-    row, hist, bt = analyse_run(esc, P, geo["light_positions"], geo["camera"], n_batches, max_angle_deg,
-                                reference=geo["reference"])
-    full = {"beta_deg": beta, "store": int(run_kwargs["store"]), **row, "seconds": seconds,
-            "seed": int(run_kwargs["seed"]), "cancelled": int(cancelled)}
-    if visibility is not None:   # the endoscope's view of this run (docs/render.md)
+    row, hist, bt = analyse_run(
+        esc, P, geo["light_positions"], geo["camera"], n_batches, max_angle_deg, reference=geo["reference"]
+    )
+    full = {
+        "beta_deg": beta,
+        "store": int(run_kwargs["store"]),
+        **row,
+        "seconds": seconds,
+        "seed": int(run_kwargs["seed"]),
+        "cancelled": int(cancelled),
+    }
+    if visibility is not None:  # the endoscope's view of this run (docs/render.md)
         from .view_sweep import add_visibility
+
         add_visibility(full, res, beta, visibility, out_dir)
     else:
         full.update({k: float("nan") for k in VISIBILITY_COLUMNS})
@@ -224,16 +277,31 @@ def _sweep_one_beta(scene: Any, beta: float, rig: Any, unit: str, normal, run_kw
     return full, hist, bt, cancelled
 
 
-def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5), store: int = 500_000,
-          seed: int = 1, threads: int = 0, fluorescent_only: bool = True, fluorescence_rule: str = "paper",
-          distance: float | None = None, point: Sequence[float] = (0.0, 0.0, 0.0),
-          normal: Sequence[float] = (0.0, 0.0, 1.0), tilt_axis: Sequence[float] = (0.0, 1.0, 0.0),
-          progress: bool | Callable = True, out_dir: str | os.PathLike | None = None,
-          n_batches: int = DEFAULT_BATCHES, max_angle_deg: float = IMPORTANT_ANGLE_DEG,
-          rig_kwargs: Mapping[str, Any] | None = None, rig_builder: Callable | None = None,
-          run_kwargs: Mapping[str, Any] | None = None, cancel: Any = None,
-          plots: bool = True, report: bool = True, on_beta: Callable | None = None,
-          visibility: Mapping[str, Any] | None = None) -> SweepResult:
+def sweep(
+    scene_or_builder: Any = None,
+    betas: Iterable[float] = range(0, 60, 5),
+    store: int = 500_000,
+    seed: int = 1,
+    threads: int = 0,
+    fluorescent_only: bool = True,
+    fluorescence_rule: str = "paper",
+    distance: float | None = None,
+    point: Sequence[float] = (0.0, 0.0, 0.0),
+    normal: Sequence[float] = (0.0, 0.0, 1.0),
+    tilt_axis: Sequence[float] = (0.0, 1.0, 0.0),
+    progress: bool | Callable = True,
+    out_dir: str | os.PathLike | None = None,
+    n_batches: int = DEFAULT_BATCHES,
+    max_angle_deg: float = IMPORTANT_ANGLE_DEG,
+    rig_kwargs: Mapping[str, Any] | None = None,
+    rig_builder: Callable | None = None,
+    run_kwargs: Mapping[str, Any] | None = None,
+    cancel: Any = None,
+    plots: bool = True,
+    report: bool = True,
+    on_beta: Callable | None = None,
+    visibility: Mapping[str, Any] | None = None,
+) -> SweepResult:
     """Run the seed's beta sweep and analyse every run.
 
     Parameters
@@ -286,20 +354,39 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
         static_scene = default_flat_scene()
     elif not callable(scene_or_builder) or hasattr(scene_or_builder, "add_mesh"):
         static_scene = scene_or_builder
-    kw = dict(store=int(store), fluorescent_only=bool(fluorescent_only), fluorescence_rule=fluorescence_rule,
-              seed=int(seed), threads=int(threads), progress=bar.engine)
+    kw = dict(
+        store=int(store),
+        fluorescent_only=bool(fluorescent_only),
+        fluorescence_rule=fluorescence_rule,
+        seed=int(seed),
+        threads=int(threads),
+        progress=bar.engine,
+    )
     if cancel is not None:
         kw["cancel"] = cancel
     kw.update(run_kwargs or {})
     rows, hists, batches = [], [], []
-    meta = _sweep_meta(scene_or_builder, static_scene, seed, store, threads, n_batches, fluorescent_only,
-                       fluorescence_rule, max_angle_deg, point, normal, tilt_axis, rig_kwargs)
+    meta = _sweep_meta(
+        scene_or_builder,
+        static_scene,
+        seed,
+        store,
+        threads,
+        n_batches,
+        fluorescent_only,
+        fluorescence_rule,
+        max_angle_deg,
+        point,
+        normal,
+        tilt_axis,
+        rig_kwargs,
+    )
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
     try:
         for i, beta in enumerate(betas):
             if cancel is not None and getattr(cancel, "cancelled", False):
-                meta["cancelled_at_beta"] = beta   # cancelled between two runs: nothing to analyse
+                meta["cancelled_at_beta"] = beta  # cancelled between two runs: nothing to analyse
                 break
             bar.start(i, beta)
             scene = static_scene if static_scene is not None else _call_builder(scene_or_builder, beta)
@@ -307,12 +394,16 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
             dist = DISTANCE_CM / UNIT_CM[unit] if distance is None else float(distance)
             meta.setdefault("unit", unit)
             meta.setdefault("distance", dist)
-            rig = rig_builder(beta, scene) if rig_builder is not None else \
-                _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
-            one = _sweep_one_beta(scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg,
-                                  visibility, out_dir)
+            rig = (
+                rig_builder(beta, scene)
+                if rig_builder is not None
+                else _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
+            )
+            one = _sweep_one_beta(
+                scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir
+            )
             if one is None:
-                meta["cancelled_at_beta"] = beta   # cancelled before the first record: no row
+                meta["cancelled_at_beta"] = beta  # cancelled before the first record: no row
                 break
             row, hist, bt, cancelled = one
             rows.append(row)
@@ -335,23 +426,27 @@ def sweep(scene_or_builder: Any = None, betas: Iterable[float] = range(0, 60, 5)
     return result
 
 
-def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool = True,
-                  report: bool = True) -> dict:
+def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool = True, report: bool = True) -> dict:
     """Write sweep.csv, sweep.json, the plots and report.md into ``out_dir``; returns the paths."""
     os.makedirs(out_dir, exist_ok=True)
-    paths = {"csv": result.to_csv(os.path.join(out_dir, "sweep.csv")),
-             "json": result.to_json(os.path.join(out_dir, "sweep.json"))}
+    paths = {
+        "csv": result.to_csv(os.path.join(out_dir, "sweep.csv")),
+        "json": result.to_json(os.path.join(out_dir, "sweep.json")),
+    }
     # plots and report load matplotlib: imported here so that ``import endophoton`` does not
     # (neither imports this module, so this is no hidden cycle)
-    if plots and result.rows:   # a sweep cancelled before its first record has no rows to plot
+    if plots and result.rows:  # a sweep cancelled before its first record has no rows to plot
         from .plots import plot_all
+
         paths["plots"] = plot_all(result, out_dir)
     if report and result.rows:
         from .report import write_report
+
         paths["report"] = write_report(result, out_dir)
     vis = result.meta.get("visibility")
     if vis and plots and result.rows:
         from .view_sweep import write_visibility_outputs
+
         extra = write_visibility_outputs(result.betas, result.rows, out_dir, vis["target"], vis["background"])
         paths.update({k: v for k, v in extra.items() if k != "report"})
         if "report" in paths:

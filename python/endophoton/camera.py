@@ -25,6 +25,7 @@ class Camera:
     focus_distance : depth of the plane in focus, scene units along forward;
         None = the surface depth at the image centre (autofocus)
     """
+
     position: tuple
     forward: tuple
     up: tuple = (0.0, 0.0, 1.0)
@@ -49,8 +50,9 @@ class Camera:
             self.focus_distance = float(self.focus_distance)
 
     @classmethod
-    def look_at(cls, position, look_at, up=(0.0, 0.0, 1.0), fov_deg=60.0, aperture_radius=0.0,
-                focus_distance=None) -> "Camera":
+    def look_at(
+        cls, position, look_at, up=(0.0, 0.0, 1.0), fov_deg=60.0, aperture_radius=0.0, focus_distance=None
+    ) -> "Camera":
         """Camera at ``position`` looking at the point ``look_at`` (scene units)."""
         p = _vec3("camera", "position", position)
         t = _vec3("camera", "look_at", look_at)
@@ -63,10 +65,10 @@ class Camera:
         """The SCENE.json ``camera`` object: position, look_at, up, fov_deg, optional aperture_radius."""
         from .io import check_keys
 
-        check_keys("camera", d, {"position", "look_at", "up", "fov_deg"}, extra={"aperture_radius",
-                                                                               "focus_distance"})
-        return cls.look_at(d["position"], d["look_at"], d["up"], d["fov_deg"], d.get("aperture_radius", 0.0),
-                           d.get("focus_distance"))
+        check_keys("camera", d, {"position", "look_at", "up", "fov_deg"}, extra={"aperture_radius", "focus_distance"})
+        return cls.look_at(
+            d["position"], d["look_at"], d["up"], d["fov_deg"], d.get("aperture_radius", 0.0), d.get("focus_distance")
+        )
 
     @classmethod
     def from_rig(cls, rig, aperture_radius=0.0) -> "Camera":
@@ -78,8 +80,15 @@ class Camera:
         """Orthonormal frame and image half-extents: position, forward, right, up, tan_x, tan_y."""
         from .analysis import _camera  # one owner of the pinhole convention
 
-        return _camera(dict(position=self.position, forward=self.forward, up=self.up, fov_deg=self.fov_deg,
-                            resolution=(int(width), int(height))))
+        return _camera(
+            dict(
+                position=self.position,
+                forward=self.forward,
+                up=self.up,
+                fov_deg=self.fov_deg,
+                resolution=(int(width), int(height)),
+            )
+        )
 
     def primary_rays(self, width: int, height: int) -> np.ndarray:
         """Unit directions (H*W, 3) through the pixel centres, row-major from the top-left pixel."""
@@ -113,13 +122,19 @@ class Camera:
         xe = (np.arange(width + 1) / width * 2.0 - 1.0) * fr["tan_x"]
         ye = (1.0 - np.arange(height + 1) / height * 2.0) * fr["tan_y"]
         X, Y = np.meshgrid(xe, ye)
-        F = np.arctan(X * Y / np.sqrt(1 + X ** 2 + Y ** 2))
+        F = np.arctan(X * Y / np.sqrt(1 + X**2 + Y**2))
         om = F[1:, 1:] - F[1:, :-1] - F[:-1, 1:] + F[:-1, :-1]
         return np.abs(om).reshape(-1)
 
     def to_dict(self) -> dict:
-        return dict(position=self.position.tolist(), forward=self.forward.tolist(), up=self.up.tolist(),
-                    fov_deg=self.fov_deg, aperture_radius=self.aperture_radius, focus_distance=self.focus_distance)
+        return dict(
+            position=self.position.tolist(),
+            forward=self.forward.tolist(),
+            up=self.up.tolist(),
+            fov_deg=self.fov_deg,
+            aperture_radius=self.aperture_radius,
+            focus_distance=self.focus_distance,
+        )
 
 
 def _positive(name, v, hi=math.inf):

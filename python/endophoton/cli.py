@@ -42,6 +42,7 @@ def run_guarded(func, args) -> int:
 
 def int_arg(lo: int, hi: int):
     """argparse type: an integer in [lo, hi] (argparse names the option in its error)."""
+
     def parse(text: str) -> int:
         try:
             v = int(text, 10)
@@ -50,11 +51,13 @@ def int_arg(lo: int, hi: int):
         if not lo <= v <= hi:
             raise argparse.ArgumentTypeError(f"{text} must be in [{lo}, {hi}]")
         return v
+
     return parse
 
 
 def real_arg(lo: float, hi: float = math.inf, lo_open: bool = False):
     """argparse type: a finite number in [lo, hi] (or (lo, hi])."""
+
     def parse(text: str) -> float:
         try:
             v = float(text)
@@ -63,6 +66,7 @@ def real_arg(lo: float, hi: float = math.inf, lo_open: bool = False):
         if not math.isfinite(v) or not (lo < v if lo_open else lo <= v) or v > hi:
             raise argparse.ArgumentTypeError(f"{text} must be a finite number {'>' if lo_open else '>='} {lo}")
         return v
+
     return parse
 
 
@@ -109,6 +113,7 @@ def _run_main(args) -> int:
         kwargs["progress"] = lambda done, total: print(f"progress {done} {total}", file=sys.stderr, flush=True)
     if args.scheduler is not None:  # the same result, traced on a Dask cluster
         from .distributed import run_on_scheduler
+
         run = functools.partial(run_on_scheduler, args.scheduler, run)
     res = _run_interruptible(run, scene, source, photons=photons, record_escapes=False, **kwargs)
     print(json.dumps(res.to_dict(), indent=None, sort_keys=True, allow_nan=False))
@@ -147,34 +152,54 @@ def main(argv=None) -> int:
 def _main(argv) -> int:
     from .run import MAX_PACKETS, MAX_THREADS
 
-    parser = argparse.ArgumentParser(prog="python3 -m endophoton", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python3 -m endophoton", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run one scene file and print the totals as JSON")
     p_run.add_argument("scene", help="SCENE.json")
-    p_run.add_argument("--photons", type=int_arg(1, MAX_PACKETS), default=None,
-                       help="packets to launch (default: run.photons or 1e5)")
-    p_run.add_argument("--seed", type=int_arg(0, 2 ** 64 - 1), default=None)
+    p_run.add_argument(
+        "--photons", type=int_arg(1, MAX_PACKETS), default=None, help="packets to launch (default: run.photons or 1e5)"
+    )
+    p_run.add_argument("--seed", type=int_arg(0, 2**64 - 1), default=None)
     p_run.add_argument("--threads", type=int_arg(0, MAX_THREADS), default=None, help="0 = all cores")
-    p_run.add_argument("--target-rel-error", type=real_arg(0.0, lo_open=True), default=None,
-                       help="target-accuracy mode: run until stderr/mean of --target-tally is at most this")
-    p_run.add_argument("--target-tally", default="diffuse_reflectance",
-                       help="tally for --target-rel-error (default diffuse_reflectance)")
-    p_run.add_argument("--max-photons", type=int_arg(0, MAX_PACKETS), default=0,
-                       help="upper bound in target mode (0 = none)")
-    p_run.add_argument("--quality", choices=("preview", "standard", "reference"), default=None,
-                       help="run to a preset accuracy: 5 %%, 1 %% or 0.2 %% relative error on the diffuse reflectance")
+    p_run.add_argument(
+        "--target-rel-error",
+        type=real_arg(0.0, lo_open=True),
+        default=None,
+        help="target-accuracy mode: run until stderr/mean of --target-tally is at most this",
+    )
+    p_run.add_argument(
+        "--target-tally",
+        default="diffuse_reflectance",
+        help="tally for --target-rel-error (default diffuse_reflectance)",
+    )
+    p_run.add_argument(
+        "--max-photons", type=int_arg(0, MAX_PACKETS), default=0, help="upper bound in target mode (0 = none)"
+    )
+    p_run.add_argument(
+        "--quality",
+        choices=("preview", "standard", "reference"),
+        default=None,
+        help="run to a preset accuracy: 5 %%, 1 %% or 0.2 %% relative error on the diffuse reflectance",
+    )
     p_run.add_argument("--time-budget", type=real_arg(0.0), default=None, help="stop after this many seconds")
-    p_run.add_argument("--progress", action="store_true",
-                       help="print 'progress DONE TOTAL' lines to stderr about 10 times a second")
-    p_run.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="trace on a Dask cluster: tcp://host:port, or local:N for N local worker processes "
-                            "(docs/distributed.md); the result is bit-identical to a local run")
+    p_run.add_argument(
+        "--progress", action="store_true", help="print 'progress DONE TOTAL' lines to stderr about 10 times a second"
+    )
+    p_run.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="trace on a Dask cluster: tcp://host:port, or local:N for N local worker processes "
+        "(docs/distributed.md); the result is bit-identical to a local run",
+    )
     p_run.set_defaults(func=_run_main)
     p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
     add_sweep_arguments(p_sweep)
     p_sweep.set_defaults(func=sweep_main)
     from .render_cli import add_render_arguments, render_main
+
     p_render = sub.add_parser("render", help="run a scene and render the endoscope's view (PNG + arrays + JSON)")
     add_render_arguments(p_render)
     p_render.set_defaults(func=render_main)

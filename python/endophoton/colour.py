@@ -40,8 +40,19 @@ import math
 
 import numpy as np
 
-__all__ = ["cmf_xyz", "XYZ_TO_SRGB", "WHITE_D65", "xyz_to_linear_srgb", "srgb_encode", "to_srgb8",
-           "white_balance_gains", "record_xyz", "auto_exposure", "spectrum_bins", "light_xyz"]
+__all__ = [
+    "cmf_xyz",
+    "XYZ_TO_SRGB",
+    "WHITE_D65",
+    "xyz_to_linear_srgb",
+    "srgb_encode",
+    "to_srgb8",
+    "white_balance_gains",
+    "record_xyz",
+    "auto_exposure",
+    "spectrum_bins",
+    "light_xyz",
+]
 
 # (weight, mu, sigma_below, sigma_above) lobes of Wyman, Sloan & Shirley (2013), lambda in nm.
 _LOBES = {
@@ -51,9 +62,7 @@ _LOBES = {
 }
 
 #: IEC 61966-2-1: XYZ (D65) to linear sRGB.
-XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986],
-                        [-0.9689, 1.8758, 0.0415],
-                        [0.0557, -0.2040, 1.0570]])
+XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
 #: D65 white point, Y = 1 (the XYZ that the sRGB matrix maps to R = G = B = 1).
 WHITE_D65 = np.linalg.solve(XYZ_TO_SRGB, np.ones(3))
 

@@ -118,16 +118,27 @@ def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=
             while next_submit < n_chunks and next_submit - next_merge < window:
                 first = next_submit * chunk
                 futures[next_submit] = client.submit(
-                    trace_chunk, scene_future, scene_future.key, lights, body, options, first,
-                    min(chunk, n_units - first), key=f"endophoton-units-{run_id}-{first}", pure=False)
+                    trace_chunk,
+                    scene_future,
+                    scene_future.key,
+                    lights,
+                    body,
+                    options,
+                    first,
+                    min(chunk, n_units - first),
+                    key=f"endophoton-units-{run_id}-{first}",
+                    pure=False,
+                )
                 next_submit += 1
             fut = futures[next_merge]
             if not _wait_unless_cancelled(fut, cancel):
                 break
             version, data = fut.result()
             if version != _core.__version__:
-                raise RuntimeError(f"a worker runs endophoton engine {version!r}, this client {_core.__version__!r}: "
-                                   "install the same build on every worker (docs/distributed.md)")
+                raise RuntimeError(
+                    f"a worker runs endophoton engine {version!r}, this client {_core.__version__!r}: "
+                    "install the same build on every worker (docs/distributed.md)"
+                )
             first = next_merge * chunk
             _, got = reducer.add(data)
             expected = min(chunk, n_units - first)
@@ -135,8 +146,7 @@ def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=
                 raise RuntimeError(f"chunk of units {first}..{first + expected - 1} came back with {got} units")
             del futures[next_merge]
             next_merge += 1
-            done_packets = min(reducer.merged_units * unit_size, total) if fixed else \
-                reducer.merged_units * unit_size
+            done_packets = min(reducer.merged_units * unit_size, total) if fixed else reducer.merged_units * unit_size
             if progress is not None and progress(done_packets, total) is False:
                 break
     finally:
@@ -157,13 +167,14 @@ def connect(address: str, timeout_s: float = 10.0):
     if not isinstance(address, str) or not address:
         raise ValueError(f"scheduler = {address!r} must be tcp://host:port or local:N")
     if address.startswith("local:"):
-        n = address[len("local:"):]
+        n = address[len("local:") :]
         if not n.isdigit() or int(n) < 1:
             raise ValueError(f"scheduler = {address!r}: N in local:N must be a positive integer")
         package_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         path = os.pathsep.join(p for p in (package_parent, os.environ.get("PYTHONPATH", "")) if p)
-        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=":0",
-                               env={"PYTHONPATH": path})
+        cluster = LocalCluster(
+            n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=":0", env={"PYTHONPATH": path}
+        )
         try:
             with Client(cluster) as client:
                 yield client
@@ -187,9 +198,12 @@ def run_on_scheduler(address: str, run_fn, scene, source, progress=None, **kwarg
     stderr shows the merged packets."""
     from tqdm import tqdm
 
-    with connect(address) as client, tqdm(unit="packet", unit_scale=True, file=sys.stderr,
-                                          disable=None if progress is None else True, desc="endophoton") as bar:
+    with connect(address) as client, tqdm(
+        unit="packet", unit_scale=True, file=sys.stderr, disable=None if progress is None else True, desc="endophoton"
+    ) as bar:
+
         def show(done, total):
             bar.total = total or None
             bar.update(done - bar.n)
+
         return run_fn(scene, source, client=client, progress=progress or show, **kwargs)

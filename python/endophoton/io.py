@@ -20,7 +20,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "jsonable", "unjson", "check_keys", "check_int", "check_real", "check_bool"]
+__all__ = [
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "write_json",
+    "jsonable",
+    "unjson",
+    "check_keys",
+    "check_int",
+    "check_real",
+    "check_bool",
+]
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, make_dirs: bool = True) -> str:

@@ -22,7 +22,11 @@ def box_mesh(lo, hi):
             a = np.asarray(c, dtype=np.float64)
         except (TypeError, ValueError):
             a = None
-        if a is None or a.shape != (3,) or any(isinstance(x, (bool, np.bool_)) for x in np.ravel(np.asarray(c, dtype=object))):
+        if (
+            a is None
+            or a.shape != (3,)
+            or any(isinstance(x, (bool, np.bool_)) for x in np.ravel(np.asarray(c, dtype=object)))
+        ):
             raise ValueError(f"{field} = {c!r} must be 3 numbers")
         corners.append(a)
     lo, hi = corners
@@ -31,8 +35,10 @@ def box_mesh(lo, hi):
     if np.any(hi <= lo):
         raise ValueError(f"box.max = {hi.tolist()} must exceed box.min = {lo.tolist()} on every axis")
     # Vertex k has bit 0 -> x, bit 1 -> y, bit 2 -> z taken from hi.
-    v = np.array([[hi[0] if k & 1 else lo[0], hi[1] if k & 2 else lo[1], hi[2] if k & 4 else lo[2]]
-                  for k in range(8)], dtype=np.float32)
+    v = np.array(
+        [[hi[0] if k & 1 else lo[0], hi[1] if k & 2 else lo[1], hi[2] if k & 4 else lo[2]] for k in range(8)],
+        dtype=np.float32,
+    )
     quads = [  # outward-facing quads, counter-clockwise seen from outside
         (0, 2, 3, 1),  # z = lo
         (4, 5, 7, 6),  # z = hi
@@ -63,11 +69,13 @@ def load_mesh(path: str):
         msg = str(e)
         raise ValueError(msg if msg.startswith("mesh = ") else f"mesh = {path!r}: {msg}") from None
     except (IndexError, KeyError, struct.error, OverflowError, UnicodeError) as e:
-        raise ValueError(f"mesh = {path!r}: malformed or truncated {ext[1:].upper()} file "
-                         f"({type(e).__name__}: {e})") from None
+        raise ValueError(
+            f"mesh = {path!r}: malformed or truncated {ext[1:].upper()} file " f"({type(e).__name__}: {e})"
+        ) from None
     if t.size and int(t.max()) >= len(v):
-        raise ValueError(f"mesh = {path!r}: triangle index {int(t.max())} is not a vertex index "
-                         f"(the file has {len(v)} vertices)")
+        raise ValueError(
+            f"mesh = {path!r}: triangle index {int(t.max())} is not a vertex index " f"(the file has {len(v)} vertices)"
+        )
     return v, t
 
 
@@ -100,8 +108,9 @@ def _load_obj(path):
                     # Checked before narrowing to uint32: an index beyond the vertices read so far
                     # (or 0, which OBJ does not allow) is an error, never wrapped.
                     if i == 0 or not 0 <= j < len(verts):
-                        raise ValueError(f"line {lineno}: face index {tok!r} names no vertex "
-                                         f"({len(verts)} vertices so far)")
+                        raise ValueError(
+                            f"line {lineno}: face index {tok!r} names no vertex " f"({len(verts)} vertices so far)"
+                        )
                     idx.append(j)
                 if len(idx) < 3:
                     raise ValueError(f"mesh = {path!r}: face on line {lineno} has fewer than 3 vertices")
@@ -109,9 +118,24 @@ def _load_obj(path):
     return np.asarray(verts, dtype=np.float32).reshape(-1, 3), np.asarray(tris, dtype=np.uint32).reshape(-1, 3)
 
 
-_PLY_TYPES = {"char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h", "ushort": "H",
-              "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I", "float": "f", "float32": "f",
-              "double": "d", "float64": "d"}
+_PLY_TYPES = {
+    "char": "b",
+    "int8": "b",
+    "uchar": "B",
+    "uint8": "B",
+    "short": "h",
+    "int16": "h",
+    "ushort": "H",
+    "uint16": "H",
+    "int": "i",
+    "int32": "i",
+    "uint": "I",
+    "uint32": "I",
+    "float": "f",
+    "float32": "f",
+    "double": "d",
+    "float64": "d",
+}
 
 
 def _load_ply(path):

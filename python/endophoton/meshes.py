@@ -40,8 +40,9 @@ def _rings(thetas: np.ndarray, n_lon: int) -> np.ndarray:
     """Unit-sphere points on latitude rings (polar angle theta from +z), shape (len(thetas)*n_lon, 3)."""
     phi = 2.0 * math.pi * np.arange(n_lon) / n_lon
     st, ct = np.sin(thetas)[:, None], np.cos(thetas)[:, None]
-    pts = np.stack([st * np.cos(phi)[None, :], st * np.sin(phi)[None, :],
-                    np.broadcast_to(ct, (thetas.size, n_lon))], axis=-1)
+    pts = np.stack(
+        [st * np.cos(phi)[None, :], st * np.sin(phi)[None, :], np.broadcast_to(ct, (thetas.size, n_lon))], axis=-1
+    )
     return pts.reshape(-1, 3)
 
 
@@ -60,8 +61,12 @@ def _band(first_ring_start: int, n_rings: int, n_lon: int) -> list[tuple[int, in
     return tris
 
 
-def ellipsoid(center: Sequence[float] = (0.0, 0.0, 0.0), radii: Sequence[float] = (1.0, 1.0, 1.0),
-              n_lat: int = 24, n_lon: int = 48) -> tuple[np.ndarray, np.ndarray]:
+def ellipsoid(
+    center: Sequence[float] = (0.0, 0.0, 0.0),
+    radii: Sequence[float] = (1.0, 1.0, 1.0),
+    n_lat: int = 24,
+    n_lon: int = 48,
+) -> tuple[np.ndarray, np.ndarray]:
     """Closed UV ellipsoid with semi-axes ``radii`` (x, y, z) about ``center`` (caller's units).
 
     ``n_lat`` latitude bands between the poles, ``n_lon`` segments around.
@@ -84,14 +89,20 @@ def ellipsoid(center: Sequence[float] = (0.0, 0.0, 0.0), radii: Sequence[float] 
     return v.astype(np.float32), np.asarray(tris, dtype=np.uint32)
 
 
-def uv_sphere(center: Sequence[float] = (0.0, 0.0, 0.0), radius: float = 1.0,
-              n_lat: int = 24, n_lon: int = 48) -> tuple[np.ndarray, np.ndarray]:
+def uv_sphere(
+    center: Sequence[float] = (0.0, 0.0, 0.0), radius: float = 1.0, n_lat: int = 24, n_lon: int = 48
+) -> tuple[np.ndarray, np.ndarray]:
     """Closed UV sphere of ``radius`` about ``center`` (caller's units)."""
     return ellipsoid(center, (radius, radius, radius), n_lat, n_lon)
 
 
-def half_ellipsoid(center: Sequence[float] = (0.0, 0.0, 0.0), radii: Sequence[float] = (1.0, 1.0, 1.0),
-                   n_lat: int = 12, n_lon: int = 48, upper: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def half_ellipsoid(
+    center: Sequence[float] = (0.0, 0.0, 0.0),
+    radii: Sequence[float] = (1.0, 1.0, 1.0),
+    n_lat: int = 12,
+    n_lon: int = 48,
+    upper: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
     """Closed half ellipsoid (a dome or a bowl) with a flat elliptic base through ``center``.
 
     ``upper=True``: the dome ``z >= center_z`` (base facing -z); ``upper=False``:
@@ -101,8 +112,8 @@ def half_ellipsoid(center: Sequence[float] = (0.0, 0.0, 0.0), radii: Sequence[fl
     _validate_counts(n_lat, n_lon, 1)
     c, r = _validate_axes(center, radii)
     # build the upper dome in local coordinates, mirror for the bowl
-    thetas = math.pi / 2.0 * np.arange(n_lat, 0, -1) / n_lat    # rim (pi/2) ... first ring below pole
-    ring = _rings(thetas[::-1], n_lon)                           # ordered pole-side ring first
+    thetas = math.pi / 2.0 * np.arange(n_lat, 0, -1) / n_lat  # rim (pi/2) ... first ring below pole
+    ring = _rings(thetas[::-1], n_lon)  # ordered pole-side ring first
     n_r = thetas.size
     verts = np.vstack([[0.0, 0.0, 1.0], ring, [0.0, 0.0, 0.0]])
     pole, first, base = 0, 1, 1 + ring.shape[0]
@@ -111,12 +122,12 @@ def half_ellipsoid(center: Sequence[float] = (0.0, 0.0, 0.0), radii: Sequence[fl
         tris.append((pole, first + j, first + (j + 1) % n_lon))
     tris += _band(first, n_r, n_lon)
     rim = first + (n_r - 1) * n_lon
-    for j in range(n_lon):                       # base disk, facing -z
+    for j in range(n_lon):  # base disk, facing -z
         tris.append((base, rim + (j + 1) % n_lon, rim + j))
     t = np.asarray(tris, dtype=np.int64)
     if not upper:
         verts = verts * np.array([1.0, 1.0, -1.0])
-        t = t[:, ::-1]                            # mirroring flips the winding
+        t = t[:, ::-1]  # mirroring flips the winding
     v = verts * r[None, :] + c[None, :]
     return v.astype(np.float32), np.ascontiguousarray(t).astype(np.uint32)
 

@@ -31,20 +31,20 @@ DISTANCE_CM = 1.0
 #: The seed paper's reported trends (Zacher 2009, §5, Figs. 4-9; oracles.md §5).
 #: These are the paper's numbers, not ours and not laws of physics.
 PAPER_TRENDS: dict = {
-    "store": 500_000,                 # photons stored per beta
+    "store": 500_000,  # photons stored per beta
     "betas_deg": list(range(0, 60, 5)),
     "packets_traced_min": 1_000_000,  # "more than one million" traced to store 500,000
-    "packets_flat_until_deg": 5,      # flat near 0 deg, linear decrease beyond 5 deg
-    "packets_relative_drop": 0.11,    # ~11 % fewer at the largest angle than at 0 deg
-    "energy_min_beta_deg": 0,         # lowest total energy at beta = 0
+    "packets_flat_until_deg": 5,  # flat near 0 deg, linear decrease beyond 5 deg
+    "packets_relative_drop": 0.11,  # ~11 % fewer at the largest angle than at 0 deg
+    "energy_min_beta_deg": 0,  # lowest total energy at beta = 0
     "energy_fit_degree": 6,
-    "energy_peak_beta_deg": 34,       # 6th-degree fit peaks near 34 deg
-    "camera_fraction_max": 0.10,      # under 10 % of stored photons point to the camera
-    "camera_fraction_last": 0.03,     # ~3 % at the last angle ...
+    "energy_peak_beta_deg": 34,  # 6th-degree fit peaks near 34 deg
+    "camera_fraction_max": 0.10,  # under 10 % of stored photons point to the camera
+    "camera_fraction_last": 0.03,  # ~3 % at the last angle ...
     "camera_fraction_last_beta_deg": 55,  # ... beta = 55 deg
     "camera_max_angle_deg": IMPORTANT_ANGLE_DEG,
-    "max_depth_cm": 0.12,             # ~0.12 cm, independent of beta
-    "histogram_uniform_at_deg": 0,    # azimuthally uniform at beta = 0
+    "max_depth_cm": 0.12,  # ~0.12 cm, independent of beta
+    "histogram_uniform_at_deg": 0,  # azimuthally uniform at beta = 0
     "histogram_low_shift_to_deg": 180,  # low-elevation rings shift toward 180 deg as beta grows
-    "histogram_high_above_deg": 45,   # rings above 45 deg nearly unchanged
+    "histogram_high_above_deg": 45,  # rings above 45 deg nearly unchanged
 }

@@ -23,10 +23,7 @@ from . import analysis as an  # noqa: E402
 from .io import atomic_write_bytes  # noqa: E402
 from .sweep_schema import PLOT_FILES, polar_filename  # noqa: E402
 
-__all__ = ["plot_packets", "plot_energy", "plot_important", "plot_depth", "plot_polar", "plot_all",
-           "PLOT_FILES"]
-
-
+__all__ = ["plot_packets", "plot_energy", "plot_important", "plot_depth", "plot_polar", "plot_all", "PLOT_FILES"]
 
 
 def _save(fig: Figure, path: str | os.PathLike) -> str:
@@ -54,8 +51,12 @@ def _plot_linear_fit(ax, x: np.ndarray, y: np.ndarray, slope_format: str) -> Non
     fit = an.linear_fit(x, y)
     if np.isfinite(fit["slope"]):
         xx = np.linspace(x.min(), x.max(), 50)
-        ax.plot(xx, fit["slope"] * xx + fit["intercept"], "--",
-                label=f"linear fit, slope {slope_format.format(fit['slope'])}, R$^2$ {fit['r2']:.3f}")
+        ax.plot(
+            xx,
+            fit["slope"] * xx + fit["intercept"],
+            "--",
+            label=f"linear fit, slope {slope_format.format(fit['slope'])}, R$^2$ {fit['r2']:.3f}",
+        )
 
 
 def plot_packets(result: Any, path: str | os.PathLike) -> str:
@@ -76,16 +77,24 @@ def plot_energy(result: Any, path: str | os.PathLike, deg: int = 6) -> str:
     and the sum over the stored records (the seed's definition).
     """
     fig, ax = _line_axes("Total surface energy (relative to the maximum over beta)", "relative energy")
-    for name, label, style in (("energy_per_packet_rel", "per packet traced", "o"),
-                               ("energy_total_rel", "sum over stored records (seed)", "s")):
+    for name, label, style in (
+        ("energy_per_packet_rel", "per packet traced", "o"),
+        ("energy_total_rel", "sum over stored records (seed)", "s"),
+    ):
         b, y, e = _xy(result, name)
         line = ax.errorbar(b, y, yerr=e, fmt=style, capsize=3, label=label)
         pk = an.poly_peak(b, y, deg)
         if pk["deg"] >= 1:
             xx = np.linspace(b.min(), b.max(), 400)
             color = line[0].get_color()
-            ax.plot(xx, np.polyval(pk["coeffs"], xx), "-", color=color, alpha=0.7,
-                    label=f"degree-{pk['deg']} fit, max at {pk['x_peak']:.1f} deg")
+            ax.plot(
+                xx,
+                np.polyval(pk["coeffs"], xx),
+                "-",
+                color=color,
+                alpha=0.7,
+                label=f"degree-{pk['deg']} fit, max at {pk['x_peak']:.1f} deg",
+            )
             ax.plot([pk["x_peak"]], [pk["y_peak"]], "*", color=color, markersize=14)
     ax.legend(fontsize=8)
     return _save(fig, path)
@@ -95,8 +104,9 @@ def plot_important(result: Any, path: str | os.PathLike) -> str:
     """Fraction of stored records pointing to the camera vs beta (seed Fig. 6)."""
     b, y, e = _xy(result, "important_fraction")
     angle = result.meta.get("max_angle_deg", 15.0)
-    fig, ax = _line_axes(f"Records visible to the camera and within {angle:g} deg of it",
-                         "fraction of stored records (%)")
+    fig, ax = _line_axes(
+        f"Records visible to the camera and within {angle:g} deg of it", "fraction of stored records (%)"
+    )
     ax.errorbar(b, 100 * y, yerr=100 * e, fmt="o-", capsize=3, label="simulation")
     _plot_linear_fit(ax, b, 100 * y, "{:.3g} %/deg")
     ax.legend()
@@ -142,17 +152,21 @@ def plot_polar(result: Any, beta: float, path: str | os.PathLike, frame: str = "
     phi_c = np.append(phi, phi[0] + 2 * np.pi)
     fig = Figure(figsize=(11, 6.0))
     zero = "toward the record's light" if frame == "light" else "toward the tilted head (fixed)"
-    fig.suptitle(f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records)\n"
-                 f"azimuth 0 = {zero}; radius = records per bin")
-    groups = (("elevation 45-90 deg", [i for i in range(n_elev) if i * width >= 45 - 1e-9]),
-              ("elevation 0-45 deg", [i for i in range(n_elev) if (i + 1) * width <= 45 + 1e-9]))
+    fig.suptitle(
+        f"Exit directions, beta = {beta:g} deg ({int(counts.sum()):,} records)\n"
+        f"azimuth 0 = {zero}; radius = records per bin"
+    )
+    groups = (
+        ("elevation 45-90 deg", [i for i in range(n_elev) if i * width >= 45 - 1e-9]),
+        ("elevation 0-45 deg", [i for i in range(n_elev) if (i + 1) * width <= 45 + 1e-9]),
+    )
     for k, (title, rings) in enumerate(groups):
         ax = fig.add_subplot(1, 2, k + 1, projection="polar")
         ax.set_title(title, pad=14)
         for i in rings:
             c = np.append(counts[i], counts[i, 0])
             e = np.append(stderr[i], stderr[i, 0])
-            line, = ax.plot(phi_c, c, "-", lw=1.3, label=f"{i * width:g}-{(i + 1) * width:g} deg")
+            (line,) = ax.plot(phi_c, c, "-", lw=1.3, label=f"{i * width:g}-{(i + 1) * width:g} deg")
             ax.fill_between(phi_c, np.maximum(c - e, 0), c + e, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_ylim(bottom=0)
         ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7)
@@ -177,6 +191,7 @@ def plot_all(result: Any, out_dir: str | os.PathLike) -> list:
     for beta in result.betas:
         paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta))))
         if "counts_fixed" in result.histogram(float(beta)):
-            paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta, "fixed")),
-                                    frame="fixed"))
+            paths.append(
+                plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta, "fixed")), frame="fixed")
+            )
     return paths

@@ -55,6 +55,7 @@ _CHUNK_PIXELS = 4096
 # light and filter
 # --------------------------------------------------------------------------
 
+
 def excitation_spectrum(kind) -> Spectrum | None:
     """The excitation light as a source spectrum (photon counts per nm, relative).
 
@@ -66,15 +67,17 @@ def excitation_spectrum(kind) -> Spectrum | None:
         return None
     if isinstance(kind, Spectrum):
         return kind
-    if (isinstance(kind, str) and kind.lower() in ("blue", "405", "blue405")) or \
-            (isinstance(kind, (int, float)) and not isinstance(kind, bool) and float(kind) == 405.0):
+    if (isinstance(kind, str) and kind.lower() in ("blue", "405", "blue405")) or (
+        isinstance(kind, (int, float)) and not isinstance(kind, bool) and float(kind) == 405.0
+    ):
         lam = np.arange(385.0, 425.5, 1.0)
         sigma = 10.0 / (2 * math.sqrt(2 * math.log(2)))
         return Spectrum(lam, np.exp(-0.5 * ((lam - 405.0) / sigma) ** 2), name="blue405")
     if isinstance(kind, (tuple, list)) and len(kind) == 2:
         return Spectrum(kind[0], kind[1], name="excitation")
-    raise ValueError(f"excitation = {kind!r} must be 'white', 'blue' (405 nm), an ep.Spectrum or "
-                     "(wavelength_nm, values)")
+    raise ValueError(
+        f"excitation = {kind!r} must be 'white', 'blue' (405 nm), an ep.Spectrum or " "(wavelength_nm, values)"
+    )
 
 
 def emission_filter_function(emission_filter, excitation: Spectrum | None):
@@ -106,13 +109,16 @@ def emission_filter_function(emission_filter, excitation: Spectrum | None):
         if emission_filter.values.max() > 1.0:
             raise ValueError(f"emission_filter: transmission max {emission_filter.values.max():g} must be <= 1")
         return emission_filter, f"table '{emission_filter.name}'"
-    raise ValueError(f"emission_filter = {emission_filter!r} must be 'auto', None, a cut-on wavelength (nm) "
-                     "or an ep.Spectrum of transmission")
+    raise ValueError(
+        f"emission_filter = {emission_filter!r} must be 'auto', None, a cut-on wavelength (nm) "
+        "or an ep.Spectrum of transmission"
+    )
 
 
 # --------------------------------------------------------------------------
 # the view
 # --------------------------------------------------------------------------
+
 
 class View:
     """A rendered endoscope view. Images are (height, width[, 3]) arrays, row 0 at the top.
@@ -132,8 +138,9 @@ class View:
 
     def region_index(self, name: str, field: str = "region") -> int:
         if name not in self.region_names:
-            raise ValueError(f"{field} = {name!r} is not a region of the scene "
-                             f"(regions: {', '.join(self.region_names)})")
+            raise ValueError(
+                f"{field} = {name!r} is not a region of the scene " f"(regions: {', '.join(self.region_names)})"
+            )
         i = self.region_names.index(name)
         if self.region_pixels[i] == 0:
             raise ValueError(f"{field} = {name!r}: the camera sees no pixel of this region")
@@ -174,6 +181,7 @@ class View:
 
     def contrast(self, target: str, background: str, channels: str = "srgb") -> dict:
         from .visibility import contrast
+
         return contrast(self, target, background, channels)
 
     def save(self, out_dir, prefix: str = "") -> dict:
@@ -184,15 +192,22 @@ class View:
         os.makedirs(out_dir, exist_ok=True)
         paths = {}
         for key in ("white", "fluorescence"):
-            paths[key] = atomic_write_bytes(os.path.join(out_dir, f"{prefix}{key}.png"),
-                                            _png_bytes(self.images[key]["srgb8"]))
+            paths[key] = atomic_write_bytes(
+                os.path.join(out_dir, f"{prefix}{key}.png"), _png_bytes(self.images[key]["srgb8"])
+            )
         if self.aperture is not None:
             for key in ("white", "fluorescence"):
                 paths["aperture_" + key] = atomic_write_bytes(
-                    os.path.join(out_dir, f"{prefix}aperture_{key}.png"), _png_bytes(self.aperture[key]["srgb8"]))
-        arrays = {"region_map": self.region_map, "depth": self.depth, "region_names": np.array(self.region_names),
-                  "spectrum_bin_edges_nm": self.spectrum_bin_edges_nm,
-                  "kernel_radius": self.kernel["radius"], "kernel_angle_deg": self.kernel["angle_deg"]}
+                    os.path.join(out_dir, f"{prefix}aperture_{key}.png"), _png_bytes(self.aperture[key]["srgb8"])
+                )
+        arrays = {
+            "region_map": self.region_map,
+            "depth": self.depth,
+            "region_names": np.array(self.region_names),
+            "spectrum_bin_edges_nm": self.spectrum_bin_edges_nm,
+            "kernel_radius": self.kernel["radius"],
+            "kernel_angle_deg": self.kernel["angle_deg"],
+        }
         for key, img in self.images.items():
             for k, v in img.items():
                 arrays[f"{key}_{k}"] = v
@@ -208,6 +223,7 @@ class View:
 
 def _png_bytes(srgb8: np.ndarray) -> bytes:
     import matplotlib
+
     matplotlib.use("Agg", force=False)
     import matplotlib.image as mpimg
 
@@ -220,12 +236,15 @@ def _png_bytes(srgb8: np.ndarray) -> bytes:
 # rendering
 # --------------------------------------------------------------------------
 
+
 def _resolve_camera(result, camera, width, height):
     if camera is None:
         src = getattr(result, "source", None)
         if src is None or not hasattr(src, "camera"):
-            raise ValueError("camera = None: the run's source has no camera (only an EndoscopeRig has one); "
-                             "give camera=ep.Camera.look_at(...)")
+            raise ValueError(
+                "camera = None: the run's source has no camera (only an EndoscopeRig has one); "
+                "give camera=ep.Camera.look_at(...)"
+            )
         camera = Camera.from_rig(src)
         res = tuple(src.camera_resolution)
     elif isinstance(camera, dict):
@@ -244,8 +263,12 @@ def _resolve_camera(result, camera, width, height):
 
 
 def _check_knobs(kernel_radius, kernel_angle_deg, n_batches):
-    if kernel_radius is not None and (isinstance(kernel_radius, bool) or not isinstance(kernel_radius, (int, float))
-                                      or not math.isfinite(kernel_radius) or kernel_radius <= 0):
+    if kernel_radius is not None and (
+        isinstance(kernel_radius, bool)
+        or not isinstance(kernel_radius, (int, float))
+        or not math.isfinite(kernel_radius)
+        or kernel_radius <= 0
+    ):
         raise ValueError(f"kernel_radius = {kernel_radius!r} must be a positive number (scene units) or None")
     a = kernel_angle_deg
     if isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) or not 0 < a <= 90:
@@ -273,9 +296,17 @@ def _records(result, n_batches, P, T):
     edges = colour.spectrum_bins()
     sbin = np.searchsorted(edges, wl, side="right") - 1
     sbin = np.where((sbin >= 0) & (sbin < edges.size - 1), sbin, -1)
-    return dict(pos=np.asarray(esc["position"], dtype=np.float64), dir=np.asarray(esc["direction"], dtype=np.float64),
-                batch=batch, Pb=Pb, wl=wl, cmf=colour.cmf_xyz(wl), energy={"white": e, "fluorescence": ef},
-                sbin=sbin, nbins=edges.size - 1)
+    return dict(
+        pos=np.asarray(esc["position"], dtype=np.float64),
+        dir=np.asarray(esc["direction"], dtype=np.float64),
+        batch=batch,
+        Pb=Pb,
+        wl=wl,
+        cmf=colour.cmf_xyz(wl),
+        energy={"white": e, "fluorescence": ef},
+        sbin=sbin,
+        nbins=edges.size - 1,
+    )
 
 
 def _accumulate(acc, key, index, weights, size):
@@ -308,8 +339,9 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     norm_h = 1.0 / (math.pi * (0.5 * r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_h))
     for p0 in range(0, n_pix, _CHUNK_PIXELS):
         p1 = min(n_pix, p0 + _CHUNK_PIXELS)
-        lists = tree.query_ball_point(query[p0:p1], math.sqrt(2.0) * (1 + 1e-9), workers=threads or -1,
-                                      return_sorted=False)
+        lists = tree.query_ball_point(
+            query[p0:p1], math.sqrt(2.0) * (1 + 1e-9), workers=threads or -1, return_sorted=False
+        )
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
         if counts.sum() == 0:
             continue
@@ -353,6 +385,7 @@ def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefi
         out = np.zeros((H * W,) + tuple(extra))
         out[hit] = a
         return out.reshape((H, W) + tuple(extra))
+
     img["radiance"] = full(sums.sum(axis=1) / P)
     img["radiance_stderr"] = full(np.std(per_batch, axis=1, ddof=1) / math.sqrt(B))
     if prefix == "":
@@ -382,10 +415,21 @@ def _gains(white_balance, light):
     raise ValueError(f"white_balance = {white_balance!r} must be 'white', 'excitation' or None")
 
 
-def render_view(result, camera=None, width: int | None = None, height: int | None = None, *,
-                kernel_radius: float | None = None, kernel_angle_deg: float = 15.0, excitation=None,
-                emission_filter="auto", white_balance="white", exposure="auto", n_batches: int = 20,
-                threads: int = 0) -> View:
+def render_view(
+    result,
+    camera=None,
+    width: int | None = None,
+    height: int | None = None,
+    *,
+    kernel_radius: float | None = None,
+    kernel_angle_deg: float = 15.0,
+    excitation=None,
+    emission_filter="auto",
+    white_balance="white",
+    exposure="auto",
+    n_batches: int = 20,
+    threads: int = 0,
+) -> View:
     """Render the image the camera records from ``result``'s escape records (surface photon map).
 
     result : an ``ep.Result`` with escape records (``record_escapes=True``); a spectral run gives colour
@@ -408,8 +452,15 @@ def render_view(result, camera=None, width: int | None = None, height: int | Non
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)
     gains = _gains(white_balance, light)
-    if not (exposure == "auto" or (isinstance(exposure, (int, float)) and not isinstance(exposure, bool)
-                                   and math.isfinite(exposure) and exposure > 0)):
+    if not (
+        exposure == "auto"
+        or (
+            isinstance(exposure, (int, float))
+            and not isinstance(exposure, bool)
+            and math.isfinite(exposure)
+            and exposure > 0
+        )
+    ):
         raise ValueError(f"exposure = {exposure!r} must be 'auto' or a positive number")
     scene = result.scene
     native = scene.to_native()
@@ -417,8 +468,10 @@ def render_view(result, camera=None, width: int | None = None, height: int | Non
     origins = np.broadcast_to(camera.position, dirs.shape)
     t, region, _, normal = _core.first_surfaces(native, origins, dirs, None, 0.0, int(threads))
     if np.any(region == -2):
-        raise ValueError(f"camera.position = {camera.position.tolist()} lies inside a region: put the camera in "
-                         "the ambient medium")
+        raise ValueError(
+            f"camera.position = {camera.position.tolist()} lies inside a region: put the camera in "
+            "the ambient medium"
+        )
     hit = region >= 0
     px = camera.position + t[hit, None] * dirs[hit]
     pw = -dirs[hit]
@@ -436,26 +489,42 @@ def render_view(result, camera=None, width: int | None = None, height: int | Non
     rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
     n_regions = len(scene.regions)
     preg = region[hit].astype(np.int64)
-    acc, n_candidates = _kernel_gather(px, pw, pk, preg, n_regions, rec, float(kernel_radius),
-                                       float(kernel_angle_deg), int(threads), scene.unit_cm)
+    acc, n_candidates = _kernel_gather(
+        px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads), scene.unit_cm
+    )
     Pb = rec["Pb"]
-    images = {name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
-              for name in ("white", "fluorescence")}
+    images = {
+        name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
+        for name in ("white", "fluorescence")
+    }
     region_pixels = np.bincount(preg, minlength=n_regions)[:n_regions]
     region_batches = _region_batches(acc, preg, region_pixels, Pb.size, gains)
     aperture = None
     if camera.aperture_radius > 0:
         focus = camera.focus_distance or _autofocus(depth, hit, W, H)
-        aperture = _aperture_images(native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm,
-                                    int(threads))
-    return View(width=W, height=H, camera=camera, region_names=[r.name for r in scene.regions],
-                region_map=np.where(hit, region, -1).reshape(H, W).astype(np.int32), depth=depth.reshape(H, W),
-                packets=P, packets_per_batch=Pb, kernel=dict(radius=float(kernel_radius),
-                                                              angle_deg=float(kernel_angle_deg)),
-                candidates=int(n_candidates), emission_filter=filter_desc, white_balance=white_balance,
-                images=images, aperture=aperture, region_pixels=region_pixels, region_batches=region_batches,
-                pixel_batches={name: _pixel_batches(acc, name, hit, (H, W), Pb) for name in ("white", "fluorescence")},
-                spectrum_bin_edges_nm=colour.spectrum_bins())
+        aperture = _aperture_images(
+            native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm, int(threads)
+        )
+    return View(
+        width=W,
+        height=H,
+        camera=camera,
+        region_names=[r.name for r in scene.regions],
+        region_map=np.where(hit, region, -1).reshape(H, W).astype(np.int32),
+        depth=depth.reshape(H, W),
+        packets=P,
+        packets_per_batch=Pb,
+        kernel=dict(radius=float(kernel_radius), angle_deg=float(kernel_angle_deg)),
+        candidates=int(n_candidates),
+        emission_filter=filter_desc,
+        white_balance=white_balance,
+        images=images,
+        aperture=aperture,
+        region_pixels=region_pixels,
+        region_batches=region_batches,
+        pixel_batches={name: _pixel_batches(acc, name, hit, (H, W), Pb) for name in ("white", "fluorescence")},
+        spectrum_bin_edges_nm=colour.spectrum_bins(),
+    )
 
 
 def _pixel_batches(acc, name, hit, shape, Pb):
@@ -480,14 +549,23 @@ def _region_batches(acc, preg, region_pixels, B, gains):
         half = np.zeros((n_regions, B))
         np.add.at(half, preg, acc.get(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B))
         out[name + "_half_radiance"] = half * inv[:, None]
-        xyz = np.stack([acc.get(f"{name}_xyz{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B)
-                        for c in range(3)], axis=1) * inv[:, None, None]
+        xyz = (
+            np.stack(
+                [acc.get(f"{name}_xyz{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(3)],
+                axis=1,
+            )
+            * inv[:, None, None]
+        )
         out[name + "_xyz"] = xyz
         g = np.ones(3) if gains is None else np.asarray(gains)
         out[name + "_rgb"] = np.einsum("ck,rkb->rcb", colour.XYZ_TO_SRGB, xyz * g[None, :, None])
-        out[name + "_camera_rg"] = np.stack(
-            [acc.get(f"{name}_cam{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(2)],
-            axis=1) * inv[:, None, None]
+        out[name + "_camera_rg"] = (
+            np.stack(
+                [acc.get(f"{name}_cam{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(2)],
+                axis=1,
+            )
+            * inv[:, None, None]
+        )
     return out
 
 
@@ -512,13 +590,14 @@ def _aperture_images(native, camera, focus, rec, P, hit, shape, gains, exposure,
         t = np.where(df < 0, depth / -df, -1.0)
     cand = np.flatnonzero((depth > 0) & (df < 0) & (t > 0))
     q = pos[cand] + t[cand, None] * d[cand]
-    through = np.sum((q - c) ** 2, axis=1) <= camera.aperture_radius ** 2
+    through = np.sum((q - c) ** 2, axis=1) <= camera.aperture_radius**2
     cand, q = cand[through], q[through]
     # Occlusion: the exit ray must reach the lens without entering tissue again.
     scale = np.max(np.abs(pos[cand]), axis=1) + 1.0 if cand.size else np.zeros(0)
     eps = 1e-6 * scale
-    _, reg, _, _ = _core.first_surfaces(native, pos[cand] + eps[:, None] * d[cand], d[cand], t[cand] - eps, 0.0,
-                                        threads)
+    _, reg, _, _ = _core.first_surfaces(
+        native, pos[cand] + eps[:, None] * d[cand], d[cand], t[cand] - eps, 0.0, threads
+    )
     cand, q = cand[reg < 0], q[reg < 0]
     # Thin lens: the ray meets the plane of focus at F; F's image is its projection through the lens centre.
     s = focus / (d[cand] @ f)
@@ -540,8 +619,10 @@ def _aperture_images(native, camera, focus, rec, P, hit, shape, gains, exposure,
         sb = rec["sbin"][cand]
         okb = sb >= 0
         _accumulate(acc, f"ap_{name}_spec_pix", pix[okb] * rec["nbins"] + sb[okb], w[okb], n * rec["nbins"])
-    out = {name: _image_from_sums(acc, name, P, rec["Pb"], allpix, shape, rec["nbins"], gains, exposure,
-                                  prefix="ap_") for name in ("white", "fluorescence")}
+    out = {
+        name: _image_from_sums(acc, name, P, rec["Pb"], allpix, shape, rec["nbins"], gains, exposure, prefix="ap_")
+        for name in ("white", "fluorescence")
+    }
     for img in out.values():
         img["focus_distance"] = np.float64(focus)
         img["records"] = np.int64(cand.size)

@@ -11,8 +11,11 @@ import os
 
 
 def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    p.add_argument("scene", help="SCENE.json (an optional top-level 'camera' object: position, look_at, up, "
-                                 "fov_deg, aperture_radius; default: the endoscope source's camera)")
+    p.add_argument(
+        "scene",
+        help="SCENE.json (an optional top-level 'camera' object: position, look_at, up, "
+        "fov_deg, aperture_radius; default: the endoscope source's camera)",
+    )
     p.add_argument("--photons", type=int, default=None, help="packets to launch (default: run.photons or 1e6)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--threads", type=int, default=None, help="0 = all cores")
@@ -22,8 +25,12 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--target", default=None, help="target region (e.g. the polyp); needs --background")
     p.add_argument("--background", default=None, help="background region (e.g. the wall)")
     p.add_argument("--excitation", default="white", help="white (default, flat 400-700 nm) or blue (405 nm)")
-    p.add_argument("--emission-filter", type=float, default=None,
-                   help="long-pass cut-on of the fluorescence image's filter, nm (default: auto)")
+    p.add_argument(
+        "--emission-filter",
+        type=float,
+        default=None,
+        help="long-pass cut-on of the fluorescence image's filter, nm (default: auto)",
+    )
     p.add_argument("--kernel-radius", type=float, default=None, help="scene units (default: 2 pixel footprints)")
     p.add_argument("--kernel-angle", type=float, default=15.0, help="degrees (default 15)")
     return p
@@ -68,8 +75,10 @@ def render_main(args) -> int:
         raise ValueError(f"--target = {args.target!r}, --background = {args.background!r}: give both or neither")
     scene, source, camera, defaults = _load(args.scene)
     if camera is None and not hasattr(source, "camera"):
-        raise ValueError(f"camera: SCENE.json has no 'camera' object and source.type = "
-                         f"{type(source).__name__} has no camera of its own")
+        raise ValueError(
+            f"camera: SCENE.json has no 'camera' object and source.type = "
+            f"{type(source).__name__} has no camera of its own"
+        )
     source.spectrum = excitation_spectrum(args.excitation)
     kwargs = {k: v for k, v in defaults.items() if k != "photons"}
     photons = args.photons if args.photons is not None else int(defaults.get("photons", 1_000_000))
@@ -78,11 +87,23 @@ def render_main(args) -> int:
     if args.threads is not None:
         kwargs["threads"] = args.threads
     res = run(scene, source, photons=photons, record_escapes=True, spectral=True, **kwargs)
-    view = render_view(res, camera, args.width, args.height, kernel_radius=args.kernel_radius,
-                       kernel_angle_deg=args.kernel_angle, threads=kwargs.get("threads", 0),
-                       emission_filter="auto" if args.emission_filter is None else args.emission_filter)
-    out = {"width": view.width, "height": view.height, "regions": view.regions(), "photons": view.packets,
-           "kernel": view.kernel_summary()}
+    view = render_view(
+        res,
+        camera,
+        args.width,
+        args.height,
+        kernel_radius=args.kernel_radius,
+        kernel_angle_deg=args.kernel_angle,
+        threads=kwargs.get("threads", 0),
+        emission_filter="auto" if args.emission_filter is None else args.emission_filter,
+    )
+    out = {
+        "width": view.width,
+        "height": view.height,
+        "regions": view.regions(),
+        "photons": view.packets,
+        "kernel": view.kernel_summary(),
+    }
     if args.target is not None:
         out["contrast"] = view.contrast(args.target, args.background)
     view.save(args.out)

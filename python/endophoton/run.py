@@ -27,6 +27,7 @@ class GridRequest:
     path : the .vdb file to write (atomically)
     per_fluorophore : also one fluorescence grid per fluorophore
     """
+
     voxel_size: float
     path: str
     per_fluorophore: bool = False
@@ -83,13 +84,36 @@ def _require_finite(raw: dict, path: str = "result") -> None:
             raise RuntimeError(f"{path}.{k} = {v!r} is not finite (engine bug: please report)")
 
 
-def run(scene: Scene, source, photons: int | None = None, *, store: int | None = None, seed: int = 1,
-        threads: int = 0, roulette_threshold: float = 1e-4, roulette_chance: float = 0.1, max_steps: int = 0,
-        max_path_cm: float = 0.0, record_escapes: bool = True, fluorescent_only: bool = False,
-        fluorescence_rule: str = "paper", grids: GridRequest | None = None, target: Target | None = None,
-        time_budget_s: float = 0.0, max_photons: int = 0, batches: int = 50, spectral: bool | None = None,
-        safe_distance: bool = True, unit_size: int = 0, quality: str | None = None, progress=None,
-        cancel=None, lumen: bool = True, client=None, chunk_units: int = 0) -> Result:
+def run(
+    scene: Scene,
+    source,
+    photons: int | None = None,
+    *,
+    store: int | None = None,
+    seed: int = 1,
+    threads: int = 0,
+    roulette_threshold: float = 1e-4,
+    roulette_chance: float = 0.1,
+    max_steps: int = 0,
+    max_path_cm: float = 0.0,
+    record_escapes: bool = True,
+    fluorescent_only: bool = False,
+    fluorescence_rule: str = "paper",
+    grids: GridRequest | None = None,
+    target: Target | None = None,
+    time_budget_s: float = 0.0,
+    max_photons: int = 0,
+    batches: int = 50,
+    spectral: bool | None = None,
+    safe_distance: bool = True,
+    unit_size: int = 0,
+    quality: str | None = None,
+    progress=None,
+    cancel=None,
+    lumen: bool = True,
+    client=None,
+    chunk_units: int = 0,
+) -> Result:
     """Trace photon packets through ``scene`` from ``source``.
 
     Exactly one of ``photons`` (launch that many packets), ``store`` (launch
@@ -130,7 +154,7 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     for name, v in (("photons", photons), ("store", store)):
         if v is not None:
             check_int(name, v, 1, MAX_PACKETS)
-    check_int("seed", seed, 0, 2 ** 64 - 1)
+    check_int("seed", seed, 0, 2**64 - 1)
     check_int("threads", threads, 0, MAX_THREADS)
     for name, v in (("max_steps", max_steps), ("max_photons", max_photons), ("unit_size", unit_size)):
         check_int(name, v, 0, MAX_PACKETS)
@@ -139,18 +163,30 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
     check_real("roulette_chance", roulette_chance, 0.0, 1.0, lo_open=True)
     check_real("max_path_cm", max_path_cm, 0.0, math.inf)
     check_real("time_budget_s", time_budget_s, 0.0, math.inf)
-    for name, v in (("record_escapes", record_escapes), ("fluorescent_only", fluorescent_only),
-                    ("safe_distance", safe_distance)):
+    for name, v in (
+        ("record_escapes", record_escapes),
+        ("fluorescent_only", fluorescent_only),
+        ("safe_distance", safe_distance),
+    ):
         check_bool(name, v)
     if spectral is not None:
         check_bool("spectral", spectral)
     if fluorescence_rule not in ("paper", "eem"):
         raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
-    opts = dict(seed=seed, threads=threads, roulette_threshold=float(roulette_threshold),
-                roulette_chance=float(roulette_chance), max_steps=max_steps, max_path_cm=float(max_path_cm),
-                record_escapes=bool(record_escapes), fluorescent_only=bool(fluorescent_only),
-                fluorescence_rule=fluorescence_rule, batches=batches, safe_distance=bool(safe_distance),
-                unit_size=unit_size)
+    opts = dict(
+        seed=seed,
+        threads=threads,
+        roulette_threshold=float(roulette_threshold),
+        roulette_chance=float(roulette_chance),
+        max_steps=max_steps,
+        max_path_cm=float(max_path_cm),
+        record_escapes=bool(record_escapes),
+        fluorescent_only=bool(fluorescent_only),
+        fluorescence_rule=fluorescence_rule,
+        batches=batches,
+        safe_distance=bool(safe_distance),
+        unit_size=unit_size,
+    )
     if photons is not None and target is None:
         opts["photons"] = photons
     if store is not None:
@@ -175,6 +211,7 @@ def run(scene: Scene, source, photons: int | None = None, *, store: int | None =
         opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
+
         raw = distributed.run(scene, source, opts, client, chunk_units=chunk_units, progress=progress, cancel=cancel)
         return Result(raw, scene, source, opts)
     native_scene = scene.to_native()

@@ -30,8 +30,8 @@ MAX_REFRACTIVE_INDEX = 100.0
 @dataclass
 class Region:
     name: str
-    vertices: np.ndarray        # float32 (N, 3), scene units
-    triangles: np.ndarray       # uint32 (M, 3), outward CCW
+    vertices: np.ndarray  # float32 (N, 3), scene units
+    triangles: np.ndarray  # uint32 (M, 3), outward CCW
     medium: Medium
     priority: int = 0
     fluorophores: tuple = field(default_factory=tuple)
@@ -51,8 +51,10 @@ def _as_mesh_arrays(owner, vertices, triangles):
     # Checked before narrowing to uint32, so an index >= 2^32 cannot wrap to a valid one.
     if t.size and int(t.max()) >= len(v):
         i, k = map(int, np.argwhere(t == t.max())[0])
-        raise ValueError(f"{owner}: mesh.triangles[{i}][{k}] = {int(t[i, k])} is not a vertex index "
-                         f"(the mesh has {len(v)} vertices)")
+        raise ValueError(
+            f"{owner}: mesh.triangles[{i}][{k}] = {int(t[i, k])} is not a vertex index "
+            f"(the mesh has {len(v)} vertices)"
+        )
     if not np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_:
         raise ValueError(f"{owner}: mesh.vertices must hold numbers, got dtype {v.dtype}")
     bad = ~np.isfinite(v)
@@ -74,18 +76,29 @@ class Scene:
     def __init__(self, unit: str = "cm", ambient_n: float = 1.0):
         self.unit = unit
         self.unit_cm = unit_cm(unit)
-        if isinstance(ambient_n, bool) or not isinstance(ambient_n, (int, float)) or not math.isfinite(ambient_n) \
-                or not 1 <= ambient_n <= MAX_REFRACTIVE_INDEX:
+        if (
+            isinstance(ambient_n, bool)
+            or not isinstance(ambient_n, (int, float))
+            or not math.isfinite(ambient_n)
+            or not 1 <= ambient_n <= MAX_REFRACTIVE_INDEX
+        ):
             raise ValueError(f"scene.ambient_n = {ambient_n!r} must be a finite number in [1, {MAX_REFRACTIVE_INDEX}]")
         self.ambient_n = float(ambient_n)
         self.regions: list[Region] = []
         self._names: set[str] = set()
 
     # ---- building ---------------------------------------------------------
-    def add_mesh(self, name: str, vertices, triangles, medium: Medium, priority: int = 0,
-                 fluorophores: Sequence[Fluorophore] = ()) -> Region:
+    def add_mesh(
+        self,
+        name: str,
+        vertices,
+        triangles,
+        medium: Medium,
+        priority: int = 0,
+        fluorophores: Sequence[Fluorophore] = (),
+    ) -> Region:
         """Add a region bounded by a closed triangle mesh (vertices in scene units)."""
-        if len(self.regions) >= MAX_REGIONS:   # cheapest check first
+        if len(self.regions) >= MAX_REGIONS:  # cheapest check first
             raise ValueError(f"region {name!r}: a scene holds at most {MAX_REGIONS} regions")
         if not isinstance(name, str) or not name:
             raise ValueError(f"region.name = {name!r} must be a non-empty string")
@@ -106,15 +119,16 @@ class Scene:
             if not isinstance(f, Fluorophore):
                 raise ValueError(f"{owner}: fluorophores entry {f!r} must be an endophoton.Fluorophore")
         v, t = _as_mesh_arrays(owner, vertices, triangles)
-        if not -2 ** 31 <= int(priority) < 2 ** 31:
+        if not -(2**31) <= int(priority) < 2**31:
             raise ValueError(f"{owner}: priority = {priority!r} must be a 32-bit integer")
         region = Region(name, v, t, medium, int(priority), fl)
         self.regions.append(region)
         self._names.add(name)
         return region
 
-    def add_box(self, name: str, min, max, medium: Medium, priority: int = 0,
-                fluorophores: Sequence[Fluorophore] = ()) -> Region:
+    def add_box(
+        self, name: str, min, max, medium: Medium, priority: int = 0, fluorophores: Sequence[Fluorophore] = ()
+    ) -> Region:
         """Add an axis-aligned box region from corner ``min`` to ``max`` (scene units)."""
         try:
             v, t = box_mesh(min, max)
@@ -147,13 +161,18 @@ class Scene:
             refs = []
             for f in r.fluorophores:
                 if f.name in eems and eems[f.name] is not f.eem and not _same_eem(eems[f.name], f.eem):
-                    raise ValueError(f"region '{r.name}': fluorophore '{f.name}' has a different EEM than in "
-                                     "another region; give distinct names")
+                    raise ValueError(
+                        f"region '{r.name}': fluorophore '{f.name}' has a different EEM than in "
+                        "another region; give distinct names"
+                    )
                 if f.name not in ids:
                     e = f.eem
-                    ids[f.name] = s.add_fluorophore(f.name, list(map(float, e.excitation_nm)),
-                                                    list(map(float, e.emission_nm)),
-                                                    list(map(float, np.asarray(e.values).ravel())))
+                    ids[f.name] = s.add_fluorophore(
+                        f.name,
+                        list(map(float, e.excitation_nm)),
+                        list(map(float, e.emission_nm)),
+                        list(map(float, np.asarray(e.values).ravel())),
+                    )
                     eems[f.name] = f.eem
                 refs.append((ids[f.name], float(f.d), float(f.c)))
             if refs:
@@ -176,11 +195,16 @@ class Scene:
         return {
             "unit": self.unit,
             "ambient_n": self.ambient_n,
-            "regions": [{
-                "name": r.name, "priority": r.priority, "medium": r.medium.to_dict(),
-                "mesh": {"vertices": r.vertices.tolist(), "triangles": r.triangles.tolist()},
-                "fluorophores": [{"name": f.name, "d": f.d, "c": f.c} for f in r.fluorophores],
-            } for r in self.regions],
+            "regions": [
+                {
+                    "name": r.name,
+                    "priority": r.priority,
+                    "medium": r.medium.to_dict(),
+                    "mesh": {"vertices": r.vertices.tolist(), "triangles": r.triangles.tolist()},
+                    "fluorophores": [{"name": f.name, "d": f.d, "c": f.c} for f in r.fluorophores],
+                }
+                for r in self.regions
+            ],
         }
 
     @classmethod
@@ -188,7 +212,9 @@ class Scene:
         """Build a scene from the SCENE.json structure (docs/scene.schema.json, enforced here:
         ValueError naming the region, field and value). Unknown keys are errors."""
         validate_document(data)
-        _check_keys("scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description", "camera"})
+        _check_keys(
+            "scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description", "camera"}
+        )
         scene = cls(unit=data.get("unit", "cm"), ambient_n=data.get("ambient_n", 1.0))
         regions = data.get("regions")
         if not isinstance(regions, list) or not regions:
@@ -245,8 +271,11 @@ class Scene:
 
 
 def _same_eem(a: EEM, b: EEM) -> bool:
-    return (np.array_equal(a.excitation_nm, b.excitation_nm) and np.array_equal(a.emission_nm, b.emission_nm)
-            and np.array_equal(a.values, b.values))
+    return (
+        np.array_equal(a.excitation_nm, b.excitation_nm)
+        and np.array_equal(a.emission_nm, b.emission_nm)
+        and np.array_equal(a.values, b.values)
+    )
 
 
 def _coefficient_from_json(owner, field, v):
@@ -259,16 +288,25 @@ def _coefficient_from_json(owner, field, v):
 def _medium_from_dict(owner: str, md) -> Medium:
     _check_keys(f"{owner}: medium", md, {"mua", "mus"}, extra={"g", "n"})
     try:
-        return Medium(mua=_coefficient_from_json(owner, "mua", md["mua"]),
-                      mus=_coefficient_from_json(owner, "mus", md["mus"]),
-                      g=md.get("g", 0.0), n=md.get("n", 1.0))
+        return Medium(
+            mua=_coefficient_from_json(owner, "mua", md["mua"]),
+            mus=_coefficient_from_json(owner, "mus", md["mus"]),
+            g=md.get("g", 0.0),
+            n=md.get("n", 1.0),
+        )
     except ValueError as e:
         msg = str(e)
         raise ValueError(msg if msg.startswith(owner) else f"{owner}: {msg}") from None
 
 
-def layered_slab(layers, unit: str = "cm", width: float = 1000.0, ambient_n: float = 1.0,
-                 top: float = 0.0, names: Sequence[str] | None = None) -> Scene:
+def layered_slab(
+    layers,
+    unit: str = "cm",
+    width: float = 1000.0,
+    ambient_n: float = 1.0,
+    top: float = 0.0,
+    names: Sequence[str] | None = None,
+) -> Scene:
     """MCML-style stack of layers: ``layers`` = [(Medium, thickness), ...], the first on top.
 
     The top surface is at z = ``top`` and layers go down (-z); each is a box of

@@ -18,7 +18,7 @@ MAX_REGIONS = 64
 #: Largest |coordinate| in scene units (float32 ray tracing; docs/numerics.md).
 MAX_COORDINATE = 1e12
 #: Largest vertex index (uint32).
-MAX_INDEX = 2 ** 32 - 1
+MAX_INDEX = 2**32 - 1
 #: Deepest JSON nesting the loader reads (SCENE.json needs 6).
 MAX_DEPTH = 32
 
@@ -50,7 +50,7 @@ def validate_document(data) -> None:
     if not isinstance(data, dict):
         raise ValueError(f"scene = {_short(data)} must be an object")
     regions = data.get("regions")
-    if isinstance(regions, list) and len(regions) > MAX_REGIONS:   # cheapest first
+    if isinstance(regions, list) and len(regions) > MAX_REGIONS:  # cheapest first
         raise ValueError(f"scene.regions holds {len(regions)} regions; a scene holds at most {MAX_REGIONS}")
     check_depth(data)
     skeleton, meshes = _split_meshes(data)
@@ -75,16 +75,21 @@ def check_mesh_lists(owner: str, vertices, triangles) -> None:
         is_vertex = field == "mesh.vertices"
         for i, row in enumerate(rows):
             if not isinstance(row, list) or len(row) != 3:
-                raise ValueError(f"{owner}: {field}[{i}] = {_short(row)} must be a list of 3 "
-                                 f"{'numbers' if is_vertex else 'integers'}")
+                raise ValueError(
+                    f"{owner}: {field}[{i}] = {_short(row)} must be a list of 3 "
+                    f"{'numbers' if is_vertex else 'integers'}"
+                )
             for k, x in enumerate(row):
                 if is_vertex:
                     if type(x) not in (int, float) or not -MAX_COORDINATE <= x <= MAX_COORDINATE:
-                        raise ValueError(f"{owner}: {field}[{i}][{k}] = {_short(x)} must be a number with "
-                                         f"|x| <= {MAX_COORDINATE:g} (scene units)")
+                        raise ValueError(
+                            f"{owner}: {field}[{i}][{k}] = {_short(x)} must be a number with "
+                            f"|x| <= {MAX_COORDINATE:g} (scene units)"
+                        )
                 elif type(x) is not int or not 0 <= x <= MAX_INDEX:
-                    raise ValueError(f"{owner}: {field}[{i}][{k}] = {_short(x)} must be an integer in "
-                                     f"[0, {MAX_INDEX}]")
+                    raise ValueError(
+                        f"{owner}: {field}[{i}][{k}] = {_short(x)} must be an integer in " f"[0, {MAX_INDEX}]"
+                    )
 
 
 def _split_meshes(data):
@@ -109,7 +114,9 @@ def _check_names(regions) -> None:
         try:
             name.encode("utf-8")
         except UnicodeEncodeError as e:
-            raise ValueError(f"region {name!r}: name holds a lone surrogate at index {e.start}: not valid text") from None
+            raise ValueError(
+                f"region {name!r}: name holds a lone surrogate at index {e.start}: not valid text"
+            ) from None
         if name in seen:
             raise ValueError(f"region '{name}': name is used by another region")
         seen.add(name)
@@ -121,7 +128,7 @@ def _check_names(regions) -> None:
 
 
 def _owner(data, path) -> str:
-    """"region 'NAME'" for paths under regions[i] (when the name is usable), else "scene"."""
+    """ "region 'NAME'" for paths under regions[i] (when the name is usable), else "scene"."""
     if len(path) >= 2 and path[0] == "regions" and isinstance(path[1], int):
         try:
             name = data["regions"][path[1]].get("name")

@@ -53,6 +53,7 @@ class _Source:
 @dataclass
 class PencilSource(_Source):
     """Infinitely thin collimated beam from ``position`` along ``direction`` (scene units)."""
+
     position: tuple = (0.0, 0.0, 1.0)
     direction: tuple = (0.0, 0.0, -1.0)
     spectrum: Spectrum | None = None
@@ -62,8 +63,15 @@ class PencilSource(_Source):
         self.direction = _vec3("source", "direction", self.direction, unit_length=True)
 
     def native_lights(self, scene_unit_cm):
-        return [dict(position=self.position.tolist(), direction=self.direction.tolist(), radius=0.0,
-                     half_angle=0.0, spectrum=self._spec())]
+        return [
+            dict(
+                position=self.position.tolist(),
+                direction=self.direction.tolist(),
+                radius=0.0,
+                half_angle=0.0,
+                spectrum=self._spec(),
+            )
+        ]
 
 
 @dataclass(init=False)
@@ -72,6 +80,7 @@ class DiskSource(_Source):
 
     ``center=`` is accepted for ``position`` (the same point; one word per concept, docs/design.md).
     """
+
     position: tuple
     direction: tuple
     radius: float
@@ -81,8 +90,9 @@ class DiskSource(_Source):
         if position is not None and center is not None:
             raise ValueError("source: give position or center (the same point), not both")
         point = center if position is None else position
-        self.position = _vec3("source", "position" if center is None else "center",
-                              (0.0, 0.0, 1.0) if point is None else point)
+        self.position = _vec3(
+            "source", "position" if center is None else "center", (0.0, 0.0, 1.0) if point is None else point
+        )
         self.direction = _vec3("source", "direction", direction, unit_length=True)
         self.radius = _nonneg("source", "radius", radius)
         self.spectrum = spectrum
@@ -93,14 +103,22 @@ class DiskSource(_Source):
         return self.position
 
     def native_lights(self, scene_unit_cm):
-        return [dict(position=self.position.tolist(), direction=self.direction.tolist(), radius=self.radius,
-                     half_angle=0.0, spectrum=self._spec())]
+        return [
+            dict(
+                position=self.position.tolist(),
+                direction=self.direction.tolist(),
+                radius=self.radius,
+                half_angle=0.0,
+                spectrum=self._spec(),
+            )
+        ]
 
 
 @dataclass
 class ConeSource(_Source):
     """Point (radius 0) or disk emitter into a cone of ``half_angle_deg`` about ``direction``,
     uniform in solid angle inside the cone."""
+
     position: tuple = (0.0, 0.0, 1.0)
     direction: tuple = (0.0, 0.0, -1.0)
     half_angle_deg: float = 7.5
@@ -114,8 +132,15 @@ class ConeSource(_Source):
         self.radius = _nonneg("source", "radius", self.radius)
 
     def native_lights(self, scene_unit_cm):
-        return [dict(position=self.position.tolist(), direction=self.direction.tolist(), radius=self.radius,
-                     half_angle=math.radians(self.half_angle_deg), spectrum=self._spec())]
+        return [
+            dict(
+                position=self.position.tolist(),
+                direction=self.direction.tolist(),
+                radius=self.radius,
+                half_angle=math.radians(self.half_angle_deg),
+                spectrum=self._spec(),
+            )
+        ]
 
 
 def rotation_about(axis, angle_rad):
@@ -149,6 +174,7 @@ class EndoscopeRig(_Source):
     in solid angle inside the cone. The light spectrum defaults to flat white
     over 400-700 nm.
     """
+
     transform: np.ndarray = field(default_factory=lambda: np.eye(4))
     head_diameter_mm: float = 12.0
     light_diameter_mm: float = 3.0
@@ -172,19 +198,28 @@ class EndoscopeRig(_Source):
             raise ValueError("rig.transform has a zero-length axis")
         self.transform = M
         self._R = R / scales
-        for name in ("head_diameter_mm", "light_diameter_mm", "light_offset_mm", "head_length_mm",
-                     "camera_aperture_mm"):
+        for name in (
+            "head_diameter_mm",
+            "light_diameter_mm",
+            "light_offset_mm",
+            "head_length_mm",
+            "camera_aperture_mm",
+        ):
             setattr(self, name, _nonneg("rig", name, getattr(self, name)))
         self.cone_angle_deg = _nonneg("rig", "cone_angle_deg", self.cone_angle_deg, 180.0)
         self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0)
         if not isinstance(self.body, bool):
             raise ValueError(f"rig.body = {self.body!r} must be True or False")
         if self.camera_aperture_mm > self.head_diameter_mm:
-            raise ValueError(f"rig.camera_aperture_mm = {self.camera_aperture_mm} is wider than the head "
-                             f"(head_diameter_mm = {self.head_diameter_mm})")
+            raise ValueError(
+                f"rig.camera_aperture_mm = {self.camera_aperture_mm} is wider than the head "
+                f"(head_diameter_mm = {self.head_diameter_mm})"
+            )
         if self.light_offset_mm + 0.5 * self.light_diameter_mm > 0.5 * self.head_diameter_mm + 1e-9:
-            raise ValueError(f"rig.light_offset_mm = {self.light_offset_mm} puts the light guides outside the "
-                             f"head (head_diameter_mm = {self.head_diameter_mm})")
+            raise ValueError(
+                f"rig.light_offset_mm = {self.light_offset_mm} puts the light guides outside the "
+                f"head (head_diameter_mm = {self.head_diameter_mm})"
+            )
 
     # ---- geometry in world / scene units ----------------------------------
     @property
@@ -206,26 +241,39 @@ class EndoscopeRig(_Source):
         return np.array([self.position + self._R @ np.array([s * off, 0.0, 0.0]) for s in (+1.0, -1.0)])
 
     def camera(self, scene_unit: str | float = "cm") -> dict:
-        return dict(position=self.position, forward=self.forward, up=self.up, fov_deg=self.camera_fov_deg,
-                    resolution=tuple(self.camera_resolution))
+        return dict(
+            position=self.position,
+            forward=self.forward,
+            up=self.up,
+            fov_deg=self.camera_fov_deg,
+            resolution=tuple(self.camera_resolution),
+        )
 
     def native_lights(self, scene_unit_cm):
         r = 0.5 * self.light_diameter_mm * 0.1 / scene_unit_cm
         half = math.radians(0.5 * self.cone_angle_deg)
-        return [dict(position=p.tolist(), direction=self.forward.tolist(), radius=r, half_angle=half,
-                     spectrum=self._spec()) for p in self.light_positions(float(scene_unit_cm))]
+        return [
+            dict(position=p.tolist(), direction=self.forward.tolist(), radius=r, half_angle=half, spectrum=self._spec())
+            for p in self.light_positions(float(scene_unit_cm))
+        ]
 
     def native_body(self, scene_unit_cm):
         if not self.body or self.head_diameter_mm <= 0 or self.head_length_mm <= 0:
             return None
         mm = 0.1 / float(scene_unit_cm)
-        return dict(front=self.position.tolist(), axis=self.forward.tolist(), radius=0.5 * self.head_diameter_mm * mm,
-                    length=self.head_length_mm * mm, camera=self.position.tolist(),
-                    camera_radius=0.5 * self.camera_aperture_mm * mm)
+        return dict(
+            front=self.position.tolist(),
+            axis=self.forward.tolist(),
+            radius=0.5 * self.head_diameter_mm * mm,
+            length=self.head_length_mm * mm,
+            camera=self.position.tolist(),
+            camera_radius=0.5 * self.camera_aperture_mm * mm,
+        )
 
     @classmethod
-    def from_beta(cls, beta_deg: float, distance: float, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0),
-                  tilt_axis=None, **kwargs) -> "EndoscopeRig":
+    def from_beta(
+        cls, beta_deg: float, distance: float, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), tilt_axis=None, **kwargs
+    ) -> "EndoscopeRig":
         """Place the head ``distance`` (scene units) from the surface ``point``, looking at it,
         tilted by ``beta_deg`` from the surface ``normal``.
 
@@ -235,11 +283,19 @@ class EndoscopeRig(_Source):
         the normal). The light guides lie in the plane of tilt, so at beta > 0 one
         light is nearer the surface than the other.
         """
-        if isinstance(beta_deg, bool) or not isinstance(beta_deg, (int, float)) or not math.isfinite(beta_deg) \
-                or abs(beta_deg) >= 90:
+        if (
+            isinstance(beta_deg, bool)
+            or not isinstance(beta_deg, (int, float))
+            or not math.isfinite(beta_deg)
+            or abs(beta_deg) >= 90
+        ):
             raise ValueError(f"rig.beta_deg = {beta_deg!r} must be a finite angle in (-90, 90) degrees")
-        if isinstance(distance, bool) or not isinstance(distance, (int, float)) or not math.isfinite(distance) \
-                or distance <= 0:
+        if (
+            isinstance(distance, bool)
+            or not isinstance(distance, (int, float))
+            or not math.isfinite(distance)
+            or distance <= 0
+        ):
             raise ValueError(f"rig.distance = {distance!r} must be a positive number (scene units)")
         p = _vec3("rig", "point", point)
         n = _vec3("rig", "normal", normal, unit_length=True)
@@ -283,13 +339,39 @@ def source_from_dict(d: dict):
         return ConeSource(**body)
     if kind == "endoscope":
         if "transform" in body:
-            _check_keys("source", body, {"transform"}, extra={"head_diameter_mm", "light_diameter_mm",
-                                                              "light_offset_mm", "cone_angle_deg", "camera_fov_deg", "head_length_mm",
-                           "camera_aperture_mm", "body"})
+            _check_keys(
+                "source",
+                body,
+                {"transform"},
+                extra={
+                    "head_diameter_mm",
+                    "light_diameter_mm",
+                    "light_offset_mm",
+                    "cone_angle_deg",
+                    "camera_fov_deg",
+                    "head_length_mm",
+                    "camera_aperture_mm",
+                    "body",
+                },
+            )
             return EndoscopeRig(**body)
-        _check_keys("source", body, {"beta_deg", "distance"},
-                    extra={"point", "normal", "tilt_axis", "head_diameter_mm", "light_diameter_mm",
-                           "light_offset_mm", "cone_angle_deg", "camera_fov_deg", "head_length_mm",
-                           "camera_aperture_mm", "body"})
+        _check_keys(
+            "source",
+            body,
+            {"beta_deg", "distance"},
+            extra={
+                "point",
+                "normal",
+                "tilt_axis",
+                "head_diameter_mm",
+                "light_diameter_mm",
+                "light_offset_mm",
+                "cone_angle_deg",
+                "camera_fov_deg",
+                "head_length_mm",
+                "camera_aperture_mm",
+                "body",
+            },
+        )
         return EndoscopeRig.from_beta(**body)
     raise ValueError(f"source.type = {kind!r} must be one of 'pencil', 'disk', 'cone', 'endoscope'")

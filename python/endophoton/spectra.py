@@ -60,8 +60,10 @@ def _check_wavelengths(where, field, w, min_size):
             raise ValueError(f"{where}{at} must be finite")
         if not w[i] > 0:
             raise ValueError(f"{where}{at} must be > 0")
-        raise ValueError(f"{where}{at} must be greater than {field}[{i - 1}] = {_g(w[i - 1])} "
-                         "(wavelengths must be strictly increasing)")
+        raise ValueError(
+            f"{where}{at} must be greater than {field}[{i - 1}] = {_g(w[i - 1])} "
+            "(wavelengths must be strictly increasing)"
+        )
 
 
 def _as_float_array(value, where, field):
@@ -101,8 +103,9 @@ class Spectrum:
         if v.ndim != 1:
             raise ValueError(f"{where}values must be 1-D, got shape {tuple(v.shape)}")
         if v.size != wl.size:
-            raise ValueError(f"{where}wavelength_nm has {wl.size} entries but values has {v.size}; "
-                             "they must have the same length")
+            raise ValueError(
+                f"{where}wavelength_nm has {wl.size} entries but values has {v.size}; " "they must have the same length"
+            )
         with np.errstate(invalid="ignore"):
             bad = ~np.isfinite(v) | (v < 0)
         if bad.any():
@@ -147,8 +150,7 @@ class Spectrum:
         return self._wl.size
 
     def __repr__(self):
-        return (f"Spectrum(name={self._name!r}, {self._wl.size} nodes, "
-                f"{_g(self._wl[0])}-{_g(self._wl[-1])} nm)")
+        return f"Spectrum(name={self._name!r}, {self._wl.size} nodes, " f"{_g(self._wl[0])}-{_g(self._wl[-1])} nm)"
 
 
 class EEM:
@@ -179,19 +181,16 @@ class EEM:
         _check_wavelengths(where, "emission_nm", em, 2)
         n_ex, n_em = ex.size, em.size
         if v.size != n_ex * n_em:
-            raise ValueError(f"{where}values has {v.size} entries, expected "
-                             f"{n_ex} x {n_em} = {n_ex * n_em}")
+            raise ValueError(f"{where}values has {v.size} entries, expected " f"{n_ex} x {n_em} = {n_ex * n_em}")
         if v.shape != (n_ex, n_em):
-            raise ValueError(f"{where}values has shape {tuple(v.shape)}, expected "
-                             f"{n_ex} x {n_em} (n_ex x n_em)")
+            raise ValueError(f"{where}values has shape {tuple(v.shape)}, expected " f"{n_ex} x {n_em} (n_ex x n_em)")
         with np.errstate(invalid="ignore"):
             bad = ~np.isfinite(v) | (v < 0)
         if bad.any():
             i, j = np.unravel_index(int(np.argmax(bad)), v.shape)
             x = v[i, j]
             rule = "must be finite" if not math.isfinite(x) else "must be >= 0"
-            raise ValueError(f"{where}values[{i}][{j}] (ex {_g(ex[i])} nm, em {_g(em[j])} nm) "
-                             f"= {_g(x)} {rule}")
+            raise ValueError(f"{where}values[{i}][{j}] (ex {_g(ex[i])} nm, em {_g(em[j])} nm) " f"= {_g(x)} {rule}")
         if not (v > 0).any():
             raise ValueError(f"{where}values are all 0; at least one must be positive")
         for a in (ex, em, v):
@@ -264,12 +263,13 @@ class EEM:
                 if not text or text.startswith("#"):
                     continue
                 cells = [c.strip() for c in text.split(",")]
-                while cells and cells[-1] == "":   # trailing commas from spreadsheets
+                while cells and cells[-1] == "":  # trailing commas from spreadsheets
                     cells.pop()
                 rows.append((lineno, cells))
         if len(rows) < 2:
-            raise ValueError(f"{where}: needs a header row and at least 1 excitation row, "
-                             f"found {len(rows)} data row(s)")
+            raise ValueError(
+                f"{where}: needs a header row and at least 1 excitation row, " f"found {len(rows)} data row(s)"
+            )
 
         def number(lineno, k, cell):
             try:
@@ -284,14 +284,18 @@ class EEM:
         except ValueError:
             label_is_number = False
         if label_is_number:
-            raise ValueError(f"{where} line {head_line}: the first data row must start with the "
-                             f"label ex\\em followed by the emission wavelengths, got {head[0]!r}")
+            raise ValueError(
+                f"{where} line {head_line}: the first data row must start with the "
+                f"label ex\\em followed by the emission wavelengths, got {head[0]!r}"
+            )
         em = [number(head_line, k, c) for k, c in enumerate(head) if k > 0]
         ex, values = [], []
         for lineno, cells in rows[1:]:
             if len(cells) != len(em) + 1:
-                raise ValueError(f"{where} line {lineno}: expected {len(em) + 1} cells "
-                                 f"(excitation + {len(em)} values), got {len(cells)}")
+                raise ValueError(
+                    f"{where} line {lineno}: expected {len(em) + 1} cells "
+                    f"(excitation + {len(em)} values), got {len(cells)}"
+                )
             nums = [number(lineno, k, c) for k, c in enumerate(cells)]
             ex.append(nums[0])
             values.append(nums[1:])
@@ -303,9 +307,10 @@ class EEM:
         Values are written with repr(), so reading them back is exact.
         comment: optional extra text for the '#' header (provenance).
         """
-        lines = [f"# excitation-emission matrix '{self._name}', written by endophoton.spectra",
-                 "# rows: excitation wavelength (nm); columns: emission wavelength (nm);"
-                 " values: relative fluorescence"]
+        lines = [
+            f"# excitation-emission matrix '{self._name}', written by endophoton.spectra",
+            "# rows: excitation wavelength (nm); columns: emission wavelength (nm);" " values: relative fluorescence",
+        ]
         if comment:
             lines += ["# " + c for c in str(comment).splitlines()]
         lines.append("ex\\em," + ",".join(repr(float(w)) for w in self._em))
@@ -340,13 +345,14 @@ class EEM:
                 if path.is_file():
                     return cls.from_csv(path, name=name)
         known = ", ".join(cls.default_names()) or "none found"
-        raise ValueError(f"unknown fluorophore '{name}': no default EEM named '{name}' "
-                         f"(known: {known})")
+        raise ValueError(f"unknown fluorophore '{name}': no default EEM named '{name}' " f"(known: {known})")
 
     def __repr__(self):
-        return (f"EEM(name={self._name!r}, {self._ex.size} x {self._em.size}, "
-                f"ex {_g(self._ex[0])}-{_g(self._ex[-1])} nm, "
-                f"em {_g(self._em[0])}-{_g(self._em[-1])} nm)")
+        return (
+            f"EEM(name={self._name!r}, {self._ex.size} x {self._em.size}, "
+            f"ex {_g(self._ex[0])}-{_g(self._ex[-1])} nm, "
+            f"em {_g(self._em[0])}-{_g(self._em[-1])} nm)"
+        )
 
 
 class Fluorophore:
@@ -372,20 +378,21 @@ class Fluorophore:
                 eem = EEM.default(name)
             except ValueError:
                 known = ", ".join(EEM.default_names()) or "none found"
-                raise ValueError(f"fluorophore '{name}': no eem given and no default EEM named "
-                                 f"'{name}' (known: {known})") from None
+                raise ValueError(
+                    f"fluorophore '{name}': no eem given and no default EEM named " f"'{name}' (known: {known})"
+                ) from None
         elif not isinstance(eem, EEM):
-            raise TypeError(f"fluorophore '{name}': eem must be an endophoton EEM or None, "
-                            f"got {type(eem).__name__}")
+            raise TypeError(
+                f"fluorophore '{name}': eem must be an endophoton EEM or None, " f"got {type(eem).__name__}"
+            )
         self._eem = eem
 
     def _probability(self, field, value):
         try:
             x = float(value)
         except (TypeError, ValueError):
-            raise ValueError(f"fluorophore '{self._name}': {field} = {value!r} must be a number "
-                             "in [0, 1]") from None
-        if not (0.0 <= x <= 1.0):   # also rejects NaN
+            raise ValueError(f"fluorophore '{self._name}': {field} = {value!r} must be a number " "in [0, 1]") from None
+        if not (0.0 <= x <= 1.0):  # also rejects NaN
             raise ValueError(f"fluorophore '{self._name}': {field} = {_g(x)} must be in [0, 1]")
         return x
 
@@ -414,6 +421,7 @@ class Fluorophore:
 def default_fluorophores(kind):
     """Fluorophores of the seed experiment: kind "tissue" or "polyp" (FLUOROPHORE_DEFAULTS)."""
     if kind not in FLUOROPHORE_DEFAULTS:
-        raise ValueError(f"default_fluorophores: kind = {kind!r} is unknown "
-                         f"(known: {', '.join(sorted(FLUOROPHORE_DEFAULTS))})")
+        raise ValueError(
+            f"default_fluorophores: kind = {kind!r} is unknown " f"(known: {', '.join(sorted(FLUOROPHORE_DEFAULTS))})"
+        )
     return [Fluorophore(n, d, c) for n, d, c in FLUOROPHORE_DEFAULTS[kind]]

@@ -27,27 +27,44 @@ ADDON_PATH_VAR = "ENDOPHOTON_ADDON_PATH"
 
 def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``sweep`` subcommand's arguments to ``parser``."""
-    parser.add_argument("--betas", type=parse_betas, default=parse_betas("0:60:5"),
-                        help="tilt angles in degrees: '0,5,10' or 'start:stop:step' (default 0:60:5)")
+    parser.add_argument(
+        "--betas",
+        type=parse_betas,
+        default=parse_betas("0:60:5"),
+        help="tilt angles in degrees: '0,5,10' or 'start:stop:step' (default 0:60:5)",
+    )
     parser.add_argument("--store", type=int, default=500_000, help="records stored per beta (default 500000)")
     parser.add_argument("--seed", type=int, default=1, help="engine seed, same for every beta (default 1)")
     parser.add_argument("--threads", type=int, default=0, help="engine threads, 0 = all cores")
     parser.add_argument("--out", default="sweep_out", help="output folder (default ./sweep_out)")
-    parser.add_argument("--blend", default=None,
-                        help=".blend file: run the sweep on it inside 'blender -b' (default: the paper's scene)")
-    parser.add_argument("--distance", type=float, default=None,
-                        help="head distance from the target point, scene units (default 1 cm)")
-    parser.add_argument("--batches", type=int, default=DEFAULT_BATCHES,
-                        help="batches for batch-means standard errors (default 20)")
+    parser.add_argument(
+        "--blend",
+        default=None,
+        help=".blend file: run the sweep on it inside 'blender -b' (default: the paper's scene)",
+    )
+    parser.add_argument(
+        "--distance", type=float, default=None, help="head distance from the target point, scene units (default 1 cm)"
+    )
+    parser.add_argument(
+        "--batches", type=int, default=DEFAULT_BATCHES, help="batches for batch-means standard errors (default 20)"
+    )
     parser.add_argument("--fluorescence-rule", choices=("paper", "eem"), default="paper")
-    parser.add_argument("--all-photons", action="store_true",
-                        help="store every escaping packet, not only fluorescent ones")
-    parser.add_argument("--polyp", choices=("dome", "embedded", "none"), default="dome",
-                        help="polyp of the default scene (default dome)")
+    parser.add_argument(
+        "--all-photons", action="store_true", help="store every escaping packet, not only fluorescent ones"
+    )
+    parser.add_argument(
+        "--polyp",
+        choices=("dome", "embedded", "none"),
+        default="dome",
+        help="polyp of the default scene (default dome)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--target", default=None,
-                        help="render the endoscope's view per beta and add the visibility of this region "
-                             "(e.g. polyp) against --background (docs/render.md)")
+    parser.add_argument(
+        "--target",
+        default=None,
+        help="render the endoscope's view per beta and add the visibility of this region "
+        "(e.g. polyp) against --background (docs/render.md)",
+    )
     parser.add_argument("--background", default=None, help="background region for --target (e.g. tissue)")
     parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
     return parser
@@ -55,25 +72,51 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
 
 def sweep_kwargs(args: argparse.Namespace) -> dict:
     """Keyword arguments of :func:`endophoton.sweep` from the parsed ``sweep`` arguments."""
-    kw = dict(betas=args.betas, store=args.store, seed=args.seed, threads=args.threads,
-              fluorescent_only=not args.all_photons, fluorescence_rule=args.fluorescence_rule,
-              distance=args.distance, progress=not args.no_progress, n_batches=args.batches)
+    kw = dict(
+        betas=args.betas,
+        store=args.store,
+        seed=args.seed,
+        threads=args.threads,
+        fluorescent_only=not args.all_photons,
+        fluorescence_rule=args.fluorescence_rule,
+        distance=args.distance,
+        progress=not args.no_progress,
+        n_batches=args.batches,
+    )
     target, background = getattr(args, "target", None), getattr(args, "background", None)
     if (target is None) != (background is None):
         raise ValueError(f"--target = {target!r}, --background = {background!r}: give both or neither")
     if target is not None:
         if args.view_size < 1:
             raise ValueError(f"--view-size = {args.view_size} must be >= 1")
-        kw["visibility"] = {"target": target, "background": background, "width": args.view_size,
-                            "height": args.view_size, "images_dir": os.path.join(os.path.abspath(args.out), "views")}
+        kw["visibility"] = {
+            "target": target,
+            "background": background,
+            "width": args.view_size,
+            "height": args.view_size,
+            "images_dir": os.path.join(os.path.abspath(args.out), "views"),
+        }
     return kw
 
 
 def forward_argv(args: argparse.Namespace) -> list:
     """The ``sweep`` arguments, as a list the add-on's ``sweep_blend.main`` parses again inside Blender."""
-    argv = ["--betas", ",".join(f"{b:g}" for b in args.betas), "--store", str(args.store),
-            "--seed", str(args.seed), "--threads", str(args.threads), "--out", os.path.abspath(args.out),
-            "--batches", str(args.batches), "--fluorescence-rule", args.fluorescence_rule]
+    argv = [
+        "--betas",
+        ",".join(f"{b:g}" for b in args.betas),
+        "--store",
+        str(args.store),
+        "--seed",
+        str(args.seed),
+        "--threads",
+        str(args.threads),
+        "--out",
+        os.path.abspath(args.out),
+        "--batches",
+        str(args.batches),
+        "--fluorescence-rule",
+        args.fluorescence_rule,
+    ]
     if args.distance is not None:
         argv += ["--distance", str(args.distance)]
     if args.all_photons:
@@ -103,8 +146,10 @@ def run_in_blender(args: argparse.Namespace) -> int:
         return 2
     pkg_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     paths = [pkg_parent] + [p for p in (addon_folder(),) if p]
-    expr = ("import sys; sys.path[:0] = %r; from endophoton_addon import sweep_blend; "
-            "sys.exit(sweep_blend.main(%r))" % (paths, forward_argv(args)))
+    expr = (
+        "import sys; sys.path[:0] = %r; from endophoton_addon import sweep_blend; "
+        "sys.exit(sweep_blend.main(%r))" % (paths, forward_argv(args))
+    )
     # blender opens the .blend itself; sweep_blend.main registers the add-on first
     cmd = [blender, "-b", os.fspath(args.blend), "--python-exit-code", "1", "--python-expr", expr]
     env = dict(os.environ)
@@ -124,6 +169,8 @@ def sweep_main(args: argparse.Namespace) -> int:
     res = sweep(scene, **sweep_kwargs(args))
     res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
     paths = write_outputs(res, args.out)
-    print(f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
-          f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}")
+    print(
+        f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
+        f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}"
+    )
     return 130 if res.meta.get("cancelled") or any(r["cancelled"] for r in res.rows) else 0

@@ -52,8 +52,9 @@ def rig_geometry(rig: Any, unit: str = "cm", normal: Sequence[float] = (0.0, 0.0
     if callable(lights):
         lights = lights(unit)
     if lights is None and _get(rig, "lights") is not None:
-        lights = [(_get(l, "center") if _get(l, "center") is not None else _get(l, "position"))
-                  for l in _get(rig, "lights")]
+        lights = [
+            (_get(l, "center") if _get(l, "center") is not None else _get(l, "position")) for l in _get(rig, "lights")
+        ]
     if lights is None:
         if T is None:
             raise ValueError("rig: has neither light_positions/lights nor transform")
@@ -70,18 +71,27 @@ def rig_geometry(rig: Any, unit: str = "cm", normal: Sequence[float] = (0.0, 0.0
     else:
         if T is None:
             raise ValueError("rig: has neither camera nor transform")
-        camera = dict(position=T[:3, 3].copy(), forward=-R[:, 2], up=R[:, 1].copy(),
-                      fov_deg=float(_get(rig, "camera_fov_deg", 120.0)),
-                      resolution=tuple(_get(rig, "camera_resolution", (256, 256))))
-    camera = {k: (np.asarray(v, dtype=np.float64) if k in ("position", "forward", "up") else v)
-              for k, v in camera.items()}
+        camera = dict(
+            position=T[:3, 3].copy(),
+            forward=-R[:, 2],
+            up=R[:, 1].copy(),
+            fov_deg=float(_get(rig, "camera_fov_deg", 120.0)),
+            resolution=tuple(_get(rig, "camera_resolution", (256, 256))),
+        )
+    camera = {
+        k: (np.asarray(v, dtype=np.float64) if k in ("position", "forward", "up") else v) for k, v in camera.items()
+    }
     camera["resolution"] = tuple(int(x) for x in camera["resolution"])
     camera["fov_deg"] = float(camera["fov_deg"])
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
     reference = None
-    for cand in (-camera["forward"], (lights[0] - lights[-1]) if lights.shape[0] > 1 else None,
-                 np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])):
+    for cand in (
+        -camera["forward"],
+        (lights[0] - lights[-1]) if lights.shape[0] > 1 else None,
+        np.array([1.0, 0.0, 0.0]),
+        np.array([0.0, 1.0, 0.0]),
+    ):
         if cand is None:
             continue
         r = cand - np.dot(cand, n) * n
@@ -91,9 +101,17 @@ def rig_geometry(rig: Any, unit: str = "cm", normal: Sequence[float] = (0.0, 0.0
     return dict(light_positions=lights, camera=camera, reference=reference)
 
 
-def analyse_run(escapes: Mapping[str, Any], packets_traced: int, light_positions: Any, camera: Any,
-                n_batches: int = an.DEFAULT_BATCHES, max_angle_deg: float = IMPORTANT_ANGLE_DEG,
-                n_elev: int = 10, n_azim: int = 36, reference: Any = None) -> tuple[dict, dict, dict]:
+def analyse_run(
+    escapes: Mapping[str, Any],
+    packets_traced: int,
+    light_positions: Any,
+    camera: Any,
+    n_batches: int = an.DEFAULT_BATCHES,
+    max_angle_deg: float = IMPORTANT_ANGLE_DEG,
+    n_elev: int = 10,
+    n_azim: int = 36,
+    reference: Any = None,
+) -> tuple[dict, dict, dict]:
     """Reduce one run's escape records to (row, histogram, batches); see :data:`CSV_COLUMNS`.
 
     ``packets_traced`` is P for the batch means (packets 0..P-1 were traced).
@@ -118,20 +136,28 @@ def analyse_run(escapes: Mapping[str, Any], packets_traced: int, light_positions
     # rings that straddle 45 deg (odd n_elev) belong to neither group
 
     def frame(ref):
-        counts, stderr, hb = an.exit_direction_histogram(escapes, light_positions, n_elev, n_azim, B, P,
-                                                         return_batches=True, reference=ref)
+        counts, stderr, hb = an.exit_direction_histogram(
+            escapes, light_positions, n_elev, n_azim, B, P, return_batches=True, reference=ref
+        )
         a_low_b = an.azimuth_asymmetry(hb, low)
         a_high_b = an.azimuth_asymmetry(hb, high)
         pvals = an.azimuthal_uniformity_test(counts)
         finite_p = pvals[np.isfinite(pvals)]
         pmin = float(finite_p.min()) if finite_p.size else float("nan")
-        vals = {"azimuth_asym_low": an.azimuth_asymmetry(counts, low), "azimuth_asym_low_stderr": an.batch_se(a_low_b),
-                "azimuth_asym_high": an.azimuth_asymmetry(counts, high),
-                "azimuth_asym_high_stderr": an.batch_se(a_high_b),
-                "azimuth_chi2_p_min": pmin,
-                "azimuth_chi2_p_bonferroni": min(1.0, pmin * finite_p.size) if finite_p.size else float("nan")}
-        return vals, {"counts": counts, "stderr": stderr, "chi2_p": pvals}, \
-            {"azimuth_asym_low": a_low_b, "azimuth_asym_high": a_high_b}, hb
+        vals = {
+            "azimuth_asym_low": an.azimuth_asymmetry(counts, low),
+            "azimuth_asym_low_stderr": an.batch_se(a_low_b),
+            "azimuth_asym_high": an.azimuth_asymmetry(counts, high),
+            "azimuth_asym_high_stderr": an.batch_se(a_high_b),
+            "azimuth_chi2_p_min": pmin,
+            "azimuth_chi2_p_bonferroni": min(1.0, pmin * finite_p.size) if finite_p.size else float("nan"),
+        }
+        return (
+            vals,
+            {"counts": counts, "stderr": stderr, "chi2_p": pvals},
+            {"azimuth_asym_low": a_low_b, "azimuth_asym_high": a_high_b},
+            hb,
+        )
 
     vals, hist, fb, hb = frame(None)
     tot_b = hb.sum(axis=(1, 2))
@@ -141,18 +167,33 @@ def analyse_run(escapes: Mapping[str, Any], packets_traced: int, light_positions
         "records": K,
         "packets_traced": P,
         "packets_traced_stderr": P * rate_se / rate if rate > 0 else float("nan"),
-        "record_rate": rate, "record_rate_stderr": rate_se,
-        "energy_per_packet": epp, "energy_per_packet_stderr": epp_se,
-        "energy_per_record": epr, "energy_per_record_stderr": epr_se,
-        "energy_total": epr * K, "energy_total_stderr": epr_se * K,
-        "important_fraction": imp, "important_fraction_stderr": imp_se,
+        "record_rate": rate,
+        "record_rate_stderr": rate_se,
+        "energy_per_packet": epp,
+        "energy_per_packet_stderr": epp_se,
+        "energy_per_record": epr,
+        "energy_per_record_stderr": epr_se,
+        "energy_total": epr * K,
+        "energy_total_stderr": epr_se * K,
+        "important_fraction": imp,
+        "important_fraction_stderr": imp_se,
         "important_count": imp_count,
-        "max_depth_cm": mdepth, "max_depth_batch_mean_cm": md_mean, "max_depth_batch_sd_cm": md_sd,
+        "max_depth_cm": mdepth,
+        "max_depth_batch_mean_cm": md_mean,
+        "max_depth_batch_sd_cm": md_sd,
         **vals,
-        "high_elevation_fraction": hf, "high_elevation_fraction_stderr": hf_se,
+        "high_elevation_fraction": hf,
+        "high_elevation_fraction_stderr": hf_se,
     }
-    batches = {"energy_per_packet": epp_b, "energy_per_record": epr_b, "important_fraction": imp_b,
-               "record_rate": rate_b, "max_depth_cm": md_b, **fb, "high_elevation_fraction": hf_b}
+    batches = {
+        "energy_per_packet": epp_b,
+        "energy_per_record": epr_b,
+        "important_fraction": imp_b,
+        "record_rate": rate_b,
+        "max_depth_cm": md_b,
+        **fb,
+        "high_elevation_fraction": hf_b,
+    }
     if reference is not None:
         vals_f, hist_f, fb_f, _ = frame(reference)
         row.update({_fixed_name(k): v for k, v in vals_f.items()})

@@ -70,12 +70,12 @@ VISIBILITY_COLUMNS = {
     "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
     "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
     "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
-                      "runs this is the fluorescent records only)",
+    "runs this is the fluorescent records only)",
     "white_contrast_stderr": "jackknife standard error",
     "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
     "red_green_contrast_stderr": "jackknife standard error",
     "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
-                                 "blue light, where linear-sRGB G of red or blue-green light is negative)",
+    "blue light, where linear-sRGB G of red or blue-green light is negative)",
     "red_green_camera_contrast_stderr": "jackknife standard error",
     "target_pixels": "pixels of the view that see the target region",
     "background_pixels": "pixels of the view that see the background region",
@@ -140,14 +140,16 @@ class SweepResult:
 
     def to_dict(self) -> dict:
         """JSON-able dict: ``format``, ``meta``, ``columns`` (descriptions), ``rows``, ``histograms``, ``batches``."""
-        return jsonable({
-            "format": "endophoton-sweep/1",
-            "meta": self.meta,
-            "columns": CSV_COLUMNS,
-            "rows": self.rows,
-            "histograms": self.histograms,
-            "batches": self.batches,
-        })
+        return jsonable(
+            {
+                "format": "endophoton-sweep/1",
+                "meta": self.meta,
+                "columns": CSV_COLUMNS,
+                "rows": self.rows,
+                "histograms": self.histograms,
+                "batches": self.batches,
+            }
+        )
 
     def to_json(self, path: str | os.PathLike) -> str:
         """Write :meth:`to_dict` as strict JSON (non-finite -> null), atomically."""
@@ -161,8 +163,11 @@ class SweepResult:
         if d.get("format") != "endophoton-sweep/1":
             raise ValueError(f"{path}: format = {d.get('format')!r} is not endophoton-sweep/1")
         rows = [{k: unjson(v) for k, v in r.items()} for r in d["rows"]]
-        arr = lambda v: np.array([[unjson(x) for x in row] for row in v], dtype=np.float64) \
-            if v and isinstance(v[0], list) else np.array([unjson(x) for x in v], dtype=np.float64)
+        arr = (
+            lambda v: np.array([[unjson(x) for x in row] for row in v], dtype=np.float64)
+            if v and isinstance(v[0], list)
+            else np.array([unjson(x) for x in v], dtype=np.float64)
+        )
         hists = [{k: arr(v) for k, v in h.items()} for h in d["histograms"]]
         batches = [{k: arr(v) for k, v in b.items()} for b in d["batches"]]
         return cls(rows=rows, histograms=hists, batches=batches, meta=d.get("meta", {}))

@@ -13,8 +13,17 @@ from .io import check_real
 __all__ = ["FRACTIONS", "TARGET_TALLIES", "Target"]
 
 #: The fractions every run reports, each with ``<name>_stderr``.
-FRACTIONS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
-             "roulette", "occluded", "camera_collected")
+FRACTIONS = (
+    "specular_reflectance",
+    "diffuse_reflectance",
+    "transmittance",
+    "absorbed",
+    "missed",
+    "cut",
+    "roulette",
+    "occluded",
+    "camera_collected",
+)
 #: Tallies a target-accuracy run can aim at (engine-side, per launched packet).
 TARGET_TALLIES = FRACTIONS[:4] + ("fluorescent_escaped", "escaped_energy")
 
@@ -22,6 +31,7 @@ TARGET_TALLIES = FRACTIONS[:4] + ("fluorescent_escaped", "escaped_energy")
 @dataclass
 class Target:
     """Target accuracy: run until stderr/|mean| of ``tally`` <= ``rel_error``."""
+
     tally: str = "diffuse_reflectance"
     rel_error: float = 0.01
 

@@ -98,8 +98,7 @@ def read_grid_summary(path) -> Dict[str, Any]:
     for grid in grids:
         if grid.name in out["grids"]:
             raise ValueError(
-                f"vdb file '{path}': grid name '{grid.name}' occurs more than once; "
-                "summaries are keyed by name"
+                f"vdb file '{path}': grid name '{grid.name}' occurs more than once; " "summaries are keyed by name"
             )
         ibox = _active_index_bbox(grid)
         is_scalar = grid.valueTypeName in ("float", "double", "int32", "int64", "bool")
@@ -126,8 +125,7 @@ def _uniform_axis_aligned_voxel_size(grid, path: str) -> float:
     """
     t = grid.transform
     o = np.asarray(t.indexToWorld((0, 0, 0)), dtype=np.float64)
-    steps = np.array([np.asarray(t.indexToWorld(e), dtype=np.float64) - o
-                      for e in ((1, 0, 0), (0, 1, 0), (0, 0, 1))])
+    steps = np.array([np.asarray(t.indexToWorld(e), dtype=np.float64) - o for e in ((1, 0, 0), (0, 1, 0), (0, 0, 1))])
     h = float(steps[0, 0])
     expected = np.diag([h, h, h])
     if not (t.isLinear and h > 0 and np.allclose(steps, expected, rtol=1e-12, atol=0.0)):
@@ -165,8 +163,7 @@ def grid_to_numpy(path, name: str, max_voxels: int = DEFAULT_MAX_VOXELS):
         raise KeyError(f"vdb file '{path}' has no grid named '{name}'") from None
     if grid.valueTypeName != "float":
         raise TypeError(
-            f"vdb file '{path}': grid '{name}' holds '{grid.valueTypeName}' values; "
-            "grid_to_numpy reads float grids"
+            f"vdb file '{path}': grid '{name}' holds '{grid.valueTypeName}' values; " "grid_to_numpy reads float grids"
         )
     voxel_size = _uniform_axis_aligned_voxel_size(grid, path)
     ibox = _active_index_bbox(grid)

@@ -18,20 +18,28 @@ from .render import render_view
 from .sweep_schema import VISIBILITY_COLUMNS
 from .visibility import contrast, fit_peak
 
-__all__ = ["PAPER_BETA_DEG", "VISIBILITY_COLUMNS", "visibility_columns", "add_visibility",
-           "write_visibility_outputs", "visibility_fits", "plot_visibility", "contact_sheet", "visibility_report"]
+__all__ = [
+    "PAPER_BETA_DEG",
+    "VISIBILITY_COLUMNS",
+    "visibility_columns",
+    "add_visibility",
+    "write_visibility_outputs",
+    "visibility_fits",
+    "plot_visibility",
+    "contact_sheet",
+    "visibility_report",
+]
 
 #: The seed paper's answer (its energy fit peaks near 34 deg): where pathological changes are best visible.
 PAPER_BETA_DEG = float(PAPER_TRENDS["energy_peak_beta_deg"])
-_SERIES = (("red_green_contrast", "red/green contrast (fluorescence)"),
-           ("fluorescence_contrast", "Weber contrast, fluorescence radiance"),
-           ("white_contrast", "Weber contrast, white light"))
+_SERIES = (
+    ("red_green_contrast", "red/green contrast (fluorescence)"),
+    ("fluorescence_contrast", "Weber contrast, fluorescence radiance"),
+    ("white_contrast", "Weber contrast, white light"),
+)
 
 
-
-
-def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "",
-                       **render_kwargs) -> dict:
+def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "", **render_kwargs) -> dict:
     """Hook for the beta sweep: render the run's view and return the :data:`VISIBILITY_COLUMNS` as a
     flat, JSON-able dict (None where a contrast is undefined). ``render_kwargs`` go to ``render_view``;
     with ``out_dir`` the view's images and arrays are saved there with file names starting ``prefix``."""
@@ -65,6 +73,7 @@ def plot_visibility(betas, rows, path) -> str:
     """Contrasts against beta with error bars, the fitted parabola and its maximum +- stderr, and the
     paper's 34 deg; written atomically as PNG."""
     import matplotlib
+
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
 
@@ -97,6 +106,7 @@ def plot_visibility(betas, rows, path) -> str:
 def contact_sheet(image_paths, betas, path, columns: int = 4, title: str = "fluorescence view") -> str:
     """A grid of the views (PNG paths, one per beta) labelled with beta; written atomically as PNG."""
     import matplotlib
+
     matplotlib.use("Agg", force=False)
     import matplotlib.image as mpimg
     from matplotlib.figure import Figure
@@ -129,32 +139,46 @@ def visibility_report(betas, rows, target: str = "polyp", background: str = "wal
     """Markdown section answering the paper's question from the visibility columns."""
     fits = visibility_fits(betas, rows)
     rg = fits["red_green_contrast"]
-    lines = ["## At which β is the polyp most visible?", "",
-             f"Visibility of `{target}` against `{background}` in the endoscope's own view (ep.render_view, "
-             "kernel estimate), per β: Weber contrasts of the mean fluorescence and white-light radiance and "
-             "the red/green ratio contrast of the fluorescence image, each with a jackknife standard error "
-             "over packet batches. The maximum is the vertex of a weighted parabola through the five points "
-             "around the largest value; its uncertainty comes from a parametric bootstrap of the points "
-             "within their standard errors (`visibility.fit_peak`).", "",
-             "| criterion | β at maximum | ± stderr | 68 % range | inside the swept range |", "|---|---|---|---|---|"]
-    for key, label in (("red_green_contrast", "red/green contrast"),
-                       ("fluorescence_contrast", "fluorescence Weber contrast"),
-                       ("white_contrast", "white-light Weber contrast")):
+    lines = [
+        "## At which β is the polyp most visible?",
+        "",
+        f"Visibility of `{target}` against `{background}` in the endoscope's own view (ep.render_view, "
+        "kernel estimate), per β: Weber contrasts of the mean fluorescence and white-light radiance and "
+        "the red/green ratio contrast of the fluorescence image, each with a jackknife standard error "
+        "over packet batches. The maximum is the vertex of a weighted parabola through the five points "
+        "around the largest value; its uncertainty comes from a parametric bootstrap of the points "
+        "within their standard errors (`visibility.fit_peak`).",
+        "",
+        "| criterion | β at maximum | ± stderr | 68 % range | inside the swept range |",
+        "|---|---|---|---|---|",
+    ]
+    for key, label in (
+        ("red_green_contrast", "red/green contrast"),
+        ("fluorescence_contrast", "fluorescence Weber contrast"),
+        ("white_contrast", "white-light Weber contrast"),
+    ):
         f = fits[key]
-        lines.append(f"| {label} | {_fmt(f['x_peak'])}° | {_fmt(f['x_peak_stderr'])}° | "
-                     f"{_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {'yes' if f['interior'] else 'no'} |")
+        lines.append(
+            f"| {label} | {_fmt(f['x_peak'])}° | {_fmt(f['x_peak_stderr'])}° | "
+            f"{_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {'yes' if f['interior'] else 'no'} |"
+        )
     lines.append("")
     if rg["x_peak"] is None:
         lines.append("Too few β values with a defined red/green contrast to locate a maximum.")
     else:
         z = (rg["x_peak"] - PAPER_BETA_DEG) / rg["x_peak_stderr"] if rg["x_peak_stderr"] else float("inf")
-        verdict = ("consistent with" if abs(z) <= 2 else "different from")
-        edge = "" if rg["interior"] else (" The maximum lies at an end of the swept range, so the true "
-                                           "maximum may lie outside it.")
-        lines.append(f"**Answer.** By the red/green contrast (photofrin's red fluorescence against the wall), the "
-                     f"polyp is most visible at β = {rg['x_peak']:.1f}° ± {rg['x_peak_stderr']:.1f}° (68 % range "
-                     f"{rg['x_peak_lo']:.1f}–{rg['x_peak_hi']:.1f}°). The paper's 34° is {abs(z):.1f} σ away: "
-                     f"{verdict} it.{edge}")
+        verdict = "consistent with" if abs(z) <= 2 else "different from"
+        edge = (
+            ""
+            if rg["interior"]
+            else (" The maximum lies at an end of the swept range, so the true " "maximum may lie outside it.")
+        )
+        lines.append(
+            f"**Answer.** By the red/green contrast (photofrin's red fluorescence against the wall), the "
+            f"polyp is most visible at β = {rg['x_peak']:.1f}° ± {rg['x_peak_stderr']:.1f}° (68 % range "
+            f"{rg['x_peak_lo']:.1f}–{rg['x_peak_hi']:.1f}°). The paper's 34° is {abs(z):.1f} σ away: "
+            f"{verdict} it.{edge}"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -173,7 +197,7 @@ def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> 
     if img_dir is None and out_dir is not None:
         img_dir = os.path.join(os.fspath(out_dir), "views")
     cols = visibility_columns(result, target, background, out_dir=img_dir, prefix=f"beta{float(beta):g}_", **vis)
-    row.update({k: float("nan") if v is None else v for k, v in cols.items()})   # the sweep's "undefined"
+    row.update({k: float("nan") if v is None else v for k, v in cols.items()})  # the sweep's "undefined"
     return row
 
 

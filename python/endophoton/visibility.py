@@ -77,12 +77,13 @@ def contrast(view, target: str, background: str, channels: str = "srgb") -> dict
         s = rb[key + "_radiance"][[ti, bi]]
         out[key], out[key + "_stderr"] = jackknife(s, view.packets_per_batch, lambda m: weber(m[0], m[1]))
     key = "fluorescence_rgb" if channels == "srgb" else "fluorescence_camera_rg"
-    rgb = rb[key][[ti, bi]][:, :2]          # (2 regions, R G, B batches)
+    rgb = rb[key][[ti, bi]][:, :2]  # (2 regions, R G, B batches)
 
     def rg(m):
         if not (m[0, 1] > 0 and m[1, 1] > 0):
             return None
         return weber(m[0, 0] / m[0, 1], m[1, 0] / m[1, 1])
+
     out["red_green"], out["red_green_stderr"] = jackknife(rgb, view.packets_per_batch, rg)
     return out
 
@@ -104,8 +105,16 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(se) & (se > 0)
     x, y, se = x[ok], y[ok], se[ok]
     if x.size < 3:
-        return {"x_peak": None, "x_peak_stderr": None, "x_peak_lo": None, "x_peak_hi": None, "y_peak": None,
-                "interior": False, "coeffs": [], "n": int(x.size)}
+        return {
+            "x_peak": None,
+            "x_peak_stderr": None,
+            "x_peak_lo": None,
+            "x_peak_hi": None,
+            "y_peak": None,
+            "interior": False,
+            "coeffs": [],
+            "n": int(x.size),
+        }
     order = np.argsort(x)
     x, y, se = x[order], y[order], se[order]
     k = int(np.argmax(y))
@@ -120,10 +129,18 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
                 return float(v), c
         grid = np.array([xs[0], xs[-1]])
         return float(grid[np.argmax(np.polyval(c, grid))]), c
+
     x0, c0 = peak(ys)
     rng = np.random.default_rng(seed)
     boots = np.array([peak(ys + rng.standard_normal(ys.size) * ss)[0] for _ in range(int(n_boot))])
-    return {"x_peak": x0, "x_peak_stderr": float(np.std(boots, ddof=1)),
-            "x_peak_lo": float(np.percentile(boots, 16)), "x_peak_hi": float(np.percentile(boots, 84)),
-            "y_peak": float(np.polyval(c0, x0)), "interior": bool(x[0] < x0 < x[-1]),
-            "coeffs": [float(v) for v in c0], "fit_range": [float(xs[0]), float(xs[-1])], "n": int(x.size)}
+    return {
+        "x_peak": x0,
+        "x_peak_stderr": float(np.std(boots, ddof=1)),
+        "x_peak_lo": float(np.percentile(boots, 16)),
+        "x_peak_hi": float(np.percentile(boots, 84)),
+        "y_peak": float(np.polyval(c0, x0)),
+        "interior": bool(x[0] < x0 < x[-1]),
+        "coeffs": [float(v) for v in c0],
+        "fit_range": [float(xs[0]), float(xs[-1])],
+        "n": int(x.size),
+    }

@@ -95,16 +95,28 @@ def open_blend(name, grid_dir):
     return bpy.context.scene
 
 
-DATA_KINDS = ("objects", "collections", "meshes", "materials", "volumes", "node_groups",
-              "lights", "cameras", "images", "scenes")
+DATA_KINDS = (
+    "objects",
+    "collections",
+    "meshes",
+    "materials",
+    "volumes",
+    "node_groups",
+    "lights",
+    "cameras",
+    "images",
+    "scenes",
+)
 
 
 def data_snapshot():
     """Everything a run could add or change, as comparable plain values."""
     snap = {kind: sorted(block.name for block in getattr(bpy.data, kind)) for kind in DATA_KINDS}
     scene = bpy.context.scene
-    snap["tree"] = sorted((c.name, tuple(sorted(o.name for o in c.objects)))
-                          for c in [scene.collection, *scene.collection.children_recursive])
+    snap["tree"] = sorted(
+        (c.name, tuple(sorted(o.name for o in c.objects)))
+        for c in [scene.collection, *scene.collection.children_recursive]
+    )
     snap["result_collection"] = getattr(scene.endophoton.result_collection, "name", None)
     return snap
 
@@ -128,11 +140,21 @@ def run_windowed(blend, driver, args, screen="1280x800", timeout=360):
     xvfb = shutil.which("xvfb-run")
     if xvfb is None or shutil.which("xauth") is None:
         pytest.skip("xvfb-run/xauth not installed (apt-get install xvfb xauth): windowed test not run")
-    cmd = [xvfb, "-a", "-s", f"-screen 0 {screen}x24", bpy.app.binary_path, "--factory-startup",
-           "--enable-event-simulate", os.path.join(BLEND_DIR, blend),
-           "--python", os.path.join(HERE, driver), "--", *map(str, args)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    cmd = [
+        xvfb,
+        "-a",
+        "-s",
+        f"-screen 0 {screen}x24",
+        bpy.app.binary_path,
+        "--factory-startup",
+        "--enable-event-simulate",
+        os.path.join(BLEND_DIR, blend),
+        "--python",
+        os.path.join(HERE, driver),
+        "--",
+        *map(str, args),
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         stdout, stderr = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:

@@ -22,10 +22,10 @@ import bpy
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon"))
 
-OUT, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1:][:3]
+OUT, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1 :][:3]
 SWEEP_DIR = os.path.join(os.path.dirname(os.path.abspath(GRID_DIR)), "sweep")
 TICK = 0.1
-DEADLINE = 300.0          # seconds; the driver quits Blender whatever happens
+DEADLINE = 300.0  # seconds; the driver quits Blender whatever happens
 START = time.monotonic()
 state = {"phase": "warmup", "t": time.monotonic(), "ticks": [], "report": {}, "texts": []}
 
@@ -47,7 +47,7 @@ def view3d():
 def invoke(photons):
     settings = bpy.context.scene.endophoton
     settings.quality, settings.photons, settings.grid_dir = "CUSTOM", photons, GRID_DIR
-    settings.allow_large_runs = photons > 5_000_000   # the run ESC cancels is "large" on purpose
+    settings.allow_large_runs = photons > 5_000_000  # the run ESC cancels is "large" on purpose
     window, area, region = view3d()
     with bpy.context.temp_override(window=window, area=area, region=region):
         return sorted(bpy.ops.endophoton.run_simulation("INVOKE_DEFAULT"))
@@ -88,7 +88,7 @@ def _tick():
     phase = state["phase"]
     report = state["report"]
     settings = bpy.context.scene.endophoton
-    if phase == "warmup":                    # let the first redraws (shader compiles) pass
+    if phase == "warmup":  # let the first redraws (shader compiles) pass
         if now - state["t"] > 6.0:
             report["objects_before"] = sorted(o.name for o in bpy.data.objects)
             report["invoke_1"] = invoke(150_000)
@@ -142,7 +142,7 @@ def _tick():
         if now - state["t"] > 60.0:
             finish({"error": "run 2 did not stop after ESC"})
             return None
-    elif phase == "sweep1":                  # Sweep β to the end: progress, then the plots as images
+    elif phase == "sweep1":  # Sweep β to the end: progress, then the plots as images
         state["ticks"].append(now)
         job = operators.running_job()
         if job is not None:
@@ -156,8 +156,7 @@ def _tick():
                 sweep1_texts=state["texts"],
                 sweep1_fractions=state["fractions"],
                 sweep1_images=sorted(i.name for i in bpy.data.images if i.name.startswith("EndoPhoton Sweep: ")),
-                sweep1_image_sizes=[tuple(i.size) for i in bpy.data.images
-                                    if i.name.startswith("EndoPhoton Sweep: ")],
+                sweep1_image_sizes=[tuple(i.size) for i in bpy.data.images if i.name.startswith("EndoPhoton Sweep: ")],
                 sweep1_files=sorted(os.listdir(SWEEP_DIR)) if os.path.isdir(SWEEP_DIR) else [],
                 sweep1_summary=bpy.context.scene.get("endophoton_sweep", {}).get("n_betas"),
                 images_after_sweep1=sorted(i.name for i in bpy.data.images),
@@ -168,7 +167,7 @@ def _tick():
         if now - state["t"] > 90.0:
             finish({"error": "sweep 1 did not finish in 90 s"})
             return None
-    elif phase == "sweep2":                  # Sweep β cancelled with ESC: nothing new
+    elif phase == "sweep2":  # Sweep β cancelled with ESC: nothing new
         state["ticks"].append(now)
         if operators.running_job() is not None:
             state["texts"].append(status_text())
@@ -178,14 +177,16 @@ def _tick():
             window.event_simulate(type="ESC", value="RELEASE")
             report["sweep_esc_sent"] = now - state["t"]
         if "sweep_esc_sent" in report and operators.running_job() is None:
-            finish(dict(
-                sweep2_stopped_after=now - state["t"],
-                sweep2_texts=state["texts"][-3:],
-                images_after_sweep2=sorted(i.name for i in bpy.data.images),
-                objects_after_sweep2=sorted(o.name for o in bpy.data.objects),
-                sweep2_files=sorted(os.listdir(SWEEP_DIR)) if os.path.isdir(SWEEP_DIR) else [],
-                sweep_status_cleared=status_text() is None,
-            ))
+            finish(
+                dict(
+                    sweep2_stopped_after=now - state["t"],
+                    sweep2_texts=state["texts"][-3:],
+                    images_after_sweep2=sorted(i.name for i in bpy.data.images),
+                    objects_after_sweep2=sorted(o.name for o in bpy.data.objects),
+                    sweep2_files=sorted(os.listdir(SWEEP_DIR)) if os.path.isdir(SWEEP_DIR) else [],
+                    sweep_status_cleared=status_text() is None,
+                )
+            )
             return None
         if now - state["t"] > 60.0:
             finish({"error": "sweep 2 did not stop after ESC"})

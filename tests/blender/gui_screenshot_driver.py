@@ -20,9 +20,14 @@ import bpy
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon"))
-OUT_DIR, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1:][:3]
-PANELS = ("ENDOPHOTON_PT_object", "ENDOPHOTON_PT_endoscope", "ENDOPHOTON_PT_simulation",
-          "ENDOPHOTON_PT_results", "ENDOPHOTON_PT_sweep")
+OUT_DIR, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1 :][:3]
+PANELS = (
+    "ENDOPHOTON_PT_object",
+    "ENDOPHOTON_PT_endoscope",
+    "ENDOPHOTON_PT_simulation",
+    "ENDOPHOTON_PT_results",
+    "ENDOPHOTON_PT_sweep",
+)
 state = {"step": 0, "shots": [], "ticks": 0}
 
 
@@ -36,11 +41,10 @@ def only_panel(name):
     from endophoton_addon import panels
 
     for cls in panels.CLASSES:
-        if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" \
-                and cls.is_registered:
+        if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" and cls.is_registered:
             bpy.utils.unregister_class(cls)
     cls = next(c for c in panels.CLASSES if c.__name__ == name)
-    cls.bl_options = set()   # open, even the Sweep β panel that starts closed
+    cls.bl_options = set()  # open, even the Sweep β panel that starts closed
     bpy.utils.register_class(cls)
 
 
@@ -49,29 +53,31 @@ def hide_other_sidebar_tabs():
     only): "Item" (native) and "EndoPhoton" are the only tabs left, so the
     EndoPhoton tab sits at a known place.  Blender's own modules complain when
     they unregister these at quit; that noise is expected."""
+
     def subclasses(cls):
         for sub in cls.__subclasses__():
             yield sub
             yield from subclasses(sub)
 
     for cls in list(subclasses(bpy.types.Panel)):
-        if getattr(cls, "bl_space_type", "") == "VIEW_3D" and getattr(cls, "bl_region_type", "") == "UI" \
-                and getattr(cls, "bl_category", "") != "EndoPhoton" and cls.is_registered:
+        if (
+            getattr(cls, "bl_space_type", "") == "VIEW_3D"
+            and getattr(cls, "bl_region_type", "") == "UI"
+            and getattr(cls, "bl_category", "") != "EndoPhoton"
+            and cls.is_registered
+        ):
             bpy.utils.unregister_class(cls)
-
 
 
 def restore_panels():
     from endophoton_addon import panels
 
     for cls in panels.CLASSES:
-        if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" \
-                and cls.is_registered:
+        if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" and cls.is_registered:
             bpy.utils.unregister_class(cls)
     for cls in panels.CLASSES:
         if not cls.is_registered:
             bpy.utils.register_class(cls)
-
 
 
 def capture(name):
@@ -89,14 +95,20 @@ def capture(name):
     bpy.data.images.remove(image)
     px = px.reshape(h, w, 4)
     x0 = max(0, ui.x - area.x)
-    crop = px[:, x0:x0 + ui.width]
+    crop = px[:, x0 : x0 + ui.width]
     out = bpy.data.images.new(f"crop {name}", crop.shape[1], crop.shape[0], alpha=True)
     out.pixels.foreach_set(np.ascontiguousarray(crop).ravel())
     out.filepath_raw = path
     out.file_format = "PNG"
     out.save()
-    state["shots"].append({"panel": name, "file": path, "size": [int(crop.shape[1]), int(crop.shape[0])],
-                           "std": float(crop[..., :3].std())})
+    state["shots"].append(
+        {
+            "panel": name,
+            "file": path,
+            "size": [int(crop.shape[1]), int(crop.shape[0])],
+            "std": float(crop[..., :3].std()),
+        }
+    )
 
 
 def tick():
@@ -135,7 +147,7 @@ def tick():
     if index >= len(PANELS):
         with open(os.path.join(OUT_DIR, "screenshots.json"), "w") as f:
             json.dump(state["shots"], f, indent=1)
-        restore_panels()   # the add-on unregisters cleanly on quit
+        restore_panels()  # the add-on unregisters cleanly on quit
         bpy.ops.wm.quit_blender()
         return None
     if (step - 1) % 2 == 0:

@@ -23,7 +23,7 @@ REPO = os.path.dirname(os.path.dirname(HERE))
 def main():
     import pytest
 
-    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
     sys.path.insert(0, os.path.join(REPO, "addon"))
     sys.path.insert(0, HERE)
 

@@ -35,11 +35,15 @@ def _render(scene, path):
     return pixels.reshape(-1, 4)[:, :3]
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "Since light crosses the lumen (issue 9), the records still separate the polyp from the wall "
-    "(weighted red/green 2.7 against 1.4, first exits), but the point-cloud render's per-pixel "
-    "red/green does not (about 1.9 against 1.8): the wall's re-landed exits and the points' "
-    "overlap wash it out. Open in issue 15."))
+@pytest.mark.xfail(
+    strict=False,
+    reason=(
+        "Since light crosses the lumen (issue 9), the records still separate the polyp from the wall "
+        "(weighted red/green 2.7 against 1.4, first exits), but the point-cloud render's per-pixel "
+        "red/green does not (about 1.9 against 1.8): the wall's re-landed exits and the points' "
+        "overlap wash it out. Open in issue 15."
+    ),
+)
 def test_polyp_photofrin_renders_red_from_endoscope(ep, tmp_path, out_dir):
     scene = open_blend("colon_polyp.blend", tmp_path)
     s = scene.endophoton
@@ -50,7 +54,7 @@ def test_polyp_photofrin_renders_red_from_endoscope(ep, tmp_path, out_dir):
     collection = simulation.finish_job(bpy.context, job)
     assert collection is not None
     scene.camera = next(o for o in scene.objects if o.type == "CAMERA")
-    for obj in scene.objects:          # the points alone, glowing on black
+    for obj in scene.objects:  # the points alone, glowing on black
         obj.hide_render = obj.name not in collection.all_objects
     scene.world = None
     render = scene.render
@@ -92,5 +96,5 @@ def test_polyp_photofrin_renders_red_from_endoscope(ep, tmp_path, out_dir):
     path = os.path.join(out_dir, "colon_polyp_with_legend.png")
     bpy.ops.endophoton.render_legend(filepath=path)
     image = bpy.data.images.load(path, check_existing=True)
-    assert image.size[0] > render.resolution_x   # the render plus the colour bar beside it
+    assert image.size[0] > render.resolution_x  # the render plus the colour bar beside it
     assert image.get(results.RUN_KEY) == collection.get(results.RUN_KEY)

@@ -52,13 +52,23 @@ def test_snippet_finder_reads_every_block(tmp_path):
 
 def test_beta_sweep_example_runs(ep):
     env = dict(os.environ, ENDOPHOTON_PYTHONPATH=ENGINE_FOLDER or os.path.dirname(os.path.dirname(ep.__file__)))
-    cmd = [bpy.app.binary_path, "-b", "--factory-startup", os.path.join(REPO, "blend_scenes", "colon_polyp.blend"),
-           "--python-exit-code", "1",
-           "--python-expr", f"import sys; sys.path.insert(0, {os.path.join(REPO, 'addon')!r})",
-           "--python", os.path.join(REPO, "examples", "beta_sweep_compare.py"), "--", "3000"]
+    cmd = [
+        bpy.app.binary_path,
+        "-b",
+        "--factory-startup",
+        os.path.join(REPO, "blend_scenes", "colon_polyp.blend"),
+        "--python-exit-code",
+        "1",
+        "--python-expr",
+        f"import sys; sys.path.insert(0, {os.path.join(REPO, 'addon')!r})",
+        "--python",
+        os.path.join(REPO, "examples", "beta_sweep_compare.py"),
+        "--",
+        "3000",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     rows = [ln.split() for ln in proc.stdout.splitlines() if re.match(r"^\s+\d+\.\d\s+0\.\d+", ln)]
     assert [float(r[0]) for r in rows] == [0.0, 20.0, 40.0]
-    for r in rows:   # Rd ± se and the photofrin share ± se are finite fractions
+    for r in rows:  # Rd ± se and the photofrin share ± se are finite fractions
         assert 0 < float(r[1]) < 1 and 0 < float(r[2]) < 0.1 and 0 <= float(r[3]) <= 1

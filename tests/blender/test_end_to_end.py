@@ -82,12 +82,14 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
     np.testing.assert_allclose(co.reshape(-1, 3), esc["position"] / scene.unit_settings.scale_length, atol=1e-7)
     assert _attr(mesh, "weight").astype(np.float64).sum() == pytest.approx(esc["weight"].sum(), rel=1e-6)
     assert _attr(mesh, "energy").astype(np.float64).sum() == pytest.approx(esc["energy"].sum(), rel=1e-6)
-    assert _attr(mesh, "wavelength").astype(np.float64).sum() == \
-        pytest.approx(esc["wavelength"].astype(np.float64).sum(), rel=1e-7)
+    assert _attr(mesh, "wavelength").astype(np.float64).sum() == pytest.approx(
+        esc["wavelength"].astype(np.float64).sum(), rel=1e-7
+    )
     assert int(_attr(mesh, "fluorescent").sum()) == int(esc["fluorescent"].sum()) > 0
     assert int(_attr(mesh, "fluorophore").astype(np.int64).sum()) == int(esc["fluorophore"].astype(np.int64).sum())
-    assert _attr(mesh, "depth").astype(np.float64).sum() == \
-        pytest.approx(esc["max_depth"].astype(np.float64).sum(), rel=1e-7)
+    assert _attr(mesh, "depth").astype(np.float64).sum() == pytest.approx(
+        esc["max_depth"].astype(np.float64).sum(), rel=1e-7
+    )
     np.testing.assert_array_equal(_attr(mesh, "direction"), esc["direction"])
 
     # Volumes: one per grid, loading the .vdb with the expected names and voxels.
@@ -137,7 +139,10 @@ def test_two_runs_coexist_delete_removes_files_export_round_trips(ep, tmp_path):
     second_job, second, _seen = _run_job(bpy.context)
     assert {c.name for c in _result_collections()} == {first_name, second.name}
     params = [c[results.PARAMS_KEY].to_dict() for c in (first, second)]
-    assert np.allclose([p["beta_deg"] for p in params], [0.0, 20.0], atol=1e-4) and [p["seed"] for p in params] == [1, 7]
+    assert np.allclose([p["beta_deg"] for p in params], [0.0, 20.0], atol=1e-4) and [p["seed"] for p in params] == [
+        1,
+        7,
+    ]
     assert os.path.isfile(first_vdb) and os.path.isfile(second_job.inputs.grid_path)
     assert settings.result_collection == second
 
@@ -171,8 +176,12 @@ def test_two_runs_coexist_delete_removes_files_export_round_trips(ep, tmp_path):
     assert [c.name for c in _result_collections()] == [second.name]
     assert not os.path.exists(first_vdb) and os.path.isfile(second_job.inputs.grid_path)
     assert not first_objects & {o.name for o in bpy.data.objects}
-    run_ids = {b.get(results.RUN_KEY) for kind in (bpy.data.meshes, bpy.data.materials, bpy.data.volumes)
-               for b in kind if b.get(results.RUN_KEY)}
+    run_ids = {
+        b.get(results.RUN_KEY)
+        for kind in (bpy.data.meshes, bpy.data.materials, bpy.data.volumes)
+        for b in kind
+        if b.get(results.RUN_KEY)
+    }
     assert run_ids == {second[results.RUN_KEY]}
 
 
@@ -208,9 +217,23 @@ def test_unit_scale_is_respected(ep, tmp_path):
         ensure_addon()
         scene = bpy.context.scene
         scene.unit_settings.scale_length = scale_length
-        k = 0.001 / scale_length   # one millimetre in Blender units
-        box_v = np.array([[-20, -20, -20], [20, -20, -20], [20, 20, -20], [-20, 20, -20],
-                          [-20, -20, 0], [20, -20, 0], [20, 20, 0], [-20, 20, 0]], dtype=float) * k
+        k = 0.001 / scale_length  # one millimetre in Blender units
+        box_v = (
+            np.array(
+                [
+                    [-20, -20, -20],
+                    [20, -20, -20],
+                    [20, 20, -20],
+                    [-20, 20, -20],
+                    [-20, -20, 0],
+                    [20, -20, 0],
+                    [20, 20, 0],
+                    [-20, 20, 0],
+                ],
+                dtype=float,
+            )
+            * k
+        )
         box_f = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
         tissue = mesh_object("Tissue", box_v, [box_f])
         tissue.endophoton.role = "TISSUE"
@@ -240,12 +263,12 @@ def test_cancelled_run_leaves_nothing(ep, tmp_path):
     scene = open_blend("flat_tissue.blend", tmp_path)
     settings = scene.endophoton
     settings.quality = "CUSTOM"
-    settings.photons = 200_000_000           # far longer than the test waits
-    settings.allow_large_runs = True    # the guard would ask first
+    settings.photons = 200_000_000  # far longer than the test waits
+    settings.allow_large_runs = True  # the guard would ask first
     before = data_snapshot()
     job = simulation.prepare_job(bpy.context)
     job.start()
-    deadline = time.monotonic() + 600.0   # a hang guard, not a verdict on speed (issue 13)
+    deadline = time.monotonic() + 600.0  # a hang guard, not a verdict on speed (issue 13)
     while job.progress().done == 0 and time.monotonic() < deadline:
         time.sleep(0.02)
     assert job.progress().done > 0, "the run never reported progress"
@@ -279,7 +302,7 @@ def test_engine_rejection_leaves_scene_untouched(ep, tmp_path):
     """Errors found by the engine itself (here: light guides outside the head)
     are reported before the run starts; nothing is created."""
     scene = open_blend("flat_tissue.blend", tmp_path)
-    scene.objects["EP Endoscope"].endophoton_rig.light_offset = 0.0049   # 4.9 + 1.5 > 6 mm
+    scene.objects["EP Endoscope"].endophoton_rig.light_offset = 0.0049  # 4.9 + 1.5 > 6 mm
     before = data_snapshot()
     with pytest.raises(RuntimeError, match=r"Object 'EP Endoscope': endophoton_rig.light_offset"):
         bpy.ops.endophoton.run_simulation()
@@ -294,8 +317,8 @@ def test_colon_polyp_scene_runs(ep, tmp_path):
     job, collection, _ = _run_job(bpy.context)
     res = job.result
     assert set(res.absorbed_by_region) == {"Colon", "Polyp"}
-    assert res.absorbed_by_region["Polyp"] > 0.1     # the rig looks at the polyp
-    assert res.missed < 0.05                          # the lights hit the colon wall
+    assert res.absorbed_by_region["Polyp"] > 0.1  # the rig looks at the polyp
+    assert res.missed < 0.05  # the lights hit the colon wall
     assert len(_points_object(collection).data.vertices) == len(res.escapes["weight"])
 
 

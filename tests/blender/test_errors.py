@@ -11,8 +11,13 @@ import pytest
 from endophoton_addon import rig
 from conftest import data_snapshot, mesh_object
 
-BOX_V = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                  [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float) * 0.02
+BOX_V = (
+    np.array(
+        [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+        dtype=float,
+    )
+    * 0.02
+)
 BOX_F = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
 
 
@@ -106,12 +111,15 @@ def test_zero_store():
     _assert_rejected(r"Scene 'Scene': simulation.store = 0 must be > 0")
 
 
-@pytest.mark.parametrize("field,pattern", [
-    ("mua", r"Object 'Tissue': medium.mua = nan must be a finite number >= 0"),
-    ("mus", r"Object 'Tissue': medium.mus = nan must be"),
-    ("g", r"Object 'Tissue': medium.g = nan must be a finite number in \[-1, 1\]"),
-    ("n", r"Object 'Tissue': medium.n = nan must be a finite number >= 1"),
-])
+@pytest.mark.parametrize(
+    "field,pattern",
+    [
+        ("mua", r"Object 'Tissue': medium.mua = nan must be a finite number >= 0"),
+        ("mus", r"Object 'Tissue': medium.mus = nan must be"),
+        ("g", r"Object 'Tissue': medium.g = nan must be a finite number in \[-1, 1\]"),
+        ("n", r"Object 'Tissue': medium.n = nan must be a finite number >= 1"),
+    ],
+)
 def test_nan_medium(field, pattern):
     tissue, _root = _valid_scene()
     setattr(tissue.endophoton.medium, field, math.nan)

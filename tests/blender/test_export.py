@@ -9,8 +9,9 @@ from endophoton_addon import export
 from endophoton_addon.export import InputError
 from conftest import mesh_object
 
-CUBE_V = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                   [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=float)
+CUBE_V = np.array(
+    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=float
+)
 CUBE_F = [np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])]
 
 
@@ -45,8 +46,8 @@ def test_world_space_and_dtypes():
 
 
 def test_unit_scale_converts_to_metres():
-    bpy.context.scene.unit_settings.scale_length = 0.001      # 1 BU = 1 mm
-    obj = mesh_object("Cube", CUBE_V * 10.0, CUBE_F)            # 20 mm cube
+    bpy.context.scene.unit_settings.scale_length = 0.001  # 1 BU = 1 mm
+    obj = mesh_object("Cube", CUBE_V * 10.0, CUBE_F)  # 20 mm cube
     v, _t = _arrays(obj)
     np.testing.assert_allclose(v.max(axis=0) - v.min(axis=0), (0.02, 0.02, 0.02), rtol=1e-6)
 
@@ -57,11 +58,11 @@ def test_modifiers_are_applied():
     subsurf.levels = 2
     array = obj.modifiers.new("array", "ARRAY")
     array.count = 2
-    array.relative_offset_displace = (3.0, 0.0, 0.0)   # two separate closed blobs
+    array.relative_offset_displace = (3.0, 0.0, 0.0)  # two separate closed blobs
     v, t = _arrays(obj)
-    assert len(t) == 2 * 6 * 16 * 2            # 2 copies x 6 faces x 16 quads x 2 triangles
-    assert v[:, 0].max() > 5.0                 # the array copy is there
-    export.check_closed("Cube", v, t)          # still closed and outward
+    assert len(t) == 2 * 6 * 16 * 2  # 2 copies x 6 faces x 16 quads x 2 triangles
+    assert v[:, 0].max() > 5.0  # the array copy is there
+    export.check_closed("Cube", v, t)  # still closed and outward
 
 
 def test_mirrored_object_keeps_outward_winding():
@@ -73,7 +74,7 @@ def test_mirrored_object_keeps_outward_winding():
 
 
 def test_open_mesh_is_rejected():
-    obj = mesh_object("Lid", CUBE_V, [CUBE_F[0][1:]])   # top face missing
+    obj = mesh_object("Lid", CUBE_V, [CUBE_F[0][1:]])  # top face missing
     v, t = _arrays(obj)
     with pytest.raises(InputError, match=r"Object 'Lid': mesh is open \(4 boundary edges"):
         export.check_closed("Lid", v, t)

@@ -12,11 +12,17 @@ from endophoton_addon import export, guards, rig
 from conftest import data_snapshot, mesh_object
 
 # A 40 × 40 × 20 mm slab (metres) and a 6 mm box half pushed into it.
-SLAB_V = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                   [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float) * [0.02, 0.02, 0.02]
+SLAB_V = np.array(
+    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float
+) * [0.02, 0.02, 0.02]
 BOX_F = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
-CUBE_V = (np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                    [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=float) * 0.003)
+CUBE_V = (
+    np.array(
+        [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]],
+        dtype=float,
+    )
+    * 0.003
+)
 
 
 def _scene(tmp_path, polyp_priority=1):
@@ -46,8 +52,7 @@ def _assert_rejected(tmp_path, pattern):
 def test_sizes_and_wall_thickness_in_mm(tmp_path):
     """2V/A of a slab W×W×T: 2·W²T / (2W² + 4WT); here W = 40, T = 20 mm -> 10 mm."""
     _scene(tmp_path)
-    regions = export.export_regions(bpy.context.scene, bpy.context.view_layer,
-                                    bpy.context.evaluated_depsgraph_get())
+    regions = export.export_regions(bpy.context.scene, bpy.context.view_layer, bpy.context.evaluated_depsgraph_get())
     sizes = {name: (extent, t, mfp) for name, extent, t, mfp in guards.region_sizes(regions)}
     w, t = 40.0, 20.0
     np.testing.assert_allclose(sizes["Tissue"][0], [w, w, t], rtol=1e-6)
@@ -62,8 +67,11 @@ def test_wrong_unit_scale_is_refused(tmp_path):
     """The slab in millimetres read as metres' 1/1000: a 20 µm-thick 'colon'."""
     _scene(tmp_path)
     bpy.context.scene.unit_settings.scale_length = 0.001
-    _assert_rejected(tmp_path, r"unit_settings.scale_length = 0.001 m per unit makes region 'Tissue' "
-                               r"0.01 mm thick, 0.04 transport mean free paths")
+    _assert_rejected(
+        tmp_path,
+        r"unit_settings.scale_length = 0.001 m per unit makes region 'Tissue' "
+        r"0.01 mm thick, 0.04 transport mean free paths",
+    )
 
 
 def test_overlap_with_equal_priority_is_refused_by_name(tmp_path):
@@ -77,16 +85,16 @@ def test_touching_regions_of_equal_priority_are_accepted(tmp_path):
     bottom = mesh_object("Bottom", SLAB_V, [BOX_F])
     for obj in (top, bottom):
         obj.endophoton.role = "TISSUE"
-    regions = export.export_regions(bpy.context.scene, bpy.context.view_layer,
-                                    bpy.context.evaluated_depsgraph_get())
-    guards.check_overlaps(regions)   # no error
+    regions = export.export_regions(bpy.context.scene, bpy.context.view_layer, bpy.context.evaluated_depsgraph_get())
+    guards.check_overlaps(regions)  # no error
 
 
 def test_large_run_asks_first(tmp_path):
     s = _scene(tmp_path)
     s.photons = 150_000_000
-    _assert_rejected(tmp_path, r"this run is large: packets ≤ 150,000,000, records ≤ 150,000,000, "
-                               r"memory ≤ 28,610 MiB")
+    _assert_rejected(
+        tmp_path, r"this run is large: packets ≤ 150,000,000, records ≤ 150,000,000, " r"memory ≤ 28,610 MiB"
+    )
 
 
 def test_grid_folder_below_a_file_is_refused_up_front(tmp_path):
@@ -99,5 +107,5 @@ def test_grid_folder_below_a_file_is_refused_up_front(tmp_path):
 
 def test_voxel_size_too_small_is_refused_up_front(tmp_path):
     s = _scene(tmp_path)
-    s.voxel_size = 0.00005   # 50 µm over a 40 × 40 × 23 mm scene: (800 + 1)² (460 + 1) ≈ 2.96e8 voxels
+    s.voxel_size = 0.00005  # 50 µm over a 40 × 40 × 23 mm scene: (800 + 1)² (460 + 1) ≈ 2.96e8 voxels
     _assert_rejected(tmp_path, r"simulation.voxel_size = 0.05 mm gives up to 2.9\de\+08 voxels")

@@ -14,8 +14,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     out = tmp_path / "modal.json"
     grids = tmp_path / "grids"
     engine_folder = ENGINE_FOLDER or os.path.dirname(os.path.dirname(ep.__file__))
-    returncode, stdout, stderr = run_windowed("flat_tissue.blend", "gui_modal_driver.py",
-                                              [out, grids, engine_folder])
+    returncode, stdout, stderr = run_windowed("flat_tissue.blend", "gui_modal_driver.py", [out, grids, engine_folder])
     assert out.exists(), f"driver wrote nothing (rc {returncode}):\n{stdout[-3000:]}\n{stderr[-3000:]}"
     report = json.loads(out.read_text())
     assert "error" not in report, report
@@ -24,7 +23,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["invoke_1"] == ["RUNNING_MODAL"]
     assert report["run1_texts"] and all("packets/s" in t and "ETA" in t for t in report["run1_texts"])
     assert report["run1_collection"].startswith("EP β=+0.0° ")
-    assert len(report["run1_objects"]) == 3          # points + 2 grids
+    assert len(report["run1_objects"]) == 3  # points + 2 grids
     # The UI kept running: timer ticks never stalled (software GL, 2 cores).
     assert report["run1_ticks"] >= 5
     assert report["run1_max_gap"] < 2.0, report["run1_max_gap"]
@@ -35,7 +34,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["run2_max_gap"] < 2.0
     assert report["run2_collection"] == report["run1_collection"]
     assert report["objects_after_run2"] == report["objects_after_run1"]
-    assert len(report["grid_files"]) == 1            # run 1's file only
+    assert len(report["grid_files"]) == 1  # run 1's file only
     assert report["status_cleared"]
 
     # Sweep β, modal, to the end: β and position in the status text, the overall

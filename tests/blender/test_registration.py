@@ -15,18 +15,21 @@ from types import SimpleNamespace
 from conftest import ADDON, REPO, data_snapshot, ensure_addon, mesh_object
 
 BOX = (
-    np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-              [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float) * 0.01,
+    np.array(
+        [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+        dtype=float,
+    )
+    * 0.01,
     [np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])],
 )
+
 
 def _addon_classes():
     import endophoton_addon
     from endophoton_addon import operators, panels, preferences, properties
 
     assert endophoton_addon  # the package itself is importable
-    return (*properties.CLASSES, *operators.CLASSES, *panels.CLASSES,
-            preferences.EndoPhotonPreferences)
+    return (*properties.CLASSES, *operators.CLASSES, *panels.CLASSES, preferences.EndoPhotonPreferences)
 
 
 def _registered():
@@ -153,9 +156,11 @@ def test_install_from_zip_in_fresh_blender(tmp_path):
     )
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(user_scripts))
     proc = subprocess.run(
-        [bpy.app.binary_path, "-b", "--factory-startup", "--python-exit-code", "1",
-         "--python", str(script)],
-        env=env, capture_output=True, text=True, timeout=300,
+        [bpy.app.binary_path, "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "ZIP_INSTALL_OK" in proc.stdout
@@ -198,8 +203,14 @@ def _draw_all_panels():
     from types import SimpleNamespace
 
     log = []
-    for name in ("ENDOPHOTON_PT_main", "ENDOPHOTON_PT_object", "ENDOPHOTON_PT_endoscope",
-                 "ENDOPHOTON_PT_simulation", "ENDOPHOTON_PT_results", "ENDOPHOTON_PT_sweep"):
+    for name in (
+        "ENDOPHOTON_PT_main",
+        "ENDOPHOTON_PT_object",
+        "ENDOPHOTON_PT_endoscope",
+        "ENDOPHOTON_PT_simulation",
+        "ENDOPHOTON_PT_results",
+        "ENDOPHOTON_PT_sweep",
+    ):
         panel = getattr(bpy.types, name)
         panel.draw(SimpleNamespace(layout=FakeLayout(log)), bpy.context)
     return log
@@ -248,8 +259,23 @@ def test_panels_draw_with_objects_and_rig():
     rig.create_rig(bpy.context)
     log = _draw_all_panels()
     props = {name for kind, name in log if kind == "prop"}
-    assert {"role", "mua", "mus", "g", "n", "priority", "beta", "distance", "quality",
-            "seed", "threads", "voxel_size", "output_points", "output_grids", "color_by"} <= props
+    assert {
+        "role",
+        "mua",
+        "mus",
+        "g",
+        "n",
+        "priority",
+        "beta",
+        "distance",
+        "quality",
+        "seed",
+        "threads",
+        "voxel_size",
+        "output_points",
+        "output_grids",
+        "color_by",
+    } <= props
     assert ("template_list", "fluorophores") in log
     assert ("operator", "endophoton.run_simulation") in log
     assert ("operator", "endophoton.add_endoscope") in log
@@ -286,4 +312,4 @@ def test_fluorophore_rows_fit_the_default_sidebar():
         ui_list.draw_item(None, None, FakeLayout(log), None, item, None, None, None)
     labels = [text for kind, text in log if kind == "label"]
     assert labels == ["Collagen  d 0.20  c 0.40", "Photofrin  d 0.10  c 0.33"]
-    assert max(len(t) for t in labels) <= 26   # the default sidebar shows ~30 characters
+    assert max(len(t) for t in labels) <= 26  # the default sidebar shows ~30 characters

@@ -76,8 +76,11 @@ def test_point_cloud_from_records(scale_length):
     assert modifier.type == "NODES" and modifier.node_group.name == results.POINTS_GROUP
     assert any(n.bl_idname == "GeometryNodeMeshToPoints" for n in modifier.node_group.nodes)
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    clouds = [inst.object.data for inst in depsgraph.object_instances
-              if inst.object.type == "POINTCLOUD" and inst.object.original == obj]
+    clouds = [
+        inst.object.data
+        for inst in depsgraph.object_instances
+        if inst.object.type == "POINTCLOUD" and inst.object.original == obj
+    ]
     assert len(clouds) == 1
     cloud = clouds[0]
     assert len(cloud.points) == K
@@ -97,8 +100,13 @@ def test_point_cloud_rejects_mismatched_columns():
 
 
 # CIE 1931 2° colour-matching functions, tabulated (CIE 15): nm -> (x̄, ȳ, z̄).
-CIE_TABLE = {450: (0.3362, 0.0380, 1.7721), 500: (0.0049, 0.3230, 0.2720), 550: (0.4334, 0.9950, 0.0087),
-             600: (1.0622, 0.6310, 0.0008), 650: (0.2835, 0.1070, 0.0000)}
+CIE_TABLE = {
+    450: (0.3362, 0.0380, 1.7721),
+    500: (0.0049, 0.3230, 0.2720),
+    550: (0.4334, 0.9950, 0.0087),
+    600: (1.0622, 0.6310, 0.0008),
+    650: (0.2835, 0.1070, 0.0000),
+}
 
 
 def test_wavelength_colour_follows_cie_1931():
@@ -111,9 +119,9 @@ def test_wavelength_colour_follows_cie_1931():
     np.testing.assert_allclose(colour_maps.cie_xyz(nm), np.array([CIE_TABLE[k] for k in nm]), atol=0.04)
     rgb = colour_maps.wavelength_colours([630.0, 530.0, 450.0])
     assert rgb.argmax(axis=1).tolist() == [0, 1, 2]
-    assert rgb[0, 1] < 0.1 * rgb[0, 0]            # 630 nm is red, not orange
+    assert rgb[0, 1] < 0.1 * rgb[0, 0]  # 630 nm is red, not orange
     deep_red = colour_maps.wavelength_colours([690.0, 720.0, 760.0])
-    assert np.all(deep_red[:, 0] > 5 * deep_red[:, 1])   # photofrin's 690 nm band stays red
+    assert np.all(deep_red[:, 0] > 5 * deep_red[:, 1])  # photofrin's 690 nm band stays red
     assert np.all(rgb >= 0) and np.all(rgb <= 1)
     # Outside the visible range: black.
     assert np.all(colour_maps.wavelength_colours([300.0, 900.0]) == 0)
@@ -140,8 +148,9 @@ def _colours(obj):
     return out.reshape(-1, 4)[:, :3]
 
 
-@pytest.mark.parametrize("color_by", ["WAVELENGTH", "FLUORESCENT", "FLUOROPHORE", "REGION", "DEPTH",
-                                      "ENERGY", "SCATTERINGS"])
+@pytest.mark.parametrize(
+    "color_by", ["WAVELENGTH", "FLUORESCENT", "FLUOROPHORE", "REGION", "DEPTH", "ENERGY", "SCATTERINGS"]
+)
 def test_colour_by_each_attribute_with_legend(color_by):
     """Each mapping writes one colour per record into the named attribute
     ep_colour; records alike in the attribute get one colour, the legend gives
@@ -158,7 +167,9 @@ def test_colour_by_each_attribute_with_legend(color_by):
         green = rgb[(rec["wavelength"] > 520) & (rec["wavelength"] < 545)]
         assert np.all(red[:, 0] > red[:, 1]) and np.all(green[:, 1] > green[:, 0])
         assert legend.unit == "nm"
-        assert legend.lo == pytest.approx(rec["wavelength"].min()) and legend.hi == pytest.approx(rec["wavelength"].max())
+        assert legend.lo == pytest.approx(rec["wavelength"].min()) and legend.hi == pytest.approx(
+            rec["wavelength"].max()
+        )
     elif color_by in ("FLUORESCENT", "FLUOROPHORE", "REGION"):
         column = {"FLUORESCENT": "fluorescent", "FLUOROPHORE": "fluorophore", "REGION": "region"}[color_by]
         codes = rec[column].astype(int)
@@ -166,12 +177,18 @@ def test_colour_by_each_attribute_with_legend(color_by):
             assert len(np.unique(rgb[codes == code], axis=0)) == 1
         assert len(np.unique(rgb, axis=0)) == len(np.unique(codes))
         labels = [label for _c, label in legend.entries]
-        expected = {"FLUORESCENT": ["excitation light", "fluorescence"],
-                    "FLUOROPHORE": ["none", "collagen", "photofrin"], "REGION": ["Colon", "Polyp"]}[color_by]
+        expected = {
+            "FLUORESCENT": ["excitation light", "fluorescence"],
+            "FLUOROPHORE": ["none", "collagen", "photofrin"],
+            "REGION": ["Colon", "Polyp"],
+        }[color_by]
         assert labels == expected
     else:
-        column, scale, unit = {"DEPTH": ("max_depth", 10.0, "mm"), "ENERGY": ("energy", 1.0, "500 nm photons"),
-                               "SCATTERINGS": ("scatterings", 1.0, "events")}[color_by]
+        column, scale, unit = {
+            "DEPTH": ("max_depth", 10.0, "mm"),
+            "ENERGY": ("energy", 1.0, "500 nm photons"),
+            "SCATTERINGS": ("scatterings", 1.0, "events"),
+        }[color_by]
         values = rec[column].astype(np.float64) * scale
         assert legend.unit == unit
         assert legend.lo == pytest.approx(values.min(), rel=1e-5) and legend.hi == pytest.approx(values.max(), rel=1e-5)
@@ -224,7 +241,7 @@ def _write_vdb(path, name, voxel_size):
 @pytest.mark.parametrize("scale_length", [1.0, 0.01])
 def test_volume_object_loads_grid(tmp_path, scale_length):
     path = tmp_path / "grid.vdb"
-    active = _write_vdb(path, "absorbed", 0.001)   # 1 mm voxels, file in metres
+    active = _write_vdb(path, "absorbed", 0.001)  # 1 mm voxels, file in metres
     assert active > 0
     obj = results.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, scale_length, "run")
     bpy.context.scene.collection.objects.link(obj)
@@ -247,7 +264,7 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     attribute = next(n for n in nodes if n.bl_idname == "ShaderNodeAttribute")
     assert attribute.attribute_name == "absorbed"
     assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
-    bpy.context.scene.endophoton.volume_density = 5.0   # no result collection: untouched
+    bpy.context.scene.endophoton.volume_density = 5.0  # no result collection: untouched
     assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
 
 

@@ -35,7 +35,7 @@ def test_add_endoscope_creates_sized_rig():
         light = parts[name]
         assert light.type == "LIGHT" and light.data.type == "SPOT"
         assert light.data.spot_size == pytest.approx(math.radians(15.0), abs=1e-6)
-        assert light.data.shadow_soft_size == pytest.approx(1.5 * MM)   # 3 mm light guide
+        assert light.data.shadow_soft_size == pytest.approx(1.5 * MM)  # 3 mm light guide
     assert parts["light_left"].location.x == pytest.approx(-3.5 * MM)
     assert parts["light_right"].location.x == pytest.approx(3.5 * MM)
     assert parts["camera"].type == "CAMERA"
@@ -54,7 +54,7 @@ def test_add_endoscope_creates_sized_rig():
 
 
 def test_sizes_follow_unit_scale():
-    bpy.context.scene.unit_settings.scale_length = 0.001   # 1 Blender unit = 1 mm
+    bpy.context.scene.unit_settings.scale_length = 0.001  # 1 Blender unit = 1 mm
     root = rig.create_rig(bpy.context)
     s = root.endophoton_rig
     assert s.head_diameter == pytest.approx(12.0)
@@ -63,7 +63,7 @@ def test_sizes_follow_unit_scale():
     assert params["head_diameter_mm"] == pytest.approx(12.0)
     assert params["light_offset_mm"] == pytest.approx(3.5)
     world = rig.rigid_world_matrix(root, 0.001)
-    assert world[2, 3] == pytest.approx(0.01)   # 10 BU = 10 mm = 0.01 m
+    assert world[2, 3] == pytest.approx(0.01)  # 10 BU = 10 mm = 0.01 m
 
 
 @pytest.mark.parametrize("normal,tilt", [((0, 0, 1), (0, 1, 0)), ((0.3, -0.2, 0.9), (1, 0.5, 0.1))])
@@ -75,9 +75,9 @@ def test_beta_orbits_target(normal, tilt):
     for beta_deg in (0.0, 10.0, 25.0, -40.0, 60.0):
         root.endophoton_rig.beta = math.radians(beta_deg)
         root.endophoton_rig.distance = 0.012
-        bpy.context.view_layer.update()           # children's matrix_world
+        bpy.context.view_layer.update()  # children's matrix_world
         matrix = np.array(root.matrix_world, dtype=np.float64)
-        axis = -matrix[:3, 2]                     # light / viewing axis = -Z of the rig
+        axis = -matrix[:3, 2]  # light / viewing axis = -Z of the rig
         # β within 1e-6 rad (Blender stores matrices in float32).
         assert _angle(axis, -n) == pytest.approx(abs(root.endophoton_rig.beta), abs=1e-6)
         origin = matrix[:3, 3]
@@ -91,8 +91,13 @@ def test_beta_orbits_target(normal, tilt):
 
 
 def _flat_scene():
-    verts = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                      [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float) * 0.02
+    verts = (
+        np.array(
+            [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+            dtype=float,
+        )
+        * 0.02
+    )
     quads = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
     tissue = mesh_object("Tissue", verts, [quads])
     tissue.endophoton.role = "TISSUE"
@@ -111,7 +116,7 @@ def test_engine_rig_follows_beta(ep, beta_deg):
     root.endophoton_rig.beta = math.radians(beta_deg)
     job = simulation.prepare_job(bpy.context)
     engine_rig = job.engine_rig
-    beta = abs(root.endophoton_rig.beta)            # the float32 value Blender stored
+    beta = abs(root.endophoton_rig.beta)  # the float32 value Blender stored
     # Light axis in world = -Z of the rig's matrix_world.
     np.testing.assert_allclose(engine_rig.forward, -np.array(root.matrix_world)[:3, 2], atol=1e-7)
     lights = engine_rig.native_lights(job.engine_scene.unit_cm)
@@ -119,9 +124,10 @@ def test_engine_rig_follows_beta(ep, beta_deg):
     for light in lights:
         assert _angle(light["direction"], (0.0, 0.0, -1.0)) == pytest.approx(beta, abs=1e-6)
         assert light["half_angle"] == pytest.approx(math.radians(7.5), abs=1e-6)
-        assert light["radius"] == pytest.approx(1.5e-3, rel=1e-6)     # metres
-    reference = ep.EndoscopeRig.from_beta(beta_deg=beta_deg, distance=0.01, point=(0, 0, 0),
-                                          normal=(0, 0, 1), tilt_axis=(0, 1, 0))
+        assert light["radius"] == pytest.approx(1.5e-3, rel=1e-6)  # metres
+    reference = ep.EndoscopeRig.from_beta(
+        beta_deg=beta_deg, distance=0.01, point=(0, 0, 0), normal=(0, 0, 1), tilt_axis=(0, 1, 0)
+    )
     np.testing.assert_allclose(engine_rig.transform, reference.transform, atol=1e-7)
     np.testing.assert_allclose(engine_rig.light_positions("m"), reference.light_positions("m"), atol=1e-7)
     # Light guides 3.5 mm either side of the axis, in the plane of tilt (x, z).

@@ -16,16 +16,21 @@ def test_screenshot_of_each_panel(ep, tmp_path):
     if os.path.isdir(out):
         shutil.rmtree(out)
     engine_folder = ENGINE_FOLDER or os.path.dirname(os.path.dirname(ep.__file__))
-    returncode, stdout, stderr = run_windowed("colon_polyp.blend", "gui_screenshot_driver.py",
-                                              [out, tmp_path, engine_folder], screen="1280x900", timeout=300)
+    returncode, stdout, stderr = run_windowed(
+        "colon_polyp.blend", "gui_screenshot_driver.py", [out, tmp_path, engine_folder], screen="1280x900", timeout=300
+    )
     listing = os.path.join(out, "screenshots.json")
     assert os.path.exists(listing), f"no screenshots (rc {returncode}):\n{stdout[-3000:]}\n{stderr[-3000:]}"
     with open(listing) as f:
         shots = json.load(f)
-    assert [s["panel"] for s in shots] == ["ENDOPHOTON_PT_object", "ENDOPHOTON_PT_endoscope",
-                                           "ENDOPHOTON_PT_simulation", "ENDOPHOTON_PT_results",
-                                           "ENDOPHOTON_PT_sweep"]
+    assert [s["panel"] for s in shots] == [
+        "ENDOPHOTON_PT_object",
+        "ENDOPHOTON_PT_endoscope",
+        "ENDOPHOTON_PT_simulation",
+        "ENDOPHOTON_PT_results",
+        "ENDOPHOTON_PT_sweep",
+    ]
     for shot in shots:
         assert os.path.getsize(shot["file"]) > 2000
-        assert shot["size"][0] >= 150 and shot["size"][1] >= 300   # the sidebar, full height
+        assert shot["size"][0] >= 150 and shot["size"][1] >= 300  # the sidebar, full height
         assert shot["std"] > 0.02, f"{shot['panel']}: the capture is one flat colour"

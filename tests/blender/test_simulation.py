@@ -9,13 +9,16 @@ import pytest
 from endophoton_addon import presets, simulation
 
 
-@pytest.mark.parametrize("quality,mode,expected", [
-    ("PREVIEW", "PHOTONS", ("target", 1_000_000, 0.05)),
-    ("STANDARD", "PHOTONS", ("target", 20_000_000, 0.01)),
-    ("REFERENCE", "STORE", ("store", 2_000_000, None)),
-    ("CUSTOM", "PHOTONS", ("photons", 123, None)),
-    ("CUSTOM", "STORE", ("store", 456, None)),
-])
+@pytest.mark.parametrize(
+    "quality,mode,expected",
+    [
+        ("PREVIEW", "PHOTONS", ("target", 1_000_000, 0.05)),
+        ("STANDARD", "PHOTONS", ("target", 20_000_000, 0.01)),
+        ("REFERENCE", "STORE", ("store", 2_000_000, None)),
+        ("CUSTOM", "PHOTONS", ("photons", 123, None)),
+        ("CUSTOM", "STORE", ("store", 456, None)),
+    ],
+)
 def test_resolve_budget(quality, mode, expected):
     assert presets.resolve_budget(quality, mode, 123, 456) == expected
 
@@ -25,6 +28,7 @@ def test_quality_enum_matches_presets():
     assert [i.identifier for i in items] == [*presets.QUALITY_PRESETS, "CUSTOM"]
     # The add-on's presets are the package's (endophoton.QUALITY_PRESETS): same errors and caps.
     import endophoton as ep
+
     for key, p in presets.QUALITY_PRESETS.items():
         q = ep.QUALITY_PRESETS[key.lower()]
         assert q.target.rel_error == p.target_error and q.target.tally == "diffuse_reflectance"

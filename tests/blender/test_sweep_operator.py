@@ -90,16 +90,16 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
 
     # The plots, loaded as images named after their files, with pixels.
     files = sorted(p.name for p in out.glob("*.png"))
-    assert files == sorted([*LINE_PLOTS, "polar_beta_00.png", "polar_beta_30.png",
-                            "polar_fixed_beta_00.png", "polar_fixed_beta_30.png"])
+    assert files == sorted(
+        [*LINE_PLOTS, "polar_beta_00.png", "polar_beta_30.png", "polar_fixed_beta_00.png", "polar_fixed_beta_30.png"]
+    )
     assert sorted(img.name for img in images) == sorted(f"EndoPhoton Sweep: {f}" for f in files)
     for img in images:
         assert bpy.data.images[img.name] == img
         assert img.size[0] > 100 and img.size[1] > 100
         assert os.path.samefile(bpy.path.abspath(img.filepath), out / img.name.split(": ", 1)[1])
     after = data_snapshot()
-    assert {k: v for k, v in after.items() if k != "images"} == \
-        {k: v for k, v in before.items() if k != "images"}
+    assert {k: v for k, v in after.items() if k != "images"} == {k: v for k, v in before.items() if k != "images"}
     assert set(after["images"]) - set(before["images"]) == {img.name for img in images}
 
     # Summary for the panel.
@@ -107,7 +107,7 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     packets = [int(r["packets_traced"]) for r in rows]
     assert summary["n_betas"] == 2 and summary["images"] == len(files)
     assert (summary["packets_min"], summary["packets_max"]) == (min(packets), max(packets))
-    assert math.isnan(summary["best_beta_energy_total"])   # 2 angles: no degree-6 fit
+    assert math.isnan(summary["best_beta_energy_total"])  # 2 angles: no degree-6 fit
     assert sweep_job.summary_rows(scene)[2][1].startswith(f"– (needs ≥ {sweep_job.MIN_FIT_POINTS} β values)")
     assert summary["out_dir"] == str(out)
     labels = dict(sweep_job.summary_rows(scene))
@@ -116,17 +116,27 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     # Same numbers as ep.sweep on the exported scene with the rig's geometry ...
     rig_obj = scene.objects["EP Endoscope"]
     rs, scale = rig_obj.endophoton_rig, scene.unit_settings.scale_length
-    ref = ep.sweep(job.engine_scene, betas=[0, 30], store=STORE, seed=SEED, threads=1,
-                   distance=rs.distance * scale, point=tuple(x * scale for x in rs.target),
-                   normal=tuple(rs.normal), tilt_axis=tuple(rs.tilt_axis),
-                   rig_kwargs=rig.rig_parameters(rig_obj, scale), progress=False)
+    ref = ep.sweep(
+        job.engine_scene,
+        betas=[0, 30],
+        store=STORE,
+        seed=SEED,
+        threads=1,
+        distance=rs.distance * scale,
+        point=tuple(x * scale for x in rs.target),
+        normal=tuple(rs.normal),
+        tilt_axis=tuple(rs.tilt_axis),
+        rig_kwargs=rig.rig_parameters(rig_obj, scale),
+        progress=False,
+    )
     _assert_same_rows(job.result, ref)
-    for row, ref_row in zip(rows, ref.rows):   # ... and in the file
+    for row, ref_row in zip(rows, ref.rows):  # ... and in the file
         assert float(row["energy_total"]) == ref_row["energy_total"]
         assert int(row["packets_traced"]) == ref_row["packets_traced"]
     # ... and as sweep_blend, which exports the scene and reads the rig itself.
-    _assert_same_rows(job.result, sweep_blend.sweep_blend(scene, betas=[0, 30], store=STORE, seed=SEED,
-                                                          threads=1, progress=False))
+    _assert_same_rows(
+        job.result, sweep_blend.sweep_blend(scene, betas=[0, 30], store=STORE, seed=SEED, threads=1, progress=False)
+    )
 
     # A second sweep into the same folder reuses the images of the same name and
     # drops those of β values it does not have.
@@ -135,8 +145,9 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     scene.endophoton.sweep.store = 500
     _job, images2, _seen = _run_job(bpy.context)
     names2 = sorted(img.name for img in images2)
-    assert names2 == sorted(f"EndoPhoton Sweep: {f}" for f in (*LINE_PLOTS, "polar_beta_00.png",
-                                                               "polar_fixed_beta_00.png"))
+    assert names2 == sorted(
+        f"EndoPhoton Sweep: {f}" for f in (*LINE_PLOTS, "polar_beta_00.png", "polar_fixed_beta_00.png")
+    )
     assert sorted(img.name for img in sweep_job.sweep_images()) == names2
     assert all(img.as_pointer() == pointers[img.name] and img.size[0] > 0 for img in images2)
     assert scene[sweep_job.SUMMARY_KEY]["n_betas"] == 1
@@ -156,18 +167,18 @@ def test_cancel_adds_nothing(ep, tmp_path):
     s.betas, s.store = "0:60:5", 2_000_000
     job = sweep_job.prepare_job(bpy.context)
     job.start()
-    deadline = time.monotonic() + 600.0   # a hang guard, not a verdict on speed (issue 13)
+    deadline = time.monotonic() + 600.0  # a hang guard, not a verdict on speed (issue 13)
     while job.progress().done == 0 and not job.done and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert job.progress().done > 0 and not job.done   # the engine is running
+    assert job.progress().done > 0 and not job.done  # the engine is running
     labels = _sidebar_labels_while_running(job)
     assert labels[0].startswith("Sweep β=0° (1/12)") and "packets · ETA --" in labels[1]
-    job.cancel()                                      # what Esc does
+    job.cancel()  # what Esc does
     assert job.wait(600.0)
     assert sweep_job.finish_sweep(bpy.context, job) is None
     assert job.cancelled and job.error is None and job.paths is None
     assert data_snapshot() == before
-    assert repr(scene[sweep_job.SUMMARY_KEY].to_dict()) == repr(summary)   # nan-aware
+    assert repr(scene[sweep_job.SUMMARY_KEY].to_dict()) == repr(summary)  # nan-aware
     assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == files
 
 
@@ -201,18 +212,21 @@ def _assert_rejected(pattern, out_dir, invoke=False):
     assert not os.path.exists(out_dir)
 
 
-@pytest.mark.parametrize("field, value, pattern", [
-    ("betas", "", r"Scene '[^']+': sweep.betas = '' is empty"),
-    ("betas", "  ", r"sweep.betas = '  ' is empty"),
-    ("betas", "0,90", r"sweep.betas = '0,90': β = 90° must be a finite angle in \(-90, 90\)"),
-    ("betas", "-95,0", r"β = -95° must be a finite angle"),
-    ("betas", "0,10,0", r"β = 0° is given twice"),
-    ("betas", "10:0:5", r"sweep.betas = '10:0:5' must be a list '0,10,20' or a range"),
-    ("betas", "ten", r"sweep.betas = 'ten' must be a list"),
-    ("store", 0, r"Scene '[^']+': sweep.store = 0 must be > 0"),
-    ("store", 10, r"sweep.store = 10 must be >= sweep.batches = 20"),
-    ("batches", 1, r"sweep.batches = 1 must be >= 2"),
-])
+@pytest.mark.parametrize(
+    "field, value, pattern",
+    [
+        ("betas", "", r"Scene '[^']+': sweep.betas = '' is empty"),
+        ("betas", "  ", r"sweep.betas = '  ' is empty"),
+        ("betas", "0,90", r"sweep.betas = '0,90': β = 90° must be a finite angle in \(-90, 90\)"),
+        ("betas", "-95,0", r"β = -95° must be a finite angle"),
+        ("betas", "0,10,0", r"β = 0° is given twice"),
+        ("betas", "10:0:5", r"sweep.betas = '10:0:5' must be a list '0,10,20' or a range"),
+        ("betas", "ten", r"sweep.betas = 'ten' must be a list"),
+        ("store", 0, r"Scene '[^']+': sweep.store = 0 must be > 0"),
+        ("store", 10, r"sweep.store = 10 must be >= sweep.batches = 20"),
+        ("batches", 1, r"sweep.batches = 1 must be >= 2"),
+    ],
+)
 def test_bad_settings_rejected(ep, tmp_path, field, value, pattern):
     _setup(tmp_path)
     setattr(bpy.context.scene.endophoton.sweep, field, value)
@@ -239,8 +253,9 @@ def test_bad_rig_rejected(ep, tmp_path):
     rs = scene.objects["EP Endoscope"].endophoton_rig
     normal = tuple(rs.normal)
     rs.tilt_axis = normal
-    _assert_rejected(r"Object 'EP Endoscope': endophoton_rig.tilt_axis is parallel to endophoton_rig.normal",
-                     tmp_path / "sweep")
+    _assert_rejected(
+        r"Object 'EP Endoscope': endophoton_rig.tilt_axis is parallel to endophoton_rig.normal", tmp_path / "sweep"
+    )
     rs.tilt_axis = (0.0, 1.0, 0.0)
     rs.distance = 0.0
     _assert_rejected(r"Object 'EP Endoscope': endophoton_rig.distance = 0 must be > 0", tmp_path / "sweep")
@@ -280,12 +295,19 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     scene = _setup(tmp_path)
     local, _, _ = _run_job(bpy.context)
     assert local.error is None, local.error_traceback
-    starter = ("import sys; from distributed import LocalCluster; "
-               "c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=':0', "
-               "env={'PYTHONPATH': sys.argv[1]}); print(c.scheduler_address, flush=True); sys.stdin.read(); c.close()")
+    starter = (
+        "import sys; from distributed import LocalCluster; "
+        "c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=':0', "
+        "env={'PYTHONPATH': sys.argv[1]}); print(c.scheduler_address, flush=True); sys.stdin.read(); c.close()"
+    )
     folder = engine_folder() or ""
-    cluster = subprocess.Popen(["/usr/bin/python3", "-c", starter, folder], stdin=subprocess.PIPE,
-                               stdout=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONPATH=folder))
+    cluster = subprocess.Popen(
+        ["/usr/bin/python3", "-c", starter, folder],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=folder),
+    )
     prefs = bpy.context.preferences.addons["endophoton_addon"].preferences
     try:
         address = cluster.stdout.readline().strip()
@@ -297,6 +319,6 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
         prefs.scheduler_address = ""
         cluster.stdin.close()
         cluster.wait(timeout=120)
-    assert remote.scheduler == address and local.scheduler == ""   # the runs really went there
+    assert remote.scheduler == address and local.scheduler == ""  # the runs really went there
     assert remote.error is None and not remote.cancelled, remote.error_traceback
     _assert_same_rows(remote.result, local.result)

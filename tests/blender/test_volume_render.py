@@ -21,8 +21,7 @@ from endophoton_addon import simulation
 from conftest import open_blend
 
 
-@pytest.mark.xfail(reason="about half the Volume datablocks render empty in Cycles 3.4 (see docstring)",
-                   strict=False)
+@pytest.mark.xfail(reason="about half the Volume datablocks render empty in Cycles 3.4 (see docstring)", strict=False)
 @pytest.mark.parametrize("blend", ["flat_tissue.blend", "colon_polyp.blend"])
 def test_each_grid_renders_alone(ep, tmp_path, out_dir, blend):
     scene = open_blend(blend, tmp_path)
@@ -33,9 +32,13 @@ def test_each_grid_renders_alone(ep, tmp_path, out_dir, blend):
     job.wait()
     collection = simulation.finish_job(bpy.context, job)
     volumes = [o for o in collection.objects if o.type == "VOLUME"]
-    assert {o["endophoton_grid"] for o in volumes} == {"absorbed", "fluorescence", "fluorescence_collagen",
-                                                       "fluorescence_photofrin"}
-    scene.world = None   # black background: any lit pixel is the grid's glow
+    assert {o["endophoton_grid"] for o in volumes} == {
+        "absorbed",
+        "fluorescence",
+        "fluorescence_collagen",
+        "fluorescence_photofrin",
+    }
+    scene.world = None  # black background: any lit pixel is the grid's glow
     render = scene.render
     render.engine = "CYCLES"
     scene.cycles.device, scene.cycles.samples, scene.cycles.use_denoising = "CPU", 8, False

@@ -22,7 +22,10 @@ double normal_upper_quantile(double p) {
     double lo = -10.0, hi = 10.0;
     for (int it = 0; it < 200; ++it) {
         const double mid = 0.5 * (lo + hi);
-        if (0.5 * std::erfc(mid / std::sqrt(2.0)) > p) lo = mid; else hi = mid;
+        if (0.5 * std::erfc(mid / std::sqrt(2.0)) > p)
+            lo = mid;
+        else
+            hi = mid;
     }
     return 0.5 * (lo + hi);
 }
@@ -42,8 +45,8 @@ double chi_square_critical(int dof, double p) {
 // Bins with zero expected probability must stay empty; they are excluded
 // from the statistic.  Requires every used bin to expect >= 5 counts.
 inline void expect_chi_square_fit(const std::function<double(std::mt19937_64&)>& draw,
-                           const std::function<double(double, double)>& prob, double lo,
-                           double hi, int bins, int n, std::uint64_t seed) {
+                                  const std::function<double(double, double)>& prob, double lo, double hi, int bins,
+                                  int n, std::uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::vector<long> count(bins, 0);
     for (int s = 0; s < n; ++s) {
@@ -74,15 +77,12 @@ inline void expect_chi_square_fit(const std::function<double(std::mt19937_64&)>&
 
 // Exact integral of the piecewise-linear interpolant of (xs, ys) over [a, b],
 // 0 outside [xs.front(), xs.back()].  Independent of Tabulated1D.
-double lin_integral(const std::vector<double>& xs, const std::vector<double>& ys, double a,
-                    double b) {
+double lin_integral(const std::vector<double>& xs, const std::vector<double>& ys, double a, double b) {
     double sum = 0.0;
     for (std::size_t i = 0; i + 1 < xs.size(); ++i) {
         const double lo = std::max(a, xs[i]), hi = std::min(b, xs[i + 1]);
         if (!(hi > lo)) continue;
-        auto line = [&](double x) {
-            return ys[i] + (ys[i + 1] - ys[i]) * (x - xs[i]) / (xs[i + 1] - xs[i]);
-        };
+        auto line = [&](double x) { return ys[i] + (ys[i + 1] - ys[i]) * (x - xs[i]) / (xs[i + 1] - xs[i]); };
         sum += 0.5 * (hi - lo) * (line(lo) + line(hi));
     }
     return sum;
@@ -94,8 +94,7 @@ void expect_invalid(const std::function<void()>& fn, const std::vector<std::stri
         fn();
     } catch (const std::invalid_argument& e) {
         const std::string msg = e.what();
-        for (const auto& p : parts)
-            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
+        for (const auto& p : parts) EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
         return;
     }
     ADD_FAILURE() << "no std::invalid_argument thrown";

@@ -3,8 +3,8 @@
 
 #include "test_meshes.h"
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <set>
 #include <vector>
 
@@ -31,7 +31,6 @@ double fresnel_sin_tan(double theta_i, double n1, double n2) {
     const double b = std::tan(theta_i - tt) / std::tan(theta_i + tt);
     return 0.5 * (a * a + b * b);
 }
-
 
 }  // namespace
 

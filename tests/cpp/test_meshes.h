@@ -4,7 +4,8 @@
 #include <vector>
 
 // An axis-aligned box, 8 vertices and 12 triangles, CCW seen from outside.
-inline void box(float x0, float y0, float z0, float x1, float y1, float z1, std::vector<float>& v, std::vector<uint32_t>& t) {
+inline void box(float x0, float y0, float z0, float x1, float y1, float z1, std::vector<float>& v,
+                std::vector<uint32_t>& t) {
     v.clear();
     for (int k = 0; k < 8; ++k) {
         v.push_back(k & 1 ? x1 : x0);

@@ -25,10 +25,6 @@ using namespace ep_test;
 
 using ep::Tabulated1D;
 
-
-
-
-
 // A shape with every segment kind: rising from 0, flat, falling to 0, a zero
 // gap, a steep 1 nm segment, and a decreasing end.
 const std::vector<double> kX = {400, 420, 450, 460, 480, 500, 530, 531, 600};
@@ -81,8 +77,8 @@ TEST(Tabulated1D, PdfIsValueOverIntegral) {
 TEST(Tabulated1D, SampleFollowsPiecewiseLinearDensityChiSquare) {
     const Tabulated1D f(kX, kY, "test.f");
     expect_chi_square_fit([&](std::mt19937_64& rng) { return f.sample(uniform(rng)); },
-                          [](double a, double b) { return lin_integral(kX, kY, a, b) / kIntegral; },
-                          400, 600, 100, 400000, 12345);
+                          [](double a, double b) { return lin_integral(kX, kY, a, b) / kIntegral; }, 400, 600, 100,
+                          400000, 12345);
     // Finer bins over the steep 1 nm segment and its neighbours.
     const double p_window = lin_integral(kX, kY, 528, 534) / kIntegral;
     expect_chi_square_fit(
@@ -93,8 +89,8 @@ TEST(Tabulated1D, SampleFollowsPiecewiseLinearDensityChiSquare) {
                 if (x >= 528 && x <= 534) return x;
             }
         },
-        [&](double a, double b) { return lin_integral(kX, kY, a, b) / kIntegral / p_window; },
-        528, 534, 24, 200000, 4242);
+        [&](double a, double b) { return lin_integral(kX, kY, a, b) / kIntegral / p_window; }, 528, 534, 24, 200000,
+        4242);
 }
 
 TEST(Tabulated1D, SampleIsTheExactInverseOfTheCdf) {
@@ -169,21 +165,34 @@ TEST(Tabulated1D, IdenticallyZeroFunctionCannotBeSampled) {
 TEST(Tabulated1D, ValidationErrorsNameFieldIndexAndValue) {
     const double nan = std::numeric_limits<double>::quiet_NaN();
     const double inf = std::numeric_limits<double>::infinity();
-    expect_invalid([] { Tabulated1D({400, 500, 600}, {1, 2}, "medium.mua"); },
-                   {"medium.mua", "x has 3", "y has 2"});
+    expect_invalid([] { Tabulated1D({400, 500, 600}, {1, 2}, "medium.mua"); }, {"medium.mua", "x has 3", "y has 2"});
     expect_invalid([] { Tabulated1D({}, {}, "medium.mus"); }, {"medium.mus", "got 0"});
-    expect_invalid([&] { Tabulated1D({400, nan, 600}, {1, 2, 3}, "light.spectrum"); },
-                   {"light.spectrum", "x[1] = nan", "finite"});
-    expect_invalid([&] { Tabulated1D({400, 500, 600}, {1, inf, 3}, "medium.g"); },
-                   {"medium.g", "y[1] = inf", "finite"});
-    expect_invalid([] { Tabulated1D({400, 500, 600}, {1, 2, -0.25}, "region 'polyp': medium.mua"); },
-                   {"region 'polyp': medium.mua", "y[2] = -0.25", ">= 0"});
-    expect_invalid([] { Tabulated1D({400, 500, 450}, {1, 2, 3}, "medium.mus"); },
-                   {"medium.mus", "x[2] = 450", "x[1] = 500", "strictly increasing"});
-    expect_invalid([] { Tabulated1D({400, 500, 500}, {1, 2, 3}, "medium.mus"); },
-                   {"medium.mus", "x[2] = 500", "strictly increasing"});
-    expect_invalid([] { Tabulated1D::constant(-1.0, "medium.mua"); },
-                   {"medium.mua", "y[0] = -1", ">= 0"});
+    expect_invalid(
+        [&] {
+            Tabulated1D({400, nan, 600}, {1, 2, 3}, "light.spectrum");
+        },
+        {"light.spectrum", "x[1] = nan", "finite"});
+    expect_invalid(
+        [&] {
+            Tabulated1D({400, 500, 600}, {1, inf, 3}, "medium.g");
+        },
+        {"medium.g", "y[1] = inf", "finite"});
+    expect_invalid(
+        [] {
+            Tabulated1D({400, 500, 600}, {1, 2, -0.25}, "region 'polyp': medium.mua");
+        },
+        {"region 'polyp': medium.mua", "y[2] = -0.25", ">= 0"});
+    expect_invalid(
+        [] {
+            Tabulated1D({400, 500, 450}, {1, 2, 3}, "medium.mus");
+        },
+        {"medium.mus", "x[2] = 450", "x[1] = 500", "strictly increasing"});
+    expect_invalid(
+        [] {
+            Tabulated1D({400, 500, 500}, {1, 2, 3}, "medium.mus");
+        },
+        {"medium.mus", "x[2] = 500", "strictly increasing"});
+    expect_invalid([] { Tabulated1D::constant(-1.0, "medium.mua"); }, {"medium.mua", "y[0] = -1", ">= 0"});
     expect_invalid([&] { Tabulated1D::constant(nan, "medium.n"); }, {"medium.n", "y[0] = nan"});
     const Tabulated1D f(kX, kY, "light.spectrum");
     expect_invalid([&] { f.sample(1.5); }, {"light.spectrum", "u = 1.5"});

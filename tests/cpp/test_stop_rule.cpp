@@ -34,7 +34,7 @@ TEST(StopRule, FixedCountStopsAtTheLastUnitOrAtTheBudget) {
     const UnitTally u = unit_with(100, {});
     EXPECT_EQ(rule.after_merge(u, 1, 0, 0.5), StopReason::kNone);
     EXPECT_EQ(rule.after_merge(u, 2, 0, 1.999), StopReason::kNone);
-    EXPECT_EQ(rule.after_merge(u, 2, 0, 2.0), StopReason::kTime);   // the first merge at/after the budget
+    EXPECT_EQ(rule.after_merge(u, 2, 0, 2.0), StopReason::kTime);      // the first merge at/after the budget
     EXPECT_EQ(rule.after_merge(u, 3, 0, 99.0), StopReason::kPhotons);  // done beats the budget
 }
 
@@ -71,12 +71,13 @@ TEST(StopRule, TargetNeedsTwentyUnitsAndStopsOnZeroTallies) {
 TEST(PerPacketStderr, MatchesTheSampleFormulaAndIsFiniteForOnePacket) {
     // Weights 0, 1, 1, 0, 1: mean 0.6, sample variance 0.3, stderr sqrt(0.3 / 5).
     EXPECT_NEAR(per_packet_stderr(5, 3.0, 3.0), std::sqrt(0.3 / 5), 1e-15);
-    EXPECT_EQ(per_packet_stderr(1, 0.7, 0.49), 0.7);   // one packet: sqrt(sum w^2)
+    EXPECT_EQ(per_packet_stderr(1, 0.7, 0.49), 0.7);  // one packet: sqrt(sum w^2)
     EXPECT_EQ(per_packet_stderr(0, 0, 0), 0.0);
-    EXPECT_EQ(per_packet_stderr(4, 2.0, 1.0), 0.0);    // constant 0.5: variance 0 (no rounding below 0)
+    EXPECT_EQ(per_packet_stderr(4, 2.0, 1.0), 0.0);  // constant 0.5: variance 0 (no rounding below 0)
     // A single unit: batch means cannot give an error, the per-packet moments do.
     const std::vector<UnitTally> one = {unit_with(5, {0, 1, 1, 0, 1})};
-    const Estimate e = batch_estimate(one, 50, [](const UnitTally& u) -> const Moments& { return u.scalar_m[kDiffuse]; });
+    const Estimate e =
+        batch_estimate(one, 50, [](const UnitTally& u) -> const Moments& { return u.scalar_m[kDiffuse]; });
     EXPECT_DOUBLE_EQ(e.mean, 0.6);
     EXPECT_NEAR(e.stderr_, std::sqrt(0.3 / 5), 1e-15);
 }

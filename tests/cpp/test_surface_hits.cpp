@@ -19,7 +19,8 @@ struct BoxMesh {
     BoxMesh(std::array<float, 3> lo, std::array<float, 3> hi) {
         for (int k = 0; k < 8; ++k)
             for (int a = 0; a < 3; ++a) v.push_back((k >> a) & 1 ? hi[a] : lo[a]);
-        const uint32_t faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+        const uint32_t faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                                      {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
         for (auto& f : faces) t.insert(t.end(), {f[0], f[1], f[2], f[0], f[2], f[3]});
     }
 };

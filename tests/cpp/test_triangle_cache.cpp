@@ -105,9 +105,12 @@ int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t see
         // A vertex, a point on an edge, or a point inside the face.
         const int kind = int(rng() % 3);
         double a = U(rng), b = U(rng);
-        if (kind == 0) a = 1, b = 0;
-        else if (kind == 1) b = 0;
-        else if (a + b > 1) a = 1 - a, b = 1 - b;
+        if (kind == 0)
+            a = 1, b = 0;
+        else if (kind == 1)
+            b = 0;
+        else if (a + b > 1)
+            a = 1 - a, b = 1 - b;
         const Vec3 q = P[0] + (P[1] - P[0]) * a + (P[2] - P[0]) * b * (kind == 1 ? 0 : 1);
         const double miss = std::pow(10.0, -7 + 6 * U(rng));
         const Vec3 d = unit();
@@ -136,7 +139,8 @@ int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t see
             EXPECT_EQ(ef[i].leave, ec[i].leave) << "segment " << k << " kind " << kind << " miss " << miss;
             // The group's first hit may be the other triangle of an edge:
             // equal within the transport's grouping tolerance.
-            EXPECT_NEAR(ef[i].t, ec[i].t, 4e-6) << "segment " << k << " kind " << kind << " miss " << miss << " n " << ef.size();
+            EXPECT_NEAR(ef[i].t, ec[i].t, 4e-6)
+                << "segment " << k << " kind " << kind << " miss " << miss << " n " << ef.size();
         }
     }
     EXPECT_GT(covered, n * 9 / 10);
@@ -171,10 +175,11 @@ TEST(TriangleCache, SameCrossingsAsFullQueryOnCurvedMesh) {
     const Medium m = tissue();
     std::vector<Mesh> meshes(2);
     sphere(1.0f, 0, 0, 0, 48, 24, meshes[0].v, meshes[0].t);
-    s.add_region("sphere", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3, m, 0);
+    s.add_region("sphere", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3, m,
+                 0);
     sphere(0.3f, 0.5f, 0, 0, 24, 12, meshes[1].v, meshes[1].t);  // a polyp-like inclusion
-    s.add_region("inclusion", meshes[1].v.data(), meshes[1].v.size() / 3, meshes[1].t.data(), meshes[1].t.size() / 3,
-                 m, 1);
+    s.add_region("inclusion", meshes[1].v.data(), meshes[1].v.size() / 3, meshes[1].t.data(), meshes[1].t.size() / 3, m,
+                 1);
     s.commit();
     const int crossed = compare(s, meshes, 20000, 12);
     EXPECT_GT(crossed, 20000 / 3);

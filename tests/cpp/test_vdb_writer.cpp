@@ -27,7 +27,7 @@ using ep::VoxelAccumulator;
 // A fresh directory per test, removed afterwards, so leftover-file checks see
 // only what the test itself produced.
 class VdbWriterTest : public ::testing::Test {
-protected:
+  protected:
     void SetUp() override {
         std::string base = ::testing::TempDir();
         if (base.empty() || base.back() != '/') base += '/';
@@ -80,8 +80,9 @@ TEST_F(VdbWriterTest, WritesGridsThatOpenVdbReadsBack) {
     const std::map<std::string, std::string> meta = {
         {"packets", "100000"}, {"seed", "7"}, {"unit", "cm"}, {"engine_version", "0.1.0"}};
     const std::string out = path("tally.vdb");
-    ep::write_vdb(out, {{"absorbed", "absorbed weight per voxel", &absorbed},
-                        {"fluorescence", "emitted fluorescence weight", &emitted}},
+    ep::write_vdb(out,
+                  {{"absorbed", "absorbed weight per voxel", &absorbed},
+                   {"fluorescence", "emitted fluorescence weight", &emitted}},
                   meta);
 
     EXPECT_EQ(ep::vdb_grid_names(out), (std::vector<std::string>{"absorbed", "fluorescence"}));

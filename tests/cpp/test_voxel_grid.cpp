@@ -30,8 +30,7 @@ Coord index_or_fail(const VoxelAccumulator& acc, double x, double y, double z) {
 }
 
 TEST(VoxelAccumulator, RejectsVoxelSizeThatIsNotPositiveFinite) {
-    const double bad[] = {0.0, -0.5, std::numeric_limits<double>::quiet_NaN(),
-                          std::numeric_limits<double>::infinity()};
+    const double bad[] = {0.0, -0.5, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()};
     for (double h : bad) {
         try {
             VoxelAccumulator acc(h);
@@ -86,10 +85,8 @@ TEST(VoxelAccumulator, RoundingNearHalfMatchesExtendedPrecisionReference) {
     auto check = [&](double f) {
         Coord c{};
         ASSERT_TRUE(acc.index_of(f, -f, 0.0, c));
-        ASSERT_EQ(c[0], static_cast<int32_t>(std::floor(static_cast<long double>(f) + 0.5L)))
-            << "f = " << f;
-        ASSERT_EQ(c[1], static_cast<int32_t>(std::floor(-static_cast<long double>(f) + 0.5L)))
-            << "f = " << -f;
+        ASSERT_EQ(c[0], static_cast<int32_t>(std::floor(static_cast<long double>(f) + 0.5L))) << "f = " << f;
+        ASSERT_EQ(c[1], static_cast<int32_t>(std::floor(-static_cast<long double>(f) + 0.5L))) << "f = " << -f;
     };
     auto around = [&](double centre, int max_ulps) {
         double up = centre, down = centre;
@@ -176,8 +173,7 @@ TEST(VoxelAccumulator, MergeOrderDoesNotChangeBits) {
     a_into_copy.merge_from(b);
     b_into_copy.merge_from(a);
 
-    const auto r1 = ab.sorted(), r2 = ba.sorted(), r3 = a_into_copy.sorted(),
-               r4 = b_into_copy.sorted();
+    const auto r1 = ab.sorted(), r2 = ba.sorted(), r3 = a_into_copy.sorted(), r4 = b_into_copy.sorted();
     ASSERT_EQ(r1.size(), r2.size());
     ASSERT_EQ(r1.size(), r3.size());
     ASSERT_EQ(r1.size(), r4.size());

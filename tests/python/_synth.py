@@ -16,7 +16,7 @@ def local_frame(normal, to_light):
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     t = np.asarray(to_light, float)
     u = t - np.sum(t * n, axis=-1, keepdims=True) * n
-    with np.errstate(divide="ignore", invalid="ignore"):   # degenerate rows: tests set directions themselves
+    with np.errstate(divide="ignore", invalid="ignore"):  # degenerate rows: tests set directions themselves
         u = u / np.linalg.norm(u, axis=-1, keepdims=True)
     v = np.cross(n, u)
     return u, v, n
@@ -39,8 +39,17 @@ def sample_lambertian(rng, k):
     return np.degrees(np.arcsin(np.sqrt(rng.random(k)))), 360.0 * rng.random(k)
 
 
-def make_records(elev_deg, az_deg, rng, light_positions=((0.35, 0.0, 1.0), (-0.35, 0.0, 1.0)),
-                 normal=(0.0, 0.0, 1.0), packets=None, energy=None, max_depth=None, spot_sd=0.2):
+def make_records(
+    elev_deg,
+    az_deg,
+    rng,
+    light_positions=((0.35, 0.0, 1.0), (-0.35, 0.0, 1.0)),
+    normal=(0.0, 0.0, 1.0),
+    packets=None,
+    energy=None,
+    max_depth=None,
+    spot_sd=0.2,
+):
     """Escape-record dict for the given local exit angles on the plane z = 0 (or a given normal).
 
     Exit points scatter (Gaussian, sd ``spot_sd``) about the point below their

@@ -21,8 +21,17 @@ import os
 import numpy as np
 
 #: Every fraction the engine reports; they must sum to 1 (launched weight).
-BALANCE_KEYS = ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
-                "roulette", "occluded", "camera_collected")
+BALANCE_KEYS = (
+    "specular_reflectance",
+    "diffuse_reflectance",
+    "transmittance",
+    "absorbed",
+    "missed",
+    "cut",
+    "roulette",
+    "occluded",
+    "camera_collected",
+)
 K_SIGMA = 3.0
 
 
@@ -67,14 +76,16 @@ def assert_energy_conserved(res, tol=1e-9):
     chance = float(opts.get("roulette_chance", 0.1))
     photons = max(1, int(_get(res, "photons")))
     allowance = 5.0 * threshold / (chance * photons)
-    assert abs(r) < K_SIGMA * rs + allowance + 1e-12, \
-        f"roulette = {r} is not within 3 sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
+    assert (
+        abs(r) < K_SIGMA * rs + allowance + 1e-12
+    ), f"roulette = {r} is not within 3 sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
     for k in ("absorbed", "specular_reflectance", "diffuse_reflectance", "transmittance", "missed", "cut"):
         assert _get(res, k) >= -1e-12, f"{k} = {_get(res, k)} is negative"
     a_reg = _get(res, "absorbed_by_region")
     if a_reg:
-        assert abs(sum(a_reg.values()) - _get(res, "absorbed")) < tol, \
-            f"absorbed_by_region sums to {sum(a_reg.values())}, absorbed = {_get(res, 'absorbed')}"
+        assert (
+            abs(sum(a_reg.values()) - _get(res, "absorbed")) < tol
+        ), f"absorbed_by_region sums to {sum(a_reg.values())}, absorbed = {_get(res, 'absorbed')}"
     return total
 
 
@@ -92,16 +103,20 @@ def assert_within(label, value, sigma, ref, ref_unc=0.0, k=K_SIGMA):
     tol = k * sigma + ref_unc
     _log(f"{label}\t{value:.6g}\t{sigma:.2g}\t{ref:.6g}\t{ref_unc:.2g}\t{abs(value - ref) / tol if tol else 0:.2f}")
     assert math.isfinite(value), f"{label}: value {value} is not finite"
-    assert abs(value - ref) < tol, (f"{label}: measured {value:.6g} +- {sigma:.3g} (1 sigma), reference {ref:.6g} "
-                                    f"(+- {ref_unc:.3g}); |diff| = {abs(value - ref):.3g} >= {k:g} sigma + ref_unc "
-                                    f"= {tol:.3g}")
+    assert abs(value - ref) < tol, (
+        f"{label}: measured {value:.6g} +- {sigma:.3g} (1 sigma), reference {ref:.6g} "
+        f"(+- {ref_unc:.3g}); |diff| = {abs(value - ref):.3g} >= {k:g} sigma + ref_unc "
+        f"= {tol:.3g}"
+    )
 
 
 def assert_same_within_stats(label, a, sa, b, sb, k=K_SIGMA, extra=0.0):
     """Two independent estimates agree: |a - b| < k * sqrt(sa^2 + sb^2) (+ extra)."""
     tol = k * math.hypot(sa, sb) + extra
     _log(f"{label}\t{a:.6g}\t{sa:.2g}\t{b:.6g}\t{sb:.2g}\t{abs(a - b) / tol if tol else 0:.2f}")
-    assert abs(a - b) < tol, f"{label}: {a:.6g} +- {sa:.3g} vs {b:.6g} +- {sb:.3g}; |diff| = {abs(a - b):.3g} >= {tol:.3g}"
+    assert (
+        abs(a - b) < tol
+    ), f"{label}: {a:.6g} +- {sa:.3g} vs {b:.6g} +- {sb:.3g}; |diff| = {abs(a - b):.3g} >= {tol:.3g}"
 
 
 def mc_reference_sigma(p, photons):
@@ -244,18 +259,36 @@ def cube_mesh(lo, hi):
     Returns float32 (8, 3) vertices and uint32 (12, 3) triangles.
     """
     (x0, y0, z0), (x1, y1, z1) = lo, hi
-    v = np.array([
-        [x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],   # 0..3 bottom
-        [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1],   # 4..7 top
-    ], dtype=np.float32)
-    t = np.array([
-        [4, 5, 6], [4, 6, 7],      # top    (+z) diagonal 4-6
-        [0, 2, 1], [0, 3, 2],      # bottom (-z)
-        [0, 1, 5], [0, 5, 4],      # y = y0 (-y)
-        [2, 3, 7], [2, 7, 6],      # y = y1 (+y)
-        [0, 4, 7], [0, 7, 3],      # x = x0 (-x)
-        [1, 2, 6], [1, 6, 5],      # x = x1 (+x)
-    ], dtype=np.uint32)
+    v = np.array(
+        [
+            [x0, y0, z0],
+            [x1, y0, z0],
+            [x1, y1, z0],
+            [x0, y1, z0],  # 0..3 bottom
+            [x0, y0, z1],
+            [x1, y0, z1],
+            [x1, y1, z1],
+            [x0, y1, z1],  # 4..7 top
+        ],
+        dtype=np.float32,
+    )
+    t = np.array(
+        [
+            [4, 5, 6],
+            [4, 6, 7],  # top    (+z) diagonal 4-6
+            [0, 2, 1],
+            [0, 3, 2],  # bottom (-z)
+            [0, 1, 5],
+            [0, 5, 4],  # y = y0 (-y)
+            [2, 3, 7],
+            [2, 7, 6],  # y = y1 (+y)
+            [0, 4, 7],
+            [0, 7, 3],  # x = x0 (-x)
+            [1, 2, 6],
+            [1, 6, 5],  # x = x1 (+x)
+        ],
+        dtype=np.uint32,
+    )
     return v, t
 
 

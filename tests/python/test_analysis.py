@@ -16,12 +16,12 @@ LIGHTS = np.array([[0.35, 0.0, 1.0], [-0.35, 0.0, 1.0]])
 
 def ring_fractions_uniform(n_elev=10):
     e = np.radians(np.linspace(0, 90, n_elev + 1))
-    return np.diff(np.sin(e))          # solid angle of ring / 2 pi
+    return np.diff(np.sin(e))  # solid angle of ring / 2 pi
 
 
 def ring_fractions_lambert(n_elev=10):
     e = np.radians(np.linspace(0, 90, n_elev + 1))
-    return np.diff(np.sin(e) ** 2)     # cos(theta)-weighted solid angle / pi
+    return np.diff(np.sin(e) ** 2)  # cos(theta)-weighted solid angle / pi
 
 
 def gof_p(observed, expected):
@@ -30,6 +30,7 @@ def gof_p(observed, expected):
 
 
 # ---------------------------------------------------------------- chi-square
+
 
 @pytest.mark.parametrize("dof", [1, 2, 9, 35, 100])
 def test_chi2_sf_matches_scipy(dof):
@@ -53,8 +54,11 @@ def test_uniformity_test_on_exact_and_skewed_counts():
 
 # ---------------------------------------------------------------- histogram geometry
 
-@pytest.mark.parametrize("sampler,fractions", [(sy.sample_uniform_hemisphere, ring_fractions_uniform),
-                                               (sy.sample_lambertian, ring_fractions_lambert)])
+
+@pytest.mark.parametrize(
+    "sampler,fractions",
+    [(sy.sample_uniform_hemisphere, ring_fractions_uniform), (sy.sample_lambertian, ring_fractions_lambert)],
+)
 def test_hemisphere_rings_and_uniform_azimuth(sampler, fractions):
     rng = np.random.default_rng(12345)
     k = 200_000
@@ -67,24 +71,24 @@ def test_hemisphere_rings_and_uniform_azimuth(sampler, fractions):
     assert gof_p(counts.sum(axis=1), expected) > 1e-3
     p = an.azimuthal_uniformity_test(counts)
     assert np.all(np.isfinite(p))
-    assert min(1.0, 10 * p.min()) > 1e-3          # Bonferroni over 10 rings
+    assert min(1.0, 10 * p.min()) > 1e-3  # Bonferroni over 10 rings
     # multinomial counts with small cell probabilities: var(count) ~ count
-    ratio = np.mean(stderr ** 2 / counts)
+    ratio = np.mean(stderr**2 / counts)
     assert 0.85 < ratio < 1.15
 
 
 def test_hand_placed_bins_and_azimuth_convention():
     rng = np.random.default_rng(1)
     # light straight +x of the exit point (and above): azimuth 0 is +x, 90 is +y (CCW seen from outside)
-    cases = [(4.5, 5.0, 0, 0), (49.5, 95.0, 5, 9), (85.5, 185.0, 9, 18), (13.5, 355.0, 1, 35),
-             (0.5, 275.0, 0, 27)]
+    cases = [(4.5, 5.0, 0, 0), (49.5, 95.0, 5, 9), (85.5, 185.0, 9, 18), (13.5, 355.0, 1, 35), (0.5, 275.0, 0, 27)]
     el = np.array([c[0] for c in cases])
     az = np.array([c[1] for c in cases])
     lights = np.array([[1.0, 0.0, 0.5]])
     esc = sy.make_records(el, az, rng, lights, spot_sd=0.0)
     esc["position"][:] = 0.0
-    esc["direction"] = sy.direction_from_angles(el, az, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
-                                                np.array([0, 0, 1.0])).astype(np.float32)
+    esc["direction"] = sy.direction_from_angles(
+        el, az, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0])
+    ).astype(np.float32)
     e, a = an.exit_angles(esc, lights)
     assert np.allclose(e, el, atol=1e-4) and np.allclose(a, az, atol=1e-4)
     counts, _ = an.exit_direction_histogram(esc, lights, n_batches=2)
@@ -144,7 +148,7 @@ def test_histogram_is_invariant_under_rigid_motion():
     t = np.array([3.0, -2.0, 7.0])
     moved = dict(esc)
     for key in ("direction", "normal"):
-        moved[key] = (esc[key].astype(np.float64) @ R.T)
+        moved[key] = esc[key].astype(np.float64) @ R.T
     moved["position"] = esc["position"].astype(np.float64) @ R.T + t
     lights = LIGHTS @ R.T + t
     el2, az2 = an.exit_angles(moved, lights)
@@ -197,22 +201,25 @@ def test_forward_shift_gives_negative_low_ring_asymmetry():
 
 # ---------------------------------------------------------------- camera
 
+
 def _camera():
-    return dict(position=(0.0, 0.0, 1.0), forward=(0.0, 0.0, -1.0), up=(0.0, 1.0, 0.0),
-                fov_deg=90.0, resolution=(200, 100))
+    return dict(
+        position=(0.0, 0.0, 1.0), forward=(0.0, 0.0, -1.0), up=(0.0, 1.0, 0.0), fov_deg=90.0, resolution=(200, 100)
+    )
 
 
 def test_important_mask_hand_placed():
     # fov 90 across the width 200 -> |x/z| <= 1; height 100 -> |y/z| <= 0.5
     t14, t20 = math.radians(14.0), math.radians(20.0)
-    pos = np.array([[0, 0, 0], [0, 0, 0], [0, 0, 0], [0.9, 0, 0], [0, 0.6, 0], [0, 0.4, 0], [0, 0, 2.0],
-                    [1.2, 0, 0]], float)
+    pos = np.array(
+        [[0, 0, 0], [0, 0, 0], [0, 0, 0], [0.9, 0, 0], [0, 0.6, 0], [0, 0.4, 0], [0, 0, 2.0], [1.2, 0, 0]], float
+    )
     to_cam = np.array([0, 0, 1.0]) - pos
     to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
     d = to_cam.copy()
-    d[1] = [math.sin(t14), 0, math.cos(t14)]       # 14 deg off: important
-    d[2] = [0, math.sin(t20), math.cos(t20)]       # 20 deg off: not
-    d[6] = [0, 0, -1.0]                            # behind the camera
+    d[1] = [math.sin(t14), 0, math.cos(t14)]  # 14 deg off: important
+    d[2] = [0, math.sin(t20), math.cos(t20)]  # 20 deg off: not
+    d[6] = [0, 0, -1.0]  # behind the camera
     expect = np.array([True, True, False, True, False, True, False, False])
     rng = np.random.default_rng(6)
     esc = sy.make_records(np.full(8, 45.0), np.zeros(8), rng, LIGHTS)
@@ -233,9 +240,9 @@ def _bernoulli_records(rng, k, p):
     imp = rng.random(k) < p
     esc = sy.make_records(np.full(k, 45.0), np.zeros(k), rng, LIGHTS)
     pos = np.zeros((k, 3))
-    pos[~imp, 0] = 5.0                  # outside the image
+    pos[~imp, 0] = 5.0  # outside the image
     d = np.zeros((k, 3))
-    d[:, 2] = 1.0                       # straight up, toward the camera at (0,0,1)
+    d[:, 2] = 1.0  # straight up, toward the camera at (0,0,1)
     esc["position"] = pos.astype(np.float32)
     esc["direction"] = d.astype(np.float32)
     return esc, imp
@@ -259,6 +266,7 @@ def test_important_fraction_stderr_matches_binomial():
 
 # ---------------------------------------------------------------- energy, rate, depth
 
+
 def test_total_energy_per_packet_and_stderr():
     rng = np.random.default_rng(8)
     P, q, reps = 40_000, 0.4, 25
@@ -274,7 +282,7 @@ def test_total_energy_per_packet_and_stderr():
         tot, tse = an.total_energy(esc, n_packets=P)
         assert tot == pytest.approx(e.sum(), rel=1e-12) and tse == pytest.approx(P * se, rel=1e-12)
         ses.append(se)
-    var_x = q / 3.0 - (q / 2.0) ** 2      # X = energy of a packet's record, 0 if none; U(0,1) energies
+    var_x = q / 3.0 - (q / 2.0) ** 2  # X = energy of a packet's record, 0 if none; U(0,1) energies
     assert np.mean(ses) == pytest.approx(math.sqrt(var_x / P), rel=0.10)
 
 
@@ -283,12 +291,11 @@ def test_record_rate_and_mean_energy():
     P = 10_000
     packets = np.flatnonzero(rng.random(P) < 0.25)
     e = np.full(packets.size, 2.0)
-    esc = sy.make_records(np.full(packets.size, 45.0), np.zeros(packets.size), rng, LIGHTS,
-                          packets=packets, energy=e)
+    esc = sy.make_records(np.full(packets.size, 45.0), np.zeros(packets.size), rng, LIGHTS, packets=packets, energy=e)
     rate, rse = an.record_rate(esc, P)
     assert rate == packets.size / P and 0 < rse < 0.01
     m, mse = an.mean_energy_per_record(esc, P)
-    assert m == 2.0 and mse == pytest.approx(0.0, abs=1e-12)   # constant energy: no batch scatter
+    assert m == 2.0 and mse == pytest.approx(0.0, abs=1e-12)  # constant energy: no batch scatter
 
 
 def test_batch_index_is_contiguous_by_packet():
@@ -310,12 +317,13 @@ def test_max_depth_and_batch_spread():
     esc = sy.make_records(np.full(k, 45.0), np.zeros(k), rng, LIGHTS, max_depth=md)
     assert an.max_depth(esc) == pytest.approx(float(np.float32(md.max())))
     mean, sd, per = an.max_depth_spread(esc, n_batches=4, return_batches=True)
-    expect = [md.astype(np.float32)[i * 10:(i + 1) * 10].max() for i in range(4)]
+    expect = [md.astype(np.float32)[i * 10 : (i + 1) * 10].max() for i in range(4)]
     assert np.allclose(per, expect)
     assert mean == pytest.approx(np.mean(expect)) and sd == pytest.approx(np.std(expect, ddof=1))
 
 
 # ---------------------------------------------------------------- trends
+
 
 def test_poly_peak_and_linear_fit():
     x = np.arange(0, 60, 5.0)
@@ -331,6 +339,7 @@ def test_poly_peak_and_linear_fit():
 
 
 # ---------------------------------------------------------------- validation
+
 
 def test_malformed_input_names_the_key():
     rng = np.random.default_rng(11)

@@ -18,7 +18,7 @@ import pytest
 import endophoton as ep
 from physics_helpers import cube_mesh, mesh_signed_volume
 
-REGION = "polyp_7"   # distinctive, so a match cannot be accidental
+REGION = "polyp_7"  # distinctive, so a match cannot be accidental
 MEDIUM = dict(mua=1.0, mus=10.0, g=0.9, n=1.4)
 DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
 
@@ -45,13 +45,14 @@ def _run_mesh(v, t, name=REGION):
 
 def _good_mesh():
     v, t = cube_mesh((-1, -1, -1), (1, 1, 0))
-    assert mesh_signed_volume(v, t) == pytest.approx(4.0)   # closed, outward: volume 2 x 2 x 1 cm^3
+    assert mesh_signed_volume(v, t) == pytest.approx(4.0)  # closed, outward: volume 2 x 2 x 1 cm^3
     return v, t
 
 
 def test_good_mesh_runs():
     """Control: the unmodified test mesh is accepted and conserves energy."""
     from physics_helpers import assert_energy_conserved
+
     v, t = _good_mesh()
     scene = ep.Scene(unit="cm")
     scene.add_mesh(REGION, v, t, ep.Medium(**MEDIUM))
@@ -70,9 +71,12 @@ def test_open_mesh():
     with pytest.raises(ValueError) as ei:
         _run_mesh(v, t)
     msg = str(ei.value)
-    _assert_message(msg, REGION, ["watertight", "open", "boundary edge", "not closed"],
-                    [f"({a}, {b})" for a in removed for b in removed if a != b]
-                    + [f"{a}" for a in removed])
+    _assert_message(
+        msg,
+        REGION,
+        ["watertight", "open", "boundary edge", "not closed"],
+        [f"({a}, {b})" for a in removed for b in removed if a != b] + [f"{a}" for a in removed],
+    )
 
 
 def test_inconsistent_orientation():
@@ -83,8 +87,12 @@ def test_inconsistent_orientation():
         _run_mesh(v, t)
     msg = str(ei.value)
     tri = t[k].tolist()
-    _assert_message(msg, REGION, ["orientation", "winding", "inconsistent"],
-                    [str(k)] + [f"({a}, {b})" for a in tri for b in tri if a != b])
+    _assert_message(
+        msg,
+        REGION,
+        ["orientation", "winding", "inconsistent"],
+        [str(k)] + [f"({a}, {b})" for a in tri for b in tri if a != b],
+    )
 
 
 def test_inside_out_mesh():
@@ -103,7 +111,7 @@ def test_degenerate_triangle():
     collinear triangle (4, m, 6), whose area is exactly 0."""
     v, t = _good_mesh()
     m = len(v)
-    v = np.vstack([v, 0.5 * (v[4] + v[6])]).astype(np.float32)   # exactly (0, 0, 0)
+    v = np.vstack([v, 0.5 * (v[4] + v[6])]).astype(np.float32)  # exactly (0, 0, 0)
     assert np.array_equal(v[m], [0.0, 0.0, 0.0])
     tris = [tr for tr in t.tolist() if tr != [4, 5, 6]]
     tris += [[4, 5, m], [m, 5, 6], [4, m, 6]]
@@ -118,8 +126,7 @@ def test_degenerate_triangle():
     assert mesh_signed_volume(v, t2) == pytest.approx(4.0)
     with pytest.raises(ValueError) as ei:
         _run_mesh(v, t2)
-    _assert_message(str(ei.value), REGION, ["degenerate", "zero area", "zero-area"],
-                    [str(k), f"(4, {m}, 6)"])
+    _assert_message(str(ei.value), REGION, ["degenerate", "zero area", "zero-area"], [str(k), f"(4, {m}, 6)"])
 
 
 @pytest.mark.parametrize("bad,token", [(float("nan"), "nan"), (float("inf"), "inf"), (-float("inf"), "-inf")])
@@ -136,9 +143,11 @@ def test_non_finite_coordinate(bad, token):
 # Medium classes: SCENE.json (Scene.from_dict) and the Python API
 # ----------------------------------------------------------------------------
 BASE = {
-    "unit": "cm", "ambient_n": 1.0,
-    "regions": [{"name": REGION, "priority": 1, "medium": dict(MEDIUM),
-                 "box": {"min": [-5, -5, -10], "max": [5, 5, 0]}}],
+    "unit": "cm",
+    "ambient_n": 1.0,
+    "regions": [
+        {"name": REGION, "priority": 1, "medium": dict(MEDIUM), "box": {"min": [-5, -5, -10], "max": [5, 5, 0]}}
+    ],
     "source": {"type": "pencil", "position": [0, 0, 1], "direction": [0, 0, -1]},
 }
 
@@ -172,7 +181,7 @@ def test_bad_medium_python_api(field, value, spellings):
     kw[field] = value
     region_named = False
     with pytest.raises(ValueError) as ei:
-        m = ep.Medium(**kw)          # may raise here, before any region exists
+        m = ep.Medium(**kw)  # may raise here, before any region exists
         region_named = True
         scene = ep.Scene(unit="cm")
         scene.add_box(REGION, min=(-1, -1, -1), max=(1, 1, 0), medium=m)
@@ -198,7 +207,7 @@ def test_unknown_key_in_region():
 
 def test_unknown_top_level_key():
     d = copy.deepcopy(BASE)
-    d["ambiant_n"] = 1.0   # misspelt
+    d["ambiant_n"] = 1.0  # misspelt
     with pytest.raises(ValueError) as ei:
         ep.Scene.from_dict(d)
     _assert_message(str(ei.value), None, ["unknown"], ["ambiant_n", "'ambiant_n'"])

@@ -10,16 +10,22 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from physics_helpers import (assert_energy_conserved, assert_within, distance_to_box_surface,
-                             fresnel_unpolarized, slab_clear_totals)
+from physics_helpers import (
+    assert_energy_conserved,
+    assert_within,
+    distance_to_box_surface,
+    fresnel_unpolarized,
+    slab_clear_totals,
+)
 
 DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
 
 
 def _slab(mua, mus, n, d, g=0.0, width=100.0):
     scene = ep.Scene(unit="cm", ambient_n=1.0)
-    scene.add_box("slab", min=(-width, -width, -d), max=(width, width, 0.0),
-                  medium=ep.Medium(mua=mua, mus=mus, g=g, n=n))
+    scene.add_box(
+        "slab", min=(-width, -width, -d), max=(width, width, 0.0), medium=ep.Medium(mua=mua, mus=mus, g=g, n=n)
+    )
     return scene
 
 
@@ -33,8 +39,7 @@ def test_fresnel_reference_implementation():
     # Brewster angle: p-polarisation vanishes, R = Rs/2 = 0.5*((cos i - n cos t)/(cos i + n cos t))^2
     tb = math.atan(1.5)
     ci, ct = math.cos(tb), math.cos(math.asin(math.sin(tb) / 1.5))
-    assert fresnel_unpolarized(1.0, 1.5, tb) == pytest.approx(0.5 * ((ci - 1.5 * ct) / (ci + 1.5 * ct)) ** 2,
-                                                              rel=1e-12)
+    assert fresnel_unpolarized(1.0, 1.5, tb) == pytest.approx(0.5 * ((ci - 1.5 * ct) / (ci + 1.5 * ct)) ** 2, rel=1e-12)
     # reciprocity: R(n1 -> n2, i) = R(n2 -> n1, t)
     ti = math.radians(40)
     tt = math.asin(math.sin(ti) / 1.4)
@@ -58,8 +63,9 @@ def test_beer_lambert_matched_is_exact():
     res = ep.run(_slab(mua, 0.0, 1.0, d), DOWN, photons=2000, seed=5, threads=0, record_escapes=False)
     assert_energy_conserved(res)
     assert res.specular_reflectance == 0.0 and res.diffuse_reflectance == 0.0
-    assert abs(res.transmittance - math.exp(-mua * d)) < 1e-12, \
-        f"Tt = {res.transmittance!r} +- {res.transmittance_stderr}, exp(-mua d) = {math.exp(-mua * d)!r}"
+    assert (
+        abs(res.transmittance - math.exp(-mua * d)) < 1e-12
+    ), f"Tt = {res.transmittance!r} +- {res.transmittance_stderr}, exp(-mua d) = {math.exp(-mua * d)!r}"
     assert abs(res.absorbed - (1 - math.exp(-mua * d))) < 1e-12, res.absorbed
 
 
@@ -102,7 +108,7 @@ def test_oblique_incidence_clear_slab(theta_deg):
     (reciprocity), so summing the internal bounces: Rsp + Rd = 2R/(1+R), Tt = (1-R)/(1+R)."""
     n, d = 1.5, 0.1
     th = math.radians(theta_deg)
-    hit = np.array([0.3, 0.1, 0.0])                       # a generic point of the top face
+    hit = np.array([0.3, 0.1, 0.0])  # a generic point of the top face
     direction = np.array([math.sin(th), 0.0, -math.cos(th)])
     src = ep.PencilSource(position=tuple(hit - direction / math.cos(th)), direction=tuple(direction))
     res = ep.run(_slab(0.0, 0.0, n, d), src, photons=100_000, seed=9, threads=0, record_escapes=True)
@@ -111,8 +117,13 @@ def test_oblique_incidence_clear_slab(theta_deg):
     assert res.absorbed == 0.0 and res.missed == 0.0 and res.cut == 0.0
     assert_within(f"Rsp({theta_deg})", res.specular_reflectance, res.specular_reflectance_stderr, R, 1e-12)
     total_r = 2 * R / (1 + R)
-    assert_within(f"Rsp+Rd({theta_deg})", res.specular_reflectance + res.diffuse_reflectance,
-                  res.specular_reflectance_stderr + res.diffuse_reflectance_stderr, total_r, 1e-12)
+    assert_within(
+        f"Rsp+Rd({theta_deg})",
+        res.specular_reflectance + res.diffuse_reflectance,
+        res.specular_reflectance_stderr + res.diffuse_reflectance_stderr,
+        total_r,
+        1e-12,
+    )
     assert_within(f"Tt({theta_deg})", res.transmittance, res.transmittance_stderr, 1 - total_r, 1e-12)
 
     # Geometry of the escapes: Snell's law makes every transmitted ray parallel to the
@@ -129,7 +140,7 @@ def test_oblique_incidence_clear_slab(theta_deg):
     assert np.allclose(esc["position"][:, 1], hit[1], atol=1e-6)
     if theta_deg > 0:
         tt_ = math.asin(math.sin(th) / n)
-        k = (esc["position"][:, 0] - hit[0]) / (d * math.tan(tt_))   # crossings of the slab
+        k = (esc["position"][:, 0] - hit[0]) / (d * math.tan(tt_))  # crossings of the slab
         assert np.allclose(k, np.round(k), atol=1e-3)
         k = np.round(k).astype(int)
         assert np.all(k[tr] % 2 == 1) and np.all(k[rf] % 2 == 0) and np.all(k[rf] >= 2)
@@ -197,8 +208,7 @@ def test_total_internal_reflection_with_path_cap():
     and the first wall hit beyond it (the engine may stop exactly at the cap or at the next event)."""
     mua, cap = 1.0, 1.0
     src = ep.PencilSource(position=TIR_START, direction=tuple(TIR_DIR))
-    res = ep.run(_tir_scene(mua), src, photons=20_000, seed=13, threads=0, record_escapes=True,
-                 max_path_cm=cap)
+    res = ep.run(_tir_scene(mua), src, photons=20_000, seed=13, threads=0, record_escapes=True, max_path_cm=cap)
     assert_energy_conserved(res)
     assert res.roulette == 0.0
     assert res.diffuse_reflectance == 0.0 and res.transmittance == 0.0 and res.specular_reflectance == 0.0

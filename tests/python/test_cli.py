@@ -24,8 +24,9 @@ KEYS = ("photons", "specular_reflectance", "diffuse_reflectance", "transmittance
 def _cli(*args, timeout=300):
     env = dict(os.environ)
     env["PYTHONPATH"] = os.path.join(ROOT, "python") + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run([sys.executable, "-m", "endophoton", *args], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "endophoton", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout
+    )
 
 
 def _run_json(path, photons, seed=1, threads=2):
@@ -56,8 +57,13 @@ def test_cli_mcml_slab_matches_oracle():
 def test_cli_semi_infinite_n15_matches_oracle():
     d = _run_json("examples/semi_infinite_n15.json", 20_000, seed=2)
     assert_within("Rsp", d["specular_reflectance"], d["specular_reflectance_stderr"], 0.04, 1e-12)
-    assert_within("Rsp + Rd (Giovanelli)", d["specular_reflectance"] + d["diffuse_reflectance"],
-                  d["specular_reflectance_stderr"] + d["diffuse_reflectance_stderr"], 0.2600, 0.5e-4)
+    assert_within(
+        "Rsp + Rd (Giovanelli)",
+        d["specular_reflectance"] + d["diffuse_reflectance"],
+        d["specular_reflectance_stderr"] + d["diffuse_reflectance_stderr"],
+        0.2600,
+        0.5e-4,
+    )
 
 
 def test_cli_three_layer_matches_oracle():
@@ -76,8 +82,7 @@ def test_cli_seed_tissue_runs():
     assert 0.0 < d["diffuse_reflectance"] < 1.0 and d["transmittance"] < 1e-6
 
 
-@pytest.mark.parametrize("name", ["mcml_slab.json", "semi_infinite_n15.json", "three_layer.json",
-                                  "seed_tissue.json"])
+@pytest.mark.parametrize("name", ["mcml_slab.json", "semi_infinite_n15.json", "three_layer.json", "seed_tissue.json"])
 def test_example_files_load_with_the_python_api(name):
     with open(os.path.join(EXAMPLES, name), encoding="utf-8") as fh:
         data = json.load(fh)
@@ -99,8 +104,9 @@ def _base():
         return json.load(fh)
 
 
-@pytest.mark.parametrize("field,value,spelling", [("mus", -1, "-1"), ("mua", -0.5, "-0.5"), ("g", 1.2, "1.2"),
-                                                  ("n", 0.9, "0.9")])
+@pytest.mark.parametrize(
+    "field,value,spelling", [("mus", -1, "-1"), ("mua", -0.5, "-0.5"), ("g", 1.2, "1.2"), ("n", 0.9, "0.9")]
+)
 def test_cli_bad_medium_exits_nonzero_naming_the_field(tmp_path, field, value, spelling):
     d = _base()
     d["regions"][0]["medium"][field] = value
@@ -125,7 +131,7 @@ def test_cli_open_mesh_exits_nonzero(tmp_path):
     region = d["regions"][0]
     del region["box"]
     v, t = ep.box_mesh((-1, -1, -1), (1, 1, 0))
-    region["mesh"] = {"vertices": v.tolist(), "triangles": t[:-1].tolist()}   # one triangle missing
+    region["mesh"] = {"vertices": v.tolist(), "triangles": t[:-1].tolist()}  # one triangle missing
     p = _cli("run", _write(tmp_path, d), "--photons", "100")
     assert p.returncode != 0
     assert "tissue" in p.stderr and ("watertight" in p.stderr or "open" in p.stderr), p.stderr

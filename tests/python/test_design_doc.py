@@ -17,22 +17,26 @@ def _section(title):
 
 
 def test_package_names_exist():
-    names = set(re.findall(r"\bep\.([A-Za-z_]\w*)", DOC))   # code spans and code blocks
+    names = set(re.findall(r"\bep\.([A-Za-z_]\w*)", DOC))  # code spans and code blocks
     assert len(names) >= 10
     assert sorted(n for n in names if not hasattr(ep, n)) == []
 
 
 def test_paths_exist():
-    paths = {m.rstrip(".,") for span in CODE_SPANS
-             for m in re.findall(r"(?:native|python|addon|tests|docs|data|bench|blend_scenes)/[\w./*-]+", span)}
+    paths = {
+        m.rstrip(".,")
+        for span in CODE_SPANS
+        for m in re.findall(r"(?:native|python|addon|tests|docs|data|bench|blend_scenes)/[\w./*-]+", span)
+    }
     assert len(paths) > 10
     assert sorted(p for p in paths if not glob.glob(os.path.join(ROOT, p))) == []
 
 
 def test_listed_package_modules_exist():
     table = _section("### Package modules")
-    modules = {m for row in table.splitlines() if row.startswith("| `")
-               for m in re.findall(r"`([a-z_]+)`", row.split("|")[1])}
+    modules = {
+        m for row in table.splitlines() if row.startswith("| `") for m in re.findall(r"`([a-z_]+)`", row.split("|")[1])
+    }
     assert len(modules) > 15
     pkg = os.path.join(ROOT, "python", "endophoton")
     assert sorted(m for m in modules if not os.path.isfile(os.path.join(pkg, m + ".py"))) == []

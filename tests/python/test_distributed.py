@@ -59,8 +59,9 @@ def assert_same_result(a, b):
 
 def cli(*args):
     env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    return subprocess.run([sys.executable, "-m", "endophoton", *args], capture_output=True, text=True, env=env,
-                          timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "endophoton", *args], capture_output=True, text=True, env=env, timeout=600
+    )
 
 
 def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
@@ -80,14 +81,25 @@ def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
 def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     scene, rig = fluorescent_endoscope()
     grids = dict(voxel_size=0.05, per_fluorophore=True)
-    dist = ep.run(scene, rig, photons=3000, seed=5, client=client, chunk_units=7,
-                  grids=ep.GridRequest(path=str(tmp_path / "dist.vdb"), **grids))
-    local = ep.run(scene, rig, photons=3000, seed=5, threads=1,
-                   grids=ep.GridRequest(path=str(tmp_path / "local.vdb"), **grids))
+    dist = ep.run(
+        scene,
+        rig,
+        photons=3000,
+        seed=5,
+        client=client,
+        chunk_units=7,
+        grids=ep.GridRequest(path=str(tmp_path / "dist.vdb"), **grids),
+    )
+    local = ep.run(
+        scene, rig, photons=3000, seed=5, threads=1, grids=ep.GridRequest(path=str(tmp_path / "local.vdb"), **grids)
+    )
     assert_same_result(dist, local)
     assert dist.fluorescent_escaped > 0 and len(dist.escapes["weight"]) > 0
-    assert dist.grid_names == local.grid_names == ["absorbed", "fluorescence", "fluorescence_collagen",
-                                                   "fluorescence_photofrin"]
+    assert (
+        dist.grid_names
+        == local.grid_names
+        == ["absorbed", "fluorescence", "fluorescence_collagen", "fluorescence_photofrin"]
+    )
     assert dist.grid_absorbed_sum == local.grid_absorbed_sum
     for name in dist.grid_names:
         a, oa, ha = grid_to_numpy(dist.grid_path, name)

@@ -14,21 +14,23 @@ import endophoton as ep
 from physics_helpers import assert_energy_conserved, assert_within
 
 DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
-TISSUE = ep.Medium(**ep.paper.TISSUE)   # the seed paper's colon tissue
+TISSUE = ep.Medium(**ep.paper.TISSUE)  # the seed paper's colon tissue
 
 
 def _scene_overlapping():
     """A polyp-like box (higher priority) overlapping a tissue block, both mismatched."""
     s = ep.Scene(unit="mm", ambient_n=1.0)
     s.add_box("tissue", min=(-50, -50, -50), max=(50, 50, 0), medium=TISSUE, priority=0)
-    s.add_box("polyp", min=(-2, -2, -3), max=(2, 2, 1.5), medium=ep.Medium(mua=5, mus=100, g=0.8, n=1.4),
-              priority=5)
+    s.add_box("polyp", min=(-2, -2, -3), max=(2, 2, 1.5), medium=ep.Medium(mua=5, mus=100, g=0.8, n=1.4), priority=5)
     return s
 
 
 def _scene_stack():
-    return ep.layered_slab([(ep.Medium(1, 100, 0.9, 1.37), 0.1), (ep.Medium(1, 10, 0.0, 1.5), 0.1),
-                            (ep.Medium(2, 10, 0.7, 1.2), 0.2)], unit="cm", width=20.0)
+    return ep.layered_slab(
+        [(ep.Medium(1, 100, 0.9, 1.37), 0.1), (ep.Medium(1, 10, 0.0, 1.5), 0.1), (ep.Medium(2, 10, 0.7, 1.2), 0.2)],
+        unit="cm",
+        width=20.0,
+    )
 
 
 def _scene_small_cube():
@@ -40,17 +42,20 @@ def _scene_small_cube():
 
 CASES = {
     "overlap_pencil": (_scene_overlapping, ep.PencilSource((0.5, 0.3, 10.0), (0.0, 0.0, -1.0)), {}),
-    "overlap_cone": (_scene_overlapping,
-                     ep.ConeSource(position=(0, 0, 10.0), direction=(0.1, 0.0, -1.0), half_angle_deg=20.0,
-                                   radius=1.0), {}),
+    "overlap_cone": (
+        _scene_overlapping,
+        ep.ConeSource(position=(0, 0, 10.0), direction=(0.1, 0.0, -1.0), half_angle_deg=20.0, radius=1.0),
+        {},
+    ),
     "stack_disk": (_scene_stack, ep.DiskSource(center=(0, 0, 1), direction=(0, 0, -1), radius=0.5), {}),
-    "stack_oblique_max_steps": (_scene_stack, ep.PencilSource((-1.0, 0, 1.0), (1.0, 0.0, -1.0)),
-                                dict(max_steps=30)),
+    "stack_oblique_max_steps": (_scene_stack, ep.PencilSource((-1.0, 0, 1.0), (1.0, 0.0, -1.0)), dict(max_steps=30)),
     "stack_max_path": (_scene_stack, DOWN, dict(max_path_cm=0.5)),
     "cube_heavy_roulette": (_scene_small_cube, DOWN, dict(roulette_threshold=0.2, roulette_chance=0.3)),
-    "cube_cone_partly_missing": (_scene_small_cube,
-                                 ep.ConeSource(position=(0, 0, 0.5), direction=(0, 0, -1), half_angle_deg=60.0),
-                                 {}),
+    "cube_cone_partly_missing": (
+        _scene_small_cube,
+        ep.ConeSource(position=(0, 0, 0.5), direction=(0, 0, -1), half_angle_deg=60.0),
+        {},
+    ),
 }
 
 
@@ -102,8 +107,16 @@ def test_roulette_is_unbiased_on_mcml_slab(threshold, chance):
     3 sigma, and the roulette's net weight is 0 within 3 sigma."""
     scene = ep.Scene(unit="cm")
     scene.add_box("slab", min=(-100, -100, -0.02), max=(100, 100, 0), medium=ep.Medium(10, 90, 0.75, 1.0))
-    res = ep.run(scene, DOWN, photons=300_000, seed=77, threads=0, record_escapes=False,
-                 roulette_threshold=threshold, roulette_chance=chance)
+    res = ep.run(
+        scene,
+        DOWN,
+        photons=300_000,
+        seed=77,
+        threads=0,
+        record_escapes=False,
+        roulette_threshold=threshold,
+        roulette_chance=chance,
+    )
     assert_energy_conserved(res)
     assert res.roulette != 0.0 and res.roulette_stderr > 0  # the roulette did act
     assert_within("Rd", res.diffuse_reflectance, res.diffuse_reflectance_stderr, 0.09739, 0.5e-5)
@@ -113,8 +126,9 @@ def test_roulette_is_unbiased_on_mcml_slab(threshold, chance):
 def test_fluorescent_scene_conserves_weight():
     """Fluorescence changes wavelengths, not weights: the balance still holds."""
     s = ep.Scene(unit="cm")
-    s.add_box("tissue", min=(-5, -5, -5), max=(5, 5, 0), medium=TISSUE,
-              fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
+    s.add_box(
+        "tissue", min=(-5, -5, -5), max=(5, 5, 0), medium=TISSUE, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)]
+    )
     res = ep.run(s, DOWN, photons=20_000, seed=4, threads=0)
     assert_energy_conserved(res)
     assert res.fluorescent_escaped > 0

@@ -11,9 +11,18 @@ import pytest
 from scipy import integrate
 
 import endophoton as ep
-from physics_helpers import (assert_energy_conserved, assert_no_nan, assert_same_within_stats, assert_within,
-                             cube_mesh, distance_to_box_surface, fresnel_unpolarized, hg_cdf, hg_pdf,
-                             semi_infinite_isotropic_reflectance)
+from physics_helpers import (
+    assert_energy_conserved,
+    assert_no_nan,
+    assert_same_within_stats,
+    assert_within,
+    cube_mesh,
+    distance_to_box_surface,
+    fresnel_unpolarized,
+    hg_cdf,
+    hg_pdf,
+    semi_infinite_isotropic_reflectance,
+)
 
 DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
 
@@ -30,8 +39,10 @@ def _deep_box(medium, unit="cm"):
 @pytest.fixture(scope="module")
 def no_absorption_runs():
     scene = _deep_box(ep.Medium(mua=0.0, mus=100.0, g=0.0, n=1.0))
-    return {cap: ep.run(scene, DOWN, photons=20_000, seed=40 + i, threads=0, record_escapes=False, max_steps=cap)
-            for i, cap in enumerate((100, 1600))}
+    return {
+        cap: ep.run(scene, DOWN, photons=20_000, seed=40 + i, threads=0, record_escapes=False, max_steps=cap)
+        for i, cap in enumerate((100, 1600))
+    }
 
 
 @pytest.mark.parametrize("cap", [100, 1600])
@@ -68,8 +79,14 @@ def test_semi_infinite_no_absorption_cut_scales_as_inverse_sqrt_steps(no_absorpt
 def huge_mus_runs():
     out = {}
     for i, (mua, mus) in enumerate(((10.0, 1e5), (0.1, 1e3))):
-        out[(mua, mus)] = ep.run(_deep_box(ep.Medium(mua=mua, mus=mus, g=0.0, n=1.0)), DOWN, photons=60_000,
-                                 seed=50 + i, threads=0, record_escapes=True)
+        out[(mua, mus)] = ep.run(
+            _deep_box(ep.Medium(mua=mua, mus=mus, g=0.0, n=1.0)),
+            DOWN,
+            photons=60_000,
+            seed=50 + i,
+            threads=0,
+            record_escapes=True,
+        )
     return out
 
 
@@ -99,13 +116,23 @@ def test_huge_mus_scale_invariance(huge_mus_runs):
     assert_energy_conserved(a)
     assert_energy_conserved(b)
     assert_no_nan(b)
-    assert_same_within_stats("Rd(10, 1e5) vs Rd(0.1, 1e3)", a.diffuse_reflectance, a.diffuse_reflectance_stderr,
-                             b.diffuse_reflectance, b.diffuse_reflectance_stderr)
+    assert_same_within_stats(
+        "Rd(10, 1e5) vs Rd(0.1, 1e3)",
+        a.diffuse_reflectance,
+        a.diffuse_reflectance_stderr,
+        b.diffuse_reflectance,
+        b.diffuse_reflectance_stderr,
+    )
     # depths scale by exactly the same factor (100): compare the mean max_depth * mu_t
     da = a.escapes["max_depth"].astype(np.float64) * 1e5
     db = b.escapes["max_depth"].astype(np.float64) * 1e3
-    assert_same_within_stats("mean max_depth * mu_s", da.mean(), da.std(ddof=1) / math.sqrt(da.size),
-                             db.mean(), db.std(ddof=1) / math.sqrt(db.size))
+    assert_same_within_stats(
+        "mean max_depth * mu_s",
+        da.mean(),
+        da.std(ddof=1) / math.sqrt(da.size),
+        db.mean(),
+        db.std(ddof=1) / math.sqrt(db.size),
+    )
 
 
 # ----------------------------------------------------------------------------
@@ -114,9 +141,15 @@ def test_huge_mus_scale_invariance(huge_mus_runs):
 def _single_scatter_loss(g, mua_d):
     """Expected fractional loss of a packet scattered once at the top of the slab: it either
     turns back (mu < 0) or its remaining path d becomes d / mu: 1 - E[1{mu>0} exp(-mua d (1/mu - 1))]."""
-    pts = [1 - 10.0 ** -k for k in range(1, 8)]
-    val, _ = integrate.quad(lambda m: float(hg_pdf(g, m)) * (1 - math.exp(-mua_d * (1 / m - 1))), 1e-12, 1.0,
-                            points=pts, limit=2000, epsabs=1e-14)
+    pts = [1 - 10.0**-k for k in range(1, 8)]
+    val, _ = integrate.quad(
+        lambda m: float(hg_pdf(g, m)) * (1 - math.exp(-mua_d * (1 / m - 1))),
+        1e-12,
+        1.0,
+        points=pts,
+        limit=2000,
+        epsabs=1e-14,
+    )
     return float(hg_cdf(g, 0.0)) + val
 
 
@@ -170,7 +203,7 @@ def _box_scene(builder):
     s = ep.Scene(unit="cm", ambient_n=1.0)
     m = ep.Medium(mua=1.0, mus=10.0, g=0.9, n=N_IN)
     if builder == "add_mesh":
-        v, t = cube_mesh(BOX_LO, BOX_HI)     # top face split along the diagonal (-1,-1,0)-(1,1,0)
+        v, t = cube_mesh(BOX_LO, BOX_HI)  # top face split along the diagonal (-1,-1,0)-(1,1,0)
         s.add_mesh("block", v, t, m)
     else:
         s.add_box("block", min=BOX_LO, max=BOX_HI, medium=m)
@@ -185,8 +218,14 @@ def test_launch_on_vertex_or_edge_never_leaks(builder, launch):
     whichever face the engine picks. Nothing may miss, every escape must be on the box
     surface going outward, and all the rest is conserved."""
     pos, direction, theta = LAUNCHES[launch]
-    res = ep.run(_box_scene(builder), ep.PencilSource(position=pos, direction=direction), photons=20_000,
-                 seed=70, threads=0, record_escapes=True)
+    res = ep.run(
+        _box_scene(builder),
+        ep.PencilSource(position=pos, direction=direction),
+        photons=20_000,
+        seed=70,
+        threads=0,
+        record_escapes=True,
+    )
     assert_energy_conserved(res)
     assert_no_nan(res)
     assert res.missed == 0.0
@@ -230,5 +269,7 @@ def test_no_packet_ever_deeper_than_the_slab():
     assert_energy_conserved(res)
     md = res.escapes["max_depth"]
     bad = md > 0.02 + 1e-6
-    assert not bad.any(), (f"{int(bad.sum())} of {len(md)} escaped packets were deeper than the slab "
-                           f"(max {float(md.max()):.4f} cm; packets {res.escapes['packet'][bad][:10].tolist()})")
+    assert not bad.any(), (
+        f"{int(bad.sum())} of {len(md)} escaped packets were deeper than the slab "
+        f"(max {float(md.max()):.4f} cm; packets {res.escapes['packet'][bad][:10].tolist()})"
+    )

@@ -24,8 +24,9 @@ def _mono(lam=LAMBDA0):
 
 def _slab(fluorophores, mua=1.0, mus=10.0, g=0.0, n=1.0, thickness=0.05):
     scene = ep.Scene(unit="cm")
-    scene.add_box("tissue", (-50, -50, -thickness), (50, 50, 0), ep.Medium(mua=mua, mus=mus, g=g, n=n),
-                  fluorophores=fluorophores)
+    scene.add_box(
+        "tissue", (-50, -50, -thickness), (50, 50, 0), ep.Medium(mua=mua, mus=mus, g=g, n=n), fluorophores=fluorophores
+    )
     return scene
 
 
@@ -63,8 +64,7 @@ def test_escaping_emission_spectrum_matches_the_eem_row():
     f = ep.Fluorophore("photofrin", 1.0, 1.0)
     scene = _slab([f], mua=0.0, mus=5.0, thickness=0.05)
     src = ep.PencilSource((0, 0, 1), (0, 0, -1), spectrum=_mono())
-    res = ep.run(scene, src, photons=200000, seed=11, threads=0, fluorescent_only=True,
-                 fluorescence_rule="paper")
+    res = ep.run(scene, src, photons=200000, seed=11, threads=0, fluorescent_only=True, fluorescence_rule="paper")
     assert_energy_conserved(res)
     wl = res.escapes["wavelength"].astype(np.float64)
     assert len(wl) > 5000
@@ -121,8 +121,7 @@ def test_stokes_loss_follows_the_energy_convention():
     e = res.escapes
     assert np.allclose(e["energy"], e["weight"] * 500.0 / e["wavelength"].astype(np.float64), rtol=1e-6)
     assert res.escaped_energy == pytest.approx(e["energy"].sum() / res.photons, rel=1e-9)
-    assert res.escaped_energy == pytest.approx(res.diffuse_reflectance_energy + res.transmittance_energy,
-                                               rel=1e-12)
+    assert res.escaped_energy == pytest.approx(res.diffuse_reflectance_energy + res.transmittance_energy, rel=1e-12)
 
 
 def test_eem_rule_scales_the_decision_by_the_excitation_efficiency():

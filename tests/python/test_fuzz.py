@@ -16,29 +16,94 @@ from endophoton.cli import main as cli_main
 from endophoton.sources import source_from_dict
 from physics_helpers import assert_energy_conserved, assert_no_nan
 
-FUZZ = settings(max_examples=150, derandomize=True, deadline=None, database=None,
-                suppress_health_check=list(HealthCheck))
+FUZZ = settings(
+    max_examples=150, derandomize=True, deadline=None, database=None, suppress_health_check=list(HealthCheck)
+)
 
 BASE = {
-    "unit": "cm", "ambient_n": 1.0,
+    "unit": "cm",
+    "ambient_n": 1.0,
     "regions": [
-        {"name": "mucosa", "priority": 1, "medium": {"mua": 1.0, "mus": 50.0, "g": 0.9, "n": 1.4},
-         "box": {"min": [-1, -1, -0.2], "max": [1, 1, 0]}},
-        {"name": "polyp", "priority": 2, "medium": {"mua": 2.0, "mus": 30.0, "g": 0.8, "n": 1.37},
-         "mesh": {"vertices": [[-0.2, -0.2, -0.1], [0.2, -0.2, -0.1], [-0.2, 0.2, -0.1], [0.2, 0.2, -0.1],
-                               [-0.2, -0.2, 0.1], [0.2, -0.2, 0.1], [-0.2, 0.2, 0.1], [0.2, 0.2, 0.1]],
-                  "triangles": [[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
-                                [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]]},
-         "fluorophores": [{"name": "photofrin", "d": 0.1, "c": 0.5}]},
+        {
+            "name": "mucosa",
+            "priority": 1,
+            "medium": {"mua": 1.0, "mus": 50.0, "g": 0.9, "n": 1.4},
+            "box": {"min": [-1, -1, -0.2], "max": [1, 1, 0]},
+        },
+        {
+            "name": "polyp",
+            "priority": 2,
+            "medium": {"mua": 2.0, "mus": 30.0, "g": 0.8, "n": 1.37},
+            "mesh": {
+                "vertices": [
+                    [-0.2, -0.2, -0.1],
+                    [0.2, -0.2, -0.1],
+                    [-0.2, 0.2, -0.1],
+                    [0.2, 0.2, -0.1],
+                    [-0.2, -0.2, 0.1],
+                    [0.2, -0.2, 0.1],
+                    [-0.2, 0.2, 0.1],
+                    [0.2, 0.2, 0.1],
+                ],
+                "triangles": [
+                    [0, 2, 3],
+                    [0, 3, 1],
+                    [4, 5, 7],
+                    [4, 7, 6],
+                    [0, 1, 5],
+                    [0, 5, 4],
+                    [2, 6, 7],
+                    [2, 7, 3],
+                    [0, 4, 6],
+                    [0, 6, 2],
+                    [1, 3, 7],
+                    [1, 7, 5],
+                ],
+            },
+            "fluorophores": [{"name": "photofrin", "d": 0.1, "c": 0.5}],
+        },
     ],
     "source": {"type": "pencil", "position": [0.01, 0.02, 1.0], "direction": [0, 0, -1]},
     "run": {"photons": 64, "seed": 1},
 }
 
 # Values that broke the engine or the loader in the hostile-user trial, plus their neighbours.
-EDGE_VALUES = [None, True, False, 0, -1, 1, 2 ** 31, 2 ** 32 + 1, 2 ** 63, 2 ** 64, -2 ** 64, 10 ** 30, 0.5, -0.5,
-               1e-300, 1e19, 1e30, 1e155, 1e308, -1e308, math.inf, -math.inf, math.nan, "", "abc", "1", "\ud800",
-               [], [1], [1, 2], [0, 0, 0], [1e19, 0, 0], {}, {"x": 1}]
+EDGE_VALUES = [
+    None,
+    True,
+    False,
+    0,
+    -1,
+    1,
+    2**31,
+    2**32 + 1,
+    2**63,
+    2**64,
+    -(2**64),
+    10**30,
+    0.5,
+    -0.5,
+    1e-300,
+    1e19,
+    1e30,
+    1e155,
+    1e308,
+    -1e308,
+    math.inf,
+    -math.inf,
+    math.nan,
+    "",
+    "abc",
+    "1",
+    "\ud800",
+    [],
+    [1],
+    [1, 2],
+    [0, 0, 0],
+    [1e19, 0, 0],
+    {},
+    {"x": 1},
+]
 
 
 def _paths(node, prefix=()):
@@ -91,18 +156,21 @@ def mutated_documents(draw):
                 v = _get(doc, path)
                 if type(v) in (int, float):
                     w = v * draw(st.sampled_from(FACTORS))
-                    _set(doc, path, int(w) if type(v) is int and abs(w) < 2 ** 63 else w)
+                    _set(doc, path, int(w) if type(v) is int and abs(w) < 2**63 else w)
             elif kind == "edge":
                 _set(doc, path, copy.deepcopy(draw(st.sampled_from(EDGE_VALUES))))
             elif kind == "number":
-                _set(doc, path, draw(st.one_of(st.integers(-2 ** 70, 2 ** 70),
-                                               st.floats(allow_nan=True, allow_infinity=True))))
+                _set(
+                    doc,
+                    path,
+                    draw(st.one_of(st.integers(-(2**70), 2**70), st.floats(allow_nan=True, allow_infinity=True))),
+                )
             elif kind == "delete":
                 _delete(doc, path)
             else:
                 _set(doc, path[:-1] + ("bogus_key",), 1)
         except (KeyError, IndexError, TypeError):
-            pass   # an earlier mutation removed or replaced the parent: keep the document as is
+            pass  # an earlier mutation removed or replaced the parent: keep the document as is
     return doc
 
 
@@ -130,8 +198,27 @@ def test_mutated_scene_documents_give_a_sound_result_or_a_named_error(doc):
 
 
 CLI_OPTIONS = ["--photons", "--seed", "--threads", "--time-budget", "--target-rel-error", "--max-photons"]
-CLI_VALUES = ["0", "1", "-1", "64", "2147483648", "18446744073709551615", "18446744073709551616",
-              "4611686018427387905", "nan", "inf", "-inf", "1e309", "abc", "", " 5", "1.5", "0x10", "1e3", "0.5"]
+CLI_VALUES = [
+    "0",
+    "1",
+    "-1",
+    "64",
+    "2147483648",
+    "18446744073709551615",
+    "18446744073709551616",
+    "4611686018427387905",
+    "nan",
+    "inf",
+    "-inf",
+    "1e309",
+    "abc",
+    "",
+    " 5",
+    "1.5",
+    "0x10",
+    "1e3",
+    "0.5",
+]
 
 
 @FUZZ
@@ -142,11 +229,11 @@ def test_cli_option_edges_give_json_or_exit_2(tmp_path_factory, capsys, options)
     argv = ["run", str(path)]
     for opt, val in options:
         if opt == "--photons" and val not in ("0", "-1") and val.strip().isdigit() and int(val) > 64:
-            val = "64"   # keep valid runs tiny; the huge values are covered by the named cases below
+            val = "64"  # keep valid runs tiny; the huge values are covered by the named cases below
         argv += [opt, val]
     try:
         code = cli_main(argv)
-    except SystemExit as e:   # argparse: bad option value
+    except SystemExit as e:  # argparse: bad option value
         code = e.code
     out, err = capsys.readouterr()
     assert "Traceback" not in err

@@ -12,8 +12,12 @@ from physics_helpers import assert_energy_conserved, assert_no_nan
 def _clear_absorber(unit="cm", scale=1.0):
     """A non-scattering absorbing box: a pencil beam deposits only along its own line."""
     s = ep.Scene(unit=unit)
-    s.add_box("absorber", np.array((-1, -1, -1)) * scale, np.array((1, 1, 0)) * scale,
-              ep.Medium(mua=1.5, mus=0.0, g=0.0, n=1.0))
+    s.add_box(
+        "absorber",
+        np.array((-1, -1, -1)) * scale,
+        np.array((1, 1, 0)) * scale,
+        ep.Medium(mua=1.5, mus=0.0, g=0.0, n=1.0),
+    )
     return s
 
 
@@ -21,8 +25,13 @@ def test_grid_lines_up_with_world_space_and_sums_to_the_absorbed_tally(tmp_path)
     x0, y0 = 0.3, -0.2
     voxel = 0.05
     path = tmp_path / "abs.vdb"
-    res = ep.run(_clear_absorber(), ep.PencilSource((x0, y0, 1.0), (0, 0, -1)), photons=500, seed=1,
-                 grids=ep.GridRequest(voxel_size=voxel, path=str(path)))
+    res = ep.run(
+        _clear_absorber(),
+        ep.PencilSource((x0, y0, 1.0), (0, 0, -1)),
+        photons=500,
+        seed=1,
+        grids=ep.GridRequest(voxel_size=voxel, path=str(path)),
+    )
     assert_energy_conserved(res)
     assert res.grid_path == str(path) and path.exists()
     summary = vdb.read_grid_summary(str(path))
@@ -55,8 +64,13 @@ def test_no_grid_file_unless_requested(tmp_path):
 
 def test_grid_in_metres_lines_up_with_the_same_physical_point(tmp_path):
     path = tmp_path / "m.vdb"
-    res = ep.run(_clear_absorber("m", 0.01), ep.PencilSource((0.003, -0.002, 0.01), (0, 0, -1)),
-                 photons=200, seed=1, grids=ep.GridRequest(voxel_size=0.0005, path=str(path)))
+    res = ep.run(
+        _clear_absorber("m", 0.01),
+        ep.PencilSource((0.003, -0.002, 0.01), (0, 0, -1)),
+        photons=200,
+        seed=1,
+        grids=ep.GridRequest(voxel_size=0.0005, path=str(path)),
+    )
     arr, origin, h = vdb.grid_to_numpy(str(path), "absorbed")
     world = origin + np.argwhere(arr > 0) * h
     assert np.all(np.abs(world[:, 0] - 0.003) <= 0.5 * h + 1e-12)
@@ -67,8 +81,13 @@ def test_grid_in_metres_lines_up_with_the_same_physical_point(tmp_path):
 
 def _fluor_scene():
     s = ep.Scene(unit="cm")
-    s.add_box("tissue", (-5, -5, -5), (5, 5, 0), ep.Medium(20, 200, 0.9, 1.1),
-              fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
+    s.add_box(
+        "tissue",
+        (-5, -5, -5),
+        (5, 5, 0),
+        ep.Medium(20, 200, 0.9, 1.1),
+        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)],
+    )
     return s
 
 
@@ -100,7 +119,7 @@ def test_halton_emission_is_reproducible():
     assert abs(w1.mean() - 550) < 3 * 300 / np.sqrt(12 * len(w1))
 
 
-NEVER_ENDS = 2 ** 40  # packets: no run in a test can finish this, so a stop is always the cancel
+NEVER_ENDS = 2**40  # packets: no run in a test can finish this, so a stop is always the cancel
 
 
 def test_progress_is_reported_and_cancel_returns_a_marked_partial_result():
@@ -120,8 +139,16 @@ def test_progress_is_reported_and_cancel_returns_a_marked_partial_result():
     out = {}
 
     def work():
-        out["res"] = ep.run(scene, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=NEVER_ENDS, seed=1,
-                            threads=2, record_escapes=False, progress=progress, cancel=token)
+        out["res"] = ep.run(
+            scene,
+            ep.PencilSource((0, 0, 1), (0, 0, -1)),
+            photons=NEVER_ENDS,
+            seed=1,
+            threads=2,
+            record_escapes=False,
+            progress=progress,
+            cancel=token,
+        )
 
     th = threading.Thread(target=work)
     th.start()
@@ -145,9 +172,20 @@ def test_cancel_after_three_units_is_an_exact_partial_result(tmp_path):
     scene = _fluor_scene()
     src = ep.PencilSource((0, 0, 1), (0, 0, -1))
     path = tmp_path / "never.vdb"
-    raw = _core.run(scene.to_native(), _core.Source(src.native_lights(scene.unit_cm)),
-                    _core.RunConfig(photons=1_000_000, unit_size=500, seed=3, threads=2, record_escapes=False,
-                                    grid_voxel_size=0.1, grid_path=str(path), test_cancel_after_units=3))
+    raw = _core.run(
+        scene.to_native(),
+        _core.Source(src.native_lights(scene.unit_cm)),
+        _core.RunConfig(
+            photons=1_000_000,
+            unit_size=500,
+            seed=3,
+            threads=2,
+            record_escapes=False,
+            grid_voxel_size=0.1,
+            grid_path=str(path),
+            test_cancel_after_units=3,
+        ),
+    )
     assert raw["cancelled"] is True and raw["stop_reason"] == "cancelled"
     assert raw["photons"] == 1500
     assert raw["grid_path"] is None and not path.exists() and list(tmp_path.iterdir()) == []
@@ -156,8 +194,14 @@ def test_cancel_after_three_units_is_an_exact_partial_result(tmp_path):
 
 
 def test_progress_returning_false_stops_the_run():
-    res = ep.run(_fluor_scene(), ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=NEVER_ENDS, seed=1,
-                 record_escapes=False, progress=lambda done, total: False)
+    res = ep.run(
+        _fluor_scene(),
+        ep.PencilSource((0, 0, 1), (0, 0, -1)),
+        photons=NEVER_ENDS,
+        seed=1,
+        record_escapes=False,
+        progress=lambda done, total: False,
+    )
     assert res.cancelled and res.photons < NEVER_ENDS
     assert_no_nan(res)
 
@@ -183,8 +227,7 @@ def test_clear_region_deposits_are_exact_per_voxel(tmp_path):
     ref = {}
     for key, v in zip(map(tuple, np.round(mid / h).astype(int)), w[:-1] - w[1:]):
         ref[key] = ref.get(key, 0.0) + v
-    got = {tuple(np.round((origin + ijk * hh) / h).astype(int)): float(arr[tuple(ijk)])
-           for ijk in np.argwhere(arr > 0)}
+    got = {tuple(np.round((origin + ijk * hh) / h).astype(int)): float(arr[tuple(ijk)]) for ijk in np.argwhere(arr > 0)}
     assert set(got) == set(ref)
     for key, v in ref.items():
         assert got[key] == pytest.approx(v, rel=1e-4, abs=1e-7), key
@@ -196,8 +239,15 @@ def test_time_budget_stops_a_fixed_count_run():
     runs after a merge, so at least one whole unit is in the result (its stderrs finite even
     when it is the only one). The timing of the rule itself is tested with a fake clock in
     tests/cpp (StopRule)."""
-    res = ep.run(_fluor_scene(), ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=NEVER_ENDS, seed=1,
-                 record_escapes=False, time_budget_s=0.5, unit_size=2000)
+    res = ep.run(
+        _fluor_scene(),
+        ep.PencilSource((0, 0, 1), (0, 0, -1)),
+        photons=NEVER_ENDS,
+        seed=1,
+        record_escapes=False,
+        time_budget_s=0.5,
+        unit_size=2000,
+    )
     assert res.stop_reason == "time" and 2000 <= res.photons < NEVER_ENDS and res.photons % 2000 == 0
     assert not res.cancelled and res.seconds >= 0.5
     assert_no_nan(res)
@@ -209,7 +259,8 @@ def test_target_on_a_tally_that_stays_zero_stops_and_says_so():
     undefined, so the run stops after its minimum and reports 'target_zero'."""
     s = ep.Scene(unit="cm")
     s.add_box("t", (-5, -5, -10), (5, 5, 0), ep.Medium(20, 200, 0.9, 1.1))
-    res = ep.run(s, ep.PencilSource((0, 0, 1), (0, 0, -1)), target=ep.Target("transmittance", 0.01),
-                 record_escapes=False)
+    res = ep.run(
+        s, ep.PencilSource((0, 0, 1), (0, 0, -1)), target=ep.Target("transmittance", 0.01), record_escapes=False
+    )
     assert res.stop_reason == "target_zero" and not res.target_reached
     assert res.transmittance == 0.0

@@ -23,7 +23,7 @@ from physics_helpers import assert_energy_conserved, assert_no_nan, cube_mesh
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 TISSUE = ep.Medium(mua=1.0, mus=10.0, g=0.9, n=1.4)
 DOWN = ep.PencilSource((0, 0, 1), (0, 0, -1))
-NEVER_ENDS = 2 ** 40
+NEVER_ENDS = 2**40
 
 
 def slab(thickness=0.02, top=0.0, width=2.0, medium=TISSUE):
@@ -33,19 +33,27 @@ def slab(thickness=0.02, top=0.0, width=2.0, medium=TISSUE):
 
 
 def _subprocess(code, timeout=300):
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python") + os.pathsep
-               + os.path.join(ROOT, "tests", "python"))
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python") + os.pathsep + os.path.join(ROOT, "tests", "python"))
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        env=env,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 # ---------------------------------------------------------------- crashes (float32 Embree)
-@pytest.mark.parametrize("source,field", [
-    (ep.PencilSource((0, 0, 1e19), (0, 0, -1)), "position"),
-    (ep.DiskSource((0, 0, 1), (0, 0, -1), radius=1e20), "radius"),
-    (ep.ConeSource((0, 0, 1), (0, 0, -1), 7.5, radius=1e30), "radius"),
-    (ep.EndoscopeRig.from_beta(0.0, 1e308), "position"),
-])
+@pytest.mark.parametrize(
+    "source,field",
+    [
+        (ep.PencilSource((0, 0, 1e19), (0, 0, -1)), "position"),
+        (ep.DiskSource((0, 0, 1), (0, 0, -1), radius=1e20), "radius"),
+        (ep.ConeSource((0, 0, 1), (0, 0, -1), 7.5, radius=1e30), "radius"),
+        (ep.EndoscopeRig.from_beta(0.0, 1e308), "position"),
+    ],
+)
 def test_huge_source_coordinates_are_named_errors(source, field):
     with pytest.raises(ValueError, match=rf"source.lights\[\d\].*{field}.*beyond the limit 1e\+12"):
         ep.run(slab(1.0), source, photons=10)
@@ -63,7 +71,8 @@ def test_thread_creation_failure_is_a_named_error():
 # ---------------------------------------------------------------- corrupt output
 def test_grid_write_beyond_the_file_size_limit_fails_and_leaves_no_file(tmp_path):
     out = tmp_path / "g.vdb"
-    p = _subprocess(f"""
+    p = _subprocess(
+        f"""
         import resource, signal
         import endophoton as ep
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -75,7 +84,8 @@ def test_grid_write_beyond_the_file_size_limit_fails_and_leaves_no_file(tmp_path
             print("RETURNED")
         except RuntimeError as e:
             print("ERR", e)
-    """)
+    """
+    )
     assert p.returncode == 0, p.stderr
     assert p.stdout.startswith("ERR vdb file '" + str(out) + "': write failed: File too large"), p.stdout
     assert list(tmp_path.iterdir()) == []
@@ -100,7 +110,7 @@ def test_runs_of_one_work_unit_are_finite(photons):
     assert_energy_conserved(r)
     assert r.specular_reflectance == pytest.approx(((1.4 - 1) / 2.4) ** 2, rel=1e-12)
     expected = r.specular_reflectance if photons == 1 else 0.0
-    assert r.specular_reflectance_stderr == pytest.approx(expected, abs=1e-8)   # rounding of sum w^2 - (sum w)^2/N
+    assert r.specular_reflectance_stderr == pytest.approx(expected, abs=1e-8)  # rounding of sum w^2 - (sum w)^2/N
     json.dumps(r.to_dict(), allow_nan=False)
 
 
@@ -163,14 +173,16 @@ def test_source_far_above_a_thin_slab_is_refused():
     s.add_box("slab", (-500, -500, -0.02), (500, 500, 0), TISSUE)
     with pytest.raises(ValueError, match=r"source.lights\[0\].*too far from the scene.*'slab'"):
         ep.run(s, ep.PencilSource((0, 0, 5000), (0, 0, -1)), photons=10)
-    r = ep.run(s, ep.PencilSource((0, 0, 10), (0, 0, -1)), photons=200)   # near: fine
+    r = ep.run(s, ep.PencilSource((0, 0, 10), (0, 0, -1)), photons=200)  # near: fine
     assert r.missed == 0
 
 
 def test_thin_region_far_from_the_origin_is_refused():
     s = ep.Scene("cm")
-    s.add_box("slab", (-1, -1, 1e6 - 0.5), (1, 1, 1e6), TISSUE)    # float32 spacing there: 0.0625
-    with pytest.raises(ValueError, match=r"region 'slab': thinnest side 0.5 scene units at \|coordinate\| up to 1e\+06"):
+    s.add_box("slab", (-1, -1, 1e6 - 0.5), (1, 1, 1e6), TISSUE)  # float32 spacing there: 0.0625
+    with pytest.raises(
+        ValueError, match=r"region 'slab': thinnest side 0.5 scene units at \|coordinate\| up to 1e\+06"
+    ):
         ep.run(s, ep.PencilSource((0, 0, 1e6 + 1), (0, 0, -1)), photons=10)
 
 
@@ -181,19 +193,18 @@ def test_box_spanning_float_range_is_refused():
         ep.run(s, DOWN, photons=10)
 
 
-@pytest.mark.parametrize("n", [2 ** 64 - 65_535, 2 ** 64, 2 ** 62 + 1])
+@pytest.mark.parametrize("n", [2**64 - 65_535, 2**64, 2**62 + 1])
 def test_packet_requests_beyond_2_pow_62_are_refused(n):
     with pytest.raises(ValueError, match=rf"photons = {n} must be in \[1, {2 ** 62}\]"):
         ep.run(slab(1.0), DOWN, photons=n)
     with pytest.raises(ValueError, match=r"photons = \d+ exceeds the limit 2\^62"):
-        _core.run(slab(1.0).to_native(), _core.Source(DOWN.native_lights(1.0)),
-                  _core.RunConfig(photons=2 ** 62 + 1))
+        _core.run(slab(1.0).to_native(), _core.Source(DOWN.native_lights(1.0)), _core.RunConfig(photons=2**62 + 1))
 
 
 def test_triangle_index_beyond_2_pow_32_is_refused_before_narrowing():
     v, t = cube_mesh((-1, -1, -1), (1, 1, 0))
     t = t.astype(np.int64)
-    t[3, 1] += 2 ** 32    # would wrap to a valid index
+    t[3, 1] += 2**32  # would wrap to a valid index
     s = ep.Scene("cm")
     with pytest.raises(ValueError, match=rf"mesh.triangles\[3\]\[1\] = {int(t[3, 1])} is not a vertex index"):
         s.add_mesh("m", v, t, TISSUE)
@@ -215,16 +226,19 @@ def test_self_intersecting_mesh_is_refused():
     assert_energy_conserved(r)
 
 
-@pytest.mark.parametrize("kw,match", [
-    (dict(max_path_cm=True), r"max_path_cm = True must be a finite number"),
-    (dict(roulette_threshold=True), r"roulette_threshold = True must be a finite number"),
-    (dict(roulette_chance="0.5"), r"roulette_chance = '0.5' must be a finite number"),
-    (dict(time_budget_s=-1.0), r"time_budget_s = -1.0 must be in \[0.0, inf\]"),
-    (dict(time_budget_s=float("nan")), r"time_budget_s = nan must be a finite number"),
-    (dict(seed=1.5), r"seed = 1.5 must be an integer"),
-    (dict(threads=2 ** 31), r"threads = 2147483648 must be in \[0, 4096\]"),
-    (dict(record_escapes=1), r"record_escapes = 1 must be true or false"),
-])
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        (dict(max_path_cm=True), r"max_path_cm = True must be a finite number"),
+        (dict(roulette_threshold=True), r"roulette_threshold = True must be a finite number"),
+        (dict(roulette_chance="0.5"), r"roulette_chance = '0.5' must be a finite number"),
+        (dict(time_budget_s=-1.0), r"time_budget_s = -1.0 must be in \[0.0, inf\]"),
+        (dict(time_budget_s=float("nan")), r"time_budget_s = nan must be a finite number"),
+        (dict(seed=1.5), r"seed = 1.5 must be an integer"),
+        (dict(threads=2**31), r"threads = 2147483648 must be in \[0, 4096\]"),
+        (dict(record_escapes=1), r"record_escapes = 1 must be true or false"),
+    ],
+)
 def test_strict_types_in_the_api(kw, match):
     with pytest.raises(ValueError, match=match):
         ep.run(slab(1.0), DOWN, photons=10, **kw)
@@ -247,8 +261,7 @@ def test_keyboard_interrupt_in_the_api_cleans_up_and_writes_no_grid(tmp_path):
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        ep.run(slab(1.0), DOWN, photons=NEVER_ENDS, progress=progress,
-               grids=ep.GridRequest(0.1, str(path)))
+        ep.run(slab(1.0), DOWN, photons=NEVER_ENDS, progress=progress, grids=ep.GridRequest(0.1, str(path)))
     assert list(tmp_path.iterdir()) == []
 
 
@@ -258,9 +271,14 @@ def test_ctrl_c_on_the_cli_prints_a_cancelled_result_and_exits_130(tmp_path):
     scene = tmp_path / "s.json"
     scene.write_text(json.dumps(_scene_doc()))
     env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    proc = subprocess.Popen([sys.executable, "-m", "endophoton", "run", str(scene), "--photons", str(NEVER_ENDS),
-                             "--progress"], env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "endophoton", "run", str(scene), "--photons", str(NEVER_ENDS), "--progress"],
+        env=env,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     line = proc.stderr.readline()
     assert line.startswith("progress "), line
     proc.send_signal(signal.SIGINT)
@@ -273,19 +291,27 @@ def test_ctrl_c_on_the_cli_prints_a_cancelled_result_and_exits_130(tmp_path):
 
 # ---------------------------------------------------------------- tracebacks -> exit 2
 def _scene_doc():
-    return {"unit": "cm", "ambient_n": 1.0,
-            "regions": [{"name": "polyp_7", "medium": {"mua": 1.0, "mus": 10.0, "g": 0.9, "n": 1.4},
-                         "box": {"min": [-1, -1, -1], "max": [1, 1, 0]}}],
-            "source": {"type": "pencil", "position": [0, 0, 1], "direction": [0, 0, -1]},
-            "run": {"photons": 100}}
+    return {
+        "unit": "cm",
+        "ambient_n": 1.0,
+        "regions": [
+            {
+                "name": "polyp_7",
+                "medium": {"mua": 1.0, "mus": 10.0, "g": 0.9, "n": 1.4},
+                "box": {"min": [-1, -1, -1], "max": [1, 1, 0]},
+            }
+        ],
+        "source": {"type": "pencil", "position": [0, 0, 1], "direction": [0, 0, -1]},
+        "run": {"photons": 100},
+    }
 
 
 CLI_CASES = [  # (mutation of the document, expected text of the message)
     ("mus null", lambda d: d["regions"][0]["medium"].update(mus=None), "medium.mus = None"),
     ("mus list", lambda d: d["regions"][0]["medium"].update(mus=[1]), "medium.mus = [1]"),
     ("g inf", lambda d: d["regions"][0]["medium"].update(g=float("inf")), "medium.g = inf"),
-    ("priority 2^31", lambda d: d["regions"][0].update(priority=2 ** 31), "priority = 2147483648"),
-    ("seed 2^64", lambda d: d["run"].update(seed=2 ** 64), "run.seed = 18446744073709551616"),
+    ("priority 2^31", lambda d: d["regions"][0].update(priority=2**31), "priority = 2147483648"),
+    ("seed 2^64", lambda d: d["run"].update(seed=2**64), "run.seed = 18446744073709551616"),
     ("photons abc", lambda d: d["run"].update(photons="abc"), "run.photons = 'abc'"),
     ("max_path_cm true", lambda d: d["run"].update(max_path_cm=True), "run.max_path_cm = True"),
     ("roulette bool", lambda d: d["run"].update(roulette_chance=False), "run.roulette_chance = False"),
@@ -294,16 +320,18 @@ CLI_CASES = [  # (mutation of the document, expected text of the message)
     ("lone surrogate", lambda d: d["regions"][0].update(name="\ud800"), "lone surrogate"),
     ("fluorophores 5", lambda d: d["regions"][0].update(fluorophores=5), "fluorophores = 5"),
     ("short box.min", lambda d: d["regions"][0]["box"].update(min=[1, 2]), "box.min = [1, 2]"),
-    ("eem is a directory", lambda d: d["regions"][0].update(fluorophores=[{"name": "f", "d": 0.1, "c": 0.1,
-                                                                           "eem": "."}]),
-     "fluorophores[0].eem = '.' is not a file"),
+    (
+        "eem is a directory",
+        lambda d: d["regions"][0].update(fluorophores=[{"name": "f", "d": 0.1, "c": 0.1, "eem": "."}]),
+        "fluorophores[0].eem = '.' is not a file",
+    ),
 ]
 
 
 @pytest.mark.parametrize("name,mutate,text", CLI_CASES, ids=[c[0] for c in CLI_CASES])
 def test_bad_scene_files_exit_2_naming_the_field(tmp_path, capsys, name, mutate, text):
     path = tmp_path / "s.json"
-    if mutate == "deep":   # 1000 levels: too deep for json.dumps itself, so written by hand
+    if mutate == "deep":  # 1000 levels: too deep for json.dumps itself, so written by hand
         path.write_text('{"regions": ' + '{"x": ' * 1000 + "{}" + "}" * 1000 + "}")
     else:
         d = _scene_doc()
@@ -315,14 +343,17 @@ def test_bad_scene_files_exit_2_naming_the_field(tmp_path, capsys, name, mutate,
     assert text in err, err
 
 
-@pytest.mark.parametrize("args,text", [
-    (["--photons", str(2 ** 64 - 65_535)], "argument --photons"),
-    (["--photons", "abc"], "argument --photons: 'abc' is not an integer"),
-    (["--time-budget", "-1"], "argument --time-budget"),
-    (["--time-budget", "nan"], "argument --time-budget"),
-    (["--threads", "1e9"], "argument --threads"),
-    (["--seed", "-1"], "argument --seed"),
-])
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (["--photons", str(2**64 - 65_535)], "argument --photons"),
+        (["--photons", "abc"], "argument --photons: 'abc' is not an integer"),
+        (["--time-budget", "-1"], "argument --time-budget"),
+        (["--time-budget", "nan"], "argument --time-budget"),
+        (["--threads", "1e9"], "argument --threads"),
+        (["--seed", "-1"], "argument --seed"),
+    ],
+)
 def test_bad_cli_options_exit_2_naming_the_option(tmp_path, capsys, args, text):
     path = tmp_path / "s.json"
     path.write_text(json.dumps(_scene_doc()))
@@ -332,14 +363,21 @@ def test_bad_cli_options_exit_2_naming_the_option(tmp_path, capsys, args, text):
     assert text in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name,content,text", [
-    ("trunc.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 8\nproperty float x\nproperty float y\n"
-                  b"property float z\nend_header\n\x00\x00", "malformed or truncated PLY"),
-    ("type.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quux x\nend_header\n1\n", "unknown type"),
-    ("fmt.ply", b"ply\nformat\nend_header\n", "'format' line has no format"),
-    ("big.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1e23\n", "face index '1e23' is not an integer"),
-    ("wrap.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4294967297\n", "face index '4294967297' names no vertex"),
-])
+@pytest.mark.parametrize(
+    "name,content,text",
+    [
+        (
+            "trunc.ply",
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 8\nproperty float x\nproperty float y\n"
+            b"property float z\nend_header\n\x00\x00",
+            "malformed or truncated PLY",
+        ),
+        ("type.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quux x\nend_header\n1\n", "unknown type"),
+        ("fmt.ply", b"ply\nformat\nend_header\n", "'format' line has no format"),
+        ("big.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1e23\n", "face index '1e23' is not an integer"),
+        ("wrap.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4294967297\n", "face index '4294967297' names no vertex"),
+    ],
+)
 def test_bad_mesh_files_are_named_errors(tmp_path, capsys, name, content, text):
     (tmp_path / name).write_bytes(content)
     d = _scene_doc()

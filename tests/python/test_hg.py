@@ -17,7 +17,7 @@ from endophoton import _core
 from physics_helpers import hg_cdf, hg_pdf
 
 N = 1_000_000
-BINS = 200            # expected 5000 per bin
+BINS = 200  # expected 5000 per bin
 
 
 def _equal_probability_edges(g, k):
@@ -61,9 +61,10 @@ def test_hg_legendre_moments(g):
         p = special.eval_legendre(l, x)
         mean = p.mean()
         sigma = p.std(ddof=1) / math.sqrt(N)
-        ref = g ** l
-        assert abs(mean - ref) < 3 * sigma + 1e-12, \
-            f"g = {g}: E[P_{l}] = {mean:.6f} +- {sigma:.2g}, expected g^{l} = {ref:.6f}"
+        ref = g**l
+        assert (
+            abs(mean - ref) < 3 * sigma + 1e-12
+        ), f"g = {g}: E[P_{l}] = {mean:.6f} +- {sigma:.2g}, expected g^{l} = {ref:.6f}"
 
 
 @pytest.mark.parametrize("g,value", [(1.0, 1.0), (-1.0, -1.0)])

@@ -11,15 +11,19 @@ from physics_helpers import assert_energy_conserved, assert_same_within_stats, a
 # ----------------------------------------------------------------------------
 # Units: the MCML Table 6.1 slab (d = 0.02 cm, n = 1) built in m, cm and mm
 # ----------------------------------------------------------------------------
-SCALE = {"m": 0.01, "cm": 1.0, "mm": 10.0}   # scene units per cm
+SCALE = {"m": 0.01, "cm": 1.0, "mm": 10.0}  # scene units per cm
 THICK_CM = 0.02
 
 
 def _slab_in(unit):
     k = SCALE[unit]
     s = ep.Scene(unit=unit, ambient_n=1.0)
-    s.add_box("slab", min=(-100 * k, -100 * k, -THICK_CM * k), max=(100 * k, 100 * k, 0.0),
-              medium=ep.Medium(mua=10.0, mus=90.0, g=0.75, n=1.0))   # coefficients always in cm^-1
+    s.add_box(
+        "slab",
+        min=(-100 * k, -100 * k, -THICK_CM * k),
+        max=(100 * k, 100 * k, 0.0),
+        medium=ep.Medium(mua=10.0, mus=90.0, g=0.75, n=1.0),
+    )  # coefficients always in cm^-1
     src = ep.PencilSource(position=(0.0, 0.0, 1.0 * k), direction=(0.0, 0.0, -1.0))
     return s, src
 
@@ -40,19 +44,34 @@ def test_units_give_the_same_physics(unit_results, a, b):
     assert_energy_conserved(ra)
     assert_energy_conserved(rb)
     for key in ("diffuse_reflectance", "transmittance", "absorbed"):
-        assert_same_within_stats(f"{key} [{a} vs {b}]", getattr(ra, key), getattr(ra, key + "_stderr"),
-                                 getattr(rb, key), getattr(rb, key + "_stderr"))
+        assert_same_within_stats(
+            f"{key} [{a} vs {b}]",
+            getattr(ra, key),
+            getattr(ra, key + "_stderr"),
+            getattr(rb, key),
+            getattr(rb, key + "_stderr"),
+        )
     # Depths are reported in cm whatever the unit: mean max_depth of the reflected packets.
     da = ra.escapes["max_depth"][ra.escapes["kind"] == 0].astype(np.float64)
     db = rb.escapes["max_depth"][rb.escapes["kind"] == 0].astype(np.float64)
-    assert_same_within_stats(f"mean max_depth (cm) [{a} vs {b}]", da.mean(), da.std(ddof=1) / math.sqrt(da.size),
-                             db.mean(), db.std(ddof=1) / math.sqrt(db.size))
+    assert_same_within_stats(
+        f"mean max_depth (cm) [{a} vs {b}]",
+        da.mean(),
+        da.std(ddof=1) / math.sqrt(da.size),
+        db.mean(),
+        db.std(ddof=1) / math.sqrt(db.size),
+    )
     # Lateral exit radius in cm (positions are in scene units): same distribution.
     ka, kb = SCALE[a], SCALE[b]
     xa = np.linalg.norm(ra.escapes["position"][:, :2].astype(np.float64), axis=1) / ka
     xb = np.linalg.norm(rb.escapes["position"][:, :2].astype(np.float64), axis=1) / kb
-    assert_same_within_stats(f"mean exit radius (cm) [{a} vs {b}]", xa.mean(), xa.std(ddof=1) / math.sqrt(xa.size),
-                             xb.mean(), xb.std(ddof=1) / math.sqrt(xb.size))
+    assert_same_within_stats(
+        f"mean exit radius (cm) [{a} vs {b}]",
+        xa.mean(),
+        xa.std(ddof=1) / math.sqrt(xa.size),
+        xb.mean(),
+        xb.std(ddof=1) / math.sqrt(xb.size),
+    )
 
 
 @pytest.mark.parametrize("unit", ["m", "cm", "mm"])
@@ -66,8 +85,10 @@ def test_each_unit_matches_van_de_hulst_and_reports_depth_in_cm(unit_results, un
     # (A unit error would show as a factor 10 or 100; a few values slightly above mean a leak,
     # see test_extremes.test_no_packet_ever_deeper_than_the_slab.)
     deep = esc["max_depth"] > THICK_CM + 1e-6
-    assert not deep.any(), (f"[{unit}] {int(deep.sum())} packets deeper than the 0.02 cm slab: max_depth "
-                            f"{esc['max_depth'][deep][:5].tolist()} cm, packets {esc['packet'][deep][:5].tolist()}")
+    assert not deep.any(), (
+        f"[{unit}] {int(deep.sum())} packets deeper than the 0.02 cm slab: max_depth "
+        f"{esc['max_depth'][deep][:5].tolist()} cm, packets {esc['packet'][deep][:5].tolist()}"
+    )
     assert float(esc["max_depth"].min()) >= 0.0
     # transmitted packets crossed the whole slab: max_depth is the thickness in cm
     tr = esc["kind"] == 1
@@ -81,7 +102,7 @@ def test_each_unit_matches_van_de_hulst_and_reports_depth_in_cm(unit_results, un
 # ----------------------------------------------------------------------------
 # Determinism
 # ----------------------------------------------------------------------------
-ENV_KEYS = {"seconds", "threads"}   # describe the run environment, not the result
+ENV_KEYS = {"seconds", "threads"}  # describe the run environment, not the result
 
 
 def _det_scene():
@@ -103,8 +124,7 @@ def _assert_identical(r1, r2):
         if k in ENV_KEYS:
             continue
         assert d1[k] == d2[k], f"{k}: {d1[k]!r} != {d2[k]!r}"
-    for k in ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut",
-              "roulette"):
+    for k in ("specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed", "missed", "cut", "roulette"):
         assert getattr(r1, k) == getattr(r2, k), k
         assert getattr(r1, k + "_stderr") == getattr(r2, k + "_stderr"), k
     assert r1.absorbed_by_region == r2.absorbed_by_region
@@ -130,7 +150,7 @@ def test_same_seed_bit_identical_across_repeated_runs():
         assert_energy_conserved(r)
     _assert_identical(runs[0], runs[1])
     _assert_identical(runs[0], runs[2])
-    r0 = _det_run(threads=0)   # all cores
+    r0 = _det_run(threads=0)  # all cores
     assert_energy_conserved(r0)
     _assert_identical(runs[0], r0)
 

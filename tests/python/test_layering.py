@@ -40,7 +40,8 @@ def _imported(mod, tree, known):
         if isinstance(node, ast.Import):
             for a in node.names:
                 (inside if a.name.split(".")[0] == PKG else outside).add(
-                    a.name if a.name.split(".")[0] == PKG else a.name.split(".")[0])
+                    a.name if a.name.split(".")[0] == PKG else a.name.split(".")[0]
+                )
         elif isinstance(node, ast.ImportFrom):
             if node.level == 0:
                 top = (node.module or "").split(".")[0]
@@ -50,13 +51,13 @@ def _imported(mod, tree, known):
                 target = node.module
             else:
                 target = base + ("." + node.module if node.module else "")
-            if target == PKG:   # "from . import x": x is a submodule or a name of the root
+            if target == PKG:  # "from . import x": x is a submodule or a name of the root
                 for a in node.names:
                     sub = f"{PKG}.{a.name}"
                     inside.add(sub if sub in known else PKG)
             else:
                 inside.add(target)
-    inside = {m if m in known else PKG for m in inside}   # e.g. endophoton._core (native) -> root
+    inside = {m if m in known else PKG for m in inside}  # e.g. endophoton._core (native) -> root
     inside.discard(mod)
     return inside, outside
 
@@ -80,7 +81,7 @@ def _find_cycle(graph):
         stack.append(m)
         for n in sorted(graph.get(m, ())):
             if colour.get(n) == "grey":
-                return stack[stack.index(n):] + [n]
+                return stack[stack.index(n) :] + [n]
             if n not in colour:
                 found = visit(n)
                 if found:
@@ -125,7 +126,8 @@ def test_no_module_imports_blender_or_the_addon():
     assert offenders == {}
 
 
-BLOCKER = textwrap.dedent('''
+BLOCKER = textwrap.dedent(
+    '''
     import importlib.abc, sys
     BLOCKED = {blocked!r}
 
@@ -156,15 +158,15 @@ BLOCKER = textwrap.dedent('''
     except SystemExit as e:
         assert e.code == 0, e.code
     print("IMPORTED", len(names))
-''')
+'''
+)
 
 
 def test_package_imports_with_bpy_and_addon_unimportable():
     """Import the package and every module in it, and parse the sweep CLI, in a
     fresh interpreter where bpy and the add-on cannot be imported."""
     code = BLOCKER.format(blocked=list(FORBIDDEN), pkg=os.path.join(ROOT, "python"))
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                          cwd=ROOT)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     n = int(proc.stdout.split("IMPORTED")[-1].split()[0])
     # every .py module but __init__ and __main__, plus the native _core

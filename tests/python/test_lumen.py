@@ -63,20 +63,41 @@ def _digest(escapes):
 # ----------------------------------------------------------------------------
 PINNED = {
     "mcml_slab.json": dict(
-        specular_reflectance="0x0.0p+0", diffuse_reflectance="0x1.85c33c56ff82ap-4",
-        transmittance="0x1.5439c23ed97f1p-1", absorbed="0x1.ec3758d91a40ap-3", roulette="0x0.0p+0",
-        cut="0x0.0p+0", missed="0x0.0p+0", interactions="0x1.82703afb7e910p+1", records=20000,
-        digest="d10e8b20f2053de6"),
+        specular_reflectance="0x0.0p+0",
+        diffuse_reflectance="0x1.85c33c56ff82ap-4",
+        transmittance="0x1.5439c23ed97f1p-1",
+        absorbed="0x1.ec3758d91a40ap-3",
+        roulette="0x0.0p+0",
+        cut="0x0.0p+0",
+        missed="0x0.0p+0",
+        interactions="0x1.82703afb7e910p+1",
+        records=20000,
+        digest="d10e8b20f2053de6",
+    ),
     "semi_infinite_n15.json": dict(
-        specular_reflectance="0x1.47ae147ae1451p-5", diffuse_reflectance="0x1.ba48d8bce05aap-3",
-        transmittance="0x0.0p+0", absorbed="0x1.7cf2a7ef7a183p-1", roulette="0x1.02667ef525ffdp-19",
-        cut="0x0.0p+0", missed="0x0.0p+0", interactions="0x1.637487fcb923ap+5", records=13349,
-        digest="0ca7060ac4aafa2d"),
+        specular_reflectance="0x1.47ae147ae1451p-5",
+        diffuse_reflectance="0x1.ba48d8bce05aap-3",
+        transmittance="0x0.0p+0",
+        absorbed="0x1.7cf2a7ef7a183p-1",
+        roulette="0x1.02667ef525ffdp-19",
+        cut="0x0.0p+0",
+        missed="0x0.0p+0",
+        interactions="0x1.637487fcb923ap+5",
+        records=13349,
+        digest="0ca7060ac4aafa2d",
+    ),
     "three_layer.json": dict(
-        specular_reflectance="0x1.8f533ef484ecdp-6", diffuse_reflectance="0x1.e9da7e19e99d9p-3",
-        transmittance="0x1.8f5676f29d2c0p-4", absorbed="0x1.472402ae8a12dp-1",
-        roulette="-0x1.615f88ac1d44ap-22", cut="0x0.0p+0", missed="0x0.0p+0",
-        interactions="0x1.e4ef694467382p+5", records=19550, digest="e93324a728bd771a"),
+        specular_reflectance="0x1.8f533ef484ecdp-6",
+        diffuse_reflectance="0x1.e9da7e19e99d9p-3",
+        transmittance="0x1.8f5676f29d2c0p-4",
+        absorbed="0x1.472402ae8a12dp-1",
+        roulette="-0x1.615f88ac1d44ap-22",
+        cut="0x0.0p+0",
+        missed="0x0.0p+0",
+        interactions="0x1.e4ef694467382p+5",
+        records=19550,
+        digest="e93324a728bd771a",
+    ),
 }
 
 
@@ -174,8 +195,9 @@ def test_closed_cavity_filled_with_clear_fluid():
     # at a lower priority than the shell, so the cavity is fluid.
     scene = ep.Scene(unit="cm", ambient_n=1.0)
     scene.add_mesh("shell", *hollow_box(1.05, 1.0), SHELL, priority=2)
-    scene.add_box("fluid", min=(-1.05,) * 3, max=(1.05,) * 3, medium=ep.Medium(mua=0.5, mus=0.0, g=0.0, n=1.33),
-                  priority=1)
+    scene.add_box(
+        "fluid", min=(-1.05,) * 3, max=(1.05,) * 3, medium=ep.Medium(mua=0.5, mus=0.0, g=0.0, n=1.33), priority=1
+    )
     res = ep.run(scene, INSIDE, photons=10000, seed=6)
     assert_energy_conserved(res)
     assert res.specular_reflectance == 0.0 and res.diffuse_reflectance == 0.0
@@ -188,11 +210,19 @@ def test_closed_cavity_filled_with_clear_fluid():
 
 def _write_cavity_json(path, wall):
     v, t = hollow_box(1.0 + wall, 1.0)
-    data = {"unit": "cm", "ambient_n": 1.0,
-            "regions": [{"name": "shell", "medium": {"mua": 2.0, "mus": 100.0, "g": 0.9, "n": 1.4},
-                         "mesh": {"vertices": v.tolist(), "triangles": t.tolist()}}],
-            "source": {"type": "pencil", "position": [0, 0, 0], "direction": [0.3, 0.2, -1.0]},
-            "run": {"photons": 4000, "seed": 2}}
+    data = {
+        "unit": "cm",
+        "ambient_n": 1.0,
+        "regions": [
+            {
+                "name": "shell",
+                "medium": {"mua": 2.0, "mus": 100.0, "g": 0.9, "n": 1.4},
+                "mesh": {"vertices": v.tolist(), "triangles": t.tolist()},
+            }
+        ],
+        "source": {"type": "pencil", "position": [0, 0, 0], "direction": [0.3, 0.2, -1.0]},
+        "run": {"photons": 4000, "seed": 2},
+    }
     with open(path, "w", encoding="utf-8") as fh:
         json.dump(data, fh)
 
@@ -201,8 +231,9 @@ def test_closed_cavity_via_cli(tmp_path):
     path = tmp_path / "cavity.json"
     _write_cavity_json(path, 0.05)
     env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    p = subprocess.run([sys.executable, "-m", "endophoton", "run", str(path)], capture_output=True, text=True,
-                       env=env, timeout=600)
+    p = subprocess.run(
+        [sys.executable, "-m", "endophoton", "run", str(path)], capture_output=True, text=True, env=env, timeout=600
+    )
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     for k in ("occluded", "camera_collected", "occluded_stderr", "camera_collected_stderr"):
@@ -258,7 +289,7 @@ def test_hand_over_across_a_gap_matches_numpy_ray_tracing_of_the_records():
     # Weight entering B by the lumen = weight of A's exit records whose rays hit B
     # (measured: equal to 5e-16 relative, no ray in disagreement).
     w_records = e["weight"][from_a][hits_b].sum()
-    w_entered = (res.absorbed_by_region["B"] * res.photons + e["weight"][e["region"] == 1].sum())
+    w_entered = res.absorbed_by_region["B"] * res.photons + e["weight"][e["region"] == 1].sum()
     tol = e["weight"][from_a][disagree].sum() + 1e-12 * w_records
     assert abs(w_entered - w_records) <= tol, (w_entered, w_records)
     # B's exits can land on A again, so A gives second exits.
@@ -298,7 +329,7 @@ def _numpy_rig_targets(p, d, front, axis, radius, length, cam_r):
         ta, tb = (-length - oa) / da, -oa / da
     t0, t1 = np.minimum(ta, tb), np.maximum(ta, tb)
     r, dr = rel - oa[:, None] * axis, d - da[:, None] * axis
-    A, B, C = (dr * dr).sum(1), (r * dr).sum(1), (r * r).sum(1) - radius ** 2
+    A, B, C = (dr * dr).sum(1), (r * dr).sum(1), (r * r).sum(1) - radius**2
     disc = B * B - A * C
     q = np.sqrt(np.maximum(disc, 0))
     c0, c1 = (-B - q) / A, (-B + q) / A
@@ -306,7 +337,7 @@ def _numpy_rig_targets(p, d, front, axis, radius, length, cam_r):
     hit = (disc >= 0) & (enter < leave) & (enter > 0)
     via_front = hit & (da < 0) & (t0 >= c0)
     on_face = p + enter[:, None] * d - front
-    cam = via_front & ((on_face * on_face).sum(1) < cam_r ** 2)
+    cam = via_front & ((on_face * on_face).sum(1) < cam_r**2)
     return np.where(cam, CAMERA, np.where(hit, HEAD, AWAY))
 
 
@@ -321,9 +352,15 @@ def test_rig_head_stops_diffuse_light_and_the_camera_collects_its_share():
     assert_energy_conserved(res)
     e = res.escapes
     body = rig.native_body(1.0)
-    got = _numpy_rig_targets(e["position"].astype(np.float64), e["direction"].astype(np.float64),
-                             np.array(body["front"]), np.array(body["axis"]), body["radius"], body["length"],
-                             body["camera_radius"])
+    got = _numpy_rig_targets(
+        e["position"].astype(np.float64),
+        e["direction"].astype(np.float64),
+        np.array(body["front"]),
+        np.array(body["axis"]),
+        body["radius"],
+        body["length"],
+        body["camera_radius"],
+    )
     assert np.count_nonzero(got != e["next_hit"]) <= 3
     assert np.count_nonzero(got == CAMERA) > 50 and np.count_nonzero(got == HEAD) > 1000
     N = res.photons
@@ -341,9 +378,10 @@ def test_rig_body_is_validated():
     with pytest.raises(ValueError, match="lumen = 'yes'"):
         ep.run(_cavity_scene(0.05), INSIDE, photons=10, lumen="yes")
     with pytest.raises(ValueError, match="source.body.radius"):
-        ep._core.Source([dict(position=[0, 0, 1], direction=[0, 0, -1])],
-                        body=dict(front=[0, 0, 1], axis=[0, 0, -1], radius=-1.0, length=1.0, camera=[0, 0, 1],
-                                  camera_radius=0.0))
+        ep._core.Source(
+            [dict(position=[0, 0, 1], direction=[0, 0, -1])],
+            body=dict(front=[0, 0, 1], axis=[0, 0, -1], radius=-1.0, length=1.0, camera=[0, 0, 1], camera_radius=0.0),
+        )
 
 
 def test_lumen_runs_are_bit_identical_on_any_thread_count():
@@ -360,8 +398,9 @@ def test_lumen_runs_are_bit_identical_on_any_thread_count():
 
 
 def test_scene_json_endoscope_body_keys():
-    rig = ep.sources.source_from_dict({"type": "endoscope", "beta_deg": 0.0, "distance": 1.0, "head_length_mm": 30.0,
-                                       "camera_aperture_mm": 1.5})
+    rig = ep.sources.source_from_dict(
+        {"type": "endoscope", "beta_deg": 0.0, "distance": 1.0, "head_length_mm": 30.0, "camera_aperture_mm": 1.5}
+    )
     body = rig.native_body(1.0)  # scene unit cm: mm -> 0.1
     assert body["length"] == pytest.approx(3.0) and body["camera_radius"] == pytest.approx(0.075)
     assert body["radius"] == pytest.approx(0.6)

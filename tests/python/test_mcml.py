@@ -14,8 +14,13 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from physics_helpers import (assert_energy_conserved, assert_within, chandrasekhar_H, mc_reference_sigma,
-                             semi_infinite_isotropic_reflectance)
+from physics_helpers import (
+    assert_energy_conserved,
+    assert_within,
+    chandrasekhar_H,
+    mc_reference_sigma,
+    semi_infinite_isotropic_reflectance,
+)
 
 DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
 
@@ -23,8 +28,8 @@ DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
 # ----------------------------------------------------------------------------
 # §1  MCML Table 6.1: slab n = 1, mua = 10, mus = 90, g = 0.75, d = 0.02 cm
 # ----------------------------------------------------------------------------
-VDH_RD, VDH_TT = 0.09739, 0.66096     # van de Hulst, quoted to 5 decimals
-VDH_UNC = 0.5e-5                       # half a unit in the last quoted digit
+VDH_RD, VDH_TT = 0.09739, 0.66096  # van de Hulst, quoted to 5 decimals
+VDH_UNC = 0.5e-5  # half a unit in the last quoted digit
 
 
 @pytest.fixture(scope="module")
@@ -32,8 +37,9 @@ def mcml_slab_result():
     scene = ep.Scene(unit="cm", ambient_n=1.0)
     # +-100 cm wide: lateral escape through the sides is negligible (the
     # lateral spread in a 0.02 cm slab is a few mean free paths, ~0.1 cm).
-    scene.add_box("slab", min=(-100, -100, -0.02), max=(100, 100, 0.0),
-                  medium=ep.Medium(mua=10.0, mus=90.0, g=0.75, n=1.0))
+    scene.add_box(
+        "slab", min=(-100, -100, -0.02), max=(100, 100, 0.0), medium=ep.Medium(mua=10.0, mus=90.0, g=0.75, n=1.0)
+    )
     return ep.run(scene, DOWN, photons=1_000_000, seed=20240601, threads=0, record_escapes=True)
 
 
@@ -50,8 +56,9 @@ def test_mcml_table_6_1_slab_matches_van_de_hulst(mcml_slab_result):
     assert_within("Rd (van de Hulst)", res.diffuse_reflectance, res.diffuse_reflectance_stderr, VDH_RD, VDH_UNC)
     assert_within("Tt (van de Hulst)", res.transmittance, res.transmittance_stderr, VDH_TT, VDH_UNC)
     # A = 1 - Rd - Tt for the reference (no other losses in a slab this wide).
-    assert_within("A (1 - Rd - Tt, van de Hulst)", res.absorbed, res.absorbed_stderr,
-                  1.0 - VDH_RD - VDH_TT, 2 * VDH_UNC)
+    assert_within(
+        "A (1 - Rd - Tt, van de Hulst)", res.absorbed, res.absorbed_stderr, 1.0 - VDH_RD - VDH_TT, 2 * VDH_UNC
+    )
     assert res.absorbed_by_region["slab"] == pytest.approx(res.absorbed, abs=1e-12)
 
 
@@ -90,11 +97,12 @@ def test_semi_infinite_n15_total_reflectance_giovanelli():
     scene = ep.Scene(unit="cm", ambient_n=1.0)
     # 10 cm deep = 100 absorption lengths (1/mua = 0.1 cm) and 1000 transport
     # mean free paths: transmission through the bottom is exp(-~100)-small.
-    scene.add_box("tissue", min=(-100, -100, -10), max=(100, 100, 0),
-                  medium=ep.Medium(mua=10.0, mus=90.0, g=0.0, n=1.5))
+    scene.add_box(
+        "tissue", min=(-100, -100, -10), max=(100, 100, 0), medium=ep.Medium(mua=10.0, mus=90.0, g=0.0, n=1.5)
+    )
     res = ep.run(scene, DOWN, photons=500_000, seed=7, threads=0, record_escapes=False)
     assert_energy_conserved(res)
-    rsp_exact = ((1.5 - 1.0) / (1.5 + 1.0)) ** 2      # 0.04
+    rsp_exact = ((1.5 - 1.0) / (1.5 + 1.0)) ** 2  # 0.04
     assert_within("Rsp", res.specular_reflectance, res.specular_reflectance_stderr, rsp_exact, 1e-12)
     total = res.specular_reflectance + res.diffuse_reflectance
     # stderr of a sum <= sum of stderrs (triangle inequality for standard deviations).
@@ -120,8 +128,9 @@ def test_semi_infinite_matched_isotropic_matches_chandrasekhar():
     """n = 1 everywhere, g = 0, albedo 0.9: Rd = 1 - H(1) sqrt(1 - 0.9) = 0.414947 (exact
     transport theory; the H-function is solved to < 1e-9, so ref_unc = 1e-6)."""
     scene = ep.Scene(unit="cm", ambient_n=1.0)
-    scene.add_box("tissue", min=(-100, -100, -10), max=(100, 100, 0),
-                  medium=ep.Medium(mua=10.0, mus=90.0, g=0.0, n=1.0))
+    scene.add_box(
+        "tissue", min=(-100, -100, -10), max=(100, 100, 0), medium=ep.Medium(mua=10.0, mus=90.0, g=0.0, n=1.0)
+    )
     res = ep.run(scene, DOWN, photons=200_000, seed=11, threads=0, record_escapes=False)
     assert_energy_conserved(res)
     ref = semi_infinite_isotropic_reflectance(10.0, 90.0)
@@ -140,14 +149,19 @@ LAYERS = [  # (mua, mus, g, d)
     (2.0, 10.0, 0.7, 0.2),
 ]
 MCML_3L = dict(Rd=0.237544, A=0.641594, Tt=0.096490)
-MCML_3L_LAYERS = (0.2612, 0.1488, 0.2316)   # quoted to 4 decimals: +0.5e-4 rounding
+MCML_3L_LAYERS = (0.2612, 0.1488, 0.2316)  # quoted to 4 decimals: +0.5e-4 rounding
 RSP_137 = ((1.0 - 1.37) / (1.0 + 1.37)) ** 2  # 0.024373...
 
 
 def _three_layer_layered_slab():
     media = [ep.Medium(mua=a, mus=s, g=g, n=1.37) for a, s, g, _ in LAYERS]
-    scene = ep.layered_slab([(m, d) for m, (_, _, _, d) in zip(media, LAYERS)], unit="cm", width=1e3,
-                            ambient_n=1.0, names=["L1", "L2", "L3"])
+    scene = ep.layered_slab(
+        [(m, d) for m, (_, _, _, d) in zip(media, LAYERS)],
+        unit="cm",
+        width=1e3,
+        ambient_n=1.0,
+        names=["L1", "L2", "L3"],
+    )
     return scene
 
 
@@ -156,8 +170,13 @@ def _three_layer_boxes():
     z = 0.0
     for i, (a, s, g, d) in enumerate(LAYERS):
         # Touching boxes, +-100 cm wide, with distinct priorities (they never overlap).
-        scene.add_box(f"L{i + 1}", min=(-100, -100, z - d), max=(100, 100, z),
-                      medium=ep.Medium(mua=a, mus=s, g=g, n=1.37), priority=3 - i)
+        scene.add_box(
+            f"L{i + 1}",
+            min=(-100, -100, z - d),
+            max=(100, 100, z),
+            medium=ep.Medium(mua=a, mus=s, g=g, n=1.37),
+            priority=3 - i,
+        )
         z -= d
     return scene
 
@@ -167,8 +186,9 @@ def _check_mcml_compare(label, value, sigma, ref, rounding=0.0):
     assert_within(label, value, math.hypot(sigma, s_ref), ref, rounding)
 
 
-@pytest.mark.parametrize("builder,seed", [(_three_layer_layered_slab, 3), (_three_layer_boxes, 4)],
-                         ids=["layered_slab", "three_add_box"])
+@pytest.mark.parametrize(
+    "builder,seed", [(_three_layer_layered_slab, 3), (_three_layer_boxes, 4)], ids=["layered_slab", "three_add_box"]
+)
 def test_three_layer_matches_mcml(builder, seed):
     """Both constructions, each with its own seed (two independent checks against MCML)."""
     scene = builder()
@@ -184,5 +204,6 @@ def test_three_layer_matches_mcml(builder, seed):
     assert set(res.absorbed_by_region) == {"L1", "L2", "L3"}
     for i, ref in enumerate(MCML_3L_LAYERS):
         name = f"L{i + 1}"
-        _check_mcml_compare(f"A[{name}]", res.absorbed_by_region[name], res.absorbed_by_region_stderr[name],
-                            ref, 0.5e-4)
+        _check_mcml_compare(
+            f"A[{name}]", res.absorbed_by_region[name], res.absorbed_by_region_stderr[name], ref, 0.5e-4
+        )

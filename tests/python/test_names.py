@@ -10,7 +10,7 @@ import endophoton as ep
 def test_disk_source_position_and_center_are_one_point():
     a = ep.DiskSource(position=(0.1, 0.2, 1.0), direction=(0, 0, -1), radius=0.3)
     b = ep.DiskSource(center=(0.1, 0.2, 1.0), direction=(0, 0, -1), radius=0.3)
-    c = ep.DiskSource((0.1, 0.2, 1.0), (0, 0, -1), 0.3)            # positional: position first
+    c = ep.DiskSource((0.1, 0.2, 1.0), (0, 0, -1), 0.3)  # positional: position first
     for s in (a, b, c):
         assert np.array_equal(s.position, [0.1, 0.2, 1.0]) and np.array_equal(s.center, s.position)
         assert s.native_lights(1.0) == a.native_lights(1.0)
@@ -25,10 +25,13 @@ def test_scene_json_disk_source_takes_either_key(key):
     assert np.array_equal(src.position, [0, 0, 2]) and src.radius == 0.1
 
 
-@pytest.mark.parametrize("body", [
-    {"type": "disk", "direction": [0, 0, -1], "radius": 0.1},
-    {"type": "disk", "position": [0, 0, 1], "center": [0, 0, 1], "direction": [0, 0, -1], "radius": 0.1},
-])
+@pytest.mark.parametrize(
+    "body",
+    [
+        {"type": "disk", "direction": [0, 0, -1], "radius": 0.1},
+        {"type": "disk", "position": [0, 0, 1], "center": [0, 0, 1], "direction": [0, 0, -1], "radius": 0.1},
+    ],
+)
 def test_scene_json_disk_source_needs_exactly_one_point(body):
     with pytest.raises(ValueError, match="exactly one of 'position' or 'center'"):
         ep.source_from_dict(body)

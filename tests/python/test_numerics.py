@@ -23,12 +23,18 @@ import pytest
 import endophoton as ep
 from endophoton import _core
 
-from physics_helpers import (fresnel_unpolarized, assert_energy_conserved, assert_no_nan, assert_same_within_stats, assert_within,
-                             semi_infinite_isotropic_reflectance)
+from physics_helpers import (
+    fresnel_unpolarized,
+    assert_energy_conserved,
+    assert_no_nan,
+    assert_same_within_stats,
+    assert_within,
+    semi_infinite_isotropic_reflectance,
+)
 
 DOWN = (0.0, 0.0, -1.0)
-VDH_RD, VDH_TT, VDH_UNC = 0.09739, 0.66096, 0.5e-5       # oracles §1 (van de Hulst, 5 decimals)
-SEMI_INF_R, SEMI_INF_UNC = 0.2600, 0.001                  # oracles §2 (Giovanelli); spread of the 3 published values
+VDH_RD, VDH_TT, VDH_UNC = 0.09739, 0.66096, 0.5e-5  # oracles §1 (van de Hulst, 5 decimals)
+SEMI_INF_R, SEMI_INF_UNC = 0.2600, 0.001  # oracles §2 (Giovanelli); spread of the 3 published values
 
 
 def fresnel_oracle(n1, n2, theta):
@@ -66,6 +72,7 @@ def pencil(z=1.0):
 
 
 # =========================================================================== g -> +-1
+
 
 @pytest.mark.parametrize("g", [1.0, -1.0])
 def test_hg_sampler_at_unit_g_is_a_delta(g):
@@ -131,6 +138,7 @@ def test_backward_delta_scattering_is_rod_model(g, mua):
 
 
 # =========================================================================== mus = 0, mua = 0
+
 
 def test_clear_matched_region_transmits_everything_exactly():
     r = run(slab(ep.Medium(mua=0, mus=0, g=0, n=1.0), 0.1), pencil(), 5_000)
@@ -210,6 +218,7 @@ def test_total_internal_reflection_trap_hits_the_safety_cap():
 
 # =========================================================================== huge mus
 
+
 @pytest.fixture(scope="module")
 def huge_mus_runs():
     """Semi-infinite isotropic medium, mua = 1, mus = 1e6 cm^-1 (albedo 1 - 1e-6), and the same
@@ -231,7 +240,7 @@ def test_huge_mus_is_finite_and_conserves_energy(huge_mus_runs):
 
 
 def test_huge_mus_matches_chandrasekhar(huge_mus_runs):
-    ref = semi_infinite_isotropic_reflectance(1.0, 1e6)   # = 1 - H(1) sqrt(1e-6) = 0.99709
+    ref = semi_infinite_isotropic_reflectance(1.0, 1e6)  # = 1 - H(1) sqrt(1e-6) = 0.99709
     for k, r in huge_mus_runs.items():
         assert_within(f"R(mus=1e6, k={k})", r.diffuse_reflectance, r.diffuse_reflectance_stderr, ref, 1e-6)
         assert_within(f"A(mus=1e6, k={k})", r.absorbed, r.absorbed_stderr, 1 - ref, 1e-6)
@@ -240,13 +249,20 @@ def test_huge_mus_matches_chandrasekhar(huge_mus_runs):
 def test_huge_mus_similarity_relation(huge_mus_runs):
     a, b = huge_mus_runs[1.0], huge_mus_runs[1e-2]
     # Independent-sample bound (conservative: the two runs use the same random numbers) ...
-    assert_same_within_stats("R(mua, mus) vs R(k mua, k mus)", a.diffuse_reflectance, a.diffuse_reflectance_stderr,
-                             b.diffuse_reflectance, b.diffuse_reflectance_stderr)
+    assert_same_within_stats(
+        "R(mua, mus) vs R(k mua, k mus)",
+        a.diffuse_reflectance,
+        a.diffuse_reflectance_stderr,
+        b.diffuse_reflectance,
+        b.diffuse_reflectance_stderr,
+    )
+
     # ... and the paired difference packet by packet, with its own standard error from the records.
     def per_packet(r):
         w = np.zeros(r.photons)
         np.add.at(w, r.escapes["packet"].astype(np.int64), r.escapes["weight"])
         return w
+
     diff = per_packet(a) - per_packet(b)
     se = diff.std(ddof=1) / math.sqrt(diff.size)
     assert abs(diff.mean()) <= 3 * se + 1e-12, (diff.mean(), se)
@@ -255,6 +271,7 @@ def test_huge_mus_similarity_relation(huge_mus_runs):
 
 
 # =========================================================================== grazing incidence
+
 
 @pytest.mark.parametrize("deg", [60.0, 85.0, 89.0, 89.9, 89.99, 89.999])
 def test_grazing_incidence_specular_is_fresnel(deg):
@@ -345,12 +362,13 @@ def test_transport_just_below_critical_angle_escapes_with_fresnel_odds():
     N = 8_000
     s, src = _glass_slab_source(th)
     r = run(s, src, N, max_steps=M)
-    p = R ** M
+    p = R**M
     assert_within("cut fraction = R^M", r.cut, math.sqrt(p * (1 - p) / N), p)
     assert abs(r.cut + r.diffuse_reflectance + r.transmittance - 1) < 1e-12
 
 
 # =========================================================================== matched indices
+
 
 def test_matched_ambient_has_no_fresnel():
     n = 1.3
@@ -374,15 +392,42 @@ def test_interface_between_identical_media_is_invisible():
 
 # =========================================================================== vertices and edges
 
+
 def fan_top_box(half=5.0, depth=5.0):
     """Closed box whose top face (z = 0) is a fan of 4 triangles around its centre vertex (0,0,0)."""
-    v = np.array([[-half, -half, -depth], [half, -half, -depth], [half, half, -depth], [-half, half, -depth],
-                  [-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0], [0, 0, 0]],
-                 dtype=np.float32)
-    t = np.array([[4, 5, 8], [5, 6, 8], [6, 7, 8], [7, 4, 8],          # top fan (+z)
-                  [0, 2, 1], [0, 3, 2],                                # bottom (-z)
-                  [0, 1, 5], [0, 5, 4], [2, 3, 7], [2, 7, 6],          # -y, +y
-                  [0, 4, 7], [0, 7, 3], [1, 2, 6], [1, 6, 5]], dtype=np.uint32)  # -x, +x
+    v = np.array(
+        [
+            [-half, -half, -depth],
+            [half, -half, -depth],
+            [half, half, -depth],
+            [-half, half, -depth],
+            [-half, -half, 0],
+            [half, -half, 0],
+            [half, half, 0],
+            [-half, half, 0],
+            [0, 0, 0],
+        ],
+        dtype=np.float32,
+    )
+    t = np.array(
+        [
+            [4, 5, 8],
+            [5, 6, 8],
+            [6, 7, 8],
+            [7, 4, 8],  # top fan (+z)
+            [0, 2, 1],
+            [0, 3, 2],  # bottom (-z)
+            [0, 1, 5],
+            [0, 5, 4],
+            [2, 3, 7],
+            [2, 7, 6],  # -y, +y
+            [0, 4, 7],
+            [0, 7, 3],
+            [1, 2, 6],
+            [1, 6, 5],
+        ],
+        dtype=np.uint32,
+    )  # -x, +x
     return v, t
 
 
@@ -401,8 +446,9 @@ def test_beam_on_a_vertex_enters_once(x):
     assert_energy_conserved(r)
 
 
-@pytest.mark.parametrize("direction", [(1, 1, 1), (-1, 1, -1), (1, 1, 0), (1, 0, 0)],
-                         ids=["vertex", "vertex2", "edge", "face-diagonal"])
+@pytest.mark.parametrize(
+    "direction", [(1, 1, 1), (-1, 1, -1), (1, 1, 0), (1, 0, 0)], ids=["vertex", "vertex2", "edge", "face-diagonal"]
+)
 def test_exit_through_vertex_or_edge(direction):
     """From the centre of a clear, matched cube the packet leaves exactly through a corner, an edge
     or the diagonal edge of a face's triangulation: it must escape, once, with its full weight."""
@@ -426,10 +472,12 @@ def test_absorbing_exit_through_vertex_is_beer_lambert():
 # The MCML slab in mm, cm and m at the origin: test_invariance.py (test_units_give_the_same_physics,
 # test_each_unit_matches_van_de_hulst_and_reports_depth_in_cm). Here: far from the origin, in metres.
 
+
 def _far_slab(offset_cm, unit="m"):
     per_cm = 1.0 / ep.unit_cm(unit)
-    s = slab(ep.Medium(mua=10, mus=90, g=0.75, n=1.0), 0.02 * per_cm, unit=unit, width=1000 * per_cm,
-             top=offset_cm * per_cm)
+    s = slab(
+        ep.Medium(mua=10, mus=90, g=0.75, n=1.0), 0.02 * per_cm, unit=unit, width=1000 * per_cm, top=offset_cm * per_cm
+    )
     return run(s, ep.PencilSource((0, 0, (offset_cm + 1) * per_cm), DOWN), 100_000)
 
 
@@ -451,12 +499,16 @@ def test_mcml_slab_ten_metres_from_the_origin():
 
 # =========================================================================== 1e9 packets: the pieces
 
+
 def _disk_cone_lights():
-    return [dict(position=[0.0, 0.0, 1.0], direction=[0.0, 0.0, -1.0], radius=0.2, half_angle=math.radians(10),
-                 spectrum=None)]
+    return [
+        dict(
+            position=[0.0, 0.0, 1.0], direction=[0.0, 0.0, -1.0], radius=0.2, half_angle=math.radians(10), spectrum=None
+        )
+    ]
 
 
-@pytest.mark.parametrize("first", [0, 2 ** 33, 2 ** 40])
+@pytest.mark.parametrize("first", [0, 2**33, 2**40])
 def test_emission_far_into_the_sequence(first):
     """Packet indices beyond 2^32 give valid emission samples: finite, on the disk, inside the cone,
     in the default 400-700 nm band; the base-2 Halton coordinate (disk radius: u = (r/R)^2) of 1024
@@ -470,7 +522,7 @@ def test_emission_far_into_the_sequence(first):
         assert np.all(np.isfinite(a))
     assert np.all(light == 0)
     assert np.allclose(pos[:, 2], 1.0, atol=1e-15)
-    r2 = (pos[:, 0] ** 2 + pos[:, 1] ** 2) / R ** 2
+    r2 = (pos[:, 0] ** 2 + pos[:, 1] ** 2) / R**2
     assert r2.max() <= 1 + 1e-12
     assert np.allclose(np.linalg.norm(dirs, axis=1), 1, atol=1e-12)
     assert np.all(-dirs[:, 2] >= math.cos(half) - 1e-12)
@@ -486,7 +538,7 @@ def test_emission_far_into_the_sequence(first):
 def test_two_lights_alternate_far_into_the_sequence():
     rig = ep.EndoscopeRig.from_beta(20.0, 1.0)
     src = _core.Source(rig.native_lights(1.0))
-    _, _, _, light = _core._testing.emit(src, 1, 2 ** 40 + 1, 6, False)
+    _, _, _, light = _core._testing.emit(src, 1, 2**40 + 1, 6, False)
     assert light.tolist() == [1, 0, 1, 0, 1, 0]
 
 
@@ -496,15 +548,21 @@ def test_packet_request_above_2_pow_32_is_not_truncated():
     unit size is the one chosen for N >= 6.6e7 (65536). How many units were merged before the
     stop depends on timing, so every assertion holds for any count, 0 and 1 included (one unit:
     stderrs from the per-packet variance, finite)."""
-    N = 2 ** 32 + 5
+    N = 2**32 + 5
     seen = []
 
     def progress(done, total):
         seen.append(total)
         return False  # stop at the first report
 
-    r = ep.run(slab(ep.Medium(mua=10, mus=90, g=0.75, n=1.0), 0.02), pencil(), photons=N, threads=2,
-               record_escapes=False, progress=progress)
+    r = ep.run(
+        slab(ep.Medium(mua=10, mus=90, g=0.75, n=1.0), 0.02),
+        pencil(),
+        photons=N,
+        threads=2,
+        record_escapes=False,
+        progress=progress,
+    )
     assert seen and seen[0] == N
     assert r.cancelled and 0 <= r.photons < N
     assert r.unit_size == 65536

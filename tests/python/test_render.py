@@ -39,10 +39,17 @@ def _lambertian(n, half=1.0, wavelength=500.0, seed=1):
     r, phi = np.sqrt(u1), 2 * np.pi * u2
     d = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - u1)], axis=1)
     wl = np.broadcast_to(np.asarray(wavelength, dtype=np.float32), (n,)).copy()
-    return {"position": np.column_stack([xy, np.zeros(n)]).astype(np.float32), "direction": d.astype(np.float32),
-            "normal": np.tile(np.float32([0, 0, 1]), (n, 1)), "weight": np.ones(n),
-            "energy": 500.0 / wl.astype(np.float64), "wavelength": wl, "fluorescent": np.zeros(n, np.uint8),
-            "packet": np.arange(n, dtype=np.uint64), "region": np.zeros(n, np.int32)}
+    return {
+        "position": np.column_stack([xy, np.zeros(n)]).astype(np.float32),
+        "direction": d.astype(np.float32),
+        "normal": np.tile(np.float32([0, 0, 1]), (n, 1)),
+        "weight": np.ones(n),
+        "energy": 500.0 / wl.astype(np.float64),
+        "wavelength": wl,
+        "fluorescent": np.zeros(n, np.uint8),
+        "packet": np.arange(n, dtype=np.uint64),
+        "region": np.zeros(n, np.int32),
+    }
 
 
 def _region_value(view, key="white"):
@@ -52,11 +59,11 @@ def _region_value(view, key="white"):
 def test_kernel_and_aperture_estimate_lambertian_radiance():
     n = 400_000
     res = _Records(_plane_scene(), _lambertian(n), n)
-    L_true = 1.0 / (4.0 * math.pi)                    # n / (P * 4 cm^2 * pi)
+    L_true = 1.0 / (4.0 * math.pi)  # n / (P * 4 cm^2 * pi)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30, aperture_radius=0.3)
     view = render_view(res, cam, 8, 8, kernel_radius=0.1, kernel_angle_deg=15)
     L, se = _region_value(view)
-    assert abs(L - L_true) < 3 * se + 0.005 * L_true      # 0.5 %: cone-averaged cos(theta) near the normal
+    assert abs(L - L_true) < 3 * se + 0.005 * L_true  # 0.5 %: cone-averaged cos(theta) near the normal
     ap = view.aperture["white"]
     La, sa = ap["radiance"].mean(), np.sqrt(np.sum(ap["radiance_stderr"] ** 2)) / ap["radiance"].size
     assert abs(La - L_true) < 3 * sa
@@ -80,8 +87,13 @@ def test_scene_units_do_not_change_radiance():
 @pytest.mark.parametrize("lam,channel", [(630.0, 0), (450.0, 2)])
 def test_spectral_records_render_their_hue(lam, channel):
     n = 100_000
-    view = render_view(_Records(_plane_scene(), _lambertian(n, wavelength=lam), n),
-                       Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30), 6, 6, kernel_radius=0.15)
+    view = render_view(
+        _Records(_plane_scene(), _lambertian(n, wavelength=lam), n),
+        Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30),
+        6,
+        6,
+        kernel_radius=0.15,
+    )
     px = view.images["white"]["srgb8"].reshape(-1, 3).mean(axis=0)
     assert px[channel] > 150
     assert all(px[channel] > 2 * px[c] for c in range(3) if c != channel)
@@ -91,15 +103,20 @@ def test_flat_spectrum_records_render_neutral():
     n = 1_000_000
     rng = np.random.default_rng(5)
     esc = _lambertian(n)
-    esc["wavelength"] = rng.uniform(400, 700, n).astype(np.float32)   # photon counts flat in 400-700 nm
+    esc["wavelength"] = rng.uniform(400, 700, n).astype(np.float32)  # photon counts flat in 400-700 nm
     esc["energy"] = 500.0 / esc["wavelength"].astype(np.float64)
-    view = render_view(_Records(_plane_scene(), esc, n), Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0),
-                                                                        fov_deg=30), 6, 6, kernel_radius=0.3,
-                       kernel_angle_deg=30)
+    view = render_view(
+        _Records(_plane_scene(), esc, n),
+        Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30),
+        6,
+        6,
+        kernel_radius=0.3,
+        kernel_angle_deg=30,
+    )
     from endophoton.visibility import jackknife
 
-    rgb = view.region_batches["white_rgb"][0]          # (3, B)
-    for ch in (0, 2):   # 3 sigma (jackknife over packet batches) + the stated 2 % tolerance
+    rgb = view.region_batches["white_rgb"][0]  # (3, B)
+    for ch in (0, 2):  # 3 sigma (jackknife over packet batches) + the stated 2 % tolerance
         ratio, se = jackknife(rgb[[ch, 1]], view.packets_per_batch, lambda m: m[0] / m[1])
         assert abs(ratio - 1) < 3 * se + 0.02, (ch, ratio, se)
         assert se < 0.05
@@ -127,9 +144,14 @@ def test_camera_inside_tissue_and_bad_knobs_are_errors():
     with pytest.raises(ValueError, match="camera.position"):
         render_view(res, Camera.look_at((0, 0, -0.5), (0, 0, -0.9), up=(0, 1, 0)), 4, 4)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0))
-    for kw, field in ((dict(kernel_radius=-1.0), "kernel_radius"), (dict(kernel_angle_deg=0), "kernel_angle_deg"),
-                      (dict(width=0), "width"), (dict(exposure="x"), "exposure"),
-                      (dict(emission_filter="red"), "emission_filter"), (dict(white_balance="d50"), "white_balance")):
+    for kw, field in (
+        (dict(kernel_radius=-1.0), "kernel_radius"),
+        (dict(kernel_angle_deg=0), "kernel_angle_deg"),
+        (dict(width=0), "width"),
+        (dict(exposure="x"), "exposure"),
+        (dict(emission_filter="red"), "emission_filter"),
+        (dict(white_balance="d50"), "white_balance"),
+    ):
         with pytest.raises(ValueError, match=field):
             render_view(res, cam, **({"width": 4, "height": 4} | kw))
     with pytest.raises(ValueError, match="camera.up"):
@@ -156,6 +178,7 @@ def test_excitation_and_emission_filter_rules():
 # engine runs: the acceptance criteria of issue 10
 # --------------------------------------------------------------------------
 
+
 def _box_scene(mua=1.0, mus=10.0, g=0.0, depth=10.0):
     s = ep.Scene(unit="cm")
     s.add_box("tissue", (-10, -10, -depth), (10, 10, 0), ep.Medium(mua=mua, mus=mus, g=g, n=1.0))
@@ -167,10 +190,14 @@ def test_flat_field_has_no_trend_beyond_noise():
     the image (field 1.75 cm across, exit angles within 5 deg of the normal) is flat. The linear trend
     across the image, fitted per packet batch, is consistent with 0 (batch means handle the kernels'
     overlap between neighbouring pixels)."""
-    res = ep.run(_box_scene(), ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=3.0),
-                 photons=300_000, seed=1, spectral=True)
-    view = render_view(res, Camera.look_at((0, 0, 10), (0, 0, 0), up=(0, 1, 0), fov_deg=10), 16, 16,
-                       kernel_radius=0.2)
+    res = ep.run(
+        _box_scene(),
+        ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=3.0),
+        photons=300_000,
+        seed=1,
+        spectral=True,
+    )
+    view = render_view(res, Camera.look_at((0, 0, 10), (0, 0, 0), up=(0, 1, 0), fov_deg=10), 16, 16, kernel_radius=0.2)
     pb = view.pixel_batches["white"]
     B = pb.shape[2]
     c = (np.arange(16) + 0.5) / 16 * 2 - 1
@@ -178,7 +205,7 @@ def test_flat_field_has_no_trend_beyond_noise():
     A = np.column_stack([np.ones(256), X.ravel(), Y.ravel()])
     coef = np.array([np.linalg.lstsq(A, pb[:, :, b].ravel(), rcond=None)[0] for b in range(B)])
     mean, se = coef.mean(axis=0), coef.std(axis=0, ddof=1) / math.sqrt(B)
-    assert mean[0] > 10 * se[0]                      # the image is not empty
+    assert mean[0] > 10 * se[0]  # the image is not empty
     assert np.all(np.abs(mean[1:]) < 4 * se[1:]), (mean, se)
     assert np.all(np.abs(mean[1:]) < 0.1 * mean[0])  # and any trend is small across the field
 
@@ -195,16 +222,15 @@ def test_kernel_and_aperture_images_agree_within_noise():
     both have converged to 25 % relative error), and the test has power: a 30 % scale error fails it."""
     src = ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=0.3)
     cam = Camera.look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0), fov_deg=20, aperture_radius=0.5)
-    v1 = render_view(ep.run(_box_scene(), src, photons=300_000, seed=1, spectral=True), cam, 12, 12,
-                     kernel_radius=0.03)
-    v2 = render_view(ep.run(_box_scene(), src, photons=300_000, seed=2, spectral=True), cam, 12, 12,
-                     kernel_radius=0.03)
+    v1 = render_view(ep.run(_box_scene(), src, photons=300_000, seed=1, spectral=True), cam, 12, 12, kernel_radius=0.03)
+    v2 = render_view(ep.run(_box_scene(), src, photons=300_000, seed=2, spectral=True), cam, 12, 12, kernel_radius=0.03)
     k, a = v1.images["white"], v2.aperture["white"]
     chi, dof = _chi2_agreement(k["radiance"], k["radiance_stderr"], a["radiance"], a["radiance_stderr"])
     assert dof >= 30
     assert analysis.chi2_sf(chi, dof) > 1e-3, (chi, dof)
-    chi_bad, dof_bad = _chi2_agreement(k["radiance"], k["radiance_stderr"], 1.3 * a["radiance"],
-                                       1.3 * a["radiance_stderr"])
+    chi_bad, dof_bad = _chi2_agreement(
+        k["radiance"], k["radiance_stderr"], 1.3 * a["radiance"], 1.3 * a["radiance_stderr"]
+    )
     assert analysis.chi2_sf(chi_bad, dof_bad) < 1e-3
 
 
@@ -215,12 +241,22 @@ def test_white_non_absorbing_scene_renders_neutral():
     so the kernel is large to gather ~10^4 records."""
     from endophoton.visibility import jackknife
 
-    res = ep.run(_box_scene(mua=0.0, mus=20.0, depth=0.3), ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1),
-                                                                           radius=3.0),
-                 photons=300_000, seed=3, spectral=True)
-    view = render_view(res, Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), fov_deg=20), 8, 8,
-                       kernel_radius=0.5, kernel_angle_deg=30)
-    rgb = view.region_batches["white_rgb"][0]          # (3, B)
+    res = ep.run(
+        _box_scene(mua=0.0, mus=20.0, depth=0.3),
+        ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=3.0),
+        photons=300_000,
+        seed=3,
+        spectral=True,
+    )
+    view = render_view(
+        res,
+        Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), fov_deg=20),
+        8,
+        8,
+        kernel_radius=0.5,
+        kernel_angle_deg=30,
+    )
+    rgb = view.region_batches["white_rgb"][0]  # (3, B)
     for ch in (0, 2):
         ratio, se = jackknife(rgb[[ch, 1]], view.packets_per_batch, lambda m: m[0] / m[1])
         assert abs(ratio - 1) < 3 * se + 0.02, (ch, ratio, se)
@@ -231,8 +267,14 @@ def _polyp_scene(c_photofrin):
     m = ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0)
     s = ep.Scene(unit="cm")
     s.add_box("wall", (-3, -3, -2), (3, 3, 0), m, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
-    s.add_box("polyp", (-0.6, -0.6, -0.3), (0.6, 0.6, 0.3), m, priority=1,
-              fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, c_photofrin)])
+    s.add_box(
+        "polyp",
+        (-0.6, -0.6, -0.3),
+        (0.6, 0.6, 0.3),
+        m,
+        priority=1,
+        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, c_photofrin)],
+    )
     return s
 
 
@@ -273,8 +315,9 @@ def test_empty_kernels_give_zeros_and_undefined_contrast_is_none():
     s = ep.Scene(unit="cm")
     s.add_box("wall", (-5, -5, -1), (5, 5, 0), ep.Medium(mua=1.0, mus=10.0))
     s.add_box("polyp", (-0.5, -0.5, -0.2), (0.5, 0.5, 0.3), ep.Medium(mua=1.0, mus=10.0), priority=1)
-    view = render_view(_Records(s, esc, n), Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=60), 8, 8,
-                       kernel_radius=0.1)
+    view = render_view(
+        _Records(s, esc, n), Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=60), 8, 8, kernel_radius=0.1
+    )
     for img in view.images.values():
         for key, v in img.items():
             assert np.all(np.isfinite(np.asarray(v, dtype=float))), key
@@ -293,8 +336,14 @@ def test_blue_light_photofrin_red_green_with_camera_channels():
     cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
     out = {}
     for c in (0.33, 0.0):
-        view = render_view(ep.run(_polyp_scene(c), src, photons=200_000, seed=1, spectral=True), cam, 24, 24,
-                           kernel_radius=0.3, kernel_angle_deg=30)
+        view = render_view(
+            ep.run(_polyp_scene(c), src, photons=200_000, seed=1, spectral=True),
+            cam,
+            24,
+            24,
+            kernel_radius=0.3,
+            kernel_angle_deg=30,
+        )
         assert view.emission_filter.startswith("long-pass")
         out[c] = view.contrast("polyp", "wall", channels="camera")
     assert out[0.33]["red_green"] > 3 * out[0.33]["red_green_stderr"]

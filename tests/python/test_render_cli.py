@@ -11,21 +11,45 @@ import pytest
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
 SCENE = {
-    "unit": "cm", "ambient_n": 1.0,
+    "unit": "cm",
+    "ambient_n": 1.0,
     "regions": [
-        {"name": "wall", "priority": 0, "medium": {"mua": 1, "mus": 10, "g": 0.0, "n": 1.0},
-         "box": {"min": [-3, -3, -2], "max": [3, 3, 0]}, "fluorophores": [{"name": "collagen", "d": 0.2, "c": 0.4}]},
-        {"name": "polyp", "priority": 1, "medium": {"mua": 1, "mus": 10, "g": 0.0, "n": 1.0},
-         "box": {"min": [-0.6, -0.6, -0.3], "max": [0.6, 0.6, 0.3]},
-         "fluorophores": [{"name": "collagen", "d": 0.2, "c": 0.4}, {"name": "photofrin", "d": 0.1, "c": 0.33}]}],
+        {
+            "name": "wall",
+            "priority": 0,
+            "medium": {"mua": 1, "mus": 10, "g": 0.0, "n": 1.0},
+            "box": {"min": [-3, -3, -2], "max": [3, 3, 0]},
+            "fluorophores": [{"name": "collagen", "d": 0.2, "c": 0.4}],
+        },
+        {
+            "name": "polyp",
+            "priority": 1,
+            "medium": {"mua": 1, "mus": 10, "g": 0.0, "n": 1.0},
+            "box": {"min": [-0.6, -0.6, -0.3], "max": [0.6, 0.6, 0.3]},
+            "fluorophores": [{"name": "collagen", "d": 0.2, "c": 0.4}, {"name": "photofrin", "d": 0.1, "c": 0.33}],
+        },
+    ],
     "source": {"type": "disk", "position": [0, 0, 2], "direction": [0, 0, -1], "radius": 1.5},
     "camera": {"position": [0, 0, 2.5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 50},
     "run": {"photons": 20000, "seed": 1},
 }
-REGION_KEYS = {"pixels", "white_radiance", "white_radiance_stderr", "fluorescence_radiance",
-               "fluorescence_radiance_stderr"}
-CONTRAST_KEYS = {"target", "background", "fluorescence", "fluorescence_stderr", "white", "white_stderr",
-                 "red_green", "red_green_stderr"}
+REGION_KEYS = {
+    "pixels",
+    "white_radiance",
+    "white_radiance_stderr",
+    "fluorescence_radiance",
+    "fluorescence_radiance_stderr",
+}
+CONTRAST_KEYS = {
+    "target",
+    "background",
+    "fluorescence",
+    "fluorescence_stderr",
+    "white",
+    "white_stderr",
+    "red_green",
+    "red_green_stderr",
+}
 
 
 def _render(tmp_path, scene, *args):
@@ -33,16 +57,40 @@ def _render(tmp_path, scene, *args):
     path.write_text(json.dumps(scene))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.path.join(ROOT, "python") + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run([sys.executable, "-m", "endophoton", "render", str(path), *args], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "endophoton", "render", str(path), *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_render_cli_writes_images_arrays_and_json(tmp_path):
     import matplotlib.image as mpimg
 
     out = tmp_path / "out"
-    p = _render(tmp_path, SCENE, "--width", "20", "--height", "14", "--photons", "30000", "--seed", "2",
-                "--threads", "1", "--out", str(out), "--target", "polyp", "--background", "wall")
+    p = _render(
+        tmp_path,
+        SCENE,
+        "--width",
+        "20",
+        "--height",
+        "14",
+        "--photons",
+        "30000",
+        "--seed",
+        "2",
+        "--threads",
+        "1",
+        "--out",
+        str(out),
+        "--target",
+        "polyp",
+        "--background",
+        "wall",
+    )
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip().count("\n") == 0
     d = json.loads(p.stdout)
@@ -50,7 +98,7 @@ def test_render_cli_writes_images_arrays_and_json(tmp_path):
     assert set(d["regions"]) == {"wall", "polyp"}
     for r in d["regions"].values():
         assert REGION_KEYS <= set(r)
-    assert sum(r["pixels"] for r in d["regions"].values()) == 20 * 14   # every pixel sees tissue
+    assert sum(r["pixels"] for r in d["regions"].values()) == 20 * 14  # every pixel sees tissue
     assert set(d["contrast"]) == CONTRAST_KEYS
     assert (d["contrast"]["target"], d["contrast"]["background"]) == ("polyp", "wall")
     for name in ("white", "fluorescence"):
@@ -73,16 +121,19 @@ def test_render_cli_uses_the_endoscope_camera_by_default(tmp_path):
     assert (d["width"], d["height"]) == (8, 8)
 
 
-@pytest.mark.parametrize("change,args,needle", [
-    (None, ("--width", "0"), "--width = 0"),
-    (None, ("--target", "polyp"), "--background"),
-    (None, ("--target", "stomach", "--background", "wall"), "target = 'stomach'"),
-    (("camera", "fov_deg", -5), (), "camera.fov_deg = -5"),
-    (("camera", "lens", 1), (), "camera: unknown key 'lens'"),
-    (("camera", "look_at", [0, 0, 2.5]), (), "camera.look_at"),
-    (("camera", None, None), (), "camera:"),
-    (None, ("--excitation", "green"), "excitation = 'green'"),
-])
+@pytest.mark.parametrize(
+    "change,args,needle",
+    [
+        (None, ("--width", "0"), "--width = 0"),
+        (None, ("--target", "polyp"), "--background"),
+        (None, ("--target", "stomach", "--background", "wall"), "target = 'stomach'"),
+        (("camera", "fov_deg", -5), (), "camera.fov_deg = -5"),
+        (("camera", "lens", 1), (), "camera: unknown key 'lens'"),
+        (("camera", "look_at", [0, 0, 2.5]), (), "camera.look_at"),
+        (("camera", None, None), (), "camera:"),
+        (None, ("--excitation", "green"), "excitation = 'green'"),
+    ],
+)
 def test_render_cli_bad_input_exits_2_naming_field_and_value(tmp_path, change, args, needle):
     scene = copy.deepcopy(SCENE)
     if change is not None:
@@ -91,8 +142,9 @@ def test_render_cli_bad_input_exits_2_naming_field_and_value(tmp_path, change, a
             del scene[key]
         else:
             scene[key][field] = value
-    p = _render(tmp_path, scene, "--photons", "2000", "--width", "4", "--height", "4", "--out",
-                str(tmp_path / "o"), *args)
+    p = _render(
+        tmp_path, scene, "--photons", "2000", "--width", "4", "--height", "4", "--out", str(tmp_path / "o"), *args
+    )
     assert p.returncode == 2, (p.returncode, p.stderr)
     assert needle in p.stderr, p.stderr
     assert "Traceback" not in p.stderr

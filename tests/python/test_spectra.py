@@ -13,8 +13,7 @@ from scipy.integrate import trapezoid
 from scipy.interpolate import RegularGridInterpolator
 from scipy.signal import argrelmax
 
-from endophoton.spectra import (EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum,
-                                default_fluorophores)
+from endophoton.spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum, default_fluorophores
 
 NAN = float("nan")
 
@@ -33,6 +32,7 @@ def raises_exactly(exc, message):
 
 # ---------------------------------------------------------------- Spectrum
 
+
 def test_spectrum_interpolates_and_is_zero_outside():
     s = Spectrum([400, 500, 600], [0.0, 2.0, 1.0], name="light")
     assert s(450) == pytest.approx(1.0)
@@ -43,7 +43,7 @@ def test_spectrum_interpolates_and_is_zero_outside():
     assert s.integral() == pytest.approx(250.0)
     assert isinstance(s(450), float)
     with pytest.raises(ValueError):
-        s.values[0] = 5.0          # read-only
+        s.values[0] = 5.0  # read-only
 
 
 def test_spectrum_flat_is_one_on_its_band():
@@ -53,21 +53,35 @@ def test_spectrum_flat_is_one_on_its_band():
     assert f.integral() == pytest.approx(300.0)
 
 
-@pytest.mark.parametrize("wl, values, message", [
-    ([400, 500, 600], [1, -0.5, 1], "spectrum 'light': values[1] = -0.5 must be >= 0"),
-    ([400, 500, 600], [1, NAN, 1], "spectrum 'light': values[1] = nan must be finite"),
-    ([400, NAN, 600], [1, 1, 1], "spectrum 'light': wavelength_nm[1] = nan must be finite"),
-    ([400, 600, 500], [1, 1, 1], "spectrum 'light': wavelength_nm[2] = 500 must be greater than "
-                                 "wavelength_nm[1] = 600 (wavelengths must be strictly increasing)"),
-    ([400, 500, 500], [1, 1, 1], "spectrum 'light': wavelength_nm[2] = 500 must be greater than "
-                                 "wavelength_nm[1] = 500 (wavelengths must be strictly increasing)"),
-    ([-5, 500], [1, 1], "spectrum 'light': wavelength_nm[0] = -5 must be > 0"),
-    ([400, 500, 600], [1, 1], "spectrum 'light': wavelength_nm has 3 entries but values has 2; "
-                              "they must have the same length"),
-    ([[400, 500]], [1, 1], "spectrum 'light': wavelength_nm must be 1-D, got shape (1, 2)"),
-    ([400, 500], [[1, 1]], "spectrum 'light': values must be 1-D, got shape (1, 2)"),
-    ([400], [1], "spectrum 'light': wavelength_nm needs at least 2 entries, got 1"),
-])
+@pytest.mark.parametrize(
+    "wl, values, message",
+    [
+        ([400, 500, 600], [1, -0.5, 1], "spectrum 'light': values[1] = -0.5 must be >= 0"),
+        ([400, 500, 600], [1, NAN, 1], "spectrum 'light': values[1] = nan must be finite"),
+        ([400, NAN, 600], [1, 1, 1], "spectrum 'light': wavelength_nm[1] = nan must be finite"),
+        (
+            [400, 600, 500],
+            [1, 1, 1],
+            "spectrum 'light': wavelength_nm[2] = 500 must be greater than "
+            "wavelength_nm[1] = 600 (wavelengths must be strictly increasing)",
+        ),
+        (
+            [400, 500, 500],
+            [1, 1, 1],
+            "spectrum 'light': wavelength_nm[2] = 500 must be greater than "
+            "wavelength_nm[1] = 500 (wavelengths must be strictly increasing)",
+        ),
+        ([-5, 500], [1, 1], "spectrum 'light': wavelength_nm[0] = -5 must be > 0"),
+        (
+            [400, 500, 600],
+            [1, 1],
+            "spectrum 'light': wavelength_nm has 3 entries but values has 2; " "they must have the same length",
+        ),
+        ([[400, 500]], [1, 1], "spectrum 'light': wavelength_nm must be 1-D, got shape (1, 2)"),
+        ([400, 500], [[1, 1]], "spectrum 'light': values must be 1-D, got shape (1, 2)"),
+        ([400], [1], "spectrum 'light': wavelength_nm needs at least 2 entries, got 1"),
+    ],
+)
 def test_spectrum_validation_messages(wl, values, message):
     with raises_exactly(ValueError, message):
         Spectrum(wl, values, name="light")
@@ -75,36 +89,66 @@ def test_spectrum_validation_messages(wl, values, message):
 
 # ---------------------------------------------------------------- EEM validation
 
-@pytest.mark.parametrize("ex, em, values, message", [
-    # wrongly shaped values (the contract's own example), and a transposed matrix
-    ([300, 310, 320], [350, 360, 370, 380, 390], np.ones((3, 4)),
-     "eem 'collagen': values has 12 entries, expected 3 x 5 = 15"),
-    ([300, 310, 320], [350, 360, 370, 380, 390], np.ones((5, 3)),
-     "eem 'collagen': values has shape (5, 3), expected 3 x 5 (n_ex x n_em)"),
-    # non-monotonic wavelengths
-    ([300, 320, 310], [350, 360], np.ones((3, 2)),
-     "eem 'collagen': excitation_nm[2] = 310 must be greater than excitation_nm[1] = 320 "
-     "(wavelengths must be strictly increasing)"),
-    ([300], [360, 360], np.ones((1, 2)),
-     "eem 'collagen': emission_nm[1] = 360 must be greater than emission_nm[0] = 360 "
-     "(wavelengths must be strictly increasing)"),
-    # NaN
-    ([300, 310], [350, NAN, 370], np.ones((2, 3)),
-     "eem 'collagen': emission_nm[1] = nan must be finite"),
-    ([300, 310], [350, 360], [[1, NAN], [1, 1]],
-     "eem 'collagen': values[0][1] (ex 300 nm, em 360 nm) = nan must be finite"),
-    ([300, 310], [350, 360], [[1, 1], [math.inf, 1]],
-     "eem 'collagen': values[1][0] (ex 310 nm, em 350 nm) = inf must be finite"),
-    # negative
-    ([300, 310], [350, 360, 370], [[1, 1, 1], [1, 1, -0.5]],
-     "eem 'collagen': values[1][2] (ex 310 nm, em 370 nm) = -0.5 must be >= 0"),
-    ([0, 310], [350, 360], np.ones((2, 2)), "eem 'collagen': excitation_nm[0] = 0 must be > 0"),
-    # nothing emits / too few entries
-    ([300, 310], [350, 360], np.zeros((2, 2)),
-     "eem 'collagen': values are all 0; at least one must be positive"),
-    ([], [350, 360], np.zeros((0, 2)), "eem 'collagen': excitation_nm needs at least 1 entry, got 0"),
-    ([300], [350], [[1]], "eem 'collagen': emission_nm needs at least 2 entries, got 1"),
-])
+
+@pytest.mark.parametrize(
+    "ex, em, values, message",
+    [
+        # wrongly shaped values (the contract's own example), and a transposed matrix
+        (
+            [300, 310, 320],
+            [350, 360, 370, 380, 390],
+            np.ones((3, 4)),
+            "eem 'collagen': values has 12 entries, expected 3 x 5 = 15",
+        ),
+        (
+            [300, 310, 320],
+            [350, 360, 370, 380, 390],
+            np.ones((5, 3)),
+            "eem 'collagen': values has shape (5, 3), expected 3 x 5 (n_ex x n_em)",
+        ),
+        # non-monotonic wavelengths
+        (
+            [300, 320, 310],
+            [350, 360],
+            np.ones((3, 2)),
+            "eem 'collagen': excitation_nm[2] = 310 must be greater than excitation_nm[1] = 320 "
+            "(wavelengths must be strictly increasing)",
+        ),
+        (
+            [300],
+            [360, 360],
+            np.ones((1, 2)),
+            "eem 'collagen': emission_nm[1] = 360 must be greater than emission_nm[0] = 360 "
+            "(wavelengths must be strictly increasing)",
+        ),
+        # NaN
+        ([300, 310], [350, NAN, 370], np.ones((2, 3)), "eem 'collagen': emission_nm[1] = nan must be finite"),
+        (
+            [300, 310],
+            [350, 360],
+            [[1, NAN], [1, 1]],
+            "eem 'collagen': values[0][1] (ex 300 nm, em 360 nm) = nan must be finite",
+        ),
+        (
+            [300, 310],
+            [350, 360],
+            [[1, 1], [math.inf, 1]],
+            "eem 'collagen': values[1][0] (ex 310 nm, em 350 nm) = inf must be finite",
+        ),
+        # negative
+        (
+            [300, 310],
+            [350, 360, 370],
+            [[1, 1, 1], [1, 1, -0.5]],
+            "eem 'collagen': values[1][2] (ex 310 nm, em 370 nm) = -0.5 must be >= 0",
+        ),
+        ([0, 310], [350, 360], np.ones((2, 2)), "eem 'collagen': excitation_nm[0] = 0 must be > 0"),
+        # nothing emits / too few entries
+        ([300, 310], [350, 360], np.zeros((2, 2)), "eem 'collagen': values are all 0; at least one must be positive"),
+        ([], [350, 360], np.zeros((0, 2)), "eem 'collagen': excitation_nm needs at least 1 entry, got 0"),
+        ([300], [350], [[1]], "eem 'collagen': emission_nm needs at least 2 entries, got 1"),
+    ],
+)
 def test_eem_validation_messages(ex, em, values, message):
     with raises_exactly(ValueError, message):
         EEM(ex, em, values, name="collagen")
@@ -118,7 +162,7 @@ def test_eem_empty_name_rejected():
 def test_eem_arrays_are_read_only_copies():
     v = np.array(HAND_V, dtype=float)
     e = EEM(HAND_EX, HAND_EM, v, name="hand")
-    v[0, 0] = 99.0                     # the caller's array is not aliased
+    v[0, 0] = 99.0  # the caller's array is not aliased
     assert e.values[0, 0] == 0.0
     with pytest.raises(ValueError):
         e.values[0, 0] = 1.0
@@ -127,6 +171,7 @@ def test_eem_arrays_are_read_only_copies():
 
 
 # ---------------------------------------------------------------- Fluorophore
+
 
 def test_fluorophore_defaults_and_validation():
     f = Fluorophore("collagen", 0.2, 0.4)
@@ -145,11 +190,13 @@ def test_fluorophore_defaults_and_validation():
 
 
 def test_unknown_fluorophore_without_eem_names_it_and_lists_known():
-    with raises_exactly(ValueError, "fluorophore 'nadh': no eem given and no default EEM named "
-                                    "'nadh' (known: collagen, photofrin)"):
+    with raises_exactly(
+        ValueError, "fluorophore 'nadh': no eem given and no default EEM named " "'nadh' (known: collagen, photofrin)"
+    ):
         Fluorophore("nadh", 0.1, 0.1)
-    with raises_exactly(ValueError, "unknown fluorophore 'nadh': no default EEM named 'nadh' "
-                                    "(known: collagen, photofrin)"):
+    with raises_exactly(
+        ValueError, "unknown fluorophore 'nadh': no default EEM named 'nadh' " "(known: collagen, photofrin)"
+    ):
         EEM.default("nadh")
     with pytest.raises(ValueError, match="unknown fluorophore '../collagen'"):
         EEM.default("../collagen")
@@ -173,6 +220,7 @@ def test_fluorophore_defaults_are_the_seed_papers():
 
 # ---------------------------------------------------------------- CSV
 
+
 def test_csv_round_trip_is_exact(tmp_path):
     rng = np.random.default_rng(7)
     ex = np.sort(rng.uniform(250, 500, 7))
@@ -189,8 +237,8 @@ def test_csv_round_trip_is_exact(tmp_path):
     np.testing.assert_array_equal(back.values, e.values)
     text = path.read_text()
     assert "# made by a test\n# second line\n" in text
-    assert [p.name for p in tmp_path.iterdir()] == ["random.csv"]   # no temp file left
-    assert path.stat().st_mode & 0o777 == 0o644                      # not mkstemp's 0600
+    assert [p.name for p in tmp_path.iterdir()] == ["random.csv"]  # no temp file left
+    assert path.stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
 
 
 def test_default_csv_round_trip(tmp_path):
@@ -202,13 +250,16 @@ def test_default_csv_round_trip(tmp_path):
         np.testing.assert_array_equal(back.excitation_nm, e.excitation_nm)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("# only a comment\n", "needs a header row and at least 1 excitation row, found 0 data row(s)"),
-    ("ex\\em,350,360\n300,1,x\n", "line 2, cell 3: 'x' is not a number"),
-    ("ex\\em,350,360\n300,1\n", "line 2: expected 3 cells (excitation + 2 values), got 2"),
-    ("300,350,360\n300,1,1\n", "line 1: the first data row must start with the label ex\\em"),
-    ("ex\\em,350,360\n300,1,-1\n", "eem 'bad': values[0][1] (ex 300 nm, em 360 nm) = -1 must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("# only a comment\n", "needs a header row and at least 1 excitation row, found 0 data row(s)"),
+        ("ex\\em,350,360\n300,1,x\n", "line 2, cell 3: 'x' is not a number"),
+        ("ex\\em,350,360\n300,1\n", "line 2: expected 3 cells (excitation + 2 values), got 2"),
+        ("300,350,360\n300,1,1\n", "line 1: the first data row must start with the label ex\\em"),
+        ("ex\\em,350,360\n300,1,-1\n", "eem 'bad': values[0][1] (ex 300 nm, em 360 nm) = -1 must be >= 0"),
+    ],
+)
 def test_csv_errors_name_file_line_and_value(tmp_path, text, message):
     path = tmp_path / "bad.csv"
     path.write_text(text)
@@ -225,6 +276,7 @@ def test_csv_accepts_blank_lines_and_trailing_commas(tmp_path):
 
 # ---------------------------------------------------------------- default data
 
+
 def test_collagen_peak_is_in_the_published_range():
     # Collagen: excitation maximum ~325-340 nm, emission ~390-405 nm
     # (Richards-Kortum & Sevick-Muraca 1996; DaCosta et al. 2003).
@@ -237,8 +289,8 @@ def test_collagen_peak_is_in_the_published_range():
 def test_photofrin_peaks_are_in_the_published_ranges():
     e = EEM.default("photofrin")
     i, j = np.unravel_index(np.argmax(e.values), e.shape)
-    assert 400 <= e.excitation_nm[i] <= 410          # Soret band
-    assert 620 <= e.emission_nm[j] <= 640            # main emission peak
+    assert 400 <= e.excitation_nm[i] <= 410  # Soret band
+    assert 620 <= e.emission_nm[j] <= 640  # main emission peak
     # The emission row at the Soret peak has exactly two maxima, ~630 and ~690 nm.
     row = e.values[i]
     peaks = e.emission_nm[argrelmax(row)[0]]
@@ -266,6 +318,7 @@ def test_default_eems_obey_the_stokes_gap(name):
 
 # ---------------------------------------------------------------- efficiency
 
+
 def test_efficiency_of_hand_built_eem():
     e = EEM(HAND_EX, HAND_EM, HAND_V, name="hand")
     assert e.efficiency(300) == pytest.approx(25 / 40)
@@ -283,15 +336,16 @@ def independent_efficiency(e, lam):
     interp = RegularGridInterpolator((e.excitation_nm, e.emission_nm), e.values, method="linear")
     # 8 sub-steps per emission interval; the grid contains every node, so the
     # trapezoid rule is exact for the piecewise-linear row.
-    em = np.concatenate([np.linspace(a, b, 8, endpoint=False)
-                         for a, b in zip(e.emission_nm[:-1], e.emission_nm[1:])] + [e.emission_nm[-1:]])
+    em = np.concatenate(
+        [np.linspace(a, b, 8, endpoint=False) for a, b in zip(e.emission_nm[:-1], e.emission_nm[1:])]
+        + [e.emission_nm[-1:]]
+    )
 
     def row_integral(x):
         return trapezoid(interp(np.column_stack([np.full_like(em, x), em])), em)
 
     max_row = max(row_integral(x) for x in e.excitation_nm)
-    return np.array([row_integral(x) / max_row if e.excitation_nm[0] <= x <= e.excitation_nm[-1]
-                     else 0.0 for x in lam])
+    return np.array([row_integral(x) / max_row if e.excitation_nm[0] <= x <= e.excitation_nm[-1] else 0.0 for x in lam])
 
 
 @pytest.mark.parametrize("name", ["collagen", "photofrin"])
@@ -299,5 +353,4 @@ def test_efficiency_matches_independent_integral(name):
     e = EEM.default(name)
     rng = np.random.default_rng(3)
     lam = np.concatenate([rng.uniform(250, 700, 40), [250, 330, 405, 632.8, 700, 240, 710]])
-    np.testing.assert_allclose(e.efficiency(lam), independent_efficiency(e, lam),
-                               rtol=1e-10, atol=1e-300)
+    np.testing.assert_allclose(e.efficiency(lam), independent_efficiency(e, lam), rtol=1e-10, atol=1e-300)

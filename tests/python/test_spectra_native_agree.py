@@ -60,8 +60,11 @@ def test_bad_eem_same_message_on_both_sides(ex, em, values):
 
 
 def test_empty_eem_name_same_message():
-    assert _message(lambda: EEM([300], [350, 360], [[1, 1]], name="")) == \
-        _message(lambda: _native_eem("", [300], [350, 360], [[1, 1]])) == "eem: name must not be empty"
+    assert (
+        _message(lambda: EEM([300], [350, 360], [[1, 1]], name=""))
+        == _message(lambda: _native_eem("", [300], [350, 360], [[1, 1]]))
+        == "eem: name must not be empty"
+    )
 
 
 @pytest.mark.parametrize("ex, em, values", GOOD_EEMS)
@@ -90,8 +93,13 @@ GOOD_SPECTRA = [([400, 700], [1, 1]), ([400, 410, 700], [0, 2, 0.5])]
 
 
 def _native_spectrum(wl, values):
-    light = dict(position=[0.0, 0.0, 1.0], direction=[0.0, 0.0, -1.0], radius=0.0, half_angle=0.0,
-                 spectrum=(list(map(float, wl)), list(map(float, values))))
+    light = dict(
+        position=[0.0, 0.0, 1.0],
+        direction=[0.0, 0.0, -1.0],
+        radius=0.0,
+        half_angle=0.0,
+        spectrum=(list(map(float, wl)), list(map(float, values))),
+    )
     return _core.Source([light])
 
 

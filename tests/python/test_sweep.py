@@ -30,6 +30,7 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 # ---------------------------------------------------------------- fake engine
 
+
 def fake_rate(beta):
     """Records per packet of the fake engine (decreasing packets traced with beta)."""
     return 0.45 + 0.004 * beta
@@ -40,8 +41,18 @@ def fake_kappa(beta):
     return beta / 40.0
 
 
-def fake_run(scene, rig, store, fluorescent_only=True, fluorescence_rule="paper", seed=1, threads=0,
-             progress=None, cancel=None, **kw):
+def fake_run(
+    scene,
+    rig,
+    store,
+    fluorescent_only=True,
+    fluorescence_rule="paper",
+    seed=1,
+    threads=0,
+    progress=None,
+    cancel=None,
+    **kw,
+):
     beta = float(rig.beta_deg)
     rng = np.random.default_rng([seed, int(round(beta * 10))])
     q = fake_rate(beta)
@@ -55,13 +66,20 @@ def fake_run(scene, rig, store, fluorescent_only=True, fluorescence_rule="paper"
     az_low = np.degrees(rng.vonmises(np.pi, kappa, k)) % 360.0 if kappa > 0 else 360.0 * rng.random(k)
     az = np.where(el < 45.0, az_low, 360.0 * rng.random(k))
     lights = rig.light_positions(scene.unit)
-    esc = sy.make_records(el, az, rng, lights, packets=packets, energy=rng.random(k) * (1 + beta / 100),
-                          max_depth=0.12 * rng.random(k) ** 0.1, spot_sd=0.1)
+    esc = sy.make_records(
+        el,
+        az,
+        rng,
+        lights,
+        packets=packets,
+        energy=rng.random(k) * (1 + beta / 100),
+        max_depth=0.12 * rng.random(k) ** 0.1,
+        spot_sd=0.1,
+    )
     if progress is not None:
         progress(k // 2, store)
         progress(k, store)
-    return types.SimpleNamespace(escapes=esc, packets_traced=int(packets[-1]) + 1, seconds=0.01,
-                                 cancelled=False)
+    return types.SimpleNamespace(escapes=esc, packets_traced=int(packets[-1]) + 1, seconds=0.01, cancelled=False)
 
 
 @pytest.fixture
@@ -76,8 +94,9 @@ def fake_result(tmp_path_factory):
     mp.setattr(sw, "run", fake_run)
     out = tmp_path_factory.mktemp("fake_sweep")
     try:
-        res = sw.sweep(types.SimpleNamespace(unit="cm"), betas=[0, 20, 40], store=20_000, seed=3,
-                       progress=False, out_dir=str(out))
+        res = sw.sweep(
+            types.SimpleNamespace(unit="cm"), betas=[0, 20, 40], store=20_000, seed=3, progress=False, out_dir=str(out)
+        )
     finally:
         mp.undo()
     return res, str(out)
@@ -112,9 +131,18 @@ def test_fake_sweep_recovers_known_statistics(fake_result):
 def test_outputs_written(fake_result):
     res, out = fake_result
     files = sorted(os.listdir(out))
-    for name in ["sweep.csv", "sweep.json", "report.md", "packets_traced.png", "energy.png",
-                 "camera_fraction.png", "max_depth.png", "polar_beta_00.png", "polar_beta_20.png",
-                 "polar_beta_40.png"]:
+    for name in [
+        "sweep.csv",
+        "sweep.json",
+        "report.md",
+        "packets_traced.png",
+        "energy.png",
+        "camera_fraction.png",
+        "max_depth.png",
+        "polar_beta_00.png",
+        "polar_beta_20.png",
+        "polar_beta_40.png",
+    ]:
         assert name in files
     for name in files:
         if name.endswith(".png"):
@@ -143,7 +171,7 @@ def test_csv_header_equals_documented_columns(fake_result):
 def test_json_round_trip(fake_result, tmp_path):
     res, out = fake_result
     with open(os.path.join(out, "sweep.json")) as f:
-        raw = json.load(f)      # strict JSON (no NaN tokens)
+        raw = json.load(f)  # strict JSON (no NaN tokens)
     assert raw["format"] == "endophoton-sweep/1" and list(raw["columns"]) == list(sw.CSV_COLUMNS)
     back = sw.SweepResult.from_json(os.path.join(out, "sweep.json"))
     for a, b in zip(res.rows, back.rows):
@@ -175,12 +203,25 @@ def test_report_states_paper_and_run_numbers(fake_result):
 
 def test_progress_callable_and_tqdm(fake_engine, capsys):
     calls = []
-    sw.sweep(fake_engine, betas=[0, 10], store=500, progress=lambda i, n, d, t: calls.append((i, n, d, t)),
-             plots=False, report=False)
+    sw.sweep(
+        fake_engine,
+        betas=[0, 10],
+        store=500,
+        progress=lambda i, n, d, t: calls.append((i, n, d, t)),
+        plots=False,
+        report=False,
+    )
     assert calls and calls[-1] == (1, 2, 500, 500)
     finished = []
-    res = sw.sweep(fake_engine, betas=[0, 10], store=500, progress=False, plots=False, report=False,
-                   on_beta=lambda i, n, row: finished.append((i, n, row["beta_deg"], row["packets_traced"])))
+    res = sw.sweep(
+        fake_engine,
+        betas=[0, 10],
+        store=500,
+        progress=False,
+        plots=False,
+        report=False,
+        on_beta=lambda i, n, row: finished.append((i, n, row["beta_deg"], row["packets_traced"])),
+    )
     assert finished == [(i, 2, r["beta_deg"], r["packets_traced"]) for i, r in enumerate(res.rows)]
     sw.sweep(fake_engine, betas=[0], store=500, progress=True)
     assert "beta" in capsys.readouterr().err
@@ -209,6 +250,7 @@ def test_builder_and_cancel(fake_engine):
 def test_cancel_before_any_record_ends_without_row(fake_engine, tmp_path):
     """A cancel that lands before a run stored anything (between two betas, or
     right at the start) ends the sweep without a row instead of failing."""
+
     def empty_cancelled_run(*a, **k):
         r = fake_run(*a, **k)
         r.escapes = {key: np.asarray(v)[:0] for key, v in r.escapes.items()}
@@ -223,8 +265,7 @@ def test_cancel_before_any_record_ends_without_row(fake_engine, tmp_path):
 
     calls = []
     sw.run = lambda *a, **k: calls.append(a)
-    res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False,
-                   cancel=types.SimpleNamespace(cancelled=True))
+    res = sw.sweep(fake_engine, betas=[0, 5], store=400, progress=False, cancel=types.SimpleNamespace(cancelled=True))
     assert calls == [] and res.rows == [] and res.meta["cancelled"] is True
 
     sw.run = fake_run
@@ -236,8 +277,9 @@ def test_cli_with_fake_engine(fake_engine, monkeypatch, tmp_path):
     monkeypatch.setattr(sweep_cli, "default_flat_scene", lambda **kw: fake_engine)
     p = argparse.ArgumentParser()
     sweep_cli.add_sweep_arguments(p)
-    args = p.parse_args(["--betas", "0,10,20", "--store", "2000", "--seed", "4", "--out", str(tmp_path),
-                         "--no-progress"])
+    args = p.parse_args(
+        ["--betas", "0,10,20", "--store", "2000", "--seed", "4", "--out", str(tmp_path), "--no-progress"]
+    )
     assert args.betas == [0.0, 10.0, 20.0] and args.store == 2000
     assert sweep_cli.sweep_main(args) == 0
     for name in ("sweep.csv", "sweep.json", "report.md", "energy.png", "polar_beta_10.png"):
@@ -256,6 +298,7 @@ def test_parse_betas():
 
 # ---------------------------------------------------------------- rig geometry
 
+
 def test_rig_geometry_matches_design_frame():
     rig = EndoscopeRig.from_beta(beta_deg=0.0, distance=1.0)
     g = sw.rig_geometry(rig, "cm")
@@ -267,8 +310,12 @@ def test_rig_geometry_matches_design_frame():
     cam = g["camera"]
     assert np.allclose(cam["position"], [0, 0, 1]) and np.allclose(cam["forward"], [0, 0, -1])
     # the fallback from transform + documented head frame gives the same geometry
-    bare = types.SimpleNamespace(transform=rig.transform, light_offset_mm=rig.light_offset_mm,
-                                 camera_fov_deg=rig.camera_fov_deg, camera_resolution=rig.camera_resolution)
+    bare = types.SimpleNamespace(
+        transform=rig.transform,
+        light_offset_mm=rig.light_offset_mm,
+        camera_fov_deg=rig.camera_fov_deg,
+        camera_resolution=rig.camera_resolution,
+    )
     g2 = sw.rig_geometry(bare, "cm")
     assert np.allclose(g2["light_positions"], lp)
     for k in ("position", "forward", "up"):
@@ -287,12 +334,16 @@ def test_rig_geometry_matches_design_frame():
 
 # ---------------------------------------------------------------- meshes
 
-@pytest.mark.parametrize("maker", [
-    lambda: meshes.ellipsoid((0.1, -0.2, 0.3), (0.3, 0.2, 0.15), 16, 32),
-    lambda: meshes.uv_sphere((0, 0, 0), 1.0, 8, 12),
-    lambda: meshes.half_ellipsoid((0, 0, 0), (0.3, 0.3, 0.15), 6, 24, upper=True),
-    lambda: meshes.half_ellipsoid((0, 0, -1e-4), (0.3, 0.3, 0.15), 6, 24, upper=False),
-])
+
+@pytest.mark.parametrize(
+    "maker",
+    [
+        lambda: meshes.ellipsoid((0.1, -0.2, 0.3), (0.3, 0.2, 0.15), 16, 32),
+        lambda: meshes.uv_sphere((0, 0, 0), 1.0, 8, 12),
+        lambda: meshes.half_ellipsoid((0, 0, 0), (0.3, 0.3, 0.15), 6, 24, upper=True),
+        lambda: meshes.half_ellipsoid((0, 0, -1e-4), (0.3, 0.3, 0.15), 6, 24, upper=False),
+    ],
+)
 def test_meshes_closed_and_outward(maker):
     v, t = maker()
     assert v.dtype == np.float32 and t.dtype == np.uint32
@@ -321,7 +372,9 @@ def test_check_closed_mesh_rejects_bad_meshes():
     flipped = t.copy()
     flipped[3] = flipped[3, ::-1]
     # the engine's checker (native/mesh_check.cpp) owns the rule and words the message
-    with pytest.raises(ValueError, match=r"^sphere: mesh orientation is inconsistent: edge \(\d+, \d+\) is traversed 2 times"):
+    with pytest.raises(
+        ValueError, match=r"^sphere: mesh orientation is inconsistent: edge \(\d+, \d+\) is traversed 2 times"
+    ):
         meshes.check_closed_mesh(v, flipped, owner="sphere")
     with pytest.raises(ValueError, match=r"^mesh: mesh is open \(not watertight\)"):
         meshes.check_closed_mesh(v, t[1:])
@@ -335,6 +388,7 @@ def test_check_closed_mesh_rejects_bad_meshes():
 
 
 # ---------------------------------------------------------------- real engine
+
 
 def _engine_ready():
     try:
@@ -406,7 +460,7 @@ def test_real_beta0_azimuth_uniform(polyp):
             continue
         mean_sin = (counts[ring] * np.sin(phi)).sum() / n
         # se of the mean of sin over n independent records, from the histogram itself
-        se = math.sqrt(((counts[ring] * np.sin(phi) ** 2).sum() / n - mean_sin ** 2) / n)
+        se = math.sqrt(((counts[ring] * np.sin(phi) ** 2).sum() / n - mean_sin**2) / n)
         assert abs(mean_sin) < 4.5 * se, (ring, mean_sin, se)
     assert np.all(stderr >= 0)
 
@@ -451,13 +505,17 @@ with open(OUT, "w") as fh:
 def _blender_available():
     import shutil
     import subprocess
+
     exe = shutil.which("blender")
     if exe is None or not _engine_ready():
         return False
     try:
-        out = subprocess.run([exe, "-b", "--factory-startup", "--python-expr",
-                              "import numpy, sys; print('PYOK', sys.version_info[:2])"],
-                             capture_output=True, text=True, timeout=120)
+        out = subprocess.run(
+            [exe, "-b", "--factory-startup", "--python-expr", "import numpy, sys; print('PYOK', sys.version_info[:2])"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
     except (OSError, subprocess.TimeoutExpired):
         return False
     return "PYOK (3, 11)" in out.stdout
@@ -468,16 +526,23 @@ def test_blender_path_gives_identical_numbers(tmp_path):
     """sweep_blend on a .blend holding the paper's scene == sweep() on the same arrays and values."""
     import subprocess
     import endophoton as ep_mod
+
     betas, store, seed = [0.0, 30.0], 3000, 7
     pkg = os.path.join(ROOT, "python")
     script = tmp_path / "run_in_blender.py"
     out = tmp_path / "blender.json"
     blend = tmp_path / "paper.blend"
     addon = os.path.join(ROOT, "addon")
-    script.write_text(f"PKG={pkg!r}\nADDON={addon!r}\nBLEND={str(blend)!r}\nOUT={str(out)!r}\nBETAS={betas!r}\n"
-                      f"STORE={store}\nSEED={seed}\n" + BLENDER_SCRIPT)
-    proc = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1",
-                           "--python", str(script)], capture_output=True, text=True, timeout=600)
+    script.write_text(
+        f"PKG={pkg!r}\nADDON={addon!r}\nBLEND={str(blend)!r}\nOUT={str(out)!r}\nBETAS={betas!r}\n"
+        f"STORE={store}\nSEED={seed}\n" + BLENDER_SCRIPT
+    )
+    proc = subprocess.run(
+        ["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     got = json.loads(out.read_text())
     # the same scene in plain Python: Blender keeps vertex coordinates and the
@@ -487,13 +552,25 @@ def test_blender_path_gives_identical_numbers(tmp_path):
     scene = ep_mod.Scene(unit="m")
     for r in src.regions:
         m = r.medium
-        scene.add_mesh(r.name, r.vertices, r.triangles,
-                       ep_mod.Medium(mua=f32(m.mua), mus=f32(m.mus), g=f32(m.g), n=f32(m.n)), priority=r.priority,
-                       fluorophores=[ep_mod.Fluorophore(f.name, f32(f.d), f32(f.c)) for f in r.fluorophores])
+        scene.add_mesh(
+            r.name,
+            r.vertices,
+            r.triangles,
+            ep_mod.Medium(mua=f32(m.mua), mus=f32(m.mus), g=f32(m.g), n=f32(m.n)),
+            priority=r.priority,
+            fluorophores=[ep_mod.Fluorophore(f.name, f32(f.d), f32(f.c)) for f in r.fluorophores],
+        )
     ref = sw.sweep(scene, betas=betas, store=store, seed=seed, progress=False)
     for a, b in zip(ref.rows, got["rows"]):
-        for k in ("packets_traced", "records", "energy_total", "energy_per_packet", "important_fraction",
-                  "max_depth_cm", "azimuth_asym_low"):
+        for k in (
+            "packets_traced",
+            "records",
+            "energy_total",
+            "energy_per_packet",
+            "important_fraction",
+            "max_depth_cm",
+            "azimuth_asym_low",
+        ):
             assert a[k] == b[k], (k, a[k], b[k])
     for h, c in zip(ref.histograms, got["counts"]):
         assert np.array_equal(np.asarray(h["counts"]), np.asarray(c))
@@ -505,12 +582,37 @@ def test_cli_blend_runs_the_addon_module_in_blender(tmp_path):
     sweep_blend on the file's scene and rig (the package itself never imports bpy)."""
     import subprocess
     import sys
+
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    proc = subprocess.run([sys.executable, "-m", "endophoton", "sweep", "--blend",
-                           os.path.join(ROOT, "blend_scenes", "flat_tissue.blend"), "--betas", "0,20",
-                           "--store", "400", "--batches", "4", "--threads", "1", "--seed", "3", "--no-progress",
-                           "--out", str(out)], capture_output=True, text=True, timeout=900, env=env, cwd=str(tmp_path))
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "endophoton",
+            "sweep",
+            "--blend",
+            os.path.join(ROOT, "blend_scenes", "flat_tissue.blend"),
+            "--betas",
+            "0,20",
+            "--store",
+            "400",
+            "--batches",
+            "4",
+            "--threads",
+            "1",
+            "--seed",
+            "3",
+            "--no-progress",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env=env,
+        cwd=str(tmp_path),
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     res = sw.SweepResult.from_json(str(out / "sweep.json"))
     assert res.meta["scene"].startswith("blender scene") and "flat_tissue.blend" in res.meta["scene"]
@@ -523,25 +625,36 @@ def test_cli_blend_runs_the_addon_module_in_blender(tmp_path):
 
 # ---------------------------------------------------------------- report logic on a known trend
 
+
 def _synthetic_result(rng, B=20):
     """SweepResult whose trends are known: packets fall 11 % linearly, energy peaks at 34 deg."""
     from endophoton import analysis as an_
+
     betas = np.arange(0, 60, 5.0)
     store = 100_000
     rows, hists, batches = [], [], []
     for beta in betas:
-        rate = 0.45 / (1 - 0.11 * beta / 55.0)                 # packets = store / rate: linear 11 % drop
+        rate = 0.45 / (1 - 0.11 * beta / 55.0)  # packets = store / rate: linear 11 % drop
         epp = 1.0 - (beta - 34.0) ** 2 / 5000.0
-        bt = {"record_rate": rate * (1 + 1e-4 * rng.standard_normal(B)),
-              "energy_per_packet": epp * (1 + 1e-4 * rng.standard_normal(B)),
-              "energy_per_record": epp / rate * (1 + 1e-4 * rng.standard_normal(B)),
-              "important_fraction": (0.08 - 0.0009 * beta) * (1 + 1e-3 * rng.standard_normal(B)),
-              "max_depth_cm": 0.12 + 0.005 * rng.standard_normal(B),
-              "azimuth_asym_low": -0.002 * beta + 1e-3 * rng.standard_normal(B),
-              "azimuth_asym_high": -0.0002 * beta + 1e-3 * rng.standard_normal(B),
-              "high_elevation_fraction": 0.3 + 1e-3 * rng.standard_normal(B)}
-        row = {"beta_deg": float(beta), "store": store, "records": store, "seed": 1, "seconds": 1.0, "cancelled": 0,
-               "important_count": 0}
+        bt = {
+            "record_rate": rate * (1 + 1e-4 * rng.standard_normal(B)),
+            "energy_per_packet": epp * (1 + 1e-4 * rng.standard_normal(B)),
+            "energy_per_record": epp / rate * (1 + 1e-4 * rng.standard_normal(B)),
+            "important_fraction": (0.08 - 0.0009 * beta) * (1 + 1e-3 * rng.standard_normal(B)),
+            "max_depth_cm": 0.12 + 0.005 * rng.standard_normal(B),
+            "azimuth_asym_low": -0.002 * beta + 1e-3 * rng.standard_normal(B),
+            "azimuth_asym_high": -0.0002 * beta + 1e-3 * rng.standard_normal(B),
+            "high_elevation_fraction": 0.3 + 1e-3 * rng.standard_normal(B),
+        }
+        row = {
+            "beta_deg": float(beta),
+            "store": store,
+            "records": store,
+            "seed": 1,
+            "seconds": 1.0,
+            "cancelled": 0,
+            "important_count": 0,
+        }
         for k, v in bt.items():
             col = {"max_depth_cm": "max_depth_batch_mean_cm"}.get(k, k)
             row[col] = float(np.mean(v))
@@ -562,12 +675,17 @@ def _synthetic_result(rng, B=20):
     for r in rows:
         for k in sw.CSV_COLUMNS:
             r.setdefault(k, float("nan"))
-    return sw.SweepResult(rows=rows, histograms=hists, batches=batches,
-                          meta={"store": store, "seed": 1, "n_batches": B, "max_angle_deg": 15.0})
+    return sw.SweepResult(
+        rows=rows,
+        histograms=hists,
+        batches=batches,
+        meta={"store": store, "seed": 1, "n_batches": B, "max_angle_deg": 15.0},
+    )
 
 
 def test_report_recovers_known_trends(tmp_path):
     from endophoton import report as rp
+
     res = _synthetic_result(np.random.default_rng(21))
     t = rp.compute_trends(res)
     assert t["packets_drop"] == pytest.approx(0.11, abs=5 * t["packets_drop_se"] + 1e-9)
@@ -582,4 +700,4 @@ def test_report_recovers_known_trends(tmp_path):
     assert "size vs the paper's 11 %: **consistent**" in text
     assert "fitted peak vs 34°: **consistent**" in text
     assert "shift toward 180°: **agrees**" in text
-    assert "so the fit degree is" not in text      # 12 angles: full degree-6 fit, no reduced-degree note
+    assert "so the fit degree is" not in text  # 12 angles: full degree-6 fit, no reduced-degree note

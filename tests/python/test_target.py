@@ -55,8 +55,16 @@ def rel(res, tally):
 
 
 def run_target(rel_error, tally="diffuse_reflectance", seed=7, threads=2, **kw):
-    return ep.run(mcml_slab(), SOURCE, target=ep.Target(tally, rel_error), seed=seed, threads=threads,
-                  record_escapes=False, unit_size=UNIT, **kw)
+    return ep.run(
+        mcml_slab(),
+        SOURCE,
+        target=ep.Target(tally, rel_error),
+        seed=seed,
+        threads=threads,
+        record_escapes=False,
+        unit_size=UNIT,
+        **kw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -96,10 +104,10 @@ def test_stop_is_the_first_unit_meeting_the_target(rel_error, loose, tight):
         assert getattr(fixed, k) == getattr(r, k), k
     # The engine checks the rule from 20 units on; one unit fewer must miss the target.
     if n > 20 * UNIT:
-        before = ep.run(mcml_slab(), SOURCE, photons=n - UNIT, seed=7, threads=2, record_escapes=False,
-                        unit_size=UNIT)
-        assert rel(before, "diffuse_reflectance") > rel_error, \
-            f"target {rel_error} already met at {n - UNIT} packets, but the run went on to {n}"
+        before = ep.run(mcml_slab(), SOURCE, photons=n - UNIT, seed=7, threads=2, record_escapes=False, unit_size=UNIT)
+        assert (
+            rel(before, "diffuse_reflectance") > rel_error
+        ), f"target {rel_error} already met at {n - UNIT} packets, but the run went on to {n}"
 
 
 def test_packets_scale_as_inverse_square_of_target(tight):
@@ -112,7 +120,7 @@ def test_packets_scale_as_inverse_square_of_target(tight):
         sigma1 = r.diffuse_reflectance_stderr * math.sqrt(r.photons)
         predicted = (sigma1 / (target * r.diffuse_reflectance)) ** 2
         assert predicted / 1.6 < r.photons < predicted * 1.6 + UNIT, (target, r.photons, predicted)
-    assert 4 / 1.6 ** 2 < tight.photons / mid.photons < 4 * 1.6 ** 2
+    assert 4 / 1.6**2 < tight.photons / mid.photons < 4 * 1.6**2
 
 
 def test_time_budget_stops_the_run():
@@ -138,8 +146,15 @@ def test_impossible_target_stops_at_max_photons_honestly():
 
 
 def test_photons_with_target_acts_as_cap():
-    r = ep.run(mcml_slab(), SOURCE, photons=25_000, target=ep.Target("diffuse_reflectance", 1e-7), seed=3,
-               threads=2, record_escapes=False)
+    r = ep.run(
+        mcml_slab(),
+        SOURCE,
+        photons=25_000,
+        target=ep.Target("diffuse_reflectance", 1e-7),
+        seed=3,
+        threads=2,
+        record_escapes=False,
+    )
     assert r.stop_reason == "max_photons" and r.target_reached is False and r.photons == 25_000
 
 
@@ -164,8 +179,12 @@ def test_same_seed_same_packets_any_thread_count():
 
 def test_default_unit_size_is_deterministic_across_threads():
     """The same with the engine's own unit size (unit_size = 0)."""
-    runs = [ep.run(mcml_slab(), SOURCE, target=ep.Target("diffuse_reflectance", 0.01), seed=9, threads=t,
-                   record_escapes=False) for t in (1, 2)]
+    runs = [
+        ep.run(
+            mcml_slab(), SOURCE, target=ep.Target("diffuse_reflectance", 0.01), seed=9, threads=t, record_escapes=False
+        )
+        for t in (1, 2)
+    ]
     a, b = runs
     assert a.stop_reason == b.stop_reason == "target" and a.target_reached and b.target_reached
     assert a.unit_size == b.unit_size and a.photons == b.photons and a.photons % a.unit_size == 0
@@ -185,11 +204,18 @@ def test_invalid_targets_are_rejected():
 
 # ---------------------------------------------------------------- CLI
 
+
 def _slab_json(path):
     doc = {
-        "unit": "cm", "ambient_n": 1.0,
-        "regions": [{"name": "slab", "medium": {"mua": 10.0, "mus": 90.0, "g": 0.75, "n": 1.0},
-                     "box": {"min": [-500, -500, -0.02], "max": [500, 500, 0.0]}}],
+        "unit": "cm",
+        "ambient_n": 1.0,
+        "regions": [
+            {
+                "name": "slab",
+                "medium": {"mua": 10.0, "mus": 90.0, "g": 0.75, "n": 1.0},
+                "box": {"min": [-500, -500, -0.02], "max": [500, 500, 0.0]},
+            }
+        ],
         "source": {"type": "pencil", "position": [0, 0, 1], "direction": [0, 0, -1]},
         "run": {"seed": 2, "threads": 2},
     }
@@ -202,8 +228,14 @@ def _slab_json(path):
 
 def _cli(*args):
     env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    out = subprocess.run(["/usr/bin/python3", "-m", "endophoton", "run", *args], capture_output=True, text=True,
-                         env=env, cwd=ROOT, timeout=300)
+    out = subprocess.run(
+        ["/usr/bin/python3", "-m", "endophoton", "run", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)
 

@@ -17,7 +17,8 @@ def _load_vdb_module():
     # Loaded by path so this test needs neither the compiled _core module nor
     # a conftest that puts python/ on sys.path.
     spec = importlib.util.spec_from_file_location(
-        "endophoton_vdb_under_test", ROOT / "python" / "endophoton" / "vdb.py")
+        "endophoton_vdb_under_test", ROOT / "python" / "endophoton" / "vdb.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -56,8 +57,7 @@ def _write_file(path, rng):
     empty.gridClass = pyopenvdb.GridClass.FOG_VOLUME
     empty.transform = pyopenvdb.createLinearTransform(voxelSize=H)
 
-    pyopenvdb.write(str(path), grids=[absorbed, empty],
-                    metadata={"packets": "1000", "seed": "7", "unit": "cm"})
+    pyopenvdb.write(str(path), grids=[absorbed, empty], metadata={"packets": "1000", "seed": "7", "unit": "cm"})
     return values
 
 

@@ -7,8 +7,15 @@ import pytest
 
 import endophoton as ep
 from endophoton.visibility import fit_peak, jackknife
-from endophoton.view_sweep import (VISIBILITY_COLUMNS, add_visibility, visibility_columns, contact_sheet, plot_visibility, visibility_report,
-                                   write_visibility_outputs)
+from endophoton.view_sweep import (
+    VISIBILITY_COLUMNS,
+    add_visibility,
+    visibility_columns,
+    contact_sheet,
+    plot_visibility,
+    visibility_report,
+    write_visibility_outputs,
+)
 
 
 def _delta_method_vertex_se(x, se, coeffs):
@@ -52,8 +59,14 @@ def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
     m = ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0)
     s = ep.Scene(unit="cm")
     s.add_box("wall", (-3, -3, -2), (3, 3, 0), m, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
-    s.add_box("polyp", (-0.6, -0.6, -0.3), (0.6, 0.6, 0.3), m, priority=1,
-              fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, 0.33)])
+    s.add_box(
+        "polyp",
+        (-0.6, -0.6, -0.3),
+        (0.6, 0.6, 0.3),
+        m,
+        priority=1,
+        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, 0.33)],
+    )
     rows, betas, images = [], [0.0, 20.0, 40.0], []
     for beta in betas:
         rig = ep.EndoscopeRig.from_beta(beta, 2.0, point=(0, 0, 0.3), camera_resolution=(16, 16), cone_angle_deg=60)
@@ -74,8 +87,13 @@ def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
     for beta in betas:
         rig = ep.EndoscopeRig.from_beta(beta, 2.0, point=(0, 0, 0.3), camera_resolution=(16, 16), cone_angle_deg=60)
         row = {"beta_deg": beta}
-        add_visibility(row, ep.run(s, rig, photons=5_000, seed=2, spectral=True), beta,
-                       {"target": "polyp", "background": "wall", "width": 12, "height": 12}, out)
+        add_visibility(
+            row,
+            ep.run(s, rig, photons=5_000, seed=2, spectral=True),
+            beta,
+            {"target": "polyp", "background": "wall", "width": 12, "height": 12},
+            out,
+        )
         assert set(VISIBILITY_COLUMNS) <= set(row)
         hook_rows.append(row)
     paths = write_visibility_outputs(betas, hook_rows, out)
@@ -86,13 +104,19 @@ def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
 
 
 def test_sweep_with_visibility_writes_columns_views_plot_sheet_and_answer(tmp_path):
-    res = ep.sweep(ep.default_flat_scene(), betas=[0, 20, 40], store=3000, progress=False, out_dir=tmp_path,
-                   visibility={"target": "polyp", "background": "tissue", "width": 24, "height": 24})
+    res = ep.sweep(
+        ep.default_flat_scene(),
+        betas=[0, 20, 40],
+        store=3000,
+        progress=False,
+        out_dir=tmp_path,
+        visibility={"target": "polyp", "background": "tissue", "width": 24, "height": 24},
+    )
     for row in res.rows:
         assert row["target_pixels"] > 0 and row["background_pixels"] > 0
         assert math.isfinite(row["fluorescence_contrast"]) and row["fluorescence_contrast_stderr"] > 0
     header = (tmp_path / "sweep.csv").read_text().splitlines()[0].split(",")
-    assert header[-len(VISIBILITY_COLUMNS):] == list(VISIBILITY_COLUMNS)
+    assert header[-len(VISIBILITY_COLUMNS) :] == list(VISIBILITY_COLUMNS)
     for name in ("visibility.png", "views_contact_sheet.png", "views/beta20_fluorescence.png"):
         assert (tmp_path / name).exists(), name
     assert "## At which β is the polyp most visible?" in (tmp_path / "report.md").read_text()
@@ -107,9 +131,28 @@ def test_sweep_without_visibility_leaves_the_columns_undefined():
 def test_sweep_cli_target_needs_background(tmp_path):
     import subprocess
     import sys
+
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     env = dict(os.environ, PYTHONPATH=os.path.join(root, "python"))
-    p = subprocess.run([sys.executable, "-m", "endophoton", "sweep", "--betas", "0", "--store", "100",
-                        "--out", str(tmp_path), "--target", "polyp", "--no-progress"], env=env, capture_output=True,
-                       text=True, timeout=120)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "endophoton",
+            "sweep",
+            "--betas",
+            "0",
+            "--store",
+            "100",
+            "--out",
+            str(tmp_path),
+            "--target",
+            "polyp",
+            "--no-progress",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert p.returncode == 2 and "--background = None" in p.stderr
