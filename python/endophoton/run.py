@@ -84,6 +84,62 @@ def _require_finite(raw: dict, path: str = "result") -> None:
             raise RuntimeError(f"{path}.{k} = {v!r} is not finite (engine bug: please report)")
 
 
+def _check_arguments(
+    scene,
+    photons,
+    store,
+    target,
+    seed,
+    threads,
+    max_steps,
+    max_photons,
+    unit_size,
+    batches,
+    roulette_threshold,
+    roulette_chance,
+    max_path_cm,
+    time_budget_s,
+    record_escapes,
+    fluorescent_only,
+    safe_distance,
+    spectral,
+    fluorescence_rule,
+    lumen,
+) -> None:
+    """The checks of :func:`run`'s arguments: types, ranges and exclusive modes (ValueError names the field)."""
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene = {scene!r} must be an endophoton.Scene")
+    modes = [m for m, v in (("photons", photons), ("store", store), ("target", target)) if v is not None]
+    if not modes:
+        raise ValueError("photons = None: give photons > 0, store > 0 or a target")
+    if len(modes) > 1 and not (modes == ["photons", "target"]):
+        raise ValueError(f"{' and '.join(modes)} are exclusive: give one")
+    for name, v in (("photons", photons), ("store", store)):
+        if v is not None:
+            check_int(name, v, 1, MAX_PACKETS)
+    check_int("seed", seed, 0, 2**64 - 1)
+    check_int("threads", threads, 0, MAX_THREADS)
+    for name, v in (("max_steps", max_steps), ("max_photons", max_photons), ("unit_size", unit_size)):
+        check_int(name, v, 0, MAX_PACKETS)
+    check_int("batches", batches, 2, 1_000_000)
+    check_real("roulette_threshold", roulette_threshold, 0.0, 1.0)
+    check_real("roulette_chance", roulette_chance, 0.0, 1.0, lo_open=True)
+    check_real("max_path_cm", max_path_cm, 0.0, math.inf)
+    check_real("time_budget_s", time_budget_s, 0.0, math.inf)
+    for name, v in (
+        ("record_escapes", record_escapes),
+        ("fluorescent_only", fluorescent_only),
+        ("safe_distance", safe_distance),
+    ):
+        check_bool(name, v)
+    if spectral is not None:
+        check_bool("spectral", spectral)
+    if fluorescence_rule not in ("paper", "eem"):
+        raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
+    if not isinstance(lumen, bool):
+        raise ValueError(f"lumen = {lumen!r} must be True or False")
+
+
 def run(
     scene: Scene,
     source,
@@ -144,35 +200,28 @@ def run(
             raise ValueError(f"quality = {quality!r} replaces photons, store and target: give only one")
         preset = quality_preset(quality)
         target, max_photons = preset.target, preset.max_photons
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene = {scene!r} must be an endophoton.Scene")
-    modes = [m for m, v in (("photons", photons), ("store", store), ("target", target)) if v is not None]
-    if not modes:
-        raise ValueError("photons = None: give photons > 0, store > 0 or a target")
-    if len(modes) > 1 and not (modes == ["photons", "target"]):
-        raise ValueError(f"{' and '.join(modes)} are exclusive: give one")
-    for name, v in (("photons", photons), ("store", store)):
-        if v is not None:
-            check_int(name, v, 1, MAX_PACKETS)
-    check_int("seed", seed, 0, 2**64 - 1)
-    check_int("threads", threads, 0, MAX_THREADS)
-    for name, v in (("max_steps", max_steps), ("max_photons", max_photons), ("unit_size", unit_size)):
-        check_int(name, v, 0, MAX_PACKETS)
-    check_int("batches", batches, 2, 1_000_000)
-    check_real("roulette_threshold", roulette_threshold, 0.0, 1.0)
-    check_real("roulette_chance", roulette_chance, 0.0, 1.0, lo_open=True)
-    check_real("max_path_cm", max_path_cm, 0.0, math.inf)
-    check_real("time_budget_s", time_budget_s, 0.0, math.inf)
-    for name, v in (
-        ("record_escapes", record_escapes),
-        ("fluorescent_only", fluorescent_only),
-        ("safe_distance", safe_distance),
-    ):
-        check_bool(name, v)
-    if spectral is not None:
-        check_bool("spectral", spectral)
-    if fluorescence_rule not in ("paper", "eem"):
-        raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
+    _check_arguments(
+        scene,
+        photons,
+        store,
+        target,
+        seed,
+        threads,
+        max_steps,
+        max_photons,
+        unit_size,
+        batches,
+        roulette_threshold,
+        roulette_chance,
+        max_path_cm,
+        time_budget_s,
+        record_escapes,
+        fluorescent_only,
+        safe_distance,
+        spectral,
+        fluorescence_rule,
+        lumen,
+    )
     opts = dict(
         seed=seed,
         threads=threads,
@@ -199,8 +248,6 @@ def run(
         opts["max_photons"] = max_photons
     if time_budget_s:
         opts["time_budget_s"] = float(time_budget_s)
-    if not isinstance(lumen, bool):
-        raise ValueError(f"lumen = {lumen!r} must be True or False")
     if not lumen:
         opts["lumen"] = False
     if spectral:
