@@ -1,6 +1,7 @@
 """Running the engine and reading its results."""
 from __future__ import annotations
 
+import inspect
 import math
 import os
 from dataclasses import dataclass
@@ -140,61 +141,45 @@ def _check_arguments(
         raise ValueError(f"lumen = {lumen!r} must be True or False")
 
 
-def run(
-    scene: Scene,
-    source,
-    photons: int | None = None,
+#: run()'s parameters that say how to run, not what: not part of the engine request.
+_NOT_REQUEST = ("source", "progress", "cancel", "client", "chunk_units")
+
+
+def run_request(scene: Scene, source, **kwargs) -> dict:
+    """The engine request (checked) that ``run(scene, source, **kwargs)`` would make, without
+    running it: the sweep on a cluster (endophoton.distributed.run_many) starts all its runs from
+    these. Unknown keywords raise TypeError, as run() does."""
+    bound = inspect.signature(run).bind(scene, source, **kwargs)
+    bound.apply_defaults()
+    return _request(**{k: v for k, v in bound.arguments.items() if k not in _NOT_REQUEST})
+
+
+def _request(
     *,
-    store: int | None = None,
-    seed: int = 1,
-    threads: int = 0,
-    roulette_threshold: float = 1e-4,
-    roulette_chance: float = 0.1,
-    max_steps: int = 0,
-    max_path_cm: float = 0.0,
-    record_escapes: bool = True,
-    fluorescent_only: bool = False,
-    fluorescence_rule: str = "paper",
-    grids: GridRequest | None = None,
-    target: Target | None = None,
-    time_budget_s: float = 0.0,
-    max_photons: int = 0,
-    batches: int = 50,
-    spectral: bool | None = None,
-    safe_distance: bool = True,
-    unit_size: int = 0,
-    quality: str | None = None,
-    progress=None,
-    cancel=None,
-    lumen: bool = True,
-    client=None,
-    chunk_units: int = 0,
-) -> Result:
-    """Trace photon packets through ``scene`` from ``source``.
-
-    Exactly one of ``photons`` (launch that many packets), ``store`` (launch
-    until that many escape records are stored; the seed's "store N") or
-    ``target`` (until the relative standard error of a tally reaches the target)
-    chooses when to stop. The run releases the GIL; ``progress(done, total)`` is
-    called about 10 times a second from the calling thread and may return False
-    to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
-    partial result then has ``cancelled=True``.
-
-    ``client`` (a dask.distributed.Client) traces the packets on its workers in
-    chunks of ``chunk_units`` units (0 = automatic) and gives bit-for-bit the
-    result of a local run with the same seed (endophoton.distributed).
-
-    ``quality`` ("preview", "standard", "reference") is a shortcut for a target
-    accuracy with a packet cap (endophoton.quality); it cannot be combined with
-    ``photons``, ``store`` or ``target``.
-
-    ``lumen`` (default True): packets that leave the tissue go on through the
-    ambient and land on the region or rig head they meet (docs/design.md,
-    "Light crosses the lumen"); False ends every packet at its first exit, as
-    the engine did before (for comparisons and benchmarks).
-
-    Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
-    """
+    scene,
+    photons,
+    store,
+    seed,
+    threads,
+    roulette_threshold,
+    roulette_chance,
+    max_steps,
+    max_path_cm,
+    record_escapes,
+    fluorescent_only,
+    fluorescence_rule,
+    grids,
+    target,
+    time_budget_s,
+    max_photons,
+    batches,
+    spectral,
+    safe_distance,
+    unit_size,
+    quality,
+    lumen,
+) -> dict:
+    """The checked options of run() as the engine's RunConfig takes them."""
     if quality is not None:
         if photons is not None or store is not None or target is not None:
             raise ValueError(f"quality = {quality!r} replaces photons, store and target: give only one")
@@ -256,6 +241,65 @@ def run(
         opts["grid_voxel_size"] = float(grids.voxel_size)
         opts["grid_path"] = os.fspath(grids.path)
         opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
+    return opts
+
+
+def run(
+    scene: Scene,
+    source,
+    photons: int | None = None,
+    *,
+    store: int | None = None,
+    seed: int = 1,
+    threads: int = 0,
+    roulette_threshold: float = 1e-4,
+    roulette_chance: float = 0.1,
+    max_steps: int = 0,
+    max_path_cm: float = 0.0,
+    record_escapes: bool = True,
+    fluorescent_only: bool = False,
+    fluorescence_rule: str = "paper",
+    grids: GridRequest | None = None,
+    target: Target | None = None,
+    time_budget_s: float = 0.0,
+    max_photons: int = 0,
+    batches: int = 50,
+    spectral: bool | None = None,
+    safe_distance: bool = True,
+    unit_size: int = 0,
+    quality: str | None = None,
+    progress=None,
+    cancel=None,
+    lumen: bool = True,
+    client=None,
+    chunk_units: int = 0,
+) -> Result:
+    """Trace photon packets through ``scene`` from ``source``.
+
+    Exactly one of ``photons`` (launch that many packets), ``store`` (launch
+    until that many escape records are stored; the seed's "store N") or
+    ``target`` (until the relative standard error of a tally reaches the target)
+    chooses when to stop. The run releases the GIL; ``progress(done, total)`` is
+    called about 10 times a second from the calling thread and may return False
+    to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
+    partial result then has ``cancelled=True``.
+
+    ``client`` (a dask.distributed.Client) traces the packets on its workers in
+    chunks of ``chunk_units`` units (0 = automatic) and gives bit-for-bit the
+    result of a local run with the same seed (endophoton.distributed).
+
+    ``quality`` ("preview", "standard", "reference") is a shortcut for a target
+    accuracy with a packet cap (endophoton.quality); it cannot be combined with
+    ``photons``, ``store`` or ``target``.
+
+    ``lumen`` (default True): packets that leave the tissue go on through the
+    ambient and land on the region or rig head they meet (docs/design.md,
+    "Light crosses the lumen"); False ends every packet at its first exit, as
+    the engine did before (for comparisons and benchmarks).
+
+    Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
+    """
+    opts = _request(**{k: v for k, v in locals().items() if k not in _NOT_REQUEST})
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 
