@@ -204,3 +204,111 @@ def test_sweep_on_two_workers_matches_the_local_sweep_csv(client, tmp_path):
     dist, local = rows("dist"), rows("local")
     assert len(dist) == 2 and dist == local  # every column but the wall-clock seconds, as text
     assert all(int(r["cancelled"]) == 0 for r in dist)
+
+
+def _csv_rows(path):
+    """The sweep CSV's rows as text, without the wall-clock ``seconds``."""
+    import csv
+
+    with open(path, newline="") as fh:
+        return [{k: v for k, v in r.items() if k != "seconds"} for r in csv.DictReader(fh)]
+
+
+def _run_ids(client):
+    """The runs (by task-key prefix) with chunk tasks held by ``client`` right now."""
+    return {k.rsplit("-", 1)[0] for k in client.futures if k.startswith("endophoton-units-")}
+
+
+def test_sweep_angles_run_at_once_and_give_the_local_sweep(client, tmp_path):
+    """All angles' chunks are in flight together (seen when the first chunk is merged,
+    before any run could have ended); the CSV and every histogram and batch value equal
+    the local sweep's; on_beta comes in beta order; the chunk count adds up."""
+    scene, _ = fluorescent_endoscope()
+    kw = dict(betas=[0, 20, 40], store=300, seed=6, plots=False, report=False)
+    in_flight, calls, chunk_calls, order = [], [], [], []
+
+    def progress(i, n, done, total):
+        if not in_flight:
+            in_flight.append(_run_ids(client))
+        calls.append((i, n, done))
+
+    dist = ep.sweep(
+        scene,
+        out_dir=tmp_path / "dist",
+        client=client,
+        chunk_units=2,
+        progress=progress,
+        on_chunks=lambda merged, total: chunk_calls.append((merged, total)),
+        on_beta=lambda i, n, row: order.append(i),
+        **kw,
+    )
+    local = ep.sweep(scene, out_dir=tmp_path / "local", threads=1, progress=False, **kw)
+    assert len(in_flight[0]) == 3  # the three angles' runs were all in flight at once
+    assert {i for i, n, _ in calls} == {0, 1, 2} and all(n == 3 for _, n, _ in calls)
+    assert order == [0, 1, 2]
+    merged = [m for m, _ in chunk_calls]
+    assert merged == sorted(merged) and chunk_calls[-1][0] == chunk_calls[-1][1]
+    units = [r["packets_traced"] for r in dist.rows]
+    rd, rl = _csv_rows(tmp_path / "dist" / "sweep.csv"), _csv_rows(tmp_path / "local" / "sweep.csv")
+    assert len(rd) == 3 and rd == rl
+    for hd, hl in zip(dist.histograms, local.histograms):
+        for k in hd:
+            assert np.array_equal(np.asarray(hd[k]), np.asarray(hl[k]), equal_nan=True), k
+    for bd, bl in zip(dist.batches, local.batches):
+        for k in bd:
+            assert np.array_equal(np.asarray(bd[k]), np.asarray(bl[k]), equal_nan=True), k
+    assert not dist.meta["cancelled"] and units == [r["packets_traced"] for r in local.rows]
+    assert len(set(units)) > 1  # the angles' runs did not all stop at the same packet
+
+
+def test_cancelling_a_cluster_sweep_cancels_its_tasks(client):
+    """A cancel after the first merged chunk ends the sweep at its first angle (no
+    angle can have stored 20 000 records from one 1024-packet unit) and leaves no
+    chunk task queued or running on the cluster."""
+    scene, _ = fluorescent_endoscope()
+    token = ep.CancelToken()
+
+    def progress(i, n, done, total):
+        token.cancel()
+        return True
+
+    res = ep.sweep(
+        scene,
+        betas=[0, 20, 40],
+        store=20000,
+        seed=1,
+        client=client,
+        chunk_units=1,
+        progress=progress,
+        cancel=token,
+        plots=False,
+        report=False,
+    )
+    assert res.meta["cancelled"] and res.meta["cancelled_at_beta"] == 0
+    assert len(res.rows) <= 1 and all(r["cancelled"] == 1 for r in res.rows)
+
+    def live_chunks(dask_scheduler):
+        waiting = ("waiting", "queued", "no-worker", "processing")
+        return [k for k, ts in dask_scheduler.tasks.items() if "endophoton-units-" in str(k) and ts.state in waiting]
+
+    assert client.run_on_scheduler(live_chunks) == []
+
+
+def test_cli_sweep_on_local2_matches_the_local_cli_sweep(tmp_path):
+    common = ["sweep", "--betas", "0,30", "--store", "200", "--seed", "3", "--batches", "10"]
+    dist = cli(*common, "--scheduler", "local:2", "--out", str(tmp_path / "dist"))
+    assert dist.returncode == 0, dist.stderr
+    local = cli(*common, "--threads", "1", "--no-progress", "--out", str(tmp_path / "local"))
+    assert local.returncode == 0, local.stderr
+    assert "chunk" in dist.stderr  # the tqdm bar counts chunks over all angles
+    rows = _csv_rows(tmp_path / "dist" / "sweep.csv")
+    assert len(rows) == 2 and rows == _csv_rows(tmp_path / "local" / "sweep.csv")
+
+
+def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
+    out = cli(
+        "sweep", "--betas", "0", "--store", "100", "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "o")
+    )
+    assert out.returncode == 2
+    assert "tcp://127.0.0.1:9" in out.stderr and "cannot connect" in out.stderr
+    assert "Traceback" not in out.stderr and not (tmp_path / "o").exists()
