@@ -23,6 +23,7 @@ and a rerun chunk gives the same bytes.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import math
 import os
@@ -96,7 +97,14 @@ def _check_chunk_units(chunk_units) -> None:
 
 class _ChunkedRun:
     """One run on the cluster: its chunks are submitted in a window ahead of the
-    merge point and merged, in unit order, by the engine's own UnitReducer."""
+    merge point and merged, in unit order, by the engine's own UnitReducer.
+
+    Chunk sizes do not change any result (units do), so a run whose length is
+    unknown ("store N", target) sizes its chunks as it goes: they double from one
+    unit up to about OPEN_CHUNK_PACKETS packets, and a store run with records
+    merged sends only what its record rate says it still needs (+10 %) beyond
+    the units in flight, so a short store run does not trace a window of large
+    chunks it will discard."""
 
     def __init__(self, client, native_scene, scene_future, lights, body, options, chunk_units, threads, progress):
         self.client, self.scene_future = client, scene_future
@@ -107,30 +115,53 @@ class _ChunkedRun:
         self.unit_size, self.n_units = _core.unit_plan(native_scene, native_source, config)
         self.fixed = "photons" in options
         self.chunk = chunk_units or default_chunk_units(self.n_units, self.unit_size, self.fixed, threads)
-        self.n_chunks = math.ceil(self.n_units / self.chunk)
-        self.window = self.n_chunks if self.fixed else WINDOW_PER_THREAD * threads
+        self.adaptive = not (self.fixed or chunk_units)
+        self.window = math.ceil(self.n_units / self.chunk) if self.fixed else WINDOW_PER_THREAD * threads
         self.total = int(options["photons"]) if self.fixed else 0
         self.progress = progress
         self.threads = threads
         self.key = f"endophoton-units-{uuid.uuid4().hex[:12]}"
-        self.futures: dict[int, object] = {}
-        self.next_submit = self.next_merge = 0
+        self.pending: collections.deque = collections.deque()  # (first unit, units, future), in unit order
+        self.next_unit = self.merged_to = self.merged_chunks = self.submitted_chunks = 0  # merged_to: merge point
         self.halted = False  # its progress callback returned False
 
     @property
     def done(self) -> bool:
-        return self.halted or self.reducer.stopped or self.next_merge >= self.n_chunks
+        return self.halted or self.reducer.stopped or self.merged_to >= self.n_units
 
     @property
     def front(self):
         """The future of the next chunk to merge."""
-        return self.futures[self.next_merge]
+        return self.pending[0][2]
+
+    def _units_needed(self) -> int | None:
+        """Units a store run still needs beyond those in flight (+10 %), from its record
+        rate so far; None while unknown (other runs, or no record merged yet)."""
+        store, records, merged = self.options.get("store", 0), self.reducer.records, self.reducer.merged_units
+        if not (store and records and merged):
+            return None
+        return math.ceil(1.1 * (store - records) * merged / records) - (self.next_unit - self.merged_to)
+
+    def _next_count(self) -> int:
+        """Units of the next chunk (0: none needed now)."""
+        if not self.adaptive:
+            return self.chunk
+        size = min(self.chunk, 2**self.submitted_chunks)
+        needed = self._units_needed()
+        if needed is not None:
+            if needed <= 0:
+                return 0 if self.pending else 1
+            size = min(self.chunk, max(1, math.ceil(needed / self.window)))
+        return size
 
     def submit(self) -> None:
-        """Keeps ``window`` chunks in flight ahead of the merge point."""
-        while not self.done and self.next_submit < self.n_chunks and self.next_submit - self.next_merge < self.window:
-            first = self.next_submit * self.chunk
-            self.futures[self.next_submit] = self.client.submit(
+        """Keeps up to ``window`` chunks in flight ahead of the merge point."""
+        while not self.done and self.next_unit < self.n_units and len(self.pending) < self.window:
+            count = min(self._next_count(), self.n_units - self.next_unit)
+            if count <= 0:
+                return
+            first = self.next_unit
+            future = self.client.submit(
                 trace_chunk,
                 self.scene_future,
                 self.scene_future.key,
@@ -138,11 +169,13 @@ class _ChunkedRun:
                 self.body,
                 self.options,
                 first,
-                min(self.chunk, self.n_units - first),
+                count,
                 key=f"{self.key}-{first}",
                 pure=False,
             )
-            self.next_submit += 1
+            self.pending.append((first, count, future))
+            self.next_unit += count
+            self.submitted_chunks += 1
 
     def merge_ready(self, cancel) -> int:
         """Merges the finished chunks at the merge point, in order, until ``cancel``
@@ -150,18 +183,18 @@ class _ChunkedRun:
         cancelled."""
         merged = 0
         while not self.done and not (cancel is not None and cancel.cancelled) and self.front.done():
-            version, data = self.futures.pop(self.next_merge).result()
+            first, expected, future = self.pending.popleft()
+            version, data = future.result()
             if version != _core.__version__:
                 raise RuntimeError(
                     f"a worker runs endophoton engine {version!r}, this client {_core.__version__!r}: "
                     "install the same build on every worker (docs/distributed.md)"
                 )
-            first = self.next_merge * self.chunk
             _, got = self.reducer.add(data)
-            expected = min(self.chunk, self.n_units - first)
             if got != expected:
                 raise RuntimeError(f"chunk of units {first}..{first + expected - 1} came back with {got} units")
-            self.next_merge += 1
+            self.merged_to += expected
+            self.merged_chunks += 1
             merged += 1
             done = self.reducer.merged_units * self.unit_size
             done = min(done, self.total) if self.fixed else done
@@ -174,19 +207,20 @@ class _ChunkedRun:
 
     def chunks_estimate(self) -> int:
         """Chunks this run will merge: exact for a fixed count or once done; for a
-        "store N" run extrapolated from the records per merged chunk so far."""
+        "store N" run extrapolated from its record rate so far."""
         if self.done:
-            return self.next_merge
+            return self.merged_chunks
+        known = self.merged_chunks + len(self.pending)
         if self.fixed:
-            return self.n_chunks
-        store, records = self.options.get("store", 0), self.reducer.records
-        if store and records and self.next_merge:
-            return min(self.n_chunks, max(self.next_merge + 1, math.ceil(self.next_merge * store / records)))
-        return max(self.next_submit, self.next_merge + 1)
+            return known + math.ceil((self.n_units - self.next_unit) / self.chunk)
+        needed = self._units_needed()
+        if needed is None or needed <= 0:
+            return known
+        return known + math.ceil(needed / max(1, self._next_count() if self.adaptive else self.chunk))
 
     def cancel(self) -> None:
-        self.client.cancel(list(self.futures.values()))
-        self.futures.clear()
+        self.client.cancel([future for _, _, future in self.pending])
+        self.pending.clear()
 
     def finish(self) -> dict:
         return self.reducer.finish(self.threads)
