@@ -101,10 +101,10 @@ class _ChunkedRun:
 
     Chunk sizes do not change any result (units do), so a run whose length is
     unknown ("store N", target) sizes its chunks as it goes: they double from one
-    unit up to about OPEN_CHUNK_PACKETS packets, and a store run with records
-    merged sends only what its record rate says it still needs (+10 %) beyond
-    the units in flight, so a short store run does not trace a window of large
-    chunks it will discard."""
+    unit up to about OPEN_CHUNK_PACKETS packets; a store run sends one unit first
+    and then only what its record rate says it still needs (+10 %) beyond the
+    units in flight, so a short store run does not trace a window of large
+    chunks it would discard."""
 
     def __init__(self, client, native_scene, scene_future, lights, body, options, chunk_units, threads, progress):
         self.client, self.scene_future = client, scene_future
@@ -148,6 +148,8 @@ class _ChunkedRun:
             return self.chunk
         size = min(self.chunk, 2**self.submitted_chunks)
         needed = self._units_needed()
+        if needed is None and self.options.get("store") and self.merged_to == 0 and self.pending:
+            return 0  # a store run's first unit measures its record rate before more are sent
         if needed is not None:
             if needed <= 0:
                 return 0 if self.pending else 1
