@@ -175,7 +175,7 @@ class _Progress:
     def engine(self, done: int, total: int):
         """Engine progress callback; returns the user callback's value (False stops the run)."""
         now = time.monotonic()
-        if self.bar is not None and now - self._last > 0.5:
+        if self.bar is not None and not self._chunks and now - self._last > 0.5:
             self._last = now
             self.bar.set_postfix_str(f"{done:,}/{total:,}" if total else f"{done:,} packets")
         if self.user is not None:
