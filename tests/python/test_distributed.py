@@ -332,3 +332,37 @@ def test_cli_sweep_blend_on_local2_runs_on_the_cluster(tmp_path):
     rows = _csv_rows(tmp_path / "o" / "sweep.csv")
     assert [float(r["beta_deg"]) for r in rows] == [0.0, 20.0] and all(r["records"] == "400" for r in rows)
     assert all(r["cancelled"] == "0" for r in rows)
+
+
+def test_run_many_fixed_store_and_target_at_once_each_match_their_local_run(client, tmp_path):
+    """Three runs with different stop rules in flight together (two share one scene, the
+    third has its own): each is merged in its own unit order and stops where it stops
+    locally, grids included."""
+    from endophoton.run import Result, run_request
+
+    scene, rig = fluorescent_endoscope()
+    other, _ = fluorescent_endoscope()  # a second scene object: scattered separately
+    grid = ep.GridRequest(voxel_size=0.05, path=str(tmp_path / "many.vdb"))
+    kws = [
+        dict(photons=2500, seed=8, grids=grid),
+        dict(store=250, fluorescent_only=True, seed=8),
+        dict(target=ep.Target("diffuse_reflectance", 0.08), seed=8, record_escapes=False),
+    ]
+    scenes = [scene, scene, other]
+    requests = [(s, rig, run_request(s, rig, **kw), None) for s, kw in zip(scenes, kws)]
+    finished = []
+    raws = distributed.run_many(client, requests, on_finished=lambda i, raw: finished.append(i))
+    assert sorted(finished) == [0, 1, 2]
+    dist = [Result(raw, s, rig, req[2]) for raw, s, req in zip(raws, scenes, requests)]
+    grid_local = ep.GridRequest(voxel_size=0.05, path=str(tmp_path / "local.vdb"))
+    local = [
+        ep.run(scene, rig, threads=1, photons=2500, seed=8, grids=grid_local),
+        ep.run(scene, rig, threads=1, **kws[1]),
+        ep.run(other, rig, threads=1, **kws[2]),
+    ]
+    for d, loc in zip(dist, local):
+        assert_same_result(d, loc)
+    assert [d.stop_reason for d in dist][1:] == ["store", "target"]
+    a, _, _ = grid_to_numpy(dist[0].grid_path, "absorbed")
+    b, _, _ = grid_to_numpy(local[0].grid_path, "absorbed")
+    assert np.array_equal(a, b)
