@@ -15,7 +15,10 @@ Everything the run creates is tagged with the run id (ID property
 ``endophoton_run``) so a re-run removes exactly that.
 """
 
+import os
+
 import bpy
+import mathutils
 import numpy as np
 
 from . import colour_maps
@@ -532,8 +535,58 @@ def set_volume_scale(collection, settings):
                     node.outputs[0].default_value = value
 
 
-def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id):
-    """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units)."""
+# Why Cycles needs its own copy of the grids (Blender 3.4, intern/cycles/scene/volume.cpp):
+# Cycles bounds a volume by a mesh around its active leaf nodes, and shifts every vertex of
+# that mesh by 0.1 * hash(datablock name) / (active voxels along the axis) *in the grid's
+# own units*, "to avoid overlapping faces".  The offset is meant to be a tiny fraction of a
+# voxel, which it is only when a voxel is about one unit.  The engine's grids are in metres
+# (0.5 mm voxels), so the shift is up to 0.1 / 14 m = 7 mm = 14 voxels for a grid 14 voxels
+# deep: the bounding mesh misses the data, and which grids render empty follows the
+# datablock's name (renaming one changes it), never the data.  The copy below keeps the
+# values and uses voxel index space (voxel size 1) as grid space; the Volume object's
+# matrix carries the index -> metres -> Blender units transform instead, so the shift is
+# at most 0.1 / dim of a voxel.
+RENDER_GRID_SUFFIX = ".cycles.vdb"
+
+
+def render_grid_path(path):
+    """The Cycles copy of the run's .vdb ``path`` (see RENDER_GRID_SUFFIX)."""
+    return os.path.splitext(path)[0] + RENDER_GRID_SUFFIX
+
+
+def write_render_grids(path):
+    """Write :func:`render_grid_path` of ``path`` (no bpy: the worker thread calls it).
+
+    Returns {grid name: its index -> metres matrix (4x4 rows)}, or {} without pyopenvdb
+    (the Volume objects then load ``path`` itself)."""
+    try:
+        import pyopenvdb
+    except ImportError:
+        return {}
+    grids, metadata = pyopenvdb.readAll(path)
+    matrices = {}
+    for grid in grids:
+        origin = np.array(grid.transform.indexToWorld((0, 0, 0)), dtype=np.float64)
+        matrix = np.eye(4)
+        for axis in range(3):
+            unit = [0, 0, 0]
+            unit[axis] = 1
+            matrix[:3, axis] = np.array(grid.transform.indexToWorld(unit)) - origin
+        matrix[:3, 3] = origin
+        matrices[grid.name] = matrix.tolist()
+        grid.transform = pyopenvdb.createLinearTransform(voxelSize=1.0)
+    target = render_grid_path(path)
+    partial = f"{target}.{os.getpid()}.partial.vdb"
+    pyopenvdb.write(partial, grids=grids, metadata=metadata)
+    os.replace(partial, target)
+    return matrices
+
+
+def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id, index_matrix=None):
+    """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units).
+
+    ``index_matrix``: the grid's index -> metres matrix when ``path`` is the Cycles copy
+    written by :func:`write_render_grids` (grid space = voxel index space)."""
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
     volume.filepath = path
@@ -553,7 +606,10 @@ def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id):
     obj["endophoton_grid"] = grid_name
     obj["endophoton_grid_max"] = float(vmax)
     inv = 1.0 / scale_length
-    obj.scale = (inv, inv, inv)
+    if index_matrix is None:
+        obj.scale = (inv, inv, inv)
+    else:
+        obj.matrix_world = mathutils.Matrix(np.diag([inv, inv, inv, 1.0]) @ np.asarray(index_matrix))
     return obj
 
 
@@ -565,7 +621,7 @@ def run_files(collection):
     """Files the run wrote that only it uses: its .vdb (a fresh name per run)."""
     summary = collection.get(SUMMARY_KEY)
     path = summary.get("grid_path", "") if summary is not None else ""
-    return [path] if path else []
+    return [path, render_grid_path(path)] if path else []
 
 
 def remove_run(collection):
@@ -601,8 +657,10 @@ def _unique_run_id(inputs):
     return run_id
 
 
-def apply_result(context, inputs, result, grid_info=()):
+def apply_result(context, inputs, result, grid_info=(), render_grids=None):
     """Build the run's collection from an engine Result (main thread only).
+
+    ``render_grids``: what :func:`write_render_grids` returned for the run's .vdb.
 
     Everything is checked first; the previous run's collection is replaced
     only once the new one can be built.
@@ -648,14 +706,16 @@ def apply_result(context, inputs, result, grid_info=()):
         for grid_name, _active, vmax in grids:
             if grid_name is None:
                 grid_name = _first_grid_name(grid_path)
+            index_matrix = (render_grids or {}).get(grid_name)
             obj = create_volume(
                 f"EP Grid {grid_name} {beta}",
-                grid_path,
+                grid_path if index_matrix is None else render_grid_path(grid_path),
                 grid_name,
                 vmax,
                 inputs.grid_voxel_m,
                 inputs.scale_length,
                 run_id,
+                index_matrix=index_matrix,
             )
             collection.objects.link(obj)
         set_volume_scale(collection, settings)

@@ -321,6 +321,7 @@ class SimulationJob(BackgroundJob):
         self.error = None
         self.error_traceback = None
         self.grid_info = []  # [(name, active voxel count, max value)] read in the worker
+        self.render_grids = {}  # results.write_render_grids: {grid name: index -> metres matrix}
         self._lock = threading.Lock()
         self._progress = (0, inputs.count if inputs.kind == "photons" else 0)
         self._t0 = None
@@ -365,6 +366,9 @@ class SimulationJob(BackgroundJob):
         grid_path = getattr(self.result, "grid_path", None)
         if grid_path and not getattr(self.result, "cancelled", False):
             self.grid_info = read_grid_info(grid_path)
+            from . import results
+
+            self.render_grids = results.write_render_grids(grid_path)
 
 
 def cluster_client(stack, ep, address):
@@ -426,15 +430,18 @@ def finish_job(context, job):
     if job.result is None or getattr(job.result, "cancelled", False):
         _discard_partial_grid(job)
         return None
-    return results.apply_result(context, job.inputs, job.result, job.grid_info)
+    return results.apply_result(context, job.inputs, job.result, job.grid_info, job.render_grids)
 
 
 def _discard_partial_grid(job):
     """A cancelled run may still have written its (partial) grid file: remove
     it, it is ours (a fresh name per run) and nothing refers to it."""
+    from . import results
+
     path = job.inputs.grid_path
-    if path and os.path.isfile(path):
-        os.remove(path)
+    for name in (path, results.render_grid_path(path)) if path else ():
+        if os.path.isfile(name):
+            os.remove(name)
 
 
 def report_finished(context, job):
