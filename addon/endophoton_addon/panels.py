@@ -144,6 +144,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         col = layout.column(heading="Outputs")
         col.prop(s, "output_points")
         col.prop(s, "output_grids")
+        col.prop(s, "output_views")
         sub = col.column()
         sub.active = s.output_grids
         sub.prop(s, "voxel_size")

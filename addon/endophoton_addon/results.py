@@ -613,6 +613,65 @@ def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id, in
     return obj
 
 
+VIEW_KEY = "endophoton_view"  # on an endoscope-view Image: which image of the View it holds
+VIEWS_KEY = "endophoton_views"  # on the run's collection: the names of its view Images
+VIEW_IMAGES = ("white", "fluorescence")
+
+
+def view_pixels(view, name):
+    """RGBA float32 rows bottom-up (Blender's order) of ``view.images[name]``: the linear
+    sRGB radiance times the image's exposure, unclipped (NaN -> 0), so the Image shows
+    what ``srgb8`` encodes and pixel / exposure is the radiance."""
+    image = view.images[name]
+    rgba = np.ones((view.height, view.width, 4), dtype=np.float32)
+    rgba[..., :3] = np.nan_to_num(np.asarray(image["rgb"], dtype=np.float64) * float(image["exposure"]))
+    return rgba[::-1]
+
+
+def view_info(view, name):
+    """What the view Image carries as ID properties besides its pixels."""
+    return {
+        "exposure": float(view.images[name]["exposure"]),
+        "width": int(view.width),
+        "height": int(view.height),
+        "packets": int(view.packets),
+        "kernel_radius_m": float(view.kernel["radius"]),
+        "kernel_angle_deg": float(view.kernel["angle_deg"]),
+        "emission_filter": str(view.emission_filter),
+        "white_balance": str(view.white_balance),
+    }
+
+
+def create_view_images(collection, view, label):
+    """The rig camera's images (``ep.View``) as float Images tagged with the run:
+    packed and kept with a fake user (saved with the .blend), removed by remove_run."""
+    names = []
+    for name in VIEW_IMAGES:
+        image = bpy.data.images.new(f"EP View {name} {label}", view.width, view.height, alpha=True, float_buffer=True)
+        image.colorspace_settings.name = "Linear"
+        image.pixels.foreach_set(view_pixels(view, name).ravel())
+        image.pack()
+        image.use_fake_user = True
+        image[RUN_KEY] = collection[RUN_KEY]
+        image[VIEW_KEY] = name
+        image["endophoton_collection"] = collection.name
+        image[PARAMS_KEY] = collection[PARAMS_KEY]
+        image["endophoton_view_info"] = view_info(view, name)
+        names.append(image.name)
+    collection[VIEWS_KEY] = names
+    return [bpy.data.images[n] for n in names]
+
+
+def view_images(collection):
+    """The run's endoscope-view Images, by VIEW_KEY."""
+    run_id = collection.get(RUN_KEY)
+    return {
+        im[VIEW_KEY]: im
+        for im in bpy.data.images
+        if run_id is not None and im.get(RUN_KEY) == run_id and VIEW_KEY in im
+    }
+
+
 def result_collections(scene):
     return [c for c in scene.collection.children_recursive if c.get(RESULT_KEY)]
 
@@ -637,7 +696,7 @@ def remove_run(collection):
             bpy.data.objects.remove(obj)
     for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials, bpy.data.images):
         for block in list(datablocks):
-            if run_id is not None and block.get(RUN_KEY) == run_id and block.users == 0:
+            if run_id is not None and block.get(RUN_KEY) == run_id and block.users == int(block.use_fake_user):
                 datablocks.remove(block)
     bpy.data.collections.remove(collection)
 
@@ -657,10 +716,11 @@ def _unique_run_id(inputs):
     return run_id
 
 
-def apply_result(context, inputs, result, grid_info=(), render_grids=None):
+def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=None):
     """Build the run's collection from an engine Result (main thread only).
 
-    ``render_grids``: what :func:`write_render_grids` returned for the run's .vdb.
+    ``render_grids``: what :func:`write_render_grids` returned for the run's .vdb;
+    ``view``: the rig camera's ``ep.View`` (simulation.endoscope_view), made into Images.
 
     Everything is checked first; the previous run's collection is replaced
     only once the new one can be built.
@@ -721,6 +781,8 @@ def apply_result(context, inputs, result, grid_info=(), render_grids=None):
         set_volume_scale(collection, settings)
         collection[SUMMARY_KEY] = summary
         collection[PARAMS_KEY] = run_parameters(inputs)
+        if view is not None:
+            create_view_images(collection, view, f"{beta} {inputs.timestamp}")
     except Exception:
         remove_run(collection)
         raise
