@@ -434,6 +434,22 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         items=lambda self, context: _name_items(self, "region"),
         update=_display_changed,
     )
+    filter_toward_camera: BoolProperty(
+        name="Toward Camera",
+        description="Show only records leaving toward the scene's camera (exit direction within the "
+        "cone below around the direction to the camera): the light the camera records",
+        default=False,
+        update=_display_changed,
+    )
+    camera_cone_deg: FloatProperty(
+        name="Camera Cone",
+        description="Half angle of the cone around the direction to the camera, degrees "
+        "(ep.render_view's kernel angle)",
+        default=15.0,
+        min=0.1,
+        max=90.0,
+        update=_display_changed,
+    )
     volume_scale: EnumProperty(
         name="Volume Scale",
         items=(

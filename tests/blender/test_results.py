@@ -99,32 +99,31 @@ def test_point_cloud_rejects_mismatched_columns():
     assert len(bpy.data.meshes) == before
 
 
-# CIE 1931 2° colour-matching functions, tabulated (CIE 15): nm -> (x̄, ȳ, z̄).
-CIE_TABLE = {
-    450: (0.3362, 0.0380, 1.7721),
-    500: (0.0049, 0.3230, 0.2720),
-    550: (0.4334, 0.9950, 0.0087),
-    600: (1.0622, 0.6310, 0.0008),
-    650: (0.2835, 0.1070, 0.0000),
-}
+# IEC 61966-2-1 XYZ -> linear sRGB, and CIE 1931 (CIE 15 table) at three lines.
+SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+CIE_TABLE = {450: (0.3362, 0.0380, 1.7721), 530: (0.1655, 0.8620, 0.0422), 630: (0.6424, 0.2650, 0.0000)}
 
 
-def test_wavelength_colour_follows_cie_1931():
-    """The analytic CMF fit matches the CIE table (Wyman et al. report a few %
-    error), and the display colour has the hue of the spectral line: red at
-    photofrin's 630 nm, green at 530 nm, blue at collagen's 450 nm."""
+def test_wavelength_colour_is_the_packages_conversion(ep):
+    """One owner: the add-on's wavelength colour is endophoton.colour's CIE 1931 -> white-balanced
+    linear sRGB (negatives clipped); the hue of each spectral line is that of the CIE table's XYZ
+    through the IEC matrix (recomputed here): red at photofrin's 630 nm, green at 530 nm, blue at
+    collagen's 450 nm; the legend swatches keep the hue with largest channel 1."""
     from endophoton_addon import colour_maps
 
-    nm = np.array(sorted(CIE_TABLE))
-    np.testing.assert_allclose(colour_maps.cie_xyz(nm), np.array([CIE_TABLE[k] for k in nm]), atol=0.04)
-    rgb = colour_maps.wavelength_colours([630.0, 530.0, 450.0])
-    assert rgb.argmax(axis=1).tolist() == [0, 1, 2]
-    assert rgb[0, 1] < 0.1 * rgb[0, 0]  # 630 nm is red, not orange
-    deep_red = colour_maps.wavelength_colours([690.0, 720.0, 760.0])
-    assert np.all(deep_red[:, 0] > 5 * deep_red[:, 1])  # photofrin's 690 nm band stays red
-    assert np.all(rgb >= 0) and np.all(rgb <= 1)
+    nm = np.array(sorted(CIE_TABLE), dtype=float)
+    gains = ep.colour.white_balance_gains(None)
+    rgb = colour_maps.wavelength_rgb(nm)
+    table = np.maximum((np.array([CIE_TABLE[k] for k in sorted(CIE_TABLE)]) * gains) @ SRGB.T, 0.0)
+    np.testing.assert_allclose(rgb, table, atol=0.1)
+    assert rgb.argmax(axis=1).tolist() == [2, 1, 0]
+    assert rgb[2, 1] < 0.1 * rgb[2, 0]  # 630 nm is red, not orange
+    swatches = colour_maps.wavelength_swatches([450.0, 530.0, 630.0, 690.0])
+    np.testing.assert_allclose(swatches.max(axis=1)[:3], 1.0)
+    assert swatches[3, 0] > 5 * swatches[3, 1]  # photofrin's 690 nm band stays red
+    assert np.all(swatches >= 0) and np.all(swatches <= 1)
     # Outside the visible range: black.
-    assert np.all(colour_maps.wavelength_colours([300.0, 900.0]) == 0)
+    assert np.all(colour_maps.wavelength_swatches([300.0, 900.0]) < 1e-6)
 
 
 def _points_in_collection(rec):
