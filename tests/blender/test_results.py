@@ -303,3 +303,32 @@ def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
 
     assert ramp("absorbed") != ramp("fluorescence")
     assert ramp("absorbed")[-1] == pytest.approx(results.GRID_RAMPS["absorbed"][-1])
+
+
+def test_wavelength_colour_without_package_says_so_in_panel(tmp_path):
+    """The add-on registers and draws without the package; colouring points by wavelength then
+    needs endophoton.colour and leaves a plain message in the legend instead of a traceback."""
+    import sys
+
+    from endophoton_addon import colour_maps, package_finder
+    from conftest import ensure_addon
+
+    obj = _points_in_collection(_records(np.random.default_rng(5), k=50))
+    settings = bpy.context.scene.endophoton
+    saved = {k: v for k, v in sys.modules.items() if k == "endophoton" or k.startswith("endophoton.")}
+    for k in saved:
+        del sys.modules[k]
+    try:
+        ensure_addon(package_path=str(tmp_path))  # a folder without the package
+        package_finder.forget()
+        with pytest.raises(package_finder.EngineMissing, match="EndoPhoton engine not found"):
+            colour_maps.wavelength_rgb([500.0])
+        settings.color_by = "WAVELENGTH"
+        assert results.recolour(obj, settings) is None
+        assert settings.legend_header.startswith("Cannot colour the points: EndoPhoton engine not found")
+        assert len(settings.legend) == 0
+    finally:
+        sys.modules.update(saved)
+        ensure_addon()
+        package_finder.forget()
+    assert results.recolour(obj, settings).unit == "nm"
