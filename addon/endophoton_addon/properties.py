@@ -21,6 +21,11 @@ ROLE_ITEMS = (
     ("POLYP", "Polyp", "Closed mesh of a polyp; give it a higher priority than the tissue it overlaps"),
 )
 
+FLUORESCENCE_RULE_ITEMS = (
+    ("paper", "Paper", "ξ1 < d and ξ2 < c"),
+    ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
+)
+
 FLUOROPHORE_ITEMS = tuple(
     (name, name.capitalize(), f"Default {name} excitation-emission matrix") for name in presets.FLUOROPHORE_NAMES
 )
@@ -139,93 +144,92 @@ def _rig_changed(self, _context):
     rig.update_rig(self.id_data)
 
 
+_LENGTH = dict(subtype="DISTANCE", unit="LENGTH", min=0.0)
+_VECTOR = dict(subtype="XYZ", size=3)
+# The rig's geometry: (property type, keywords) per field, one table; every field moves or
+# resizes the rig when edited (update=_rig_changed).
+RIG_FIELDS = {
+    "beta": (
+        FloatProperty,
+        dict(
+            name="β",
+            description="Tilt of the viewing axis from the surface normal at the target",
+            subtype="ANGLE",
+            default=0.0,
+            min=-1.5707963,
+            max=1.5707963,
+        ),
+    ),
+    "distance": (
+        FloatProperty,
+        dict(
+            name="Distance",
+            description="Distance from the target point to the tip along the viewing axis",
+            default=0.01,
+            **_LENGTH,
+        ),
+    ),
+    "target": (
+        FloatVectorProperty,
+        dict(
+            name="Target",
+            description="Point on the tissue surface the endoscope orbits around",
+            subtype="TRANSLATION",
+            unit="LENGTH",
+            size=3,
+            default=(0.0, 0.0, 0.0),
+        ),
+    ),
+    "normal": (
+        FloatVectorProperty,
+        dict(
+            name="Surface Normal",
+            description="Outward surface normal at the target (β = 0 looks along −normal)",
+            default=(0.0, 0.0, 1.0),
+            **_VECTOR,
+        ),
+    ),
+    "tilt_axis": (
+        FloatVectorProperty,
+        dict(
+            name="Tilt Axis",
+            description="Axis β rotates about (made perpendicular to the normal)",
+            default=(0.0, 1.0, 0.0),
+            **_VECTOR,
+        ),
+    ),
+    "head_diameter": (FloatProperty, dict(name="Head Diameter", default=0.012, **_LENGTH)),
+    "light_diameter": (FloatProperty, dict(name="Light Guide Diameter", default=0.003, **_LENGTH)),
+    "light_offset": (
+        FloatProperty,
+        dict(
+            name="Light Offset",
+            description="Distance of each light guide from the head's axis",
+            default=0.0035,
+            **_LENGTH,
+        ),
+    ),
+    "cone_angle": (
+        FloatProperty,
+        dict(
+            name="Cone Angle",
+            description="Full apex angle of each light's emission cone",
+            subtype="ANGLE",
+            default=0.2617994,
+            min=0.0,
+            max=3.1415926,
+        ),
+    ),
+    "camera_fov": (
+        FloatProperty,
+        dict(name="Camera FOV", subtype="ANGLE", default=2.0943951, min=0.0174533, max=3.0),
+    ),
+}
+
+
 class EndoPhotonRigSettings(bpy.types.PropertyGroup):
     is_rig: BoolProperty(default=False, options={"HIDDEN"})
-    beta: FloatProperty(
-        name="β",
-        description="Tilt of the viewing axis from the surface normal at the target",
-        subtype="ANGLE",
-        default=0.0,
-        min=-1.5707963,
-        max=1.5707963,
-        update=_rig_changed,
-    )
-    distance: FloatProperty(
-        name="Distance",
-        description="Distance from the target point to the tip along the viewing axis",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.01,
-        min=0.0,
-        update=_rig_changed,
-    )
-    target: FloatVectorProperty(
-        name="Target",
-        description="Point on the tissue surface the endoscope orbits around",
-        subtype="TRANSLATION",
-        unit="LENGTH",
-        size=3,
-        default=(0.0, 0.0, 0.0),
-        update=_rig_changed,
-    )
-    normal: FloatVectorProperty(
-        name="Surface Normal",
-        description="Outward surface normal at the target (β = 0 looks along −normal)",
-        subtype="XYZ",
-        size=3,
-        default=(0.0, 0.0, 1.0),
-        update=_rig_changed,
-    )
-    tilt_axis: FloatVectorProperty(
-        name="Tilt Axis",
-        description="Axis β rotates about (made perpendicular to the normal)",
-        subtype="XYZ",
-        size=3,
-        default=(0.0, 1.0, 0.0),
-        update=_rig_changed,
-    )
-    head_diameter: FloatProperty(
-        name="Head Diameter",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.012,
-        min=0.0,
-        update=_rig_changed,
-    )
-    light_diameter: FloatProperty(
-        name="Light Guide Diameter",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.003,
-        min=0.0,
-        update=_rig_changed,
-    )
-    light_offset: FloatProperty(
-        name="Light Offset",
-        description="Distance of each light guide from the head's axis",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.0035,
-        min=0.0,
-        update=_rig_changed,
-    )
-    cone_angle: FloatProperty(
-        name="Cone Angle",
-        description="Full apex angle of each light's emission cone",
-        subtype="ANGLE",
-        default=0.2617994,
-        min=0.0,
-        max=3.1415926,
-        update=_rig_changed,
-    )
-    camera_fov: FloatProperty(
-        name="Camera FOV",
-        subtype="ANGLE",
-        default=2.0943951,
-        min=0.0174533,
-        max=3.0,
-        update=_rig_changed,
-    )
+    __annotations__.update({name: kind(update=_rig_changed, **kw) for name, (kind, kw) in RIG_FIELDS.items()})
 
 
 # --- scene: simulation settings and result display ---------------------------
@@ -291,14 +295,7 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         description="Store only fluorescence records (the paper's photon map)",
         default=True,
     )
-    fluorescence_rule: EnumProperty(
-        name="Fluorescence Rule",
-        items=(
-            ("paper", "Paper", "ξ1 < d and ξ2 < c"),
-            ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
-        ),
-        default="paper",
-    )
+    fluorescence_rule: EnumProperty(name="Fluorescence Rule", items=FLUORESCENCE_RULE_ITEMS, default="paper")
     output_dir: StringProperty(
         name="Output Folder",
         description="Where sweep.csv, sweep.json, the plots and report.md are written; empty = "
@@ -342,14 +339,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         description="Keep only fluorescence records in the surface map",
         default=False,
     )
-    fluorescence_rule: EnumProperty(
-        name="Fluorescence Rule",
-        items=(
-            ("paper", "Paper", "ξ1 < d and ξ2 < c"),
-            ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
-        ),
-        default="paper",
-    )
+    fluorescence_rule: EnumProperty(name="Fluorescence Rule", items=FLUORESCENCE_RULE_ITEMS, default="paper")
     seed: IntProperty(name="Seed", default=1, min=0)
     threads: IntProperty(
         name="Threads",
