@@ -332,3 +332,32 @@ def test_wavelength_colour_without_package_says_so_in_panel(tmp_path):
         ensure_addon()
         package_finder.forget()
     assert results.recolour(obj, settings).unit == "nm"
+
+
+def test_toward_camera_filter_and_energy_glow():
+    """Toward Camera shows the records whose exit direction is within the cone of the direction
+    to the scene camera (angles recomputed here with arccos); each shown point glows with its
+    energy over the shown records' mean energy."""
+    rec = _records(np.random.default_rng(11), k=2000)
+    obj = _points_in_collection(rec)
+    scene = bpy.context.scene
+    camera = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(camera)
+    camera.location = (0.003, -0.002, 0.03)
+    scene.camera = camera
+    bpy.context.view_layer.update()
+    settings = scene.endophoton
+    settings.camera_cone_deg = 30.0
+    settings.filter_toward_camera = True
+
+    to_cam = np.array([0.003, -0.002, 0.03]) - rec["position"].astype(np.float64)
+    angle = np.degrees(np.arccos(np.clip(np.sum(rec["direction"] * to_cam, 1) / np.linalg.norm(to_cam, axis=1), -1, 1)))
+    expected = angle <= 30.0
+    clear = np.abs(angle - 30.0) > 1e-3  # leave rounding at the cone's edge out of the verdict
+    show = _attr(obj.data, results.SHOW_ATTR)
+    assert 20 < expected.sum() < 1000
+    np.testing.assert_array_equal(show[clear], expected[clear])
+    strength = _attr(obj.data, results.STRENGTH_ATTR)
+    np.testing.assert_allclose(strength, rec["energy"] / rec["energy"][show].mean(), rtol=1e-5)
+    settings.filter_toward_camera = False
+    assert _attr(obj.data, results.SHOW_ATTR).all()
