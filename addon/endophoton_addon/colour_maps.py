@@ -57,6 +57,17 @@ def wavelength_swatches(nm):
     return rgb / np.maximum(rgb.max(axis=1, keepdims=True), floor)
 
 
+def exposed_srgb(linear_rgb):
+    """Display-encoded sRGB in [0, 1] of a linear render (..., 3) and the exposure used: the
+    endoscope-view images' rule (``endophoton.colour.auto_exposure`` over the lit pixels: 99th
+    percentile of the largest channel -> 0.5), each channel clipped, sRGB-encoded."""
+    colour = _colour()
+    linear = np.asarray(linear_rgb, dtype=np.float64)
+    peak = linear.max(axis=-1)
+    exposure = colour.auto_exposure(peak, peak > 0)
+    return colour.srgb_encode(np.clip(linear * exposure, 0.0, 1.0)), exposure
+
+
 # --- other colourings -------------------------------------------------------
 # Viridis at 0, 1/4, 1/2, 3/4, 1 (linear-light values of the published map).
 _RAMP = np.array(
@@ -256,10 +267,6 @@ def legend_figure(legend, path, image=None, title=None):
     from matplotlib import pyplot as plt
     from matplotlib.patches import Rectangle
 
-    def to_display(rgb):
-        rgb = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
-        return np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * rgb ** (1 / 2.4) - 0.055)
-
     width = 3.0 + (5.0 if image is not None else 0.0)
     fig = plt.figure(figsize=(width, 4.0), dpi=100)
     if image is not None:
@@ -274,7 +281,7 @@ def legend_figure(legend, path, image=None, title=None):
     ax.set_axis_off()
     ax.set_title(legend.header(), fontsize=8)
     for i, (colour, label) in enumerate(reversed(legend.entries)):
-        ax.add_patch(Rectangle((0.0, i + 0.1), 0.25, 0.8, color=to_display(colour)))
+        ax.add_patch(Rectangle((0.0, i + 0.1), 0.25, 0.8, color=_colour().srgb_encode(colour)))
         ax.text(0.32, i + 0.5, label, va="center", fontsize=8)
     fig.savefig(path)
     plt.close(fig)

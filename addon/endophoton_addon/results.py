@@ -328,8 +328,9 @@ def show_legend(settings, legend):
 
 def render_with_legend(scene, collection, path):
     """Render the scene's camera (its render settings) and write ``path``: the
-    render with the colour bar of ``collection``'s points beside it, loaded as
-    an Image tagged with the run (removed with it).  Returns the Image."""
+    render (linear, exposed by the endoscope-view images' rule, colour_maps.exposed_srgb)
+    with the colour bar of ``collection``'s points beside it, loaded as an Image
+    tagged with the run (removed with it).  Returns the Image."""
     import os
 
     points = points_objects(collection)
@@ -339,11 +340,11 @@ def render_with_legend(scene, collection, path):
     if scene.camera is None:
         raise RuntimeError(f"Scene '{scene.name}' has no camera to render from")
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    raw = os.path.splitext(path)[0] + "_raw.png"
+    raw = os.path.splitext(path)[0] + "_raw.exr"  # linear scene values, no view transform
     saved = scene.render.filepath, scene.render.image_settings.file_format
     try:
         scene.render.filepath = raw
-        scene.render.image_settings.file_format = "PNG"
+        scene.render.image_settings.file_format = "OPEN_EXR"
         bpy.ops.render.render(write_still=True, scene=scene.name)
     finally:
         scene.render.filepath, scene.render.image_settings.file_format = saved
@@ -354,8 +355,9 @@ def render_with_legend(scene, collection, path):
         rendered.pixels.foreach_get(pixels)
     finally:
         bpy.data.images.remove(rendered)
-    picture = pixels.reshape(h, w, 4)[::-1, :, :3]  # Blender's rows run bottom-up
-    colour_maps.legend_figure(legend, path, image=picture, title=collection.name)
+    # Blender's rows run bottom-up; exposed like the endoscope-view images.
+    picture, exposure = colour_maps.exposed_srgb(pixels.reshape(h, w, 4)[::-1, :, :3])
+    colour_maps.legend_figure(legend, path, image=picture, title=f"{collection.name} (exposure ×{exposure:.3g})")
     image = bpy.data.images.load(path, check_existing=True)
     image.reload()
     image[RUN_KEY] = collection.get(RUN_KEY)
