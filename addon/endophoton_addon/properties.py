@@ -144,92 +144,42 @@ def _rig_changed(self, _context):
     rig.update_rig(self.id_data)
 
 
+# fmt: off
 _LENGTH = dict(subtype="DISTANCE", unit="LENGTH", min=0.0)
 _VECTOR = dict(subtype="XYZ", size=3)
-# The rig's geometry: (property type, keywords) per field, one table; every field moves or
-# resizes the rig when edited (update=_rig_changed).
+_ANGLE = dict(subtype="ANGLE")
+# The rig's geometry, one table: field -> (property type, label, description, default, keywords).
+# Every field moves or resizes the rig when edited (update=_rig_changed).
 RIG_FIELDS = {
-    "beta": (
-        FloatProperty,
-        dict(
-            name="β",
-            description="Tilt of the viewing axis from the surface normal at the target",
-            subtype="ANGLE",
-            default=0.0,
-            min=-1.5707963,
-            max=1.5707963,
-        ),
-    ),
-    "distance": (
-        FloatProperty,
-        dict(
-            name="Distance",
-            description="Distance from the target point to the tip along the viewing axis",
-            default=0.01,
-            **_LENGTH,
-        ),
-    ),
-    "target": (
-        FloatVectorProperty,
-        dict(
-            name="Target",
-            description="Point on the tissue surface the endoscope orbits around",
-            subtype="TRANSLATION",
-            unit="LENGTH",
-            size=3,
-            default=(0.0, 0.0, 0.0),
-        ),
-    ),
-    "normal": (
-        FloatVectorProperty,
-        dict(
-            name="Surface Normal",
-            description="Outward surface normal at the target (β = 0 looks along −normal)",
-            default=(0.0, 0.0, 1.0),
-            **_VECTOR,
-        ),
-    ),
-    "tilt_axis": (
-        FloatVectorProperty,
-        dict(
-            name="Tilt Axis",
-            description="Axis β rotates about (made perpendicular to the normal)",
-            default=(0.0, 1.0, 0.0),
-            **_VECTOR,
-        ),
-    ),
-    "head_diameter": (FloatProperty, dict(name="Head Diameter", default=0.012, **_LENGTH)),
-    "light_diameter": (FloatProperty, dict(name="Light Guide Diameter", default=0.003, **_LENGTH)),
-    "light_offset": (
-        FloatProperty,
-        dict(
-            name="Light Offset",
-            description="Distance of each light guide from the head's axis",
-            default=0.0035,
-            **_LENGTH,
-        ),
-    ),
-    "cone_angle": (
-        FloatProperty,
-        dict(
-            name="Cone Angle",
-            description="Full apex angle of each light's emission cone",
-            subtype="ANGLE",
-            default=0.2617994,
-            min=0.0,
-            max=3.1415926,
-        ),
-    ),
-    "camera_fov": (
-        FloatProperty,
-        dict(name="Camera FOV", subtype="ANGLE", default=2.0943951, min=0.0174533, max=3.0),
-    ),
+    "beta": (FloatProperty, "β", "Tilt of the viewing axis from the surface normal at the target", 0.0,
+             dict(_ANGLE, min=-1.5707963, max=1.5707963)),
+    "distance": (FloatProperty, "Distance", "Distance from the target point to the tip along the viewing axis",
+                 0.01, _LENGTH),
+    "target": (FloatVectorProperty, "Target", "Point on the tissue surface the endoscope orbits around",
+               (0.0, 0.0, 0.0), dict(subtype="TRANSLATION", unit="LENGTH", size=3)),
+    "normal": (FloatVectorProperty, "Surface Normal", "Outward surface normal at the target (β = 0 looks along "
+               "−normal)", (0.0, 0.0, 1.0), _VECTOR),
+    "tilt_axis": (FloatVectorProperty, "Tilt Axis", "Axis β rotates about (made perpendicular to the normal)",
+                  (0.0, 1.0, 0.0), _VECTOR),
+    "head_diameter": (FloatProperty, "Head Diameter", "", 0.012, _LENGTH),
+    "light_diameter": (FloatProperty, "Light Guide Diameter", "", 0.003, _LENGTH),
+    "light_offset": (FloatProperty, "Light Offset", "Distance of each light guide from the head's axis", 0.0035,
+                     _LENGTH),
+    "cone_angle": (FloatProperty, "Cone Angle", "Full apex angle of each light's emission cone", 0.2617994,
+                   dict(_ANGLE, min=0.0, max=3.1415926)),
+    "camera_fov": (FloatProperty, "Camera FOV", "", 2.0943951, dict(_ANGLE, min=0.0174533, max=3.0)),
 }
+# fmt: on
 
 
 class EndoPhotonRigSettings(bpy.types.PropertyGroup):
     is_rig: BoolProperty(default=False, options={"HIDDEN"})
-    __annotations__.update({name: kind(update=_rig_changed, **kw) for name, (kind, kw) in RIG_FIELDS.items()})
+    __annotations__.update(
+        {
+            name: kind(name=label, description=text, default=default, update=_rig_changed, **kw)
+            for name, (kind, label, text, default, kw) in RIG_FIELDS.items()
+        }
+    )
 
 
 # --- scene: simulation settings and result display ---------------------------
