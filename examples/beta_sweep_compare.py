@@ -1,7 +1,7 @@
 # SPDX-License-Identifier: MIT
 """A β sweep from bpy that keeps every run and compares them.
 
-    blender -b blend_scenes/colon_polyp.blend --python examples/beta_sweep_compare.py -- [PACKETS]
+    blender -b blend_scenes/colon_polyp.blend --python-exit-code 1 --python examples/beta_sweep_compare.py -- [PACKETS]
 
 Each β is its own result collection (tagged with its parameters), so the runs
 sit side by side in the outliner; the table compares the diffuse reflectance

@@ -11,70 +11,61 @@ named attributes ``ep_colour`` and ``ep_show`` with ``foreach_set`` — the way
 Molecular Nodes colours atoms.  Nothing here depends on Blender, so the tests
 recompute every colour independently.
 
-Wavelength colour (:func:`wavelength_linear_srgb`): CIE 1931 2° colour-matching
-functions by the analytic fit of Wyman, Sloan & Shirley (JCGT 2(2), 2013),
-XYZ -> linear sRGB by IEC 61966-2-1 (D65).  A single wavelength lies outside
-the sRGB gamut; the rule here: add white until no channel is negative (keeps
-the hue, loses saturation), then scale so the largest channel is 1 (every
-visible wavelength equally bright, so the hue reads at any intensity), and
-fade linearly to black at the ends of the visible range (420 -> 380 nm, 700 -> 780 nm).
-TODO(colour): call ``endophoton.colour`` (the endoscope-view images' CIE ->
-sRGB) once that module is in the package, so both use one conversion.
+Wavelength colour (:func:`wavelength_rgb`): the package's own rules
+(``endophoton.colour``, the endoscope-view images' conversion, one owner):
+CIE 1931 colour-matching functions -> XYZ -> linear sRGB, white balanced as
+``ep.render_view`` does by default (the flat 400-700 nm white light maps to
+D65).  A record's colour is its light per unit energy, with the negative
+channels of out-of-gamut lines clipped per record (render_view's camera-like
+R/G sensitivities); the points glow with strength proportional to their
+energy and add up (results.py), so a pixel's colour is that of the energy
+summed over the records it shows.  The legend's swatches show each
+wavelength's hue (largest channel 1).  ``endophoton.colour`` is imported when
+first needed: the add-on registers before package_finder has found the package.
 """
 
+import importlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
-# --- wavelength -> colour (the one place this conversion lives) -------------
-# (weight, mean nm, sigma below the mean, sigma above) per lobe; Wyman et al. 2013, eq. 2.
-_CMF_LOBES = {
-    "x": ((1.056, 599.8, 37.9, 31.0), (0.362, 442.0, 16.0, 26.7), (-0.065, 501.1, 20.4, 26.2)),
-    "y": ((0.821, 568.8, 46.9, 40.5), (0.286, 530.9, 16.3, 31.1)),
-    "z": ((1.217, 437.0, 11.8, 36.0), (0.681, 459.0, 26.0, 13.8)),
-}
-# XYZ -> linear sRGB, IEC 61966-2-1 (D65 white).
-_XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+
+# --- wavelength -> colour (endophoton.colour owns the conversion) -------------
+def _colour():
+    """``endophoton.colour``, imported through package_finder (EngineMissing names the fix)."""
+    from . import package_finder
+
+    package_finder.require()
+    return importlib.import_module("endophoton.colour")
 
 
-def cie_xyz(nm):
-    """CIE 1931 2° colour-matching functions x̄, ȳ, z̄ at ``nm`` (analytic fit): (N, 3)."""
+def wavelength_rgb(nm):
+    """Linear sRGB per unit energy of monochromatic light at ``nm`` (N, 3), negatives clipped:
+    CMF -> XYZ -> white-balanced linear sRGB by ``endophoton.colour``."""
+    colour = _colour()
     nm = np.asarray(nm, dtype=np.float64).reshape(-1)
-    out = np.zeros((len(nm), 3))
-    for j, lobes in enumerate(_CMF_LOBES.values()):
-        for weight, mu, s_lo, s_hi in lobes:
-            sigma = np.where(nm < mu, s_lo, s_hi)
-            out[:, j] += weight * np.exp(-0.5 * ((nm - mu) / sigma) ** 2)
-    return out
+    rgb = colour.xyz_to_linear_srgb(colour.cmf_xyz(nm), colour.white_balance_gains(None))
+    return np.maximum(rgb, 0.0)
 
 
-def wavelength_linear_srgb(nm):
-    """Display colour (linear sRGB in [0, 1]) of monochromatic light at ``nm``: (N, 3).
-
-    Gamut rule in the module docstring: desaturate toward white, normalise the
-    largest channel to 1, fade linearly to black over 420 -> 380 nm and 700 -> 780 nm.
-    """
-    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
-    # Above 650 nm the CIE 1931 chromaticity barely moves (x 0.726 -> 0.735 at
-    # 700 nm), but the fit's single-lobe tails drift green there (ȳ/x̄ doubles by
-    # 700 nm): keep 650 nm's hue, where the fit still matches the table.
-    xyz = cie_xyz(np.minimum(nm, 650.0))
-    rgb = xyz @ _XYZ_TO_SRGB.T
-    rgb -= np.minimum(rgb.min(axis=1, keepdims=True), 0.0)
-    peak = rgb.max(axis=1, keepdims=True)
-    rgb = np.divide(rgb, peak, out=np.zeros_like(rgb), where=peak > 0)
-    fade = np.clip((nm - 380.0) / 40.0, 0.0, 1.0) * np.clip((780.0 - nm) / 80.0, 0.0, 1.0)
-    return rgb * fade[:, None]
+def wavelength_swatches(nm):
+    """Legend colours (N, 3) in [0, 1]: :func:`wavelength_rgb` scaled to largest channel 1 (its hue),
+    fading to black where that channel is below 5 % of the brightest visible line's (the ends of
+    the visible range)."""
+    rgb = wavelength_rgb(nm)
+    floor = 0.05 * wavelength_rgb(np.arange(380.0, 781.0)).max()
+    return rgb / np.maximum(rgb.max(axis=1, keepdims=True), floor)
 
 
-# Baked once at import: 1 nm steps over the CMFs' domain, interpolated per record.
-TABLE_NM = np.arange(360.0, 831.0)
-TABLE_RGB = wavelength_linear_srgb(TABLE_NM)
-
-
-def wavelength_colours(nm):
-    nm = np.asarray(nm, dtype=np.float64).reshape(-1)
-    return np.stack([np.interp(nm, TABLE_NM, TABLE_RGB[:, j], left=0.0, right=0.0) for j in range(3)], axis=1)
+def exposed_srgb(linear_rgb):
+    """Display-encoded sRGB in [0, 1] of a linear render (..., 3) and the exposure used: the
+    endoscope-view images' rule (``endophoton.colour.auto_exposure`` over the lit pixels: 99th
+    percentile of the largest channel -> 0.5), each channel clipped, sRGB-encoded."""
+    colour = _colour()
+    linear = np.asarray(linear_rgb, dtype=np.float64)
+    peak = linear.max(axis=-1)
+    exposure = colour.auto_exposure(peak, peak > 0)
+    return colour.srgb_encode(np.clip(linear * exposure, 0.0, 1.0)), exposure
 
 
 # --- other colourings -------------------------------------------------------
@@ -181,10 +172,24 @@ class Filters:
     fluorescent_only: bool = False
     fluorophore: int = -2  # -2 = any; else the engine's fluorophore id
     region: int = -2  # -2 = any; else the region index
+    # (camera position, cone half-angle in degrees), or None: only records whose exit direction
+    # is within the cone around the direction to the camera (columns "position", "direction")
+    toward: tuple = None
+
+
+def toward_mask(position, direction, camera, cone_deg):
+    """Records leaving toward ``camera``: exit direction within ``cone_deg`` of the direction from
+    the exit point to the camera (the light the camera can record; ep.render_view's kernel cone)."""
+    to_camera = np.asarray(camera, dtype=np.float64)[None, :] - np.asarray(position, dtype=np.float64)
+    dist = np.linalg.norm(to_camera, axis=1)
+    cos = np.einsum("ij,ij->i", np.asarray(direction, dtype=np.float64), to_camera)
+    return (dist > 0) & (cos >= np.cos(np.radians(cone_deg)) * dist)
 
 
 def shown_mask(columns, filters, count):
     show = np.ones(count, dtype=bool)
+    if filters.toward is not None and "position" in columns and "direction" in columns:
+        show &= toward_mask(columns["position"], columns["direction"], *filters.toward)
     if filters.fluorescent_only and "fluorescent" in columns:
         show &= np.asarray(columns["fluorescent"]).astype(bool)
     if filters.fluorophore != -2 and "fluorophore" in columns:
@@ -220,11 +225,11 @@ def colour_records(key, columns, filters=Filters(), names=None, count=None):
     show = shown_mask(columns, filters, n)
     legend = Legend(cmap.label, cmap.unit, shown=int(show.sum()), total=n)
     if cmap.kind == "wavelength":
-        rgb = wavelength_colours(values)
+        rgb = wavelength_rgb(values)
         lo, hi = _range(values[show])
         legend.lo, legend.hi = lo, hi
         ticks = np.linspace(lo, hi, 6) if hi > lo else np.array([lo])
-        legend.entries = [(tuple(c), f"{t:.0f} nm") for c, t in zip(wavelength_colours(ticks), ticks)]
+        legend.entries = [(tuple(c), f"{t:.0f} nm") for c, t in zip(wavelength_swatches(ticks), ticks)]
     elif cmap.kind == "category":
         codes = values.astype(np.int64)
         labels = _category_names(cmap, names)
@@ -262,10 +267,6 @@ def legend_figure(legend, path, image=None, title=None):
     from matplotlib import pyplot as plt
     from matplotlib.patches import Rectangle
 
-    def to_display(rgb):
-        rgb = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
-        return np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * rgb ** (1 / 2.4) - 0.055)
-
     width = 3.0 + (5.0 if image is not None else 0.0)
     fig = plt.figure(figsize=(width, 4.0), dpi=100)
     if image is not None:
@@ -280,7 +281,7 @@ def legend_figure(legend, path, image=None, title=None):
     ax.set_axis_off()
     ax.set_title(legend.header(), fontsize=8)
     for i, (colour, label) in enumerate(reversed(legend.entries)):
-        ax.add_patch(Rectangle((0.0, i + 0.1), 0.25, 0.8, color=to_display(colour)))
+        ax.add_patch(Rectangle((0.0, i + 0.1), 0.25, 0.8, color=_colour().srgb_encode(colour)))
         ax.text(0.32, i + 0.5, label, va="center", fontsize=8)
     fig.savefig(path)
     plt.close(fig)

@@ -212,6 +212,9 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
         col.prop(s, "filter_fluorescent")
         col.prop(s, "filter_fluorophore")
         col.prop(s, "filter_region")
+        col.prop(s, "filter_toward_camera")
+        if s.filter_toward_camera:
+            col.prop(s, "camera_cone_deg")
         if s.legend_header:
             box = layout.box()
             col = box.column(align=True)

@@ -21,6 +21,11 @@ ROLE_ITEMS = (
     ("POLYP", "Polyp", "Closed mesh of a polyp; give it a higher priority than the tissue it overlaps"),
 )
 
+FLUORESCENCE_RULE_ITEMS = (
+    ("paper", "Paper", "ξ1 < d and ξ2 < c"),
+    ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
+)
+
 FLUOROPHORE_ITEMS = tuple(
     (name, name.capitalize(), f"Default {name} excitation-emission matrix") for name in presets.FLUOROPHORE_NAMES
 )
@@ -139,92 +144,41 @@ def _rig_changed(self, _context):
     rig.update_rig(self.id_data)
 
 
+# fmt: off
+_LENGTH = dict(subtype="DISTANCE", unit="LENGTH", min=0.0)
+_VECTOR = dict(subtype="XYZ", size=3)
+_ANGLE = dict(subtype="ANGLE")
+# The rig's geometry, one table: field -> (property type, label, description, default, keywords).
+# Every field moves or resizes the rig when edited (update=_rig_changed).
+RIG_FIELDS = {
+    "beta": (FloatProperty, "β", "Tilt of the viewing axis from the surface normal at the target", 0.0,
+             dict(_ANGLE, min=-1.5707963, max=1.5707963)),
+    "distance": (FloatProperty, "Distance", "Distance from the target point to the tip along the viewing axis",
+                 0.01, _LENGTH),
+    "target": (FloatVectorProperty, "Target", "Point on the tissue surface the endoscope orbits around",
+               (0.0, 0.0, 0.0), dict(subtype="TRANSLATION", unit="LENGTH", size=3)),
+    "normal": (FloatVectorProperty, "Surface Normal", "Outward surface normal at the target (β = 0 looks along "
+               "−normal)", (0.0, 0.0, 1.0), _VECTOR),
+    "tilt_axis": (FloatVectorProperty, "Tilt Axis", "Axis β rotates about (made perpendicular to the normal)",
+                  (0.0, 1.0, 0.0), _VECTOR),
+    "head_diameter": (FloatProperty, "Head Diameter", "", 0.012, _LENGTH),
+    "light_diameter": (FloatProperty, "Light Guide Diameter", "", 0.003, _LENGTH),
+    "light_offset": (FloatProperty, "Light Offset", "Distance of each light guide from the head's axis", 0.0035,
+                     _LENGTH),
+    "cone_angle": (FloatProperty, "Cone Angle", "Full apex angle of each light's emission cone", 0.2617994,
+                   dict(_ANGLE, min=0.0, max=3.1415926)),
+    "camera_fov": (FloatProperty, "Camera FOV", "", 2.0943951, dict(_ANGLE, min=0.0174533, max=3.0)),
+}
+# fmt: on
+
+
 class EndoPhotonRigSettings(bpy.types.PropertyGroup):
     is_rig: BoolProperty(default=False, options={"HIDDEN"})
-    beta: FloatProperty(
-        name="β",
-        description="Tilt of the viewing axis from the surface normal at the target",
-        subtype="ANGLE",
-        default=0.0,
-        min=-1.5707963,
-        max=1.5707963,
-        update=_rig_changed,
-    )
-    distance: FloatProperty(
-        name="Distance",
-        description="Distance from the target point to the tip along the viewing axis",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.01,
-        min=0.0,
-        update=_rig_changed,
-    )
-    target: FloatVectorProperty(
-        name="Target",
-        description="Point on the tissue surface the endoscope orbits around",
-        subtype="TRANSLATION",
-        unit="LENGTH",
-        size=3,
-        default=(0.0, 0.0, 0.0),
-        update=_rig_changed,
-    )
-    normal: FloatVectorProperty(
-        name="Surface Normal",
-        description="Outward surface normal at the target (β = 0 looks along −normal)",
-        subtype="XYZ",
-        size=3,
-        default=(0.0, 0.0, 1.0),
-        update=_rig_changed,
-    )
-    tilt_axis: FloatVectorProperty(
-        name="Tilt Axis",
-        description="Axis β rotates about (made perpendicular to the normal)",
-        subtype="XYZ",
-        size=3,
-        default=(0.0, 1.0, 0.0),
-        update=_rig_changed,
-    )
-    head_diameter: FloatProperty(
-        name="Head Diameter",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.012,
-        min=0.0,
-        update=_rig_changed,
-    )
-    light_diameter: FloatProperty(
-        name="Light Guide Diameter",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.003,
-        min=0.0,
-        update=_rig_changed,
-    )
-    light_offset: FloatProperty(
-        name="Light Offset",
-        description="Distance of each light guide from the head's axis",
-        subtype="DISTANCE",
-        unit="LENGTH",
-        default=0.0035,
-        min=0.0,
-        update=_rig_changed,
-    )
-    cone_angle: FloatProperty(
-        name="Cone Angle",
-        description="Full apex angle of each light's emission cone",
-        subtype="ANGLE",
-        default=0.2617994,
-        min=0.0,
-        max=3.1415926,
-        update=_rig_changed,
-    )
-    camera_fov: FloatProperty(
-        name="Camera FOV",
-        subtype="ANGLE",
-        default=2.0943951,
-        min=0.0174533,
-        max=3.0,
-        update=_rig_changed,
+    __annotations__.update(
+        {
+            name: kind(name=label, description=text, default=default, update=_rig_changed, **kw)
+            for name, (kind, label, text, default, kw) in RIG_FIELDS.items()
+        }
     )
 
 
@@ -291,14 +245,7 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         description="Store only fluorescence records (the paper's photon map)",
         default=True,
     )
-    fluorescence_rule: EnumProperty(
-        name="Fluorescence Rule",
-        items=(
-            ("paper", "Paper", "ξ1 < d and ξ2 < c"),
-            ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
-        ),
-        default="paper",
-    )
+    fluorescence_rule: EnumProperty(name="Fluorescence Rule", items=FLUORESCENCE_RULE_ITEMS, default="paper")
     output_dir: StringProperty(
         name="Output Folder",
         description="Where sweep.csv, sweep.json, the plots and report.md are written; empty = "
@@ -342,14 +289,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         description="Keep only fluorescence records in the surface map",
         default=False,
     )
-    fluorescence_rule: EnumProperty(
-        name="Fluorescence Rule",
-        items=(
-            ("paper", "Paper", "ξ1 < d and ξ2 < c"),
-            ("eem", "EEM", "ξ1 < d·η(λ) and ξ2 < c, with the EEM's excitation efficiency η"),
-        ),
-        default="paper",
-    )
+    fluorescence_rule: EnumProperty(name="Fluorescence Rule", items=FLUORESCENCE_RULE_ITEMS, default="paper")
     seed: IntProperty(name="Seed", default=1, min=0)
     threads: IntProperty(
         name="Threads",
@@ -438,6 +378,22 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         name="Region",
         description="Show only records that left this region",
         items=lambda self, context: _name_items(self, "region"),
+        update=_display_changed,
+    )
+    filter_toward_camera: BoolProperty(
+        name="Toward Camera",
+        description="Show only records leaving toward the scene's camera (exit direction within the "
+        "cone below around the direction to the camera): the light the camera records",
+        default=False,
+        update=_display_changed,
+    )
+    camera_cone_deg: FloatProperty(
+        name="Camera Cone",
+        description="Half angle of the cone around the direction to the camera, degrees "
+        "(ep.render_view's kernel angle)",
+        default=15.0,
+        min=0.1,
+        max=90.0,
         update=_display_changed,
     )
     volume_scale: EnumProperty(

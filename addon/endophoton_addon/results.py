@@ -61,7 +61,7 @@ POINT_ATTRIBUTES = (
 )
 COLOUR_ATTR = "ep_colour"  # linear RGB of the chosen mapping (colour_maps.colour_records)
 SHOW_ATTR = "ep_show"  # False = hidden by the filters (Mesh to Points' selection)
-STRENGTH_ATTR = "ep_strength"  # emission strength: the record's weight over the shown records' mean
+STRENGTH_ATTR = "ep_strength"  # emission strength: the record's energy over the shown records' mean
 NAMES_KEY = "endophoton_names"  # on the points object: {"fluorophore": [...], "region": [...]}
 LEGEND_KEY = "endophoton_legend"  # on the points object: colour_maps.Legend.to_dict()
 
@@ -191,9 +191,12 @@ def _attribute_material(name, run_id, attribute_name):
 
 def _points_material(name, run_id):
     """Emission coloured by the point attribute ``ep_colour`` and as bright as the
-    record's weight (``ep_strength``, written by :func:`recolour`): a packet that
+    record's energy (``ep_strength``, written by :func:`recolour`): a packet that
     landed on tissue across the lumen and left again carries little weight and
-    glows accordingly, as the light it stands for does."""
+    glows accordingly, as the light it stands for does.  The points are otherwise
+    transparent (emission + Transparent BSDF), so overlapping points add up like
+    the light they stand for: a pixel shows the sum of its records' colours times
+    energies (up to Cycles' transparent bounces), not the front point's."""
     mat, nodes, links, out, colour = _attribute_material(name, run_id, COLOUR_ATTR)
     strength = nodes.new("ShaderNodeAttribute")
     strength.attribute_type = "GEOMETRY"
@@ -209,7 +212,14 @@ def _points_material(name, run_id):
     links.new(colour.outputs["Color"], emit.inputs["Color"])
     links.new(strength.outputs["Fac"], scale.inputs[0])
     links.new(scale.outputs["Value"], emit.inputs["Strength"])
-    links.new(emit.outputs["Emission"], out.inputs["Surface"])
+    clear = nodes.new("ShaderNodeBsdfTransparent")
+    clear.location = (100, -150)
+    add = nodes.new("ShaderNodeAddShader")
+    add.location = (350, 0)
+    links.new(emit.outputs["Emission"], add.inputs[0])
+    links.new(clear.outputs["BSDF"], add.inputs[1])
+    links.new(add.outputs["Shader"], out.inputs["Surface"])
+    mat.blend_method = "BLEND"  # Eevee / Material Preview: the same see-through glow
     return mat
 
 
@@ -243,10 +253,12 @@ def display_filters(settings, names):
     regions = list(names.get("region", ()))
     pick = settings.filter_fluorophore
     reg = settings.filter_region
+    camera = settings.id_data.camera if settings.filter_toward_camera else None
     return colour_maps.Filters(
         fluorescent_only=bool(settings.filter_fluorescent),
         fluorophore=fluorophores.index(pick) if pick in fluorophores else (-2 if pick == "ANY" else -3),
         region=regions.index(reg) if reg in regions else (-2 if reg == "ANY" else -3),
+        toward=None if camera is None else (tuple(camera.matrix_world.translation), settings.camera_cone_deg),
     )
 
 
@@ -257,12 +269,12 @@ def point_names(obj):
     return {k: list(v) for k, v in (names.to_dict() if hasattr(names, "to_dict") else dict(names)).items()}
 
 
-def emission_strength(weight, show, count):
-    """Per-point emission strength: weight / mean weight of the shown points
-    (1 where the weight column is missing or no shown point has weight)."""
-    if weight is None or len(weight) != count:
+def emission_strength(energy, show, count):
+    """Per-point emission strength: energy / mean energy of the shown points
+    (1 where the energy column is missing or no shown point has energy)."""
+    if energy is None or len(energy) != count:
         return np.ones(count, dtype=np.float32)
-    w = np.asarray(weight, dtype=np.float64)
+    w = np.asarray(energy, dtype=np.float64)
     shown = w[np.asarray(show, dtype=bool)] if count else w
     mean = shown.mean() if shown.size else 0.0
     if not (mean > 0 and np.isfinite(mean)):
@@ -273,20 +285,32 @@ def emission_strength(weight, show, count):
 def recolour(obj, settings):
     """Write ``ep_colour`` / ``ep_show`` of a points object for the scene's
     Colour By and filters; store and return its legend (colour_maps.Legend)."""
+    from . import package_finder
+
     mesh = obj.data
     columns = read_point_columns(mesh)
+    position = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", position)
+    columns["position"] = position.reshape(-1, 3) @ np.asarray(obj.matrix_world.to_3x3(), np.float32).T + np.asarray(
+        obj.matrix_world.translation, np.float32
+    )
     names = point_names(obj)
     key = settings.color_by
     if colour_maps.COLOUR_MAPS[key].column not in columns:
         key = "WAVELENGTH"  # e.g. "Exit Order" on a result without that column
-    rgb, show, legend = colour_maps.colour_records(
-        key, columns, display_filters(settings, names), names, count=len(mesh.vertices)
-    )
+    try:
+        rgb, show, legend = colour_maps.colour_records(
+            key, columns, display_filters(settings, names), names, count=len(mesh.vertices)
+        )
+    except package_finder.EngineMissing as exc:  # wavelength colour needs endophoton.colour
+        settings.legend.clear()
+        settings.legend_header = f"Cannot colour the points: {exc}"
+        return None
     rgba = np.ones((len(rgb), 4), dtype=np.float32)
     rgba[:, :3] = rgb
     _set_attribute(mesh, COLOUR_ATTR, "FLOAT_COLOR", rgba)
     _set_attribute(mesh, SHOW_ATTR, "BOOLEAN", show)
-    _set_attribute(mesh, STRENGTH_ATTR, "FLOAT", emission_strength(columns.get("weight"), show, len(rgb)))
+    _set_attribute(mesh, STRENGTH_ATTR, "FLOAT", emission_strength(columns.get("energy"), show, len(rgb)))
     mesh.update()
     obj[LEGEND_KEY] = legend.to_dict()
     obj.update_tag()
@@ -307,8 +331,9 @@ def show_legend(settings, legend):
 
 def render_with_legend(scene, collection, path):
     """Render the scene's camera (its render settings) and write ``path``: the
-    render with the colour bar of ``collection``'s points beside it, loaded as
-    an Image tagged with the run (removed with it).  Returns the Image."""
+    render (linear, exposed by the endoscope-view images' rule, colour_maps.exposed_srgb)
+    with the colour bar of ``collection``'s points beside it, loaded as an Image
+    tagged with the run (removed with it).  Returns the Image."""
     import os
 
     points = points_objects(collection)
@@ -318,11 +343,11 @@ def render_with_legend(scene, collection, path):
     if scene.camera is None:
         raise RuntimeError(f"Scene '{scene.name}' has no camera to render from")
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    raw = os.path.splitext(path)[0] + "_raw.png"
+    raw = os.path.splitext(path)[0] + "_raw.exr"  # linear scene values, no view transform
     saved = scene.render.filepath, scene.render.image_settings.file_format
     try:
         scene.render.filepath = raw
-        scene.render.image_settings.file_format = "PNG"
+        scene.render.image_settings.file_format = "OPEN_EXR"
         bpy.ops.render.render(write_still=True, scene=scene.name)
     finally:
         scene.render.filepath, scene.render.image_settings.file_format = saved
@@ -333,8 +358,9 @@ def render_with_legend(scene, collection, path):
         rendered.pixels.foreach_get(pixels)
     finally:
         bpy.data.images.remove(rendered)
-    picture = pixels.reshape(h, w, 4)[::-1, :, :3]  # Blender's rows run bottom-up
-    colour_maps.legend_figure(legend, path, image=picture, title=collection.name)
+    # Blender's rows run bottom-up; exposed like the endoscope-view images.
+    picture, exposure = colour_maps.exposed_srgb(pixels.reshape(h, w, 4)[::-1, :, :3])
+    colour_maps.legend_figure(legend, path, image=picture, title=f"{collection.name} (exposure ×{exposure:.3g})")
     image = bpy.data.images.load(path, check_existing=True)
     image.reload()
     image[RUN_KEY] = collection.get(RUN_KEY)

@@ -1,53 +1,46 @@
 # SPDX-License-Identifier: MIT
 """Issue 15, acceptance 5: the code in the documentation runs as written.
 
-Every ```python block of each listed docs/*.md file runs inside Blender from
-the repository root, in order, sharing one namespace per file (a later block
-may use names from an earlier one).  DOCS lists the files under test; add a
-file here once its snippets are meant to run (docs/sweep.md: after the package
-helper moves sweep_blend into the add-on; docs/design.md holds API summaries
-with placeholders).  The example script of a β sweep runs in its own
-`blender -b`.
+The ```python snippets of docs/*.md that use ``bpy`` or the add-on run here,
+inside Blender, from the repository root, in order, one namespace per file (a
+later block may use names from an earlier one).  The snippets that need no
+Blender, the bash snippets and the check of the no-run markers are in
+tests/python/test_docs_snippets.py; tests/python/doc_snippets.py finds them
+all.  The example script of a β sweep also runs in its own `blender -b`.
 """
 
 import os
 import re
 import subprocess
+import sys
 
 import bpy
 import pytest
 
 from conftest import ENGINE_FOLDER, REPO, ensure_addon
 
-DOCS = ("docs/addon.md",)
-FENCE = re.compile(r"^```python[^\n]*\n(.*?)^```", re.S | re.M)
+sys.path.insert(0, os.path.join(REPO, "tests", "python"))
+import doc_snippets  # noqa: E402
+
+DOCS = [doc for doc in doc_snippets.docs() if any(s.needs_blender for s in doc_snippets.snippets(doc))]
 
 
-def snippets(path):
-    """[(first line number, code)] of the ```python blocks of a markdown file."""
-    with open(os.path.join(REPO, path), encoding="utf-8") as f:
-        text = f.read()
-    return [(text.count("\n", 0, m.start()) + 2, m.group(1)) for m in FENCE.finditer(text)]
+def test_blender_docs_found():
+    assert "docs/addon.md" in DOCS
 
 
 @pytest.mark.parametrize("doc", DOCS)
 def test_doc_snippets_run(ep, doc, monkeypatch):
-    blocks = snippets(doc)
+    blocks = [s for s in doc_snippets.snippets(doc) if s.lang == "python" and s.marker is None]
     assert blocks, f"{doc} has no python snippet"
     monkeypatch.chdir(REPO)
     namespace = {"__name__": "__docs__"}
-    for line, code in blocks:
+    for s in blocks:
         ensure_addon()
         try:
-            exec(compile(code, f"{doc}:{line}", "exec"), namespace)
+            exec(compile(s.code, s.where, "exec"), namespace)
         except Exception as exc:
-            raise AssertionError(f"{doc}, snippet at line {line} failed: {type(exc).__name__}: {exc}") from exc
-
-
-def test_snippet_finder_reads_every_block(tmp_path):
-    (tmp_path / "x.md").write_text("text\n```python\na = 1\n```\n```sh\nls\n```\n```python\nb = a\n```\n")
-    found = snippets(str(tmp_path / "x.md"))
-    assert found == [(3, "a = 1\n"), (9, "b = a\n")]
+            raise AssertionError(f"{s.where} failed: {type(exc).__name__}: {exc}") from exc
 
 
 def test_beta_sweep_example_runs(ep):

@@ -99,32 +99,31 @@ def test_point_cloud_rejects_mismatched_columns():
     assert len(bpy.data.meshes) == before
 
 
-# CIE 1931 2° colour-matching functions, tabulated (CIE 15): nm -> (x̄, ȳ, z̄).
-CIE_TABLE = {
-    450: (0.3362, 0.0380, 1.7721),
-    500: (0.0049, 0.3230, 0.2720),
-    550: (0.4334, 0.9950, 0.0087),
-    600: (1.0622, 0.6310, 0.0008),
-    650: (0.2835, 0.1070, 0.0000),
-}
+# IEC 61966-2-1 XYZ -> linear sRGB, and CIE 1931 (CIE 15 table) at three lines.
+SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+CIE_TABLE = {450: (0.3362, 0.0380, 1.7721), 530: (0.1655, 0.8620, 0.0422), 630: (0.6424, 0.2650, 0.0000)}
 
 
-def test_wavelength_colour_follows_cie_1931():
-    """The analytic CMF fit matches the CIE table (Wyman et al. report a few %
-    error), and the display colour has the hue of the spectral line: red at
-    photofrin's 630 nm, green at 530 nm, blue at collagen's 450 nm."""
+def test_wavelength_colour_is_the_packages_conversion(ep):
+    """One owner: the add-on's wavelength colour is endophoton.colour's CIE 1931 -> white-balanced
+    linear sRGB (negatives clipped); the hue of each spectral line is that of the CIE table's XYZ
+    through the IEC matrix (recomputed here): red at photofrin's 630 nm, green at 530 nm, blue at
+    collagen's 450 nm; the legend swatches keep the hue with largest channel 1."""
     from endophoton_addon import colour_maps
 
-    nm = np.array(sorted(CIE_TABLE))
-    np.testing.assert_allclose(colour_maps.cie_xyz(nm), np.array([CIE_TABLE[k] for k in nm]), atol=0.04)
-    rgb = colour_maps.wavelength_colours([630.0, 530.0, 450.0])
-    assert rgb.argmax(axis=1).tolist() == [0, 1, 2]
-    assert rgb[0, 1] < 0.1 * rgb[0, 0]  # 630 nm is red, not orange
-    deep_red = colour_maps.wavelength_colours([690.0, 720.0, 760.0])
-    assert np.all(deep_red[:, 0] > 5 * deep_red[:, 1])  # photofrin's 690 nm band stays red
-    assert np.all(rgb >= 0) and np.all(rgb <= 1)
+    nm = np.array(sorted(CIE_TABLE), dtype=float)
+    gains = ep.colour.white_balance_gains(None)
+    rgb = colour_maps.wavelength_rgb(nm)
+    table = np.maximum((np.array([CIE_TABLE[k] for k in sorted(CIE_TABLE)]) * gains) @ SRGB.T, 0.0)
+    np.testing.assert_allclose(rgb, table, atol=0.1)
+    assert rgb.argmax(axis=1).tolist() == [2, 1, 0]
+    assert rgb[2, 1] < 0.1 * rgb[2, 0]  # 630 nm is red, not orange
+    swatches = colour_maps.wavelength_swatches([450.0, 530.0, 630.0, 690.0])
+    np.testing.assert_allclose(swatches.max(axis=1)[:3], 1.0)
+    assert swatches[3, 0] > 5 * swatches[3, 1]  # photofrin's 690 nm band stays red
+    assert np.all(swatches >= 0) and np.all(swatches <= 1)
     # Outside the visible range: black.
-    assert np.all(colour_maps.wavelength_colours([300.0, 900.0]) == 0)
+    assert np.all(colour_maps.wavelength_swatches([300.0, 900.0]) < 1e-6)
 
 
 def _points_in_collection(rec):
@@ -304,3 +303,61 @@ def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
 
     assert ramp("absorbed") != ramp("fluorescence")
     assert ramp("absorbed")[-1] == pytest.approx(results.GRID_RAMPS["absorbed"][-1])
+
+
+def test_wavelength_colour_without_package_says_so_in_panel(tmp_path):
+    """The add-on registers and draws without the package; colouring points by wavelength then
+    needs endophoton.colour and leaves a plain message in the legend instead of a traceback."""
+    import sys
+
+    from endophoton_addon import colour_maps, package_finder
+    from conftest import ensure_addon
+
+    obj = _points_in_collection(_records(np.random.default_rng(5), k=50))
+    settings = bpy.context.scene.endophoton
+    saved = {k: v for k, v in sys.modules.items() if k == "endophoton" or k.startswith("endophoton.")}
+    for k in saved:
+        del sys.modules[k]
+    try:
+        ensure_addon(package_path=str(tmp_path))  # a folder without the package
+        package_finder.forget()
+        with pytest.raises(package_finder.EngineMissing, match="EndoPhoton engine not found"):
+            colour_maps.wavelength_rgb([500.0])
+        settings.color_by = "WAVELENGTH"
+        assert results.recolour(obj, settings) is None
+        assert settings.legend_header.startswith("Cannot colour the points: EndoPhoton engine not found")
+        assert len(settings.legend) == 0
+    finally:
+        sys.modules.update(saved)
+        ensure_addon()
+        package_finder.forget()
+    assert results.recolour(obj, settings).unit == "nm"
+
+
+def test_toward_camera_filter_and_energy_glow():
+    """Toward Camera shows the records whose exit direction is within the cone of the direction
+    to the scene camera (angles recomputed here with arccos); each shown point glows with its
+    energy over the shown records' mean energy."""
+    rec = _records(np.random.default_rng(11), k=2000)
+    obj = _points_in_collection(rec)
+    scene = bpy.context.scene
+    camera = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(camera)
+    camera.location = (0.003, -0.002, 0.03)
+    scene.camera = camera
+    bpy.context.view_layer.update()
+    settings = scene.endophoton
+    settings.camera_cone_deg = 30.0
+    settings.filter_toward_camera = True
+
+    to_cam = np.array([0.003, -0.002, 0.03]) - rec["position"].astype(np.float64)
+    angle = np.degrees(np.arccos(np.clip(np.sum(rec["direction"] * to_cam, 1) / np.linalg.norm(to_cam, axis=1), -1, 1)))
+    expected = angle <= 30.0
+    clear = np.abs(angle - 30.0) > 1e-3  # leave rounding at the cone's edge out of the verdict
+    show = _attr(obj.data, results.SHOW_ATTR)
+    assert 20 < expected.sum() < 1000
+    np.testing.assert_array_equal(show[clear], expected[clear])
+    strength = _attr(obj.data, results.STRENGTH_ATTR)
+    np.testing.assert_allclose(strength, rec["energy"] / rec["energy"][show].mean(), rtol=1e-5)
+    settings.filter_toward_camera = False
+    assert _attr(obj.data, results.SHOW_ATTR).all()
