@@ -32,13 +32,13 @@ GROUPS = {
 }
 
 
-def child(scene_name, n, py):
+def child(scene_name, n, py, safe_distance=True):
     sys.path.insert(0, py)
     import endophoton as ep
     import colon_scene as cs
 
     scene, src = {"seed_tissue": cs.seed_tissue_box, "mcml_slab": cs.mcml_slab, "colon": cs.colon_scene}[scene_name]()
-    r = ep.run(scene, src, photons=n, threads=1, seed=1, record_escapes=False)
+    r = ep.run(scene, src, photons=n, threads=1, seed=1, record_escapes=False, safe_distance=safe_distance)
     print(
         "RESULT "
         + json.dumps(
@@ -51,7 +51,7 @@ def child(scene_name, n, py):
     )
 
 
-def profile(scene_name, n, py):
+def profile(scene_name, n, py, safe_distance=True):
     from callgrind_summary import parse
 
     out = os.path.join(tempfile.gettempdir(), f"ep-cg-steps-{os.getpid()}-{scene_name}.out")
@@ -67,7 +67,7 @@ def profile(scene_name, n, py):
         str(n),
         "--py",
         py,
-    ]
+    ] + ([] if safe_distance else ["--no-safe-distance"])
     p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     if p.returncode:
         raise RuntimeError(p.stderr[-2000:])
@@ -103,14 +103,15 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--child", nargs=2)
     ap.add_argument("--py", default=os.path.join(ROOT, "python"))
+    ap.add_argument("--no-safe-distance", action="store_true", help="run with safe_distance=False")
     ap.add_argument("runs", nargs="*", default=["seed_tissue:5000", "mcml_slab:20000", "colon:2000"])
     a = ap.parse_args()
     if a.child:
-        return child(a.child[0], int(a.child[1]), a.py)
+        return child(a.child[0], int(a.child[1]), a.py, not a.no_safe_distance)
     rows = []
     for spec in a.runs:
         name, n = spec.split(":")
-        row = profile(name, int(n), a.py)
+        row = profile(name, int(n), a.py, not a.no_safe_distance)
         rows.append(row)
         print(
             f"{name}: {row['ir_packet']:.0f} Ir/packet, {row['steps_packet']:.1f} interactions/packet, "

@@ -2,6 +2,8 @@
 
     /usr/bin/python3 bench/lumen_colon.py [--photons N] [--threads T]
 
+bench/run_all.py calls measure() for docs/performance.md §6.
+
 Runs bench/colon_scene.py's tube with the rig inside (seed's tissue and
 fluorophores) with the rule on and off, same seed, and prints one JSON object:
 the balance terms of both runs, the share of records that are second or later
@@ -51,30 +53,26 @@ def landing_z(native_scene, pos, dirs):
     return out
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--photons", type=int, default=20000)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--seed", type=int, default=1)
-    args = ap.parse_args(argv)
+def measure(photons, threads=2, seed=1):
+    """The rule off and on, same seed: balance terms, exits, landings and speed of each (a JSON-able dict)."""
     scene, rig = colon_scene()
-    out = {"photons": args.photons, "threads": args.threads, "seed": args.seed}
+    out = {"photons": photons, "threads": threads, "seed": seed}
     runs = {}
     for lumen in (False, True):
         t0 = time.perf_counter()
-        res = ep.run(scene, rig, photons=args.photons, seed=args.seed, threads=args.threads, lumen=lumen)
+        res = ep.run(scene, rig, photons=photons, seed=seed, threads=threads, lumen=lumen)
         dt = time.perf_counter() - t0
         runs[lumen] = res
         key = "with_rule" if lumen else "without_rule"
         out[key] = {k: [getattr(res, k), getattr(res, k + "_stderr")] for k in ep.FRACTIONS}
         out[key]["balance"] = sum(getattr(res, k) for k in ep.FRACTIONS)
         out[key]["seconds"] = dt
-        out[key]["packets_per_s"] = args.photons / dt
+        out[key]["packets_per_s"] = photons / dt
         out[key]["records"] = int(len(res.escapes["weight"]))
         out[key]["interactions_per_packet"] = res.interactions
-        out[key]["seconds_per_million_interactions"] = dt / (res.interactions * args.photons) * 1e6
+        out[key]["seconds_per_million_interactions"] = dt / (res.interactions * photons) * 1e6
     e = runs[True].escapes
-    n = args.photons
+    n = photons
     order = e["exit_order"]
     out["share_second_or_later_exits"] = float(np.mean(order >= 2))
     out["next_hit_counts"] = {
@@ -93,7 +91,16 @@ def main(argv=None):
     far = np.nan_to_num(z, nan=-1.0) > 0.0
     out["far_wall_landing_weight"] = batch_mean(packet[lands][far], w[lands][far], n)
     out["landing_rays_without_entering_hit"] = int(np.count_nonzero(np.isnan(z)))
-    print(json.dumps(out, indent=1))
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--photons", type=int, default=20000)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    print(json.dumps(measure(args.photons, args.threads, args.seed), indent=1))
 
 
 if __name__ == "__main__":
