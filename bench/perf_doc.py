@@ -80,6 +80,22 @@ def has(R, group):
     return all(k in R for k in GROUPS[group])
 
 
+def section(title, group):
+    """Decorates a section's renderer with its heading and, before its lines, either how to measure
+    ``group`` (when the results lack it) or, when the machine was busy, the under-load mark."""
+
+    def wrap(fn):
+        def render(R, figs, *extra):
+            if not has(R, group):
+                return [f"## {title}\n"] + missing(R, group)
+            return [f"## {title}\n", load_note(R, group)] + fn(R, figs, *extra)
+
+        render.__name__, render.__doc__ = fn.__name__, fn.__doc__
+        return render
+
+    return wrap
+
+
 def sec_machine(R, figs):
     """Title, provenance and the machine table."""
     L = []
@@ -132,15 +148,12 @@ def sec_machine(R, figs):
     return L
 
 
+@section("1. Throughput and peak memory", "throughput")
 def sec_throughput(R, figs):
     """§1: packets/s, packets per CPU-second and peak memory per configuration, 1 and 2 threads."""
     L = []
     a = L.append
-    a("## 1. Throughput and peak memory\n")
-    if not has(R, "throughput"):
-        return L + missing(R, "throughput")
     rows = R["throughput"]
-    a(load_note(R, "throughput"))
     a(
         "One fresh process per configuration; a 2000-packet warm-up, then the timed run; packets/s = packets / "
         "engine seconds (wall clock); packets per CPU-second = packets / (user + system CPU time of the run), which "
@@ -212,15 +225,12 @@ def sec_throughput(R, figs):
     return L
 
 
+@section("2. Accuracy versus packets and wall time (MCML slab, oracles §1)", "accuracy")
 def sec_accuracy(R, figs):
     """§2: error against van de Hulst versus packets and wall time."""
     L = []
     a = L.append
-    a("## 2. Accuracy versus packets and wall time (MCML slab, oracles §1)\n")
-    if not has(R, "accuracy"):
-        return L + missing(R, "accuracy")
     summ, pooled = R["accuracy"], R["accuracy_pooled"]
-    a(load_note(R, "accuracy"))
     a(
         "Independent runs (different seeds, 2 threads) of the slab n = 1, mua = 10, mus = 90, g = 0.75, "
         "d = 0.02 cm; error against van de Hulst (Rd = 0.09739, Tt = 0.66096, rounding ±5e-6). "
@@ -289,14 +299,10 @@ def sec_accuracy(R, figs):
     return L
 
 
-def sec_knobs(R, figs):
-    """§3: roulette, safe distance, voxel size, max_steps, target accuracy, float vs double."""
+def _knob_roulette(R, figs):
+    """Russian roulette threshold against efficiency and bias."""
     L = []
     a = L.append
-    a("## 3. Speed / accuracy knobs\n")
-    if not has(R, "knobs"):
-        return L + missing(R, "knobs")
-    a(load_note(R, "knobs"))
     a("### Russian roulette threshold\n")
     a(
         "MCML roulette: below the threshold a packet survives with chance 0.1 and weight × 10. Efficiency = "
@@ -336,7 +342,13 @@ def sec_knobs(R, figs):
         )
     )
     a(f"\n![roulette]({figs['roulette']})\n")
+    return L
 
+
+def _knob_safe_distance(R, figs):
+    """safe_distance on / off: wall clock and instructions."""
+    L = []
+    a = L.append
     a("### Safe distance (closest-surface query) on / off\n")
     a(
         "`safe_distance=True` (the default) lets the engine answer steps near surfaces from its local geometry "
@@ -381,7 +393,13 @@ def sec_knobs(R, figs):
         )
         a(f"\nBy instruction count, `safe_distance=True` {verdict}.")
     a("")
+    return L
 
+
+def _knob_voxel(R, figs):
+    """Voxel size of the grids: accuracy against Beer–Lambert, cost on the colon."""
+    L = []
+    a = L.append
     a("### Voxel size of the grids\n")
     vb = R["voxel_profile"]
     a(
@@ -458,7 +476,13 @@ def sec_knobs(R, figs):
         )
     a(md_table(["voxel (mm)", "packets/s", "peak RSS MB", "VDB MB", "grid sum vs absorbed energy (rel. diff.)"], tr))
     a(f"\n![voxel]({figs['voxel']})\n")
+    return L
 
+
+def _knob_max_steps(R, figs):
+    """The max_steps cap: cut weight and bias."""
+    L = []
+    a = L.append
     a("### max_steps cap\n")
     a(
         "Events (interactions + boundary crossings) per packet above the cap end the packet; its weight is tallied "
@@ -485,12 +509,20 @@ def sec_knobs(R, figs):
         )
     )
     a(f"\n![max steps]({figs['max_steps']})\n")
+    return L
 
+
+def _knob_target(R, figs):
+    """Target accuracy: packets and time per target, and the cost of the stop rule."""
+    L = []
+    a = L.append
     a("### Packet count and target accuracy\n")
     a(
         "The packet count sets the error as σ₁/√N (section 2). Target-accuracy mode "
         "(`ep.run(..., target=ep.Target(tally, rel_error))`) runs until stderr/|mean| ≤ rel_error; packets used, "
-        "time (2 threads) and, where an oracle exists, the error against it:\n"
+        "time (2 threads) and, where an oracle exists, the error against it. Each run is capped at "
+        f"{fmt_int(R['presets'][0].get('cap', 0))} packets to keep the bench within its budget; `stop` = "
+        "`max_photons` marks a target the cap did not reach.\n"
     )
     tr = []
     for r in R["presets"]:
@@ -522,7 +554,13 @@ def sec_knobs(R, figs):
     ]
     a(md_table(["unit size", "units K", "fixed-count s", "target mode s", "overhead s"], tr))
     a(stop_rule_verdict(to))
+    return L
 
+
+def _knob_float(R, figs):
+    """float or double positions (no float build: text only)."""
+    L = []
+    a = L.append
     a("### float or double positions\n")
     a(
         "Not available as a runtime option: the engine is double-only. `native/vecmath.h` defines one alias "
@@ -532,17 +570,23 @@ def sec_knobs(R, figs):
         "the counter-based RNG returns doubles with 53 random bits, and the batch accumulators must stay double. "
         "No float numbers are reported here because no float build exists.\n"
     )
-
     return L
 
 
+@section("3. Speed / accuracy knobs", "knobs")
+def sec_knobs(R, figs):
+    """§3: roulette, safe distance, voxel size, max_steps, target accuracy, float vs double."""
+    return [line for part in KNOBS for line in part(R, figs)]
+
+
+KNOBS = (_knob_roulette, _knob_safe_distance, _knob_voxel, _knob_max_steps, _knob_target, _knob_float)
+
+
+@section("5. Quality presets", "knobs")
 def sec_presets(R, figs):
     """§5: the quality presets."""
     L = []
     a = L.append
-    a("## 5. Quality presets\n")
-    if not has(R, "knobs"):
-        return L + missing(R, "knobs")
     a(
         "Presets defined by a target relative standard error on the run's main tally (diffuse reflectance; "
         "fluorescent escaped weight for fluorescence scenes), measured above with 2 threads:\n"
@@ -585,24 +629,25 @@ def sec_presets(R, figs):
 
 
 def stop_rule_verdict(to):
-    """What the stop-rule runs say: a per-unit cost, or a K² growth that needs an engine fix."""
-    fit = [r for r in to if r["units"] >= 6000] or to[-1:]
-    c = sum(r["overhead_s"] * r["units"] ** 2 for r in fit) / sum(r["units"] ** 4 for r in fit)  # least squares
+    """What the stop-rule runs say: a least-squares fit of overhead = a·K + c·K² (K units per run), and
+    whether the K² term would matter at the largest preset's packet cap."""
+    import numpy as np
+
+    K = np.array([r["units"] for r in to], dtype=float)
+    (a, c), *_ = np.linalg.lstsq(np.stack([K, K * K], axis=1), np.array([r["overhead_s"] for r in to]), rcond=None)
     unit = to[0].get("default_target_unit", 1024)
     cap = to[0].get("largest_preset_cap", 200_000_000)
     Kc = cap / unit
-    per_unit = max(r["overhead_s"] / r["units"] for r in to)
-    if c * Kc**2 > 10.0:
+    at_cap = f"a run at the largest preset cap ({fmt_int(cap)} packets, {fmt_int(Kc)} units of {unit})"
+    fit = f"a fit of overhead = a·K + c·K² gives a = {a * 1e6:.2f} µs per unit and c = {c:.1e} s"
+    if c * Kc**2 > max(10.0, a * Kc):
         return (
-            f"\nThe overhead grows as K²: a least-squares fit of overhead = c·K² (runs with K ≥ 6000) gives "
-            f"c = {c:.1e} s, so a run at the largest preset cap ({fmt_int(cap)} packets, {fmt_int(Kc)} units of "
-            f"{unit}) would spend ≈ {c * Kc ** 2:.0f} s on stop checks (extrapolated, not measured). **Engine issue**: "
-            "the check should cost O(1) per unit (running batch sums).\n"
+            f"\nThe overhead grows as K²: {fit}, so {at_cap} would spend ≈ {a * Kc + c * Kc ** 2:.0f} s on stop "
+            "checks (extrapolated, not measured). **Engine issue**: the check should cost O(1) per unit.\n"
         )
     return (
-        f"\nNo K² growth: the largest overhead is {per_unit * 1e6:.1f} µs per unit (within the timing noise where "
-        f"it is negative), so a run at the largest preset cap ({fmt_int(cap)} packets, {fmt_int(Kc)} units of "
-        f"{unit}) spends at most ≈ {per_unit * Kc:.1f} s on stop checks (extrapolated).\n"
+        f"\nNo K² growth: {fit}, so {at_cap} spends ≈ {max(a, 0) * Kc + max(c, 0) * Kc ** 2:.1f} s on stop "
+        "checks (extrapolated; negative terms are timing noise).\n"
     )
 
 
@@ -613,7 +658,8 @@ def sec_profile(R, figs):
     a("## 4. Instructions per step (callgrind)\n")
     pf = R.get("profile") or {}
     if "steps" not in pf:
-        return L + missing(dict(R, errors={"profile": pf.get("error")}), "profile")
+        why = pf.get("error") or (R.get("errors") or {}).get("profile")
+        return L + missing(dict(R, errors={"profile": why}), "profile")
     rows = pf["steps"]
     a(
         "`bench/callgrind_steps.py`: `valgrind --tool=callgrind --toggle-collect='ep::Tracer::trace(*'`, one thread, "
@@ -638,8 +684,10 @@ def sec_profile(R, figs):
             ],
         )
     )
-    a("\nEach part of the loop, Ir per interaction (calls per packet in brackets; `loop (rest)` is everything ")
-    a("inlined into the transport loop: RNG, phase function, vector maths, tallies, interface logic):\n")
+    a(
+        "\nEach part of the loop, Ir per interaction (calls per packet in brackets; `loop (rest)` is everything "
+        "inlined into the transport loop: RNG, phase function, vector maths, tallies, interface logic):\n"
+    )
     parts = list(dict.fromkeys(k for r in rows for k in r["parts"]))
     tr = []
     for k in parts:
@@ -654,16 +702,13 @@ def sec_profile(R, figs):
     return L
 
 
+@section("6. Light crosses the lumen on colon_polyp (issue 9)", "lumen")
 def sec_lumen(R, figs):
     """§6: what the lumen rule (issue 9) changes on colon_polyp, and what it costs."""
     L = []
     a = L.append
-    a("## 6. Light crosses the lumen on colon_polyp (issue 9)\n")
-    if not has(R, "lumen"):
-        return L + missing(R, "lumen")
     m = R["lumen"]
     off, on = m["without_rule"], m["with_rule"]
-    a(load_note(R, "lumen"))
     a(
         "`bench/lumen_colon.py` traces `bench/colon_scene.py`'s tube (seed's tissue, collagen, photofrin polyp, rig "
         "at β = 20°, 1 cm from the polyp, head body on) with the rule on and off (`ep.run(..., lumen=False)`, the "
@@ -718,29 +763,20 @@ def sec_lumen(R, figs):
     return L
 
 
+@section("7. Endoscope view: seconds per image", "render")
 def sec_render(R, figs):
     """§7: seconds per endoscope image against kernel size and resolution (bench/render_speed.py)."""
-    L = []
-    a = L.append
-    a("## 7. Endoscope view: seconds per image\n")
-    if not has(R, "render"):
-        return L + missing(R, "render")
-    import render_speed
+    import render_speed  # the table's own template lives with its measurement
 
-    a(load_note(R, "render"))
-    a(render_speed.table(R["render"]["rows"], R["render"]["meta"]))
-    return L
+    return [render_speed.table(R["render"]["rows"], R["render"]["meta"])]
 
 
+@section("8. Distributed runs (Dask)", "dask")
 def sec_dask(R, figs):
     """§8: distributed runs, the table bench/dask_cluster.py prints."""
     L = []
     a = L.append
-    a("## 8. Distributed runs (Dask)\n")
-    if not has(R, "dask"):
-        return L + missing(R, "dask")
     d = R["dask"]
-    a(load_note(R, "dask"))
     a(
         f"`/usr/bin/python3 bench/{' '.join(d['args'])}` (what it measures: its docstring; the set-up: "
         "`docs/distributed.md`). Its output, as printed"
@@ -807,6 +843,25 @@ def sec_issue11(R, figs, B):
             sc.append([key, before, f"{scaling[-1]:.2f}× ({r2['pp_cpu_s'] / r1['pp_cpu_s']:.2f})"])
     a(md_table(["config", "before", "after"], sc))
     a("")
+    sbs = R.get("side_by_side")
+    if sbs:
+        a(
+            f"Side by side, measured by this run: the baseline package in `{sbs['before_py']}` and this engine, "
+            "one process each, interleaved, best of 2 (`bench/side_by_side.py`):\n"
+        )
+        rows = [
+            [
+                r["config"],
+                r["threads"],
+                fmt_int(r["packets"]),
+                f"{fmt_int(r['before'])} ({fmt_int(r['before_cpu'])})",
+                f"{fmt_int(r['after'])} ({fmt_int(r['after_cpu'])})",
+                f"{r['after'] / r['before']:.2f}×",
+            ]
+            for r in sbs["rows"]
+        ]
+        a(md_table(["config", "threads", "packets", "before /s (per CPU-s)", "after /s (per CPU-s)", "speed-up"], rows))
+        a("")
     L += _issue11_instructions(R, B)
     L += _issue11_goals(R, B, after, scaling)
     return L
@@ -840,7 +895,8 @@ def _issue11_instructions(R, B):
     b, r = B["instructions"].get("seed_tissue"), steps.get("seed_tissue")
     if b and r and "parts" in b:
         parts = list(dict.fromkeys(list(b["parts"]) + list(r["parts"])))
-        rows = [[k, f"{b['parts'].get(k, 0):.0f}", f"{r['parts'].get(k, 0):.0f}"] for k in parts]
+        cell = lambda d, k: f"{d['parts'][k]:.0f}" if k in d["parts"] else "–"  # noqa: E731
+        rows = [[k, cell(b, k), cell(r, k)] for k in parts]
         out += [
             "Seed tissue, Ir per interaction by part of the loop:\n",
             md_table(["part", "before", "after"], rows),
@@ -860,7 +916,8 @@ def _issue11_goals(R, B, after, scaling):
             f"1. Seed tissue, one core: {fmt_int(seed1['pps'])} packets/s ({fmt_int(per_core)} per CPU-second of "
             f"the run); goal {fmt_int(g['seed_tissue_pps_1thread'])}: "
             f"{_goal(min(seed1['pps'], per_core) >= g['seed_tissue_pps_1thread'])}. MCML side by side (MCML's "
-            f"figure from {mc['provenance']}): {fmt_int(lo)}–{fmt_int(hi)} packets per CPU-second, so this engine is "
+            f"figures: `bench/baseline.json`, from issue 11, whole-process CPU time, 1e6 packets): "
+            f"{fmt_int(lo)}–{fmt_int(hi)} packets per CPU-second, so this engine is "
             f"{per_core / hi:.2f}–{per_core / lo:.2f}× MCML per core (the engine's CPU time excludes process "
             "start-up and scene build, MCML's includes them)."
         )

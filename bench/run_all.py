@@ -4,6 +4,7 @@
     /usr/bin/python3 bench/run_all.py                    # full run: <= 15 min on 2 idle cores
     /usr/bin/python3 bench/run_all.py --quick            # smoke run, small counts, written to /tmp/ep-perf-quick
     /usr/bin/python3 bench/run_all.py --sections lumen,render   # rerun some sections, keep the others
+    /usr/bin/python3 bench/run_all.py --render-only      # the page again from perf/results.json (templates)
 
 Sections (``--sections``, see perf_doc.GROUPS): throughput (packets/s, packets per CPU-second and
 peak memory, one subprocess per configuration, 1 and 2 threads); accuracy (error against the
@@ -30,6 +31,7 @@ import math
 import os
 import platform
 import resource
+import shlex
 import shutil
 import subprocess
 import sys
@@ -45,7 +47,7 @@ ROOT = os.path.dirname(HERE)
 PY = os.path.join(ROOT, "python")
 DOCS = os.path.join(ROOT, "docs")
 PERF = os.path.join(DOCS, "perf")
-PROFILE_BUILD = "/tmp/build-bench"
+PROFILE_BUILD = "/tmp/build-bench" + ROOT.replace("/", "-")  # one per checkout: /tmp/build-bench-work-main
 PROFILE_PY = os.path.join(PROFILE_BUILD, "mod")
 PYTHON = "/usr/bin/python3"
 
@@ -562,10 +564,13 @@ def bench_presets(q):
         ("colon", "fluorescent_escaped"),
     ]
     targets = (0.05, 0.01, 0.002) if not q else (0.05, 0.01)
+    cap = 200_000 if q else 2_000_000  # the budget: a target not reached by then says so ("max_photons")
     for name, tally in plan:
         scene, src = scene_by_name(name)
         for t in targets:
-            r = ep.run(scene, src, target=ep.Target(tally, t), seed=21, threads=2, record_escapes=False)
+            r = ep.run(
+                scene, src, target=ep.Target(tally, t), max_photons=cap, seed=21, threads=2, record_escapes=False
+            )
             x, se = getattr(r, tally), getattr(r, tally + "_stderr")
             row = dict(
                 scene=name,
@@ -578,6 +583,7 @@ def bench_presets(q):
                 rel=se / abs(x),
                 stop=r.stop_reason,
                 unit=r.unit_size,
+                cap=cap,
             )
             if name == "mcml_slab":
                 row.update(ref=VDH_RD, unc=VDH_UNC, err=x - VDH_RD)
@@ -637,85 +643,88 @@ def bench_target_overhead(q):
 # ----------------------------------------------------------------------------- 4. profile
 
 
-def ensure_profile_build():
-    """Unstripped RelWithDebInfo copy of the module in /tmp/build-bench (incremental)."""
-    if not shutil.which("valgrind"):
-        return "valgrind is not installed"
+def _relink_unstripped(dst_dir):
+    """The in-tree build's module linked again into ``dst_dir`` without its strip step (seconds, not the
+    minutes of a build), when build/ is at least as new as every engine source; else False."""
+    build = os.path.join(ROOT, "build")
+    link_txt = os.path.join(build, "CMakeFiles", "_core.dir", "link.txt")
+    lib = os.path.join(build, "libendophoton_core.a")
+    mods = glob.glob(os.path.join(PY, "endophoton", "_core*.so"))
+    if not (os.path.exists(link_txt) and os.path.exists(lib) and mods):
+        return False
+    sources = glob.glob(os.path.join(ROOT, "native", "**", "*.*"), recursive=True)
+    if min(os.path.getmtime(lib), os.path.getmtime(mods[0])) < max(os.path.getmtime(f) for f in sources):
+        return False
+    with open(link_txt, encoding="utf-8") as fh:
+        words = shlex.split(fh.read())
+    i = words.index("-o")
+    words[i + 1] = os.path.join(dst_dir, os.path.basename(words[i + 1]))
+    return subprocess.run(words, cwd=build, capture_output=True).returncode == 0
+
+
+def _build_unstripped():
+    """A separate build of the module that pybind11 does not strip (RelWithDebInfo with Release's flags)."""
     if not os.path.exists(os.path.join(PROFILE_BUILD, "CMakeCache.txt")):
-        r = subprocess.run(
-            [
-                "cmake",
-                "-S",
-                ROOT,
-                "-B",
-                PROFILE_BUILD,
-                # Release's optimisation, not stripped (pybind11 strips Release modules): function names
-                # for callgrind without the compile time of debug info.
-                "-DCMAKE_BUILD_TYPE=RelWithDebInfo",
-                "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O3 -DNDEBUG",
-                "-DENDOPHOTON_BUILD_TESTS=OFF",
-                f"-DENDOPHOTON_MODULE_OUTPUT_DIR={PROFILE_PY}/endophoton",
-            ],
-            capture_output=True,
-            text=True,
-        )
+        cmd = ["cmake", "-S", ROOT, "-B", PROFILE_BUILD, "-DCMAKE_BUILD_TYPE=RelWithDebInfo"]
+        cmd += ["-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O3 -DNDEBUG", "-DENDOPHOTON_BUILD_TESTS=OFF"]
+        cmd += [f"-DENDOPHOTON_MODULE_OUTPUT_DIR={PROFILE_PY}/endophoton", f"-DPython3_EXECUTABLE={PYTHON}"]
+        r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode:
             return "cmake configure failed: " + r.stderr[-500:]
-    r = subprocess.run(["cmake", "--build", PROFILE_BUILD, "-j2"], capture_output=True, text=True)
-    if r.returncode:
-        return "cmake build failed: " + r.stderr[-500:]
+    r = subprocess.run(["cmake", "--build", PROFILE_BUILD, "--target", "_core", "-j2"], capture_output=True, text=True)
+    return "cmake build failed: " + r.stderr[-500:] if r.returncode else None
+
+
+def ensure_profile_build():
+    """An unstripped copy of the engine module with the package in PROFILE_PY, so that callgrind names the
+    engine's functions (the in-tree module is stripped). Returns (how it was made, error)."""
+    if not shutil.which("valgrind"):
+        return None, "valgrind is not installed"
     dst = os.path.join(PROFILE_PY, "endophoton")
-    for f in glob.glob(os.path.join(PY, "endophoton", "*.py")):
-        shutil.copy2(f, dst)
+    shutil.copytree(os.path.join(PY, "endophoton"), dst, dirs_exist_ok=True, ignore=shutil.ignore_patterns("_core*"))
     # Default EEMs: the package looks in endophoton/data/eem first.
     os.makedirs(os.path.join(dst, "data"), exist_ok=True)
     link = os.path.join(dst, "data", "eem")
     if not os.path.exists(link):
         os.symlink(os.path.join(ROOT, "data", "eem"), link)
-    return None
+    if _relink_unstripped(dst):
+        return "the in-tree Release build (build/) linked again without stripping, in " + PROFILE_PY, None
+    err = _build_unstripped()
+    return f"a RelWithDebInfo build with Release's -O3 in {PROFILE_BUILD}", err
 
 
 def bench_profile(q):
     """Instructions per packet and per interaction, by part of the loop (bench/callgrind_steps.py), and
     safe_distance on / off in instructions."""
-    err = ensure_profile_build()
+    how, err = ensure_profile_build()
     if err:
         return dict(error=err)
     import callgrind_steps
 
-    plan = [("seed_tissue", 20_000), ("mcml_slab", 50_000), ("colon", 2_000)]
-    sd_plan = [("seed_tissue", 5_000), ("mcml_slab", 20_000), ("colon", 1_000)]
+    plan = [("seed_tissue", 10_000), ("mcml_slab", 20_000), ("colon", 1_000)]
+    sd_plan = [("seed_tissue", 3_000), ("mcml_slab", 10_000), ("colon", 500)]
     if q:
         plan, sd_plan = [(s, n // 10) for s, n in plan], [(s, n // 10) for s, n in sd_plan]
-    out = dict(build=PROFILE_BUILD, steps=[], safe_distance=[])
-    for name, n in plan:
-        row = callgrind_steps.profile(name, n, PROFILE_PY)
-        out["steps"].append(row)
-        log(f"callgrind {name}: {row['ir_packet']:.0f} Ir/packet, {row['ir_step']:.0f} Ir per interaction")
+    specs = [(name, n, True) for name, n in plan]
+    specs += [(name, n, on) for name, n in sd_plan for on in (True, False)]
+    rows = callgrind_steps.profile_many(specs, PROFILE_PY)  # one process: valgrind's start-up once
+    out = dict(build=how, steps=rows[: len(plan)], safe_distance=[])
+    for row in out["steps"]:
+        log(f"callgrind {row['scene']}: {row['ir_packet']:.0f} Ir/packet, {row['ir_step']:.0f} Ir per interaction")
     all_hits = "ray query (Embree all-hits)"
-    for name, n in sd_plan:
-        row = dict(scene=name, packets=n)
-        for on in (True, False):
-            p = callgrind_steps.profile(name, n, PROFILE_PY, safe_distance=on)
-            row["ir_on" if on else "ir_off"] = p["ir_packet"]
-            row["rq_on" if on else "rq_off"] = p["calls"].get(all_hits, 0.0)
-        out["safe_distance"].append(row)
-        log(f"callgrind safe distance {name}: on {row['ir_on']:.0f} Ir/packet, off {row['ir_off']:.0f}")
+    for (name, n), on, off in zip(sd_plan, rows[len(plan) :: 2], rows[len(plan) + 1 :: 2]):
+        sd = dict(scene=name, packets=n, ir_on=on["ir_packet"], ir_off=off["ir_packet"])
+        sd.update(rq_on=on["calls"].get(all_hits, 0.0), rq_off=off["calls"].get(all_hits, 0.0))
+        out["safe_distance"].append(sd)
+        log(f"callgrind safe distance {name}: on {sd['ir_on']:.0f} Ir/packet, off {sd['ir_off']:.0f}")
     return out
 
 
 # ----------------------------------------------------------------------------- plots
 
 
-def make_plots(R):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    figs = {}
-    # throughput
+def _plot_throughput(R, figs, plt, np):
+    """Figure: throughput."""
     if "throughput" in R:
         rows = R["throughput"]
         keys = list(dict.fromkeys(r["key"] for r in rows))
@@ -734,7 +743,9 @@ def make_plots(R):
         ax[0].set_yscale("log")
         figs["throughput"] = save_fig(fig, "throughput.png")
 
-    # accuracy vs N and vs time
+
+def _plot_accuracy(R, figs, plt, np):
+    """Figure: accuracy vs N and vs time."""
     if "accuracy" in R:
         runs = R["accuracy_runs"]
         summ = R["accuracy"]
@@ -766,7 +777,9 @@ def make_plots(R):
                 a.legend(fontsize=8)
             figs["accuracy_" + what] = save_fig(fig, fname)
 
-    # roulette
+
+def _plot_roulette(R, figs, plt, np):
+    """Figure: roulette."""
     if "roulette" in R:
         ro = R["roulette"]
         fig, ax = plt.subplots(1, 3, figsize=(13, 3.6))
@@ -785,7 +798,9 @@ def make_plots(R):
             a.legend(fontsize=8)
         figs["roulette"] = save_fig(fig, "roulette.png")
 
-    # max steps
+
+def _plot_max_steps(R, figs, plt, np):
+    """Figure: max steps."""
     if "max_steps" in R:
         ms = R["max_steps"]
         fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
@@ -804,7 +819,9 @@ def make_plots(R):
             a.legend(fontsize=8)
         figs["max_steps"] = save_fig(fig, "max_steps.png")
 
-    # voxel
+
+def _plot_voxel(R, figs, plt, np):
+    """Figure: voxel."""
     if "voxel_profile" in R and "voxel_colon" in R:
         vb = R["voxel_profile"]
         fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
@@ -844,7 +861,9 @@ def make_plots(R):
         ax2.legend(loc="upper right", fontsize=8)
         figs["voxel"] = save_fig(fig, "voxel.png")
 
-    # presets
+
+def _plot_presets(R, figs, plt, np):
+    """Figure: presets."""
     if "presets" in R:
         pr = R["presets"]
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -858,7 +877,9 @@ def make_plots(R):
         ax.legend(fontsize=8)
         figs["presets"] = save_fig(fig, "presets.png")
 
-    # profile: Ir per interaction by part of the loop, stacked, one bar per scene
+
+def _plot_profile(R, figs, plt, np):
+    """Figure: profile: Ir per interaction by part of the loop, stacked, one bar per scene."""
     steps = (R.get("profile") or {}).get("steps")
     if steps:
         parts = list(dict.fromkeys(k for r in steps for k in r["parts"]))
@@ -871,7 +892,23 @@ def make_plots(R):
         ax.set_xlabel("instructions (callgrind Ir) per interaction")
         ax.legend(fontsize=7, loc="lower right")
         figs["profile"] = save_fig(fig, "profile.png")
+
+
+def make_plots(R):
+    """The figures of the sections R holds; returns their paths relative to the page."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    figs = {}
+    for plot in PLOTS:
+        plot(R, figs, plt, np)
     return figs
+
+
+PLOTS = (_plot_throughput, _plot_accuracy, _plot_roulette, _plot_max_steps, _plot_voxel, _plot_presets, _plot_profile)
 
 
 # ----------------------------------------------------------------------------- 6-9. lumen, render, Dask, issue 11
@@ -966,6 +1003,16 @@ def _knobs(R, q):
         R[name] = fn(q)
 
 
+def _issue11(R, q):
+    R["mcml_rd"] = bench_mcml_rd(q)
+    before = (R.get("options") or {}).get("baseline_py")
+    if before:  # the baseline engine measured now, interleaved with this one (bench/side_by_side.py)
+        import side_by_side
+
+        plan = [(k, c, n // 20 if q else n) for k, c, n in side_by_side.PLAN]
+        R["side_by_side"] = dict(before_py=before, rows=side_by_side.compare(before, PY, 2, plan, report=log))
+
+
 def _one(key, fn):
     def run(R, q):
         R[key] = fn(q)
@@ -982,7 +1029,7 @@ MEASURE = {
     "lumen": _one("lumen", bench_lumen),
     "render": _one("render", bench_render),
     "dask": _one("dask", bench_dask),
-    "issue11": _one("mcml_rd", bench_mcml_rd),
+    "issue11": _issue11,
 }
 
 
@@ -999,8 +1046,19 @@ def parse_args(argv=None):
     )
     ap.add_argument("--no-profile", action="store_true", help="skip the callgrind section")
     ap.add_argument(
+        "--render-only",
+        action="store_true",
+        help="measure nothing: write the page and figures again from the output's perf/results.json (after a "
+        "change to the templates in bench/perf_doc.py)",
+    )
+    ap.add_argument(
         "--out",
         help="directory for performance.md and perf/ (default: docs/, or /tmp/ep-perf-quick with --quick)",
+    )
+    ap.add_argument(
+        "--baseline-py",
+        help="directory of the baseline's endophoton package (bench/side_by_side.py --build-before COMMIT builds "
+        "one): the issue11 section then also measures it side by side with this engine",
     )
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -1023,10 +1081,15 @@ def main(argv=None):
     PERF = os.path.join(DOCS, "perf")
     groups = list(GROUPS)
     R = dict(quick=q)
+    last = os.path.join(PERF, "results.json")
+    if args.render_only:
+        with open(last, encoding="utf-8") as fh:
+            return write_page(json.load(fh))
     if args.sections:  # rerun some groups, keep the others from the last results.json
         groups = args.sections.split(",")
-        with open(os.path.join(PERF, "results.json"), encoding="utf-8") as fh:
-            R = json.load(fh)
+        if os.path.exists(last):
+            with open(last, encoding="utf-8") as fh:
+                R = json.load(fh)
         R["partial_rerun"] = groups
         for g in groups:
             (R.get("errors") or {}).pop(g, None)
@@ -1035,19 +1098,25 @@ def main(argv=None):
         R["profile"] = dict(error="skipped (--no-profile)")
     R["machine"] = machine_info()
     R["budget_s"] = BUDGET_S
+    R["options"] = dict(baseline_py=args.baseline_py and os.path.abspath(args.baseline_py))
     log(f"machine: {R['machine']['cpu']}, nproc {R['machine']['nproc']}; sections {', '.join(groups)}")
     for g in groups:
         measured(R, g, MEASURE[g], q)
     R["machine"]["load_end"] = os.getloadavg()
     R["bench_seconds"] = time.time() - T0
-    atomic_write_text(os.path.join(PERF, "results.json"), json.dumps(R, indent=1, default=str))
+    atomic_write_text(last, json.dumps(R, indent=1, default=str))
+    if R["bench_seconds"] > BUDGET_S and not args.sections:
+        log(f"over budget: {R['bench_seconds']:.0f} s > {BUDGET_S} s")
+    return write_page(R)
+
+
+def write_page(R):
+    """performance.md and its figures from the results R (the issue-11 baseline from bench/baseline.json)."""
     figs = make_plots(R)
     with open(BASELINE, encoding="utf-8") as fh:
         baseline = json.load(fh)
     atomic_write_text(os.path.join(DOCS, "performance.md"), perf_doc.render_document(R, figs, baseline))
     log(f"wrote {os.path.join(DOCS, 'performance.md')} and {len(figs)} figures in {PERF}")
-    if R["bench_seconds"] > BUDGET_S and not args.sections:
-        log(f"over budget: {R['bench_seconds']:.0f} s > {BUDGET_S} s")
     return 1 if R.get("errors") else 0
 
 
