@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """EndoPhoton benchmark suite (not a test): regenerates the whole of docs/performance.md and docs/perf/*.png.
 
-    /usr/bin/python3 bench/run_all.py                    # full run: <= 15 min on 2 idle cores
+    /usr/bin/python3 bench/run_all.py                    # full run; budget 15 min on 2 idle cores (the page says)
     /usr/bin/python3 bench/run_all.py --quick            # smoke run, small counts, written to /tmp/ep-perf-quick
     /usr/bin/python3 bench/run_all.py --sections lumen,render   # rerun some sections, keep the others
     /usr/bin/python3 bench/run_all.py --render-only      # the page again from perf/results.json (templates)
