@@ -80,6 +80,24 @@ def has(R, group):
     return all(k in R for k in GROUPS[group])
 
 
+def subsection(title):
+    """Decorates a part of a section's renderer with its ### heading."""
+
+    def wrap(fn):
+        def render(R, figs):
+            return [f"### {title}\n"] + fn(R, figs)
+
+        render.__name__, render.__doc__ = fn.__name__, fn.__doc__
+        return render
+
+    return wrap
+
+
+def figure(figs, key, alt):
+    """The Markdown line of figure ``key`` (a path relative to the page)."""
+    return f"\n![{alt}]({figs[key]})\n"
+
+
 def section(title, group):
     """Decorates a section's renderer with its heading and, before its lines, either how to measure
     ``group`` (when the results lack it) or, when the machine was busy, the under-load mark."""
@@ -299,11 +317,11 @@ def sec_accuracy(R, figs):
     return L
 
 
+@subsection("Russian roulette threshold")
 def _knob_roulette(R, figs):
     """Russian roulette threshold against efficiency and bias."""
     L = []
     a = L.append
-    a("### Russian roulette threshold\n")
     a(
         "MCML roulette: below the threshold a packet survives with chance 0.1 and weight × 10. Efficiency = "
         "1/(σ² t) (higher is better), relative to the default 1e-4. Reference: van de Hulst Rd for the slab, "
@@ -341,15 +359,15 @@ def _knob_roulette(R, figs):
             tr,
         )
     )
-    a(f"\n![roulette]({figs['roulette']})\n")
+    a(figure(figs, "roulette", "roulette"))
     return L
 
 
+@subsection("Safe distance (closest-surface query) on / off")
 def _knob_safe_distance(R, figs):
     """safe_distance on / off: wall clock and instructions."""
     L = []
     a = L.append
-    a("### Safe distance (closest-surface query) on / off\n")
     a(
         "`safe_distance=True` (the default) lets the engine answer steps near surfaces from its local geometry "
         "(issue 11's triangle cache, on scenes it serves) instead of a full Embree query; `False` queries Embree "
@@ -396,11 +414,11 @@ def _knob_safe_distance(R, figs):
     return L
 
 
+@subsection("Voxel size of the grids")
 def _knob_voxel(R, figs):
     """Voxel size of the grids: accuracy against Beer–Lambert, cost on the colon."""
     L = []
     a = L.append
-    a("### Voxel size of the grids\n")
     vb = R["voxel_profile"]
     a(
         "Accuracy: the absorbed grid of a pencil beam (matched n, mua = 10 cm⁻¹) summed over x, y, for voxels fully "
@@ -475,15 +493,15 @@ def _knob_voxel(R, figs):
             ]
         )
     a(md_table(["voxel (mm)", "packets/s", "peak RSS MB", "VDB MB", "grid sum vs absorbed energy (rel. diff.)"], tr))
-    a(f"\n![voxel]({figs['voxel']})\n")
+    a(figure(figs, "voxel", "voxel"))
     return L
 
 
+@subsection("max_steps cap")
 def _knob_max_steps(R, figs):
     """The max_steps cap: cut weight and bias."""
     L = []
     a = L.append
-    a("### max_steps cap\n")
     a(
         "Events (interactions + boundary crossings) per packet above the cap end the packet; its weight is tallied "
         "as `cut`, so the estimate is biased low by up to the cut weight.\n"
@@ -508,15 +526,15 @@ def _knob_max_steps(R, figs):
             tr,
         )
     )
-    a(f"\n![max steps]({figs['max_steps']})\n")
+    a(figure(figs, "max_steps", "max steps"))
     return L
 
 
+@subsection("Packet count and target accuracy")
 def _knob_target(R, figs):
     """Target accuracy: packets and time per target, and the cost of the stop rule."""
     L = []
     a = L.append
-    a("### Packet count and target accuracy\n")
     a(
         "The packet count sets the error as σ₁/√N (section 2). Target-accuracy mode "
         "(`ep.run(..., target=ep.Target(tally, rel_error))`) runs until stderr/|mean| ≤ rel_error; packets used, "
@@ -541,7 +559,7 @@ def _knob_target(R, figs):
             ]
         )
     a(md_table(["scene", "tally", "target", "packets", "seconds", "reached", "value", "error vs oracle", "stop"], tr))
-    a(f"\n![presets]({figs['presets']})\n")
+    a(figure(figs, "presets", "presets"))
     to = R["target_overhead"]
     a(
         "**Cost of the stop rule.** The target mode checks its rule after every merged work unit. Measured on the "
@@ -557,11 +575,11 @@ def _knob_target(R, figs):
     return L
 
 
+@subsection("float or double positions")
 def _knob_float(R, figs):
     """float or double positions (no float build: text only)."""
     L = []
     a = L.append
-    a("### float or double positions\n")
     a(
         "Not available as a runtime option: the engine is double-only. `native/vecmath.h` defines one alias "
         "`using Float = double;` for positions, directions, weights and step lengths (Embree itself receives float32 "
@@ -698,7 +716,7 @@ def sec_profile(R, figs):
         tr.append(cells)
     a(md_table(["part"] + [r["scene"] for r in rows], tr))
     if "profile" in figs:
-        a(f"\n![profile]({figs['profile']})\n")
+        a(figure(figs, "profile", "profile"))
     return L
 
 
