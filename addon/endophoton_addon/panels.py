@@ -144,6 +144,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         col = layout.column(heading="Outputs")
         col.prop(s, "output_points")
         col.prop(s, "output_grids")
+        col.prop(s, "output_views")
         sub = col.column()
         sub.active = s.output_grids
         sub.prop(s, "voxel_size")
@@ -249,6 +250,10 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             row = col.split(factor=0.34, align=True)
             row.label(text=label)
             row.label(text=value)
+        for name, image in sorted(results.view_images(collection).items()):  # Image Editor: "EP View ..."
+            col.label(text=f"{name.capitalize()} view {image.size[0]}×{image.size[1]}", icon="IMAGE_DATA")
+        for line in wrap_text(collection.get("endophoton_view_error", ""), SIDEBAR_CHARS):
+            col.label(text=line, icon="ERROR")
         row = layout.row(align=True)
         row.operator("endophoton.export_result", icon="EXPORT").name = collection.name
         row.operator("endophoton.result_delete", icon="X").name = collection.name

@@ -375,6 +375,12 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
 
     output_points: BoolProperty(name="Surface Point Cloud", default=True)
     output_grids: BoolProperty(name="Volume Grids", default=True)
+    output_views: BoolProperty(
+        name="Endoscope View Images",
+        description="After a run, render the endoscope camera's white-light and fluorescence images from the "
+        "run's records (ep.render_view) as Image datablocks tagged with the run; needs the rig's camera",
+        default=True,
+    )
     voxel_size: FloatProperty(
         name="Voxel Size",
         subtype="DISTANCE",

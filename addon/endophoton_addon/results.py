@@ -15,7 +15,10 @@ Everything the run creates is tagged with the run id (ID property
 ``endophoton_run``) so a re-run removes exactly that.
 """
 
+import os
+
 import bpy
+import mathutils
 import numpy as np
 
 from . import colour_maps
@@ -532,8 +535,58 @@ def set_volume_scale(collection, settings):
                     node.outputs[0].default_value = value
 
 
-def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id):
-    """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units)."""
+# Why Cycles needs its own copy of the grids (Blender 3.4, intern/cycles/scene/volume.cpp):
+# Cycles bounds a volume by a mesh around its active leaf nodes, and shifts every vertex of
+# that mesh by 0.1 * hash(datablock name) / (active voxels along the axis) *in the grid's
+# own units*, "to avoid overlapping faces".  The offset is meant to be a tiny fraction of a
+# voxel, which it is only when a voxel is about one unit.  The engine's grids are in metres
+# (0.5 mm voxels), so the shift is up to 0.1 / 14 m = 7 mm = 14 voxels for a grid 14 voxels
+# deep: the bounding mesh misses the data, and which grids render empty follows the
+# datablock's name (renaming one changes it), never the data.  The copy below keeps the
+# values and uses voxel index space (voxel size 1) as grid space; the Volume object's
+# matrix carries the index -> metres -> Blender units transform instead, so the shift is
+# at most 0.1 / dim of a voxel.
+RENDER_GRID_SUFFIX = ".cycles.vdb"
+
+
+def render_grid_path(path):
+    """The Cycles copy of the run's .vdb ``path`` (see RENDER_GRID_SUFFIX)."""
+    return os.path.splitext(path)[0] + RENDER_GRID_SUFFIX
+
+
+def write_render_grids(path):
+    """Write :func:`render_grid_path` of ``path`` (no bpy: the worker thread calls it).
+
+    Returns {grid name: its index -> metres matrix (4x4 rows)}, or {} without pyopenvdb
+    (the Volume objects then load ``path`` itself)."""
+    try:
+        import pyopenvdb
+    except ImportError:
+        return {}
+    grids, metadata = pyopenvdb.readAll(path)
+    matrices = {}
+    for grid in grids:
+        origin = np.array(grid.transform.indexToWorld((0, 0, 0)), dtype=np.float64)
+        matrix = np.eye(4)
+        for axis in range(3):
+            unit = [0, 0, 0]
+            unit[axis] = 1
+            matrix[:3, axis] = np.array(grid.transform.indexToWorld(unit)) - origin
+        matrix[:3, 3] = origin
+        matrices[grid.name] = matrix.tolist()
+        grid.transform = pyopenvdb.createLinearTransform(voxelSize=1.0)
+    target = render_grid_path(path)
+    partial = f"{target}.{os.getpid()}.partial.vdb"
+    pyopenvdb.write(partial, grids=grids, metadata=metadata)
+    os.replace(partial, target)
+    return matrices
+
+
+def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id, index_matrix=None):
+    """Volume object loading ``path`` and rendering ``grid_name`` (metres -> Blender units).
+
+    ``index_matrix``: the grid's index -> metres matrix when ``path`` is the Cycles copy
+    written by :func:`write_render_grids` (grid space = voxel index space)."""
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
     volume.filepath = path
@@ -553,8 +606,70 @@ def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id):
     obj["endophoton_grid"] = grid_name
     obj["endophoton_grid_max"] = float(vmax)
     inv = 1.0 / scale_length
-    obj.scale = (inv, inv, inv)
+    if index_matrix is None:
+        obj.scale = (inv, inv, inv)
+    else:
+        obj.matrix_world = mathutils.Matrix(np.diag([inv, inv, inv, 1.0]) @ np.asarray(index_matrix))
     return obj
+
+
+VIEW_KEY = "endophoton_view"  # on an endoscope-view Image: which image of the View it holds
+VIEWS_KEY = "endophoton_views"  # on the run's collection: the names of its view Images
+VIEW_IMAGES = ("white", "fluorescence")
+
+
+def view_pixels(view, name):
+    """RGBA float32 rows bottom-up (Blender's order) of ``view.images[name]``: the linear
+    sRGB radiance times the image's exposure, unclipped (NaN -> 0), so the Image shows
+    what ``srgb8`` encodes and pixel / exposure is the radiance."""
+    image = view.images[name]
+    rgba = np.ones((view.height, view.width, 4), dtype=np.float32)
+    rgba[..., :3] = np.nan_to_num(np.asarray(image["rgb"], dtype=np.float64) * float(image["exposure"]))
+    return rgba[::-1]
+
+
+def view_info(view, name):
+    """What the view Image carries as ID properties besides its pixels."""
+    return {
+        "exposure": float(view.images[name]["exposure"]),
+        "width": int(view.width),
+        "height": int(view.height),
+        "packets": int(view.packets),
+        "kernel_radius_m": float(view.kernel["radius"]),
+        "kernel_angle_deg": float(view.kernel["angle_deg"]),
+        "emission_filter": str(view.emission_filter),
+        "white_balance": str(view.white_balance),
+    }
+
+
+def create_view_images(collection, view, label):
+    """The rig camera's images (``ep.View``) as float Images tagged with the run:
+    packed and kept with a fake user (saved with the .blend), removed by remove_run."""
+    names = []
+    for name in VIEW_IMAGES:
+        image = bpy.data.images.new(f"EP View {name} {label}", view.width, view.height, alpha=True, float_buffer=True)
+        image.colorspace_settings.name = "Linear"
+        image.pixels.foreach_set(view_pixels(view, name).ravel())
+        image.pack()
+        image.use_fake_user = True
+        image[RUN_KEY] = collection[RUN_KEY]
+        image[VIEW_KEY] = name
+        image["endophoton_collection"] = collection.name
+        image[PARAMS_KEY] = collection[PARAMS_KEY]
+        image["endophoton_view_info"] = view_info(view, name)
+        names.append(image.name)
+    collection[VIEWS_KEY] = names
+    return [bpy.data.images[n] for n in names]
+
+
+def view_images(collection):
+    """The run's endoscope-view Images, by VIEW_KEY."""
+    run_id = collection.get(RUN_KEY)
+    return {
+        im[VIEW_KEY]: im
+        for im in bpy.data.images
+        if run_id is not None and im.get(RUN_KEY) == run_id and VIEW_KEY in im
+    }
 
 
 def result_collections(scene):
@@ -565,7 +680,7 @@ def run_files(collection):
     """Files the run wrote that only it uses: its .vdb (a fresh name per run)."""
     summary = collection.get(SUMMARY_KEY)
     path = summary.get("grid_path", "") if summary is not None else ""
-    return [path] if path else []
+    return [path, render_grid_path(path)] if path else []
 
 
 def remove_run(collection):
@@ -581,7 +696,7 @@ def remove_run(collection):
             bpy.data.objects.remove(obj)
     for datablocks in (bpy.data.meshes, bpy.data.volumes, bpy.data.materials, bpy.data.images):
         for block in list(datablocks):
-            if run_id is not None and block.get(RUN_KEY) == run_id and block.users == 0:
+            if run_id is not None and block.get(RUN_KEY) == run_id and block.users == int(block.use_fake_user):
                 datablocks.remove(block)
     bpy.data.collections.remove(collection)
 
@@ -601,8 +716,11 @@ def _unique_run_id(inputs):
     return run_id
 
 
-def apply_result(context, inputs, result, grid_info=()):
+def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=None):
     """Build the run's collection from an engine Result (main thread only).
+
+    ``render_grids``: what :func:`write_render_grids` returned for the run's .vdb;
+    ``view``: the rig camera's ``ep.View`` (simulation.endoscope_view), made into Images.
 
     Everything is checked first; the previous run's collection is replaced
     only once the new one can be built.
@@ -648,19 +766,23 @@ def apply_result(context, inputs, result, grid_info=()):
         for grid_name, _active, vmax in grids:
             if grid_name is None:
                 grid_name = _first_grid_name(grid_path)
+            index_matrix = (render_grids or {}).get(grid_name)
             obj = create_volume(
                 f"EP Grid {grid_name} {beta}",
-                grid_path,
+                grid_path if index_matrix is None else render_grid_path(grid_path),
                 grid_name,
                 vmax,
                 inputs.grid_voxel_m,
                 inputs.scale_length,
                 run_id,
+                index_matrix=index_matrix,
             )
             collection.objects.link(obj)
         set_volume_scale(collection, settings)
         collection[SUMMARY_KEY] = summary
         collection[PARAMS_KEY] = run_parameters(inputs)
+        if view is not None:
+            create_view_images(collection, view, f"{beta} {inputs.timestamp}")
     except Exception:
         remove_run(collection)
         raise

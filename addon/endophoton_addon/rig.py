@@ -75,6 +75,12 @@ def _children_by_part(obj):
     return {child.get(PART_KEY): child for child in obj.children if child.get(PART_KEY)}
 
 
+def has_camera(obj):
+    """True when the rig still has its camera (the endoscope view needs it)."""
+    camera = _children_by_part(obj).get("camera")
+    return camera is not None and camera.type == "CAMERA"
+
+
 def update_rig(obj):
     """Move the rig to its β/distance pose and resize its parts (property update)."""
     if not is_rig(obj):

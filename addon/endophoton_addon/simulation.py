@@ -50,6 +50,7 @@ class RunInputs:
     grid_per_fluorophore: bool
     scale_length: float  # metres per Blender unit
     target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
+    endoscope_view: bool = False  # render the rig camera's images from the records (ep.render_view)
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
@@ -171,6 +172,7 @@ def collect_inputs(context):
         grid_per_fluorophore=bool(settings.grid_per_fluorophore),
         scale_length=float(scale),
         target_error=target_error,
+        endoscope_view=bool(settings.output_views) and rig.has_camera(rig_obj),
     )
     check_before_run(scene, inputs)
     return inputs
@@ -321,6 +323,9 @@ class SimulationJob(BackgroundJob):
         self.error = None
         self.error_traceback = None
         self.grid_info = []  # [(name, active voxel count, max value)] read in the worker
+        self.render_grids = {}  # results.write_render_grids: {grid name: index -> metres matrix}
+        self.view = None  # ep.View of the rig camera (inputs.endoscope_view), computed in the worker
+        self.view_error = None  # why there is no view although one was asked for
         self._lock = threading.Lock()
         self._progress = (0, inputs.count if inputs.kind == "photons" else 0)
         self._t0 = None
@@ -365,6 +370,24 @@ class SimulationJob(BackgroundJob):
         grid_path = getattr(self.result, "grid_path", None)
         if grid_path and not getattr(self.result, "cancelled", False):
             self.grid_info = read_grid_info(grid_path)
+            from . import results
+
+            self.render_grids = results.write_render_grids(grid_path)
+        self.view, self.view_error = endoscope_view(self.ep, self.inputs, self.result)
+
+
+def endoscope_view(ep, inputs, result):
+    """(ep.View of the rig's camera, None) from the run's escape records (worker thread),
+    or (None, reason) when the scene does not ask for one or the run left no records."""
+    if not inputs.endoscope_view or result is None or getattr(result, "cancelled", False):
+        return None, None
+    escapes = getattr(result, "escapes", None)
+    if escapes is None or len(escapes.get("weight", ())) == 0:
+        return None, "the run left no escape records to image"
+    try:
+        return ep.render_view(result, threads=inputs.threads), None
+    except ValueError as exc:  # e.g. the camera inside tissue: keep the run, say why there is no view
+        return None, f"endoscope view not rendered: {exc}"
 
 
 def cluster_client(stack, ep, address):
@@ -426,15 +449,22 @@ def finish_job(context, job):
     if job.result is None or getattr(job.result, "cancelled", False):
         _discard_partial_grid(job)
         return None
-    return results.apply_result(context, job.inputs, job.result, job.grid_info)
+    collection = results.apply_result(context, job.inputs, job.result, job.grid_info, job.render_grids, job.view)
+    if job.view_error:
+        collection["endophoton_view_error"] = job.view_error
+        print(f"EndoPhoton: {job.view_error}")
+    return collection
 
 
 def _discard_partial_grid(job):
     """A cancelled run may still have written its (partial) grid file: remove
     it, it is ours (a fresh name per run) and nothing refers to it."""
+    from . import results
+
     path = job.inputs.grid_path
-    if path and os.path.isfile(path):
-        os.remove(path)
+    for name in (path, results.render_grid_path(path)) if path else ():
+        if os.path.isfile(name):
+            os.remove(name)
 
 
 def report_finished(context, job):

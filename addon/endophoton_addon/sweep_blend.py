@@ -151,7 +151,8 @@ def main(argv):
     parser = argparse.ArgumentParser(prog="endophoton sweep (blender)")
     sweep_cli.add_sweep_arguments(parser)
     args = parser.parse_args(argv)
-    res = sweep_blend(None, **sweep_cli.sweep_kwargs(args))
+    with sweep_cli.scheduler_client(args) as client:  # --scheduler: the angles run on that cluster
+        res = sweep_blend(None, client=client, **sweep_cli.sweep_kwargs(args))
     ep.beta_sweep.write_outputs(res, args.out)
     print(f"sweep: wrote {args.out}")
     return 130 if res.meta.get("cancelled") else 0

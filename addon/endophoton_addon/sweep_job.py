@@ -240,6 +240,7 @@ class SweepJob(simulation.BackgroundJob):
         self._engine_index = 0  # β of the engine's last progress report
         self._done = 0  # packets of that β so far
         self._packets_per_beta = 0  # packets the last finished β needed (estimate for the current one)
+        self._chunks = None  # on a Dask cluster: (chunks merged, estimated chunks) over all β
         self._phase = "running"
         self._t0 = None
         self._finished = threading.Event()
@@ -249,15 +250,19 @@ class SweepJob(simulation.BackgroundJob):
     def progress(self):
         """Overall fraction = (finished β + fraction of the current β) / n.  In store-N
         mode the current β's packet total is unknown: it is estimated by the packets
-        the previous β needed (none during the first β: its fraction stays 0)."""
+        the previous β needed (none during the first β: its fraction stays 0).
+        On a Dask cluster all β run at once: the fraction is that of their chunks."""
         with self._lock:
             finished, phase = self._finished_betas, self._phase
             done = self._done if self._engine_index == finished else 0
-            per_beta = self._packets_per_beta
+            per_beta, chunks = self._packets_per_beta, self._chunks
         n = len(self.inputs.betas)
         index = min(finished, n - 1)
         current = min(done / per_beta, 0.99) if per_beta > 0 else 0.0
-        fraction = 1.0 if phase == "writing" else min(1.0, (finished + current) / n)
+        fraction = min(1.0, (finished + current) / n)
+        if chunks is not None and chunks[1] > 0:
+            fraction = min(chunks[0] / chunks[1], 0.99)
+        fraction = 1.0 if phase == "writing" else fraction
         elapsed = time.monotonic() - self._t0 if self._t0 else 0.0
         eta = elapsed * (1.0 - fraction) / fraction if 0.0 < fraction < 1.0 else None
         return SweepProgress(index, n, self.inputs.betas[index], done, fraction, elapsed, eta, phase)
@@ -271,6 +276,10 @@ class SweepJob(simulation.BackgroundJob):
             self._engine_index = index
             self._done = int(done)
 
+    def _on_chunks(self, merged, total):
+        with self._lock:
+            self._chunks = (int(merged), int(total))
+
     def _on_beta(self, index, _n, row):
         if row["cancelled"]:  # a cancelled partial run: the sweep ends here
             return
@@ -282,7 +291,8 @@ class SweepJob(simulation.BackgroundJob):
         bs = self.ep.beta_sweep
         with contextlib.ExitStack() as stack:
             client = simulation.cluster_client(stack, self.ep, self.scheduler)
-            extra = {"run_kwargs": {"client": client}} if client is not None else {}
+            # on a cluster all β run at once and cancel cancels their tasks
+            extra = {"client": client, "on_chunks": self._on_chunks} if client is not None else {}
             result = bs.sweep(
                 self.engine_scene,
                 progress=self._on_progress,

@@ -27,6 +27,7 @@ the paper's constants (:mod:`endophoton.paper`), the reduction of one run
 """
 from __future__ import annotations
 
+import functools
 import inspect
 import os
 import sys
@@ -150,17 +151,19 @@ def _scene_unit(scene: Any) -> str:
 class _Progress:
     """tqdm bar over beta, with the engine's done/total shown as postfix (terminal only)."""
 
-    def __init__(self, betas: Sequence[float], enabled: bool, user: Callable | None):
+    def __init__(self, betas: Sequence[float], enabled: bool, user: Callable | None, chunks: bool = False):
         self.user = user
         self.bar = None
         self._last = 0.0
         self._i = 0
         self._n = len(betas)
+        self._chunks = chunks  # on a cluster: one bar over the chunks of all angles
         if enabled:
             try:
                 from tqdm import tqdm
 
-                self.bar = tqdm(total=len(betas), desc="beta sweep", unit="beta", file=sys.stderr, dynamic_ncols=True)
+                total, unit = (None, "chunk") if chunks else (len(betas), "beta")
+                self.bar = tqdm(total=total, desc="beta sweep", unit=unit, file=sys.stderr, dynamic_ncols=True)
             except ImportError:  # pragma: no cover - tqdm is a dependency
                 self.bar = None
 
@@ -172,15 +175,26 @@ class _Progress:
     def engine(self, done: int, total: int):
         """Engine progress callback; returns the user callback's value (False stops the run)."""
         now = time.monotonic()
-        if self.bar is not None and now - self._last > 0.5:
+        if self.bar is not None and not self._chunks and now - self._last > 0.5:
             self._last = now
             self.bar.set_postfix_str(f"{done:,}/{total:,}" if total else f"{done:,} packets")
         if self.user is not None:
             return self.user(self._i, self._n, done, total)
         return None
 
-    def step(self) -> None:
+    def engine_of(self, i: int, done: int, total: int):
+        """Progress of beta ``i``'s run on a cluster (the runs advance together)."""
+        self._i = i
+        return self.engine(done, total)
+
+    def chunks(self, done: int, total: int) -> None:
+        """Chunks merged over all angles against their estimated total (cluster sweeps)."""
         if self.bar is not None:
+            self.bar.total = max(total, done)
+            self.bar.update(done - self.bar.n)
+
+    def step(self) -> None:
+        if self.bar is not None and not self._chunks:
             self.bar.update(1)
 
     def close(self) -> None:
@@ -241,10 +255,31 @@ def _sweep_one_beta(
 ):
     """Run the engine for one beta and reduce it; returns ``(row, hist, batches, cancelled)``
     or ``None`` when a cancel landed before the first record (no row)."""
-    geo = rig_geometry(rig, unit, normal)
     t0 = time.perf_counter()
     res = run(scene, rig, **run_kwargs)
     seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
+    return _beta_outcome(
+        res, seconds, beta, rig, unit, normal, run_kwargs, meta, n_batches, max_angle_deg, visibility, out_dir
+    )
+
+
+def _beta_outcome(
+    res: Any,
+    seconds: float,
+    beta: float,
+    rig: Any,
+    unit: str,
+    normal,
+    run_kwargs: Mapping[str, Any],
+    meta: dict,
+    n_batches: int,
+    max_angle_deg: float,
+    visibility: Mapping[str, Any] | None,
+    out_dir: str | os.PathLike | None,
+):
+    """Reduce one beta's run ``res`` (wherever it ran); returns ``(row, hist, batches, cancelled)``
+    or ``None`` when a cancel landed before the first record (no row)."""
+    geo = rig_geometry(rig, unit, normal)
     esc = res.escapes
     if esc is None:
         raise ValueError("ep.run returned no escape records (record_escapes off?)")
@@ -277,6 +312,41 @@ def _sweep_one_beta(
     return full, hist, bt, cancelled
 
 
+def _sweep_on_cluster(client, chunk_units, setups, kw, analyse, accept, bar, on_chunks, cancel) -> None:
+    """Every beta's run at once on ``client``'s workers (:func:`endophoton.distributed.run_many`:
+    the same requests, reducer and stop rule as ``ep.run``). A run is analysed and accepted in
+    beta order as soon as it and every run before it have ended; after a cancel the sweep ends
+    at the first unfinished beta, as a local sweep ends at its cancelled run."""
+    from . import distributed
+    from .run import Result, run_request
+
+    request_kw = {k: v for k, v in kw.items() if k not in ("progress", "cancel")}
+    requests = [
+        (scene, rig, run_request(scene, rig, **request_kw), functools.partial(bar.engine_of, i))
+        for i, (scene, _, rig) in enumerate(setups)
+    ]
+    results = [None] * len(setups)
+    state = {"next": 0, "open": True}
+
+    def finished(i, raw):
+        scene, _, rig = setups[i]
+        results[i] = Result(raw, scene, rig, requests[i][2])
+        while state["open"] and state["next"] < len(setups) and results[state["next"]] is not None:
+            j = state["next"]
+            state["open"] = accept(j, analyse(j, results[j]))
+            results[j] = None  # analysed: its records are no longer needed
+            state["next"] += 1
+
+    def chunks(done, total):
+        bar.chunks(done, total)
+        if on_chunks is not None:
+            on_chunks(done, total)
+
+    distributed.run_many(
+        client, requests, chunk_units=chunk_units, cancel=cancel, on_chunk=chunks, on_finished=finished
+    )
+
+
 def sweep(
     scene_or_builder: Any = None,
     betas: Iterable[float] = range(0, 60, 5),
@@ -301,6 +371,9 @@ def sweep(
     report: bool = True,
     on_beta: Callable | None = None,
     visibility: Mapping[str, Any] | None = None,
+    client: Any = None,
+    chunk_units: int = 0,
+    on_chunks: Callable | None = None,
 ) -> SweepResult:
     """Run the seed's beta sweep and analyse every run.
 
@@ -338,6 +411,15 @@ def sweep(
         with ``out_dir`` the views, ``visibility.png``, ``views_contact_sheet.png`` and the report's answer
         to "at which beta is the polyp most visible" are written too.
 
+    client : a ``dask.distributed.Client``: every beta's run is traced on its workers, all
+        angles at once (their chunks of ``chunk_units`` units, 0 = automatic, are tasks in
+        flight together), each merged in unit order by the engine's own reducer
+        (:func:`endophoton.distributed.run_many`), so the rows are those of the local sweep
+        bit for bit (``seconds`` aside). ``run_kwargs={"client": c}`` does the same.
+        ``progress=True`` then shows one bar over the chunks of all angles; a callable
+        ``progress`` is called per merged chunk with that chunk's beta; ``on_chunks(merged,
+        estimated_total)`` is called after each merge (chunks over all angles).
+
     Returns
     -------
     SweepResult (rows in the order of ``betas``).
@@ -348,7 +430,12 @@ def sweep(
     if int(store) < n_batches:
         raise ValueError(f"store = {store} must be >= n_batches = {n_batches}")
     rig_kwargs = dict(rig_kwargs or {})
-    bar = _Progress(betas, enabled=(progress is True), user=progress if callable(progress) else None)
+    run_kwargs = dict(run_kwargs or {})
+    client = run_kwargs.pop("client", None) if client is None else client
+    chunk_units = run_kwargs.pop("chunk_units", chunk_units)
+    bar = _Progress(
+        betas, enabled=(progress is True), user=progress if callable(progress) else None, chunks=client is not None
+    )
     static_scene = None
     if scene_or_builder is None:
         static_scene = default_flat_scene()
@@ -364,7 +451,7 @@ def sweep(
     )
     if cancel is not None:
         kw["cancel"] = cancel
-    kw.update(run_kwargs or {})
+    kw.update(run_kwargs)
     rows, hists, batches = [], [], []
     meta = _sweep_meta(
         scene_or_builder,
@@ -383,38 +470,58 @@ def sweep(
     )
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
+
+    def setup(beta):
+        scene = static_scene if static_scene is not None else _call_builder(scene_or_builder, beta)
+        unit = _scene_unit(scene)
+        dist = DISTANCE_CM / UNIT_CM[unit] if distance is None else float(distance)
+        meta.setdefault("unit", unit)
+        meta.setdefault("distance", dist)
+        rig = (
+            rig_builder(beta, scene)
+            if rig_builder is not None
+            else _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
+        )
+        return scene, unit, rig
+
+    def accept(i, one) -> bool:
+        """Adds beta i's outcome; False once the sweep ends there (a cancel)."""
+        if one is None:
+            meta["cancelled_at_beta"] = betas[i]  # cancelled before the first record: no row
+            return False
+        row, hist, bt, cancelled = one
+        rows.append(row)
+        hists.append(hist)
+        batches.append(bt)
+        bar.step()
+        if on_beta is not None:
+            on_beta(i, len(betas), row)
+        if cancelled:
+            meta["cancelled_at_beta"] = betas[i]
+        return not cancelled
+
     try:
-        for i, beta in enumerate(betas):
-            if cancel is not None and getattr(cancel, "cancelled", False):
-                meta["cancelled_at_beta"] = beta  # cancelled between two runs: nothing to analyse
-                break
-            bar.start(i, beta)
-            scene = static_scene if static_scene is not None else _call_builder(scene_or_builder, beta)
-            unit = _scene_unit(scene)
-            dist = DISTANCE_CM / UNIT_CM[unit] if distance is None else float(distance)
-            meta.setdefault("unit", unit)
-            meta.setdefault("distance", dist)
-            rig = (
-                rig_builder(beta, scene)
-                if rig_builder is not None
-                else _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
-            )
-            one = _sweep_one_beta(
-                scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir
-            )
-            if one is None:
-                meta["cancelled_at_beta"] = beta  # cancelled before the first record: no row
-                break
-            row, hist, bt, cancelled = one
-            rows.append(row)
-            hists.append(hist)
-            batches.append(bt)
-            bar.step()
-            if on_beta is not None:
-                on_beta(i, len(betas), row)
-            if cancelled:
-                meta["cancelled_at_beta"] = beta
-                break
+        if client is not None:
+            setups = [setup(beta) for beta in betas]
+
+            def analyse(i, res):
+                _, unit, rig = setups[i]
+                args = (betas[i], rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir)
+                return _beta_outcome(res, float(res.seconds), *args)
+
+            _sweep_on_cluster(client, chunk_units, setups, kw, analyse, accept, bar, on_chunks, cancel)
+        else:
+            for i, beta in enumerate(betas):
+                if cancel is not None and getattr(cancel, "cancelled", False):
+                    meta["cancelled_at_beta"] = beta  # cancelled between two runs: nothing to analyse
+                    break
+                bar.start(i, beta)
+                scene, unit, rig = setup(beta)
+                one = _sweep_one_beta(
+                    scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir
+                )
+                if not accept(i, one):
+                    break
     finally:
         bar.close()
     finish_relative(rows)

@@ -23,6 +23,7 @@ and a rerun chunk gives the same bytes.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import math
 import os
@@ -42,7 +43,7 @@ OPEN_CHUNK_PACKETS = 16384
 
 # Per worker process: native scenes built for recent runs, by scatter key.
 _NATIVE_SCENES: "OrderedDict[str, object]" = OrderedDict()
-_NATIVE_SCENES_KEPT = 4
+_NATIVE_SCENES_KEPT = 16  # a sweep over a scene builder keeps one per angle
 
 
 def _native_scene(scene, key: str):
@@ -76,83 +77,217 @@ def default_chunk_units(n_units: int, unit_size: int, fixed: bool, threads: int)
     return max(1, OPEN_CHUNK_PACKETS // unit_size)
 
 
-def _wait_unless_cancelled(future, cancel) -> bool:
-    """Blocks until ``future`` is done (True) or ``cancel`` is set (False)."""
+def _wait_any(futures: list, cancel) -> bool:
+    """Blocks until one of ``futures`` is done (True) or ``cancel`` is set (False)."""
     from distributed import wait
 
     while not (cancel is not None and cancel.cancelled):
         try:
-            wait(future, timeout=0.1)
+            wait(futures, timeout=0.1, return_when="FIRST_COMPLETED")
             return True
         except TimeoutError:
             pass
     return False
 
 
-def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=None, cancel=None) -> dict:
-    """Run the request ``options`` (as endophoton.run builds it) on ``client``'s
-    workers; returns the engine's raw result dict (what ``_core.run`` returns)."""
+def _check_chunk_units(chunk_units) -> None:
     if isinstance(chunk_units, bool) or not isinstance(chunk_units, int) or chunk_units < 0:
         raise ValueError(f"chunk_units = {chunk_units!r} must be a non-negative integer (0 = automatic)")
-    native_scene = scene.to_native()
-    lights = source.native_lights(scene.unit_cm)
-    body = source.native_body(scene.unit_cm)
-    native_source = _core.Source(lights, body=body)
-    config = _core.RunConfig(**options)
-    reducer = _core.UnitReducer(native_scene, native_source, config)  # validates like run()
-    unit_size, n_units = _core.unit_plan(native_scene, native_source, config)
-    fixed = "photons" in options
-    threads = _worker_threads(client)
-    chunk = chunk_units or default_chunk_units(n_units, unit_size, fixed, threads)
-    n_chunks = math.ceil(n_units / chunk)
-    window = n_chunks if fixed else WINDOW_PER_THREAD * threads
-    total = int(options["photons"]) if fixed else 0
 
-    run_id = uuid.uuid4().hex[:12]
-    scene_future = client.scatter(scene, broadcast=True, hash=False)
-    futures: dict[int, object] = {}
-    next_submit = next_merge = 0
-    done_packets = 0
-    try:
-        while not reducer.stopped and next_merge < n_chunks:
-            while next_submit < n_chunks and next_submit - next_merge < window:
-                first = next_submit * chunk
-                futures[next_submit] = client.submit(
-                    trace_chunk,
-                    scene_future,
-                    scene_future.key,
-                    lights,
-                    body,
-                    options,
-                    first,
-                    min(chunk, n_units - first),
-                    key=f"endophoton-units-{run_id}-{first}",
-                    pure=False,
-                )
-                next_submit += 1
-            fut = futures[next_merge]
-            if not _wait_unless_cancelled(fut, cancel):
-                break
-            version, data = fut.result()
+
+class _ChunkedRun:
+    """One run on the cluster: its chunks are submitted in a window ahead of the
+    merge point and merged, in unit order, by the engine's own UnitReducer.
+
+    Chunk sizes do not change any result (units do), so a run whose length is
+    unknown ("store N", target) sizes its chunks as it goes: they double from one
+    unit up to about OPEN_CHUNK_PACKETS packets; a store run sends one unit first
+    and then only what its record rate says it still needs (+10 %) beyond the
+    units in flight, so a short store run does not trace a window of large
+    chunks it would discard."""
+
+    def __init__(self, client, native_scene, scene_future, lights, body, options, chunk_units, threads, progress):
+        self.client, self.scene_future = client, scene_future
+        self.lights, self.body, self.options = lights, body, options
+        native_source = _core.Source(lights, body=body)
+        config = _core.RunConfig(**options)
+        self.reducer = _core.UnitReducer(native_scene, native_source, config)  # validates like run()
+        self.unit_size, self.n_units = _core.unit_plan(native_scene, native_source, config)
+        self.fixed = "photons" in options
+        self.chunk = chunk_units or default_chunk_units(self.n_units, self.unit_size, self.fixed, threads)
+        self.adaptive = not (self.fixed or chunk_units)
+        self.window = math.ceil(self.n_units / self.chunk) if self.fixed else WINDOW_PER_THREAD * threads
+        self.total = int(options["photons"]) if self.fixed else 0
+        self.progress = progress
+        self.threads = threads
+        self.key = f"endophoton-units-{uuid.uuid4().hex[:12]}"
+        self.pending: collections.deque = collections.deque()  # (first unit, units, future), in unit order
+        self.next_unit = self.merged_to = self.merged_chunks = self.submitted_chunks = 0  # merged_to: merge point
+        self.halted = False  # its progress callback returned False
+
+    @property
+    def done(self) -> bool:
+        return self.halted or self.reducer.stopped or self.merged_to >= self.n_units
+
+    @property
+    def front(self):
+        """The future of the next chunk to merge."""
+        return self.pending[0][2]
+
+    def _units_needed(self) -> int | None:
+        """Units a store run still needs beyond those in flight (+10 %), from its record
+        rate so far; None while unknown (other runs, or no record merged yet)."""
+        store, records, merged = self.options.get("store", 0), self.reducer.records, self.reducer.merged_units
+        if not (store and records and merged):
+            return None
+        return math.ceil(1.1 * (store - records) * merged / records) - (self.next_unit - self.merged_to)
+
+    def _next_count(self) -> int:
+        """Units of the next chunk (0: none needed now)."""
+        if not self.adaptive:
+            return self.chunk
+        size = min(self.chunk, 2**self.submitted_chunks)
+        needed = self._units_needed()
+        if needed is None and self.options.get("store") and self.merged_to == 0 and self.pending:
+            return 0  # a store run's first unit measures its record rate before more are sent
+        if needed is not None:
+            if needed <= 0:
+                return 0 if self.pending else 1
+            size = min(self.chunk, max(1, math.ceil(needed / self.window)))
+        return size
+
+    def submit(self) -> None:
+        """Keeps up to ``window`` chunks in flight ahead of the merge point."""
+        while not self.done and self.next_unit < self.n_units and len(self.pending) < self.window:
+            count = min(self._next_count(), self.n_units - self.next_unit)
+            if count <= 0:
+                return
+            first = self.next_unit
+            future = self.client.submit(
+                trace_chunk,
+                self.scene_future,
+                self.scene_future.key,
+                self.lights,
+                self.body,
+                self.options,
+                first,
+                count,
+                key=f"{self.key}-{first}",
+                pure=False,
+            )
+            self.pending.append((first, count, future))
+            self.next_unit += count
+            self.submitted_chunks += 1
+
+    def merge_ready(self, cancel) -> int:
+        """Merges the finished chunks at the merge point, in order, until ``cancel``
+        is set; returns how many. Once the run is done its outstanding chunks are
+        cancelled."""
+        merged = 0
+        while not self.done and not (cancel is not None and cancel.cancelled) and self.front.done():
+            first, expected, future = self.pending.popleft()
+            version, data = future.result()
             if version != _core.__version__:
                 raise RuntimeError(
                     f"a worker runs endophoton engine {version!r}, this client {_core.__version__!r}: "
                     "install the same build on every worker (docs/distributed.md)"
                 )
-            first = next_merge * chunk
-            _, got = reducer.add(data)
-            expected = min(chunk, n_units - first)
+            _, got = self.reducer.add(data)
             if got != expected:
                 raise RuntimeError(f"chunk of units {first}..{first + expected - 1} came back with {got} units")
-            del futures[next_merge]
-            next_merge += 1
-            done_packets = min(reducer.merged_units * unit_size, total) if fixed else reducer.merged_units * unit_size
-            if progress is not None and progress(done_packets, total) is False:
+            self.merged_to += expected
+            self.merged_chunks += 1
+            merged += 1
+            done = self.reducer.merged_units * self.unit_size
+            done = min(done, self.total) if self.fixed else done
+            if self.progress is not None and self.progress(done, self.total) is False:
+                self.halted = True
+            self.submit()  # refill the window: the next chunk to merge is then in flight too
+        if self.done:
+            self.cancel()
+        return merged
+
+    def chunks_estimate(self) -> int:
+        """Chunks this run will merge: exact for a fixed count or once done; for a
+        "store N" run extrapolated from its record rate so far."""
+        if self.done:
+            return self.merged_chunks
+        known = self.merged_chunks + len(self.pending)
+        if self.fixed:
+            return known + math.ceil((self.n_units - self.next_unit) / self.chunk)
+        needed = self._units_needed()
+        if needed is None or needed <= 0:
+            return known
+        return known + math.ceil(needed / max(1, self._next_count() if self.adaptive else self.chunk))
+
+    def cancel(self) -> None:
+        self.client.cancel([future for _, _, future in self.pending])
+        self.pending.clear()
+
+    def finish(self) -> dict:
+        return self.reducer.finish(self.threads)
+
+
+def run_many(client, requests, *, chunk_units: int = 0, cancel=None, on_chunk=None, on_finished=None) -> list:
+    """Several runs on ``client``'s workers at once: the chunks of all of them are
+    tasks in flight together, and each run is merged in its own unit order by
+    its own UnitReducer, so each gives the bits of ``ep.run`` on one machine.
+
+    ``requests``: (scene, source, options, progress) per run (options as
+    endophoton.run_request builds them; progress(done, total) or None; False
+    from it stops every run). Each distinct scene object is scattered to the
+    workers once. ``on_chunk(merged_chunks, estimated_chunks)`` (over all runs)
+    is called after each merge, ``on_finished(i, raw)`` once run i has ended.
+    Returns the engine's raw result dict per run (what ``_core.run`` returns);
+    after a cancel the unfinished runs give their merged prefixes, marked
+    cancelled."""
+    _check_chunk_units(chunk_units)
+    threads = _worker_threads(client)
+    scattered: dict[int, tuple] = {}  # id(scene) -> (native scene, its future)
+    runs, raws = [], [None] * len(requests)
+
+    def finish(i):
+        if raws[i] is None:
+            raws[i] = runs[i].finish()
+            if on_finished is not None:
+                on_finished(i, raws[i])
+
+    try:
+        for scene, source, options, progress in requests:
+            if id(scene) not in scattered:
+                scattered[id(scene)] = (scene.to_native(), client.scatter(scene, broadcast=True, hash=False))
+            native, future = scattered[id(scene)]
+            lights, body = source.native_lights(scene.unit_cm), source.native_body(scene.unit_cm)
+            runs.append(_ChunkedRun(client, native, future, lights, body, options, chunk_units, threads, progress))
+        merged = 0
+        while not all(r.done for r in runs):
+            live = [r for r in runs if not r.done]
+            for r in live:
+                r.submit()
+            if not _wait_any([r.front for r in live], cancel):
                 break
+            for r in live:
+                merged += r.merge_ready(cancel)
+            if on_chunk is not None:
+                on_chunk(merged, sum(r.chunks_estimate() for r in runs))
+            if any(r.halted for r in runs):
+                break
+            for i, r in enumerate(runs):
+                if r.done:
+                    finish(i)
     finally:
-        client.cancel(list(futures.values()))
-        client.cancel([scene_future])
-    return reducer.finish(threads)
+        for r in runs:
+            r.cancel()
+        client.cancel([future for _, future in scattered.values()])
+    for i in range(len(runs)):
+        finish(i)
+    return raws
+
+
+def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=None, cancel=None) -> dict:
+    """Run the request ``options`` (as endophoton.run builds it) on ``client``'s
+    workers; returns the engine's raw result dict (what ``_core.run`` returns)."""
+    return run_many(client, [(scene, source, options, progress)], chunk_units=chunk_units, cancel=cancel)[0]
 
 
 @contextlib.contextmanager

@@ -1,6 +1,7 @@
 """Running the engine and reading its results."""
 from __future__ import annotations
 
+import inspect
 import math
 import os
 from dataclasses import dataclass
@@ -126,6 +127,22 @@ def _apply_quality(a: SimpleNamespace) -> None:
     a.target, a.max_photons = preset.target, preset.max_photons
 
 
+def _request(a: SimpleNamespace) -> dict:
+    """The checked options of :func:`run`'s arguments ``a`` as the engine's RunConfig takes them."""
+    _apply_quality(a)
+    _check_arguments(a)
+    return _native_options(a)
+
+
+def run_request(scene: Scene, source, **kwargs) -> dict:
+    """The engine request (checked) that ``run(scene, source, **kwargs)`` would make, without
+    running it: the sweep on a cluster (endophoton.distributed.run_many) starts all its runs from
+    these. Unknown keywords raise TypeError, as run() does."""
+    bound = inspect.signature(run).bind(scene, source, **kwargs)
+    bound.apply_defaults()
+    return _request(SimpleNamespace(**bound.arguments))
+
+
 def _native_options(a: SimpleNamespace) -> dict:
     """The keyword arguments of the engine's RunConfig for :func:`run`'s checked arguments ``a``."""
     opts = dict(
@@ -220,10 +237,7 @@ def run(
 
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
-    a = SimpleNamespace(**locals())  # every argument of this call, captured once by name
-    _apply_quality(a)
-    _check_arguments(a)
-    opts = _native_options(a)
+    opts = _request(SimpleNamespace(**locals()))  # every argument of this call, captured once by name
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 

@@ -10,6 +10,7 @@ add-on.  Outputs (sweep.csv, sweep.json, the plots, report.md) go to ``--out``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import subprocess
@@ -19,7 +20,7 @@ from .analysis import DEFAULT_BATCHES
 from .beta_sweep import default_flat_scene, sweep, write_outputs
 from .sweep_schema import parse_betas
 
-__all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder"]
+__all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", "scheduler_client"]
 
 #: Environment variable naming the folder that holds the ``endophoton_addon`` package.
 ADDON_PATH_VAR = "ENDOPHOTON_ADDON_PATH"
@@ -67,6 +68,13 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     )
     parser.add_argument("--background", default=None, help="background region for --target (e.g. tissue)")
     parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="trace every angle's run on a Dask cluster, all at once: tcp://host:port, or local:N for N local "
+        "worker processes (docs/distributed.md); the CSV is bit-identical to a local sweep's",
+    )
     return parser
 
 
@@ -125,7 +133,23 @@ def forward_argv(args: argparse.Namespace) -> list:
         argv.append("--no-progress")
     if getattr(args, "target", None) is not None:
         argv += ["--target", args.target, "--background", args.background, "--view-size", str(args.view_size)]
+    if getattr(args, "scheduler", None) is not None:
+        argv += ["--scheduler", args.scheduler]
     return argv
+
+
+@contextlib.contextmanager
+def scheduler_client(args: argparse.Namespace):
+    """A Dask client for ``--scheduler`` (endophoton.distributed.connect: an unreachable
+    scheduler is a ValueError naming the address), or None without it."""
+    address = getattr(args, "scheduler", None)
+    if address is None:
+        yield None
+        return
+    from .distributed import connect
+
+    with connect(address) as client:
+        yield client
 
 
 def addon_folder() -> str | None:
@@ -163,10 +187,14 @@ def sweep_main(args: argparse.Namespace) -> int:
     Writes sweep.csv, sweep.json, the PNG plots and report.md into ``--out``.
     """
     if getattr(args, "blend", None):
-        return run_in_blender(args)
+        with scheduler_client(args) as client:
+            if client is not None:  # Blender connects to it: a local:N cluster lives in this process
+                args.scheduler = client.scheduler.address
+            return run_in_blender(args)
     polyp = None if args.polyp == "none" else args.polyp
     scene = default_flat_scene(polyp=polyp)
-    res = sweep(scene, **sweep_kwargs(args))
+    with scheduler_client(args) as client:
+        res = sweep(scene, client=client, **sweep_kwargs(args))
     res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
     paths = write_outputs(res, args.out)
     print(

@@ -13,6 +13,7 @@ import time
 import bpy
 import numpy as np
 import pytest
+from mathutils import Vector
 
 from endophoton_addon import results, simulation
 from conftest import data_snapshot, mesh_object, open_blend
@@ -97,8 +98,19 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
     assert sorted(o["endophoton_grid"] for o in volumes) == sorted(res.grid_names)
     assert {"absorbed", "fluorescence"} <= set(res.grid_names)
     assert os.path.dirname(res.grid_path) == str(tmp_path)
+    cycles_copy = results.render_grid_path(res.grid_path)
     for obj in volumes:
-        assert obj.data.filepath == res.grid_path
+        # Cycles loads the copy in voxel index space (results.RENDER_GRID_SUFFIX): same voxels and
+        # values, and the object's matrix puts voxel (i, j, k) where the engine's file does.
+        assert obj.data.filepath == cycles_copy
+        engine_grid = pyopenvdb.read(res.grid_path, obj["endophoton_grid"])
+        copy_grid = pyopenvdb.read(cycles_copy, obj["endophoton_grid"])
+        assert copy_grid.activeVoxelCount() == engine_grid.activeVoxelCount()
+        assert copy_grid.evalMinMax() == engine_grid.evalMinMax()
+        assert copy_grid.transform.voxelSize() == (1.0, 1.0, 1.0)
+        for ijk in engine_grid.evalActiveVoxelBoundingBox():
+            world = np.array(engine_grid.transform.indexToWorld(ijk)) / scene.unit_settings.scale_length
+            np.testing.assert_allclose(obj.matrix_world @ Vector(ijk), world, rtol=1e-6, atol=1e-9)
         assert obj.data.grids.load()
         names = [g.name for g in obj.data.grids]
         assert obj["endophoton_grid"] in names

@@ -314,7 +314,7 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
         assert address.startswith("tcp://"), address
         prefs.scheduler_address = address
         scene.endophoton.sweep.output_dir = str(tmp_path / "sweep_cluster")
-        remote, _, _ = _run_job(bpy.context)
+        remote, _, seen = _run_job(bpy.context)
     finally:
         prefs.scheduler_address = ""
         cluster.stdin.close()
@@ -322,3 +322,8 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     assert remote.scheduler == address and local.scheduler == ""  # the runs really went there
     assert remote.error is None and not remote.cancelled, remote.error_traceback
     _assert_same_rows(remote.result, local.result)
+    # The bar followed the chunks merged over all angles, and they all came in.
+    merged, total = remote._chunks
+    assert merged == total > 0
+    fractions = [p.fraction for p in seen]
+    assert all(0.0 <= f <= 1.0 for f in fractions)

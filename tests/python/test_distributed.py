@@ -204,3 +204,165 @@ def test_sweep_on_two_workers_matches_the_local_sweep_csv(client, tmp_path):
     dist, local = rows("dist"), rows("local")
     assert len(dist) == 2 and dist == local  # every column but the wall-clock seconds, as text
     assert all(int(r["cancelled"]) == 0 for r in dist)
+
+
+def _csv_rows(path):
+    """The sweep CSV's rows as text, without the wall-clock ``seconds``."""
+    import csv
+
+    with open(path, newline="") as fh:
+        return [{k: v for k, v in r.items() if k != "seconds"} for r in csv.DictReader(fh)]
+
+
+def _run_ids(client):
+    """The runs (by task-key prefix) with chunk tasks held by ``client`` right now."""
+    return {k.rsplit("-", 1)[0] for k in client.futures if k.startswith("endophoton-units-")}
+
+
+def test_sweep_angles_run_at_once_and_give_the_local_sweep(client, tmp_path):
+    """All angles' chunks are in flight together (seen when the first chunk is merged,
+    before any run could have ended); the CSV and every histogram and batch value equal
+    the local sweep's; on_beta comes in beta order; the chunk count adds up."""
+    scene, _ = fluorescent_endoscope()
+    kw = dict(betas=[0, 20, 40], store=300, seed=6, plots=False, report=False)
+    in_flight, calls, chunk_calls, order = [], [], [], []
+    before = _run_ids(client)  # futures of earlier tests the client may not have released yet
+
+    def progress(i, n, done, total):
+        if not in_flight:
+            in_flight.append(_run_ids(client) - before)
+        calls.append((i, n, done))
+
+    dist = ep.sweep(
+        scene,
+        out_dir=tmp_path / "dist",
+        client=client,
+        chunk_units=2,
+        progress=progress,
+        on_chunks=lambda merged, total: chunk_calls.append((merged, total)),
+        on_beta=lambda i, n, row: order.append(i),
+        **kw,
+    )
+    local = ep.sweep(scene, out_dir=tmp_path / "local", threads=1, progress=False, **kw)
+    assert len(in_flight[0]) == 3  # the three angles' runs were all in flight at once
+    assert {i for i, n, _ in calls} == {0, 1, 2} and all(n == 3 for _, n, _ in calls)
+    assert order == [0, 1, 2]
+    merged = [m for m, _ in chunk_calls]
+    assert merged == sorted(merged) and chunk_calls[-1][0] == chunk_calls[-1][1]
+    units = [r["packets_traced"] for r in dist.rows]
+    rd, rl = _csv_rows(tmp_path / "dist" / "sweep.csv"), _csv_rows(tmp_path / "local" / "sweep.csv")
+    assert len(rd) == 3 and rd == rl
+    for hd, hl in zip(dist.histograms, local.histograms):
+        for k in hd:
+            assert np.array_equal(np.asarray(hd[k]), np.asarray(hl[k]), equal_nan=True), k
+    for bd, bl in zip(dist.batches, local.batches):
+        for k in bd:
+            assert np.array_equal(np.asarray(bd[k]), np.asarray(bl[k]), equal_nan=True), k
+    assert not dist.meta["cancelled"] and units == [r["packets_traced"] for r in local.rows]
+    assert len(set(units)) > 1  # the angles' runs did not all stop at the same packet
+
+
+def test_cancelling_a_cluster_sweep_cancels_its_tasks(client):
+    """A cancel after the first merged chunk ends the sweep at its first angle (no
+    angle can have stored 20 000 records from one 1024-packet unit) and leaves no
+    chunk task queued or running on the cluster."""
+    scene, _ = fluorescent_endoscope()
+    token = ep.CancelToken()
+
+    def progress(i, n, done, total):
+        token.cancel()
+        return True
+
+    res = ep.sweep(
+        scene,
+        betas=[0, 20, 40],
+        store=20000,
+        seed=1,
+        client=client,
+        chunk_units=1,
+        progress=progress,
+        cancel=token,
+        plots=False,
+        report=False,
+    )
+    assert res.meta["cancelled"] and res.meta["cancelled_at_beta"] == 0
+    assert len(res.rows) <= 1 and all(r["cancelled"] == 1 for r in res.rows)
+
+    def live_chunks(dask_scheduler):
+        waiting = ("waiting", "queued", "no-worker", "processing")
+        return [k for k, ts in dask_scheduler.tasks.items() if "endophoton-units-" in str(k) and ts.state in waiting]
+
+    assert client.run_on_scheduler(live_chunks) == []
+
+
+def test_cli_sweep_on_local2_matches_the_local_cli_sweep(tmp_path):
+    common = ["sweep", "--betas", "0,30", "--store", "200", "--seed", "3", "--batches", "10"]
+    dist = cli(*common, "--scheduler", "local:2", "--out", str(tmp_path / "dist"))
+    assert dist.returncode == 0, dist.stderr
+    local = cli(*common, "--threads", "1", "--no-progress", "--out", str(tmp_path / "local"))
+    assert local.returncode == 0, local.stderr
+    assert "chunk" in dist.stderr  # the tqdm bar counts chunks over all angles
+    rows = _csv_rows(tmp_path / "dist" / "sweep.csv")
+    assert len(rows) == 2 and rows == _csv_rows(tmp_path / "local" / "sweep.csv")
+
+
+def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
+    out = cli(
+        "sweep", "--betas", "0", "--store", "100", "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "o")
+    )
+    assert out.returncode == 2
+    assert "tcp://127.0.0.1:9" in out.stderr and "cannot connect" in out.stderr
+    assert "Traceback" not in out.stderr and not (tmp_path / "o").exists()
+
+
+def test_cli_sweep_blend_on_local2_runs_on_the_cluster(tmp_path):
+    """``sweep --blend FILE --scheduler local:2``: the cluster is started here and Blender's
+    sweep connects to it (the chunk bar shows on stderr); the angles' rows are complete."""
+    from test_sweep import _blender_available
+
+    if not _blender_available():
+        pytest.skip("blender with python 3.11 + numpy, or the engine, missing")
+    blend = os.path.join(ROOT, "blend_scenes", "flat_tissue.blend")
+    out = cli(
+        "sweep", "--blend", blend, "--betas", "0,20", "--store", "400", "--batches", "4", "--seed", "3",
+        "--scheduler", "local:2", "--out", str(tmp_path / "o"),
+    )  # fmt: skip
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    assert "chunk" in out.stderr
+    rows = _csv_rows(tmp_path / "o" / "sweep.csv")
+    assert [float(r["beta_deg"]) for r in rows] == [0.0, 20.0] and all(r["records"] == "400" for r in rows)
+    assert all(r["cancelled"] == "0" for r in rows)
+
+
+def test_run_many_fixed_store_and_target_at_once_each_match_their_local_run(client, tmp_path):
+    """Three runs with different stop rules in flight together (two share one scene, the
+    third has its own): each is merged in its own unit order and stops where it stops
+    locally, grids included."""
+    from endophoton.run import Result, run_request
+
+    scene, rig = fluorescent_endoscope()
+    other, _ = fluorescent_endoscope()  # a second scene object: scattered separately
+    grid = ep.GridRequest(voxel_size=0.05, path=str(tmp_path / "many.vdb"))
+    kws = [
+        dict(photons=2500, seed=8, grids=grid),
+        dict(store=250, fluorescent_only=True, seed=8),
+        dict(target=ep.Target("diffuse_reflectance", 0.08), seed=8, record_escapes=False),
+    ]
+    scenes = [scene, scene, other]
+    requests = [(s, rig, run_request(s, rig, **kw), None) for s, kw in zip(scenes, kws)]
+    finished = []
+    raws = distributed.run_many(client, requests, on_finished=lambda i, raw: finished.append(i))
+    assert sorted(finished) == [0, 1, 2]
+    dist = [Result(raw, s, rig, req[2]) for raw, s, req in zip(raws, scenes, requests)]
+    grid_local = ep.GridRequest(voxel_size=0.05, path=str(tmp_path / "local.vdb"))
+    local = [
+        ep.run(scene, rig, threads=1, photons=2500, seed=8, grids=grid_local),
+        ep.run(scene, rig, threads=1, **kws[1]),
+        ep.run(other, rig, threads=1, **kws[2]),
+    ]
+    for d, loc in zip(dist, local):
+        assert_same_result(d, loc)
+    assert [d.stop_reason for d in dist][1:] == ["store", "target"]
+    a, _, _ = grid_to_numpy(dist[0].grid_path, "absorbed")
+    b, _, _ = grid_to_numpy(local[0].grid_path, "absorbed")
+    assert np.array_equal(a, b)

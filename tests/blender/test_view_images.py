@@ -1,0 +1,89 @@
+# SPDX-License-Identifier: MIT
+"""Issue 15, "results kept": the endoscope-view images (ep.render_view) appear
+as Image datablocks beside their run and go with it."""
+
+import os
+
+import bpy
+import numpy as np
+
+from endophoton_addon import results, rig, simulation
+from conftest import open_blend
+
+
+def _run(blend, tmp_path, prepare=None, **settings):
+    scene = open_blend(blend, tmp_path)
+    if prepare is not None:
+        prepare(scene)
+    s = scene.endophoton
+    s.quality, s.photons, s.output_grids = "CUSTOM", 20_000, False
+    for name, value in settings.items():
+        setattr(s, name, value)
+    job = simulation.prepare_job(bpy.context)
+    job.start()
+    job.wait()
+    return scene, job, simulation.finish_job(bpy.context, job)
+
+
+def _pixels(image):
+    w, h = image.size
+    values = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(values)
+    return values.reshape(h, w, 4)
+
+
+def _srgb8(linear):
+    """IEC 61966-2-1 encoding, written out here independently of endophoton.colour."""
+    c = np.clip(linear, 0.0, 1.0)
+    return np.round(255 * np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)).astype(int)
+
+
+def test_view_images_made_kept_and_removed(ep, tmp_path):
+    scene, job, collection = _run("colon_polyp.blend", tmp_path)
+    images = results.view_images(collection)
+    assert set(images) == {"white", "fluorescence"}
+    assert sorted(collection[results.VIEWS_KEY]) == sorted(im.name for im in images.values())
+    # the package's own image of the same records, computed here again
+    view = ep.render_view(job.result, threads=job.inputs.threads)
+    size = tuple(job.engine_rig.camera_resolution)
+    assert size == (256, 256)  # EndoscopeRig's camera: the add-on asks for no other size
+    for name, image in images.items():
+        assert tuple(image.size) == size and image.is_float
+        assert image["endophoton_collection"] == collection.name
+        assert image[results.RUN_KEY] == collection[results.RUN_KEY]
+        assert image[results.PARAMS_KEY]["beta_deg"] == collection[results.PARAMS_KEY]["beta_deg"]
+        info = image["endophoton_view_info"]
+        expected = view.images[name]
+        assert info["exposure"] == expected["exposure"] and info["packets"] == job.result.packets_traced
+        pixels = _pixels(image)[::-1]  # Blender's rows run bottom-up; the package's row 0 is the top
+        np.testing.assert_allclose(pixels[..., :3], expected["rgb"] * expected["exposure"], rtol=1e-6, atol=1e-9)
+        np.testing.assert_array_equal(pixels[..., 3], 1.0)
+        lit = (pixels[..., :3].max(axis=2) > 0.01).sum()
+        assert lit > 0.01 * size[0] * size[1], (name, lit)  # non-empty (20k packets light ~2 % of it)
+        assert np.abs(_srgb8(pixels[..., :3]) - expected["srgb8"].astype(int)).max() <= 1
+    # kept in the .blend (packed, fake user) with their pixels
+    path, collection_name = str(tmp_path / "kept.blend"), collection.name
+    names = {name: im.name for name, im in images.items()}
+    before = {name: _pixels(im) for name, im in images.items()}
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    collection = bpy.data.collections[collection_name]
+    for name, image_name in names.items():
+        image = bpy.data.images[image_name]
+        np.testing.assert_allclose(_pixels(image), before[name], rtol=2e-3, atol=1e-6)  # EXR half floats
+    results.remove_run(collection)
+    assert not any(bpy.data.images.get(n) for n in names.values())
+
+
+def _remove_camera(scene):
+    root = rig.find_rigs(scene)[0]
+    bpy.data.objects.remove(next(c for c in root.children if c.type == "CAMERA"))
+    assert not rig.has_camera(root)
+
+
+def test_no_view_without_camera_or_when_off(ep, tmp_path):
+    for prepare, settings in ((_remove_camera, {}), (None, {"output_views": False})):
+        _scene, job, collection = _run("flat_tissue.blend", tmp_path, prepare, **settings)
+        assert not job.inputs.endoscope_view and job.view is None and job.view_error is None
+        assert not results.view_images(collection) and results.VIEWS_KEY not in collection
+        assert not any(results.VIEW_KEY in im for im in bpy.data.images)
