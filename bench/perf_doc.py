@@ -801,8 +801,11 @@ def sec_dask(R, figs):
         + (":" if d["returncode"] == 0 else f" (**it failed**, exit status {d['returncode']}):")
         + "\n"
     )
-    a("```text\n" + d["stdout"].rstrip("\n") + ("\n" + d["stderr_tail"].rstrip("\n") if d["returncode"] else ""))
-    a("```\n")
+    out = d["stdout"].rstrip("\n")
+    if d["returncode"] == 0 and "\n|---" in out:  # the script prints Markdown: its headings go below §8's
+        a(re.sub(r"^#{1,3} ", "### ", out, flags=re.M) + "\n")
+    else:
+        a("```text\n" + out + ("\n" + d["stderr_tail"].rstrip("\n") if d["returncode"] else "") + "\n```\n")
     return L
 
 

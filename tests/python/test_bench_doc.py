@@ -81,7 +81,7 @@ def test_whole_page_from_stored_results(pd, stored):
     for t in tables(text):
         assert t[1] and set("".join(t[1])) <= set("-"), t[:2]  # header separator
         assert all(len(row) == len(t[0]) for row in t), t[0]
-    assert "```text\n" + R["dask"]["stdout"].strip().splitlines()[0] in text  # the Dask script's own table
+    assert all(line in text for line in R["dask"]["stdout"].splitlines() if line.startswith("|"))  # its tables
 
 
 def test_issue11_ratios_are_after_over_before(pd, stored):
@@ -107,3 +107,17 @@ def test_a_missing_section_says_how_to_measure_it(pd, stored):
     text = pd.render_document(R, figs, B)
     assert "## 6. Light crosses the lumen" in text and "--sections lumen" in text
     assert "Not measured: RuntimeError: no cluster." in text and "--sections dask" in text
+
+
+def test_dask_output_is_quoted_as_text_or_embedded_as_markdown(pd, stored):
+    R, figs, _ = stored
+    R = copy.deepcopy(R)
+    R["dask"] = dict(args=["dask_cluster.py", "--quick"], returncode=0, stdout="load 1.0\nlocal 1 thread 5e4\n")
+    text = "\n".join(pd.sec_dask(R, figs))
+    assert "```text\nload 1.0\nlocal 1 thread 5e4\n```" in text
+    R["dask"]["stdout"] = "Load 1.0\n\n## Throughput\n\n| how | packets/s |\n|---|---|\n| local | 5e4 |\n"
+    text = "\n".join(pd.sec_dask(R, figs))
+    assert "```" not in text and "\n### Throughput\n" in text and "| local | 5e4 |" in text
+    R["dask"].update(returncode=1, stderr_tail="Traceback: boom")
+    text = "\n".join(pd.sec_dask(R, figs))
+    assert "**it failed**, exit status 1" in text and "Traceback: boom\n```" in text
