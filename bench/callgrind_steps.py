@@ -10,6 +10,7 @@ cache), libm and the rest of the loop.
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import subprocess
@@ -32,48 +33,25 @@ GROUPS = {
 }
 
 
-def child(scene_name, n, py):
+def child(specs, py):
+    """Run each (scene, packets, safe_distance) of ``specs`` once, one thread, and print their results."""
     sys.path.insert(0, py)
     import endophoton as ep
     import colon_scene as cs
 
-    scene, src = {"seed_tissue": cs.seed_tissue_box, "mcml_slab": cs.mcml_slab, "colon": cs.colon_scene}[scene_name]()
-    r = ep.run(scene, src, photons=n, threads=1, seed=1, record_escapes=False)
-    print(
-        "RESULT "
-        + json.dumps(
-            dict(
-                rd=r.diffuse_reflectance,
-                rd_se=r.diffuse_reflectance_stderr,
-                interactions=float(r.interactions) * r.photons,
-            )
-        )
-    )
+    scenes = {"seed_tissue": cs.seed_tissue_box, "mcml_slab": cs.mcml_slab, "colon": cs.colon_scene}
+    out, built = [], {}
+    for name, n, safe_distance in specs:
+        if name not in built:  # each scene is built once (slow under valgrind)
+            built[name] = scenes[name]()
+        scene, src = built[name]
+        r = ep.run(scene, src, photons=n, threads=1, seed=1, record_escapes=False, safe_distance=safe_distance)
+        out.append(dict(rd=r.diffuse_reflectance, rd_se=r.diffuse_reflectance_stderr, interactions=r.interactions * n))
+    print("RESULT " + json.dumps(out))
 
 
-def profile(scene_name, n, py):
-    from callgrind_summary import parse
-
-    out = os.path.join(tempfile.gettempdir(), f"ep-cg-steps-{os.getpid()}-{scene_name}.out")
-    cmd = [
-        "valgrind",
-        "--tool=callgrind",
-        f"--callgrind-out-file={out}",
-        "--toggle-collect=ep::Tracer::trace(*",
-        sys.executable,
-        os.path.abspath(__file__),
-        "--child",
-        scene_name,
-        str(n),
-        "--py",
-        py,
-    ]
-    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    if p.returncode:
-        raise RuntimeError(p.stderr[-2000:])
-    res = json.loads([l for l in p.stdout.splitlines() if l.startswith("RESULT ")][-1][7:])
-    prof = parse(out)
-    os.remove(out)
+def _row(prof, scene_name, res):
+    """Ir per packet and per interaction, split by GROUPS, of one run's callgrind profile."""
     packets = prof.calls("ep::Tracer::trace(")
     total = prof.inclusive("ep::Tracer::trace(")
     steps = res["interactions"] or prof.calls("log@@")
@@ -99,19 +77,46 @@ def profile(scene_name, n, py):
     return row
 
 
+def profile_many(specs, py):
+    """One row per (scene, packets, safe_distance) of ``specs``, all traced in one process under callgrind
+    (Python's start-up under valgrind is paid once): a dump after each engine run (``ep::run``) holds
+    that run's instructions."""
+    from callgrind_summary import parse
+
+    out = os.path.join(tempfile.gettempdir(), f"ep-cg-steps-{os.getpid()}.out")
+    cmd = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", "--toggle-collect=ep::Tracer::trace(*"]
+    cmd += ["--dump-after=ep::run(*", sys.executable, os.path.abspath(__file__), "--child", json.dumps(specs)]
+    p = subprocess.run(cmd + ["--py", py], capture_output=True, text=True, cwd=ROOT)
+    dumps = sorted(glob.glob(out + ".*"), key=lambda f: int(f.rsplit(".", 1)[1]))
+    try:
+        if p.returncode:
+            raise RuntimeError(p.stderr[-2000:])
+        results = json.loads([l for l in p.stdout.splitlines() if l.startswith("RESULT ")][-1][7:])
+        if len(dumps) < len(specs):
+            raise RuntimeError(f"callgrind wrote {len(dumps)} dumps for {len(specs)} runs")
+        return [_row(parse(f), spec[0], res) for f, spec, res in zip(dumps, specs, results)]
+    finally:
+        for f in dumps + [out]:
+            if os.path.exists(f):
+                os.remove(f)
+
+
+def profile(scene_name, n, py, safe_distance=True):
+    return profile_many([(scene_name, n, safe_distance)], py)[0]
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--child", nargs=2)
+    ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--py", default=os.path.join(ROOT, "python"))
+    ap.add_argument("--no-safe-distance", action="store_true", help="run with safe_distance=False")
     ap.add_argument("runs", nargs="*", default=["seed_tissue:5000", "mcml_slab:20000", "colon:2000"])
     a = ap.parse_args()
     if a.child:
-        return child(a.child[0], int(a.child[1]), a.py)
-    rows = []
-    for spec in a.runs:
-        name, n = spec.split(":")
-        row = profile(name, int(n), a.py)
-        rows.append(row)
+        return child(json.loads(a.child), a.py)
+    specs = [(spec.split(":")[0], int(spec.split(":")[1]), not a.no_safe_distance) for spec in a.runs]
+    rows = profile_many(specs, a.py)
+    for (name, _, _), row in zip(specs, rows):
         print(
             f"{name}: {row['ir_packet']:.0f} Ir/packet, {row['steps_packet']:.1f} interactions/packet, "
             f"{row['ir_step']:.0f} Ir per interaction; Rd {row['rd']:.5f} ± {row['rd_se']:.5f}"

@@ -1,15 +1,15 @@
 #!/usr/bin/env python3
 """Benchmark (not a test): seconds per endoscope image at each kernel size and resolution.
 
-    /usr/bin/python3 bench/render_speed.py [--photons N] [--write]
+    /usr/bin/python3 bench/render_speed.py [--photons N]
 
 Runs the colon scene of bench/colon_scene.py (rig at beta = 20 deg, scene in metres) once, then
 renders the rig camera's view with ep.render_view at 64^2, 128^2 and 256^2 pixels and kernel radii
 of 1, 2 (the default) and 4 pixel footprints (kernel angle 15 deg). For each it prints the wall
 seconds of render_view (best of 2), the median relative standard error of the white image over the
 pixels that see tissue, and the kernel's estimated bias in the polyp's mean white radiance
-(4/3 (L_h - L_h/2), in units of its stderr). With --write the table replaces the section between
-the render-speed markers in docs/performance.md.
+(4/3 (L_h - L_h/2), in units of its stderr). bench/run_all.py calls measure() and table() for
+docs/performance.md §7.
 """
 from __future__ import annotations
 
@@ -30,16 +30,14 @@ import endophoton as ep  # noqa: E402
 from colon_scene import colon_scene  # noqa: E402
 from endophoton.render import render_view  # noqa: E402
 
-BEGIN, END = "<!-- render-speed:begin -->", "<!-- render-speed:end -->"
 
-
-def measure(photons: int) -> tuple[list[dict], dict]:
+def measure(photons: int, sizes=(64, 128, 256)) -> tuple[list[dict], dict]:
     scene, rig = colon_scene(beta_deg=20.0)
     t0 = time.perf_counter()
     res = ep.run(scene, rig, photons=photons, seed=1, spectral=True)
     run_s = time.perf_counter() - t0
     rows = []
-    for n in (64, 128, 256):
+    for n in sizes:
         footprint = render_view(res, None, n, n).kernel["radius"] / 2  # the default radius is 2 footprints
         for factor in (1, 2, 4):
             best = float("inf")
@@ -80,28 +78,23 @@ def measure(photons: int) -> tuple[list[dict], dict]:
         photons=photons,
         records=int(len(res.escapes["weight"])),
         run_s=run_s,
-        date=_dt.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC"),
+        date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         load=load,
     )
     return rows, meta
 
 
 def table(rows, meta) -> str:
+    """The measurements as Markdown: what was run, the table, and how to read it."""
     lines = [
-        BEGIN,
-        "",
-        "## Endoscope view: seconds per image (`bench/render_speed.py`)",
-        "",
-        f"Measured {meta['date']} **under load** (load average {meta['load'][0]:.1f} / {meta['load'][1]:.1f} / "
-        f"{meta['load'][2]:.1f}: other jobs shared the 2 cores), so the seconds are indicative only. "
-        f"Colon scene (bench/colon_scene.py, metres), rig at beta = 20 deg, {meta['photons']:,} packets, "
-        f"{meta['records']:,} escape records (run {meta['run_s']:.1f} s). `ep.render_view` with the rig's "
-        "camera, kernel angle 15 deg, all cores; best of 2. The kernel radius is in pixel footprints at the "
-        "median surface depth (2 is the default). `lit`: share of the pixels that see tissue whose kernel "
-        "holds records (the rig's 120 deg view is mostly dark wall beyond the two light spots); "
-        "`median rel. se`: median over the lit pixels of the white image's batch-means relative "
-        "standard error; `polyp bias`: the kernel's estimated "
-        "bias of the polyp's mean white radiance, 4/3 (L(r) - L(r/2)), in units of its standard error.",
+        f"`bench/render_speed.py`, measured {meta['date']}: colon scene (bench/colon_scene.py, metres), rig at "
+        f"beta = 20 deg, {meta['photons']:,} packets, {meta['records']:,} escape records (run {meta['run_s']:.1f} s). "
+        "`ep.render_view` with the rig's camera, kernel angle 15 deg, all cores; best of 2. The kernel radius is in "
+        "pixel footprints at the median surface depth (2 is the default). `lit`: share of the pixels that see "
+        "tissue whose kernel holds records (the rig's 120 deg view is mostly dark wall beyond the two light spots); "
+        "`median rel. se`: median over the lit pixels of the white image's batch-means relative standard error; "
+        "`polyp bias`: the kernel's estimated bias of the polyp's mean white radiance, 4/3 (L(r) - L(r/2)), in "
+        "units of its standard error.",
         "",
         "| pixels | kernel radius | seconds / image | lit | median rel. se (pixel) | polyp rel. se (region) | "
         "polyp bias / σ |",
@@ -117,33 +110,17 @@ def table(rows, meta) -> str:
         "Larger kernels gather more records per pixel (lower noise, more time in the gather) and blur "
         "more (bias grows as r²); more pixels cost primary rays and gathers in proportion.",
         "",
-        END,
     ]
     return "\n".join(lines) + "\n"
-
-
-def write(text: str) -> None:
-    from endophoton.io import atomic_write_text
-
-    path = os.path.join(ROOT, "docs", "performance.md")
-    doc = open(path, encoding="utf-8").read()
-    if BEGIN in doc and END in doc:
-        doc = doc[: doc.index(BEGIN)] + text + doc[doc.index(END) + len(END) + 1 :]
-    else:
-        doc = doc.rstrip("\n") + "\n\n" + text
-    atomic_write_text(path, doc)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--photons", type=int, default=150_000)
-    ap.add_argument("--write", action="store_true", help="update docs/performance.md")
     args = ap.parse_args()
     rows, meta = measure(args.photons)
-    text = table(rows, meta)
-    print(text)
-    if args.write:
-        write(text)
+    print(f"load average {meta['load'][0]:.1f} / {meta['load'][1]:.1f} / {meta['load'][2]:.1f}")
+    print(table(rows, meta))
     return 0
 
 

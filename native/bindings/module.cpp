@@ -8,6 +8,7 @@
 
 #include "common.h"
 #include "engine.h"
+#include "tally.h"
 
 namespace ep::bind {
 
@@ -31,6 +32,10 @@ PYBIND11_MODULE(_core, m) {
     py::register_exception<std::invalid_argument>(m, "InvalidArgument", PyExc_ValueError);
     m.attr("MAX_REGIONS") = int(ep::Scene::kMaxRegions);
     m.attr("MAX_PACKET_REQUEST") = ep::kMaxPacketRequest;
+    // Read-only: the names of the balance tallies (native/tally.h), for the package's tests.
+    py::tuple balance(ep::kBalanceTallies);
+    for (int i = 0; i < ep::kBalanceTallies; ++i) balance[i] = ep::tally_name(i);
+    m.attr("BALANCE_TALLIES") = balance;
     ep::bind::bind_scene(m);
     ep::bind::bind_source(m);
     ep::bind::bind_run(m);

@@ -5,6 +5,7 @@ import inspect
 import math
 import os
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 
 from . import _core
@@ -85,64 +86,52 @@ def _require_finite(raw: dict, path: str = "result") -> None:
             raise RuntimeError(f"{path}.{k} = {v!r} is not finite (engine bug: please report)")
 
 
-def _check_arguments(
-    scene,
-    photons,
-    store,
-    target,
-    seed,
-    threads,
-    max_steps,
-    max_photons,
-    unit_size,
-    batches,
-    roulette_threshold,
-    roulette_chance,
-    max_path_cm,
-    time_budget_s,
-    record_escapes,
-    fluorescent_only,
-    safe_distance,
-    spectral,
-    fluorescence_rule,
-    lumen,
-) -> None:
-    """The checks of :func:`run`'s arguments: types, ranges and exclusive modes (ValueError names the field)."""
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene = {scene!r} must be an endophoton.Scene")
-    modes = [m for m, v in (("photons", photons), ("store", store), ("target", target)) if v is not None]
+def _check_arguments(a: SimpleNamespace) -> None:
+    """The checks of :func:`run`'s arguments ``a``: types, ranges and exclusive modes (ValueError names the field)."""
+    if not isinstance(a.scene, Scene):
+        raise ValueError(f"scene = {a.scene!r} must be an endophoton.Scene")
+    modes = [m for m in ("photons", "store", "target") if getattr(a, m) is not None]
     if not modes:
         raise ValueError("photons = None: give photons > 0, store > 0 or a target")
     if len(modes) > 1 and not (modes == ["photons", "target"]):
         raise ValueError(f"{' and '.join(modes)} are exclusive: give one")
-    for name, v in (("photons", photons), ("store", store)):
-        if v is not None:
-            check_int(name, v, 1, MAX_PACKETS)
-    check_int("seed", seed, 0, 2**64 - 1)
-    check_int("threads", threads, 0, MAX_THREADS)
-    for name, v in (("max_steps", max_steps), ("max_photons", max_photons), ("unit_size", unit_size)):
-        check_int(name, v, 0, MAX_PACKETS)
-    check_int("batches", batches, 2, 1_000_000)
-    check_real("roulette_threshold", roulette_threshold, 0.0, 1.0)
-    check_real("roulette_chance", roulette_chance, 0.0, 1.0, lo_open=True)
-    check_real("max_path_cm", max_path_cm, 0.0, math.inf)
-    check_real("time_budget_s", time_budget_s, 0.0, math.inf)
-    for name, v in (
-        ("record_escapes", record_escapes),
-        ("fluorescent_only", fluorescent_only),
-        ("safe_distance", safe_distance),
-    ):
-        check_bool(name, v)
-    if spectral is not None:
-        check_bool("spectral", spectral)
-    if fluorescence_rule not in ("paper", "eem"):
-        raise ValueError(f"fluorescence_rule = {fluorescence_rule!r} must be 'paper' or 'eem'")
-    if not isinstance(lumen, bool):
-        raise ValueError(f"lumen = {lumen!r} must be True or False")
+    for name in ("photons", "store"):
+        if getattr(a, name) is not None:
+            check_int(name, getattr(a, name), 1, MAX_PACKETS)
+    check_int("seed", a.seed, 0, 2**64 - 1)
+    check_int("threads", a.threads, 0, MAX_THREADS)
+    for name in ("max_steps", "max_photons", "unit_size"):
+        check_int(name, getattr(a, name), 0, MAX_PACKETS)
+    check_int("batches", a.batches, 2, 1_000_000)
+    check_real("roulette_threshold", a.roulette_threshold, 0.0, 1.0)
+    check_real("roulette_chance", a.roulette_chance, 0.0, 1.0, lo_open=True)
+    check_real("max_path_cm", a.max_path_cm, 0.0, math.inf)
+    check_real("time_budget_s", a.time_budget_s, 0.0, math.inf)
+    for name in ("record_escapes", "fluorescent_only", "safe_distance"):
+        check_bool(name, getattr(a, name))
+    if a.spectral is not None:
+        check_bool("spectral", a.spectral)
+    if a.fluorescence_rule not in ("paper", "eem"):
+        raise ValueError(f"fluorescence_rule = {a.fluorescence_rule!r} must be 'paper' or 'eem'")
+    if not isinstance(a.lumen, bool):
+        raise ValueError(f"lumen = {a.lumen!r} must be True or False")
 
 
-#: run()'s parameters that say how to run, not what: not part of the engine request.
-_NOT_REQUEST = ("source", "progress", "cancel", "client", "chunk_units")
+def _apply_quality(a: SimpleNamespace) -> None:
+    """``quality`` (a preset name) stands for a target and a packet cap; it excludes the other modes."""
+    if a.quality is None:
+        return
+    if a.photons is not None or a.store is not None or a.target is not None:
+        raise ValueError(f"quality = {a.quality!r} replaces photons, store and target: give only one")
+    preset = quality_preset(a.quality)
+    a.target, a.max_photons = preset.target, preset.max_photons
+
+
+def _request(a: SimpleNamespace) -> dict:
+    """The checked options of :func:`run`'s arguments ``a`` as the engine's RunConfig takes them."""
+    _apply_quality(a)
+    _check_arguments(a)
+    return _native_options(a)
 
 
 def run_request(scene: Scene, source, **kwargs) -> dict:
@@ -151,96 +140,45 @@ def run_request(scene: Scene, source, **kwargs) -> dict:
     these. Unknown keywords raise TypeError, as run() does."""
     bound = inspect.signature(run).bind(scene, source, **kwargs)
     bound.apply_defaults()
-    return _request(**{k: v for k, v in bound.arguments.items() if k not in _NOT_REQUEST})
+    return _request(SimpleNamespace(**bound.arguments))
 
 
-def _request(
-    *,
-    scene,
-    photons,
-    store,
-    seed,
-    threads,
-    roulette_threshold,
-    roulette_chance,
-    max_steps,
-    max_path_cm,
-    record_escapes,
-    fluorescent_only,
-    fluorescence_rule,
-    grids,
-    target,
-    time_budget_s,
-    max_photons,
-    batches,
-    spectral,
-    safe_distance,
-    unit_size,
-    quality,
-    lumen,
-) -> dict:
-    """The checked options of run() as the engine's RunConfig takes them."""
-    if quality is not None:
-        if photons is not None or store is not None or target is not None:
-            raise ValueError(f"quality = {quality!r} replaces photons, store and target: give only one")
-        preset = quality_preset(quality)
-        target, max_photons = preset.target, preset.max_photons
-    _check_arguments(
-        scene,
-        photons,
-        store,
-        target,
-        seed,
-        threads,
-        max_steps,
-        max_photons,
-        unit_size,
-        batches,
-        roulette_threshold,
-        roulette_chance,
-        max_path_cm,
-        time_budget_s,
-        record_escapes,
-        fluorescent_only,
-        safe_distance,
-        spectral,
-        fluorescence_rule,
-        lumen,
-    )
+def _native_options(a: SimpleNamespace) -> dict:
+    """The keyword arguments of the engine's RunConfig for :func:`run`'s checked arguments ``a``."""
     opts = dict(
-        seed=seed,
-        threads=threads,
-        roulette_threshold=float(roulette_threshold),
-        roulette_chance=float(roulette_chance),
-        max_steps=max_steps,
-        max_path_cm=float(max_path_cm),
-        record_escapes=bool(record_escapes),
-        fluorescent_only=bool(fluorescent_only),
-        fluorescence_rule=fluorescence_rule,
-        batches=batches,
-        safe_distance=bool(safe_distance),
-        unit_size=unit_size,
+        seed=a.seed,
+        threads=a.threads,
+        roulette_threshold=float(a.roulette_threshold),
+        roulette_chance=float(a.roulette_chance),
+        max_steps=a.max_steps,
+        max_path_cm=float(a.max_path_cm),
+        record_escapes=bool(a.record_escapes),
+        fluorescent_only=bool(a.fluorescent_only),
+        fluorescence_rule=a.fluorescence_rule,
+        batches=a.batches,
+        safe_distance=bool(a.safe_distance),
+        unit_size=a.unit_size,
     )
-    if photons is not None and target is None:
-        opts["photons"] = photons
-    if store is not None:
-        opts["store"] = store
-    if target is not None:
-        opts["target_tally"] = target.tally
-        opts["target_rel_error"] = float(target.rel_error)
-        opts["max_photons"] = photons if photons is not None else max_photons
-    elif max_photons:
-        opts["max_photons"] = max_photons
-    if time_budget_s:
-        opts["time_budget_s"] = float(time_budget_s)
-    if not lumen:
+    if a.photons is not None and a.target is None:
+        opts["photons"] = a.photons
+    if a.store is not None:
+        opts["store"] = a.store
+    if a.target is not None:
+        opts["target_tally"] = a.target.tally
+        opts["target_rel_error"] = float(a.target.rel_error)
+        opts["max_photons"] = a.photons if a.photons is not None else a.max_photons
+    elif a.max_photons:
+        opts["max_photons"] = a.max_photons
+    if a.time_budget_s:
+        opts["time_budget_s"] = float(a.time_budget_s)
+    if not a.lumen:
         opts["lumen"] = False
-    if spectral:
+    if a.spectral:
         opts["force_spectral"] = True
-    if grids is not None:
-        opts["grid_voxel_size"] = float(grids.voxel_size)
-        opts["grid_path"] = os.fspath(grids.path)
-        opts["grid_per_fluorophore"] = bool(grids.per_fluorophore)
+    if a.grids is not None:
+        opts["grid_voxel_size"] = float(a.grids.voxel_size)
+        opts["grid_path"] = os.fspath(a.grids.path)
+        opts["grid_per_fluorophore"] = bool(a.grids.per_fluorophore)
     return opts
 
 
@@ -299,7 +237,7 @@ def run(
 
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
-    opts = _request(**{k: v for k, v in locals().items() if k not in _NOT_REQUEST})
+    opts = _request(SimpleNamespace(**locals()))  # every argument of this call, captured once by name
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 

@@ -1,13 +1,16 @@
-"""Synthetic escape records with known distributions, for the analysis/sweep tests.
+"""Synthetic inputs shared by tests: escape records with known distributions, and a small polyp scene.
 
-No engine needed: every column of docs/design.md's escape-record table is
+The records need no engine: every column of docs/design.md's escape-record table is
 filled, with the distributions chosen by the test so the expected answers can
-be computed analytically.
+be computed analytically. ``polyp_box_scene`` is the wall-and-polyp box scene the
+render and visibility tests trace.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+import endophoton as ep
 
 
 def local_frame(normal, to_light):
@@ -95,3 +98,21 @@ def random_rotation(rng):
     if np.linalg.det(q) < 0:
         q[:, 0] = -q[:, 0]
     return q
+
+
+def polyp_box_scene(c_photofrin=0.33):
+    """Collagen wall box (6 x 6 x 2 cm) with a higher-priority polyp box (1.2 x 1.2 x 0.6 cm) at its top
+    face holding collagen and photofrin at concentration ``c_photofrin`` (the seed's d, c); mua 1, mus 10,
+    g 0, n 1, in cm."""
+    m = ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0)
+    s = ep.Scene(unit="cm")
+    s.add_box("wall", (-3, -3, -2), (3, 3, 0), m, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
+    s.add_box(
+        "polyp",
+        (-0.6, -0.6, -0.3),
+        (0.6, 0.6, 0.3),
+        m,
+        priority=1,
+        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, c_photofrin)],
+    )
+    return s

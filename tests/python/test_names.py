@@ -35,3 +35,18 @@ def test_scene_json_disk_source_takes_either_key(key):
 def test_scene_json_disk_source_needs_exactly_one_point(body):
     with pytest.raises(ValueError, match="exactly one of 'position' or 'center'"):
         ep.source_from_dict(body)
+
+
+def test_package_and_engine_name_the_same_fractions():
+    """One list of fractions: the package's FRACTIONS (python/endophoton/tallies.py) are the engine's balance
+    tallies (native/tally.cpp, exported read-only by the binding), in the same order; a run reports each with
+    its standard error, and together they hold all the launched weight."""
+    from endophoton import _core
+
+    assert tuple(_core.BALANCE_TALLIES) == ep.FRACTIONS
+    s = ep.Scene("cm")
+    s.add_box("slab", (-1, -1, -0.1), (1, 1, 0), ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0))
+    r = ep.run(s, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=500, threads=1)
+    raw = r.to_dict()
+    assert all(k in raw and k + "_stderr" in raw for k in _core.BALANCE_TALLIES)
+    assert sum(raw[k] for k in _core.BALANCE_TALLIES) == pytest.approx(1.0, abs=1e-12)  # the fates of all weight

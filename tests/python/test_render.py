@@ -15,6 +15,8 @@ from endophoton import analysis
 from endophoton.camera import Camera
 from endophoton.render import emission_filter_function, excitation_spectrum, render_view
 
+from _synth import polyp_box_scene
+
 
 class _Records:
     """A stand-in for ep.Result built from synthetic escape records."""
@@ -263,21 +265,6 @@ def test_white_non_absorbing_scene_renders_neutral():
     assert se < 0.05
 
 
-def _polyp_scene(c_photofrin):
-    m = ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0)
-    s = ep.Scene(unit="cm")
-    s.add_box("wall", (-3, -3, -2), (3, 3, 0), m, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
-    s.add_box(
-        "polyp",
-        (-0.6, -0.6, -0.3),
-        (0.6, 0.6, 0.3),
-        m,
-        priority=1,
-        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, c_photofrin)],
-    )
-    return s
-
-
 def test_photofrin_shows_in_the_red_green_contrast():
     """Collagen wall, polyp with collagen + photofrin (the seed's d, c), white light, paper rule: the polyp's
     red/green contrast in the fluorescence image is > 0 beyond 3 sigma and falls by > 3 sigma at c = 0."""
@@ -285,7 +272,7 @@ def test_photofrin_shows_in_the_red_green_contrast():
     cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
     out = {}
     for c in (0.33, 0.0):
-        res = ep.run(_polyp_scene(c), src, photons=300_000, seed=1, spectral=True)
+        res = ep.run(polyp_box_scene(c), src, photons=300_000, seed=1, spectral=True)
         view = render_view(res, cam, 24, 24, kernel_radius=0.3, kernel_angle_deg=30)
         out[c] = view.contrast("polyp", "wall")
     with_pf, without = out[0.33], out[0.0]
@@ -337,7 +324,7 @@ def test_blue_light_photofrin_red_green_with_camera_channels():
     out = {}
     for c in (0.33, 0.0):
         view = render_view(
-            ep.run(_polyp_scene(c), src, photons=200_000, seed=1, spectral=True),
+            ep.run(polyp_box_scene(c), src, photons=200_000, seed=1, spectral=True),
             cam,
             24,
             24,

@@ -17,6 +17,8 @@ from endophoton.view_sweep import (
     write_visibility_outputs,
 )
 
+from _synth import polyp_box_scene
+
 
 def _delta_method_vertex_se(x, se, coeffs):
     """Independent stderr of the vertex -b/(2a) of a weighted quadratic fit (delta method)."""
@@ -56,17 +58,7 @@ def test_jackknife_of_a_mean_equals_batch_means():
 
 
 def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
-    m = ep.Medium(mua=1.0, mus=10.0, g=0.0, n=1.0)
-    s = ep.Scene(unit="cm")
-    s.add_box("wall", (-3, -3, -2), (3, 3, 0), m, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4)])
-    s.add_box(
-        "polyp",
-        (-0.6, -0.6, -0.3),
-        (0.6, 0.6, 0.3),
-        m,
-        priority=1,
-        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, 0.33)],
-    )
+    s = polyp_box_scene(0.33)
     rows, betas, images = [], [0.0, 20.0, 40.0], []
     for beta in betas:
         rig = ep.EndoscopeRig.from_beta(beta, 2.0, point=(0, 0, 0.3), camera_resolution=(16, 16), cone_angle_deg=60)

@@ -1,0 +1,123 @@
+"""The generator of docs/performance.md (bench/perf_doc.py) formats what it is given: tables, the
+under-load marks, the issue-11 before / after ratios and the sections a results file lacks. No timing:
+it renders a stored smoke-run results file (tests/python/data/perf_results_quick.json) and synthetic
+values whose expected text is computed here."""
+import copy
+import json
+import os
+import re
+
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+BENCH = os.path.join(HERE, "..", "..", "bench")
+
+
+@pytest.fixture(scope="module")
+def pd():
+    import sys
+
+    sys.path.insert(0, BENCH)
+    import perf_doc
+
+    return perf_doc
+
+
+@pytest.fixture(scope="module")
+def stored():
+    with open(os.path.join(HERE, "data", "perf_results_quick.json"), encoding="utf-8") as fh:
+        R = json.load(fh)
+    with open(os.path.join(BENCH, "baseline.json"), encoding="utf-8") as fh:
+        B = json.load(fh)
+    figs = {k: f"perf/{k}.png" for k in ("throughput", "accuracy_N", "accuracy_time", "roulette", "max_steps")}
+    figs.update({k: f"perf/{k}.png" for k in ("voxel", "presets", "profile")})
+    return R, figs, B
+
+
+def tables(text):
+    """Every Markdown table of ``text`` as a list of rows of cells."""
+    out, cur = [], []
+    for line in text.splitlines() + [""]:
+        if line.startswith("|"):
+            cur.append([c.strip() for c in line.strip().strip("|").split("|")])
+        elif cur:
+            out.append(cur)
+            cur = []
+    return out
+
+
+def test_md_table_and_fmt_int(pd):
+    assert pd.md_table(["a", "b"], [[1, "x"], [2.5, None]]) == "| a | b |\n|---|---|\n| 1 | x |\n| 2.5 | None |"
+    assert pd.fmt_int(1234567.4) == "1 234 567" and pd.fmt_int(999.5) == "1 000"
+
+
+def test_load_note_marks_only_a_loaded_section(pd):
+    R = {"machine": {"cpu_count": 2}, "load": {"quiet": dict(other_cores=0.1, load_start=0.2, load_end=0.3)}}
+    R["load"]["busy"] = dict(other_cores=1.26, load_start=5.0, load_end=7.5)
+    assert pd.load_note(R, "quiet") == "" and pd.load_note(R, "absent") == ""
+    note = pd.load_note(R, "busy")
+    assert note.startswith("**Measured under load**") and "1.3 of the 2 cores" in note and "5.0" in note
+
+
+def test_stop_rule_verdict_tells_quadratic_from_flat(pd):
+    K = [196, 3125, 6250, 12500, 25000]
+    quad = [dict(N=200_000, unit=200_000 // k, units=k, overhead_s=3e-9 * k * k) for k in K]
+    flat = [dict(N=200_000, unit=200_000 // k, units=k, overhead_s=1e-6 * k) for k in K]
+    for rows in (quad, flat):
+        for r in rows:
+            r.update(default_target_unit=256, largest_preset_cap=200_000_000)
+    assert "grows as K²" in pd.stop_rule_verdict(quad) and "c = 3.0e-09 s" in pd.stop_rule_verdict(quad)
+    # 1 µs per unit at 781 250 units of 256 packets: 0.8 s
+    assert "No K² growth" in pd.stop_rule_verdict(flat) and "≈ 0.8 s" in pd.stop_rule_verdict(flat)
+
+
+def test_whole_page_from_stored_results(pd, stored):
+    R, figs, B = stored
+    text = pd.render_document(R, figs, B)
+    heads = re.findall(r"^## (\d)\.", text, flags=re.M)
+    assert heads == [str(i) for i in range(1, 10)]
+    assert "Not measured" not in text  # the stored run holds every section
+    assert not re.search(r"\{[a-z_]+(\[|\})", text), "a template field was left unformatted"
+    for t in tables(text):
+        assert t[1] and set("".join(t[1])) <= set("-"), t[:2]  # header separator
+        assert all(len(row) == len(t[0]) for row in t), t[0]
+    assert all(line in text for line in R["dask"]["stdout"].splitlines() if line.startswith("|"))  # its tables
+
+
+def test_issue11_ratios_are_after_over_before(pd, stored):
+    R, figs, B = stored
+    text = "\n".join(pd.sec_issue11(R, figs, B))
+    rows = {(r[0], r[1]): r for r in tables(text)[0][2:]}
+    for r in R["throughput"]:
+        b = B["throughput"].get(r["key"], {}).get(str(r["threads"]))
+        if b:
+            cells = rows[(r["key"], str(r["threads"]))]
+            assert cells[2] == pd.fmt_int(b["pps"]) and cells[3] == pd.fmt_int(r["pps"])
+            assert cells[4] == f"{r['pps'] / b['pps']:.2f}×"
+    rd, mc = R["mcml_rd"], B["mcml"]["rd"]
+    assert f"{(rd['rd'] - mc) / rd['rd_se']:+.2f} σ" in text
+
+
+def test_a_missing_section_says_how_to_measure_it(pd, stored):
+    R, figs, B = stored
+    R = copy.deepcopy(R)
+    del R["lumen"]
+    R.setdefault("errors", {})["dask"] = "RuntimeError: no cluster"
+    del R["dask"]
+    text = pd.render_document(R, figs, B)
+    assert "## 6. Light crosses the lumen" in text and "--sections lumen" in text
+    assert "Not measured: RuntimeError: no cluster." in text and "--sections dask" in text
+
+
+def test_dask_output_is_quoted_as_text_or_embedded_as_markdown(pd, stored):
+    R, figs, _ = stored
+    R = copy.deepcopy(R)
+    R["dask"] = dict(args=["dask_cluster.py", "--quick"], returncode=0, stdout="load 1.0\nlocal 1 thread 5e4\n")
+    text = "\n".join(pd.sec_dask(R, figs))
+    assert "```text\nload 1.0\nlocal 1 thread 5e4\n```" in text
+    R["dask"]["stdout"] = "Load 1.0\n\n## Throughput\n\n| how | packets/s |\n|---|---|\n| local | 5e4 |\n"
+    text = "\n".join(pd.sec_dask(R, figs))
+    assert "```" not in text and "\n### Throughput\n" in text and "| local | 5e4 |" in text
+    R["dask"].update(returncode=1, stderr_tail="Traceback: boom")
+    text = "\n".join(pd.sec_dask(R, figs))
+    assert "**it failed**, exit status 1" in text and "Traceback: boom\n```" in text
