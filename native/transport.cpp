@@ -561,8 +561,10 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     // Scattering (seed §4): HG cosine, uniform azimuth.
     if (st.med.mus > 0 && st.W > 0) {
         const HenyeyGreenstein hg(st.med.g);
-        const Float u1 = rng_.uniform(), u2 = rng_.uniform();
-        st.d = hg.sample_p(st.d, u1, u2);
+        const Float u_cos = rng_.uniform();
+        Float sin_phi, cos_phi;
+        sample_azimuth([this] { return rng_.uniform(); }, &sin_phi, &cos_phi);
+        st.d = hg.sample_p(st.d, u_cos, sin_phi, cos_phi);
         ++st.scatterings;
     }
 
