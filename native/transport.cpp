@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "eem.h"
+#include "fast_log.h"
 #include "fresnel.h"
 #include "phase.h"
 #include "rng.h"
@@ -168,7 +169,7 @@ void PacketWalk<kSpectral, kGrids>::run(uint64_t index) {
     PacketState& st = st_;
     while (true) {
         if (st.need_tau) {
-            st.tau = -std::log(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
+            st.tau = -log_positive(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
             st.need_tau = false;
         }
         const Float s = st.med.mut > 0 ? st.tau / (st.med.mut * unit_cm_) : kInf;
