@@ -2,11 +2,33 @@
 // scattering model (§4) and MCML's. Interface after pbrt-v4: p, sample_p, pdf (both per
 // steradian, as in pbrt), plus pdf_cos, the density per unit cos(theta) that MCML's sampling uses.
 #pragma once
+#include <algorithm>
 #include <cmath>
 
 #include "vecmath.h"
 
 namespace ep {
+
+// A uniform azimuth as (sin phi, cos phi) without a sincos call (von Neumann
+// 1951): a point (x, y) uniform in the unit disc -- drawn uniform in the square
+// [-1, 1]^2 and kept inside the disc, probability pi/4 -- has a uniform polar
+// angle a, so phi = 2a is uniform in [0, 2 pi), and by the double-angle
+// formulas cos phi = (x^2 - y^2) / r^2, sin phi = 2 x y / r^2 (unit to
+// rounding; one division instead of a normalising square root). `uniform`
+// returns numbers in [0, 1); it is called 2 / (pi/4) = 2.55 times on average,
+// about 40 instructions with the engine's generator against ~130 for sincos.
+template <class Uniform>
+inline void sample_azimuth(Uniform&& uniform, Float* sin_phi, Float* cos_phi) {
+    while (true) {
+        const Float x = 2 * uniform() - 1, y = 2 * uniform() - 1;
+        const Float r2 = x * x + y * y;
+        if (r2 > 1 || r2 < 1e-200) continue;  // outside the disc, or its centre (no angle)
+        const Float inv = 1 / r2;
+        *cos_phi = (x * x - y * y) * inv;
+        *sin_phi = 2 * x * y * inv;
+        return;
+    }
+}
 
 class HenyeyGreenstein {
   public:
@@ -36,13 +58,13 @@ class HenyeyGreenstein {
         return std::clamp(c, Float(-1), Float(1));
     }
 
-    // New direction about `dir`: cosine from HG, azimuth uniform in [0, 2pi).
-    Vec3 sample_p(const Vec3& dir, Float u_cos, Float u_phi) const {
+    // New direction about `dir`: cosine from HG, the azimuth given as
+    // (sin phi, cos phi) of a uniform phi (sample_azimuth).
+    Vec3 sample_p(const Vec3& dir, Float u_cos, Float sin_phi, Float cos_phi) const {
         const Float cos_theta = sample_cos(u_cos);
         if (cos_theta >= 1) return dir;
         if (cos_theta <= -1) return -dir;
-        const Float phi = 2 * kPi * u_phi;
-        return spherical_about(dir, cos_theta, std::sin(phi), std::cos(phi));
+        return spherical_about(dir, cos_theta, sin_phi, cos_phi);
     }
 
   private:

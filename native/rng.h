@@ -1,7 +1,8 @@
-// Counter-based random numbers: every packet owns a stream keyed by
-// (seed, packet index), so a packet's random numbers do not depend on which
-// thread traces it or in which order (MCX/MMC practice). The output for draw k
-// is a keyed hash of the counter k; there is no state to share between packets.
+// Random numbers keyed by (seed, packet index): every packet owns a stream, so
+// its random numbers do not depend on which thread traces it or in which order
+// (MCX/MMC practice). The key is hashed once per packet (a keyed SplitMix64
+// counter) into the 256-bit state of a xoshiro256++ generator, which then
+// draws at a few instructions per number.
 #pragma once
 #include <cmath>
 #include <cstdint>
@@ -19,24 +20,41 @@ inline uint64_t mix64(uint64_t z) {
 class Rng {
   public:
     // Two 64-bit keys from (seed, stream). Two rounds with independent keys make
-    // the streams of two packets collide only if both keys collide (2^-128),
-    // unlike a single Weyl sequence whose windows can overlap.
+    // the streams of two packets collide only if both keys collide (2^-128).
+    // The xoshiro state is the keyed hash of the counters 0..3: four distinct
+    // outputs of a bijection of distinct inputs, so never the all-zero state
+    // xoshiro must avoid, and uncorrelated between neighbouring packet indices
+    // (Vigna's advice: seed xoshiro through SplitMix64, never with raw keys).
     Rng(uint64_t seed, uint64_t stream) {
-        k0_ = mix64(seed ^ 0x243F6A8885A308D3ULL) ^ mix64(stream + 0x9E3779B97F4A7C15ULL);
-        k1_ = mix64(k0_ + 0x13198A2E03707344ULL) ^ mix64(seed * 0xD1B54A32D192ED03ULL + stream);
+        const uint64_t k0 = mix64(seed ^ 0x243F6A8885A308D3ULL) ^ mix64(stream + 0x9E3779B97F4A7C15ULL);
+        const uint64_t k1 = mix64(k0 + 0x13198A2E03707344ULL) ^ mix64(seed * 0xD1B54A32D192ED03ULL + stream);
+        for (uint64_t c = 0; c < 4; ++c) s_[c] = mix64(mix64(c * 0x9E3779B97F4A7C15ULL + k0) ^ k1);
     }
+    // xoshiro256++ 1.0 (Blackman & Vigna 2021, "Scrambled linear pseudorandom
+    // number generators", ACM TOMS 47:36): period 2^256 - 1, passes BigCrush
+    // and PractRand in all bits. A packet draws a few hundred numbers from a
+    // random start in that period, so two streams overlap with probability
+    // about (packets * draws)^2 / 2^256, i.e. never.
     uint64_t next_u64() {
-        const uint64_t c = counter_++;
-        return mix64(mix64(c * 0x9E3779B97F4A7C15ULL + k0_) ^ k1_);
+        const uint64_t out = rotl(s_[0] + s_[3], 23) + s_[0];
+        const uint64_t t = s_[1] << 17;
+        s_[2] ^= s_[0];
+        s_[3] ^= s_[1];
+        s_[1] ^= s_[2];
+        s_[0] ^= s_[3];
+        s_[2] ^= t;
+        s_[3] = rotl(s_[3], 45);
+        return out;
     }
-    // Uniform in [0, 1) with 53 random bits.
+    // Uniform in [0, 1) with 53 random bits (the top ones: the best in any
+    // linear generator).
     double uniform() { return double(next_u64() >> 11) * 0x1.0p-53; }
     // Uniform in (0, 1]: safe for -log(u) (eq. 2 of the seed) without a branch.
     double uniform_open_low() { return double((next_u64() >> 11) + 1) * 0x1.0p-53; }
-    uint64_t draws() const { return counter_; }
 
   private:
-    uint64_t k0_ = 0, k1_ = 0, counter_ = 0;
+    static uint64_t rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+    uint64_t s_[4];
 };
 
 }  // namespace ep

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "eem.h"
+#include "fast_log.h"
 #include "fresnel.h"
 #include "phase.h"
 #include "rng.h"
@@ -53,6 +54,11 @@ struct PacketState {
     Float max_depth = 0, path_cm = 0;
     uint32_t scatterings = 0;
     uint32_t exits = 0;  // exits into the ambient so far
+    // Per-packet sums flushed to the unit tally once (flush_tallies) instead of
+    // at every interaction: the interaction count, and the weight absorbed in
+    // the current region (flushed when the region changes, load_medium).
+    uint64_t interactions = 0;
+    Float absorbed = 0;
     uint64_t events = 0;
     Float tau = 0;  // remaining dimensionless step (MCML's carried step)
     bool need_tau = true;
@@ -110,6 +116,8 @@ class PacketWalk {
     void run(uint64_t index);
 
   private:
+    void walk(uint64_t index);
+    void flush_absorbed();
     void launch(uint64_t index);
     bool locate_start();
     void find_crossings(Float s);
@@ -163,12 +171,28 @@ class PacketWalk {
 
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::run(uint64_t index) {
+    walk(index);
+    flush_absorbed();
+    out_.tally.scalar[kInteractions] += Float(st_.interactions);
+}
+
+// The weight absorbed in st.med.region since the last flush goes to the tallies.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::flush_absorbed() {
+    if (st_.absorbed == 0) return;
+    out_.tally.scalar[kAbsorbed] += st_.absorbed;
+    out_.tally.absorbed_by_region[size_t(st_.med.region)] += st_.absorbed;
+    st_.absorbed = 0;
+}
+
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
     launch(index);
     if (!locate_start()) return;
     PacketState& st = st_;
     while (true) {
         if (st.need_tau) {
-            st.tau = -std::log(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
+            st.tau = -log_positive(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
             st.need_tau = false;
         }
         const Float s = st.med.mut > 0 ? st.tau / (st.med.mut * unit_cm_) : kInf;
@@ -535,7 +559,7 @@ Crossing PacketWalk<kSpectral, kGrids>::through_ambient(NextHit next) {
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     PacketState& st = st_;
-    out_.tally.scalar[kInteractions] += 1;
+    ++st.interactions;
     st.p += st.d * s;
     st.path_cm += s * unit_cm_;
     st.need_tau = true;
@@ -545,8 +569,8 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     // Implicit capture, seed eq. (3): W -= W mua/(mua+mus).
     const Float dW = st.W * (st.med.mua / st.med.mut);
     st.W -= dW;
-    add(kAbsorbed, dW);
-    out_.tally.absorbed_by_region[size_t(st.med.region)] += dW;
+    st.absorbed += dW;
+    if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
     if constexpr (kGrids) {
         // The absorbed grid holds energy (= weight when the run is not spectral).
         const Vec3& p = st.p;
@@ -561,8 +585,10 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     // Scattering (seed §4): HG cosine, uniform azimuth.
     if (st.med.mus > 0 && st.W > 0) {
         const HenyeyGreenstein hg(st.med.g);
-        const Float u1 = rng_.uniform(), u2 = rng_.uniform();
-        st.d = hg.sample_p(st.d, u1, u2);
+        const Float u_cos = rng_.uniform();
+        Float sin_phi, cos_phi;
+        sample_azimuth([this] { return rng_.uniform(); }, &sin_phi, &cos_phi);
+        st.d = hg.sample_p(st.d, u_cos, sin_phi, cos_phi);
         ++st.scatterings;
     }
 
@@ -648,6 +674,7 @@ void PacketWalk<kSpectral, kGrids>::record_exit(int from_region, const Vec3& nor
 
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::load_medium(int region) {
+    if (region != st_.med.region) flush_absorbed();
     MediumState& med = st_.med;
     med.region = region;
     if (region < 0) {

@@ -65,9 +65,12 @@ inline Vec3 spherical_about(const Vec3& n, Float cos_theta, Float sin_phi, Float
     Vec3 t, b;
     orthonormal_basis(n, &t, &b);
     const Float sin_theta = std::sqrt(std::max(Float(0), 1 - cos_theta * cos_theta));
-    Vec3 d = t * (sin_theta * cos_phi) + b * (sin_theta * sin_phi) + n * cos_theta;
-    // Renormalise so that rounding does not accumulate over hundreds of scatterings.
-    return d / length(d);
+    const Vec3 d = t * (sin_theta * cos_phi) + b * (sin_theta * sin_phi) + n * cos_theta;
+    // Renormalise so that rounding does not accumulate over hundreds of
+    // scatterings. |d|^2 = 1 + e with e a few ulps, so one Newton step for
+    // 1/sqrt(x) at x = 1, d (3 - |d|^2) / 2, leaves |d| = 1 + O(e^2): exact to
+    // rounding, without the square root and division of d / |d|.
+    return d * (Float(1.5) - Float(0.5) * dot(d, d));
 }
 
 }  // namespace ep

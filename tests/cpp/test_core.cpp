@@ -104,7 +104,7 @@ TEST(HenyeyGreenstein, SamplingInvertsTheCdf) {
     EXPECT_EQ(HenyeyGreenstein(-1.0).sample_cos(0.3), -1.0);
     EXPECT_EQ(HenyeyGreenstein(0.0).sample_cos(0.25), -0.5);
     const Vec3 d(0, 0.6, 0.8);
-    const Vec3 r = HenyeyGreenstein(-1.0).sample_p(d, 0.3, 0.7);
+    const Vec3 r = HenyeyGreenstein(-1.0).sample_p(d, 0.3, 0.6, 0.8);
     EXPECT_EQ(r.y, -0.6);
     EXPECT_EQ(r.z, -0.8);
 }

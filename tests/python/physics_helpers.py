@@ -6,12 +6,14 @@ not copied from native/.
 
 Tolerance convention used by every statistical check in the suite:
 
-    |x - ref| < K * sigma + ref_unc,   K = 3
+    |x - ref| < K * sigma + ref_unc,   K = K_SIGMA = Z_FAMILY = 4.5
 
 where sigma is the engine's batch-means standard error of x and ref_unc the
 reference's own uncertainty (0.5 in the last quoted digit for tabulated exact
 values, or the Monte Carlo error of a Monte Carlo reference, see
-``mc_reference_sigma``).
+``mc_reference_sigma``). Chi-square tests reject above the quantile of the
+same per-comparison false-alarm probability (``chi2_limit``). Why 4.5 and not
+3: see ``Z_FAMILY`` and docs/numerics.md, "How many sigma".
 """
 from __future__ import annotations
 
@@ -32,7 +34,33 @@ BALANCE_KEYS = (
     "occluded",
     "camera_collected",
 )
-K_SIGMA = 3.0
+# One family-wise threshold for every statistical comparison of the suite
+# (Bonferroni). A full run makes about N_COMPARISONS of them (counted for
+# issue 11: ~130 assert_within / assert_same_within_stats calls, ~75 roulette
+# checks in assert_energy_conserved, ~60 inline sigma and chi-square checks).
+# The suite should pass a correct engine with any random stream with
+# probability 1 - FAMILY_ALPHA, so each comparison may fail by chance with
+# probability FAMILY_ALPHA / N_COMPARISONS = 3.3e-5 at most. Our sigmas are
+# batch means over 50 batches, so z = diff / sigma is Student t with 49 degrees
+# of freedom rather than normal: 2 P(t49 > 4.5) = 4.2e-5 (normal: 6.8e-6), so
+# 300 comparisons fail together with probability about 1 %. At 3 sigma the
+# same suite fails somewhere with probability 1 - (1 - 0.0042)^300 = 72 % each
+# time the stream changes: a changed seed or generator "breaks" some test.
+N_COMPARISONS = 300
+FAMILY_ALPHA = 0.01
+Z_FAMILY = 4.5
+K_SIGMA = Z_FAMILY
+#: Two-sided normal tail of Z_FAMILY: the per-comparison false-alarm
+#: probability that chi-square and other exact tests use.
+P_COMPARISON = math.erfc(Z_FAMILY / math.sqrt(2.0))
+
+
+def chi2_limit(dof):
+    """Rejection threshold of a chi-square statistic with ``dof`` degrees of
+    freedom at the suite's per-comparison false-alarm probability P_COMPARISON."""
+    from scipy import stats
+
+    return float(stats.chi2.isf(P_COMPARISON, dof))
 
 
 # ----------------------------------------------------------------------------
@@ -49,7 +77,7 @@ def assert_energy_conserved(res, tol=1e-9):
 
     Also: every fraction and its stderr is finite, stderr >= 0, and the net
     Russian-roulette weight (expectation 0 for an unbiased roulette) is within
-    3 of its own standard errors of 0, plus an allowance of 5 boosted packet
+    K_SIGMA of its own standard errors of 0, plus an allowance of 5 boosted packet
     weights, 5 * threshold / (chance * photons), plus 1e-12 for rounding.
 
     Why the allowance: each roulette event adds +W (killed, chance 1 - m) or
@@ -78,7 +106,7 @@ def assert_energy_conserved(res, tol=1e-9):
     allowance = 5.0 * threshold / (chance * photons)
     assert (
         abs(r) < K_SIGMA * rs + allowance + 1e-12
-    ), f"roulette = {r} is not within 3 sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
+    ), f"roulette = {r} is not within {K_SIGMA:g} sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
     for k in ("absorbed", "specular_reflectance", "diffuse_reflectance", "transmittance", "missed", "cut"):
         assert _get(res, k) >= -1e-12, f"{k} = {_get(res, k)} is negative"
     a_reg = _get(res, "absorbed_by_region")
@@ -101,7 +129,10 @@ def _log(line):
 def assert_within(label, value, sigma, ref, ref_unc=0.0, k=K_SIGMA):
     """|value - ref| < k*sigma + ref_unc, with a message that shows every number."""
     tol = k * sigma + ref_unc
-    _log(f"{label}\t{value:.6g}\t{sigma:.2g}\t{ref:.6g}\t{ref_unc:.2g}\t{abs(value - ref) / tol if tol else 0:.2f}")
+    z = abs(value - ref) / sigma if sigma else 0.0
+    _log(
+        f"{label}\t{value:.6g}\t{sigma:.2g}\t{ref:.6g}\t{ref_unc:.2g}\t{abs(value - ref) / tol if tol else 0:.2f}\tz={z:.2f}"
+    )
     assert math.isfinite(value), f"{label}: value {value} is not finite"
     assert abs(value - ref) < tol, (
         f"{label}: measured {value:.6g} +- {sigma:.3g} (1 sigma), reference {ref:.6g} "
@@ -113,7 +144,8 @@ def assert_within(label, value, sigma, ref, ref_unc=0.0, k=K_SIGMA):
 def assert_same_within_stats(label, a, sa, b, sb, k=K_SIGMA, extra=0.0):
     """Two independent estimates agree: |a - b| < k * sqrt(sa^2 + sb^2) (+ extra)."""
     tol = k * math.hypot(sa, sb) + extra
-    _log(f"{label}\t{a:.6g}\t{sa:.2g}\t{b:.6g}\t{sb:.2g}\t{abs(a - b) / tol if tol else 0:.2f}")
+    z = abs(a - b) / math.hypot(sa, sb) if (sa or sb) else 0.0
+    _log(f"{label}\t{a:.6g}\t{sa:.2g}\t{b:.6g}\t{sb:.2g}\t{abs(a - b) / tol if tol else 0:.2f}\tz={z:.2f}")
     assert (
         abs(a - b) < tol
     ), f"{label}: {a:.6g} +- {sa:.3g} vs {b:.6g} +- {sb:.3g}; |diff| = {abs(a - b):.3g} >= {tol:.3g}"

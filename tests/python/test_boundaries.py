@@ -1,7 +1,7 @@
 """Analytic boundary cases (oracles §4): Beer-Lambert, Fresnel at oblique incidence,
 multiple internal reflections, total internal reflection.
 
-Tolerance: |x - ref| < 3 sigma + ref_unc (sigma = engine stderr; the references
+Tolerance: |x - ref| < K_SIGMA sigma + ref_unc (sigma = engine stderr; the references
 here are closed forms, ref_unc = 1e-12 for floating-point rounding).
 """
 import math
@@ -11,6 +11,7 @@ import pytest
 
 import endophoton as ep
 from physics_helpers import (
+    K_SIGMA,
     assert_energy_conserved,
     assert_within,
     distance_to_box_surface,
@@ -70,7 +71,7 @@ def test_beer_lambert_matched_is_exact():
 
 
 def test_beer_lambert_matched_statistical():
-    """Same physics, checked only in expectation: |Tt - exp(-mua d)| < 3 sigma + 1e-12
+    """Same physics, checked only in expectation: |Tt - exp(-mua d)| < K_SIGMA sigma + 1e-12
     (d = 0.125 cm, exact in float32)."""
     mua, d = 8.0, 0.125
     res = ep.run(_slab(mua, 0.0, 1.0, d), DOWN, photons=100_000, seed=6, threads=0, record_escapes=False)
@@ -188,7 +189,7 @@ def test_tir_reference_direction_is_beyond_critical_angle():
 def test_total_internal_reflection_never_escapes():
     """Start inside an n = 1.4 box (mua = 3, mus = 0) on a ray that meets every face beyond
     the critical angle: nothing can ever leave, so Rsp = Rd = Tt = missed = 0 exactly and
-    all weight is absorbed (|A - 1| < 3 sigma_A + 1e-9; A + roulette = 1 exactly)."""
+    all weight is absorbed (|A - 1| < K_SIGMA sigma_A + 1e-9; A + roulette = 1 exactly)."""
     src = ep.PencilSource(position=TIR_START, direction=tuple(TIR_DIR))
     res = ep.run(_tir_scene(3.0), src, photons=20_000, seed=12, threads=0, record_escapes=True)
     assert_energy_conserved(res)
@@ -220,7 +221,7 @@ def test_total_internal_reflection_with_path_cap():
     l_star = hits[hits >= cap][0]
     lo_ref, hi_ref = math.exp(-mua * l_star), math.exp(-mua * cap)
     s = res.cut_stderr
-    assert lo_ref - 3 * s - 1e-12 < res.cut < hi_ref + 3 * s + 1e-12, (res.cut, s, lo_ref, hi_ref)
+    assert lo_ref - K_SIGMA * s - 1e-12 < res.cut < hi_ref + K_SIGMA * s + 1e-12, (res.cut, s, lo_ref, hi_ref)
 
 
 def test_internal_incidence_below_critical_angle_escapes_with_fresnel():

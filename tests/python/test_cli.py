@@ -2,7 +2,7 @@
 bad input exits non-zero and names the field on stderr. Also checks that every
 example scene in examples/ loads and runs.
 
-Physics tolerances as elsewhere: |x - ref| < 3 sigma + ref_unc.
+Physics tolerances as elsewhere: |x - ref| < K_SIGMA sigma + ref_unc.
 """
 import copy
 import json

@@ -2,7 +2,7 @@
 exactly on mesh vertices and edges, and a leak detector (no packet may ever be found
 outside its slab).
 
-Tolerance: |x - ref| < 3 sigma + ref_unc, with ref_unc justified case by case below.
+Tolerance: |x - ref| < K_SIGMA sigma + ref_unc, with ref_unc justified case by case below.
 """
 import math
 
@@ -12,6 +12,7 @@ from scipy import integrate
 
 import endophoton as ep
 from physics_helpers import (
+    K_SIGMA,
     assert_energy_conserved,
     assert_no_nan,
     assert_same_within_stats,
@@ -63,7 +64,7 @@ def test_semi_infinite_no_absorption_reflects_all_but_the_cut(no_absorption_runs
 def test_semi_infinite_no_absorption_cut_scales_as_inverse_sqrt_steps(no_absorption_runs):
     """The depth of the walk is a symmetric continuous 1-D random walk after the first step, so
     the probability of not having returned after n steps falls as n^(-1/2) (Sparre Andersen).
-    Hence cut(1600) / cut(100) -> sqrt(100/1600) = 0.25. Tolerance: 3 sigma (propagated from
+    Hence cut(1600) / cut(100) -> sqrt(100/1600) = 0.25. Tolerance: K_SIGMA sigma (propagated from
     both cuts) + 0.02 for the O(1/n) finite-n corrections (and the +-1 ambiguity in what counts
     as a step: S(n+1)/S(n) = 1 - 1/(2n) moves the ratio by ~0.001)."""
     a, b = no_absorption_runs[100], no_absorption_runs[1600]
@@ -111,7 +112,7 @@ def test_huge_mus_matches_chandrasekhar(huge_mus_runs):
 def test_huge_mus_scale_invariance(huge_mus_runs):
     """Similarity: in a semi-infinite, infinitely wide medium every length scales with 1/mu_t,
     so R depends only on the albedo and g: R(10, 1e5) = R(0.1, 1e3) within statistics
-    (independent seeds: |diff| < 3 sqrt(s1^2 + s2^2))."""
+    (independent seeds: |diff| < K_SIGMA sqrt(s1^2 + s2^2))."""
     a, b = huge_mus_runs[(10.0, 1e5)], huge_mus_runs[(0.1, 1e3)]
     assert_energy_conserved(a)
     assert_energy_conserved(b)
@@ -160,7 +161,7 @@ def test_forward_peaked_scattering_is_beer_lambert_in_mua(g):
     a transmitted path is >= d, so Tt <= exp(-mua d); and each of the ~mus d = 1 scattering
     events costs at most the single-scatter loss computed for a scattering at the very top
     (worst case), so Tt >= exp(-mua d) (1 - mus d * loss). ref_unc = that bound (~3e-5).
-    Reflection needs a reversal: Rd < 3 sigma + 10 mus d P(mu < 0) (factor 10: longer paths and
+    Reflection needs a reversal: Rd < K_SIGMA sigma + 10 mus d P(mu < 0) (factor 10: longer paths and
     several scatterings)."""
     mua, mus, d = 1.0, 10.0, 0.1
     scene = ep.Scene(unit="cm")
@@ -173,7 +174,7 @@ def test_forward_peaked_scattering_is_beer_lambert_in_mua(g):
     unc = ref * mus * d * loss + 1e-12
     assert_within(f"Tt (g = {g})", res.transmittance, res.transmittance_stderr, ref, unc)
     p_back = 0.0 if g == 1.0 else float(hg_cdf(g, 0.0))
-    assert res.diffuse_reflectance < 3 * res.diffuse_reflectance_stderr + 10 * mus * d * p_back + 1e-12
+    assert res.diffuse_reflectance < K_SIGMA * res.diffuse_reflectance_stderr + 10 * mus * d * p_back + 1e-12
     # transmitted packets keep (almost) the beam direction
     tr = res.escapes["kind"] == 1
     if g == 1.0:

@@ -9,10 +9,9 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
 
 import endophoton as ep
-from physics_helpers import assert_energy_conserved
+from physics_helpers import assert_energy_conserved, K_SIGMA, chi2_limit
 
 LAMBDA0 = 405.0  # nm: photofrin's Soret band, a tabulated excitation row of the default EEM
 
@@ -53,7 +52,7 @@ def test_fraction_of_interactions_that_fluoresce_is_d_times_c():
     assert trials > 1e5 and abs(trials - round(trials)) < 1e-6 * trials
     q = d * c
     sigma = math.sqrt(q * (1 - q) / trials)
-    assert abs(events / trials - q) < 3 * sigma, (events / trials, q, sigma)
+    assert abs(events / trials - q) < K_SIGMA * sigma, (events / trials, q, sigma)
 
 
 def test_escaping_emission_spectrum_matches_the_eem_row():
@@ -90,7 +89,7 @@ def test_escaping_emission_spectrum_matches_the_eem_row():
     chi2 = float(np.sum((obs_m - exp_m) ** 2 / exp_m))
     dof = len(obs_m) - 1
     assert dof >= 10
-    assert chi2 < stats.chi2.ppf(0.999, dof), (chi2, dof)
+    assert chi2 < chi2_limit(dof), (chi2, dof)
 
 
 def test_stokes_loss_follows_the_energy_convention():
@@ -114,7 +113,7 @@ def test_stokes_loss_follows_the_energy_convention():
     # sigma from the spread of 500/lambda over the escaping fluorescent packets (all weight 1).
     wl = res.escapes["wavelength"][res.escapes["fluorescent"] == 1].astype(np.float64)
     sigma = 500.0 * np.std(1.0 / wl) / math.sqrt(len(wl))
-    assert abs(per_event - per_event_ref) < 3 * sigma + 1e-4 * per_event_ref, (per_event, per_event_ref, sigma)
+    assert abs(per_event - per_event_ref) < K_SIGMA * sigma + 1e-4 * per_event_ref, (per_event, per_event_ref, sigma)
     # The energy of each escape record is weight x 500 / wavelength, and the escaped-energy
     # tally is their sum per launched packet (every escape is recorded here): the reflected
     # plus transmitted energy of the balance.
@@ -144,7 +143,7 @@ def test_eem_rule_scales_the_decision_by_the_excitation_efficiency():
     assert n1 > 2000
     frac = float(e["fluorescent"][once].mean())
     sigma = math.sqrt(eta * (1 - eta) / n1)
-    assert abs(frac - eta) < 3 * sigma, (frac, eta, sigma)
+    assert abs(frac - eta) < K_SIGMA * sigma, (frac, eta, sigma)
     # The paper rule ignores eta: the same packets fluoresce with probability d*c = 1.
     res_p = ep.run(scene, src, photons=20000, seed=21, threads=0, fluorescence_rule="paper")
     once_p = res_p.escapes["scatterings"] == 1

@@ -6,7 +6,7 @@ import pytest
 
 import endophoton as ep
 from endophoton import _core, vdb
-from physics_helpers import assert_energy_conserved, assert_no_nan
+from physics_helpers import assert_energy_conserved, assert_no_nan, K_SIGMA
 
 
 def _clear_absorber(unit="cm", scale=1.0):
@@ -116,7 +116,7 @@ def test_halton_emission_is_reproducible():
     assert np.all(cosang >= np.cos(np.radians(7.5)) - 1e-12)
     # Flat white 400-700 nm by default: uniform, checked by the first two moments.
     assert w1.min() >= 400 and w1.max() <= 700
-    assert abs(w1.mean() - 550) < 3 * 300 / np.sqrt(12 * len(w1))
+    assert abs(w1.mean() - 550) < K_SIGMA * 300 / np.sqrt(12 * len(w1))
 
 
 NEVER_ENDS = 2**40  # packets: no run in a test can finish this, so a stop is always the cancel

@@ -2,8 +2,8 @@
 
 - chi-square goodness of fit of the sampled cos(theta) against the analytic HG pdf,
   with equal-probability bins from the analytic CDF (expected count per bin
-  n/K >= 5), rejected above chi2.ppf(0.999, K - 1);
-- Legendre moments E[P_l(cos)] = g^l, l = 1..3, within 3 sigma (sigma from the
+  n/K >= 5), rejected above chi2_limit(K - 1) (physics_helpers);
+- Legendre moments E[P_l(cos)] = g^l, l = 1..3, within K_SIGMA sigma (sigma from the
   sample variance of P_l);
 - g = +-1: deltas (cos = 1 / cos = -1 exactly); g near 0 and near +-1: finite, in range.
 """
@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 import pytest
-from scipy import integrate, optimize, special, stats
+from scipy import integrate, optimize, special
 
 from endophoton import _core
-from physics_helpers import hg_cdf, hg_pdf
+from physics_helpers import hg_cdf, hg_pdf, K_SIGMA, chi2_limit
 
 N = 1_000_000
 BINS = 200  # expected 5000 per bin
@@ -50,8 +50,8 @@ def test_hg_chi_square(g):
     expected = np.full(BINS, N / BINS)
     assert expected.min() >= 5
     chi2 = float(np.sum((counts - expected) ** 2 / expected))
-    limit = stats.chi2.ppf(0.999, BINS - 1)
-    assert chi2 < limit, f"g = {g}: chi2 = {chi2:.1f} >= chi2.ppf(0.999, {BINS - 1}) = {limit:.1f}"
+    limit = chi2_limit(BINS - 1)
+    assert chi2 < limit, f"g = {g}: chi2 = {chi2:.1f} >= chi2_limit({BINS - 1}) = {limit:.1f}"
 
 
 @pytest.mark.parametrize("g", [-0.9, 0.0, 0.3, 0.9, 0.99])
@@ -63,7 +63,7 @@ def test_hg_legendre_moments(g):
         sigma = p.std(ddof=1) / math.sqrt(N)
         ref = g**l
         assert (
-            abs(mean - ref) < 3 * sigma + 1e-12
+            abs(mean - ref) < K_SIGMA * sigma + 1e-12
         ), f"g = {g}: E[P_{l}] = {mean:.6f} +- {sigma:.2g}, expected g^{l} = {ref:.6f}"
 
 
@@ -76,19 +76,19 @@ def test_hg_delta_limits(g, value):
 @pytest.mark.parametrize("g", [1e-7, -1e-7, 1e-5, -1e-5, 1 - 1e-9, -(1 - 1e-9), 0.9999])
 def test_hg_near_singular_g(g):
     """The inverse CDF divides by 2g and by (1 - g + 2g u): near g = 0 and g = +-1 the
-    samples must stay finite, in [-1, 1], with the right mean (E[cos] = g within 3 sigma).
+    samples must stay finite, in [-1, 1], with the right mean (E[cos] = g within K_SIGMA sigma).
     Near |g| = 1 the law is heavy-tailed (the deviation of the mean comes from rare wide
     angles), so sigma uses the exact variance Var[cos] = E[P_2]*2/3 + 1/3 - g^2 = (1 - g^2)/3."""
     n = 200_000
     x = np.asarray(_core._testing.sample_hg_cos(g, n, 17))
     assert np.all(np.isfinite(x)) and np.all(np.abs(x) <= 1.0)
     sigma = math.sqrt((1 - g * g) / 3 / n)
-    assert abs(x.mean() - g) < 3 * sigma + 1e-12, (g, x.mean(), sigma)
+    assert abs(x.mean() - g) < K_SIGMA * sigma + 1e-12, (g, x.mean(), sigma)
     if abs(g) < 1e-4:
         # indistinguishable from isotropic: chi-square against the uniform law on 100 bins
         counts, _ = np.histogram(x, bins=np.linspace(-1, 1, 101))
         e = n / 100
-        assert np.sum((counts - e) ** 2 / e) < stats.chi2.ppf(0.999, 99)
+        assert np.sum((counts - e) ** 2 / e) < chi2_limit(99)
 
 
 def test_hg_seed_reproducible_and_seeds_differ():

@@ -13,7 +13,7 @@ formulas come from the oracles), never taken from the engine:
   isotropic medium, and the similarity relation R(mua, mus; L) = R(k mua, k mus; L/k);
 * the MCML slab (oracles §1) and the semi-infinite mismatched medium (§2).
 
-Statistical tolerance: |x - ref| < 3 sigma + ref_unc (physics_helpers.assert_within).
+Statistical tolerance: |x - ref| < K_SIGMA sigma + ref_unc (physics_helpers.assert_within).
 """
 import math
 
@@ -24,6 +24,7 @@ import endophoton as ep
 from endophoton import _core
 
 from physics_helpers import (
+    K_SIGMA,
     fresnel_unpolarized,
     assert_energy_conserved,
     assert_no_nan,
@@ -86,7 +87,7 @@ def test_hg_sampler_at_unit_g_is_a_delta(g):
 def test_hg_sampler_tail_near_unit_g(g, x0):
     """For g = +-(1 - eps), x = 1 - |cos| has CDF 1 - eps / sqrt(eps^2 + 2 x) (integral of the HG
     density near the peak), so most samples round to cos = +-1 in double (median x = 1.5 eps^2)
-    and the observable part is the tail: P(x > x0) = eps / sqrt(eps^2 + 2 x0). Binomial 3 sigma.
+    and the observable part is the tail: P(x > x0) = eps / sqrt(eps^2 + 2 x0). Binomial K_SIGMA sigma.
     (The sample mean is no test here: E[x] = eps comes from events of probability ~eps.)"""
     n = 400_000
     c = _core._testing.sample_hg_cos(g, n, 3)
@@ -105,8 +106,8 @@ def test_hg_sampler_isotropic_branch():
     n = 400_000
     c = _core._testing.sample_hg_cos(1e-7, n, 3)
     assert c.min() >= -1 and c.max() <= 1
-    assert abs(c.mean() - 1e-7) < 3 * math.sqrt(1 / 3 / n)
-    assert abs(np.mean(c * c) - 1 / 3) < 3 * math.sqrt((1 / 5 - 1 / 9) / n)
+    assert abs(c.mean() - 1e-7) < K_SIGMA * math.sqrt(1 / 3 / n)
+    assert abs(np.mean(c * c) - 1 / 3) < K_SIGMA * math.sqrt((1 / 5 - 1 / 9) / n)
 
 
 @pytest.mark.parametrize("g", [1.0, 1 - 1e-9])
@@ -118,7 +119,7 @@ def test_forward_delta_scattering_is_beer_lambert(g):
     r = run(slab(ep.Medium(mua=mua, mus=mus, g=g, n=1.0), d), pencil(), 20_000)
     assert_energy_conserved(r)
     assert r.specular_reflectance == 0
-    assert r.diffuse_reflectance <= 3 * r.diffuse_reflectance_stderr + 1e-12
+    assert r.diffuse_reflectance <= K_SIGMA * r.diffuse_reflectance_stderr + 1e-12
     if g == 1:
         assert r.diffuse_reflectance == 0
     assert_within(f"Tt(g={g})", r.transmittance, r.transmittance_stderr, math.exp(-mua * d))
@@ -265,7 +266,7 @@ def test_huge_mus_similarity_relation(huge_mus_runs):
 
     diff = per_packet(a) - per_packet(b)
     se = diff.std(ddof=1) / math.sqrt(diff.size)
-    assert abs(diff.mean()) <= 3 * se + 1e-12, (diff.mean(), se)
+    assert abs(diff.mean()) <= K_SIGMA * se + 1e-12, (diff.mean(), se)
     # The scaled trajectories are the same walks: almost every packet leaves with the same weight.
     assert np.mean(np.abs(diff) < 1e-6) > 0.9
 

@@ -2,7 +2,7 @@
 import pytest
 
 import endophoton as ep
-from physics_helpers import assert_energy_conserved
+from physics_helpers import assert_energy_conserved, K_SIGMA
 
 VDH_RD = 0.09739  # van de Hulst, oracles §1
 
@@ -21,7 +21,7 @@ def test_preset_reaches_its_error_and_agrees_with_van_de_hulst(name, rel):
     reached = res.diffuse_reflectance_stderr / res.diffuse_reflectance
     assert reached <= rel
     assert res.photons <= ep.QUALITY_PRESETS[name].max_photons
-    assert abs(res.diffuse_reflectance - VDH_RD) < 3 * res.diffuse_reflectance_stderr + 5e-6
+    assert abs(res.diffuse_reflectance - VDH_RD) < K_SIGMA * res.diffuse_reflectance_stderr + 5e-6
 
 
 def test_presets_get_stricter_and_cost_more():
