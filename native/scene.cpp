@@ -52,6 +52,27 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
     args->valid[0] = 0;  // reject: traversal goes on and collects every crossing
 }
 
+// The ray handed to Embree (float), from org over [tnear, tfar] (tfar may be
+// infinite).
+RTCRayHit embree_ray(const Vec3& org, const Vec3& d, Float tnear, Float tfar) {
+    RTCRayHit rh;
+    rh.ray.org_x = float(org.x);
+    rh.ray.org_y = float(org.y);
+    rh.ray.org_z = float(org.z);
+    rh.ray.dir_x = float(d.x);
+    rh.ray.dir_y = float(d.y);
+    rh.ray.dir_z = float(d.z);
+    rh.ray.tnear = float(tnear);
+    rh.ray.tfar = std::isfinite(tfar) ? float(tfar) : std::numeric_limits<float>::infinity();
+    rh.ray.time = 0;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    return rh;
+}
+
 // Closest point on triangle abc to p (Ericson, Real-Time Collision Detection §5.1.5),
 // returned as squared distance.
 Float closest_distance2(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
@@ -116,25 +137,36 @@ struct GatherData {
     TriangleCache* cache;
     size_t max_count;
     bool overflow;
+
+    // Keeps triangle (region, prim) if it meets the ball (exact double
+    // distance); both gathers (grid and BVH) apply this one test.
+    void offer(unsigned region, unsigned prim) {
+        if (overflow) return;
+        const auto& v = (*vertices)[region];
+        const uint32_t* tri = &(*triangles)[region][3 * size_t(prim)];
+        auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
+        const Vec3 a = vert(tri[0]), b = vert(tri[1]), d = vert(tri[2]);
+        if (closest_distance2(c, a, b, d) > r2) return;
+        if (cache->size() >= max_count) {
+            overflow = true;
+            return;
+        }
+        cache->add(a, b, d, (*regions)[region].normals[prim], region, prim);
+    }
 };
 
-// Keeps every triangle within the ball (exact double distance); the query
-// radius never shrinks, so Embree visits every candidate.
+// The query radius never shrinks, so Embree visits every candidate.
 bool gather_callback(RTCPointQueryFunctionArguments* args) {
-    auto* q = static_cast<GatherData*>(args->userPtr);
-    if (q->overflow) return false;
-    const unsigned region = args->geomID;
-    const auto& v = (*q->vertices)[region];
-    const uint32_t* tri = &(*q->triangles)[region][3 * size_t(args->primID)];
-    auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
-    const Vec3 a = vert(tri[0]), b = vert(tri[1]), c = vert(tri[2]);
-    if (closest_distance2(q->c, a, b, c) > q->r2) return false;
-    if (q->cache->size() >= q->max_count) {
-        q->overflow = true;
-        return false;
-    }
-    q->cache->add(a, b, c, (*q->regions)[region].normals[args->primID], region, args->primID);
+    static_cast<GatherData*>(args->userPtr)->offer(args->geomID, args->primID);
     return false;
+}
+
+// The ball's radius for the exact test: a little larger than the cache's, so
+// that rounding can never drop a triangle that meets the cache's ball. The
+// grid's bounds tests are in double (its own margin covers them); Embree's
+// are in float, ~1e-7 of the coordinates, so its ball needs 1e-6 of them.
+Float padded_radius(const Vec3& c, Float radius, Float rel) {
+    return radius * (1 + 10 * rel) + rel * (max_abs_component(c) + radius);
 }
 
 }  // namespace
@@ -265,6 +297,7 @@ void Scene::commit() {
     rank_.assign(regions_.size(), 0);
     for (size_t k = 0; k < order.size(); ++k) rank_[size_t(order[k])] = int(k);
     rtcCommitScene(scene_);
+    grid_.build(vertices_, triangles_);
     committed_ = true;
 }
 
@@ -279,34 +312,17 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
     ctx.triangles = &triangles_;
     ctx.dir = d;
     ctx.hits = &out;
-
-    RTCRayHit rh;
     // Embree needs tnear >= 0. A negative tnear means "also report crossings up
     // to |tnear| behind o": the origin is backed up along the ray and the
     // distances shifted back afterwards. The transport relies on this to never
     // lose a crossing that rounding put just behind the packet.
     const Float back = tnear < 0 ? -tnear : Float(0);
-    const Vec3 org = back > 0 ? o - d * back : o;
-    if (back > 0) tnear = 0;
-    ctx.org = org;
-    rh.ray.org_x = float(org.x);
-    rh.ray.org_y = float(org.y);
-    rh.ray.org_z = float(org.z);
-    rh.ray.dir_x = float(d.x);
-    rh.ray.dir_y = float(d.y);
-    rh.ray.dir_z = float(d.z);
-    rh.ray.tnear = float(tnear);
-    rh.ray.tfar = std::isfinite(tfar) ? float(tfar + back) : std::numeric_limits<float>::infinity();
-    rh.ray.time = 0;
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    ctx.org = back > 0 ? o - d * back : o;
+    RTCRayHit rh = embree_ray(ctx.org, d, std::max(tnear, Float(0)), tfar + back);
     rtcIntersect1(scene_, &ctx.base, &rh);
     if (back > 0)
         for (Hit& h : out) h.t -= back;
-    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
+    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return hit_before(a, b); });
 }
 
 Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
@@ -325,19 +341,32 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
 
 bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
     cache.reset(c, radius);
-    // The ball handed to Embree is a little larger than the cache's, so that
-    // float rounding of its bounds tests can never drop a triangle that meets
-    // the cache's ball; the exact test in the callback is in double.
-    const Float r_gather = radius * (1 + 1e-5) + 1e-6 * (max_abs_component(c) + radius);
+    const Float r = padded_radius(c, radius, 1e-9);
+    GatherData data{&regions_, &vertices_, &triangles_, c, r * r, &cache, max_count, false};
+    grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
+        // The bounding sphere rejects most candidates before the exact test.
+        const Vec3 e = t.centre - c;
+        const Float reach = r + t.reach;
+        if (dot(e, e) > reach * reach) return true;
+        if (cache.first_offer(t.id)) data.offer(t.region, t.prim);
+        return !data.overflow;
+    });
+    if (data.overflow) cache.clear();
+    return !data.overflow;
+}
+
+bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+    cache.reset(c, radius);
+    const Float r = padded_radius(c, radius, 1e-6);
     RTCPointQuery q;
     q.x = float(c.x);
     q.y = float(c.y);
     q.z = float(c.z);
     q.time = 0;
-    q.radius = float(r_gather * (1 + 1e-5));
+    q.radius = float(r * (1 + 1e-5));
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    GatherData data{&regions_, &vertices_, &triangles_, c, r_gather * r_gather, &cache, max_count, false};
+    GatherData data{&regions_, &vertices_, &triangles_, c, r * r, &cache, max_count, false};
     rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
     if (data.overflow) cache.clear();
     return !data.overflow;

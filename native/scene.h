@@ -10,6 +10,7 @@
 
 #include "medium.h"
 #include "mesh_check.h"
+#include "triangle_grid.h"
 #include "vecmath.h"
 
 namespace ep {
@@ -41,6 +42,15 @@ struct Hit {
     uint32_t prim;    // triangle index within the region
     Float cos_dn;     // dot(ray direction, outward normal): < 0 entering, > 0 leaving
 };
+
+// The order of a hit list: by distance, ties (the two triangles of an edge,
+// coincident faces) by region and triangle, so that every query that finds
+// the same hits (Embree's, the triangle cache's, in any traversal order)
+// lists them alike and the transport picks the same face normal.
+inline bool hit_before(const Hit& a, const Hit& b) {
+    if (a.t != b.t) return a.t < b.t;
+    return a.region != b.region ? a.region < b.region : a.prim < b.prim;
+}
 
 class Scene {
   public:
@@ -94,7 +104,12 @@ class Scene {
     // Fills `cache` with every triangle that meets the ball (c, radius), for
     // steps that stay inside it (triangle_cache.h). False, and an empty cache
     // that covers nothing, when more than max_count triangles meet the ball.
+    // Through the uniform grid (triangle_grid.h): O(local) per gather.
     bool gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
+    // The same gather through Embree's BVH (rtcPointQuery): the reference the
+    // grid is tested against, and the cost it is measured against.
+    bool gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
+    const TriangleGrid& grid() const { return grid_; }
 
   private:
     Float unit_cm_, ambient_n_;
@@ -109,6 +124,7 @@ class Scene {
     std::vector<std::shared_ptr<const EEM>> eems_;
     std::vector<std::string> fluor_names_;
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
+    TriangleGrid grid_;
 };
 
 }  // namespace ep

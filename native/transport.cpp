@@ -67,11 +67,18 @@ struct PacketState {
 // finely tessellated wall gets a small ball and a big flat face a large one.
 // When even a ball of two steps holds too many, the step falls back to the
 // full query and the next kGatherCooldown steps do not try again.
+// The rule, in numbers: r = clamp(f * 16 mfp, 2 (step + look-behind), extent),
+// f in (0, 4] halved above kMaxCached triangles and doubled at kMaxCached / 4
+// or fewer. kMaxCached = 8 (callgrind, colon_polyp): every cached step pays a
+// plane test per distinct plane, and every gather an exact distance test per
+// triangle, so on a curved wall (one plane per quad) a ball of 16 triangles
+// cost more in plane tests and re-gathers than the extra steps it covered.
 constexpr Float kBallFreePaths = 16;
 constexpr Float kMaxFraction = 4;  // a ball of up to 64 free paths around few triangles
-constexpr size_t kMaxCached = 16;
+constexpr size_t kMaxCached = 8;
 constexpr int kGatherCooldown = 16;
-constexpr size_t kMaxTrianglesForCache = 4096;
+constexpr uint64_t kGathersBeforeChoice = 8;
+constexpr uint64_t kMinStepsPerGather = 16;
 
 // What a step through the crossings ahead ended with.
 enum class Crossing { kNone, kBoundary, kEnded };
@@ -261,7 +268,7 @@ void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
         st.reuse_hits = false;
         return;
     }
-    if (local_.enabled && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
+    if (local_.enabled && !local_.unit_off && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
     scene_.intersect_all(st.p, st.d, -ray_offset(st.p, extent_), s, hits_);
 }
 
@@ -291,8 +298,19 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
             local_.fraction *= Float(0.5);
         }
         if (cache.size() <= kMaxCached / 4) local_.fraction = std::min(kMaxFraction, 2 * local_.fraction);
+        ++local_.gathers;
+        // The cache pays only where a gather serves enough steps: callgrind on
+        // colon_polyp, a gather ~6k instructions, a cached step ~200 against
+        // ~780 for Embree's query, so below kMinStepsPerGather the unit's
+        // remaining steps go to Embree. Counts, not timings: the choice is the
+        // unit's own (same on any thread count), and both paths give the same hits.
+        if (local_.gathers >= kGathersBeforeChoice && local_.cached_steps < kMinStepsPerGather * local_.gathers) {
+            local_.unit_off = true;
+            return false;
+        }
         if (!cache.covers(a, b)) return false;
     }
+    ++local_.cached_steps;
     cache.intersect(st.p, st.d, -back, s, hits_);
     return true;
 }
@@ -733,14 +751,11 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     grids_ = cfg.grid_voxel_size > 0;
     hits_.reserve(64);
-    // The local triangle cache pays where a gather (a fixed-radius point query)
-    // is cheap against the ray queries it saves: scenes of few triangles
-    // (boxes, slabs, coarse meshes). On finely tessellated scenes (the colon
-    // tube's 12 800 triangles) a gather costs about two all-hits ray queries
-    // (callgrind, docs/performance.md), so every step queries Embree directly.
-    size_t triangles = 0;
-    for (size_t i = 0; i < scene.region_count(); ++i) triangles += scene.region(i).normals.size();
-    local_.enabled = cfg.safe_distance && triangles <= kMaxTrianglesForCache;
+    // The local triangle cache serves every scene: its gather goes through the
+    // uniform grid (triangle_grid.h), O(local) whatever the triangle count
+    // (the BVH point query cost ~8.7k instructions per gather on the colon
+    // and was used only up to 4,096 triangles).
+    local_.enabled = cfg.safe_distance;
     // A light is enclosed when every one of 64 probe rays from its centre
     // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
     // with an opening larger than about 1/64 of the sphere is seen as open.
@@ -756,6 +771,18 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
         }
         enclosed_.push_back(closed ? 1 : 0);
     }
+}
+
+void Tracer::begin_unit() {
+    // Units hold the same packets on any number of threads; starting each
+    // with an empty cache makes which steps the cache answers (and so the
+    // order of tied hits) a function of the unit alone, never of the thread
+    // that traced the packets before it.
+    local_.cache.clear();
+    local_.cooldown = 0;
+    local_.fraction = 1;
+    local_.gathers = local_.cached_steps = 0;
+    local_.unit_off = false;
 }
 
 void Tracer::trace(uint64_t index, UnitOutput& out) {
