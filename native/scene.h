@@ -97,6 +97,21 @@ class Scene {
     // continues to tfar; coincident faces (touching regions) all show up.
     void intersect_all(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, std::vector<Hit>& out) const;
 
+    // The first crossing in [tnear, tfar] that changes the region set `set`
+    // (enters a region not in it or leaves one in it): Embree's closest-hit
+    // query, which stops there instead of collecting every crossing to tfar.
+    // `hit` is the one intersect_all lists for that triangle (same refined
+    // distance). `clearance` bounds from below how far the crossing point is
+    // from the triangle's edges and from every other region's surface: when it
+    // exceeds the transport's grouping tolerance, the all-hits list holds no
+    // other crossing that groups with this one, so the one hit decides alone.
+    struct FirstHit {
+        bool found = false;
+        Float clearance = 0;
+    };
+    FirstHit intersect_first(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, uint64_t set,
+                             Hit& hit) const;
+
     // Distance from p to the nearest triangle of any region (scene units),
     // searched within `radius`; returns `radius` if nothing is closer.
     Float distance_to_surface(const Vec3& p, Float radius) const;
@@ -125,6 +140,9 @@ class Scene {
     std::vector<std::string> fluor_names_;
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
     TriangleGrid grid_;
+    std::vector<uint32_t> region_base_;  // scene-wide index of each region's first triangle
+    std::vector<float> isolation_;       // per triangle: lower bound of its distance to other regions
+    void compute_isolation();
 };
 
 }  // namespace ep

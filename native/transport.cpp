@@ -69,10 +69,11 @@ struct PacketState {
 // full query and the next kGatherCooldown steps do not try again.
 // The rule, in numbers: r = clamp(f * 16 mfp, 2 (step + look-behind), extent),
 // f in (0, 4] halved above kMaxCached triangles and doubled at kMaxCached / 4
-// or fewer. kMaxCached = 8 (callgrind, colon_polyp): every cached step pays a
-// plane test per distinct plane, and every gather an exact distance test per
-// triangle, so on a curved wall (one plane per quad) a ball of 16 triangles
-// cost more in plane tests and re-gathers than the extra steps it covered.
+// or fewer. kMaxCached = 8: every cached step pays a plane test per distinct
+// plane and every gather an exact distance test per triangle, so on a curved
+// wall (one plane per quad) big balls cost more than the steps they cover
+// (callgrind, colon_polyp with the cache forced on: 16 -> 260k instructions
+// per packet; 8, with the grid's bounding-sphere test -> 161k; Embree alone 130k).
 constexpr Float kBallFreePaths = 16;
 constexpr Float kMaxFraction = 4;  // a ball of up to 64 free paths around few triangles
 constexpr size_t kMaxCached = 8;
@@ -121,6 +122,7 @@ class PacketWalk {
     bool locate_start();
     void find_crossings(Float s);
     bool cached_crossings(Float s);
+    void query(Float tnear, Float tfar, uint64_t set, int region);
     Interface next_interface(Float s, uint64_t set, int region) const;
     uint64_t inside_just_ahead(uint64_t regions, Float t) const;
     Crossing cross_interfaces(Float s);
@@ -269,7 +271,34 @@ void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
         return;
     }
     if (local_.enabled && !local_.unit_off && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
-    scene_.intersect_all(st.p, st.d, -ray_offset(st.p, extent_), s, hits_);
+    query(-ray_offset(st.p, extent_), s, st.set, st.med.region);
+}
+
+// Fills hits_ with the crossings along [tnear, tfar] from st.p for a packet in
+// `set` (top region `region`). Embree's single-hit query answers when its one
+// crossing decides alone: it changes the top region (an interface, so
+// next_interface stops there) and its clearance from the triangle's edges and
+// from other surfaces exceeds twice the grouping tolerance, so no other hit of
+// the all-hits list could join its group; hits the single-hit query skips
+// (re-hits of the surface just crossed, crossings that do not change the set)
+// are ones next_interface passes over anyway. Otherwise (a hit at an edge, on
+// coincident or nearby faces of touching regions, a lower-priority surface
+// inside a higher one) the all-hits query lists every crossing.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::query(Float tnear, Float tfar, uint64_t set, int region) {
+    const PacketState& st = st_;
+    Hit h;
+    const Scene::FirstHit f = scene_.intersect_first(st.p, st.d, tnear, tfar, set, h);
+    if (!f.found) {
+        hits_.clear();
+        return;
+    }
+    const uint64_t new_set = set ^ (uint64_t(1) << h.region);  // the filter accepts set changes only
+    if (f.clearance > 2 * group_tolerance(st.p, std::max(h.t, Float(0)), extent_) && scene_.top(new_set) != region) {
+        hits_.assign(1, h);
+        return;
+    }
+    scene_.intersect_all(st.p, st.d, tnear, tfar, hits_);
 }
 
 // The crossings of the step [-offset, s] from the cache, re-gathered around
@@ -490,7 +519,7 @@ bool PacketWalk<kSpectral, kGrids>::first_boundary(const Vec3& n_inc, Float R, i
 // as the next ambient step), then where it lands.
 template <bool kSpectral, bool kGrids>
 NextHit PacketWalk<kSpectral, kGrids>::look_ahead() {
-    scene_.intersect_all(st_.p, st_.d, -ray_offset(st_.p, extent_), kInf, hits_);
+    query(-ray_offset(st_.p, extent_), kInf, 0, -1);  // from the ambient (landing's set and region)
     return landing();
 }
 

@@ -119,40 +119,48 @@ struct Mesh {
     std::vector<uint32_t> t;
 };
 
+// A random point near a random feature (vertex, edge, face) of the meshes.
+Vec3 near_feature(const std::vector<Mesh>& meshes, std::mt19937_64& rng, int* kind) {
+    std::uniform_real_distribution<double> U(0, 1);
+    const Mesh& m = meshes[rng() % meshes.size()];
+    const size_t tri = rng() % (m.t.size() / 3);
+    Vec3 P[3];
+    for (int c = 0; c < 3; ++c) {
+        const float* p = &m.v[3 * size_t(m.t[3 * tri + size_t(c)])];
+        P[c] = Vec3(p[0], p[1], p[2]);
+    }
+    *kind = int(rng() % 3);
+    double a = U(rng), b = U(rng);
+    if (*kind == 0)
+        a = 1, b = 0;
+    else if (*kind == 1)
+        b = 0;
+    else if (a + b > 1)
+        a = 1 - a, b = 1 - b;
+    return P[0] + (P[1] - P[0]) * a + (P[2] - P[0]) * b;
+}
+
+Vec3 random_unit(std::mt19937_64& rng) {
+    std::uniform_real_distribution<double> U(0, 1);
+    const double z = 2 * U(rng) - 1, ph = 2 * kPi * U(rng), r = std::sqrt(1 - z * z);
+    return Vec3(r * std::cos(ph), r * std::sin(ph), z);
+}
+
 // Compares cached and full queries on n segments aimed at random features of
 // the meshes; returns the number of segments that crossed something.
 int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> U(0, 1);
-    auto unit = [&] {
-        const double z = 2 * U(rng) - 1, ph = 2 * kPi * U(rng), r = std::sqrt(1 - z * z);
-        return Vec3(r * std::cos(ph), r * std::sin(ph), z);
-    };
     TriangleCache cache;
     std::vector<Hit> full, cached;
     int crossed = 0, covered = 0, compared = 0;
     for (int k = 0; k < n; ++k) {
-        const Mesh& m = meshes[rng() % meshes.size()];
-        const size_t tri = rng() % (m.t.size() / 3);
-        Vec3 P[3];
-        for (int c = 0; c < 3; ++c) {
-            const float* p = &m.v[3 * size_t(m.t[3 * tri + size_t(c)])];
-            P[c] = Vec3(p[0], p[1], p[2]);
-        }
-        // A vertex, a point on an edge, or a point inside the face.
-        const int kind = int(rng() % 3);
-        double a = U(rng), b = U(rng);
-        if (kind == 0)
-            a = 1, b = 0;
-        else if (kind == 1)
-            b = 0;
-        else if (a + b > 1)
-            a = 1 - a, b = 1 - b;
-        const Vec3 q = P[0] + (P[1] - P[0]) * a + (P[2] - P[0]) * b * (kind == 1 ? 0 : 1);
+        int kind;
+        const Vec3 q = near_feature(meshes, rng, &kind);
         const double miss = std::pow(10.0, -7 + 6 * U(rng));
-        const Vec3 d = unit();
+        const Vec3 d = random_unit(rng);
         const double L = 0.05 + 0.2 * U(rng);
-        const Vec3 o = q - d * (L * U(rng)) + unit() * miss;
+        const Vec3 o = q - d * (L * U(rng)) + random_unit(rng) * miss;
         const double back = 4e-7 * (max_abs_component(o) + 1e-3 * s.extent());
         EXPECT_TRUE(s.gather_triangles(o, 0.3, 4096, cache));
         if (!cache.covers(o - d * back, o + d * L)) continue;
@@ -275,33 +283,6 @@ void box_pair(Scene& s, std::vector<Mesh>& meshes, float off) {
     s.commit();
 }
 
-// A random point near a random feature (vertex, edge, face) of the meshes.
-Vec3 near_feature(const std::vector<Mesh>& meshes, std::mt19937_64& rng, int* kind) {
-    std::uniform_real_distribution<double> U(0, 1);
-    const Mesh& m = meshes[rng() % meshes.size()];
-    const size_t tri = rng() % (m.t.size() / 3);
-    Vec3 P[3];
-    for (int c = 0; c < 3; ++c) {
-        const float* p = &m.v[3 * size_t(m.t[3 * tri + size_t(c)])];
-        P[c] = Vec3(p[0], p[1], p[2]);
-    }
-    *kind = int(rng() % 3);
-    double a = U(rng), b = U(rng);
-    if (*kind == 0)
-        a = 1, b = 0;
-    else if (*kind == 1)
-        b = 0;
-    else if (a + b > 1)
-        a = 1 - a, b = 1 - b;
-    return P[0] + (P[1] - P[0]) * a + (P[2] - P[0]) * b;
-}
-
-Vec3 random_unit(std::mt19937_64& rng) {
-    std::uniform_real_distribution<double> U(0, 1);
-    const double z = 2 * U(rng) - 1, ph = 2 * kPi * U(rng), r = std::sqrt(1 - z * z);
-    return Vec3(r * std::cos(ph), r * std::sin(ph), z);
-}
-
 // Distance from p to triangle abc, by another route than the engine's
 // (Ericson's Voronoi regions): the projection onto the plane when it falls
 // inside, else the nearest of the three edges.
@@ -390,4 +371,140 @@ TEST(TriangleCache, SameCrossingsAsFullQueryOnColonTubeWithPolyp) {
     colon_like(s, meshes);
     const int crossed = compare(s, meshes, 20000, 13);
     EXPECT_GT(crossed, 20000 / 3);
+}
+
+namespace {
+
+// The transport's grouping tolerance (transport.cpp, group_tolerance).
+double group_tol(const Vec3& p, double t, const Scene& s) {
+    return 2e-6 * (max_abs_component(p) + t) + 1e-7 * s.extent();
+}
+
+// The regions containing o: along a ray from o, a region whose first
+// (non-grazing) crossing is an exit contains it (locate_start's rule).
+uint64_t regions_at(const Scene& s, const Vec3& o, const Vec3& d) {
+    std::vector<Hit> hits;
+    s.intersect_all(o, d, 0, kInf, hits);
+    uint64_t seen = 0, set = 0;
+    for (const Hit& h : hits) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if ((seen & bit) || h.cos_dn == 0) continue;
+        seen |= bit;
+        if (h.cos_dn > 0) set |= bit;
+    }
+    return set;
+}
+
+// The first interface (a group of hits that changes the top region) of an
+// all-hits list for a packet in `set`, as next_interface finds it: the index
+// range of its group, or {n, n} if there is none.
+std::pair<size_t, size_t> first_interface(const Scene& s, const std::vector<Hit>& hits, const Vec3& p, uint64_t set) {
+    const int region = s.top(set);
+    size_t i = 0;
+    while (i < hits.size()) {
+        const double t0 = hits[i].t, tol = group_tol(p, t0, s);
+        uint64_t enter = 0, leave = 0;
+        size_t j = i;
+        for (; j < hits.size() && hits[j].t <= t0 + tol; ++j) {
+            if (hits[j].cos_dn < 0) enter |= uint64_t(1) << hits[j].region;
+            if (hits[j].cos_dn > 0) leave |= uint64_t(1) << hits[j].region;
+        }
+        const uint64_t both = enter & leave;
+        const uint64_t new_set = (set | (enter & ~both)) & ~(leave & ~both);
+        if (new_set != set && s.top(new_set) != region) return {i, j};
+        set = new_set;
+        i = j;
+    }
+    return {hits.size(), hits.size()};
+}
+
+// Single-hit against all-hits on n segments aimed at faces, edges and vertices
+// (a quarter of them rays to infinity, as the look-ahead across the lumen),
+// for a packet in the true region set at the segment's start. Where the
+// single-hit query answers alone (clearance above twice the tolerance and an
+// interface), its hit must be the whole first interface group of the all-hits
+// list, bit for bit; where it finds nothing, the all-hits list must hold no
+// interface. Returns how many segments the single hit answered alone.
+int compare_single(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t seed, int* shared_fallbacks) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> U(0, 1);
+    std::vector<Hit> all;
+    int alone = 0, empty = 0;
+    for (int k = 0; k < n; ++k) {
+        int kind;
+        const Vec3 q = near_feature(meshes, rng, &kind);
+        const Vec3 d = random_unit(rng);
+        const double L = 0.05 + 0.2 * U(rng), miss = std::pow(10.0, -7 + 6 * U(rng));
+        const Vec3 o = q - d * (L * U(rng)) + random_unit(rng) * miss;
+        const double tfar = rng() % 4 == 0 ? kInf : L;
+        const double back = 4e-7 * (max_abs_component(o) + 1e-3 * s.extent());
+        const uint64_t set = regions_at(s, o, random_unit(rng));
+        Hit h{};
+        const Scene::FirstHit f = s.intersect_first(o, d, -back, tfar, set, h);
+        s.intersect_all(o, d, -back, tfar, all);
+        const auto g = first_interface(s, all, o, set);
+        if (!f.found) {
+            ++empty;
+            EXPECT_EQ(g.first, all.size()) << "segment " << k << ": the all-hits list has an interface";
+            continue;
+        }
+        const uint64_t new_set = set ^ (uint64_t(1) << h.region);
+        if (!(f.clearance > 2 * group_tol(o, std::max(h.t, 0.0), s)) || s.top(new_set) == s.top(set)) {
+            // Falls back to all-hits. On a box pair, every hit on the shared face must.
+            if (std::fabs(o.z + h.t * d.z + 1) < 1e-9) ++*shared_fallbacks;
+            continue;
+        }
+        ++alone;
+        EXPECT_FALSE(std::fabs(o.z + h.t * d.z + 1) < 1e-9) << "segment " << k << ": a shared-face hit answered alone";
+        EXPECT_LT(g.first, all.size()) << "segment " << k;
+        if (g.first >= all.size()) continue;
+        EXPECT_EQ(g.second - g.first, 1u) << "segment " << k << " kind " << kind << " miss " << miss;
+        const Hit& e = all[g.first];
+        EXPECT_EQ(e.region, h.region) << "segment " << k;
+        EXPECT_EQ(e.prim, h.prim) << "segment " << k;
+        EXPECT_EQ(e.t, h.t) << "segment " << k;  // the same refined distance, bit for bit
+        EXPECT_EQ(e.cos_dn, h.cos_dn) << "segment " << k;
+    }
+    EXPECT_GT(empty, 0);
+    return alone;
+}
+
+}  // namespace
+
+TEST(SingleHit, AgreesWithAllHitsOnBoxesWithSharedFace) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    box_pair(s, m, 0);
+    int shared = 0;
+    const int alone = compare_single(s, m, 20000, 31, &shared);
+    EXPECT_GT(alone, 20000 / 20);  // most segments aim at edges and vertices, or meet nothing
+    EXPECT_GT(shared, 0);          // hits on the face the two regions share went to all-hits
+}
+
+TEST(SingleHit, AgreesWithAllHitsOnColonTubeWithPolyp) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    colon_like(s, m);
+    int shared = 0;
+    const int alone = compare_single(s, m, 20000, 32, &shared);
+    EXPECT_GT(alone, 20000 / 10);
+}
+
+TEST(SingleHit, SharedFaceTrianglesHaveNoClearance) {
+    // A hit in the middle of the face the two boxes share (z = -1) cannot be
+    // answered alone; one in the middle of the top face (z = 0) can.
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    box_pair(s, m, 0);
+    Hit h{};
+    const uint64_t top_bit = 1;
+    Scene::FirstHit f = s.intersect_first(Vec3(0.1, 0.2, -0.5), Vec3(0, 0, -1), -1e-9, kInf, top_bit, h);
+    ASSERT_TRUE(f.found);
+    EXPECT_NEAR(h.t, 0.5, 1e-15);
+    EXPECT_LT(f.clearance, 1e-12);
+    f = s.intersect_first(Vec3(0.1, 0.2, -0.5), Vec3(0, 0, 1), -1e-9, kInf, top_bit, h);
+    ASSERT_TRUE(f.found);
+    EXPECT_NEAR(h.t, 0.5, 1e-15);
+    EXPECT_GT(f.clearance, 1e-4);  // the isolation cap 1e-4 (|x| + extent), below the diagonal's 0.07
+    EXPECT_GT(h.cos_dn, 0);        // leaving the top box
 }
