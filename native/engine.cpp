@@ -306,6 +306,7 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
                                        uint64_t u, Tick&& tick) {
     auto out = new_unit(scene, cfg, plan.unit_size, u);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
+    tracer.begin_unit();
     for (uint64_t k = first; k < end; ++k) {
         if (!tick(k)) return nullptr;
         tracer.trace(k, *out);

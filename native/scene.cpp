@@ -52,6 +52,49 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
     args->valid[0] = 0;  // reject: traversal goes on and collects every crossing
 }
 
+// The ray handed to Embree (float), from org over [tnear, tfar] (tfar may be
+// infinite).
+RTCRayHit embree_ray(const Vec3& org, const Vec3& d, Float tnear, Float tfar) {
+    RTCRayHit rh;
+    rh.ray.org_x = float(org.x);
+    rh.ray.org_y = float(org.y);
+    rh.ray.org_z = float(org.z);
+    rh.ray.dir_x = float(d.x);
+    rh.ray.dir_y = float(d.y);
+    rh.ray.dir_z = float(d.z);
+    rh.ray.tnear = float(tnear);
+    rh.ray.tfar = std::isfinite(tfar) ? float(tfar) : std::numeric_limits<float>::infinity();
+    rh.ray.time = 0;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    return rh;
+}
+
+// Context of the single-hit query: the region set the ray starts in.
+struct FirstContext {
+    RTCIntersectContext base;  // must be first
+    const std::vector<Region>* regions;
+    Vec3 dir;
+    uint64_t set;
+};
+
+// Accepts only crossings that change the region set (entering a region not in
+// it, leaving one in it); Embree's closest-hit traversal goes on past the
+// others -- re-hits of the surface just crossed, grazing hits -- which the
+// transport would skip in an all-hits list too.
+void first_filter(const RTCFilterFunctionNArguments* args) {
+    if (args->N != 1 || !args->valid[0]) return;
+    auto* ctx = reinterpret_cast<FirstContext*>(args->context);
+    const unsigned region = RTCHitN_geomID(args->hit, args->N, 0);
+    const unsigned prim = RTCHitN_primID(args->hit, args->N, 0);
+    const Float cos_dn = dot(ctx->dir, (*ctx->regions)[region].normals[prim]);
+    const bool inside = (ctx->set >> region) & 1;
+    if (!((cos_dn < 0 && !inside) || (cos_dn > 0 && inside))) args->valid[0] = 0;
+}
+
 // Closest point on triangle abc to p (Ericson, Real-Time Collision Detection §5.1.5),
 // returned as squared distance.
 Float closest_distance2(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
@@ -116,25 +159,36 @@ struct GatherData {
     TriangleCache* cache;
     size_t max_count;
     bool overflow;
+
+    // Keeps triangle (region, prim) if it meets the ball (exact double
+    // distance); both gathers (grid and BVH) apply this one test.
+    void offer(unsigned region, unsigned prim) {
+        if (overflow) return;
+        const auto& v = (*vertices)[region];
+        const uint32_t* tri = &(*triangles)[region][3 * size_t(prim)];
+        auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
+        const Vec3 a = vert(tri[0]), b = vert(tri[1]), d = vert(tri[2]);
+        if (closest_distance2(c, a, b, d) > r2) return;
+        if (cache->size() >= max_count) {
+            overflow = true;
+            return;
+        }
+        cache->add(a, b, d, (*regions)[region].normals[prim], region, prim);
+    }
 };
 
-// Keeps every triangle within the ball (exact double distance); the query
-// radius never shrinks, so Embree visits every candidate.
+// The query radius never shrinks, so Embree visits every candidate.
 bool gather_callback(RTCPointQueryFunctionArguments* args) {
-    auto* q = static_cast<GatherData*>(args->userPtr);
-    if (q->overflow) return false;
-    const unsigned region = args->geomID;
-    const auto& v = (*q->vertices)[region];
-    const uint32_t* tri = &(*q->triangles)[region][3 * size_t(args->primID)];
-    auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
-    const Vec3 a = vert(tri[0]), b = vert(tri[1]), c = vert(tri[2]);
-    if (closest_distance2(q->c, a, b, c) > q->r2) return false;
-    if (q->cache->size() >= q->max_count) {
-        q->overflow = true;
-        return false;
-    }
-    q->cache->add(a, b, c, (*q->regions)[region].normals[args->primID], region, args->primID);
+    static_cast<GatherData*>(args->userPtr)->offer(args->geomID, args->primID);
     return false;
+}
+
+// The ball's radius for the exact test: a little larger than the cache's, so
+// that rounding can never drop a triangle that meets the cache's ball. The
+// grid's bounds tests are in double (its own margin covers them); Embree's
+// are in float, ~1e-7 of the coordinates, so its ball needs 1e-6 of them.
+Float padded_radius(const Vec3& c, Float radius, Float rel) {
+    return radius * (1 + 10 * rel) + rel * (max_abs_component(c) + radius);
 }
 
 }  // namespace
@@ -265,7 +319,65 @@ void Scene::commit() {
     rank_.assign(regions_.size(), 0);
     for (size_t k = 0; k < order.size(); ++k) rank_[size_t(order[k])] = int(k);
     rtcCommitScene(scene_);
+    grid_.build(vertices_, triangles_);
+    compute_isolation();
     committed_ = true;
+}
+
+// isolation_[T]: a lower bound of the distance from triangle T to every
+// triangle of another region (coincident faces of layered slabs, a polyp that
+// meets the wall, nearby surfaces), capped at `cap`. Each candidate gives the
+// larger of two lower bounds: the gap between the bounding boxes, and how far
+// one triangle's vertices all lie on one side of the other's plane; touching
+// or coincident triangles get 0. T's own region is left out: its neighbours
+// meet T at T's edges, which the query's edge distance covers, and a closed,
+// non-self-crossing mesh (mesh_check) has no other part of itself within the
+// grouping tolerance of T's interior. The cap, 1e-4 of the coordinates'
+// magnitude plus the extent, is far above that tolerance (~1e-6 of it), the
+// only distance the bound is compared with.
+void Scene::compute_isolation() {
+    region_base_.assign(regions_.size(), 0);
+    for (size_t r = 1; r < regions_.size(); ++r)
+        region_base_[r] = region_base_[r - 1] + uint32_t(regions_[r - 1].normals.size());
+    const Float scale = std::max({std::fabs(bbox_min_[0]), std::fabs(bbox_min_[1]), std::fabs(bbox_min_[2]),
+                                  std::fabs(bbox_max_[0]), std::fabs(bbox_max_[1]), std::fabs(bbox_max_[2])});
+    const Float cap = 1e-4 * (scale + extent_);
+    isolation_.assign(grid_.triangle_count(), float(cap));
+    if (regions_.size() < 2) return;
+    auto corners = [&](uint32_t region, uint32_t prim, Vec3 p[3], Vec3& lo, Vec3& hi) {
+        const auto& v = vertices_[region];
+        const uint32_t* t = &triangles_[region][3 * size_t(prim)];
+        for (int k = 0; k < 3; ++k) p[k] = Vec3(v[3 * t[k]], v[3 * t[k] + 1], v[3 * t[k] + 2]);
+        lo = Vec3(std::min({p[0].x, p[1].x, p[2].x}), std::min({p[0].y, p[1].y, p[2].y}),
+                  std::min({p[0].z, p[1].z, p[2].z}));
+        hi = Vec3(std::max({p[0].x, p[1].x, p[2].x}), std::max({p[0].y, p[1].y, p[2].y}),
+                  std::max({p[0].z, p[1].z, p[2].z}));
+    };
+    // How far all of q lie on one side of the plane (n, through p0); 0 if they straddle it.
+    auto plane_gap = [](const Vec3& n, const Vec3& p0, const Vec3 q[3]) {
+        const Float a = dot(n, q[0] - p0), b = dot(n, q[1] - p0), c = dot(n, q[2] - p0);
+        return std::max({Float(0), std::min({a, b, c}), -std::max({a, b, c})});
+    };
+    for (uint32_t r = 0; r < regions_.size(); ++r)
+        for (uint32_t i = 0; i < regions_[r].normals.size(); ++i) {
+            Vec3 P[3], lo, hi;
+            corners(r, i, P, lo, hi);
+            Float iso = cap;
+            grid_.visit(lo - Vec3(cap, cap, cap), hi + Vec3(cap, cap, cap), [&](const TriangleGrid::Ref& o) {
+                if (o.region == r) return true;
+                Vec3 Q[3], qlo, qhi;
+                corners(o.region, o.prim, Q, qlo, qhi);
+                const Vec3 gap(std::max({Float(0), qlo.x - hi.x, lo.x - qhi.x}),
+                               std::max({Float(0), qlo.y - hi.y, lo.y - qhi.y}),
+                               std::max({Float(0), qlo.z - hi.z, lo.z - qhi.z}));
+                const Float bound = std::max({length(gap), plane_gap(regions_[r].normals[i], P[0], Q),
+                                              plane_gap(regions_[o.region].normals[o.prim], Q[0], P)});
+                iso = std::min(iso, bound);
+                return true;
+            });
+            // Room for the rounding of the bound and of its float copy.
+            isolation_[region_base_[r] + i] = float(iso * (1 - 1e-5));
+        }
 }
 
 void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
@@ -279,34 +391,53 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
     ctx.triangles = &triangles_;
     ctx.dir = d;
     ctx.hits = &out;
-
-    RTCRayHit rh;
     // Embree needs tnear >= 0. A negative tnear means "also report crossings up
     // to |tnear| behind o": the origin is backed up along the ray and the
     // distances shifted back afterwards. The transport relies on this to never
     // lose a crossing that rounding put just behind the packet.
     const Float back = tnear < 0 ? -tnear : Float(0);
-    const Vec3 org = back > 0 ? o - d * back : o;
-    if (back > 0) tnear = 0;
-    ctx.org = org;
-    rh.ray.org_x = float(org.x);
-    rh.ray.org_y = float(org.y);
-    rh.ray.org_z = float(org.z);
-    rh.ray.dir_x = float(d.x);
-    rh.ray.dir_y = float(d.y);
-    rh.ray.dir_z = float(d.z);
-    rh.ray.tnear = float(tnear);
-    rh.ray.tfar = std::isfinite(tfar) ? float(tfar + back) : std::numeric_limits<float>::infinity();
-    rh.ray.time = 0;
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    ctx.org = back > 0 ? o - d * back : o;
+    RTCRayHit rh = embree_ray(ctx.org, d, std::max(tnear, Float(0)), tfar + back);
     rtcIntersect1(scene_, &ctx.base, &rh);
     if (back > 0)
         for (Hit& h : out) h.t -= back;
-    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
+    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return hit_before(a, b); });
+}
+
+Scene::FirstHit Scene::intersect_first(const Vec3& o, const Vec3& d, Float tnear, Float tfar, uint64_t set,
+                                       Hit& hit) const {
+    static_assert(offsetof(FirstContext, base) == 0, "context must start with RTCIntersectContext");
+    FirstContext ctx;
+    rtcInitIntersectContext(&ctx.base);
+    ctx.base.filter = first_filter;
+    ctx.regions = &regions_;
+    ctx.dir = d;
+    ctx.set = set;
+    // The same backed-up ray as intersect_all, so the refined distance below
+    // is bit-identical to the one collect_filter gives for this triangle.
+    const Float back = tnear < 0 ? -tnear : Float(0);
+    const Vec3 org = back > 0 ? o - d * back : o;
+    RTCRayHit rh = embree_ray(org, d, std::max(tnear, Float(0)), tfar + back);
+    rtcIntersect1(scene_, &ctx.base, &rh);
+    FirstHit r;
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return r;
+    const uint32_t region = rh.hit.geomID, prim = rh.hit.primID;
+    const uint32_t* tri = &triangles_[region][3 * size_t(prim)];
+    const auto& v = vertices_[region];
+    auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
+    const Vec3 a = vert(tri[0]), b = vert(tri[1]), c = vert(tri[2]);
+    const Vec3& n = regions_[region].normals[prim];
+    const Float cos_dn = dot(d, n);  // != 0: first_filter rejects grazing hits
+    const Float t = dot(a - org, n) / cos_dn;
+    hit = Hit{t - back, region, prim, cos_dn};
+    // Clearance: how far the crossing point is from T's edges (where the
+    // neighbour triangle would be hit too) and from every other region's
+    // triangle (isolation_, a lower bound found at commit).
+    const Vec3 q = org + d * t;
+    auto edge = [&](const Vec3& e0, const Vec3& e1) { return length(cross(e1 - e0, q - e0)) / length(e1 - e0); };
+    r.clearance = std::min({Float(isolation_[region_base_[region] + prim]), edge(a, b), edge(b, c), edge(c, a)});
+    r.found = true;
+    return r;
 }
 
 Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
@@ -325,19 +456,32 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
 
 bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
     cache.reset(c, radius);
-    // The ball handed to Embree is a little larger than the cache's, so that
-    // float rounding of its bounds tests can never drop a triangle that meets
-    // the cache's ball; the exact test in the callback is in double.
-    const Float r_gather = radius * (1 + 1e-5) + 1e-6 * (max_abs_component(c) + radius);
+    const Float r = padded_radius(c, radius, 1e-9);
+    GatherData data{&regions_, &vertices_, &triangles_, c, r * r, &cache, max_count, false};
+    grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
+        // The bounding sphere rejects most candidates before the exact test.
+        const Vec3 e = t.centre - c;
+        const Float reach = r + t.reach;
+        if (dot(e, e) > reach * reach) return true;
+        if (cache.first_offer(t.id)) data.offer(t.region, t.prim);
+        return !data.overflow;
+    });
+    if (data.overflow) cache.clear();
+    return !data.overflow;
+}
+
+bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+    cache.reset(c, radius);
+    const Float r = padded_radius(c, radius, 1e-6);
     RTCPointQuery q;
     q.x = float(c.x);
     q.y = float(c.y);
     q.z = float(c.z);
     q.time = 0;
-    q.radius = float(r_gather * (1 + 1e-5));
+    q.radius = float(r * (1 + 1e-5));
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    GatherData data{&regions_, &vertices_, &triangles_, c, r_gather * r_gather, &cache, max_count, false};
+    GatherData data{&regions_, &vertices_, &triangles_, c, r * r, &cache, max_count, false};
     rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
     if (data.overflow) cache.clear();
     return !data.overflow;

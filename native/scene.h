@@ -10,6 +10,7 @@
 
 #include "medium.h"
 #include "mesh_check.h"
+#include "triangle_grid.h"
 #include "vecmath.h"
 
 namespace ep {
@@ -41,6 +42,15 @@ struct Hit {
     uint32_t prim;    // triangle index within the region
     Float cos_dn;     // dot(ray direction, outward normal): < 0 entering, > 0 leaving
 };
+
+// The order of a hit list: by distance, ties (the two triangles of an edge,
+// coincident faces) by region and triangle, so that every query that finds
+// the same hits (Embree's, the triangle cache's, in any traversal order)
+// lists them alike and the transport picks the same face normal.
+inline bool hit_before(const Hit& a, const Hit& b) {
+    if (a.t != b.t) return a.t < b.t;
+    return a.region != b.region ? a.region < b.region : a.prim < b.prim;
+}
 
 class Scene {
   public:
@@ -87,6 +97,21 @@ class Scene {
     // continues to tfar; coincident faces (touching regions) all show up.
     void intersect_all(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, std::vector<Hit>& out) const;
 
+    // The first crossing in [tnear, tfar] that changes the region set `set`
+    // (enters a region not in it or leaves one in it): Embree's closest-hit
+    // query, which stops there instead of collecting every crossing to tfar.
+    // `hit` is the one intersect_all lists for that triangle (same refined
+    // distance). `clearance` bounds from below how far the crossing point is
+    // from the triangle's edges and from every other region's surface: when it
+    // exceeds the transport's grouping tolerance, the all-hits list holds no
+    // other crossing that groups with this one, so the one hit decides alone.
+    struct FirstHit {
+        bool found = false;
+        Float clearance = 0;
+    };
+    FirstHit intersect_first(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, uint64_t set,
+                             Hit& hit) const;
+
     // Distance from p to the nearest triangle of any region (scene units),
     // searched within `radius`; returns `radius` if nothing is closer.
     Float distance_to_surface(const Vec3& p, Float radius) const;
@@ -94,7 +119,12 @@ class Scene {
     // Fills `cache` with every triangle that meets the ball (c, radius), for
     // steps that stay inside it (triangle_cache.h). False, and an empty cache
     // that covers nothing, when more than max_count triangles meet the ball.
+    // Through the uniform grid (triangle_grid.h): O(local) per gather.
     bool gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
+    // The same gather through Embree's BVH (rtcPointQuery): the reference the
+    // grid is tested against, and the cost it is measured against.
+    bool gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
+    const TriangleGrid& grid() const { return grid_; }
 
   private:
     Float unit_cm_, ambient_n_;
@@ -109,6 +139,10 @@ class Scene {
     std::vector<std::shared_ptr<const EEM>> eems_;
     std::vector<std::string> fluor_names_;
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
+    TriangleGrid grid_;
+    std::vector<uint32_t> region_base_;  // scene-wide index of each region's first triangle
+    std::vector<float> isolation_;       // per triangle: lower bound of its distance to other regions
+    void compute_isolation();
 };
 
 }  // namespace ep

@@ -73,11 +73,19 @@ struct PacketState {
 // finely tessellated wall gets a small ball and a big flat face a large one.
 // When even a ball of two steps holds too many, the step falls back to the
 // full query and the next kGatherCooldown steps do not try again.
+// The rule, in numbers: r = clamp(f * 16 mfp, 2 (step + look-behind), extent),
+// f in (0, 4] halved above kMaxCached triangles and doubled at kMaxCached / 4
+// or fewer. kMaxCached = 8: every cached step pays a plane test per distinct
+// plane and every gather an exact distance test per triangle, so on a curved
+// wall (one plane per quad) big balls cost more than the steps they cover
+// (callgrind, colon_polyp with the cache forced on: 16 -> 260k instructions
+// per packet; 8, with the grid's bounding-sphere test -> 161k; Embree alone 130k).
 constexpr Float kBallFreePaths = 16;
 constexpr Float kMaxFraction = 4;  // a ball of up to 64 free paths around few triangles
-constexpr size_t kMaxCached = 16;
+constexpr size_t kMaxCached = 8;
 constexpr int kGatherCooldown = 16;
-constexpr size_t kMaxTrianglesForCache = 4096;
+constexpr uint64_t kGathersBeforeChoice = 8;
+constexpr uint64_t kMinStepsPerGather = 16;
 
 // What a step through the crossings ahead ended with.
 enum class Crossing { kNone, kBoundary, kEnded };
@@ -122,6 +130,7 @@ class PacketWalk {
     bool locate_start();
     void find_crossings(Float s);
     bool cached_crossings(Float s);
+    void query(Float tnear, Float tfar, uint64_t set, int region);
     Interface next_interface(Float s, uint64_t set, int region) const;
     uint64_t inside_just_ahead(uint64_t regions, Float t) const;
     Crossing cross_interfaces(Float s);
@@ -285,8 +294,35 @@ void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
         st.reuse_hits = false;
         return;
     }
-    if (local_.enabled && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
-    scene_.intersect_all(st.p, st.d, -ray_offset(st.p, extent_), s, hits_);
+    if (local_.enabled && !local_.unit_off && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
+    query(-ray_offset(st.p, extent_), s, st.set, st.med.region);
+}
+
+// Fills hits_ with the crossings along [tnear, tfar] from st.p for a packet in
+// `set` (top region `region`). Embree's single-hit query answers when its one
+// crossing decides alone: it changes the top region (an interface, so
+// next_interface stops there) and its clearance from the triangle's edges and
+// from other surfaces exceeds twice the grouping tolerance, so no other hit of
+// the all-hits list could join its group; hits the single-hit query skips
+// (re-hits of the surface just crossed, crossings that do not change the set)
+// are ones next_interface passes over anyway. Otherwise (a hit at an edge, on
+// coincident or nearby faces of touching regions, a lower-priority surface
+// inside a higher one) the all-hits query lists every crossing.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::query(Float tnear, Float tfar, uint64_t set, int region) {
+    const PacketState& st = st_;
+    Hit h;
+    const Scene::FirstHit f = scene_.intersect_first(st.p, st.d, tnear, tfar, set, h);
+    if (!f.found) {
+        hits_.clear();
+        return;
+    }
+    const uint64_t new_set = set ^ (uint64_t(1) << h.region);  // the filter accepts set changes only
+    if (f.clearance > 2 * group_tolerance(st.p, std::max(h.t, Float(0)), extent_) && scene_.top(new_set) != region) {
+        hits_.assign(1, h);
+        return;
+    }
+    scene_.intersect_all(st.p, st.d, tnear, tfar, hits_);
 }
 
 // The crossings of the step [-offset, s] from the cache, re-gathered around
@@ -315,8 +351,19 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
             local_.fraction *= Float(0.5);
         }
         if (cache.size() <= kMaxCached / 4) local_.fraction = std::min(kMaxFraction, 2 * local_.fraction);
+        ++local_.gathers;
+        // The cache pays only where a gather serves enough steps: callgrind on
+        // colon_polyp, a gather ~6k instructions, a cached step ~200 against
+        // ~780 for Embree's query, so below kMinStepsPerGather the unit's
+        // remaining steps go to Embree. Counts, not timings: the choice is the
+        // unit's own (same on any thread count), and both paths give the same hits.
+        if (local_.gathers >= kGathersBeforeChoice && local_.cached_steps < kMinStepsPerGather * local_.gathers) {
+            local_.unit_off = true;
+            return false;
+        }
         if (!cache.covers(a, b)) return false;
     }
+    ++local_.cached_steps;
     cache.intersect(st.p, st.d, -back, s, hits_);
     return true;
 }
@@ -496,7 +543,7 @@ bool PacketWalk<kSpectral, kGrids>::first_boundary(const Vec3& n_inc, Float R, i
 // as the next ambient step), then where it lands.
 template <bool kSpectral, bool kGrids>
 NextHit PacketWalk<kSpectral, kGrids>::look_ahead() {
-    scene_.intersect_all(st_.p, st_.d, -ray_offset(st_.p, extent_), kInf, hits_);
+    query(-ray_offset(st_.p, extent_), kInf, 0, -1);  // from the ambient (landing's set and region)
     return landing();
 }
 
@@ -760,14 +807,11 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     grids_ = cfg.grid_voxel_size > 0;
     hits_.reserve(64);
-    // The local triangle cache pays where a gather (a fixed-radius point query)
-    // is cheap against the ray queries it saves: scenes of few triangles
-    // (boxes, slabs, coarse meshes). On finely tessellated scenes (the colon
-    // tube's 12 800 triangles) a gather costs about two all-hits ray queries
-    // (callgrind, docs/performance.md), so every step queries Embree directly.
-    size_t triangles = 0;
-    for (size_t i = 0; i < scene.region_count(); ++i) triangles += scene.region(i).normals.size();
-    local_.enabled = cfg.safe_distance && triangles <= kMaxTrianglesForCache;
+    // The local triangle cache serves every scene: its gather goes through the
+    // uniform grid (triangle_grid.h), O(local) whatever the triangle count
+    // (the BVH point query cost ~8.7k instructions per gather on the colon
+    // and was used only up to 4,096 triangles).
+    local_.enabled = cfg.safe_distance;
     // A light is enclosed when every one of 64 probe rays from its centre
     // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
     // with an opening larger than about 1/64 of the sphere is seen as open.
@@ -783,6 +827,18 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
         }
         enclosed_.push_back(closed ? 1 : 0);
     }
+}
+
+void Tracer::begin_unit() {
+    // Units hold the same packets on any number of threads; starting each
+    // with an empty cache makes which steps the cache answers (and so the
+    // order of tied hits) a function of the unit alone, never of the thread
+    // that traced the packets before it.
+    local_.cache.clear();
+    local_.cooldown = 0;
+    local_.fraction = 1;
+    local_.gathers = local_.cached_steps = 0;
+    local_.unit_off = false;
 }
 
 void Tracer::trace(uint64_t index, UnitOutput& out) {

@@ -38,13 +38,17 @@ struct UnitOutput {
 struct LocalGeometry {
     bool enabled = false;  // chosen per scene (Tracer's constructor)
     TriangleCache cache;
-    int cooldown = 0;     // steps before the next gather after one that failed
-    double fraction = 1;  // of the ball radius in free paths (transport.cpp)
+    int cooldown = 0;                        // steps before the next gather after one that failed
+    double fraction = 1;                     // of the ball radius in free paths (transport.cpp)
+    uint64_t gathers = 0, cached_steps = 0;  // in this work unit
+    bool unit_off = false;                   // the cache did not pay in this unit
 };
 
 class Tracer {
   public:
     Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& config);
+    // Called before the first packet of every work unit.
+    void begin_unit();
     // Traces packet `index` and adds its contributions to `out`.
     void trace(uint64_t index, UnitOutput& out);
     bool spectral() const { return spectral_; }

@@ -12,6 +12,10 @@ void TriangleCache::reset(const Vec3& center, Float radius) {
     planes_.clear();
     center_ = center;
     radius_ = radius;
+    if (++stamp_ == 0) {  // the stamps wrapped: forget every old one
+        std::fill(seen_.begin(), seen_.end(), 0u);
+        stamp_ = 1;
+    }
     // Rounding allowance of the plane distances in intersect(): a few ulps of
     // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
     eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
@@ -65,7 +69,7 @@ void TriangleCache::intersect_open(const Vec3& org, const Vec3& d, Float back, F
         if (!(t >= 0 && t <= t_end)) continue;
         out.push_back(Hit{t - back, tri.region, tri.prim, cos_dn});
     }
-    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& x, const Hit& y) { return x.t < y.t; });
+    if (out.size() > 1) std::sort(out.begin(), out.end(), [](const Hit& a, const Hit& b) { return hit_before(a, b); });
 }
 
 }  // namespace ep

@@ -43,6 +43,15 @@ class TriangleCache {
     // `radius` must then be added (Scene::gather_triangles does this).
     void reset(const Vec3& center, Float radius);
     void add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim);
+    // Mailbox of a gather through the triangle grid, where a triangle spanning
+    // several cells is offered once per cell: true the first time the
+    // scene-wide triangle `id` is offered since reset().
+    bool first_offer(uint32_t id) {
+        if (id >= seen_.size()) seen_.resize(size_t(id) + 1, 0);
+        if (seen_[id] == stamp_) return false;
+        seen_[id] = stamp_;
+        return true;
+    }
 
     // True when the segment from a to b lies inside the ball (a ball is convex:
     // both ends inside suffices).
@@ -80,6 +89,7 @@ class TriangleCache {
     const Vec3& center() const { return center_; }
     Float radius() const { return radius_; }
     size_t size() const { return tris_.size(); }
+    const std::vector<Triangle>& triangles() const { return tris_; }
     size_t plane_count() const { return planes_.size(); }
 
   private:
@@ -91,6 +101,8 @@ class TriangleCache {
     Float radius_ = 0, eps_ = 0;
     std::vector<Triangle> tris_;
     std::vector<Plane> planes_;
+    std::vector<uint32_t> seen_;  // first_offer's stamps, one per scene triangle
+    uint32_t stamp_ = 0;
 };
 
 }  // namespace ep

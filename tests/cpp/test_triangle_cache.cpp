@@ -5,8 +5,11 @@
 // 1e-7 to 1e-1 of the feature size.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <iostream>
 #include <random>
+#include <set>
 #include <vector>
 
 #include "scene.h"
@@ -41,6 +44,40 @@ void sphere(float r, float cx, float cy, float cz, int n_phi, int n_theta, std::
             t.insert(t.end(), {ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)});
         }
     for (int j = 0; j < n_phi; ++j) t.insert(t.end(), {south, ring(n_theta - 1, j + 1), ring(n_theta - 1, j)});
+}
+
+// Closed thick-walled tube along +x (the colon bench scene's, C++): inner
+// radius r(x) = radius - fold (1 + cos(2 pi x / period)) / 2, wall `wall`,
+// outward winding (the inner skin faces the lumen), annulus rings at the ends.
+void tube(double length, double radius, double fold, double period, double wall, int n_x, int n_theta,
+          std::vector<float>& v, std::vector<uint32_t>& t) {
+    v.clear();
+    t.clear();
+    for (int skin = 0; skin < 2; ++skin)
+        for (int i = 0; i < n_x; ++i) {
+            const double x = length * i / (n_x - 1);
+            const double r = radius - fold * 0.5 * (1 + std::cos(2 * kPi * x / period)) + (skin == 0 ? wall : 0);
+            for (int j = 0; j < n_theta; ++j) {
+                const double th = 2 * kPi * j / n_theta;
+                v.insert(v.end(), {float(x), float(r * std::cos(th)), float(r * std::sin(th))});
+            }
+        }
+    const uint32_t n = uint32_t(n_x * n_theta);
+    auto id = [&](int i, int j) { return uint32_t(i * n_theta + (j % n_theta)); };
+    for (int i = 0; i + 1 < n_x; ++i)
+        for (int j = 0; j < n_theta; ++j) {
+            t.insert(t.end(), {id(i, j), id(i + 1, j + 1), id(i + 1, j)});  // outer skin
+            t.insert(t.end(), {id(i, j), id(i, j + 1), id(i + 1, j + 1)});
+            t.insert(t.end(), {id(i, j) + n, id(i + 1, j) + n, id(i + 1, j + 1) + n});  // inner skin
+            t.insert(t.end(), {id(i, j) + n, id(i + 1, j + 1) + n, id(i, j + 1) + n});
+        }
+    for (int j = 0; j < n_theta; ++j) {
+        const int e = n_x - 1;
+        t.insert(t.end(), {id(0, j), id(0, j) + n, id(0, j + 1) + n});  // x = 0 faces -x
+        t.insert(t.end(), {id(0, j), id(0, j + 1) + n, id(0, j + 1)});
+        t.insert(t.end(), {id(e, j), id(e, j + 1), id(e, j + 1) + n});  // x = length faces +x
+        t.insert(t.end(), {id(e, j), id(e, j + 1) + n, id(e, j) + n});
+    }
 }
 
 // A crossing as the transport sees it: hits within a tolerance are one group;
@@ -82,40 +119,48 @@ struct Mesh {
     std::vector<uint32_t> t;
 };
 
+// A random point near a random feature (vertex, edge, face) of the meshes.
+Vec3 near_feature(const std::vector<Mesh>& meshes, std::mt19937_64& rng, int* kind) {
+    std::uniform_real_distribution<double> U(0, 1);
+    const Mesh& m = meshes[rng() % meshes.size()];
+    const size_t tri = rng() % (m.t.size() / 3);
+    Vec3 P[3];
+    for (int c = 0; c < 3; ++c) {
+        const float* p = &m.v[3 * size_t(m.t[3 * tri + size_t(c)])];
+        P[c] = Vec3(p[0], p[1], p[2]);
+    }
+    *kind = int(rng() % 3);
+    double a = U(rng), b = U(rng);
+    if (*kind == 0)
+        a = 1, b = 0;
+    else if (*kind == 1)
+        b = 0;
+    else if (a + b > 1)
+        a = 1 - a, b = 1 - b;
+    return P[0] + (P[1] - P[0]) * a + (P[2] - P[0]) * b;
+}
+
+Vec3 random_unit(std::mt19937_64& rng) {
+    std::uniform_real_distribution<double> U(0, 1);
+    const double z = 2 * U(rng) - 1, ph = 2 * kPi * U(rng), r = std::sqrt(1 - z * z);
+    return Vec3(r * std::cos(ph), r * std::sin(ph), z);
+}
+
 // Compares cached and full queries on n segments aimed at random features of
 // the meshes; returns the number of segments that crossed something.
 int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> U(0, 1);
-    auto unit = [&] {
-        const double z = 2 * U(rng) - 1, ph = 2 * kPi * U(rng), r = std::sqrt(1 - z * z);
-        return Vec3(r * std::cos(ph), r * std::sin(ph), z);
-    };
     TriangleCache cache;
     std::vector<Hit> full, cached;
     int crossed = 0, covered = 0, compared = 0;
     for (int k = 0; k < n; ++k) {
-        const Mesh& m = meshes[rng() % meshes.size()];
-        const size_t tri = rng() % (m.t.size() / 3);
-        Vec3 P[3];
-        for (int c = 0; c < 3; ++c) {
-            const float* p = &m.v[3 * size_t(m.t[3 * tri + size_t(c)])];
-            P[c] = Vec3(p[0], p[1], p[2]);
-        }
-        // A vertex, a point on an edge, or a point inside the face.
-        const int kind = int(rng() % 3);
-        double a = U(rng), b = U(rng);
-        if (kind == 0)
-            a = 1, b = 0;
-        else if (kind == 1)
-            b = 0;
-        else if (a + b > 1)
-            a = 1 - a, b = 1 - b;
-        const Vec3 q = P[0] + (P[1] - P[0]) * a + (P[2] - P[0]) * b * (kind == 1 ? 0 : 1);
+        int kind;
+        const Vec3 q = near_feature(meshes, rng, &kind);
         const double miss = std::pow(10.0, -7 + 6 * U(rng));
-        const Vec3 d = unit();
+        const Vec3 d = random_unit(rng);
         const double L = 0.05 + 0.2 * U(rng);
-        const Vec3 o = q - d * (L * U(rng)) + unit() * miss;
+        const Vec3 o = q - d * (L * U(rng)) + random_unit(rng) * miss;
         const double back = 4e-7 * (max_abs_component(o) + 1e-3 * s.extent());
         EXPECT_TRUE(s.gather_triangles(o, 0.3, 4096, cache));
         if (!cache.covers(o - d * back, o + d * L)) continue;
@@ -139,7 +184,8 @@ int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t see
             EXPECT_EQ(ef[i].leave, ec[i].leave) << "segment " << k << " kind " << kind << " miss " << miss;
             // The group's first hit may be the other triangle of an edge:
             // equal within the transport's grouping tolerance.
-            EXPECT_NEAR(ef[i].t, ec[i].t, 4e-6)
+            // (Embree's float rounding grows with the coordinates' magnitude.)
+            EXPECT_NEAR(ef[i].t, ec[i].t, 4e-6 * std::max(1.0, max_abs_component(o)))
                 << "segment " << k << " kind " << kind << " miss " << miss << " n " << ef.size();
         }
     }
@@ -210,4 +256,255 @@ TEST(TriangleCache, CoplanarTrianglesShareOnePlaneAndFarBallIsEmpty) {
     // Too many triangles: the gather gives up and the cache covers nothing.
     EXPECT_FALSE(s.gather_triangles(Vec3(0, 0, -5), 100.0, 4, cache));
     EXPECT_FALSE(cache.covers(Vec3(0, 0, -5), Vec3(0, 0, -5)));
+}
+
+namespace {
+
+// The colon bench scene in C++ (cm): the folded tube (100 x 64 quads, 12,928
+// triangles with the end rings) and a polyp (UV sphere of radius 0.3, higher
+// priority) half inside the wall at the bottom of a valley.
+void colon_like(Scene& s, std::vector<Mesh>& meshes) {
+    meshes.resize(2);
+    tube(8.0, 2.5, 0.5, 2.0, 0.3, 100, 64, meshes[0].v, meshes[0].t);
+    s.add_region("colon", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3,
+                 tissue(), 0);
+    sphere(0.3f, 5.0f, 0, -2.5f, 48, 24, meshes[1].v, meshes[1].t);
+    s.add_region("polyp", meshes[1].v.data(), meshes[1].v.size() / 3, meshes[1].t.data(), meshes[1].t.size() / 3,
+                 tissue(), 1);
+    s.commit();
+}
+
+void box_pair(Scene& s, std::vector<Mesh>& meshes, float off) {
+    meshes.resize(2);
+    box(off - 1, off - 1, off - 1, off + 1, off + 1, off, meshes[0].v, meshes[0].t);
+    s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, tissue(), 0);
+    box(off - 1, off - 1, off - 2, off + 1, off + 1, off - 1, meshes[1].v, meshes[1].t);
+    s.add_region("bottom", meshes[1].v.data(), 8, meshes[1].t.data(), 12, tissue(), 1);
+    s.commit();
+}
+
+// Distance from p to triangle abc, by another route than the engine's
+// (Ericson's Voronoi regions): the projection onto the plane when it falls
+// inside, else the nearest of the three edges.
+double point_triangle_distance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+    const Vec3 n = normalize(cross(b - a, c - a));
+    const Vec3 q = p - n * dot(p - a, n);
+    const double e0 = dot(cross(b - a, q - a), n), e1 = dot(cross(c - b, q - b), n), e2 = dot(cross(a - c, q - c), n);
+    if (e0 >= 0 && e1 >= 0 && e2 >= 0) return std::fabs(dot(p - a, n));
+    auto seg = [&](const Vec3& u, const Vec3& v) {
+        const double s = std::clamp(dot(p - u, v - u) / dot(v - u, v - u), 0.0, 1.0);
+        return length(p - (u + (v - u) * s));
+    };
+    return std::min({seg(a, b), seg(b, c), seg(c, a)});
+}
+
+// The grid gather keeps every triangle within r of the centre (brute force
+// over the whole scene) and none beyond r plus 1e-8 of the coordinates: balls of every size
+// around faces, edges and vertices. Returns how many balls Embree's point
+// query (the BVH gather this grid replaced) left short of the brute force.
+int same_gathers(const Scene& s, const std::vector<Mesh>& meshes, Float size, int n, uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> U(0, 1);
+    TriangleCache grid_cache, bvh_cache;
+    int nonempty = 0, bvh_short = 0;
+    for (int k = 0; k < n; ++k) {
+        int kind;
+        const Float r = size * std::pow(10.0, -4 + 4 * U(rng));
+        const Vec3 c = near_feature(meshes, rng, &kind) + random_unit(rng) * (r * 1.5 * U(rng));
+        EXPECT_TRUE(s.gather_triangles(c, r, 1 << 20, grid_cache));
+        EXPECT_TRUE(s.gather_triangles_bvh(c, r, 1 << 20, bvh_cache));
+        std::set<std::pair<uint32_t, uint32_t>> got, bvh;
+        for (const auto& t : grid_cache.triangles()) got.emplace(t.region, t.prim);
+        for (const auto& t : bvh_cache.triangles()) bvh.emplace(t.region, t.prim);
+        EXPECT_EQ(got.size(), grid_cache.size()) << "ball " << k << ": a triangle gathered twice";
+        bool short_of = false;
+        for (size_t m = 0; m < meshes.size(); ++m)
+            for (size_t i = 0; i < meshes[m].t.size() / 3; ++i) {
+                Vec3 P[3];
+                for (int j = 0; j < 3; ++j) {
+                    const float* p = &meshes[m].v[3 * size_t(meshes[m].t[3 * i + size_t(j)])];
+                    P[j] = Vec3(p[0], p[1], p[2]);
+                }
+                const double dist = point_triangle_distance(c, P[0], P[1], P[2]);
+                const auto id = std::make_pair(uint32_t(m), uint32_t(i));
+                if (dist <= r) {
+                    EXPECT_TRUE(got.count(id)) << "ball " << k << " r " << r << " misses " << m << "/" << i;
+                    short_of |= !bvh.count(id);
+                }
+                if (dist > r * (1 + 1e-6) + 1e-8 * (max_abs_component(c) + r))
+                    EXPECT_FALSE(got.count(id)) << "ball " << k << " keeps " << m << "/" << i;
+            }
+        bvh_short += short_of;
+        if (grid_cache.size() > 0) ++nonempty;
+    }
+    EXPECT_GT(nonempty, n / 2);
+    return bvh_short;
+}
+
+}  // namespace
+
+TEST(TriangleGrid, GatherEqualsBvhGather) {
+    {
+        Scene s(1.0, 1.0);
+        std::vector<Mesh> m;
+        box_pair(s, m, 0);
+        std::cout << "box pair: BVH gather short on " << same_gathers(s, m, 2.0, 2000, 21) << " of 2000 balls\n";
+    }
+    {
+        Scene s(1.0, 1.0);  // huge coordinates: 1e6 away from the origin
+        std::vector<Mesh> m;
+        box_pair(s, m, 1e6f);
+        std::cout << "box pair at 1e6: BVH gather short on " << same_gathers(s, m, 2.0, 2000, 22) << " of 2000 balls\n";
+    }
+    {
+        Scene s(1.0, 1.0);
+        std::vector<Mesh> m;
+        colon_like(s, m);
+        EXPECT_GT(s.grid().cell_count(), 1000u);
+        std::cout << "colon: BVH gather short on " << same_gathers(s, m, 1.0, 300, 23) << " of 300 balls\n";
+    }
+}
+
+TEST(TriangleCache, SameCrossingsAsFullQueryOnColonTubeWithPolyp) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> meshes;
+    colon_like(s, meshes);
+    const int crossed = compare(s, meshes, 20000, 13);
+    EXPECT_GT(crossed, 20000 / 3);
+}
+
+namespace {
+
+// The transport's grouping tolerance (transport.cpp, group_tolerance).
+double group_tol(const Vec3& p, double t, const Scene& s) {
+    return 2e-6 * (max_abs_component(p) + t) + 1e-7 * s.extent();
+}
+
+// The regions containing o: along a ray from o, a region whose first
+// (non-grazing) crossing is an exit contains it (locate_start's rule).
+uint64_t regions_at(const Scene& s, const Vec3& o, const Vec3& d) {
+    std::vector<Hit> hits;
+    s.intersect_all(o, d, 0, kInf, hits);
+    uint64_t seen = 0, set = 0;
+    for (const Hit& h : hits) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if ((seen & bit) || h.cos_dn == 0) continue;
+        seen |= bit;
+        if (h.cos_dn > 0) set |= bit;
+    }
+    return set;
+}
+
+// The first interface (a group of hits that changes the top region) of an
+// all-hits list for a packet in `set`, as next_interface finds it: the index
+// range of its group, or {n, n} if there is none.
+std::pair<size_t, size_t> first_interface(const Scene& s, const std::vector<Hit>& hits, const Vec3& p, uint64_t set) {
+    const int region = s.top(set);
+    size_t i = 0;
+    while (i < hits.size()) {
+        const double t0 = hits[i].t, tol = group_tol(p, t0, s);
+        uint64_t enter = 0, leave = 0;
+        size_t j = i;
+        for (; j < hits.size() && hits[j].t <= t0 + tol; ++j) {
+            if (hits[j].cos_dn < 0) enter |= uint64_t(1) << hits[j].region;
+            if (hits[j].cos_dn > 0) leave |= uint64_t(1) << hits[j].region;
+        }
+        const uint64_t both = enter & leave;
+        const uint64_t new_set = (set | (enter & ~both)) & ~(leave & ~both);
+        if (new_set != set && s.top(new_set) != region) return {i, j};
+        set = new_set;
+        i = j;
+    }
+    return {hits.size(), hits.size()};
+}
+
+// Single-hit against all-hits on n segments aimed at faces, edges and vertices
+// (a quarter of them rays to infinity, as the look-ahead across the lumen),
+// for a packet in the true region set at the segment's start. Where the
+// single-hit query answers alone (clearance above twice the tolerance and an
+// interface), its hit must be the whole first interface group of the all-hits
+// list, bit for bit; where it finds nothing, the all-hits list must hold no
+// interface. Returns how many segments the single hit answered alone.
+int compare_single(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t seed, int* shared_fallbacks) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> U(0, 1);
+    std::vector<Hit> all;
+    int alone = 0, empty = 0;
+    for (int k = 0; k < n; ++k) {
+        int kind;
+        const Vec3 q = near_feature(meshes, rng, &kind);
+        const Vec3 d = random_unit(rng);
+        const double L = 0.05 + 0.2 * U(rng), miss = std::pow(10.0, -7 + 6 * U(rng));
+        const Vec3 o = q - d * (L * U(rng)) + random_unit(rng) * miss;
+        const double tfar = rng() % 4 == 0 ? kInf : L;
+        const double back = 4e-7 * (max_abs_component(o) + 1e-3 * s.extent());
+        const uint64_t set = regions_at(s, o, random_unit(rng));
+        Hit h{};
+        const Scene::FirstHit f = s.intersect_first(o, d, -back, tfar, set, h);
+        s.intersect_all(o, d, -back, tfar, all);
+        const auto g = first_interface(s, all, o, set);
+        if (!f.found) {
+            ++empty;
+            EXPECT_EQ(g.first, all.size()) << "segment " << k << ": the all-hits list has an interface";
+            continue;
+        }
+        const uint64_t new_set = set ^ (uint64_t(1) << h.region);
+        if (!(f.clearance > 2 * group_tol(o, std::max(h.t, 0.0), s)) || s.top(new_set) == s.top(set)) {
+            // Falls back to all-hits. On a box pair, every hit on the shared face must.
+            if (std::fabs(o.z + h.t * d.z + 1) < 1e-9) ++*shared_fallbacks;
+            continue;
+        }
+        ++alone;
+        EXPECT_FALSE(std::fabs(o.z + h.t * d.z + 1) < 1e-9) << "segment " << k << ": a shared-face hit answered alone";
+        EXPECT_LT(g.first, all.size()) << "segment " << k;
+        if (g.first >= all.size()) continue;
+        EXPECT_EQ(g.second - g.first, 1u) << "segment " << k << " kind " << kind << " miss " << miss;
+        const Hit& e = all[g.first];
+        EXPECT_EQ(e.region, h.region) << "segment " << k;
+        EXPECT_EQ(e.prim, h.prim) << "segment " << k;
+        EXPECT_EQ(e.t, h.t) << "segment " << k;  // the same refined distance, bit for bit
+        EXPECT_EQ(e.cos_dn, h.cos_dn) << "segment " << k;
+    }
+    EXPECT_GT(empty, 0);
+    return alone;
+}
+
+}  // namespace
+
+TEST(SingleHit, AgreesWithAllHitsOnBoxesWithSharedFace) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    box_pair(s, m, 0);
+    int shared = 0;
+    const int alone = compare_single(s, m, 20000, 31, &shared);
+    EXPECT_GT(alone, 20000 / 20);  // most segments aim at edges and vertices, or meet nothing
+    EXPECT_GT(shared, 0);          // hits on the face the two regions share went to all-hits
+}
+
+TEST(SingleHit, AgreesWithAllHitsOnColonTubeWithPolyp) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    colon_like(s, m);
+    int shared = 0;
+    const int alone = compare_single(s, m, 20000, 32, &shared);
+    EXPECT_GT(alone, 20000 / 10);
+}
+
+TEST(SingleHit, SharedFaceTrianglesHaveNoClearance) {
+    // A hit in the middle of the face the two boxes share (z = -1) cannot be
+    // answered alone; one in the middle of the top face (z = 0) can.
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    box_pair(s, m, 0);
+    Hit h{};
+    const uint64_t top_bit = 1;
+    Scene::FirstHit f = s.intersect_first(Vec3(0.1, 0.2, -0.5), Vec3(0, 0, -1), -1e-9, kInf, top_bit, h);
+    ASSERT_TRUE(f.found);
+    EXPECT_NEAR(h.t, 0.5, 1e-15);
+    EXPECT_LT(f.clearance, 1e-12);
+    f = s.intersect_first(Vec3(0.1, 0.2, -0.5), Vec3(0, 0, 1), -1e-9, kInf, top_bit, h);
+    ASSERT_TRUE(f.found);
+    EXPECT_NEAR(h.t, 0.5, 1e-15);
+    EXPECT_GT(f.clearance, 1e-4);  // the isolation cap 1e-4 (|x| + extent), below the diagonal's 0.07
+    EXPECT_GT(h.cos_dn, 0);        // leaving the top box
 }
