@@ -240,27 +240,113 @@ def _sweep_meta(
     }
 
 
-def _sweep_one_beta(
-    scene: Any,
-    beta: float,
-    rig: Any,
-    unit: str,
-    normal,
-    run_kwargs: dict,
-    meta: dict,
-    n_batches: int,
-    max_angle_deg: float,
-    visibility: Mapping[str, Any] | None = None,
-    out_dir: str | os.PathLike | None = None,
-):
-    """Run the engine for one beta and reduce it; returns ``(row, hist, batches, cancelled)``
-    or ``None`` when a cancel landed before the first record (no row)."""
-    t0 = time.perf_counter()
-    res = run(scene, rig, **run_kwargs)
-    seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
-    return _beta_outcome(
-        res, seconds, beta, rig, unit, normal, run_kwargs, meta, n_batches, max_angle_deg, visibility, out_dir
+def _checked_betas(betas: Iterable[float], store: int, n_batches: int) -> list[float]:
+    """``betas`` as floats, after checking the arguments every sweep needs (clear errors)."""
+    betas = [float(b) for b in betas]
+    if not betas:
+        raise ValueError("betas: empty")
+    if int(store) < n_batches:
+        raise ValueError(f"store = {store} must be >= n_batches = {n_batches}")
+    return betas
+
+
+def _engine_kwargs(store, fluorescent_only, fluorescence_rule, seed, threads, progress, cancel, run_kwargs) -> dict:
+    """The keyword arguments of every beta's ``ep.run`` (``run_kwargs`` last, so they win)."""
+    kw = dict(
+        store=int(store),
+        fluorescent_only=bool(fluorescent_only),
+        fluorescence_rule=fluorescence_rule,
+        seed=int(seed),
+        threads=int(threads),
+        progress=progress,
     )
+    if cancel is not None:
+        kw["cancel"] = cancel
+    kw.update(run_kwargs)
+    return kw
+
+
+def _static_scene(scene_or_builder: Any):
+    """The scene used at every beta, or ``None`` when ``scene_or_builder`` builds one per beta."""
+    if scene_or_builder is None:
+        return default_flat_scene()
+    if not callable(scene_or_builder) or hasattr(scene_or_builder, "add_mesh"):
+        return scene_or_builder
+    return None
+
+
+def _setup_beta(
+    beta: float,
+    *,
+    static_scene: Any,
+    builder: Any,
+    distance: float | None,
+    point,
+    normal,
+    tilt_axis,
+    rig_kwargs: Mapping[str, Any],
+    rig_builder: Callable | None,
+    meta: dict,
+):
+    """``(scene, unit, rig)`` of one beta; records the scene unit and head distance in ``meta``."""
+    scene = static_scene if static_scene is not None else _call_builder(builder, beta)
+    unit = _scene_unit(scene)
+    dist = DISTANCE_CM / UNIT_CM[unit] if distance is None else float(distance)
+    meta.setdefault("unit", unit)
+    meta.setdefault("distance", dist)
+    if rig_builder is not None:
+        return scene, unit, rig_builder(beta, scene)
+    return scene, unit, _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
+
+
+class _Rows:
+    """The sweep's rows, histograms and batch values, accepted in beta order."""
+
+    def __init__(self, betas: Sequence[float], meta: dict, bar: _Progress, on_beta: Callable | None):
+        self.betas, self.meta, self.bar, self.on_beta = betas, meta, bar, on_beta
+        self.rows, self.hists, self.batches = [], [], []
+
+    def stop_at(self, i: int) -> None:
+        """The sweep ends at beta ``i`` (a cancel)."""
+        self.meta["cancelled_at_beta"] = self.betas[i]
+
+    def accept(self, i: int, one) -> bool:
+        """Adds beta i's outcome (from :func:`_beta_outcome`); False once the sweep ends there."""
+        if one is None:  # cancelled before the first record: no row
+            self.stop_at(i)
+            return False
+        row, hist, bt, cancelled = one
+        self.rows.append(row)
+        self.hists.append(hist)
+        self.batches.append(bt)
+        self.bar.step()
+        if self.on_beta is not None:
+            self.on_beta(i, len(self.betas), row)
+        if cancelled:
+            self.stop_at(i)
+        return not cancelled
+
+    def result(self) -> SweepResult:
+        """The finished sweep: relative columns filled in, end state recorded in ``meta``."""
+        finish_relative(self.rows)
+        self.meta["cancelled"] = "cancelled_at_beta" in self.meta
+        self.meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        return SweepResult(rows=self.rows, histograms=self.hists, batches=self.batches, meta=self.meta)
+
+
+def _sweep_locally(betas, setup: Callable, kw: dict, outcome: Callable, rows: _Rows, bar: _Progress, cancel) -> None:
+    """One beta after the other on this machine; a cancel ends the sweep at the cancelled run."""
+    for i, beta in enumerate(betas):
+        if cancel is not None and getattr(cancel, "cancelled", False):
+            rows.stop_at(i)  # cancelled between two runs: nothing to analyse
+            break
+        bar.start(i, beta)
+        scene, unit, rig = setup(beta)
+        t0 = time.perf_counter()
+        res = run(scene, rig, **kw)
+        seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
+        if not rows.accept(i, outcome(res, seconds, beta, rig, unit)):
+            break
 
 
 def _beta_outcome(
@@ -312,7 +398,7 @@ def _beta_outcome(
     return full, hist, bt, cancelled
 
 
-def _sweep_on_cluster(client, chunk_units, setups, kw, analyse, accept, bar, on_chunks, cancel) -> None:
+def _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows: _Rows, bar, on_chunks, cancel) -> None:
     """Every beta's run at once on ``client``'s workers (:func:`endophoton.distributed.run_many`:
     the same requests, reducer and stop rule as ``ep.run``). A run is analysed and accepted in
     beta order as soon as it and every run before it have ended; after a cancel the sweep ends
@@ -320,6 +406,7 @@ def _sweep_on_cluster(client, chunk_units, setups, kw, analyse, accept, bar, on_
     from . import distributed
     from .run import Result, run_request
 
+    setups = [setup(beta) for beta in betas]
     request_kw = {k: v for k, v in kw.items() if k not in ("progress", "cancel")}
     requests = [
         (scene, rig, run_request(scene, rig, **request_kw), functools.partial(bar.engine_of, i))
@@ -333,7 +420,9 @@ def _sweep_on_cluster(client, chunk_units, setups, kw, analyse, accept, bar, on_
         results[i] = Result(raw, scene, rig, requests[i][2])
         while state["open"] and state["next"] < len(setups) and results[state["next"]] is not None:
             j = state["next"]
-            state["open"] = accept(j, analyse(j, results[j]))
+            _, unit, rig = setups[j]
+            res = results[j]
+            state["open"] = rows.accept(j, outcome(res, float(res.seconds), betas[j], rig, unit))
             results[j] = None  # analysed: its records are no longer needed
             state["next"] += 1
 
@@ -375,60 +464,23 @@ def sweep(
     chunk_units: int = 0,
     on_chunks: Callable | None = None,
 ) -> SweepResult:
-    """Run the seed's beta sweep and analyse every run.
+    """Run the seed's beta sweep and analyse every run; returns a :class:`SweepResult`
+    (rows in the order of ``betas``).
 
-    Parameters
-    ----------
-    scene_or_builder : an ``ep.Scene`` used for every beta, a callable
-        ``builder(beta_deg) -> ep.Scene`` (or ``builder()``), or ``None`` for
-        :func:`default_flat_scene`.
-    betas : tilt angles, degrees.
-    store : N, escape records to store per beta (store-N mode).
-    seed : engine seed; the same seed is used for every beta (common random
-        numbers make differences between betas less noisy).
-    threads : engine threads (0 = all cores).
-    fluorescent_only, fluorescence_rule : passed to ``ep.run``.
-    distance : head distance from ``point`` in scene units (default 1 cm).
-    point, normal, tilt_axis : see ``ep.EndoscopeRig.from_beta`` (scene units).
-    progress : True = tqdm bar on stderr; False = silent; a callable
-        ``progress(i_beta, n_beta, done, total)`` is called as the engine reports
-        (returning False stops the current run, like a cancel).
-    out_dir : if given, write ``sweep.csv``, ``sweep.json``, the plots and
-        ``report.md`` there (``plots``/``report`` switch the last two).
+    The arguments are described once, in ``docs/sweep.md`` ("Running it": ``scene_or_builder``,
+    the rig from ``distance``/``point``/``normal``/``tilt_axis`` and ``rig_kwargs`` or
+    ``rig_builder(beta, scene)``, ``run_kwargs``, the same ``seed`` at every beta, ``cancel``,
+    ``progress``, ``on_beta``), ``docs/render.md`` ("In a β sweep": ``visibility``) and
+    ``docs/distributed.md`` ("Sweeps on a cluster": ``client``, ``chunk_units``, ``on_chunks``;
+    ``run_kwargs={"client": c}`` does the same). Besides those:
+
+    store : N, escape records stored per beta; threads : engine threads (0 = all cores).
+    out_dir : if given, write ``sweep.csv``, ``sweep.json``, the plots and ``report.md``
+        there (``plots``/``report`` switch the last two; :func:`write_outputs`).
     n_batches : B for the batch-means standard errors.
     max_angle_deg : angle criterion of the important fraction (seed: 15 deg).
-    rig_kwargs : extra keyword arguments to ``EndoscopeRig.from_beta``.
-    rig_builder : ``rig_builder(beta_deg, scene) -> rig`` replaces from_beta.
-    run_kwargs : extra keyword arguments to ``ep.run``.
-    cancel : an ``ep.CancelToken``; a cancelled run ends the sweep early.
-    on_beta : a callable ``on_beta(i_beta, n_beta, row)`` called after each beta's
-        run is analysed (``row`` is its CSV row, still without the ``*_rel``
-        columns, which need every beta; ``row["packets_traced"]`` sizes the
-        next run, e.g. for a progress estimate in store-N mode).
-    visibility : render the endoscope's view of every run and add the visibility columns
-        (``{"target": "polyp", "background": "tissue", "width": 128, "height": 128, ...}``: regions,
-        optional ``images_dir`` and ``render_view`` keyword arguments; see ``view_sweep.add_visibility``);
-        with ``out_dir`` the views, ``visibility.png``, ``views_contact_sheet.png`` and the report's answer
-        to "at which beta is the polyp most visible" are written too.
-
-    client : a ``dask.distributed.Client``: every beta's run is traced on its workers, all
-        angles at once (their chunks of ``chunk_units`` units, 0 = automatic, are tasks in
-        flight together), each merged in unit order by the engine's own reducer
-        (:func:`endophoton.distributed.run_many`), so the rows are those of the local sweep
-        bit for bit (``seconds`` aside). ``run_kwargs={"client": c}`` does the same.
-        ``progress=True`` then shows one bar over the chunks of all angles; a callable
-        ``progress`` is called per merged chunk with that chunk's beta; ``on_chunks(merged,
-        estimated_total)`` is called after each merge (chunks over all angles).
-
-    Returns
-    -------
-    SweepResult (rows in the order of ``betas``).
     """
-    betas = [float(b) for b in betas]
-    if not betas:
-        raise ValueError("betas: empty")
-    if int(store) < n_batches:
-        raise ValueError(f"store = {store} must be >= n_batches = {n_batches}")
+    betas = _checked_betas(betas, store, n_batches)
     rig_kwargs = dict(rig_kwargs or {})
     run_kwargs = dict(run_kwargs or {})
     client = run_kwargs.pop("client", None) if client is None else client
@@ -436,23 +488,8 @@ def sweep(
     bar = _Progress(
         betas, enabled=(progress is True), user=progress if callable(progress) else None, chunks=client is not None
     )
-    static_scene = None
-    if scene_or_builder is None:
-        static_scene = default_flat_scene()
-    elif not callable(scene_or_builder) or hasattr(scene_or_builder, "add_mesh"):
-        static_scene = scene_or_builder
-    kw = dict(
-        store=int(store),
-        fluorescent_only=bool(fluorescent_only),
-        fluorescence_rule=fluorescence_rule,
-        seed=int(seed),
-        threads=int(threads),
-        progress=bar.engine,
-    )
-    if cancel is not None:
-        kw["cancel"] = cancel
-    kw.update(run_kwargs)
-    rows, hists, batches = [], [], []
+    static_scene = _static_scene(scene_or_builder)
+    kw = _engine_kwargs(store, fluorescent_only, fluorescence_rule, seed, threads, bar.engine, cancel, run_kwargs)
     meta = _sweep_meta(
         scene_or_builder,
         static_scene,
@@ -470,64 +507,37 @@ def sweep(
     )
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
-
-    def setup(beta):
-        scene = static_scene if static_scene is not None else _call_builder(scene_or_builder, beta)
-        unit = _scene_unit(scene)
-        dist = DISTANCE_CM / UNIT_CM[unit] if distance is None else float(distance)
-        meta.setdefault("unit", unit)
-        meta.setdefault("distance", dist)
-        rig = (
-            rig_builder(beta, scene)
-            if rig_builder is not None
-            else _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
-        )
-        return scene, unit, rig
-
-    def accept(i, one) -> bool:
-        """Adds beta i's outcome; False once the sweep ends there (a cancel)."""
-        if one is None:
-            meta["cancelled_at_beta"] = betas[i]  # cancelled before the first record: no row
-            return False
-        row, hist, bt, cancelled = one
-        rows.append(row)
-        hists.append(hist)
-        batches.append(bt)
-        bar.step()
-        if on_beta is not None:
-            on_beta(i, len(betas), row)
-        if cancelled:
-            meta["cancelled_at_beta"] = betas[i]
-        return not cancelled
-
+    setup = functools.partial(
+        _setup_beta,
+        static_scene=static_scene,
+        builder=scene_or_builder,
+        distance=distance,
+        point=point,
+        normal=normal,
+        tilt_axis=tilt_axis,
+        rig_kwargs=rig_kwargs,
+        rig_builder=rig_builder,
+        meta=meta,
+    )
+    outcome = functools.partial(
+        _beta_outcome,
+        normal=normal,
+        run_kwargs=kw,
+        meta=meta,
+        n_batches=n_batches,
+        max_angle_deg=max_angle_deg,
+        visibility=visibility,
+        out_dir=out_dir,
+    )
+    rows = _Rows(betas, meta, bar, on_beta)
     try:
         if client is not None:
-            setups = [setup(beta) for beta in betas]
-
-            def analyse(i, res):
-                _, unit, rig = setups[i]
-                args = (betas[i], rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir)
-                return _beta_outcome(res, float(res.seconds), *args)
-
-            _sweep_on_cluster(client, chunk_units, setups, kw, analyse, accept, bar, on_chunks, cancel)
+            _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows, bar, on_chunks, cancel)
         else:
-            for i, beta in enumerate(betas):
-                if cancel is not None and getattr(cancel, "cancelled", False):
-                    meta["cancelled_at_beta"] = beta  # cancelled between two runs: nothing to analyse
-                    break
-                bar.start(i, beta)
-                scene, unit, rig = setup(beta)
-                one = _sweep_one_beta(
-                    scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir
-                )
-                if not accept(i, one):
-                    break
+            _sweep_locally(betas, setup, kw, outcome, rows, bar, cancel)
     finally:
         bar.close()
-    finish_relative(rows)
-    meta["cancelled"] = "cancelled_at_beta" in meta
-    meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-    result = SweepResult(rows=rows, histograms=hists, batches=batches, meta=meta)
+    result = rows.result()
     if out_dir is not None:
         write_outputs(result, out_dir, plots=plots, report=report)
     return result

@@ -234,7 +234,7 @@ def run_many(client, requests, *, chunk_units: int = 0, cancel=None, on_chunk=No
     its own UnitReducer, so each gives the bits of ``ep.run`` on one machine.
 
     ``requests``: (scene, source, options, progress) per run (options as
-    endophoton.run_request builds them; progress(done, total) or None; False
+    :func:`endophoton.run.run_request` builds them; progress(done, total) or None; False
     from it stops every run). Each distinct scene object is scattered to the
     workers once. ``on_chunk(merged_chunks, estimated_chunks)`` (over all runs)
     is called after each merge, ``on_finished(i, raw)`` once run i has ended.

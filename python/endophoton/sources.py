@@ -320,6 +320,21 @@ class EndoscopeRig(_Source):
         return rig
 
 
+#: The head's settings a SCENE.json ``endoscope`` source may give (beside its placement).
+_RIG_JSON_HEAD_KEYS = frozenset(
+    {
+        "head_diameter_mm",
+        "light_diameter_mm",
+        "light_offset_mm",
+        "cone_angle_deg",
+        "camera_fov_deg",
+        "head_length_mm",
+        "camera_aperture_mm",
+        "body",
+    }
+)
+
+
 def source_from_dict(d: dict):
     """Build a source from the SCENE.json ``source`` object."""
     if not isinstance(d, dict) or "type" not in d:
@@ -339,39 +354,10 @@ def source_from_dict(d: dict):
         return ConeSource(**body)
     if kind == "endoscope":
         if "transform" in body:
-            _check_keys(
-                "source",
-                body,
-                {"transform"},
-                extra={
-                    "head_diameter_mm",
-                    "light_diameter_mm",
-                    "light_offset_mm",
-                    "cone_angle_deg",
-                    "camera_fov_deg",
-                    "head_length_mm",
-                    "camera_aperture_mm",
-                    "body",
-                },
-            )
+            _check_keys("source", body, {"transform"}, extra=_RIG_JSON_HEAD_KEYS)
             return EndoscopeRig(**body)
         _check_keys(
-            "source",
-            body,
-            {"beta_deg", "distance"},
-            extra={
-                "point",
-                "normal",
-                "tilt_axis",
-                "head_diameter_mm",
-                "light_diameter_mm",
-                "light_offset_mm",
-                "cone_angle_deg",
-                "camera_fov_deg",
-                "head_length_mm",
-                "camera_aperture_mm",
-                "body",
-            },
+            "source", body, {"beta_deg", "distance"}, extra={"point", "normal", "tilt_axis"} | _RIG_JSON_HEAD_KEYS
         )
         return EndoscopeRig.from_beta(**body)
     raise ValueError(f"source.type = {kind!r} must be one of 'pencil', 'disk', 'cone', 'endoscope'")

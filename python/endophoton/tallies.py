@@ -8,22 +8,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from . import _core
 from .io import check_real
 
 __all__ = ["FRACTIONS", "TARGET_TALLIES", "Target"]
 
-#: The fractions every run reports, each with ``<name>_stderr``.
-FRACTIONS = (
-    "specular_reflectance",
-    "diffuse_reflectance",
-    "transmittance",
-    "absorbed",
-    "missed",
-    "cut",
-    "roulette",
-    "occluded",
-    "camera_collected",
-)
+#: The fractions every run reports, each with ``<name>_stderr``: the fates of all launched
+#: weight, summing to 1. The engine owns the list (``native/tally.cpp``).
+FRACTIONS = tuple(_core.BALANCE_TALLIES)
 #: Tallies a target-accuracy run can aim at (engine-side, per launched packet).
 TARGET_TALLIES = FRACTIONS[:4] + ("fluorescent_escaped", "escaped_energy")
 
