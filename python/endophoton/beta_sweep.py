@@ -252,11 +252,15 @@ def _sweep_one_beta(
     max_angle_deg: float,
     visibility: Mapping[str, Any] | None = None,
     out_dir: str | os.PathLike | None = None,
+    on_run: Callable | None = None,
 ):
     """Run the engine for one beta and reduce it; returns ``(row, hist, batches, cancelled)``
-    or ``None`` when a cancel landed before the first record (no row)."""
+    or ``None`` when a cancel landed before the first record (no row).
+    ``on_run(res)`` sees the engine Result before it is reduced."""
     t0 = time.perf_counter()
     res = run(scene, rig, **run_kwargs)
+    if on_run is not None:
+        on_run(res)
     seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
     return _beta_outcome(
         res, seconds, beta, rig, unit, normal, run_kwargs, meta, n_batches, max_angle_deg, visibility, out_dir
@@ -374,6 +378,7 @@ def sweep(
     client: Any = None,
     chunk_units: int = 0,
     on_chunks: Callable | None = None,
+    on_run: Callable | None = None,
 ) -> SweepResult:
     """Run the seed's beta sweep and analyse every run.
 
@@ -419,6 +424,11 @@ def sweep(
         ``progress=True`` then shows one bar over the chunks of all angles; a callable
         ``progress`` is called per merged chunk with that chunk's beta; ``on_chunks(merged,
         estimated_total)`` is called after each merge (chunks over all angles).
+    on_run : a callable ``on_run(i_beta, beta_deg, result)`` given each beta's engine
+        ``Result`` (its escape records, totals and rig) before it is analysed, also a
+        cancelled one (``result.cancelled``). The sweep itself keeps only the reduced rows;
+        a caller that wants the records of every beta (e.g. the Blender add-on's per-beta
+        result collections) keeps them here, at about 100 bytes per record.
 
     Returns
     -------
@@ -506,6 +516,8 @@ def sweep(
 
             def analyse(i, res):
                 _, unit, rig = setups[i]
+                if on_run is not None:
+                    on_run(i, betas[i], res)
                 args = (betas[i], rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir)
                 return _beta_outcome(res, float(res.seconds), *args)
 
@@ -517,8 +529,9 @@ def sweep(
                     break
                 bar.start(i, beta)
                 scene, unit, rig = setup(beta)
+                keep = None if on_run is None else functools.partial(on_run, i, beta)
                 one = _sweep_one_beta(
-                    scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir
+                    scene, beta, rig, unit, normal, kw, meta, n_batches, max_angle_deg, visibility, out_dir, keep
                 )
                 if not accept(i, one):
                     break
