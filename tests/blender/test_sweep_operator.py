@@ -22,10 +22,12 @@ BETAS, STORE, SEED = "0,30", 2_000, 5
 LINE_PLOTS = ("packets_traced.png", "energy.png", "camera_fraction.png", "max_depth.png")
 
 
-def _setup(tmp_path, betas=BETAS, store=STORE):
+def _setup(tmp_path, betas=BETAS, store=STORE, keep_runs="OFF"):
+    """flat_tissue.blend with the sweep's settings; ``keep_runs`` OFF (plots and summary only)
+    unless a test is about the per-β collections (test_sweep_results.py)."""
     scene = open_blend("flat_tissue.blend", tmp_path / "grids")
     s = scene.endophoton.sweep
-    s.betas, s.store, s.seed, s.threads = betas, store, SEED, 1
+    s.betas, s.store, s.seed, s.threads, s.keep_runs = betas, store, SEED, 1, keep_runs
     s.output_dir = str(tmp_path / "sweep")
     return scene
 
@@ -164,7 +166,7 @@ def test_cancel_adds_nothing(ep, tmp_path):
     before = data_snapshot()
 
     s = scene.endophoton.sweep
-    s.betas, s.store = "0:60:5", 2_000_000
+    s.betas, s.store, s.keep_runs = "0:60:5", 2_000_000, "ON"  # records would be kept: still nothing added
     job = sweep_job.prepare_job(bpy.context)
     job.start()
     deadline = time.monotonic() + 600.0  # a hang guard, not a verdict on speed (issue 13)
