@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 import pytest
 
-from endophoton_addon import rig, sweep_blend, sweep_job
+from endophoton_addon import results, rig, sweep_blend, sweep_job
 from conftest import REPO, data_snapshot, open_blend
 
 BETAS, STORE, SEED = "0,30", 2_000, 5
@@ -316,6 +316,7 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
         assert address.startswith("tcp://"), address
         prefs.scheduler_address = address
         scene.endophoton.sweep.output_dir = str(tmp_path / "sweep_cluster")
+        scene.endophoton.sweep.keep_runs = "ON"  # the records come back from the workers too
         remote, _, seen = _run_job(bpy.context)
     finally:
         prefs.scheduler_address = ""
@@ -324,6 +325,11 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     assert remote.scheduler == address and local.scheduler == ""  # the runs really went there
     assert remote.error is None and not remote.cancelled, remote.error_traceback
     _assert_same_rows(remote.result, local.result)
+    kept = sweep_job.sweep_collections(scene, sweep_job.sweep_id(remote.inputs))
+    assert [c[results.PARAMS_KEY]["beta_deg"] for c in kept] == [0.0, 30.0]
+    for collection, row in zip(kept, remote.result.rows):
+        (points,) = results.points_objects(collection)
+        assert len(points.data.vertices) == row["records"] == STORE
     # The bar followed the chunks merged over all angles, and they all came in.
     merged, total = remote._chunks
     assert merged == total > 0
