@@ -20,6 +20,7 @@ import math
 import os
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Optional
 
@@ -63,6 +64,7 @@ class SweepInputs:
     keep_runs: bool = False  # every β becomes a results collection (its records kept until the end)
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
     timestamp: str = ""
+    sweep_id: str = ""  # tags the sweep's β collections (SWEEP_ID_KEY); unique per sweep
 
     def sweep_kwargs(self):
         """Keyword arguments of ``endophoton.sweep`` (all but the scene, progress and cancel)."""
@@ -181,6 +183,7 @@ def collect_sweep_inputs(context, ep):
         keep_runs=keeps_runs(settings.keep_runs, len(betas), int(settings.store)),
         endoscope_view=bool(scene.endophoton.output_views) and rig.has_camera(rig_obj),
         timestamp=time.strftime("%Y%m%d-%H%M%S"),
+        sweep_id=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}",
         **geometry,
     )
     try:
@@ -515,7 +518,7 @@ def finish_sweep(context, job):
 
 
 def sweep_id(inputs):
-    return f"sweep-{inputs.timestamp}-{inputs.rig_name}"
+    return inputs.sweep_id
 
 
 def make_beta_collections(context, job):
@@ -600,6 +603,7 @@ def summary_rows(scene):
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
         ("Time", f"{s.get('seconds', 0.0):.1f} s"),
         ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),
+        ("Per β", f"{len(s.get('collections', []))} result collections (Results)"),
         ("Folder", s.get("out_dir", "")),
     ]
     return rows

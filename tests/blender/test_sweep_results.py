@@ -61,6 +61,7 @@ def test_each_beta_is_a_tagged_collection_and_deletes_alone(ep, tmp_path):
     assert len(collections) == len(BETAS)
     assert set(collections) <= set(results.result_collections(scene))  # the Results panel lists them
     assert scene[sweep_job.SUMMARY_KEY]["collections"] == [c.name for c in collections]
+    assert dict(sweep_job.summary_rows(scene))["Per β"] == f"{len(BETAS)} result collections (Results)"
     ref, kept = _reference_records(ep, job)
     scale = scene.unit_settings.scale_length
     for i, (collection, beta) in enumerate(zip(collections, BETAS)):
