@@ -184,6 +184,7 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "fluorescent_only")
         layout.prop(s, "fluorescence_rule", text="Rule")
         layout.prop(s, "output_dir", text="")
+        layout.prop(s, "keep_runs")
         row = layout.row()
         row.scale_y = 1.5
         row.enabled = package_finder.get() is not None
@@ -243,6 +244,7 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             col.label(text=f"{len(runs)} runs kept", icon="OUTLINER_COLLECTION")
             for run in runs:
                 row = col.row(align=True)
+                row.prop(run, "hide_viewport", text="", emboss=False)  # compare runs / β side by side
                 op = row.operator("endophoton.result_activate", text=run.name, depress=run == collection, emboss=True)
                 op.name = run.name
                 row.operator("endophoton.result_delete", text="", icon="X").name = run.name

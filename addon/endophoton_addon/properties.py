@@ -253,6 +253,18 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         subtype="DIR_PATH",
         default="",
     )
+    keep_runs: EnumProperty(
+        name="Per-β Results",
+        description="Make every β a results collection (its point cloud and, with a rig camera, its "
+        "endoscope-view images); the worker keeps every β's records until the sweep ends, "
+        "about 100 bytes per record",
+        items=(
+            ("AUTO", "Auto", "Keep them when β values × Store N is at most 2,000,000 records (about 200 MB)"),
+            ("ON", "On", "Always keep every β's records and make its collection"),
+            ("OFF", "Off", "Plots and summary only (no per-β collections)"),
+        ),
+        default="AUTO",
+    )
 
 
 class EndoPhotonLegendEntry(bpy.types.PropertyGroup):

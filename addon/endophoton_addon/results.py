@@ -742,11 +742,12 @@ def _unique_run_id(inputs):
     return run_id
 
 
-def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=None):
+def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=None, tags=None):
     """Build the run's collection from an engine Result (main thread only).
 
     ``render_grids``: what :func:`write_render_grids` returned for the run's .vdb;
-    ``view``: the rig camera's ``ep.View`` (simulation.endoscope_view), made into Images.
+    ``view``: the rig camera's ``ep.View`` (simulation.endoscope_view), made into Images;
+    ``tags``: plain values added to the run's parameters (PARAMS_KEY), e.g. its sweep.
 
     Everything is checked first; the previous run's collection is replaced
     only once the new one can be built.
@@ -806,7 +807,7 @@ def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=
             collection.objects.link(obj)
         set_volume_scale(collection, settings)
         collection[SUMMARY_KEY] = summary
-        collection[PARAMS_KEY] = run_parameters(inputs)
+        collection[PARAMS_KEY] = {**run_parameters(inputs), **(tags or {})}
         if view is not None:
             create_view_images(collection, view, f"{beta} {inputs.timestamp}")
     except Exception:

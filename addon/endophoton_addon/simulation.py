@@ -449,10 +449,22 @@ def finish_job(context, job):
     if job.result is None or getattr(job.result, "cancelled", False):
         _discard_partial_grid(job)
         return None
-    collection = results.apply_result(context, job.inputs, job.result, job.grid_info, job.render_grids, job.view)
-    if job.view_error:
-        collection["endophoton_view_error"] = job.view_error
-        print(f"EndoPhoton: {job.view_error}")
+    return collection_from_run(
+        context, job.inputs, job.result, job.grid_info, job.render_grids, job.view, job.view_error
+    )
+
+
+def collection_from_run(
+    context, inputs, result, grid_info=(), render_grids=None, view=None, view_error=None, tags=None
+):
+    """One finished engine run -> its tagged results collection (main thread): the path
+    of a single Run and of every β of a sweep.  ``tags``: extra parameters (e.g. the sweep)."""
+    from . import results
+
+    collection = results.apply_result(context, inputs, result, grid_info, render_grids, view, tags=tags)
+    if view_error:
+        collection["endophoton_view_error"] = view_error
+        print(f"EndoPhoton: {view_error}")
     return collection
 
 

@@ -20,12 +20,13 @@ import math
 import os
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, simulation, sweep_blend
+from . import export, guards, package_finder, preferences, rig, simulation, sweep_blend
 from .export import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -33,6 +34,10 @@ IMAGE_KEY = "endophoton_sweep_plot"  # ID property on every image the sweep load
 SUMMARY_KEY = "endophoton_sweep"  # ID property on the scene: the last finished sweep
 DEFAULT_DIR_NAME = "endophoton_sweep"
 FIT_DEGREE = 6  # the paper's polynomial fit of the energy curve
+# keep_runs "AUTO": per-β collections up to β values × Store N records; a kept escape
+# record costs 100 bytes (17 columns, measured on the engine's records): 2e6 -> 200 MB.
+KEEP_AUTO_RECORDS = 2_000_000
+SWEEP_ID_KEY = "sweep_id"  # in a β collection's parameters (results.PARAMS_KEY): the sweep it belongs to
 
 
 @dataclass
@@ -56,6 +61,10 @@ class SweepInputs:
     rig_params: dict  # head_diameter_mm, ... (EndoscopeRig keywords)
     out_dir: str
     scale_length: float
+    keep_runs: bool = False  # every β becomes a results collection (its records kept until the end)
+    endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
+    timestamp: str = ""
+    sweep_id: str = ""  # tags the sweep's β collections (SWEEP_ID_KEY); unique per sweep
 
     def sweep_kwargs(self):
         """Keyword arguments of ``endophoton.sweep`` (all but the scene, progress and cancel)."""
@@ -118,6 +127,11 @@ def _rig_geometry(rig_obj, scale_length):
     return sweep_blend.rig_sweep_geometry(rig_obj, scale_length)
 
 
+def keeps_runs(mode, n_betas, store):
+    """Whether the sweep keeps every β's records (``keep_runs`` mode AUTO / ON / OFF)."""
+    return mode == "ON" or (mode == "AUTO" and n_betas * store <= KEEP_AUTO_RECORDS)
+
+
 def collect_sweep_inputs(context, ep):
     """Read and validate the scene, the rig and the sweep settings; export once.
 
@@ -166,6 +180,10 @@ def collect_sweep_inputs(context, ep):
         fluorescence_rule=settings.fluorescence_rule,
         out_dir=out_dir,
         scale_length=float(scale),
+        keep_runs=keeps_runs(settings.keep_runs, len(betas), int(settings.store)),
+        endoscope_view=bool(scene.endophoton.output_views) and rig.has_camera(rig_obj),
+        timestamp=time.strftime("%Y%m%d-%H%M%S"),
+        sweep_id=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}",
         **geometry,
     )
     try:
@@ -232,6 +250,8 @@ class SweepJob(simulation.BackgroundJob):
         self.result = None
         self.paths = None
         self.summary = None
+        self.runs = {}  # β index -> engine Result, while inputs.keep_runs (worker thread)
+        self.beta_runs = []  # finished, not cancelled: [(simulation.RunInputs, Result, view, view error)]
         self.cancelled = False
         self.error = None
         self.error_traceback = None
@@ -287,8 +307,16 @@ class SweepJob(simulation.BackgroundJob):
             self._finished_betas = index + 1
             self._packets_per_beta = int(row["packets_traced"])
 
+    def _on_run(self, index, _beta, result):
+        if not getattr(result, "cancelled", False):
+            self.runs[index] = result
+
     def _body(self):
         bs = self.ep.beta_sweep
+        if self.inputs.keep_runs:
+            extra_keep = {"on_run": self._on_run}
+        else:
+            extra_keep = {}
         with contextlib.ExitStack() as stack:
             client = simulation.cluster_client(stack, self.ep, self.scheduler)
             # on a cluster all β run at once and cancel cancels their tasks
@@ -301,16 +329,54 @@ class SweepJob(simulation.BackgroundJob):
                 out_dir=None,
                 **self.inputs.sweep_kwargs(),
                 **extra,
+                **extra_keep,
             )
         if self.token.cancelled or result.meta.get("cancelled") or any(row["cancelled"] for row in result.rows):
             self.cancelled = True  # nothing is written, nothing will be added
+            self.runs = {}
             return
+        self.beta_runs = [self._beta_run(i, self.runs.pop(i)) for i in sorted(self.runs)]
         with self._lock:
             self._phase = "writing"
         paths = bs.write_outputs(result, self.inputs.out_dir)
         self.summary = sweep_summary(self.ep, result, paths, self.inputs.out_dir)
         self.paths = paths
         self.result = result
+
+    def _beta_run(self, index, result):
+        """(RunInputs, Result, view, view error) of β ``index``: what a single Run of
+        that β in store-N mode would hand to simulation.collection_from_run (worker thread)."""
+        inputs = beta_run_inputs(self.inputs, self.inputs.betas[index], result)
+        view, view_error = simulation.endoscope_view(self.ep, inputs, result)
+        return inputs, result, view, view_error
+
+
+def beta_run_inputs(inputs, beta, result):
+    """simulation.RunInputs of one β of the sweep ``inputs`` (plain values, no bpy):
+    a store-N run of that β, no grids (the sweep asks for none)."""
+    source = getattr(result, "source", None)
+    matrix = getattr(source, "transform", None)
+    return simulation.RunInputs(
+        scene_name=inputs.scene_name,
+        regions=inputs.regions,
+        rig_name=inputs.rig_name,
+        rig_matrix=np.eye(4) if matrix is None else np.asarray(matrix, dtype=np.float64),
+        rig_params=dict(inputs.rig_params),
+        beta_deg=float(beta),
+        kind="store",
+        count=int(inputs.store),
+        seed=int(inputs.seed),
+        threads=int(inputs.threads),
+        fluorescent_only=inputs.fluorescent_only,
+        fluorescence_rule=inputs.fluorescence_rule,
+        output_points=True,
+        grid_voxel_m=None,
+        grid_path=None,
+        grid_per_fluorophore=False,
+        scale_length=inputs.scale_length,
+        endoscope_view=inputs.endoscope_view,
+        timestamp=inputs.timestamp,
+    )
 
 
 MIN_FIT_POINTS = FIT_DEGREE + 3  # the degree-6 fit keeps >= 2 degrees of freedom
@@ -444,10 +510,56 @@ def finish_sweep(context, job):
         raise RuntimeError(f"EndoPhoton sweep failed: {type(job.error).__name__}: {job.error}")
     if job.cancelled or job.result is None:
         return None
+    collections = make_beta_collections(context, job)
     images = load_plot_images(job.paths.get("plots", []))
     scene = bpy.data.scenes.get(job.inputs.scene_name) or context.scene
-    scene[SUMMARY_KEY] = dict(job.summary, images=len(images))
+    scene[SUMMARY_KEY] = dict(job.summary, images=len(images), collections=[c.name for c in collections])
     return images
+
+
+def sweep_id(inputs):
+    return inputs.sweep_id
+
+
+def make_beta_collections(context, job):
+    """One results collection per kept β (simulation.collection_from_run, the single
+    Run's path), tagged with the sweep id, its β and the sweep's parameters.  All or
+    nothing: a failure removes the β collections made so far."""
+    from . import results
+
+    tags = {
+        SWEEP_ID_KEY: sweep_id(job.inputs),
+        "sweep_betas": [float(b) for b in job.inputs.betas],
+        "sweep_store": int(job.inputs.store),
+        "sweep_out_dir": job.inputs.out_dir,
+    }
+    made = []
+    try:
+        for index, (inputs, result, view, view_error) in enumerate(job.beta_runs):
+            made.append(
+                simulation.collection_from_run(
+                    context, inputs, result, view=view, view_error=view_error, tags=dict(tags, sweep_index=index)
+                )
+            )
+    except Exception:
+        for collection in made:
+            results.remove_run(collection)
+        raise
+    job.beta_runs = []  # the records now live in the meshes
+    return made
+
+
+def sweep_collections(scene, sweep=None):
+    """The scene's β result collections (of the sweep id ``sweep``, or of any sweep)."""
+    from . import results
+
+    found = []
+    for collection in results.result_collections(scene):
+        params = collection.get(results.PARAMS_KEY)
+        tag = params.get(SWEEP_ID_KEY) if params is not None else None
+        if tag is not None and (sweep is None or tag == sweep):
+            found.append(collection)
+    return found
 
 
 def report_finished(context, job):
@@ -455,10 +567,17 @@ def report_finished(context, job):
     images = finish_sweep(context, job)
     if images is None:
         return "WARNING", "EndoPhoton sweep cancelled; nothing was written or added"
+    kept = len(sweep_collections(bpy_scene(context, job), sweep_id(job.inputs)))
     return "INFO", (
-        f"EndoPhoton sweep: {len(job.inputs.betas)} β values, "
+        f"EndoPhoton sweep: {len(job.inputs.betas)} β values, {kept} result collections, "
         f"{len(images)} plots loaded; files in '{job.inputs.out_dir}'"
     )
+
+
+def bpy_scene(context, job):
+    import bpy
+
+    return bpy.data.scenes.get(job.inputs.scene_name) or context.scene
 
 
 def summary_rows(scene):
@@ -484,6 +603,7 @@ def summary_rows(scene):
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
         ("Time", f"{s.get('seconds', 0.0):.1f} s"),
         ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),
+        ("Per β", f"{len(s.get('collections', []))} result collections (Results)"),
         ("Folder", s.get("out_dir", "")),
     ]
     return rows

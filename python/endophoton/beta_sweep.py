@@ -345,7 +345,7 @@ def _sweep_locally(betas, setup: Callable, kw: dict, outcome: Callable, rows: _R
         t0 = time.perf_counter()
         res = run(scene, rig, **kw)
         seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
-        if not rows.accept(i, outcome(res, seconds, beta, rig, unit)):
+        if not rows.accept(i, outcome(i, res, seconds, beta, rig, unit)):
             break
 
 
@@ -422,7 +422,7 @@ def _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows: _Row
             j = state["next"]
             _, unit, rig = setups[j]
             res = results[j]
-            state["open"] = rows.accept(j, outcome(res, float(res.seconds), betas[j], rig, unit))
+            state["open"] = rows.accept(j, outcome(j, res, float(res.seconds), betas[j], rig, unit))
             results[j] = None  # analysed: its records are no longer needed
             state["next"] += 1
 
@@ -463,6 +463,7 @@ def sweep(
     client: Any = None,
     chunk_units: int = 0,
     on_chunks: Callable | None = None,
+    on_run: Callable | None = None,
 ) -> SweepResult:
     """Run the seed's beta sweep and analyse every run; returns a :class:`SweepResult`
     (rows in the order of ``betas``).
@@ -479,6 +480,10 @@ def sweep(
         there (``plots``/``report`` switch the last two; :func:`write_outputs`).
     n_batches : B for the batch-means standard errors.
     max_angle_deg : angle criterion of the important fraction (seed: 15 deg).
+    on_run : ``on_run(i_beta, beta_deg, result)`` is given each beta's engine ``Result``
+        (records, totals, rig; also a cancelled one) before it is analysed. The sweep keeps
+        only the reduced rows; a caller that wants every beta's records (the add-on's per-beta
+        collections) keeps them here, at about 100 bytes per record.
     """
     betas = _checked_betas(betas, store, n_batches)
     rig_kwargs = dict(rig_kwargs or {})
@@ -519,7 +524,7 @@ def sweep(
         rig_builder=rig_builder,
         meta=meta,
     )
-    outcome = functools.partial(
+    analyse = functools.partial(
         _beta_outcome,
         normal=normal,
         run_kwargs=kw,
@@ -529,6 +534,12 @@ def sweep(
         visibility=visibility,
         out_dir=out_dir,
     )
+
+    def outcome(i, res, seconds, beta, rig, unit):
+        if on_run is not None:
+            on_run(i, beta, res)
+        return analyse(res, seconds, beta, rig, unit)
+
     rows = _Rows(betas, meta, bar, on_beta)
     try:
         if client is not None:

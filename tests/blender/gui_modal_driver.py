@@ -56,6 +56,7 @@ def invoke(photons):
 def invoke_sweep(betas, store):
     sweep = bpy.context.scene.endophoton.sweep
     sweep.betas, sweep.store, sweep.output_dir = betas, store, SWEEP_DIR
+    sweep.keep_runs = "OFF"  # this test checks the modal job; per-β collections: test_sweep_operator
     window, area, region = view3d()
     with bpy.context.temp_override(window=window, area=area, region=region):
         return sorted(bpy.ops.endophoton.sweep_beta("INVOKE_DEFAULT"))

@@ -15,17 +15,19 @@ import bpy
 import numpy as np
 import pytest
 
-from endophoton_addon import rig, sweep_blend, sweep_job
+from endophoton_addon import results, rig, sweep_blend, sweep_job
 from conftest import REPO, data_snapshot, open_blend
 
 BETAS, STORE, SEED = "0,30", 2_000, 5
 LINE_PLOTS = ("packets_traced.png", "energy.png", "camera_fraction.png", "max_depth.png")
 
 
-def _setup(tmp_path, betas=BETAS, store=STORE):
+def _setup(tmp_path, betas=BETAS, store=STORE, keep_runs="OFF"):
+    """flat_tissue.blend with the sweep's settings; ``keep_runs`` OFF (plots and summary only)
+    unless a test is about the per-β collections (test_sweep_results.py)."""
     scene = open_blend("flat_tissue.blend", tmp_path / "grids")
     s = scene.endophoton.sweep
-    s.betas, s.store, s.seed, s.threads = betas, store, SEED, 1
+    s.betas, s.store, s.seed, s.threads, s.keep_runs = betas, store, SEED, 1, keep_runs
     s.output_dir = str(tmp_path / "sweep")
     return scene
 
@@ -164,7 +166,7 @@ def test_cancel_adds_nothing(ep, tmp_path):
     before = data_snapshot()
 
     s = scene.endophoton.sweep
-    s.betas, s.store = "0:60:5", 2_000_000
+    s.betas, s.store, s.keep_runs = "0:60:5", 2_000_000, "ON"  # records would be kept: still nothing added
     job = sweep_job.prepare_job(bpy.context)
     job.start()
     deadline = time.monotonic() + 600.0  # a hang guard, not a verdict on speed (issue 13)
@@ -314,6 +316,7 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
         assert address.startswith("tcp://"), address
         prefs.scheduler_address = address
         scene.endophoton.sweep.output_dir = str(tmp_path / "sweep_cluster")
+        scene.endophoton.sweep.keep_runs = "ON"  # the records come back from the workers too
         remote, _, seen = _run_job(bpy.context)
     finally:
         prefs.scheduler_address = ""
@@ -322,6 +325,11 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     assert remote.scheduler == address and local.scheduler == ""  # the runs really went there
     assert remote.error is None and not remote.cancelled, remote.error_traceback
     _assert_same_rows(remote.result, local.result)
+    kept = sweep_job.sweep_collections(scene, sweep_job.sweep_id(remote.inputs))
+    assert [c[results.PARAMS_KEY]["beta_deg"] for c in kept] == [0.0, 30.0]
+    for collection, row in zip(kept, remote.result.rows):
+        (points,) = results.points_objects(collection)
+        assert len(points.data.vertices) == row["records"] == STORE
     # The bar followed the chunks merged over all angles, and they all came in.
     merged, total = remote._chunks
     assert merged == total > 0

@@ -212,7 +212,7 @@ def test_progress_callable_and_tqdm(fake_engine, capsys):
         report=False,
     )
     assert calls and calls[-1] == (1, 2, 500, 500)
-    finished = []
+    finished, kept = [], {}
     res = sw.sweep(
         fake_engine,
         betas=[0, 10],
@@ -221,8 +221,14 @@ def test_progress_callable_and_tqdm(fake_engine, capsys):
         plots=False,
         report=False,
         on_beta=lambda i, n, row: finished.append((i, n, row["beta_deg"], row["packets_traced"])),
+        on_run=lambda i, beta, result: kept.setdefault((i, beta), result),
     )
     assert finished == [(i, 2, r["beta_deg"], r["packets_traced"]) for i, r in enumerate(res.rows)]
+    assert sorted(kept) == [(0, 0.0), (1, 10.0)]
+    # each kept Result holds that beta's stored records: the row's record count, its packets
+    for (i, _beta), result in sorted(kept.items()):
+        assert len(result.escapes["packet"]) == res.rows[i]["records"] == 500
+        assert int(np.max(result.escapes["packet"])) < res.rows[i]["packets_traced"]
     sw.sweep(fake_engine, betas=[0], store=500, progress=True)
     assert "beta" in capsys.readouterr().err
 

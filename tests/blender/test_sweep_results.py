@@ -1,0 +1,127 @@
+# SPDX-License-Identifier: MIT
+"""Every β of a sweep becomes its own results collection (issue 15, "results kept and
+compared"): the single Run's path (simulation.collection_from_run), tagged with the
+sweep and its β, its point cloud holding exactly that β's stored records, its
+endoscope-view Images when the rig has a camera, no grids (the sweep asks for none).
+Deleting one β removes only its own datablocks."""
+
+import os
+
+import bpy
+import numpy as np
+
+from endophoton_addon import results, sweep_job
+from conftest import data_snapshot, open_blend
+
+BETAS, STORE, SEED = (0.0, 20.0, 40.0), 1_500, 7
+
+
+def _sweep(tmp_path):
+    scene = open_blend("flat_tissue.blend", tmp_path / "grids")
+    s = scene.endophoton.sweep
+    assert s.keep_runs == "AUTO"  # the default: kept for a small sweep like this one
+    s.betas, s.store, s.seed, s.threads = ",".join(f"{b:g}" for b in BETAS), STORE, SEED, 1
+    s.output_dir = str(tmp_path / "sweep")
+    before = data_snapshot()
+    job = sweep_job.prepare_job(bpy.context)
+    assert job.inputs.keep_runs and job.inputs.endoscope_view
+    job.start()
+    assert job.wait(900.0)  # a hang guard, not a verdict on speed
+    assert job.error is None and not job.cancelled, job.error_traceback
+    sweep_job.finish_sweep(bpy.context, job)
+    return scene, job, before
+
+
+def _reference_records(ep, job):
+    """The records of every β from endophoton.sweep itself on the same exported scene."""
+    kept = {}
+    ref = ep.sweep(
+        job.engine_scene,
+        progress=False,
+        out_dir=None,
+        plots=False,
+        report=False,
+        on_run=lambda i, beta, result: kept.setdefault(i, result.escapes),
+        **job.inputs.sweep_kwargs(),
+    )
+    return ref, kept
+
+
+def _points(collection):
+    (obj,) = results.points_objects(collection)
+    co = np.empty(len(obj.data.vertices) * 3, np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    return obj, co.reshape(-1, 3)
+
+
+def test_each_beta_is_a_tagged_collection_and_deletes_alone(ep, tmp_path):
+    scene, job, before = _sweep(tmp_path)
+    sid = sweep_job.sweep_id(job.inputs)
+    collections = sweep_job.sweep_collections(scene, sid)
+    assert len(collections) == len(BETAS)
+    assert set(collections) <= set(results.result_collections(scene))  # the Results panel lists them
+    assert scene[sweep_job.SUMMARY_KEY]["collections"] == [c.name for c in collections]
+    assert dict(sweep_job.summary_rows(scene))["Per β"] == f"{len(BETAS)} result collections (Results)"
+    ref, kept = _reference_records(ep, job)
+    scale = scene.unit_settings.scale_length
+    for i, (collection, beta) in enumerate(zip(collections, BETAS)):
+        params = collection[results.PARAMS_KEY].to_dict()
+        assert params[sweep_job.SWEEP_ID_KEY] == sid and params["sweep_index"] == i
+        assert params["beta_deg"] == beta and list(params["sweep_betas"]) == list(BETAS)
+        assert (params["kind"], params["count"], params["seed"]) == ("store", STORE, SEED)
+        assert params["voxel_size_m"] == 0.0  # no grids: the sweep asked for none
+        assert f"β={beta:+.1f}°" in collection.name
+        # Point count = the package's per-β record count (store-N: N records).
+        obj, co = _points(collection)
+        assert len(co) == job.result.rows[i]["records"] == ref.rows[i]["records"] == STORE
+        assert collection[results.SUMMARY_KEY]["records"] == STORE
+        # The points are that β's records (same seed: bit-identical runs), metres -> Blender units.
+        expected = np.asarray(kept[i]["position"], np.float64).reshape(-1, 3) / scale
+        np.testing.assert_allclose(co, expected.astype(np.float32), rtol=0, atol=1e-6 * np.abs(expected).max())
+        # The rig camera's images beside the run, tagged with the sweep too.
+        views = results.view_images(collection)
+        assert sorted(views) == ["fluorescence", "white"]
+        assert all(img[results.PARAMS_KEY][sweep_job.SWEEP_ID_KEY] == sid for img in views.values())
+        assert all(img[results.PARAMS_KEY]["beta_deg"] == beta for img in views.values())
+    added = data_snapshot()
+    assert added["volumes"] == before["volumes"]
+    assert not any(results.run_files(c) for c in collections)  # no .vdb written
+
+    # Side by side: hiding one β leaves the others shown.
+    collections[0].hide_viewport = True
+    assert not any(c.hide_viewport for c in collections[1:])
+    collections[0].hide_viewport = False
+
+    # Delete the middle β: only its collection, objects, meshes, materials, images go.
+    middle = collections[1]
+    own = {
+        kind: {b.name for b in getattr(bpy.data, kind) if b.get(results.RUN_KEY) == middle[results.RUN_KEY]}
+        for kind in ("objects", "meshes", "materials", "images")
+    }
+    assert all(own.values()) and len(own["images"]) == 2
+    sweep_files = sorted(os.listdir(job.inputs.out_dir))
+    middle_name = middle.name
+    assert bpy.ops.endophoton.result_delete(name=middle_name) == {"FINISHED"}
+    after = data_snapshot()
+    for kind, names in own.items():
+        assert set(added[kind]) - set(after[kind]) == names, kind
+    assert set(added["collections"]) - set(after["collections"]) == {middle_name}
+    assert set(after["collections"]) < set(added["collections"])
+    assert sweep_job.sweep_collections(scene, sid) == [collections[0], collections[2]]
+    for collection, i in ((collections[0], 0), (collections[2], 2)):
+        assert len(_points(collection)[1]) == ref.rows[i]["records"]
+        assert sorted(results.view_images(collection)) == ["fluorescence", "white"]
+    assert sorted(os.listdir(job.inputs.out_dir)) == sweep_files  # the sweep's own files stay
+
+
+def test_keep_runs_off_makes_no_collections(ep, tmp_path):
+    scene = open_blend("flat_tissue.blend", tmp_path / "grids")
+    s = scene.endophoton.sweep
+    s.betas, s.store, s.seed, s.threads, s.keep_runs = "0,20", 500, SEED, 1, "OFF"
+    s.output_dir = str(tmp_path / "sweep")
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    assert sweep_job.sweep_collections(scene) == [] and not results.result_collections(scene)
+    # AUTO keeps records only up to KEEP_AUTO_RECORDS (β values × Store N).
+    assert sweep_job.keeps_runs("AUTO", 2, sweep_job.KEEP_AUTO_RECORDS // 2)
+    assert not sweep_job.keeps_runs("AUTO", 2, sweep_job.KEEP_AUTO_RECORDS // 2 + 1)
+    assert sweep_job.keeps_runs("ON", 12, 10**7) and not sweep_job.keeps_runs("OFF", 1, 1)
