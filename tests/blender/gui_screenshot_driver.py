@@ -28,7 +28,7 @@ PANELS = (
     "ENDOPHOTON_PT_results",
     "ENDOPHOTON_PT_sweep",
 )
-state = {"step": 0, "shots": [], "ticks": 0}
+state = {"step": 0, "shots": [], "ticks": 0, "shot_classes": []}
 
 
 def view3d():
@@ -37,15 +37,29 @@ def view3d():
     return window, area
 
 
+def drop_shot_classes():
+    """Unregister the open copies of closed-by-default panels that only_panel made."""
+    while state["shot_classes"]:
+        cls = state["shot_classes"].pop()
+        if cls.is_registered:
+            bpy.utils.unregister_class(cls)
+
+
 def only_panel(name):
     from endophoton_addon import panels
+
+    drop_shot_classes()
 
     for cls in panels.CLASSES:
         if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" and cls.is_registered:
             bpy.utils.unregister_class(cls)
     cls = next(c for c in panels.CLASSES if c.__name__ == name)
-    cls.bl_options = set()  # open, even the Sweep β panel that starts closed
+    if "DEFAULT_CLOSED" in getattr(cls, "bl_options", set()):
+        # The region remembers a panel's closed state by its id, so clearing bl_options
+        # on the same class is not enough: draw it open under an id the region never saw.
+        cls = type(name + "_shot", (cls,), {"bl_idname": name + "_shot", "bl_options": set()})
     bpy.utils.register_class(cls)
+    state["shot_classes"].append(cls)
 
 
 def hide_other_sidebar_tabs():
@@ -71,6 +85,8 @@ def hide_other_sidebar_tabs():
 
 def restore_panels():
     from endophoton_addon import panels
+
+    drop_shot_classes()
 
     for cls in panels.CLASSES:
         if cls.__name__.startswith("ENDOPHOTON_PT_") and cls.__name__ != "ENDOPHOTON_PT_main" and cls.is_registered:
