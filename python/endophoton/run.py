@@ -1,9 +1,11 @@
 """Running the engine and reading its results."""
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -117,6 +119,27 @@ def _check_arguments(a: SimpleNamespace) -> None:
         raise ValueError(f"lumen = {a.lumen!r} must be True or False")
 
 
+def _as_field_object(name: str, value, cls):
+    """``value`` as a ``cls`` (GridRequest, Target): itself, or built from a dict of its fields
+    (JSON-style configs). Anything else, an unknown or a missing field is a ValueError naming ``name``."""
+    if value is None or isinstance(value, cls):
+        return value
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name} = {value!r} must be an endophoton.{cls.__name__} or a dict of its fields")
+    fields = [f.name for f in dataclasses.fields(cls)]
+    unknown = [k for k in value if k not in fields]
+    if unknown:
+        raise ValueError(f"{name}.{unknown[0]} is not a field of {cls.__name__} (fields: {', '.join(fields)})")
+    missing = [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.name not in value and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise ValueError(f"{name}.{missing[0]} is missing (fields: {', '.join(fields)})")
+    return cls(**value)
+
+
 def _apply_quality(a: SimpleNamespace) -> None:
     """``quality`` (a preset name) stands for a target and a packet cap; it excludes the other modes."""
     if a.quality is None:
@@ -129,6 +152,8 @@ def _apply_quality(a: SimpleNamespace) -> None:
 
 def _request(a: SimpleNamespace) -> dict:
     """The checked options of :func:`run`'s arguments ``a`` as the engine's RunConfig takes them."""
+    a.grids = _as_field_object("grids", a.grids, GridRequest)
+    a.target = _as_field_object("target", a.target, Target)
     _apply_quality(a)
     _check_arguments(a)
     return _native_options(a)

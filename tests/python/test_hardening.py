@@ -244,6 +244,30 @@ def test_strict_types_in_the_api(kw, match):
         ep.run(slab(1.0), DOWN, photons=10, **kw)
 
 
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        (dict(grids="g.vdb"), r"grids = 'g.vdb' must be an endophoton.GridRequest or a dict of its fields"),
+        (dict(grids={"voxel": 0.1, "path": "g.vdb"}), r"grids.voxel is not a field of GridRequest"),
+        (dict(grids={"path": "g.vdb"}), r"grids.voxel_size is missing"),
+        (dict(grids={"voxel_size": -1.0, "path": "g.vdb"}), r"grids.voxel_size = -1.0 must be in"),
+        (dict(photons=None, target={"rel_err": 0.1}), r"target.rel_err is not a field of Target"),
+        (dict(photons=None, target=0.01), r"target = 0.01 must be an endophoton.Target"),
+    ],
+)
+def test_request_objects_given_as_anything_else_are_named_errors(kw, match):
+    with pytest.raises(ValueError, match=match):
+        ep.run(slab(1.0), DOWN, **{"photons": 10, **kw})
+
+
+def test_request_objects_may_be_dicts_of_their_fields(tmp_path):
+    path = str(tmp_path / "g.vdb")
+    a = ep.run(slab(1.0), DOWN, photons=300, seed=4, grids={"voxel_size": 0.1, "path": path})
+    assert os.path.exists(path) and a.grid_absorbed_sum == pytest.approx(a.absorbed, rel=1e-9)
+    b = ep.run(slab(1.0), DOWN, seed=4, target={"tally": "absorbed", "rel_error": 0.05}, max_photons=50_000)
+    assert b.target_reached and b.absorbed_stderr <= 0.05 * b.absorbed
+
+
 def test_run_cancelled_before_it_starts_says_it_has_no_estimate():
     token = ep.CancelToken()
     token.cancel()
