@@ -141,8 +141,12 @@ def collect_inputs(context):
     if settings.threads < 0:
         raise InputError(f"{who}: simulation.threads = {settings.threads} must be >= 0")
 
-    if not settings.output_points and not settings.output_grids:
-        raise InputError(f"{who}: simulation outputs are all off; enable the point cloud or the grids")
+    views = bool(settings.output_views) and rig.has_camera(rig_obj)
+    if not settings.output_points and not settings.output_grids and not views:
+        raise InputError(
+            f"{who}: simulation outputs are all off; enable the point cloud, the grids "
+            "or the endoscope-view images (the rig needs a camera)"
+        )
 
     voxel_m = grid_path = None
     if settings.output_grids:
@@ -172,7 +176,7 @@ def collect_inputs(context):
         grid_per_fluorophore=bool(settings.grid_per_fluorophore),
         scale_length=float(scale),
         target_error=target_error,
-        endoscope_view=bool(settings.output_views) and rig.has_camera(rig_obj),
+        endoscope_view=views,
     )
     check_before_run(scene, inputs)
     return inputs
@@ -205,6 +209,12 @@ def build_engine_scene(ep, regions):
     return sweep_blend.blender_regions_to_scene(ep, regions)
 
 
+def needs_records(inputs):
+    """Whether the run needs the engine's escape records: the point cloud, the endoscope-view
+    images and a "store N" run use them; a grids-only run does not pay for them."""
+    return inputs.kind == "store" or inputs.output_points or inputs.endoscope_view
+
+
 def build_engine_call(ep, inputs):
     """Engine scene, rig and ep.run keyword arguments for ``inputs``.
 
@@ -226,6 +236,7 @@ def build_engine_call(ep, inputs):
             "fluorescence_rule": inputs.fluorescence_rule,
             "seed": inputs.seed,
             "threads": inputs.threads,
+            "record_escapes": needs_records(inputs),
         }
         if inputs.grid_path is not None:
             kwargs["grids"] = ep.GridRequest(

@@ -87,3 +87,28 @@ def test_no_view_without_camera_or_when_off(ep, tmp_path):
         assert not job.inputs.endoscope_view and job.view is None and job.view_error is None
         assert not results.view_images(collection) and results.VIEWS_KEY not in collection
         assert not any(results.VIEW_KEY in im for im in bpy.data.images)
+
+
+def test_a_grids_only_run_asks_for_no_records(ep, tmp_path):
+    """Compute only what the scene needs: no point cloud and no view images, so no escape records."""
+    settings = {"output_points": False, "output_views": False, "output_grids": True, "voxel_size": 0.002}
+    _scene, job, collection = _run("flat_tissue.blend", tmp_path, **settings)
+    assert job.run_kwargs["record_escapes"] is False
+    assert job.result.escapes is None and job.result.to_dict()["escape_records"] == 0
+    assert job.result.grid_absorbed_sum > 0 and collection[results.SUMMARY_KEY]["records"] == 0
+    for views in (False, True):  # either output that reads records turns them back on
+        settings = {"output_points": not views, "output_views": views, "output_grids": False}
+        _scene, job, _collection = _run("flat_tissue.blend", tmp_path, **settings)
+        assert job.run_kwargs["record_escapes"] is True and job.result.to_dict()["escape_records"] > 0
+
+
+def test_all_outputs_off_is_a_named_error(ep, tmp_path):
+    scene = open_blend("flat_tissue.blend", tmp_path)
+    s = scene.endophoton
+    s.output_points, s.output_grids, s.output_views = False, False, False
+    try:
+        simulation.collect_inputs(bpy.context)
+    except simulation.InputError as exc:
+        assert "simulation outputs are all off" in str(exc) and "endoscope-view images" in str(exc)
+    else:
+        raise AssertionError("a run with every output off was accepted")
