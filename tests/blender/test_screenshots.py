@@ -17,7 +17,7 @@ def test_screenshot_of_each_panel(ep, tmp_path):
         shutil.rmtree(out)
     engine_folder = ENGINE_FOLDER or os.path.dirname(os.path.dirname(ep.__file__))
     returncode, stdout, stderr = run_windowed(
-        "colon_polyp.blend", "gui_screenshot_driver.py", [out, tmp_path, engine_folder], screen="1280x900", timeout=300
+        "colon_polyp.blend", "gui_screenshot_driver.py", [out, tmp_path, engine_folder], screen="1280x1400", timeout=300
     )
     listing = os.path.join(out, "screenshots.json")
     assert os.path.exists(listing), f"no screenshots (rc {returncode}):\n{stdout[-3000:]}\n{stderr[-3000:]}"
