@@ -27,6 +27,7 @@ RESULT_KEY = "endophoton_result"  # on the run's collection
 RUN_KEY = "endophoton_run"  # on every datablock the run created
 SUMMARY_KEY = "endophoton_summary"  # on the run's collection
 PARAMS_KEY = "endophoton_params"  # on the run's collection: what the run was asked to do
+SWEEP_KEY = "endophoton_sweep"  # on a sweep's parent collection (its sweep id): holds its β collections
 POINTS_GROUP = "EP Photon Points"
 DENSITY_NODE = "EP Density Scale"
 EMISSION_NODE = "EP Point Emission"
@@ -724,7 +725,11 @@ def remove_run(collection):
         for block in list(datablocks):
             if run_id is not None and block.get(RUN_KEY) == run_id and block.users == int(block.use_fake_user):
                 datablocks.remove(block)
+    parents = [c for c in bpy.data.collections if c.get(SWEEP_KEY) and collection.name in c.children]
     bpy.data.collections.remove(collection)
+    for parent in parents:  # a sweep's parent collection goes with its last β
+        if not parent.children and not parent.objects:
+            bpy.data.collections.remove(parent)
 
 
 def remove_results(scene):
@@ -742,12 +747,13 @@ def _unique_run_id(inputs):
     return run_id
 
 
-def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=None, tags=None):
+def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=None, tags=None, parent=None):
     """Build the run's collection from an engine Result (main thread only).
 
     ``render_grids``: what :func:`write_render_grids` returned for the run's .vdb;
     ``view``: the rig camera's ``ep.View`` (simulation.endoscope_view), made into Images;
-    ``tags``: plain values added to the run's parameters (PARAMS_KEY), e.g. its sweep.
+    ``tags``: plain values added to the run's parameters (PARAMS_KEY), e.g. its sweep;
+    ``parent``: the collection to put the run's collection in (a sweep's), else the scene's.
 
     Everything is checked first; the previous run's collection is replaced
     only once the new one can be built.
@@ -775,7 +781,7 @@ def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=
     collection = bpy.data.collections.new(f"EP {beta} {inputs.timestamp}")
     collection[RESULT_KEY] = True
     collection[RUN_KEY] = run_id
-    scene.collection.children.link(collection)
+    (parent or scene.collection).children.link(collection)
     try:
         if positions is not None:
             material = _points_material(f"EP Photons {beta}", run_id)

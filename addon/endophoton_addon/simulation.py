@@ -466,13 +466,14 @@ def finish_job(context, job):
 
 
 def collection_from_run(
-    context, inputs, result, grid_info=(), render_grids=None, view=None, view_error=None, tags=None
+    context, inputs, result, grid_info=(), render_grids=None, view=None, view_error=None, tags=None, parent=None
 ):
     """One finished engine run -> its tagged results collection (main thread): the path
-    of a single Run and of every β of a sweep.  ``tags``: extra parameters (e.g. the sweep)."""
+    of a single Run and of every β of a sweep.  ``tags``: extra parameters (e.g. the sweep);
+    ``parent``: the collection that holds it (a sweep's), else the scene's."""
     from . import results
 
-    collection = results.apply_result(context, inputs, result, grid_info, render_grids, view, tags=tags)
+    collection = results.apply_result(context, inputs, result, grid_info, render_grids, view, tags=tags, parent=parent)
     if view_error:
         collection["endophoton_view_error"] = view_error
         print(f"EndoPhoton: {view_error}")

@@ -523,10 +523,18 @@ def sweep_id(inputs):
 
 def make_beta_collections(context, job):
     """One results collection per kept β (simulation.collection_from_run, the single
-    Run's path), tagged with the sweep id, its β and the sweep's parameters.  All or
-    nothing: a failure removes the β collections made so far."""
+    Run's path), tagged with the sweep id, its β and the sweep's parameters, inside one
+    parent collection per sweep ("EP Sweep <id>", tagged results.SWEEP_KEY).  All or
+    nothing: a failure removes the β collections made so far and the parent."""
+    import bpy
+
     from . import results
 
+    if not job.beta_runs:
+        return []
+    parent = bpy.data.collections.new(f"EP Sweep {sweep_id(job.inputs).removeprefix('sweep-')}")
+    parent[results.SWEEP_KEY] = sweep_id(job.inputs)
+    bpy_scene(context, job).collection.children.link(parent)
     tags = {
         SWEEP_ID_KEY: sweep_id(job.inputs),
         "sweep_betas": [float(b) for b in job.inputs.betas],
@@ -538,12 +546,20 @@ def make_beta_collections(context, job):
         for index, (inputs, result, view, view_error) in enumerate(job.beta_runs):
             made.append(
                 simulation.collection_from_run(
-                    context, inputs, result, view=view, view_error=view_error, tags=dict(tags, sweep_index=index)
+                    context,
+                    inputs,
+                    result,
+                    view=view,
+                    view_error=view_error,
+                    tags=dict(tags, sweep_index=index),
+                    parent=parent,
                 )
             )
     except Exception:
         for collection in made:
             results.remove_run(collection)
+        if parent.name in bpy.data.collections:
+            bpy.data.collections.remove(parent)
         raise
     job.beta_runs = []  # the records now live in the meshes
     return made

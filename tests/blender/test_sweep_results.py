@@ -83,6 +83,10 @@ def test_each_beta_is_a_tagged_collection_and_deletes_alone(ep, tmp_path):
         assert sorted(views) == ["fluorescence", "white"]
         assert all(img[results.PARAMS_KEY][sweep_job.SWEEP_ID_KEY] == sid for img in views.values())
         assert all(img[results.PARAMS_KEY]["beta_deg"] == beta for img in views.values())
+    # One parent collection per sweep holds its β collections (the outliner groups a sweep).
+    parent = next(c for c in bpy.data.collections if c.get(results.SWEEP_KEY) == sid)
+    assert parent.name in scene.collection.children and list(parent.children) == collections
+    assert not parent.objects and not any(c.name in scene.collection.children for c in collections)
     added = data_snapshot()
     assert added["volumes"] == before["volumes"]
     assert not any(results.run_files(c) for c in collections)  # no .vdb written
@@ -112,6 +116,12 @@ def test_each_beta_is_a_tagged_collection_and_deletes_alone(ep, tmp_path):
         assert len(_points(collection)[1]) == ref.rows[i]["records"]
         assert sorted(results.view_images(collection)) == ["fluorescence", "white"]
     assert sorted(os.listdir(job.inputs.out_dir)) == sweep_files  # the sweep's own files stay
+    # The parent goes with its last β, and nothing of the sweep is left in the scene.
+    parent_name = parent.name
+    for collection in (collections[0], collections[2]):
+        assert bpy.ops.endophoton.result_delete(name=collection.name) == {"FINISHED"}
+        assert (parent_name in bpy.data.collections) == (collection is collections[0])
+    assert sweep_job.sweep_collections(scene, sid) == []
 
 
 def test_keep_runs_off_makes_no_collections(ep, tmp_path):
@@ -121,6 +131,7 @@ def test_keep_runs_off_makes_no_collections(ep, tmp_path):
     s.output_dir = str(tmp_path / "sweep")
     assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
     assert sweep_job.sweep_collections(scene) == [] and not results.result_collections(scene)
+    assert not any(c.get(results.SWEEP_KEY) for c in bpy.data.collections)  # no empty parent either
     # AUTO keeps records only up to KEEP_AUTO_RECORDS (β values × Store N).
     assert sweep_job.keeps_runs("AUTO", 2, sweep_job.KEEP_AUTO_RECORDS // 2)
     assert not sweep_job.keeps_runs("AUTO", 2, sweep_job.KEEP_AUTO_RECORDS // 2 + 1)
