@@ -883,9 +883,53 @@ def sec_issue11(R, figs, B):
         ]
         a(md_table(["config", "threads", "packets", "before /s (per CPU-s)", "after /s (per CPU-s)", "speed-up"], rows))
         a("")
+    L += _issue11_mcml(R)
     L += _issue11_instructions(R, B)
     L += _issue11_goals(R, B, after, scaling)
     return L
+
+
+def _issue11_mcml(R):
+    """MCML run beside this engine by this run (bench/run_all.py --mcml-binary), if it was."""
+    m = R.get("mcml_side_by_side")
+    if not m:
+        return []
+    dz, dr, nz, nr, na = m["grid"]
+    k = m["repeats"]
+    rows = [
+        [
+            r["config"],
+            fmt_int(r["packets"]),
+            fmt_int(r["mcml_pp_cpu_s"]),
+            fmt_int(r["engine_pp_cpu_s"]),
+            f"{r['ratio']:.2f}×",
+            f"{r['mcml_rd']:.5f} ± {r['mcml_rd_se']:.5f}",
+            f"{r['engine_rd']:.5f} ± {r['engine_rd_se']:.5f}",
+        ]
+        for r in m["rows"]
+    ]
+    return [
+        f"MCML side by side, measured by this run: `{m['binary']}` ({m['version'] or 'no version line'}; built "
+        f"{m.get('build') or 'as not stated'}), outside the repository, on the input `bench/side_by_side.py` writes "
+        f"(one layer, ambient n = 1 above and below, scoring grid dz = {dz:g} cm, dr = {dr:g} cm, {nz} × {nr} × {na} "
+        "bins). MCML's CPU time is its whole process's (user + system: start-up and writing its output included); "
+        "this engine's is the run's own (1 thread, fresh process, 2000-packet warm-up, scene build excluded); best "
+        f"of {k} each, interleaved. MCML's Rd is the mean of its {k} runs (seeded by the clock) ± the standard error "
+        "from their spread; the engine's is one run ± its standard error.\n",
+        md_table(
+            [
+                "config",
+                "packets",
+                "MCML packets per CPU-s",
+                "engine packets per CPU-s",
+                "engine / MCML",
+                "MCML Rd",
+                "engine Rd",
+            ],
+            rows,
+        ),
+        "",
+    ]
 
 
 def _issue11_instructions(R, B):
@@ -931,16 +975,11 @@ def _issue11_goals(R, B, after, scaling):
     out = ["**Goals of issue 11, as measured by this run:**\n"]
     seed1 = after.get(("seed_tissue", 1))
     if seed1:
-        lo, hi = mc["packets_per_cpu_s"]
         per_core = seed1["pp_cpu_s"]
         out.append(
             f"1. Seed tissue, one core: {fmt_int(seed1['pps'])} packets/s ({fmt_int(per_core)} per CPU-second of "
             f"the run); goal {fmt_int(g['seed_tissue_pps_1thread'])}: "
-            f"{_goal(min(seed1['pps'], per_core) >= g['seed_tissue_pps_1thread'])}. MCML side by side (MCML's "
-            f"figures: `bench/baseline.json`, from issue 11, whole-process CPU time, 1e6 packets): "
-            f"{fmt_int(lo)}–{fmt_int(hi)} packets per CPU-second, so this engine is "
-            f"{per_core / hi:.2f}–{per_core / lo:.2f}× MCML per core (the engine's CPU time excludes process "
-            "start-up and scene build, MCML's includes them)."
+            f"{_goal(min(seed1['pps'], per_core) >= g['seed_tissue_pps_1thread'])}. " + _mcml_per_core(R, mc, per_core)
         )
     col1 = after.get(("colon", 1))
     if col1 and "colon" in B["throughput"]:
@@ -972,6 +1011,26 @@ def _issue11_goals(R, B, after, scaling):
     else:
         out.append("4. Accuracy: not measured in this run (`--sections issue11`).")
     return out + [""]
+
+
+def _mcml_per_core(R, mc, per_core):
+    """Goal 1's MCML sentence: measured by this run (--mcml-binary) if it was, else issue 11's figures."""
+    seed = next((r for r in (R.get("mcml_side_by_side") or {}).get("rows", []) if r["config"] == "seed_tissue"), None)
+    if seed:
+        return (
+            f"MCML side by side, measured by this run (table above, {fmt_int(seed['packets'])} packets): MCML "
+            f"{fmt_int(seed['mcml_pp_cpu_s'])} packets per CPU-second, this engine {fmt_int(seed['engine_pp_cpu_s'])} "
+            f"in the same run, so this engine is {seed['ratio']:.2f}× MCML per core (the engine's CPU time excludes "
+            "process start-up and scene build, MCML's includes them)."
+        )
+    lo, hi = mc["packets_per_cpu_s"]
+    return (
+        f"MCML side by side, quoted, not measured by this run (MCML's figures: `bench/baseline.json`, from issue 11, "
+        f"whole-process CPU time, 1e6 packets): {fmt_int(lo)}–{fmt_int(hi)} packets per CPU-second, so this engine "
+        f"is {per_core / hi:.2f}–{per_core / lo:.2f}× MCML per core (the engine's CPU time excludes process start-up "
+        "and scene build, MCML's includes them). `bench/run_all.py --sections issue11 --mcml-binary PATH` measures "
+        "MCML here, beside this engine."
+    )
 
 
 SECTIONS = (sec_machine, sec_throughput, sec_accuracy, sec_knobs, sec_profile, sec_presets, sec_lumen, sec_render)
