@@ -128,6 +128,7 @@ def test_section_9_uses_the_measured_mcml_or_says_it_quotes_the_issue(pd, sbs):
     R.pop("mcml_side_by_side", None)
     text = "\n".join(pd.sec_issue11(R, {}, B))
     assert "quoted, not measured by this run" in text and "--mcml-binary PATH" in text
+    assert "MCML's figures there (quoted from issue 11)" in "\n".join(pd.sec_machine(R, {}))
     mc = [dict(cpu_s=4.0, user_s=4.0, rd=0.0615, tt=0.0), dict(cpu_s=5.0, user_s=5.0, rd=0.0617, tt=0.0)]
     en = [dict(pp_cpu_s=300_000.0, pps=290_000.0, rd=0.0616, rd_se=0.0002)]
     row = sbs.mcml_row("seed_tissue", 1_000_000, mc, en)
@@ -137,3 +138,5 @@ def test_section_9_uses_the_measured_mcml_or_says_it_quotes_the_issue(pd, sbs):
     assert "quoted, not measured" not in text and "`/x/mcml` (Version 1.2, 1993; built gcc -O3)" in text
     assert "| seed_tissue | 1 000 000 | 250 000 | 300 000 | 1.20× | 0.06160 ± 0.00010 | 0.06160 ± 0.00020 |" in text
     assert "this engine is 1.20× MCML per core" in text
+    head = "\n".join(pd.sec_machine(R, {}))
+    assert "quoted from issue 11" not in head and "MCML itself was run beside this engine" in head
