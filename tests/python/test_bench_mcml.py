@@ -10,22 +10,9 @@ import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 BENCH = os.path.join(HERE, "..", "..", "bench")
-
-
-@pytest.fixture(scope="module")
-def sbs():
-    sys.path.insert(0, BENCH)
-    import side_by_side
-
-    return side_by_side
-
-
-@pytest.fixture(scope="module")
-def pd():
-    sys.path.insert(0, BENCH)
-    import perf_doc
-
-    return perf_doc
+sys.path.insert(0, BENCH)
+import perf_doc as pd  # noqa: E402  (bench/ modules, not a package)
+import side_by_side as sbs  # noqa: E402
 
 
 def data_lines(mci):
@@ -33,7 +20,7 @@ def data_lines(mci):
     return [line.split("#")[0].split() for line in mci.splitlines() if line.split("#")[0].strip()]
 
 
-def test_mci_holds_the_bench_scenes_optics(sbs):
+def test_mci_holds_the_bench_scenes_optics():
     """Each MCML_PLAN entry is the bench scene it names: same media, thickness and ambient n."""
     import colon_scene as cs
 
@@ -47,7 +34,7 @@ def test_mci_holds_the_bench_scenes_optics(sbs):
         assert float(z.max() - z.min()) == pytest.approx(d, rel=1e-6), key
 
 
-def test_mci_text_is_mcml_input_order(sbs):
+def test_mci_text_is_mcml_input_order():
     layers = [(1.37, 1.0, 100.0, 0.9, 0.1), (1.4, 2.5, 10.0, 0.0, 0.2)]
     rows = data_lines(sbs.mci_text(layers, 12345, grid=(0.01, 0.02, 40, 50, 3), ambient_n=(1.0, 1.5)))
     assert rows == [
@@ -83,13 +70,13 @@ MCO = textwrap.dedent(
 )
 
 
-def test_parse_mco_reads_the_rat_block(sbs):
+def test_parse_mco_reads_the_rat_block():
     assert sbs.parse_mco(MCO) == dict(rsp=0.00226757, rd=0.0615011, a=0.936231, tt=0.0)
     with pytest.raises(ValueError, match="no RAT block"):
         sbs.parse_mco(MCO.split("RAT")[0])
 
 
-def test_run_mcml_runs_a_binary_on_the_mci_and_reads_its_output(sbs, tmp_path):
+def test_run_mcml_runs_a_binary_on_the_mci_and_reads_its_output(tmp_path):
     """A stand-in 'MCML' checks the input it is given (its photon count and layer line) and answers."""
     fake = tmp_path / "fake-mcml"
     fake.write_text(
@@ -109,7 +96,7 @@ def test_run_mcml_runs_a_binary_on_the_mci_and_reads_its_output(sbs, tmp_path):
         sbs.run_mcml(str(fake), sbs.MCML_PLAN[0][1], 777)
 
 
-def test_mcml_row_takes_the_best_of_each_and_their_ratio(sbs):
+def test_mcml_row_takes_the_best_of_each_and_their_ratio():
     mc = [dict(cpu_s=c, user_s=c, rd=rd, tt=0.0) for c, rd in ((5.0, 0.0614), (4.0, 0.0616), (4.5, 0.0615))]
     en = [dict(pp_cpu_s=p, pps=p * 0.9, rd=0.0615, rd_se=0.0002) for p in (190_000.0, 210_000.0)]
     r = sbs.mcml_row("seed_tissue", 1_000_000, mc, en)
@@ -118,7 +105,7 @@ def test_mcml_row_takes_the_best_of_each_and_their_ratio(sbs):
     assert r["mcml_rd"] == pytest.approx(0.0615) and r["mcml_rd_se"] == pytest.approx(0.0001 / 3**0.5)
 
 
-def test_section_9_uses_the_measured_mcml_or_says_it_quotes_the_issue(pd, sbs):
+def test_section_9_uses_the_measured_mcml_or_says_it_quotes_the_issue():
     import json
 
     with open(os.path.join(HERE, "data", "perf_results_quick.json"), encoding="utf-8") as fh:
