@@ -13,7 +13,8 @@ voxel size of the grids, max_steps cap, target accuracy and its stop rule; the q
 profile (instructions per step and per part of the loop, callgrind, bench/callgrind_steps.py);
 lumen (bench/lumen_colon.py); render (bench/render_speed.py); dask (bench/dask_cluster.py --quick,
 its printed table); issue11 (seed-tissue Rd at 1e6 packets against MCML; the before / after tables
-use bench/baseline.json and the throughput and profile sections).
+use bench/baseline.json and the throughput and profile sections; with --mcml-binary PATH, MCML itself
+is run beside this engine, one core each, on the seed tissue and the MCML slab).
 
 Every number on the page comes from this run, except the issue-11 baseline that bench/baseline.json
 records with its provenance; the raw numbers are written to docs/perf/results.json, the text comes
@@ -1011,6 +1012,14 @@ def _issue11(R, q):
 
         plan = [(k, c, n // 20 if q else n) for k, c, n in side_by_side.PLAN]
         R["side_by_side"] = dict(before_py=before, rows=side_by_side.compare(before, PY, 2, plan, report=log))
+    R.pop("mcml_side_by_side", None)  # a rerun of this section without --mcml-binary quotes the issue again
+    binary = (R.get("options") or {}).get("mcml_binary")
+    if binary:  # MCML measured now, interleaved with this engine (bench/side_by_side.py compare_mcml)
+        import side_by_side
+
+        plan = [(k, layers, n // 20 if q else n) for k, layers, n in side_by_side.MCML_PLAN]
+        sbs = side_by_side.compare_mcml(binary, PY, 3, plan, report=log)
+        R["mcml_side_by_side"] = dict(sbs, build=R["options"].get("mcml_build") or "")
 
 
 def _one(key, fn):
@@ -1060,8 +1069,18 @@ def parse_args(argv=None):
         help="directory of the baseline's endophoton package (bench/side_by_side.py --build-before COMMIT builds "
         "one): the issue11 section then also measures it side by side with this engine",
     )
+    ap.add_argument(
+        "--mcml-binary",
+        metavar="PATH",
+        help="an MCML executable built outside the repository (e.g. the original C code with gcc -O3): the "
+        "issue11 section then measures it beside this engine, one core each (bench/side_by_side.py); without it "
+        "§9 quotes issue 11's MCML figures from bench/baseline.json",
+    )
+    ap.add_argument("--mcml-build", metavar="TEXT", help="how that binary was built, for the page (e.g. 'gcc -O3')")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.mcml_binary and not (os.path.isfile(args.mcml_binary) and os.access(args.mcml_binary, os.X_OK)):
+        ap.error(f"--mcml-binary: {args.mcml_binary!r} is not an executable file")
     if args.sections:
         bad = [g for g in args.sections.split(",") if g not in GROUPS]
         if bad:
@@ -1098,7 +1117,11 @@ def main(argv=None):
         R["profile"] = dict(error="skipped (--no-profile)")
     R["machine"] = machine_info()
     R["budget_s"] = BUDGET_S
-    R["options"] = dict(baseline_py=args.baseline_py and os.path.abspath(args.baseline_py))
+    R["options"] = dict(
+        baseline_py=args.baseline_py and os.path.abspath(args.baseline_py),
+        mcml_binary=args.mcml_binary and os.path.abspath(args.mcml_binary),
+        mcml_build=args.mcml_build,
+    )
     log(f"machine: {R['machine']['cpu']}, nproc {R['machine']['nproc']}; sections {', '.join(groups)}")
     for g in groups:
         measured(R, g, MEASURE[g], q)
