@@ -91,6 +91,12 @@ class TriangleCache {
     size_t size() const { return tris_.size(); }
     const std::vector<Triangle>& triangles() const { return tris_; }
     size_t plane_count() const { return planes_.size(); }
+    const std::vector<Plane>& planes() const { return planes_; }
+    // The rounding allowance of intersect()'s plane distances over the ball
+    // (reset()): a second one of these on top of a plane's reach covers the
+    // few-ulp differences of a test computed by other expressions
+    // (transport.cpp's interior steps).
+    Float rounding() const { return eps_; }
 
   private:
     // The triangle tests of the planes in `open` (bit k = plane k).
@@ -103,6 +109,63 @@ class TriangleCache {
     std::vector<Plane> planes_;
     std::vector<uint32_t> seen_;  // first_offer's stamps, one per scene triangle
     uint32_t stamp_ = 0;
+};
+
+// Conservative forms of TriangleCache::covers() and of intersect()'s plane
+// test for a chain of steps in which each step starts where the last one
+// ended (transport.cpp's interior steps), intersect()'s look-behind being at
+// most `max_back`. clear(b) answers for the step from the last clear point p
+// to b: it holds b inside a ball shrunk by the look-behind and beyond every
+// plane's reach widened by the look-behind and a second rounding allowance,
+// on p's side. Then the next step, from b backed up by its look-behind, needs
+// no test of its start: clear() is true only where covers() and the plane
+// test would both pass (the allowances exceed their roundings ~50-fold), for
+// one ball test and one plane distance per cached plane.
+class ClearSteps {
+  public:
+    static constexpr size_t kMaxPlanes = 8;
+    // Takes the cache's ball and planes; false when p itself is not clear (or
+    // the cache has more than kMaxPlanes planes): no step can start there.
+    bool start(const TriangleCache& cache, const Vec3& p, Float max_back) {
+        const auto& planes = cache.planes();
+        if (planes.size() > kMaxPlanes) return false;
+        c_ = cache.center();
+        const Float pad = max_back + 1e-14 * (max_abs_component(c_) + cache.radius());
+        const Float inner = cache.radius() - pad;
+        inner_r2_ = inner > 0 ? inner * inner * (1 - 1e-12) : 0;
+        if (!inside(p)) return false;
+        n_planes_ = planes.size();
+        for (size_t k = 0; k < n_planes_; ++k) {
+            const TriangleCache::Plane& q = planes[k];
+            // Oriented so that p's side is positive (negation is exact, so
+            // the distances are exactly +-intersect()'s).
+            const Float side = dot(q.n, p) - q.off > 0 ? 1 : -1;
+            n_[k] = q.n * side;
+            off_[k] = q.off * side;
+            lo_[k] = q.reach + cache.rounding() + max_back;
+            if (!(distance(k, p) > lo_[k])) return false;
+        }
+        return true;
+    }
+    bool clear(const Vec3& b) const {
+        if (!inside(b)) return false;
+        for (size_t k = 0; k < n_planes_; ++k)
+            if (!(distance(k, b) > lo_[k])) return false;
+        return true;
+    }
+
+  private:
+    bool inside(const Vec3& x) const {
+        const Vec3 dx = x - c_;
+        return dot(dx, dx) < inner_r2_;
+    }
+    Float distance(size_t k, const Vec3& x) const { return dot(n_[k], x) - off_[k]; }
+
+    Vec3 c_;
+    Float inner_r2_ = 0;
+    size_t n_planes_ = 0;
+    Vec3 n_[kMaxPlanes];
+    Float off_[kMaxPlanes], lo_[kMaxPlanes];
 };
 
 }  // namespace ep
