@@ -282,8 +282,9 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     Float W = st.W, tau = st.tau, path_cm = st.path_cm, absorbed = st.absorbed, max_depth = st.max_depth;
     uint32_t scatterings = st.scatterings;
     // Steps taken here (interactions, events and cached steps alike), and
-    // how many the event cap leaves.
-    uint64_t steps = 0, event_room = max_events_ - st.events;
+    // how many the event cap leaves (none with a path cap: every step then
+    // ends in over_caps(), as in interact()).
+    uint64_t steps = 0, room = path_cap ? 0 : max_events_ - st.events;
     bool need_tau = st.need_tau;
     Rng rng = rng_;
     auto store = [&] {
@@ -298,7 +299,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         st.events += steps;
         st.interactions += steps;
         local_.cached_steps += steps;
-        event_room -= steps;
+        room = path_cap ? 0 : max_events_ - st.events;
         steps = 0;
         st.scatterings = scatterings;
         rng_ = rng;
@@ -329,9 +330,9 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
             d = hg.sample_p(d, u_cos, sin_phi, cos_phi);
             ++scatterings;
         }
-        if (W < threshold || steps >= event_room || path_cap) {
-            // Roulette and the caps as interact() ends them (tested here only
-            // when a path cap is set or the event cap is met).
+        if (W < threshold || steps >= room) {
+            // Roulette and the caps as interact() ends with them (the caps
+            // can only hold here: see `room`).
             store();
             if (!survives_roulette()) return false;
             if (over_caps()) {
