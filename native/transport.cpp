@@ -263,6 +263,8 @@ bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
 }
 
 // The loop of interior steps; false when the packet ended (roulette, caps).
+// Not inlined into walk(): on its own the loop gets the registers (callgrind,
+// seed tissue: 418 against 428 instructions per interaction inlined).
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     PacketState& st = st_;
