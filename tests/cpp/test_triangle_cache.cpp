@@ -203,15 +203,20 @@ Medium tissue() {
     return m;
 }
 
-TEST(TriangleCache, SameCrossingsAsFullQueryOnBoxesWithCoincidentFaces) {
-    Scene s(1.0, 1.0);
+// Two unit-thick boxes sharing the face z = -1 (coincident faces), committed.
+void box_pair(Scene& s, std::vector<Mesh>& meshes) {
     const Medium m = tissue();
-    std::vector<Mesh> meshes(2);
     box(-1, -1, -1, 1, 1, 0, meshes[0].v, meshes[0].t);
     s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, m, 0);
     box(-1, -1, -2, 1, 1, -1, meshes[1].v, meshes[1].t);
     s.add_region("bottom", meshes[1].v.data(), 8, meshes[1].t.data(), 12, m, 1);
     s.commit();
+}
+
+TEST(TriangleCache, SameCrossingsAsFullQueryOnBoxesWithCoincidentFaces) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> meshes(2);
+    box_pair(s, meshes);
     const int crossed = compare(s, meshes, 20000, 11);
     EXPECT_GT(crossed, 20000 / 3);  // most segments cross a surface
 }
@@ -549,13 +554,8 @@ static int clear_steps_agree(const Scene& s, const std::vector<Mesh>& meshes, in
 
 TEST(ClearSteps, ClearOnlyWhereTheCacheFindsNothingOnBoxesWithCoincidentFaces) {
     Scene s(1.0, 1.0);
-    const Medium m = tissue();
     std::vector<Mesh> meshes(2);
-    box(-1, -1, -1, 1, 1, 0, meshes[0].v, meshes[0].t);
-    s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, m, 0);
-    box(-1, -1, -2, 1, 1, -1, meshes[1].v, meshes[1].t);
-    s.add_region("bottom", meshes[1].v.data(), 8, meshes[1].t.data(), 12, m, 1);
-    s.commit();
+    box_pair(s, meshes);
     EXPECT_GT(clear_steps_agree(s, meshes, 4000, 21), 4000);
 }
 
