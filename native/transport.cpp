@@ -314,7 +314,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         const Float s = tau / mut_cm;
         if (!(s < kInf)) break;
         const Vec3 b = p + d * s;
-        if (!zone.clear(b)) break;
+        if (!zone.clear(b, s)) break;
         // interact(s), its steps in the same order.
         ++steps;
         p = b;  // = p + d * s, bit for bit

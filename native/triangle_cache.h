@@ -114,13 +114,16 @@ class TriangleCache {
 // Conservative forms of TriangleCache::covers() and of intersect()'s plane
 // test for a chain of steps in which each step starts where the last one
 // ended (transport.cpp's interior steps), intersect()'s look-behind being at
-// most `max_back`. clear(b) answers for the step from the last clear point p
-// to b: it holds b inside a ball shrunk by the look-behind and beyond every
-// plane's reach widened by the look-behind and a second rounding allowance,
-// on p's side. Then the next step, from b backed up by its look-behind, needs
-// no test of its start: clear() is true only where covers() and the plane
-// test would both pass (the allowances exceed their roundings ~50-fold), for
-// one ball test and one plane distance per cached plane.
+// most `max_back`. A point is clear when it lies inside the ball shrunk by
+// the look-behind and beyond every plane's reach widened by the look-behind
+// and a second rounding allowance, on the chain's side: then the step to it
+// passes both tests, and so does the look-behind of the next step, which
+// needs no test of its start. Clear points are found without a test per
+// step: a clear point carries a budget, its distance to the nearest of those
+// limits, and the steps after it spend the budget (|b - p| <= s for a unit
+// direction), so a step is tested only when the budget runs out. Every
+// allowance exceeds the rounding it covers ~50-fold: clear() is true only
+// where covers() and the plane test would both pass.
 class ClearSteps {
   public:
     static constexpr size_t kMaxPlanes = 8;
@@ -130,10 +133,12 @@ class ClearSteps {
         const auto& planes = cache.planes();
         if (planes.size() > kMaxPlanes) return false;
         c_ = cache.center();
-        const Float pad = max_back + 1e-14 * (max_abs_component(c_) + cache.radius());
-        const Float inner = cache.radius() - pad;
-        inner_r2_ = inner > 0 ? inner * inner * (1 - 1e-12) : 0;
-        if (!inside(p)) return false;
+        const Float scale = max_abs_component(c_) + cache.radius();
+        // Per step: the rounding of b = p + d s (a few ulps of |b| and of
+        // s <= 2 r) and of the distances a budget is made of.
+        slack_ = 1e-13 * scale;
+        inner_ = cache.radius() - max_back - 1e-14 * scale;
+        inner_r2_ = inner_ > 0 ? inner_ * inner_ * (1 - 1e-12) : 0;
         n_planes_ = planes.size();
         for (size_t k = 0; k < n_planes_; ++k) {
             const TriangleCache::Plane& q = planes[k];
@@ -143,26 +148,38 @@ class ClearSteps {
             n_[k] = q.n * side;
             off_[k] = q.off * side;
             lo_[k] = q.reach + cache.rounding() + max_back;
-            if (!(distance(k, p) > lo_[k])) return false;
         }
-        return true;
+        return renew(p);
     }
-    bool clear(const Vec3& b) const {
-        if (!inside(b)) return false;
-        for (size_t k = 0; k < n_planes_; ++k)
-            if (!(distance(k, b) > lo_[k])) return false;
-        return true;
+    // The step from the last clear point to b, s long: true only when b is
+    // clear (the step is in the ball and crosses no cached plane).
+    bool clear(const Vec3& b, Float s) {
+        const Float left = budget_ - (s + slack_);
+        if (left > 0) {
+            budget_ = left;
+            return true;
+        }
+        return renew(b);
     }
 
   private:
-    bool inside(const Vec3& x) const {
+    // Tests x and gives it its budget; false when x is not clear.
+    bool renew(const Vec3& x) {
         const Vec3 dx = x - c_;
-        return dot(dx, dx) < inner_r2_;
+        const Float q = dot(dx, dx);
+        if (!(q < inner_r2_)) return false;
+        Float budget = inner_ - std::sqrt(q);
+        for (size_t k = 0; k < n_planes_; ++k) {
+            const Float margin = dot(n_[k], x) - off_[k] - lo_[k];
+            if (!(margin > 0)) return false;
+            budget = std::min(budget, margin);
+        }
+        budget_ = budget - slack_;
+        return true;
     }
-    Float distance(size_t k, const Vec3& x) const { return dot(n_[k], x) - off_[k]; }
 
     Vec3 c_;
-    Float inner_r2_ = 0;
+    Float inner_ = 0, inner_r2_ = 0, slack_ = 0, budget_ = 0;
     size_t n_planes_ = 0;
     Vec3 n_[kMaxPlanes];
     Float off_[kMaxPlanes], lo_[kMaxPlanes];

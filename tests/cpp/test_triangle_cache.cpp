@@ -535,11 +535,11 @@ static int clear_steps_agree(const Scene& s, const std::vector<Mesh>& meshes, in
             4e-7 * (max_abs_component(cache.center()) + cache.radius() + 1e-3 * s.extent()) * 1.000001;
         ClearSteps zone;
         if (!zone.start(cache, p, max_back)) continue;
-        for (int k = 0; k < 50; ++k) {
+        for (int k = 0; k < 200; ++k) {
             const Vec3 d = random_unit(rng);
             const double len = radius * std::pow(10.0, -4 * U(rng)) * U(rng);
             const Vec3 b = p + d * len;
-            if (!zone.clear(b)) break;
+            if (!zone.clear(b, len)) break;
             ++cleared;
             const double back = 4e-7 * (max_abs_component(p) + 1e-3 * s.extent());
             EXPECT_LE(back, max_back);
