@@ -32,7 +32,19 @@ inline void sample_azimuth(Uniform&& uniform, Float* sin_phi, Float* cos_phi) {
 
 class HenyeyGreenstein {
   public:
-    explicit HenyeyGreenstein(Float g) : g_(g) {}
+    // The constants of sample_cos are computed once here: the same
+    // subexpressions, so the samples are bit-identical to evaluating them
+    // at every call.
+    explicit HenyeyGreenstein(Float g)
+        : g_(g),
+          kind_(g >= 1                ? Kind::kForward
+                : g <= -1             ? Kind::kBackward
+                : std::fabs(g) < 1e-6 ? Kind::kIsotropic
+                                      : Kind::kHG),
+          one_minus_g2_(1 - g * g),
+          one_minus_g_(1 - g),
+          two_g_(2 * g),
+          one_plus_g2_(1 + g * g) {}
     Float g() const { return g_; }
 
     // Density per unit cos(theta) on [-1, 1] (not per steradian):
@@ -50,12 +62,15 @@ class HenyeyGreenstein {
     // Inverse CDF (MCML manual eq. 3.28). It divides by 2g, so g -> 0 uses the
     // exact isotropic branch; |g| = 1 are deltas (no deflection / reversal).
     Float sample_cos(Float u) const {
-        if (g_ >= 1) return 1;
-        if (g_ <= -1) return -1;
-        if (std::fabs(g_) < 1e-6) return 2 * u - 1;
-        const Float s = (1 - g_ * g_) / (1 - g_ + 2 * g_ * u);
-        const Float c = (1 + g_ * g_ - s * s) / (2 * g_);
-        return std::clamp(c, Float(-1), Float(1));
+        if (kind_ == Kind::kHG) {
+            // s = (1 - g^2) / (1 - g + 2 g u), cos = (1 + g^2 - s^2) / (2 g).
+            const Float s = one_minus_g2_ / (one_minus_g_ + two_g_ * u);
+            const Float c = (one_plus_g2_ - s * s) / two_g_;
+            return std::clamp(c, Float(-1), Float(1));
+        }
+        if (kind_ == Kind::kForward) return 1;
+        if (kind_ == Kind::kBackward) return -1;
+        return 2 * u - 1;
     }
 
     // New direction about `dir`: cosine from HG, the azimuth given as
@@ -68,7 +83,10 @@ class HenyeyGreenstein {
     }
 
   private:
+    enum class Kind { kHG, kForward, kBackward, kIsotropic };
     Float g_;
+    Kind kind_;
+    Float one_minus_g2_, one_minus_g_, two_g_, one_plus_g2_;
 };
 
 }  // namespace ep

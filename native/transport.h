@@ -6,7 +6,8 @@
 // the rig head it meets; it escapes only when its ray meets nothing (issue 9,
 // docs/design.md "Light crosses the lumen"). transport.cpp walks one packet in
 // named steps over one PacketState: launch, locate_start, find_crossings,
-// cross_interfaces, interact, and leave_tissue / through_ambient.
+// cross_interfaces, interact, and leave_tissue / through_ambient; deep in a
+// scattering region, interior_steps runs the same steps in a tight loop.
 #pragma once
 #include <memory>
 #include <vector>

@@ -91,6 +91,12 @@ class TriangleCache {
     size_t size() const { return tris_.size(); }
     const std::vector<Triangle>& triangles() const { return tris_; }
     size_t plane_count() const { return planes_.size(); }
+    const std::vector<Plane>& planes() const { return planes_; }
+    // The rounding allowance of intersect()'s plane distances over the ball
+    // (reset()): a second one of these on top of a plane's reach covers the
+    // few-ulp differences of a test computed by other expressions
+    // (transport.cpp's interior steps).
+    Float rounding() const { return eps_; }
 
   private:
     // The triangle tests of the planes in `open` (bit k = plane k).
@@ -103,6 +109,80 @@ class TriangleCache {
     std::vector<Plane> planes_;
     std::vector<uint32_t> seen_;  // first_offer's stamps, one per scene triangle
     uint32_t stamp_ = 0;
+};
+
+// Conservative forms of TriangleCache::covers() and of intersect()'s plane
+// test for a chain of steps in which each step starts where the last one
+// ended (transport.cpp's interior steps), intersect()'s look-behind being at
+// most `max_back`. A point is clear when it lies inside the ball shrunk by
+// the look-behind and beyond every plane's reach widened by the look-behind
+// and a second rounding allowance, on the chain's side: then the step to it
+// passes both tests, and so does the look-behind of the next step, which
+// needs no test of its start. Clear points are found without a test per
+// step: a clear point carries a budget, its distance to the nearest of those
+// limits, and the steps after it spend the budget (|b - p| <= s for a unit
+// direction), so a step is tested only when the budget runs out. Every
+// allowance exceeds the rounding it covers ~50-fold: clear() is true only
+// where covers() and the plane test would both pass.
+class ClearSteps {
+  public:
+    static constexpr size_t kMaxPlanes = 8;
+    // Takes the cache's ball and planes; false when p itself is not clear (or
+    // the cache has more than kMaxPlanes planes): no step can start there.
+    bool start(const TriangleCache& cache, const Vec3& p, Float max_back) {
+        const auto& planes = cache.planes();
+        if (planes.size() > kMaxPlanes) return false;
+        c_ = cache.center();
+        const Float scale = max_abs_component(c_) + cache.radius();
+        // Per step: the rounding of b = p + d s (a few ulps of |b| and of
+        // s <= 2 r) and of the distances a budget is made of.
+        slack_ = 1e-13 * scale;
+        inner_ = cache.radius() - max_back - 1e-14 * scale;
+        inner_r2_ = inner_ > 0 ? inner_ * inner_ * (1 - 1e-12) : 0;
+        n_planes_ = planes.size();
+        for (size_t k = 0; k < n_planes_; ++k) {
+            const TriangleCache::Plane& q = planes[k];
+            // Oriented so that p's side is positive (negation is exact, so
+            // the distances are exactly +-intersect()'s).
+            const Float side = dot(q.n, p) - q.off > 0 ? 1 : -1;
+            n_[k] = q.n * side;
+            off_[k] = q.off * side;
+            lo_[k] = q.reach + cache.rounding() + max_back;
+        }
+        return renew(p);
+    }
+    // The step from the last clear point to b, s long: true only when b is
+    // clear (the step is in the ball and crosses no cached plane).
+    bool clear(const Vec3& b, Float s) {
+        const Float left = budget_ - (s + slack_);
+        if (left > 0) {
+            budget_ = left;
+            return true;
+        }
+        return renew(b);
+    }
+
+  private:
+    // Tests x and gives it its budget; false when x is not clear.
+    bool renew(const Vec3& x) {
+        const Vec3 dx = x - c_;
+        const Float q = dot(dx, dx);
+        if (!(q < inner_r2_)) return false;
+        Float budget = inner_ - std::sqrt(q);
+        for (size_t k = 0; k < n_planes_; ++k) {
+            const Float margin = dot(n_[k], x) - off_[k] - lo_[k];
+            if (!(margin > 0)) return false;
+            budget = std::min(budget, margin);
+        }
+        budget_ = budget - slack_;
+        return true;
+    }
+
+    Vec3 c_;
+    Float inner_ = 0, inner_r2_ = 0, slack_ = 0, budget_ = 0;
+    size_t n_planes_ = 0;
+    Vec3 n_[kMaxPlanes];
+    Float off_[kMaxPlanes], lo_[kMaxPlanes];
 };
 
 }  // namespace ep

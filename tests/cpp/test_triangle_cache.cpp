@@ -203,15 +203,20 @@ Medium tissue() {
     return m;
 }
 
-TEST(TriangleCache, SameCrossingsAsFullQueryOnBoxesWithCoincidentFaces) {
-    Scene s(1.0, 1.0);
+// Two unit-thick boxes sharing the face z = -1 (coincident faces), committed.
+void box_pair(Scene& s, std::vector<Mesh>& meshes) {
     const Medium m = tissue();
-    std::vector<Mesh> meshes(2);
     box(-1, -1, -1, 1, 1, 0, meshes[0].v, meshes[0].t);
     s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, m, 0);
     box(-1, -1, -2, 1, 1, -1, meshes[1].v, meshes[1].t);
     s.add_region("bottom", meshes[1].v.data(), 8, meshes[1].t.data(), 12, m, 1);
     s.commit();
+}
+
+TEST(TriangleCache, SameCrossingsAsFullQueryOnBoxesWithCoincidentFaces) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> meshes(2);
+    box_pair(s, meshes);
     const int crossed = compare(s, meshes, 20000, 11);
     EXPECT_GT(crossed, 20000 / 3);  // most segments cross a surface
 }
@@ -507,4 +512,60 @@ TEST(SingleHit, SharedFaceTrianglesHaveNoClearance) {
     EXPECT_NEAR(h.t, 0.5, 1e-15);
     EXPECT_GT(f.clearance, 1e-4);  // the isolation cap 1e-4 (|x| + extent), below the diagonal's 0.07
     EXPECT_GT(h.cos_dn, 0);        // leaving the top box
+}
+
+// ClearSteps (the transport's interior steps) answers "nothing to cross" only
+// where the cache's own tests would: for chains of random steps near faces,
+// edges and vertices, every step it calls clear is covered by the ball and
+// meets no cached triangle from its look-behind on; and it is not so
+// conservative that it clears nothing.
+static int clear_steps_agree(const Scene& s, const std::vector<Mesh>& meshes, int chains, uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> U(0, 1);
+    TriangleCache cache;
+    std::vector<Hit> hits;
+    int cleared = 0;
+    for (int c = 0; c < chains; ++c) {
+        int kind;
+        const double radius = 0.05 + 0.25 * U(rng);
+        Vec3 p = near_feature(meshes, rng, &kind) + random_unit(rng) * (radius * U(rng));
+        EXPECT_TRUE(s.gather_triangles(p, radius, 4096, cache));
+        if (cache.plane_count() > ClearSteps::kMaxPlanes) continue;
+        const double max_back =
+            4e-7 * (max_abs_component(cache.center()) + cache.radius() + 1e-3 * s.extent()) * 1.000001;
+        ClearSteps zone;
+        if (!zone.start(cache, p, max_back)) continue;
+        for (int k = 0; k < 200; ++k) {
+            const Vec3 d = random_unit(rng);
+            const double len = radius * std::pow(10.0, -4 * U(rng)) * U(rng);
+            const Vec3 b = p + d * len;
+            if (!zone.clear(b, len)) break;
+            ++cleared;
+            const double back = 4e-7 * (max_abs_component(p) + 1e-3 * s.extent());
+            EXPECT_LE(back, max_back);
+            EXPECT_TRUE(cache.covers(p - d * back, b)) << "chain " << c << " step " << k;
+            cache.intersect(p, d, -back, len, hits);
+            EXPECT_TRUE(hits.empty()) << "chain " << c << " step " << k << " kind " << kind;
+            p = b;
+        }
+    }
+    return cleared;
+}
+
+TEST(ClearSteps, ClearOnlyWhereTheCacheFindsNothingOnBoxesWithCoincidentFaces) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> meshes(2);
+    box_pair(s, meshes);
+    EXPECT_GT(clear_steps_agree(s, meshes, 4000, 21), 4000);
+}
+
+TEST(ClearSteps, ClearOnlyWhereTheCacheFindsNothingOnCurvedMesh) {
+    Scene s(1.0, 1.0);
+    const Medium m = tissue();
+    std::vector<Mesh> meshes(1);
+    sphere(1.0f, 0, 0, 0, 48, 24, meshes[0].v, meshes[0].t);
+    s.add_region("sphere", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3, m,
+                 0);
+    s.commit();
+    EXPECT_GT(clear_steps_agree(s, meshes, 4000, 22), 1000);
 }
