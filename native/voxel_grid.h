@@ -127,10 +127,11 @@ class VoxelAccumulator {
     // The same with the exact values (the byte form of unit_io.cpp).
     std::vector<std::pair<Coord, Fixed192>> sorted_fixed() const;
 
-    // Calls f(const Coord&, double) for every voxel in sorted order.
+    // Calls f(const Coord&, double) for every voxel in sorted order, with
+    // the value rounded to a double (only the slot order is copied).
     template <class F>
     void for_each_sorted(F&& f) const {
-        for (const auto& kv : sorted()) f(kv.first, kv.second);
+        for (size_t i : sorted_slots()) f(slots_[i].key, slots_[i].value.to_double());
     }
 
     size_t voxel_count() const { return size_; }
@@ -164,6 +165,7 @@ class VoxelAccumulator {
     // compares are several times cheaper on the probe path.
     static bool same(const Coord& a, const Coord& b) { return ((a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2])) == 0; }
 
+    std::vector<size_t> sorted_slots() const;  // used slots by ascending key
     void add_at(const Coord& c, const Fixed192& value);
     void add_to(Slot& s, const Fixed192& value) {
         if (!s.value.add(value)) overflow(s.key);

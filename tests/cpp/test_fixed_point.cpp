@@ -55,10 +55,10 @@ TEST(Fixed192, ConvertsExactlyInItsRange) {
 
 TEST(Fixed192, RoundsTinyValuesToTheLastBitTiesToEven) {
     const double lsb = std::ldexp(1.0, -Fixed192::kFracBits);
-    EXPECT_TRUE(fx(0.5 * lsb).is_zero());            // a tie: to even 0
-    EXPECT_EQ(fx(0.75 * lsb).to_double(), lsb);      // above half: up
-    EXPECT_EQ(fx(1.5 * lsb).to_double(), 2 * lsb);   // a tie: to even 2
-    EXPECT_EQ(fx(2.5 * lsb).to_double(), 2 * lsb);   // a tie: to even 2
+    EXPECT_TRUE(fx(0.5 * lsb).is_zero());             // a tie: to even 0
+    EXPECT_EQ(fx(0.75 * lsb).to_double(), lsb);       // above half: up
+    EXPECT_EQ(fx(1.5 * lsb).to_double(), 2 * lsb);    // a tie: to even 2
+    EXPECT_EQ(fx(2.5 * lsb).to_double(), 2 * lsb);    // a tie: to even 2
     EXPECT_EQ(fx(-2.5 * lsb).to_double(), -2 * lsb);  // symmetric
     EXPECT_TRUE(fx(std::numeric_limits<double>::denorm_min()).is_zero());
     EXPECT_TRUE(fx(-0.0).is_zero());

@@ -157,8 +157,8 @@ TEST(UnitIo, StoreRunWithGridsKeepsOnlyTheMergedUnitsDeposits) {
     c.grid_path = ::testing::TempDir() + "/unit_io_store_pieces.vdb";
     UnitReducer reducer(s.scene, s.source, c);
     for (uint64_t first = 0; !reducer.stopped(); first += 3)  // 3 units per chunk: the stop falls inside one
-        reducer.add_batch(unpack_units(pack_units(trace_units(s.scene, s.source, c, first, 3, nullptr)),
-                                       c.grid_voxel_size, true));
+        reducer.add_batch(
+            unpack_units(pack_units(trace_units(s.scene, s.source, c, first, 3, nullptr)), c.grid_voxel_size, true));
     const RunResult pieces = reducer.finish(1);
     EXPECT_EQ(two.stop, StopReason::kStore);
     EXPECT_EQ(one.packets, two.packets);
