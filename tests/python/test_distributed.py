@@ -81,32 +81,15 @@ def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
 def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     scene, rig = fluorescent_endoscope()
     grids = dict(voxel_size=0.05, per_fluorophore=True)
-    dist = ep.run(
-        scene,
-        rig,
-        photons=3000,
-        seed=5,
-        client=client,
-        chunk_units=7,
-        grids=ep.GridRequest(path=str(tmp_path / "dist.vdb"), **grids),
-    )
-    local = ep.run(
-        scene, rig, photons=3000, seed=5, threads=1, grids=ep.GridRequest(path=str(tmp_path / "local.vdb"), **grids)
-    )
+
+    def run(name, **how):
+        grid = ep.GridRequest(path=str(tmp_path / f"{name}.vdb"), **grids)
+        return ep.run(scene, rig, photons=3000, seed=5, grids=grid, **how)
+
+    dist, local = run("dist", client=client, chunk_units=7), run("local", threads=1)
     assert_same_result(dist, local)
     # One grid set per chunk: another chunking, and two local threads, give the same voxels.
-    other = ep.run(
-        scene,
-        rig,
-        photons=3000,
-        seed=5,
-        client=client,
-        chunk_units=20,
-        grids=ep.GridRequest(path=str(tmp_path / "other.vdb"), **grids),
-    )
-    two = ep.run(
-        scene, rig, photons=3000, seed=5, threads=2, grids=ep.GridRequest(path=str(tmp_path / "two.vdb"), **grids)
-    )
+    other, two = run("other", client=client, chunk_units=20), run("two", threads=2)
     assert other.grid_absorbed_sum == two.grid_absorbed_sum == local.grid_absorbed_sum
     for name in local.grid_names:
         b, _, _ = grid_to_numpy(local.grid_path, name)
