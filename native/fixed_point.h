@@ -35,23 +35,42 @@ class Fixed192 {
     // Exact conversion of v (rounded below 2^-72, see above). False when v is
     // not finite or |v| >= 2^64; `out` is then unchanged.
     static bool from_double(double v, Fixed192& out) {
-        // Fast path: a positive normal double below 8 and at least 2^-72 is
-        // its 53-bit significand shifted left by e - 951 < 75 bits (e: biased
-        // exponent), which fits the low 128 bits. The sign bit makes e - 951
-        // huge, so negative values, zero, subnormals, large values, inf and
-        // NaN all take the general path.
-        uint64_t b;
-        std::memcpy(&b, &v, sizeof b);
-        const uint64_t shift = (b >> 52) - 951;
-        if (shift <= 74) {
-            const uint64_t mant = (b & ((uint64_t(1) << 52) - 1)) | (uint64_t(1) << 52);
-            const unsigned __int128 low = static_cast<unsigned __int128>(mant) << shift;
+        unsigned __int128 low;
+        if (fast_low(v, low)) {
             out.w_[0] = uint64_t(low);
             out.w_[1] = uint64_t(low >> 64);
             out.w_[2] = 0;
             return true;
         }
         return from_double_general(v, out);
+    }
+
+    // The fast path of from_double, for the deposit loop: a positive normal
+    // double of 2^-72 <= v < 8 is its 53-bit significand shifted left by
+    // e - 951 < 75 bits (e: the biased exponent), which fits the low 128 bits
+    // (`low`). False for every other v (the sign bit makes e - 951 huge, so
+    // negative values, zero, subnormals, large values, inf and NaN all fail):
+    // use from_double.
+    static bool fast_low(double v, unsigned __int128& low) {
+        uint64_t b;
+        std::memcpy(&b, &v, sizeof b);
+        const uint64_t shift = (b >> 52) - 951;
+        if (shift > 74) return false;
+        const uint64_t mant = (b & ((uint64_t(1) << 52) - 1)) | (uint64_t(1) << 52);
+        low = static_cast<unsigned __int128>(mant) << shift;
+        return true;
+    }
+
+    // *this += `low` (a fast_low value, below 2^127), exactly. False (and
+    // *this unchanged) if the total leaves the range.
+    bool add_low(unsigned __int128 low) {
+        const unsigned __int128 a = low128(), sum = a + low;
+        const uint64_t carry = sum < a;
+        if (carry && int64_t(w_[2]) == INT64_MAX) return false;
+        w_[0] = uint64_t(sum);
+        w_[1] = uint64_t(sum >> 64);
+        w_[2] += carry;
+        return true;
     }
 
     // *this += o, exactly. False (and *this unchanged) if the total leaves

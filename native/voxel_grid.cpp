@@ -109,6 +109,21 @@ void VoxelAccumulator::add_dropped(uint64_t count, const Fixed192& value) {
             "range (docs/numerics.md, \"Grid sums\")");
 }
 
+void VoxelAccumulator::add_general(double x, double y, double z, double value) {
+    if (value == 0.0) return;
+    Fixed192 f;
+    Coord c;
+    if (!Fixed192::from_double(value, f)) {
+        drop(value);
+        return;
+    }
+    if (!index_of(x, y, z, c)) {
+        drop(f);
+        return;
+    }
+    add_at(c, f);
+}
+
 void VoxelAccumulator::add_at(const Coord& c, const Fixed192& value) {
     const size_t i = find_or_insert(c);
     add_to(slots_[i], value);

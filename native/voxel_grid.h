@@ -55,25 +55,23 @@ class VoxelAccumulator {
     // creates no voxel. A voxel total leaving the fixed-point range throws
     // std::overflow_error naming the voxel (never a silent wrap).
     void add(double x, double y, double z, double value) {
-        if (value == 0.0) return;
-        Coord c;
-        Fixed192 f;
-        if (!Fixed192::from_double(value, f)) {
-            drop(value);
+        // The common deposit (2^-72 <= value < 8) stays in registers; every
+        // other value (zero included) takes add_general.
+        unsigned __int128 low;
+        if (!Fixed192::fast_low(value, low)) {
+            add_general(x, y, z, value);
             return;
         }
+        Coord c;
         if (!index_of(x, y, z, c)) {
-            drop(f);
+            drop(value);
             return;
         }
         // Consecutive deposits of one packet usually fall in the same voxel
         // (mean free paths are often shorter than a voxel), so remembering the
         // last slot skips the hash probe in the common case.
-        if (last_slot_ != kNoSlot && same(c, slots_[last_slot_].key)) {
-            add_to(slots_[last_slot_], f);
-            return;
-        }
-        add_at(c, f);
+        if (last_slot_ == kNoSlot || !same(c, slots_[last_slot_].key)) last_slot_ = find_or_insert(c);
+        if (!slots_[last_slot_].value.add_low(low)) overflow(c);
     }
 
     // Adds `value` to voxel `c` directly (index space). Indices beyond
@@ -166,6 +164,7 @@ class VoxelAccumulator {
     static bool same(const Coord& a, const Coord& b) { return ((a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2])) == 0; }
 
     std::vector<size_t> sorted_slots() const;  // used slots by ascending key
+    void add_general(double x, double y, double z, double value);
     void add_at(const Coord& c, const Fixed192& value);
     void add_to(Slot& s, const Fixed192& value) {
         if (!s.value.add(value)) overflow(s.key);

@@ -124,4 +124,28 @@ TEST(Fixed192, ReportsOverflowAndStaysUnchanged) {
     EXPECT_EQ(neg.to_double(), -0x1p67);
 }
 
+TEST(Fixed192, FastPathAdditionCarriesAndStopsAtTheTop) {
+    // The deposit loop adds fast_low values straight into the low 128 bits;
+    // 10 x 7 = 70 carries into word 2 (16 per unit there) and equals the sum
+    // of the general path.
+    unsigned __int128 low;
+    ASSERT_TRUE(Fixed192::fast_low(7.0, low));
+    EXPECT_FALSE(Fixed192::fast_low(8.0, low));      // general path from 8 up
+    EXPECT_FALSE(Fixed192::fast_low(0x1p-73, low));  // and below 2^-72
+    EXPECT_FALSE(Fixed192::fast_low(-1.0, low));
+    EXPECT_FALSE(Fixed192::fast_low(0.0, low));
+    ASSERT_TRUE(Fixed192::fast_low(7.0, low));
+    Fixed192 fast, general;
+    for (int n = 0; n < 10; ++n) {
+        ASSERT_TRUE(fast.add_low(low));
+        ASSERT_TRUE(general.add(fx(7.0)));
+    }
+    EXPECT_EQ(fast, general);
+    EXPECT_EQ(fast.words()[2], 4u);
+    EXPECT_EQ(fast.to_double(), 70.0);
+    Fixed192 top = Fixed192::from_words(~uint64_t(0), ~uint64_t(0), uint64_t(INT64_MAX));
+    EXPECT_FALSE(top.add_low(1));
+    EXPECT_EQ(top, Fixed192::from_words(~uint64_t(0), ~uint64_t(0), uint64_t(INT64_MAX)));
+}
+
 }  // namespace
