@@ -141,69 +141,55 @@ void validate_config(const RunConfig& c, const Scene& scene) {
                                     " with fluorescent_only = True needs a fluorophore, and the scene has none");
 }
 
-std::unique_ptr<VoxelAccumulator> scaled(const VoxelAccumulator& a, double s) {
-    auto out = std::make_unique<VoxelAccumulator>(a.voxel_size());
-    for (const auto& [c, v] : a.sorted()) out->add_index(c, v * s);
-    return out;
+// Writes the run's grids, normalised per launched packet so that the absorbed
+// grid sums to the `absorbed` fraction. The file is written atomically
+// (write_vdb). Throws std::logic_error if the grids do not hold the deposits
+// of exactly the merged packets (a unit counted twice or lost).
+void write_grids(const GridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result) {
+    if (grids.packets != result.packets)
+        throw std::logic_error("grids: hold the deposits of " + std::to_string(grids.packets) +
+                               " packets, but the run merged " + std::to_string(result.packets) +
+                               " (internal error: please report it)");
+    const double s = 1.0 / double(result.packets);
+    std::vector<GridOutput> outs;
+    outs.push_back(
+        {"absorbed",
+         "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet",
+         &grids.absorbed, s});
+    outs.push_back({"fluorescence",
+                    "weight of fluorescent packets summed over their interaction sites (volume photon map "
+                    "density), per launched packet",
+                    &grids.fluorescence, s});
+    for (size_t f = 0; f < grids.per_fluorophore.size(); ++f)
+        outs.push_back({"fluorescence_" + scene.fluorophore_name(int(f)),
+                        "volume photon map density of packets that fluoresced by " + scene.fluorophore_name(int(f)),
+                        &grids.per_fluorophore[f], s});
+    std::map<std::string, std::string> meta;
+    meta["packets"] = std::to_string(result.packets);
+    meta["seed"] = std::to_string(cfg.seed);
+    meta["unit_cm"] = std::to_string(scene.unit_cm());
+    meta["engine"] = "endophoton " + engine_version();
+    meta["voxel_size"] = std::to_string(cfg.grid_voxel_size);
+    write_vdb(cfg.grid_path, outs, meta);
+    result.grid_path = cfg.grid_path;
+    for (const auto& o : outs) result.grid_names.push_back(o.name);
+    result.grid_absorbed_sum = grids.absorbed.sum() * s;
 }
 
-// Volume grids of a run: the merged accumulators and the writer.
-struct RunGrids {
-    std::unique_ptr<VoxelAccumulator> absorbed, fluorescence;
-    std::vector<std::unique_ptr<VoxelAccumulator>> per_fluorophore;
-
-    RunGrids(double voxel, size_t per_fl)
-        : absorbed(std::make_unique<VoxelAccumulator>(voxel)), fluorescence(std::make_unique<VoxelAccumulator>(voxel)) {
-        for (size_t f = 0; f < per_fl; ++f) per_fluorophore.push_back(std::make_unique<VoxelAccumulator>(voxel));
-    }
-    void merge(const UnitOutput& u) {
-        absorbed->merge_from(*u.absorbed_grid);
-        fluorescence->merge_from(*u.fluorescence_grid);
-        for (size_t f = 0; f < per_fluorophore.size(); ++f) per_fluorophore[f]->merge_from(*u.per_fluorophore[f]);
-    }
-    // Grids hold per-launched-packet values, so the absorbed grid sums to the
-    // `absorbed` fraction. The file is written atomically (write_vdb).
-    void write(const Scene& scene, const RunConfig& cfg, RunResult& result) const {
-        const double s = 1.0 / double(result.packets);
-        auto abs_n = scaled(*absorbed, s);
-        auto fl_n = scaled(*fluorescence, s);
-        std::vector<std::unique_ptr<VoxelAccumulator>> per_n;
-        std::vector<GridOutput> outs;
-        outs.push_back(
-            {"absorbed",
-             "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet",
-             abs_n.get()});
-        outs.push_back({"fluorescence",
-                        "weight of fluorescent packets summed over their interaction sites (volume photon map "
-                        "density), per launched packet",
-                        fl_n.get()});
-        for (size_t f = 0; f < per_fluorophore.size(); ++f) {
-            per_n.push_back(scaled(*per_fluorophore[f], s));
-            outs.push_back({"fluorescence_" + scene.fluorophore_name(int(f)),
-                            "volume photon map density of packets that fluoresced by " + scene.fluorophore_name(int(f)),
-                            per_n.back().get()});
-        }
-        std::map<std::string, std::string> meta;
-        meta["packets"] = std::to_string(result.packets);
-        meta["seed"] = std::to_string(cfg.seed);
-        meta["unit_cm"] = std::to_string(scene.unit_cm());
-        meta["engine"] = "endophoton " + engine_version();
-        meta["voxel_size"] = std::to_string(cfg.grid_voxel_size);
-        write_vdb(cfg.grid_path, outs, meta);
-        result.grid_path = cfg.grid_path;
-        for (const auto& o : outs) result.grid_names.push_back(o.name);
-        result.grid_absorbed_sum = abs_n->sum();
-    }
-};
+std::unique_ptr<GridSet> new_grids(const Scene& scene, const RunConfig& cfg) {
+    return std::make_unique<GridSet>(cfg.grid_voxel_size, cfg.grid_per_fluorophore ? scene.fluorophore_count() : 0);
+}
 
 // Merges finished units strictly in unit order (bit-identical totals for any
-// thread count) and applies the stop rule after each. Not thread-safe: the
-// caller holds the run's mutex.
+// thread count) and applies the stop rule after each. The own grids of the
+// units it merges (runs with grids_per_unit) wait in accepted() for the
+// caller to add them, in any order. Not thread-safe: the caller holds the
+// run's mutex.
 class UnitMerger {
   public:
-    UnitMerger(const RunConfig& cfg, uint64_t n_units_max, RunResult& result, RunGrids* grids,
+    UnitMerger(const RunConfig& cfg, uint64_t n_units_max, RunResult& result,
                std::chrono::steady_clock::time_point t_start)
-        : cfg_(cfg), rule_(cfg, n_units_max), result_(result), grids_(grids), t_start_(t_start) {}
+        : cfg_(cfg), rule_(cfg, n_units_max), result_(result), t_start_(t_start) {}
 
     // Takes a finished unit; returns true once the run must stop.
     bool add(uint64_t index, std::unique_ptr<UnitOutput> unit) {
@@ -218,6 +204,7 @@ class UnitMerger {
         return result_.stop != StopReason::kNone;
     }
     uint64_t records() const { return records_; }
+    std::vector<std::unique_ptr<GridSet>>& accepted() { return accepted_; }
 
   private:
     void merge(UnitOutput& u) {
@@ -231,7 +218,7 @@ class UnitMerger {
             records_ += take;
             result_.peak_record_bytes = std::max(result_.peak_record_bytes, result_.records.memory_bytes());
         }
-        if (grids_) grids_->merge(u);
+        if (u.own_grids) accepted_.push_back(std::move(u.own_grids));
         result_.units.push_back(std::move(u.tally));
         const size_t k = result_.units.size();
         if (cfg_.test_cancel_after_units > 0 && k >= cfg_.test_cancel_after_units) {
@@ -245,9 +232,9 @@ class UnitMerger {
     const RunConfig& cfg_;
     StopRule rule_;
     RunResult& result_;
-    RunGrids* grids_;
     std::chrono::steady_clock::time_point t_start_;
     std::map<uint64_t, std::unique_ptr<UnitOutput>> pending_;
+    std::vector<std::unique_ptr<GridSet>> accepted_;
     uint64_t records_ = 0;
 };
 
@@ -284,16 +271,19 @@ struct RunState {
     }
 };
 
-std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, uint64_t unit_size, uint64_t u) {
+// A unit whose deposits go to `shared` (the grids of the thread or chunk
+// tracing it), or to its own grids when the run keeps grids per unit.
+std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, uint64_t unit_size, uint64_t u,
+                                     GridSet* shared) {
     auto out = std::make_unique<UnitOutput>();
     out->tally.reset(scene.region_count());
     out->first_packet = u * unit_size;
-    if (cfg.grid_voxel_size > 0) {
-        out->absorbed_grid = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
-        out->fluorescence_grid = std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size);
-        if (cfg.grid_per_fluorophore)
-            for (size_t f = 0; f < scene.fluorophore_count(); ++f)
-                out->per_fluorophore.push_back(std::make_unique<VoxelAccumulator>(cfg.grid_voxel_size));
+    if (grids_per_unit(cfg)) {
+        out->own_grids = new_grids(scene, cfg);
+        out->deposit_into(out->own_grids.get());
+    } else if (cfg.grid_voxel_size > 0) {
+        if (!shared) throw std::logic_error("grids: a unit of a fixed-count run has no grids to deposit into");
+        out->deposit_into(shared);
     }
     return out;
 }
@@ -303,8 +293,8 @@ std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, u
 // abandons the unit (nullptr).
 template <class Tick>
 std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg, const UnitPlan& plan,
-                                       uint64_t u, Tick&& tick) {
-    auto out = new_unit(scene, cfg, plan.unit_size, u);
+                                       uint64_t u, GridSet* shared, Tick&& tick) {
+    auto out = new_unit(scene, cfg, plan.unit_size, u, shared);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     tracer.begin_unit();
     for (uint64_t k = first; k < end; ++k) {
@@ -312,35 +302,55 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
         tracer.trace(k, *out);
         out->tally.record_packet();
     }
+    if (out->grids) out->grids->packets += out->tally.packets;
     return out;
 }
 
-// One worker: claims units, traces their packets, hands them to the merger.
+// Claims units, traces their packets and hands them to the merger until the
+// run stops or no unit is left. Deposits go to `grids` (the thread's grids)
+// directly, or, per unit, to the unit's own grids, which come back here once
+// the merger has accepted the unit and are added outside the lock.
+void trace_claimed_units(RunState& st, Tracer& tracer, GridSet* grids) {
+    const UnitPlan plan{st.unit_size, st.limit, st.n_units_max};
+    std::vector<std::unique_ptr<GridSet>> accepted;
+    while (!st.stop.load()) {
+        if (st.cancelled()) return;
+        const uint64_t u = st.next_unit.fetch_add(1);
+        if (u >= st.n_units_max) return;
+        const uint64_t first = u * st.unit_size, end = std::min(st.limit, first + st.unit_size);
+        uint64_t counted = first;
+        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, grids, [&](uint64_t k) {
+            // Cancel is checked before every packet (two relaxed loads), so a
+            // Ctrl-C lands within one packet even when packets are slow.
+            if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
+            if ((k & 255) == 0) {
+                st.done_packets.fetch_add(k - counted);  // progress every 256 packets
+                counted = k;
+            }
+            return true;
+        });
+        if (!out) return;
+        st.done_packets.fetch_add(end - counted);
+        {
+            std::lock_guard<std::mutex> lock(st.mu);
+            if (st.stop.load()) return;
+            if (st.merger.add(u, std::move(out), accepted)) st.stop.store(true);
+        }
+        for (const auto& g : accepted) grids->merge_from(*g);
+        accepted.clear();
+    }
+}
+
+// One worker: traces units with its own grids for the whole run (when the
+// run has grids) and hands those to the reducer once, at its end.
 void worker(RunState& st) {
     try {
         Tracer tracer(st.scene, st.source, st.halton, st.cfg);
-        while (!st.stop.load()) {
-            if (st.cancelled()) return;
-            const uint64_t u = st.next_unit.fetch_add(1);
-            if (u >= st.n_units_max) return;
-            const uint64_t first = u * st.unit_size, end = std::min(st.limit, first + st.unit_size);
-            uint64_t counted = first;
-            auto out = trace_unit(tracer, st.scene, st.cfg, UnitPlan{st.unit_size, st.limit, st.n_units_max}, u,
-                                  [&](uint64_t k) {
-                                      // Cancel is checked before every packet (two relaxed loads), so a
-                                      // Ctrl-C lands within one packet even when packets are slow.
-                                      if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
-                                      if ((k & 255) == 0) {
-                                          st.done_packets.fetch_add(k - counted);  // progress every 256 packets
-                                          counted = k;
-                                      }
-                                      return true;
-                                  });
-            if (!out) return;
-            st.done_packets.fetch_add(end - counted);
+        std::unique_ptr<GridSet> grids = st.cfg.grid_voxel_size > 0 ? new_grids(st.scene, st.cfg) : nullptr;
+        trace_claimed_units(st, tracer, grids.get());
+        if (grids) {
             std::lock_guard<std::mutex> lock(st.mu);
-            if (st.stop.load()) return;
-            if (st.merger.add(u, std::move(out))) st.stop.store(true);
+            st.merger.add_grids(std::move(grids));
         }
     } catch (const std::exception& e) {
         st.fail(e.what());
@@ -410,18 +420,24 @@ UnitPlan plan_units(const RunConfig& cfg) {
     return p;
 }
 
+bool grids_per_unit(const RunConfig& cfg) {
+    return cfg.grid_voxel_size > 0 && (cfg.photons == 0 || cfg.time_budget_s > 0);
+}
+
 UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig& cfg_in, uint64_t first_unit,
                       uint64_t count, std::atomic<bool>* cancel) {
     const RunConfig cfg = prepare_config(scene, source, cfg_in, nullptr);
     const UnitPlan plan = plan_units(cfg);
     UnitBatch batch;
     batch.first_unit = first_unit;
+    // One grid set for the whole chunk unless every unit keeps its own.
+    if (cfg.grid_voxel_size > 0 && !grids_per_unit(cfg)) batch.grids = new_grids(scene, cfg);
     if (first_unit >= plan.n_units_max) return batch;
     count = std::min(count, plan.n_units_max - first_unit);
     const Halton halton(cfg.seed);
     Tracer tracer(scene, source, halton, cfg);
     for (uint64_t u = first_unit; u < first_unit + count; ++u) {
-        auto out = trace_unit(tracer, scene, cfg, plan, u,
+        auto out = trace_unit(tracer, scene, cfg, plan, u, batch.grids.get(),
                               [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); });
         if (!out) break;
         batch.units.push_back(std::move(out));
@@ -435,7 +451,7 @@ struct UnitReducer::Impl {
     const RunConfig cfg;
     const UnitPlan plan;
     const std::chrono::steady_clock::time_point t_start;
-    std::unique_ptr<RunGrids> grids;
+    std::unique_ptr<GridSet> grids;  // the run's: the sum of every grid set handed in
     UnitMerger merger;
 
     Impl(const Scene& sc, const Source& so, const RunConfig& c)
@@ -443,21 +459,47 @@ struct UnitReducer::Impl {
           cfg(prepare_config(sc, so, c, &result.warnings)),
           plan(plan_units(cfg)),
           t_start(std::chrono::steady_clock::now()),
-          grids(cfg.grid_voxel_size > 0
-                    ? std::make_unique<RunGrids>(cfg.grid_voxel_size,
-                                                 cfg.grid_per_fluorophore ? sc.fluorophore_count() : 0)
-                    : nullptr),
-          merger(cfg, plan.n_units_max, result, grids.get(), t_start) {
+          merger(cfg, plan.n_units_max, result, t_start) {
         result.unit_size = plan.unit_size;
+    }
+    // Adds a grid set to the run's. The smaller set is merged into the larger
+    // (fewer insertions, less growth); exact addition makes the two ways equal.
+    void add_grids(std::unique_ptr<GridSet> g) {
+        if (!grids) {
+            grids = std::move(g);
+            return;
+        }
+        if (g->absorbed.voxel_count() > grids->absorbed.voxel_count()) std::swap(g, grids);
+        grids->merge_from(*g);
     }
 };
 
 UnitReducer::UnitReducer(const Scene& scene, const Source& source, const RunConfig& cfg)
     : impl_(std::make_unique<Impl>(scene, source, cfg)) {}
 UnitReducer::~UnitReducer() = default;
-bool UnitReducer::add(uint64_t index, std::unique_ptr<UnitOutput> unit) {
+bool UnitReducer::add(uint64_t index, std::unique_ptr<UnitOutput> unit,
+                      std::vector<std::unique_ptr<GridSet>>& accepted) {
     if (impl_->result.stop != StopReason::kNone) return true;  // past the stop point: discarded
-    return impl_->merger.add(index, std::move(unit));
+    const bool stop = impl_->merger.add(index, std::move(unit));
+    for (auto& g : impl_->merger.accepted()) accepted.push_back(std::move(g));
+    impl_->merger.accepted().clear();
+    return stop;
+}
+bool UnitReducer::add(uint64_t index, std::unique_ptr<UnitOutput> unit) {
+    std::vector<std::unique_ptr<GridSet>> accepted;
+    const bool stop = add(index, std::move(unit), accepted);
+    for (auto& g : accepted) impl_->add_grids(std::move(g));
+    return stop;
+}
+void UnitReducer::add_grids(std::unique_ptr<GridSet> grids) {
+    if (grids) impl_->add_grids(std::move(grids));
+}
+bool UnitReducer::add_batch(UnitBatch&& batch) {
+    if (stopped()) return true;  // past the stop point: discarded
+    add_grids(std::move(batch.grids));
+    for (size_t i = 0; i < batch.units.size(); ++i)
+        if (add(batch.first_unit + i, std::move(batch.units[i]))) break;
+    return stopped();
 }
 bool UnitReducer::stopped() const { return impl_->result.stop != StopReason::kNone; }
 uint64_t UnitReducer::merged_units() const { return impl_->result.units.size(); }
@@ -485,8 +527,11 @@ RunResult UnitReducer::finish(int threads) {
     if (result.capped_packets > 0)
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");
-    if (impl_->grids && result.packets > 0 && !result.cancelled)
-        impl_->grids->write(scene, cfg, result);  // cancelled: no file
+    if (cfg.grid_voxel_size > 0 && result.packets > 0 && !result.cancelled) {  // cancelled: no file
+        if (!impl_->grids) impl_->grids = new_grids(scene, cfg);
+        write_grids(*impl_->grids, scene, cfg, result);
+    }
+    impl_->grids.reset();
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - impl_->t_start).count();
     return std::move(result);
 }

@@ -1,7 +1,9 @@
 // A run: packets are traced in fixed work units of consecutive indices, each by
 // one thread with its own tallies; finished units are merged strictly in unit
 // order. Seeds come from (seed, packet index). Together these make the result
-// bit-identical for any thread count (MMC/MCX practice).
+// bit-identical for any thread count (MMC/MCX practice). Grid voxels are exact
+// fixed-point sums (voxel_grid.h), so grids need no ordered merge: each worker
+// thread (each Dask chunk) sums its deposits into its own grids.
 #pragma once
 #include <atomic>
 #include <functional>
@@ -111,9 +113,19 @@ UnitPlan plan_units(const RunConfig& prepared);
 
 struct UnitOutput;
 struct UnitBatch;
+struct GridSet;
+
+// True when the run's units keep their own grids until they are merged: the
+// stop rule may end the run after any unit (store, target, time budget), and
+// the deposits of units past the stop point must then be discarded with
+// them. A fixed count without a time budget ends only after its last unit (or
+// is cancelled, which writes no grid), so its units deposit straight into the
+// grids of the thread or Dask chunk that traces them.
+bool grids_per_unit(const RunConfig& prepared);
 
 // Traces units [first_unit, first_unit + count) on the calling thread. Returns
-// early (fewer units) once `cancel` is set.
+// early (fewer units) once `cancel` is set. The batch holds one grid set for
+// all its units, or (grids_per_unit) one per unit.
 UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig& config, uint64_t first_unit,
                       uint64_t count, std::atomic<bool>* cancel);
 
@@ -126,7 +138,20 @@ class UnitReducer {
     // Takes unit `index`; it is merged once every unit before it is. Returns
     // true once the run must stop; later units are then discarded, exactly as
     // a local run discards the units its threads traced past the stop point.
+    // The own grids of the units merged by this call are added to the run's.
     bool add(uint64_t index, std::unique_ptr<UnitOutput> unit);
+    // The same, but the own grids of the merged units are moved to `accepted`:
+    // the caller adds them (to any grid set later handed to add_grids), so the
+    // additions happen outside the caller's lock.
+    bool add(uint64_t index, std::unique_ptr<UnitOutput> unit, std::vector<std::unique_ptr<GridSet>>& accepted);
+    // Adds grids whose deposits belong to merged units only (a worker
+    // thread's, a Dask chunk's). Exact: the order of the calls does not matter.
+    void add_grids(std::unique_ptr<GridSet> grids);
+    // Adds a batch from trace_units (its grids, then its units in order);
+    // returns stopped(). A batch's own grid set exists only in runs that end
+    // after their last unit (not grids_per_unit), so none of its deposits can
+    // belong to a unit past the stop point.
+    bool add_batch(UnitBatch&& batch);
     bool stopped() const;
     uint64_t merged_units() const;
     uint64_t records() const;

@@ -19,19 +19,35 @@
 #include "source.h"
 #include "tally.h"
 #include "triangle_cache.h"
+#include "voxel_grid.h"
 
 namespace ep {
 
-class VoxelAccumulator;
-
-// Everything one work unit produces; merged in unit order by the engine.
+// Everything one work unit produces. Its tallies and records are merged in
+// unit order by the engine; its grid deposits go to the grids the engine
+// points it at (engine.cpp, grids_per_unit): the grids of the worker thread
+// or Dask chunk that traces it, summed exactly and in any order, or the
+// unit's own grids when the run's stop rule may discard it.
 struct UnitOutput {
     UnitTally tally;
     EscapeRecords records;
-    std::unique_ptr<VoxelAccumulator> absorbed_grid;      // absorbed weight
-    std::unique_ptr<VoxelAccumulator> fluorescence_grid;  // fluorescent packet weight at every step
-    std::vector<std::unique_ptr<VoxelAccumulator>> per_fluorophore;
+    GridSet* grids = nullptr;  // where the deposits go; null without grids
+    // Members of *grids, kept as pointers for the deposit calls of transport.cpp.
+    VoxelAccumulator* absorbed_grid = nullptr;      // absorbed weight
+    VoxelAccumulator* fluorescence_grid = nullptr;  // fluorescent packet weight at every step
+    std::vector<VoxelAccumulator*> per_fluorophore;
+    std::unique_ptr<GridSet> own_grids;  // set when the unit keeps its own grids
     uint64_t first_packet = 0;
+
+    // Sends the deposits to `g` (null: no grids).
+    void deposit_into(GridSet* g) {
+        grids = g;
+        absorbed_grid = g ? &g->absorbed : nullptr;
+        fluorescence_grid = g ? &g->fluorescence : nullptr;
+        per_fluorophore.clear();
+        if (g)
+            for (VoxelAccumulator& a : g->per_fluorophore) per_fluorophore.push_back(&a);
+    }
 };
 
 // The triangles near the last packet of this thread (triangle_cache.h); the

@@ -13,7 +13,7 @@ namespace {
 
 // Bumped whenever the layout below changes; a worker with another build is
 // then refused by name instead of producing garbage.
-constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '2'};
+constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '3'};
 
 class Writer {
   public:
@@ -77,28 +77,68 @@ class Reader {
     size_t pos_ = 0;
 };
 
+// A voxel travels as its index and its exact fixed-point value (three 64-bit
+// words), so the receiver adds exactly what the sender summed.
+void put_fixed(Writer& w, const Fixed192& f) {
+    for (int k = 0; k < 3; ++k) w.put(f.words()[k]);
+}
+
+Fixed192 get_fixed(Reader& r) {
+    const uint64_t w0 = r.get<uint64_t>(), w1 = r.get<uint64_t>(), w2 = r.get<uint64_t>();
+    return Fixed192::from_words(w0, w1, w2);
+}
+
 void put_grid(Writer& w, const VoxelAccumulator& g) {
-    const auto voxels = g.sorted();  // sorted: the bytes do not depend on the hash layout
+    const auto voxels = g.sorted_fixed();  // sorted: the bytes do not depend on the hash layout
     w.put(uint64_t(voxels.size()));
     for (const auto& [c, v] : voxels) {
         w.put(c);
-        w.put(v);
+        put_fixed(w, v);
     }
     w.put(g.dropped());
-    w.put(g.dropped_value());
+    put_fixed(w, g.dropped_value_fixed());
 }
 
-std::unique_ptr<VoxelAccumulator> get_grid(Reader& r, double voxel_size) {
-    auto g = std::make_unique<VoxelAccumulator>(voxel_size);
+void get_grid(Reader& r, VoxelAccumulator& g, uint64_t max_voxels) {
     const uint64_t n = r.get<uint64_t>();
+    if (n > max_voxels) Reader::fail();
     for (uint64_t i = 0; i < n; ++i) {
         const auto c = r.get<VoxelAccumulator::Coord>();
-        const double v = r.get<double>();
-        g->add_index(c, v);
+        g.add_fixed(c, get_fixed(r));
     }
     const uint64_t dropped = r.get<uint64_t>();
-    const double dropped_value = r.get<double>();
-    g->add_dropped(dropped, dropped_value);
+    g.add_dropped(dropped, get_fixed(r));
+}
+
+void put_grids(Writer& w, const GridSet* g) {
+    w.put(uint8_t(g != nullptr));
+    if (!g) return;
+    w.put(g->packets);
+    put_grid(w, g->absorbed);
+    put_grid(w, g->fluorescence);
+    w.put(uint64_t(g->per_fluorophore.size()));
+    for (const auto& a : g->per_fluorophore) put_grid(w, a);
+}
+
+// Reads a grid set if one follows; `expected` says whether the run needs one
+// here (the message names the mismatch instead of merging wrong grids).
+std::unique_ptr<GridSet> get_grids(Reader& r, double voxel_size, bool expected, uint64_t max_items, const char* where) {
+    const bool present = r.get<uint8_t>() != 0;
+    if (present != expected)
+        throw std::invalid_argument(std::string("unit batch: ") + where +
+                                    (present ? " holds grids, but the run keeps none there"
+                                             : " holds no grids, but the run keeps its grids there") +
+                                    " (a worker traced another request?)");
+    if (!present) return nullptr;
+    const uint64_t packets = r.get<uint64_t>();
+    auto g = std::make_unique<GridSet>(voxel_size, 0);
+    g->packets = packets;
+    get_grid(r, g->absorbed, max_items);
+    get_grid(r, g->fluorescence, max_items);
+    const uint64_t nf = r.get<uint64_t>();
+    if (nf > max_items) Reader::fail();
+    g->per_fluorophore.assign(nf, VoxelAccumulator(voxel_size));
+    for (auto& a : g->per_fluorophore) get_grid(r, a, max_items);
     return g;
 }
 
@@ -121,19 +161,13 @@ std::string pack_units(const UnitBatch& batch) {
         w.put(t.energy_m);
         w.put_vec(t.absorbed_by_region_m);
         EscapeRecords::for_each_column(u->records, [&](const auto& col) { w.put_vec(col); });
-        const bool grids = bool(u->absorbed_grid);
-        w.put(uint8_t(grids));
-        if (grids) {
-            put_grid(w, *u->absorbed_grid);
-            put_grid(w, *u->fluorescence_grid);
-            w.put(uint64_t(u->per_fluorophore.size()));
-            for (const auto& g : u->per_fluorophore) put_grid(w, *g);
-        }
+        put_grids(w, u->own_grids.get());
     }
+    put_grids(w, batch.grids.get());  // the chunk's grids: its units' deposits summed
     return w.take();
 }
 
-UnitBatch unpack_units(const std::string& bytes, double voxel_size) {
+UnitBatch unpack_units(const std::string& bytes, double voxel_size, bool per_unit) {
     Reader r(bytes);
     r.expect_raw(kMagic, sizeof(kMagic));
     UnitBatch batch;
@@ -157,18 +191,11 @@ UnitBatch unpack_units(const std::string& bytes, double voxel_size) {
         EscapeRecords::for_each_column(u->records, [&](const auto& col) {
             if (col.size() != nrec && col.size() != 3 * nrec) Reader::fail();
         });
-        if (r.get<uint8_t>()) {
-            if (!(voxel_size > 0)) throw std::invalid_argument("unit batch: holds grids, but the run asks for none");
-            u->absorbed_grid = get_grid(r, voxel_size);
-            u->fluorescence_grid = get_grid(r, voxel_size);
-            const uint64_t nf = r.get<uint64_t>();
-            if (nf > bytes.size()) Reader::fail();
-            for (uint64_t f = 0; f < nf; ++f) u->per_fluorophore.push_back(get_grid(r, voxel_size));
-        } else if (voxel_size > 0) {
-            throw std::invalid_argument("unit batch: holds no grids, but the run asks for grids");
-        }
+        u->own_grids = get_grids(r, voxel_size, voxel_size > 0 && per_unit, bytes.size(), "a unit");
+        u->deposit_into(u->own_grids.get());
         batch.units.push_back(std::move(u));
     }
+    batch.grids = get_grids(r, voxel_size, voxel_size > 0 && !per_unit, bytes.size(), "the chunk");
     if (!r.at_end()) Reader::fail();
     return batch;
 }

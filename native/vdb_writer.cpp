@@ -12,6 +12,7 @@
 #include <atomic>
 #include <cerrno>
 #include <cfloat>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -67,6 +68,12 @@ void validate(const std::vector<GridOutput>& grids, const std::map<std::string, 
             throw std::invalid_argument("grid '" + g.name + "': name is used by more than one grid");
         if (g.data == nullptr)
             throw std::invalid_argument("grid '" + g.name + "': data = null must point to an accumulator");
+        if (!(std::isfinite(g.scale) && g.scale > 0)) {
+            std::ostringstream msg;
+            msg.precision(17);
+            msg << "grid '" << g.name << "': scale = " << g.scale << " must be a positive finite number";
+            throw std::invalid_argument(msg.str());
+        }
         if (g.data->voxel_size() != grids[0].data->voxel_size()) {
             std::ostringstream msg;
             msg.precision(17);
@@ -94,7 +101,8 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::stri
     auto acc = grid->getAccessor();
     // Sorted order makes neighbouring inserts hit the same leaf node, which the
     // accessor caches, and makes the tree build independent of the hash layout.
-    g.data->for_each_sorted([&](const VoxelAccumulator::Coord& c, double v) {
+    g.data->for_each_sorted([&](const VoxelAccumulator::Coord& c, double exact) {
+        const double v = exact * g.scale;
         if (!(std::fabs(v) <= double(FLT_MAX))) {
             std::ostringstream msg;
             msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2] << ") value = " << v
@@ -105,9 +113,9 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::stri
     });
 
     grid->insertMeta("meaning", openvdb::StringMetadata(g.meaning));
-    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(g.data->sum()));
+    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(g.data->sum() * g.scale));
     grid->insertMeta("dropped_deposits", openvdb::Int64Metadata(static_cast<int64_t>(g.data->dropped())));
-    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(g.data->dropped_value()));
+    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(g.data->dropped_value() * g.scale));
 #ifdef ENDOPHOTON_VERSION
     grid->setCreator("EndoPhoton " ENDOPHOTON_VERSION);
 #else

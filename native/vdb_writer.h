@@ -18,15 +18,19 @@ struct GridOutput {
     std::string name;              // grid name in the file (unique, non-empty)
     std::string meaning;           // stored as per-grid string metadata "meaning"
     const VoxelAccumulator* data;  // not owned; must outlive the write_vdb call
+    // Every voxel value, the sum and the dropped value are written multiplied
+    // by this (the engine's per-launched-packet normalisation, 1 / packets).
+    double scale = 1.0;
 };
 
 // Writes one openvdb::FloatGrid per entry of `grids` to `path`.
 //  - grid class FOG_VOLUME, background 0, one active voxel per accumulator voxel
-//    (values converted to float), linear transform with the accumulator's voxel
+//    (values times `scale`, converted to float), linear transform with the accumulator's voxel
 //    size, so index (i, j, k) is the world point (i, j, k) * voxel_size;
 //  - per-grid metadata: "meaning" (string), "accumulator_sum" (double, the
-//    exact double sum the float voxels were made from), "dropped_deposits"
-//    (int64) and "dropped_value" (double) from the accumulator's counters,
+//    accumulator's exact sum times `scale`, which the float voxels were made
+//    from), "dropped_deposits" (int64) and "dropped_value" (double, times
+//    `scale`) from the accumulator's counters,
 //    creator "EndoPhoton <version>", and a copy of every `metadata` entry;
 //  - file-level metadata: every `metadata` entry, as strings.
 // The file is written to a temporary file next to `path` and renamed over it,

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <sstream>
 #include <stdexcept>
+#include <string>
 
 namespace ep {
 
@@ -24,8 +25,11 @@ inline uint64_t hash_coord(const VoxelAccumulator::Coord& c) {
     return h;
 }
 
-// Keeps linear-probe chains short; the table doubles past this fill.
-constexpr size_t kMaxLoadNum = 1, kMaxLoadDen = 2;
+// The table doubles past this fill. Three quarters keeps linear-probe chains
+// short (about 2.5 probes to find a voxel) while a 40-byte slot table stays
+// within 1.3-2.7 times the voxels' own bytes; most deposits hit the cached
+// last slot and probe nothing.
+constexpr size_t kMaxLoadNum = 3, kMaxLoadDen = 4;
 constexpr size_t kInitialCapacity = 64;
 
 }  // namespace
@@ -56,7 +60,7 @@ size_t VoxelAccumulator::find_or_insert(const Coord& c) {
         if (!s.used) {
             s.key = c;
             s.used = 1;
-            s.value = 0.0;
+            s.value = Fixed192();
             ++size_;
             return i;
         }
@@ -66,7 +70,7 @@ size_t VoxelAccumulator::find_or_insert(const Coord& c) {
 
 void VoxelAccumulator::grow() {
     const size_t new_cap = slots_.empty() ? kInitialCapacity : slots_.size() * 2;
-    std::vector<Slot> old(new_cap, Slot{{0, 0, 0}, 0, 0.0});
+    std::vector<Slot> old(new_cap, Slot{{0, 0, 0}, 0, Fixed192()});
     old.swap(slots_);
     const size_t mask = new_cap - 1;
     for (const Slot& s : old) {
@@ -79,23 +83,75 @@ void VoxelAccumulator::grow() {
     last_slot_ = kNoSlot;
 }
 
-void VoxelAccumulator::add_at(const Coord& c, double value) {
+void VoxelAccumulator::overflow(const Coord& c) {
+    std::ostringstream msg;
+    msg << "grids: voxel (" << c[0] << ", " << c[1] << ", " << c[2]
+        << ") sums to more than 2^67 in magnitude, beyond the exact fixed-point range of a grid voxel "
+           "(docs/numerics.md, \"Grid sums\")";
+    throw std::overflow_error(msg.str());
+}
+
+void VoxelAccumulator::drop(double value) {
+    Fixed192 f;
+    if (Fixed192::from_double(value, f))
+        drop(f);
+    else
+        ++dropped_;  // not finite or |value| >= 2^64: counted only
+}
+
+void VoxelAccumulator::drop(const Fixed192& value) { add_dropped(1, value); }
+
+void VoxelAccumulator::add_dropped(uint64_t count, const Fixed192& value) {
+    dropped_ += count;
+    if (!dropped_value_.add(value))
+        throw std::overflow_error(
+            "grids: the dropped deposits sum to more than 2^67 in magnitude, beyond the exact fixed-point "
+            "range (docs/numerics.md, \"Grid sums\")");
+}
+
+void VoxelAccumulator::add_general(double x, double y, double z, double value) {
+    if (value == 0.0) return;
+    Fixed192 f;
+    Coord c;
+    if (!Fixed192::from_double(value, f)) {
+        drop(value);
+        return;
+    }
+    if (!index_of(x, y, z, c)) {
+        drop(f);
+        return;
+    }
+    add_at(c, f);
+}
+
+void VoxelAccumulator::add_at(const Coord& c, const Fixed192& value) {
     const size_t i = find_or_insert(c);
-    slots_[i].value += value;
+    add_to(slots_[i], value);
     last_slot_ = i;
 }
 
 void VoxelAccumulator::add_index(const Coord& c, double value) {
     if (value == 0.0) return;
+    Fixed192 f;
+    if (!Fixed192::from_double(value, f)) {
+        drop(value);
+        return;
+    }
+    for (int a = 0; a < 3; ++a) {
+        if (c[a] < -kMaxIndex || c[a] > kMaxIndex) {
+            drop(f);
+            return;
+        }
+    }
+    add_at(c, f);
+}
+
+void VoxelAccumulator::add_fixed(const Coord& c, const Fixed192& value) {
     for (int a = 0; a < 3; ++a) {
         if (c[a] < -kMaxIndex || c[a] > kMaxIndex) {
             drop(value);
             return;
         }
-    }
-    if (!std::isfinite(value)) {
-        drop(value);
-        return;
     }
     add_at(c, value);
 }
@@ -112,59 +168,70 @@ void VoxelAccumulator::merge_from(const VoxelAccumulator& other) {
         // Self-merge doubles every value; done explicitly because inserting
         // while iterating our own table would be unsafe.
         for (Slot& s : slots_)
-            if (s.used) s.value += s.value;
-        dropped_ += dropped_;
-        dropped_value_ += dropped_value_;
+            if (s.used) add_to(s, Fixed192(s.value));
+        add_dropped(dropped_, Fixed192(dropped_value_));
         return;
     }
-    for (const Slot& s : other.slots_) {
-        if (!s.used) continue;
-        const size_t before = size_;
-        const size_t i = find_or_insert(s.key);
-        // A new voxel takes other's value as is; an existing one gets exactly
-        // one addition, and IEEE addition is commutative, so merging A into B
-        // or B into A yields identical bits.
-        if (size_ != before)
-            slots_[i].value = s.value;
-        else
-            slots_[i].value += s.value;
-    }
+    // Fixed-point addition is exact, so a new voxel and an existing one are
+    // treated alike and the result does not depend on which side is merged
+    // into which.
+    for (const Slot& s : other.slots_)
+        if (s.used) add_to(slots_[find_or_insert(s.key)], s.value);
     last_slot_ = kNoSlot;
-    dropped_ += other.dropped_;
-    dropped_value_ += other.dropped_value_;
+    add_dropped(other.dropped_, other.dropped_value_);
 }
 
-double VoxelAccumulator::value(const Coord& c) const {
+double VoxelAccumulator::value(const Coord& c) const { return fixed(c).to_double(); }
+
+Fixed192 VoxelAccumulator::fixed(const Coord& c) const {
     const size_t i = find(c);
-    return i == kNoSlot ? 0.0 : slots_[i].value;
+    return i == kNoSlot ? Fixed192() : slots_[i].value;
+}
+
+std::vector<size_t> VoxelAccumulator::sorted_slots() const {
+    std::vector<size_t> order;
+    order.reserve(size_);
+    for (size_t i = 0; i < slots_.size(); ++i)
+        if (slots_[i].used) order.push_back(i);
+    // Keys are unique, so comparing keys alone gives a total order.
+    std::sort(order.begin(), order.end(), [this](size_t a, size_t b) { return slots_[a].key < slots_[b].key; });
+    return order;
+}
+
+std::vector<std::pair<VoxelAccumulator::Coord, Fixed192>> VoxelAccumulator::sorted_fixed() const {
+    std::vector<std::pair<Coord, Fixed192>> out;
+    out.reserve(size_);
+    for (size_t i : sorted_slots()) out.emplace_back(slots_[i].key, slots_[i].value);
+    return out;
 }
 
 std::vector<std::pair<VoxelAccumulator::Coord, double>> VoxelAccumulator::sorted() const {
     std::vector<std::pair<Coord, double>> out;
     out.reserve(size_);
-    for (const Slot& s : slots_)
-        if (s.used) out.emplace_back(s.key, s.value);
-    // Keys are unique, so comparing keys alone gives a total order.
-    std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for_each_sorted([&](const Coord& c, double v) { out.emplace_back(c, v); });
     return out;
 }
 
 double VoxelAccumulator::sum() const {
-    // Neumaier summation: tallies mix voxels near the source (large values)
-    // with a long tail of tiny ones, exactly the case where naive summation
-    // loses the tail. Sorting first makes the result independent of the hash
-    // layout, which depends on insertion and growth history.
-    double s = 0.0, comp = 0.0;
-    for (const auto& kv : sorted()) {
-        const double v = kv.second;
-        const double t = s + v;
-        if (std::fabs(s) >= std::fabs(v))
-            comp += (s - t) + v;
-        else
-            comp += (v - t) + s;
-        s = t;
+    // Exact: the voxels' fixed-point values added in a fourth word of headroom
+    // (at most 2^64 voxels of |value| < 2^67 cannot leave 256 bits), rounded
+    // once. Tallies mix voxels near the source (large values) with a long
+    // tail of tiny ones; none of the tail is lost, and no order enters.
+    uint64_t total[4] = {0, 0, 0, 0};
+    for (const Slot& s : slots_) {
+        if (!s.used) continue;
+        const uint64_t* w = s.value.words();
+        const uint64_t ext = int64_t(w[2]) < 0 ? ~uint64_t(0) : 0;  // sign extension into word 3
+        uint64_t carry = 0;
+        for (int k = 0; k < 4; ++k) {
+            const uint64_t b = k < 3 ? w[k] : ext;
+            const uint64_t t = total[k] + carry;
+            const uint64_t c1 = t < carry;
+            total[k] = t + b;
+            carry = c1 + (total[k] < b);
+        }
     }
-    return s + comp;
+    return Fixed192::words_to_double(total, 4);
 }
 
 size_t VoxelAccumulator::memory_bytes() const { return sizeof(*this) + slots_.capacity() * sizeof(Slot); }
@@ -174,7 +241,28 @@ void VoxelAccumulator::clear() {
     size_ = 0;
     last_slot_ = kNoSlot;
     dropped_ = 0;
-    dropped_value_ = 0.0;
+    dropped_value_ = Fixed192();
+}
+
+GridSet::GridSet(double voxel_size, size_t per_fl) : absorbed(voxel_size), fluorescence(voxel_size) {
+    per_fluorophore.assign(per_fl, VoxelAccumulator(voxel_size));
+}
+
+void GridSet::merge_from(const GridSet& other) {
+    if (other.per_fluorophore.size() != per_fluorophore.size())
+        throw std::invalid_argument("grids: a grid set with " + std::to_string(other.per_fluorophore.size()) +
+                                    " per-fluorophore grids cannot be merged into one with " +
+                                    std::to_string(per_fluorophore.size()));
+    absorbed.merge_from(other.absorbed);
+    fluorescence.merge_from(other.fluorescence);
+    for (size_t f = 0; f < per_fluorophore.size(); ++f) per_fluorophore[f].merge_from(other.per_fluorophore[f]);
+    packets += other.packets;
+}
+
+size_t GridSet::memory_bytes() const {
+    size_t n = absorbed.memory_bytes() + fluorescence.memory_bytes();
+    for (const auto& g : per_fluorophore) n += g.memory_bytes();
+    return n;
 }
 
 }  // namespace ep

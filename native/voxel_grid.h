@@ -7,11 +7,12 @@
 // coordinate to a double. Conversion to OpenVDB happens once, at output time,
 // in vdb_writer.cpp.
 //
-// Determinism contract: the engine gives every work unit its own accumulator
-// and merges them in unit order. Within one accumulator the value of a voxel
-// is the sum of its deposits in call order; merge_from() adds exactly one
-// term per voxel, so neither the hash layout nor the iteration order of the
-// source can change any bit of the result.
+// Determinism contract: a voxel holds the exact sum of its deposits as a
+// fixed-point number (fixed_point.h), so its value does not depend on the
+// order or grouping of the deposits: the engine's worker threads each keep
+// one accumulator for the whole run, Dask chunks ship one per chunk, and
+// merging them in any order gives the same bits (docs/numerics.md, "Grid
+// sums"). Neither the hash layout nor the iteration order enters a result.
 #pragma once
 
 #include <array>
@@ -20,6 +21,8 @@
 #include <cstdint>
 #include <utility>
 #include <vector>
+
+#include "fixed_point.h"
 
 namespace ep {
 
@@ -43,34 +46,46 @@ class VoxelAccumulator {
     // Coord::round / worldToIndexCellCentered (without its rounding slip just
     // below .5), so a linear transform of scale h maps index (i, j, k) back to
     // the voxel centre.
-    // A deposit is dropped (counted by dropped(), its value if finite summed
-    // into dropped_value()) when the position is not finite, the index is
-    // beyond kMaxIndex, or the value is not finite: NaN never enters the map.
-    // A deposit of exactly zero is a no-op and creates no voxel.
+    // The value is added exactly in fixed point (fixed_point.h: exact for
+    // 2^-72 <= |value| < 2^64, rounded to a multiple of 2^-124 below).
+    // A deposit is dropped (counted by dropped(), its value summed into
+    // dropped_value() if it converts) when the position is not finite, the
+    // index is beyond kMaxIndex, or the value is not finite or |value| >= 2^64:
+    // NaN never enters the map. A deposit of exactly zero is a no-op and
+    // creates no voxel. A voxel total leaving the fixed-point range throws
+    // std::overflow_error naming the voxel (never a silent wrap).
     void add(double x, double y, double z, double value) {
-        if (value == 0.0) return;
+        // The common deposit (2^-72 <= value < 8) stays in registers; every
+        // other value (zero included) takes add_general.
+        unsigned __int128 low;
+        if (!Fixed192::fast_low(value, low)) {
+            add_general(x, y, z, value);
+            return;
+        }
         Coord c;
-        if (!std::isfinite(value) || !index_of(x, y, z, c)) {
+        if (!index_of(x, y, z, c)) {
             drop(value);
             return;
         }
         // Consecutive deposits of one packet usually fall in the same voxel
         // (mean free paths are often shorter than a voxel), so remembering the
         // last slot skips the hash probe in the common case.
-        if (last_slot_ != kNoSlot && same(c, slots_[last_slot_].key)) {
-            slots_[last_slot_].value += value;
-            return;
-        }
-        add_at(c, value);
+        if (last_slot_ == kNoSlot || !same(c, slots_[last_slot_].key)) last_slot_ = find_or_insert(c);
+        if (!slots_[last_slot_].value.add_low(low)) overflow(c);
     }
 
-    // Adds `value` to voxel `c` directly (index space). No range check beyond
-    // kMaxIndex; non-finite values are dropped like in add().
+    // Adds `value` to voxel `c` directly (index space). Indices beyond
+    // kMaxIndex and values that do not convert are dropped like in add().
     void add_index(const Coord& c, double value);
+    // Adds the exact fixed-point `value` to voxel `c` (restoring an
+    // accumulator from its byte form, unit_io.cpp); a zero value still
+    // creates the voxel, as the deposits that summed to it did.
+    void add_fixed(const Coord& c, const Fixed192& value);
 
     // this[v] += other[v] for every voxel of `other` (a voxel missing here is
-    // copied). Also adds other's dropped counters. Throws std::invalid_argument
-    // if the voxel sizes differ.
+    // copied), exactly: merging A into B or B into A, or three accumulators
+    // in any grouping, gives the same bits. Also adds other's dropped
+    // counters. Throws std::invalid_argument if the voxel sizes differ.
     void merge_from(const VoxelAccumulator& other);
 
     // Voxel index of a world position; false if not finite or out of range.
@@ -95,26 +110,36 @@ class VoxelAccumulator {
         return true;
     }
 
-    // Value stored at voxel c (0 if the voxel was never touched).
+    // Value stored at voxel c, rounded to the nearest double (0 if the voxel
+    // was never touched).
     double value(const Coord& c) const;
+    // The exact fixed-point value of voxel c (0 if never touched).
+    Fixed192 fixed(const Coord& c) const;
 
-    // Sum of all voxel values, in ascending key order with compensated
-    // (Neumaier) summation: the result does not depend on insertion history.
+    // Sum of all voxel values, computed exactly and rounded once to the
+    // nearest double.
     double sum() const;
 
-    // All voxels sorted by (x, y, z) ascending.
+    // All voxels sorted by (x, y, z) ascending, values rounded to doubles.
     std::vector<std::pair<Coord, double>> sorted() const;
+    // The same with the exact values (the byte form of unit_io.cpp).
+    std::vector<std::pair<Coord, Fixed192>> sorted_fixed() const;
 
-    // Calls f(const Coord&, double) for every voxel in sorted order.
+    // Calls f(const Coord&, double) for every voxel in sorted order, with
+    // the value rounded to a double (only the slot order is copied).
     template <class F>
     void for_each_sorted(F&& f) const {
-        for (const auto& kv : sorted()) f(kv.first, kv.second);
+        for (size_t i : sorted_slots()) f(slots_[i].key, slots_[i].value.to_double());
     }
 
     size_t voxel_count() const { return size_; }
     double voxel_size() const { return voxel_size_; }
     uint64_t dropped() const { return dropped_; }
-    double dropped_value() const { return dropped_value_; }
+    // Sum of the dropped deposits whose value converts to fixed point (a
+    // position out of range); non-finite values and |value| >= 2^64 are only
+    // counted. Exact, so it too is independent of the merge order.
+    double dropped_value() const { return dropped_value_.to_double(); }
+    const Fixed192& dropped_value_fixed() const { return dropped_value_; }
 
     // Approximate heap + object footprint in bytes.
     size_t memory_bytes() const;
@@ -124,16 +149,13 @@ class VoxelAccumulator {
 
     // Adds to the dropped counters (restoring an accumulator from its byte
     // form, unit_io.cpp, keeps them exact).
-    void add_dropped(uint64_t count, double value) {
-        dropped_ += count;
-        dropped_value_ += value;
-    }
+    void add_dropped(uint64_t count, const Fixed192& value);
 
   private:
     struct Slot {
         Coord key;
         uint32_t used;  // 0 = empty; a flag instead of a sentinel key keeps every coordinate legal
-        double value;
+        Fixed192 value;
     };
     static constexpr size_t kNoSlot = ~size_t(0);
 
@@ -141,21 +163,44 @@ class VoxelAccumulator {
     // compares are several times cheaper on the probe path.
     static bool same(const Coord& a, const Coord& b) { return ((a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2])) == 0; }
 
-    void add_at(const Coord& c, double value);
+    std::vector<size_t> sorted_slots() const;  // used slots by ascending key
+    void add_general(double x, double y, double z, double value);
+    void add_at(const Coord& c, const Fixed192& value);
+    void add_to(Slot& s, const Fixed192& value) {
+        if (!s.value.add(value)) overflow(s.key);
+    }
+    [[noreturn]] static void overflow(const Coord& c);
     size_t find_or_insert(const Coord& c);
     size_t find(const Coord& c) const;
     void grow();
-    void drop(double value) {
-        ++dropped_;
-        if (std::isfinite(value)) dropped_value_ += value;
-    }
+    void drop(double value);  // counts it; sums it too if it converts
+    void drop(const Fixed192& value);
 
     double voxel_size_;
     std::vector<Slot> slots_;  // capacity is zero or a power of two
     size_t size_ = 0;
     size_t last_slot_ = kNoSlot;
     uint64_t dropped_ = 0;
-    double dropped_value_ = 0.0;
+    Fixed192 dropped_value_;
+};
+
+// The volume grids of a run, or of a part of it whose deposits are summed
+// together: a worker thread, a Dask chunk, or one unit of a run whose stop
+// rule may discard units (engine.cpp). Absorbed energy, the weight of
+// fluorescent packets at their interaction sites, and optionally that weight
+// per fluorophore.
+struct GridSet {
+    GridSet(double voxel_size, size_t per_fluorophore_grids);
+    VoxelAccumulator absorbed, fluorescence;
+    std::vector<VoxelAccumulator> per_fluorophore;
+    // Packets of the finished units whose deposits these grids hold: the
+    // engine checks that the run's grids hold exactly its merged packets.
+    uint64_t packets = 0;
+
+    // Adds every grid of `other` (exact, any order); throws
+    // std::invalid_argument if the two sets differ in shape or voxel size.
+    void merge_from(const GridSet& other);
+    size_t memory_bytes() const;
 };
 
 }  // namespace ep

@@ -70,10 +70,9 @@ void bind_distributed(py::module_& m) {
                 uint64_t n = 0;
                 {
                     py::gil_scoped_release release;
-                    UnitBatch b = unpack_units(s, r.config.grid_voxel_size);
+                    UnitBatch b = unpack_units(s, red.config().grid_voxel_size, grids_per_unit(red.config()));
                     n = b.units.size();
-                    for (uint64_t i = 0; i < n; ++i)
-                        if (red.add(b.first_unit + i, std::move(b.units[i]))) break;
+                    red.add_batch(std::move(b));
                 }
                 return py::make_tuple(red.stopped(), n);
             },

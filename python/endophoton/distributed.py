@@ -7,9 +7,12 @@ same bytes. This module cuts the unit range into chunks, runs each chunk as a
 Dask task (``_core.trace_units``: a pure function of scene, seed and unit
 range) and feeds the returned units, in unit order, to ``_core.UnitReducer``,
 which is the very object ``ep.run`` merges its own threads' units with: the
-same merge, the same stop rule, the same estimates and grid writer. So for a
-fixed count, a "store N" run and a target-accuracy run the result is the same
-bits as ``ep.run`` on one machine. For store and target runs the client keeps a
+same merge, the same stop rule, the same estimates and grid writer. A chunk
+ships one grid set for all its units (store, target and time-budget runs: one
+per unit, so that units past the stop point take their deposits with them);
+grid voxels are exact fixed-point sums, so the sets add up to the same bits in
+any order and grouping. So for a fixed count, a "store N" run and a
+target-accuracy run the result is the same bits as ``ep.run`` on one machine. For store and target runs the client keeps a
 window of chunks in flight ahead of the merge point, stops at the same unit the
 local engine stops at, cancels the chunks beyond it and discards the surplus
 units the way the local engine discards its threads' surplus.

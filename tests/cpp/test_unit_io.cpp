@@ -62,10 +62,8 @@ RunResult in_pieces(const Slab& s, const RunConfig& c, uint64_t chunk) {
     std::vector<std::string> packed;
     for (uint64_t first = 0; first < n; first += chunk)
         packed.push_back(pack_units(trace_units(s.scene, s.source, c, first, chunk, nullptr)));
-    for (auto it = packed.rbegin(); it != packed.rend(); ++it) {
-        UnitBatch b = unpack_units(*it, c.grid_voxel_size);
-        for (size_t i = 0; i < b.units.size(); ++i) reducer.add(b.first_unit + i, std::move(b.units[i]));
-    }
+    for (auto it = packed.rbegin(); it != packed.rend(); ++it)
+        reducer.add_batch(unpack_units(*it, c.grid_voxel_size, grids_per_unit(c)));
     EXPECT_TRUE(reducer.stopped());
     return reducer.finish(1);
 }
@@ -109,8 +107,7 @@ TEST(UnitIo, StoreRunStopsAtTheSameUnitAndRecord) {
     const RunResult local = run(s.scene, s.source, c, nullptr, nullptr);
     UnitReducer reducer(s.scene, s.source, c);
     for (uint64_t first = 0; !reducer.stopped(); first += 2) {  // speculative chunks of 2 units
-        UnitBatch b = unpack_units(pack_units(trace_units(s.scene, s.source, c, first, 2, nullptr)), 0);
-        for (size_t i = 0; i < b.units.size(); ++i) reducer.add(b.first_unit + i, std::move(b.units[i]));
+        reducer.add_batch(unpack_units(pack_units(trace_units(s.scene, s.source, c, first, 2, nullptr)), 0, false));
     }
     const RunResult pieces = reducer.finish(1);
     EXPECT_EQ(pieces.records.size(), 700u);
@@ -127,9 +124,49 @@ TEST(UnitIo, RefusesBytesThatAreNotABatch) {
     RunConfig c;
     c.photons = 1000;
     const std::string good = pack_units(trace_units(s.scene, s.source, c, 0, 2, nullptr));
-    EXPECT_THROW(unpack_units("not a batch", 0), std::invalid_argument);
-    EXPECT_THROW(unpack_units(good.substr(0, good.size() - 3), 0), std::invalid_argument);
-    EXPECT_THROW(unpack_units(good + "x", 0), std::invalid_argument);
-    EXPECT_THROW(unpack_units(good, 0.1), std::invalid_argument);  // the run asks for grids, the batch has none
-    EXPECT_EQ(unpack_units(good, 0).units.size(), 2u);
+    EXPECT_THROW(unpack_units("not a batch", 0, false), std::invalid_argument);
+    EXPECT_THROW(unpack_units(good.substr(0, good.size() - 3), 0, false), std::invalid_argument);
+    EXPECT_THROW(unpack_units(good + "x", 0, false), std::invalid_argument);
+    EXPECT_THROW(unpack_units(good, 0.1, false), std::invalid_argument);  // the run asks for grids, the batch has none
+    EXPECT_THROW(unpack_units(good, 0.1, true), std::invalid_argument);   // ... per unit: none there either
+    EXPECT_EQ(unpack_units(good, 0, false).units.size(), 2u);
+    c.grid_voxel_size = 0.01;
+    c.grid_path = "unused.vdb";
+    const std::string gridded = pack_units(trace_units(s.scene, s.source, c, 0, 2, nullptr));
+    EXPECT_THROW(unpack_units(gridded, 0, false), std::invalid_argument);    // grids the run does not keep
+    EXPECT_THROW(unpack_units(gridded, 0.01, true), std::invalid_argument);  // per chunk, not per unit
+    EXPECT_TRUE(unpack_units(gridded, 0.01, false).grids);
+}
+
+TEST(UnitIo, StoreRunWithGridsKeepsOnlyTheMergedUnitsDeposits) {
+    // A store run keeps grids per unit (grids_per_unit): the units its threads
+    // traced past the stop point are discarded with their deposits, so one
+    // thread, two threads and speculative chunks all give the same grid sum,
+    // and the grid holds exactly the absorbed weight of the merged packets.
+    Slab s;
+    RunConfig c = two_threads(5);
+    c.store = 500;
+    c.max_photons = 200000;
+    c.grid_voxel_size = 0.01;
+    ASSERT_TRUE(grids_per_unit(c));
+    c.grid_path = ::testing::TempDir() + "/unit_io_store2.vdb";
+    const RunResult two = run(s.scene, s.source, c, nullptr, nullptr);
+    c.threads = 1;
+    c.grid_path = ::testing::TempDir() + "/unit_io_store1.vdb";
+    const RunResult one = run(s.scene, s.source, c, nullptr, nullptr);
+    c.grid_path = ::testing::TempDir() + "/unit_io_store_pieces.vdb";
+    UnitReducer reducer(s.scene, s.source, c);
+    for (uint64_t first = 0; !reducer.stopped(); first += 3)  // 3 units per chunk: the stop falls inside one
+        reducer.add_batch(
+            unpack_units(pack_units(trace_units(s.scene, s.source, c, first, 3, nullptr)), c.grid_voxel_size, true));
+    const RunResult pieces = reducer.finish(1);
+    EXPECT_EQ(two.stop, StopReason::kStore);
+    EXPECT_EQ(one.packets, two.packets);
+    EXPECT_EQ(pieces.packets, two.packets);
+    EXPECT_EQ(one.grid_absorbed_sum, two.grid_absorbed_sum);
+    EXPECT_EQ(pieces.grid_absorbed_sum, two.grid_absorbed_sum);
+    EXPECT_EQ(one.scalar[kAbsorbed].mean, two.scalar[kAbsorbed].mean);
+    EXPECT_NEAR(two.grid_absorbed_sum, two.scalar[kAbsorbed].mean, 1e-12);
+    for (const char* f : {"/unit_io_store2.vdb", "/unit_io_store1.vdb", "/unit_io_store_pieces.vdb"})
+        std::remove((::testing::TempDir() + f).c_str());
 }

@@ -215,11 +215,27 @@ void expect_rejected(const std::string& out, const std::vector<GridOutput>& grid
     }
 }
 
+TEST_F(VdbWriterTest, ScaleMultipliesValuesSumAndDroppedValue) {
+    VoxelAccumulator a(0.5);
+    a.add(0, 0, 0, 3.0);
+    a.add(1, 0, 0, 5.0);
+    a.add(std::nan(""), 0, 0, 2.0);  // dropped: counted, its value kept
+    const std::string out = path("scaled.vdb");
+    ep::write_vdb(out, {{"absorbed", "", &a, 0.25}}, {});
+    auto grid = read_float_grid(out, "absorbed");
+    ASSERT_TRUE(grid);
+    auto acc = grid->getConstAccessor();
+    EXPECT_EQ(acc.getValue(openvdb::Coord(0, 0, 0)), 0.75f);
+    EXPECT_EQ(acc.getValue(openvdb::Coord(2, 0, 0)), 1.25f);
+    EXPECT_EQ(grid->metaValue<double>("accumulator_sum"), 2.0);
+    EXPECT_EQ(grid->metaValue<int64_t>("dropped_deposits"), 1);
+    EXPECT_EQ(grid->metaValue<double>("dropped_value"), 0.5);
+}
+
 TEST_F(VdbWriterTest, RejectsInconsistentInput) {
-    VoxelAccumulator a(0.1), b(0.2), huge(0.1);
+    VoxelAccumulator a(0.1), b(0.2);
     a.add(0, 0, 0, 1.0);
     b.add(0, 0, 0, 1.0);
-    huge.add(0, 0, 0, 1e39);  // finite double, not a finite float
     const std::string out = path("bad.vdb");
 
     expect_rejected(out, {{"absorbed", "", &a}, {"coarse", "", &b}}, {}, "grid 'coarse'");
@@ -229,7 +245,9 @@ TEST_F(VdbWriterTest, RejectsInconsistentInput) {
     expect_rejected(out, {}, {}, "grids");
     expect_rejected(out, {{"absorbed", "", &a}}, {{"class", "x"}}, "metadata key 'class'");
     expect_rejected(out, {{"absorbed", "", &a}}, {{"meaning", "x"}}, "metadata key 'meaning'");
-    expect_rejected(out, {{"big", "", &huge}}, {}, "grid 'big'");
+    expect_rejected(out, {{"big", "", &a, 1e39}}, {}, "grid 'big'");  // finite double, not a finite float
+    expect_rejected(out, {{"scaled", "", &a, 0.0}}, {}, "grid 'scaled': scale = 0");
+    expect_rejected(out, {{"scaled", "", &a, std::nan("")}}, {}, "grid 'scaled': scale = nan");
     // Nothing, not even a temporary file, is left by a rejected write.
     EXPECT_TRUE(list_dir().empty());
 }

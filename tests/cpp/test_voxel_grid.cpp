@@ -1,5 +1,6 @@
-// Unit tests for ep::VoxelAccumulator: indexing, conservation, merge
-// determinism and rejection of unusable deposits.
+// Unit tests for ep::VoxelAccumulator: indexing, conservation, exact sums
+// that no order or grouping of deposits and merges can change, and rejection
+// of unusable deposits.
 #include "voxel_grid.h"
 
 #include <gtest/gtest.h>
@@ -110,7 +111,10 @@ TEST(VoxelAccumulator, MatchesReferenceMapThroughGrowthAndCache) {
     // Mix runs of repeated voxels (cache hits) with jumps (cache misses) over
     // enough voxels to force several table growths.
     VoxelAccumulator acc(0.1);
-    std::map<Coord, double> ref;
+    // The reference sums exactly in integers of 2^-100 (every value of (0, 1)
+    // drawn here is such an integer, and no voxel total reaches 2^7), then
+    // rounds once: what the fixed-point accumulator must give.
+    std::map<Coord, __int128> ref;
     std::mt19937_64 rng(12345);
     std::uniform_real_distribution<double> pos(-3.0, 3.0), val(0.0, 1.0);
     std::uniform_int_distribution<int> run(1, 6);
@@ -122,7 +126,9 @@ TEST(VoxelAccumulator, MatchesReferenceMapThroughGrowthAndCache) {
             acc.add(x, y, z, v);
             Coord c{};
             ASSERT_TRUE(acc.index_of(x, y, z, c));
-            ref[c] += v;  // same per-voxel order of additions as the accumulator
+            const double scaled = std::ldexp(v, 100);
+            ASSERT_EQ(scaled, std::floor(scaled));
+            ref[c] += static_cast<__int128>(scaled);
         }
     }
     ASSERT_EQ(acc.voxel_count(), ref.size());
@@ -130,9 +136,10 @@ TEST(VoxelAccumulator, MatchesReferenceMapThroughGrowthAndCache) {
     ASSERT_EQ(all.size(), ref.size());
     size_t i = 0;
     for (const auto& kv : ref) {
+        const double exact = std::ldexp(static_cast<double>(kv.second), -100);
         EXPECT_EQ(all[i].first, kv.first);
-        EXPECT_EQ(bits(all[i].second), bits(kv.second));
-        EXPECT_EQ(bits(acc.value(kv.first)), bits(kv.second));
+        EXPECT_EQ(bits(all[i].second), bits(exact));
+        EXPECT_EQ(bits(acc.value(kv.first)), bits(exact));
         ++i;
     }
     EXPECT_EQ(acc.dropped(), 0u);
@@ -173,7 +180,8 @@ TEST(VoxelAccumulator, MergeOrderDoesNotChangeBits) {
     a_into_copy.merge_from(b);
     b_into_copy.merge_from(a);
 
-    const auto r1 = ab.sorted(), r2 = ba.sorted(), r3 = a_into_copy.sorted(), r4 = b_into_copy.sorted();
+    const auto r1 = ab.sorted_fixed(), r2 = ba.sorted_fixed(), r3 = a_into_copy.sorted_fixed(),
+               r4 = b_into_copy.sorted_fixed();
     ASSERT_EQ(r1.size(), r2.size());
     ASSERT_EQ(r1.size(), r3.size());
     ASSERT_EQ(r1.size(), r4.size());
@@ -183,14 +191,59 @@ TEST(VoxelAccumulator, MergeOrderDoesNotChangeBits) {
         ASSERT_EQ(r1[i].first, r2[i].first);
         ASSERT_EQ(r1[i].first, r3[i].first);
         ASSERT_EQ(r1[i].first, r4[i].first);
-        ASSERT_EQ(bits(r1[i].second), bits(r2[i].second));
-        ASSERT_EQ(bits(r1[i].second), bits(r3[i].second));
-        ASSERT_EQ(bits(r1[i].second), bits(r4[i].second));
-        ASSERT_EQ(bits(r1[i].second), bits(a.value(r1[i].first) + b.value(r1[i].first)));
+        ASSERT_EQ(r1[i].second, r2[i].second);
+        ASSERT_EQ(r1[i].second, r3[i].second);
+        ASSERT_EQ(r1[i].second, r4[i].second);
+        ep::Fixed192 sum = a.fixed(r1[i].first);
+        ASSERT_TRUE(sum.add(b.fixed(r1[i].first)));
+        ASSERT_EQ(r1[i].second, sum);
     }
     EXPECT_EQ(bits(ab.sum()), bits(ba.sum()));
     EXPECT_EQ(ab.dropped(), 1u);
     EXPECT_EQ(ba.dropped(), 1u);
+}
+
+TEST(VoxelAccumulator, AnySplitOfTheDepositsMergesToTheSameBits) {
+    // The engine's threads (and Dask chunks) each sum a different share of
+    // the deposits; any split, merged in any grouping, must give the bits of
+    // one accumulator that saw every deposit in order. Values span 40
+    // decades, where float sums would differ from one grouping to another.
+    std::mt19937_64 rng(2027);
+    std::uniform_real_distribution<double> pos(-0.2, 0.2), logv(-30.0, 10.0);
+    std::uniform_int_distribution<int> share(0, 2);
+    VoxelAccumulator all(0.05), part[3] = {VoxelAccumulator(0.05), VoxelAccumulator(0.05), VoxelAccumulator(0.05)};
+    for (int n = 0; n < 50000; ++n) {
+        const double x = pos(rng), y = pos(rng), z = pos(rng), v = std::pow(10.0, logv(rng));
+        all.add(x, y, z, v);
+        part[share(rng)].add(x, y, z, v);
+    }
+    VoxelAccumulator left(0.05), right = part[2];  // ((0 + 1) + 2) and (2 + (1 + 0))
+    left.merge_from(part[0]);
+    left.merge_from(part[1]);
+    left.merge_from(part[2]);
+    VoxelAccumulator inner = part[1];
+    inner.merge_from(part[0]);
+    right.merge_from(inner);
+    const auto want = all.sorted_fixed();
+    EXPECT_EQ(left.sorted_fixed(), want);
+    EXPECT_EQ(right.sorted_fixed(), want);
+    EXPECT_EQ(bits(left.sum()), bits(all.sum()));
+    EXPECT_EQ(bits(right.sum()), bits(all.sum()));
+}
+
+TEST(VoxelAccumulator, OverflowOfAVoxelIsANamedError) {
+    VoxelAccumulator acc(1.0);
+    const double big = std::ldexp(1.0, 63);  // below the deposit limit 2^64; 16 of them reach 2^67
+    try {
+        for (int n = 0; n < 16; ++n) acc.add(2, -3, 4, big);
+        FAIL() << "a voxel total of 2^67 was accepted";
+    } catch (const std::overflow_error& e) {
+        const std::string msg = e.what();
+        EXPECT_NE(msg.find("voxel (2, -3, 4)"), std::string::npos) << msg;
+        EXPECT_NE(msg.find("2^67"), std::string::npos) << msg;
+    }
+    // The failed addition left the voxel as it was: 15 deposits.
+    EXPECT_EQ(acc.value({2, -3, 4}), 15 * big);
 }
 
 TEST(VoxelAccumulator, SelfMergeDoubles) {
@@ -228,8 +281,9 @@ TEST(VoxelAccumulator, UnusableDepositsAreDroppedAndCounted) {
     acc.add(1e300, 0.0, 0.0, 16.0);  // finite but beyond the int32 index range
     acc.add(0.0, 0.0, 0.0, nan);     // position fine, value unusable
     acc.add(0.0, 0.0, 0.0, inf);
+    acc.add(0.0, 0.0, 0.0, 0x1p64);  // beyond the fixed-point range of one deposit: counted only
     acc.add_index({VoxelAccumulator::kMaxIndex + 1, 0, 0}, 32.0);
-    EXPECT_EQ(acc.dropped(), 7u);
+    EXPECT_EQ(acc.dropped(), 8u);
     EXPECT_EQ(acc.dropped_value(), 2.0 + 4.0 + 8.0 + 16.0 + 32.0);
     EXPECT_EQ(acc.voxel_count(), 1u);
     EXPECT_EQ(acc.value({0, 0, 0}), 1.0);
@@ -258,7 +312,7 @@ TEST(VoxelAccumulator, MemoryGrowsWithVoxelsAndClearReleasesIt) {
     for (int i = 0; i < 10000; ++i) acc.add(i, 0, 0, 1.0);
     const size_t full = acc.memory_bytes();
     // At least the key and value of every voxel must be accounted for.
-    EXPECT_GE(full - empty, 10000u * (3 * sizeof(int32_t) + sizeof(double)));
+    EXPECT_GE(full - empty, 10000u * (3 * sizeof(int32_t) + sizeof(ep::Fixed192)));
     acc.clear();
     EXPECT_EQ(acc.voxel_count(), 0u);
     EXPECT_EQ(acc.memory_bytes(), empty);

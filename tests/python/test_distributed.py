@@ -81,19 +81,20 @@ def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
 def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     scene, rig = fluorescent_endoscope()
     grids = dict(voxel_size=0.05, per_fluorophore=True)
-    dist = ep.run(
-        scene,
-        rig,
-        photons=3000,
-        seed=5,
-        client=client,
-        chunk_units=7,
-        grids=ep.GridRequest(path=str(tmp_path / "dist.vdb"), **grids),
-    )
-    local = ep.run(
-        scene, rig, photons=3000, seed=5, threads=1, grids=ep.GridRequest(path=str(tmp_path / "local.vdb"), **grids)
-    )
+
+    def run(name, **how):
+        grid = ep.GridRequest(path=str(tmp_path / f"{name}.vdb"), **grids)
+        return ep.run(scene, rig, photons=3000, seed=5, grids=grid, **how)
+
+    dist, local = run("dist", client=client, chunk_units=7), run("local", threads=1)
     assert_same_result(dist, local)
+    # One grid set per chunk: another chunking, and two local threads, give the same voxels.
+    other, two = run("other", client=client, chunk_units=20), run("two", threads=2)
+    assert other.grid_absorbed_sum == two.grid_absorbed_sum == local.grid_absorbed_sum
+    for name in local.grid_names:
+        b, _, _ = grid_to_numpy(local.grid_path, name)
+        for r in (other, two):
+            assert np.array_equal(grid_to_numpy(r.grid_path, name)[0], b), name
     assert dist.fluorescent_escaped > 0 and len(dist.escapes["weight"]) > 0
     assert (
         dist.grid_names
@@ -112,12 +113,24 @@ def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     assert_energy_conserved(dist, tol=1e-12)
 
 
-def test_store_n_is_bit_identical_and_stops_where_the_local_run_stops(client):
+def test_store_n_is_bit_identical_and_stops_where_the_local_run_stops(client, tmp_path):
+    """A store run keeps grids per unit: the units past its stop point are discarded with
+    their deposits, on the cluster (chunks of 3 units: the stop falls inside a chunk) as on
+    two local threads."""
     scene, rig = fluorescent_endoscope()
     kw = dict(store=300, fluorescent_only=True, seed=2)
-    dist = ep.run(scene, rig, client=client, chunk_units=1, **kw)
-    local = ep.run(scene, rig, threads=1, **kw)
+    grid = dict(voxel_size=0.05, per_fluorophore=True)
+    dist = ep.run(
+        scene, rig, client=client, chunk_units=3, grids=ep.GridRequest(path=str(tmp_path / "d.vdb"), **grid), **kw
+    )
+    local = ep.run(scene, rig, threads=2, grids=ep.GridRequest(path=str(tmp_path / "l.vdb"), **grid), **kw)
     assert_same_result(dist, local)
+    assert dist.grid_absorbed_sum == local.grid_absorbed_sum
+    assert dist.grid_absorbed_sum == pytest.approx(dist.absorbed_energy, rel=1e-12)
+    for name in dist.grid_names:
+        a, _, _ = grid_to_numpy(dist.grid_path, name)
+        b, _, _ = grid_to_numpy(local.grid_path, name)
+        assert np.array_equal(a, b), name
     assert dist.stop_reason == "store" and len(dist.escapes["weight"]) == 300
     assert np.all(dist.escapes["fluorescent"] == 1)
     assert np.all(np.diff(dist.escapes["packet"].astype(np.int64)) >= 0)

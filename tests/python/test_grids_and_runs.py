@@ -254,6 +254,60 @@ def test_time_budget_stops_a_fixed_count_run():
     assert_energy_conserved(res)
 
 
+def _all_grids(path):
+    return {name: vdb.grid_to_numpy(str(path), name) for name in vdb.read_grid_summary(str(path))["grids"]}
+
+
+def test_grids_are_the_same_bits_on_any_thread_count_and_either_grid_path(tmp_path):
+    """Voxels are exact fixed-point sums (docs/numerics.md, "Grid sums"): one thread, two
+    threads (each with its own grids for the whole run) and the per-unit grids that runs with a
+    stop rule keep (a time budget that never fires) give every voxel of every grid bit for bit,
+    and the absorbed grid sums to the absorbed tally."""
+    rig = ep.PencilSource((0, 0, 1), (0, 0, -1))
+    kw = dict(photons=4000, unit_size=250, seed=6, record_escapes=False)
+    runs = {}
+    for label, extra in (
+        ("t1", dict(threads=1)),
+        ("t2", dict(threads=2)),
+        ("t2-budget", dict(threads=2, time_budget_s=1e6)),
+    ):
+        path = tmp_path / f"{label}.vdb"
+        res = ep.run(_fluor_scene(), rig, grids=ep.GridRequest(0.05, str(path), per_fluorophore=True), **kw, **extra)
+        assert res.photons == 4000 and res.stop_reason == "photons"
+        runs[label] = (res, _all_grids(path))
+    ref_res, ref = runs["t1"]
+    assert sorted(ref) == ["absorbed", "fluorescence", "fluorescence_collagen"]
+    assert ref_res.grid_absorbed_sum == pytest.approx(ref_res.absorbed_energy, rel=1e-12)
+    for label, (res, grids) in runs.items():
+        assert res.grid_absorbed_sum == ref_res.grid_absorbed_sum, label
+        for name, (arr, origin, h) in ref.items():
+            got, got_origin, got_h = grids[name]
+            assert got_origin == origin and got_h == h, (label, name)
+            assert np.array_equal(got, arr), (label, name)
+
+
+def test_time_budget_with_grids_keeps_only_the_merged_units_deposits(tmp_path):
+    """A time budget stops after some unit while the other thread may have traced later units:
+    their deposits must be dropped with them, so the absorbed grid still sums to the absorbed
+    tally of the merged packets (whatever unit the budget stops at)."""
+    path = tmp_path / "budget.vdb"
+    res = ep.run(
+        _fluor_scene(),
+        ep.PencilSource((0, 0, 1), (0, 0, -1)),
+        photons=NEVER_ENDS,
+        seed=2,
+        threads=2,
+        record_escapes=False,
+        time_budget_s=0.3,
+        unit_size=500,
+        grids=ep.GridRequest(0.05, str(path)),
+    )
+    assert res.stop_reason == "time" and res.photons % 500 == 0 and res.photons >= 500
+    assert res.grid_absorbed_sum == pytest.approx(res.absorbed_energy, rel=1e-12)
+    summary = vdb.read_grid_summary(str(path))
+    assert summary["grids"]["absorbed"]["metadata"]["packets"] == str(res.photons)
+
+
 def test_target_on_a_tally_that_stays_zero_stops_and_says_so():
     """Transmittance of a 10 cm deep absorbing box is exactly 0: its relative error is
     undefined, so the run stops after its minimum and reports 'target_zero'."""
