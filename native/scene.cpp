@@ -463,6 +463,12 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
 }
 
 bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+    return gather_with(c, radius, max_count, cache, [&](uint32_t id) { return cache.first_offer(id); });
+}
+
+template <class FirstOffer>
+bool Scene::gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
+                        FirstOffer&& first_offer) const {
     cache.reset(c, radius);
     const Float r = padded_radius(c, radius, 1e-9);
     GatherData data{&regions_, corners_.data(), region_base_.data(), c, r * r, &cache, max_count, false};
@@ -471,7 +477,7 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
         const Vec3 e = t.centre - c;
         const Float reach = r + t.reach;
         if (dot(e, e) > reach * reach) return true;
-        if (cache.first_offer(t.id)) data.offer(t.region, t.prim);
+        if (first_offer(t.id)) data.offer(t.region, t.prim);
         return !data.overflow;
     });
     if (data.overflow) cache.clear();
@@ -504,16 +510,25 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     for (int a = 0; a < 3; ++a) k[a] = std::clamp(int(std::floor((p[a] - corner[a]) / side)), 0, kCellSplit - 1);
     std::atomic<TriangleCache*>& slot = block->cube[(k[2] * kCellSplit + k[1]) * kCellSplit + k[0]];
     if (const TriangleCache* c = slot.load(std::memory_order_acquire)) return *c;
-    // Gathered in a per-thread cache (its mailbox spans the scene's
-    // triangles), then copied into a compact one.
-    thread_local TriangleCache scratch;
+    // Gathered into a per-thread cache (its vectors keep their capacity from
+    // cube to cube), then copied: the copy allocates each vector once, at its
+    // size. A cube's ball meets few triangles, so a short list of the
+    // candidates already offered replaces the cache's scene-wide mailbox
+    // (which the copy would carry along, a stamp per scene triangle).
     const Vec3 c = corner + Vec3(k[0] + Float(0.5), k[1] + Float(0.5), k[2] + Float(0.5)) * side;
-    auto built = std::make_unique<TriangleCache>();
-    if (gather_triangles(c, side, kCellMaxTriangles, scratch)) {
-        built->reset(c, side);
-        for (const TriangleCache::Triangle& t : scratch.triangles())
-            built->add(t.v0, t.v1, t.v2, t.n, t.region, t.prim);
-    }
+    thread_local TriangleCache scratch;
+    uint32_t offered[8 * kCellMaxTriangles];
+    size_t n_offered = 0;
+    bool crowded = false;  // more candidates than the list holds: no cache either
+    const bool few = gather_with(c, side, kCellMaxTriangles, scratch, [&](uint32_t id) {
+        if (std::find(offered, offered + n_offered, id) != offered + n_offered) return false;
+        crowded |= n_offered == std::size(offered);
+        if (crowded) return false;
+        offered[n_offered++] = id;
+        return true;
+    });
+    if (!few || crowded) scratch.clear();
+    auto built = std::make_unique<TriangleCache>(scratch);
     return *install(slot, std::move(built));
 }
 

@@ -163,6 +163,11 @@ class Scene {
     mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
+    // gather_triangles with the deduplication of triangles met in several
+    // cells left to first_offer(id) (true the first time id is offered).
+    template <class FirstOffer>
+    bool gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
+                     FirstOffer&& first_offer) const;
     std::vector<Vec3> corners_;     // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
     std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions
     void compute_isolation();
