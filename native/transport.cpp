@@ -792,9 +792,10 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
 
 void Tracer::begin_unit() {
     // Units hold the same packets on any number of threads; starting each
-    // with an empty cache makes which steps the cache answers (and so the
+    // with no last cache makes which steps a cache answers (and so the
     // order of tied hits) a function of the unit alone, never of the thread
-    // that traced the packets before it.
+    // that traced the packets before it (the scene's caches themselves are
+    // functions of their cube alone).
     local_.cell = nullptr;
 }
 
