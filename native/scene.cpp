@@ -165,12 +165,16 @@ struct GatherData {
     void offer(unsigned region, unsigned prim) {
         if (overflow) return;
         const Vec3* P = &corners[3 * size_t(base[region] + prim)];
-        if (closest_distance2(c, P[0], P[1], P[2]) > r2) return;
+        // The distance to the plane bounds the distance to the triangle from
+        // below: a cheap rejection of neighbours whose plane passes far off.
+        const Vec3& n = (*regions)[region].normals[prim];
+        const Float dp = dot(n, c - P[0]);
+        if (dp * dp > r2 || closest_distance2(c, P[0], P[1], P[2]) > r2) return;
         if (cache->size() >= max_count) {
             overflow = true;
             return;
         }
-        cache->add(P[0], P[1], P[2], (*regions)[region].normals[prim], region, prim);
+        cache->add(P[0], P[1], P[2], n, region, prim);
     }
 };
 
