@@ -26,6 +26,7 @@ GROUPS = {
     "closest-hit query": "ep::Scene::intersect_first",
     "point query": "ep::Scene::distance_to_surface",
     "triangle cache gather": "ep::Scene::gather_triangles",
+    "per-cube cache (lookup, build)": "ep::Scene::cell_cache",
     "triangle cache test": "ep::TriangleCache::intersect",
     "libm log": "log@@",
     "libm sincos": "sincos",

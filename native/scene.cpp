@@ -152,8 +152,8 @@ bool closest_callback(RTCPointQueryFunctionArguments* args) {
 
 struct GatherData {
     const std::vector<Region>* regions;
-    const std::vector<std::vector<float>>* vertices;
-    const std::vector<std::vector<uint32_t>>* triangles;
+    const Vec3* corners;   // Scene::corners_
+    const uint32_t* base;  // Scene::region_base_
     Vec3 c;
     Float r2;
     TriangleCache* cache;
@@ -164,16 +164,17 @@ struct GatherData {
     // distance); both gathers (grid and BVH) apply this one test.
     void offer(unsigned region, unsigned prim) {
         if (overflow) return;
-        const auto& v = (*vertices)[region];
-        const uint32_t* tri = &(*triangles)[region][3 * size_t(prim)];
-        auto vert = [&](uint32_t i) { return Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]); };
-        const Vec3 a = vert(tri[0]), b = vert(tri[1]), d = vert(tri[2]);
-        if (closest_distance2(c, a, b, d) > r2) return;
+        const Vec3* P = &corners[3 * size_t(base[region] + prim)];
+        // The distance to the plane bounds the distance to the triangle from
+        // below: a cheap rejection of neighbours whose plane passes far off.
+        const Vec3& n = (*regions)[region].normals[prim];
+        const Float dp = dot(n, c - P[0]);
+        if (dp * dp > r2 || closest_distance2(c, P[0], P[1], P[2]) > r2) return;
         if (cache->size() >= max_count) {
             overflow = true;
             return;
         }
-        cache->add(a, b, d, (*regions)[region].normals[prim], region, prim);
+        cache->add(P[0], P[1], P[2], n, region, prim);
     }
 };
 
@@ -212,6 +213,7 @@ Scene::Scene(Float unit_cm, Float ambient_n) : unit_cm_(unit_cm), ambient_n_(amb
 }
 
 Scene::~Scene() {
+    release_cell_caches();
     if (scene_) rtcReleaseScene(scene_);
     if (device_) rtcReleaseDevice(device_);
 }
@@ -320,7 +322,20 @@ void Scene::commit() {
     for (size_t k = 0; k < order.size(); ++k) rank_[size_t(order[k])] = int(k);
     rtcCommitScene(scene_);
     grid_.build(vertices_, triangles_);
+    region_base_.assign(regions_.size(), 0);
+    for (size_t r = 1; r < regions_.size(); ++r)
+        region_base_[r] = region_base_[r - 1] + uint32_t(regions_[r - 1].normals.size());
+    corners_.clear();
+    corners_.reserve(3 * grid_.triangle_count());
+    for (size_t r = 0; r < regions_.size(); ++r)
+        for (uint32_t k : triangles_[r]) {
+            const float* v = &vertices_[r][3 * size_t(k)];
+            corners_.emplace_back(v[0], v[1], v[2]);
+        }
     compute_isolation();
+    no_cache_ = std::make_unique<TriangleCache>();
+    cell_blocks_ = std::make_unique<std::atomic<CellBlock*>[]>(grid_.cell_count());
+    for (size_t i = 0; i < grid_.cell_count(); ++i) cell_blocks_[i].store(nullptr);
     committed_ = true;
 }
 
@@ -336,9 +351,6 @@ void Scene::commit() {
 // magnitude plus the extent, is far above that tolerance (~1e-6 of it), the
 // only distance the bound is compared with.
 void Scene::compute_isolation() {
-    region_base_.assign(regions_.size(), 0);
-    for (size_t r = 1; r < regions_.size(); ++r)
-        region_base_[r] = region_base_[r - 1] + uint32_t(regions_[r - 1].normals.size());
     const Float scale = std::max({std::fabs(bbox_min_[0]), std::fabs(bbox_min_[1]), std::fabs(bbox_min_[2]),
                                   std::fabs(bbox_max_[0]), std::fabs(bbox_max_[1]), std::fabs(bbox_max_[2])});
     const Float cap = 1e-4 * (scale + extent_);
@@ -455,19 +467,83 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
 }
 
 bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+    return gather_with(c, radius, max_count, cache, [&](uint32_t id) { return cache.first_offer(id); });
+}
+
+template <class FirstOffer>
+bool Scene::gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
+                        FirstOffer&& first_offer) const {
     cache.reset(c, radius);
     const Float r = padded_radius(c, radius, 1e-9);
-    GatherData data{&regions_, &vertices_, &triangles_, c, r * r, &cache, max_count, false};
+    GatherData data{&regions_, corners_.data(), region_base_.data(), c, r * r, &cache, max_count, false};
     grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
         // The bounding sphere rejects most candidates before the exact test.
         const Vec3 e = t.centre - c;
         const Float reach = r + t.reach;
         if (dot(e, e) > reach * reach) return true;
-        if (cache.first_offer(t.id)) data.offer(t.region, t.prim);
+        if (first_offer(t.id)) data.offer(t.region, t.prim);
         return !data.overflow;
     });
     if (data.overflow) cache.clear();
     return !data.overflow;
+}
+
+namespace {
+
+// Installs a freshly built object in an atomic slot unless another thread
+// was first; returns the one installed (the same content either way).
+template <class T>
+T* install(std::atomic<T*>& slot, std::unique_ptr<T> built) {
+    T* expected = nullptr;
+    if (slot.compare_exchange_strong(expected, built.get(), std::memory_order_acq_rel)) return built.release();
+    return expected;
+}
+
+}  // namespace
+
+const TriangleCache& Scene::cell_cache(const Vec3& p) const {
+    size_t cell;
+    Vec3 centre;
+    if (!grid_.cell_of(p, &cell, &centre)) return *no_cache_;
+    CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
+    if (!block) block = install(cell_blocks_[cell], std::make_unique<CellBlock>());
+    // The cube of the cell that holds p.
+    const Float side = grid_.cell_size() / kCellSplit;
+    const Vec3 corner = centre - Vec3(1, 1, 1) * (Float(0.5) * grid_.cell_size());
+    int k[3];
+    for (int a = 0; a < 3; ++a) k[a] = std::clamp(int(std::floor((p[a] - corner[a]) / side)), 0, kCellSplit - 1);
+    std::atomic<TriangleCache*>& slot = block->cube[(k[2] * kCellSplit + k[1]) * kCellSplit + k[0]];
+    if (const TriangleCache* c = slot.load(std::memory_order_acquire)) return *c;
+    // Gathered into a per-thread cache (its vectors keep their capacity from
+    // cube to cube), then copied: the copy allocates each vector once, at its
+    // size. A cube's ball meets few triangles, so a short list of the
+    // candidates already offered replaces the cache's scene-wide mailbox
+    // (which the copy would carry along, a stamp per scene triangle).
+    const Vec3 c = corner + Vec3(k[0] + Float(0.5), k[1] + Float(0.5), k[2] + Float(0.5)) * side;
+    thread_local TriangleCache scratch;
+    uint32_t offered[8 * kCellMaxTriangles];
+    size_t n_offered = 0;
+    bool crowded = false;  // more candidates than the list holds: no cache either
+    const bool few = gather_with(c, side, kCellMaxTriangles, scratch, [&](uint32_t id) {
+        if (std::find(offered, offered + n_offered, id) != offered + n_offered) return false;
+        crowded |= n_offered == std::size(offered);
+        if (crowded) return false;
+        offered[n_offered++] = id;
+        return true;
+    });
+    if (!few || crowded) scratch.clear();
+    auto built = std::make_unique<TriangleCache>(scratch);
+    return *install(slot, std::move(built));
+}
+
+void Scene::release_cell_caches() {
+    if (!cell_blocks_) return;
+    for (size_t i = 0; i < grid_.cell_count(); ++i)
+        if (CellBlock* b = cell_blocks_[i].load()) {
+            for (auto& c : b->cube) delete c.load();
+            delete b;
+        }
+    cell_blocks_.reset();
 }
 
 bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
@@ -481,7 +557,7 @@ bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, 
     q.radius = float(r * (1 + 1e-5));
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    GatherData data{&regions_, &vertices_, &triangles_, c, r * r, &cache, max_count, false};
+    GatherData data{&regions_, corners_.data(), region_base_.data(), c, r * r, &cache, max_count, false};
     rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
     if (data.overflow) cache.clear();
     return !data.overflow;

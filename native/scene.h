@@ -4,6 +4,7 @@
 #pragma once
 #include <embree3/rtcore.h>
 
+#include <atomic>
 #include <memory>
 #include <string>
 #include <vector>
@@ -125,6 +126,18 @@ class Scene {
     // grid is tested against, and the cost it is measured against.
     bool gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
     const TriangleGrid& grid() const { return grid_; }
+    // The local triangle cache of the cube around p (issue 11): every grid
+    // cell is split into kCellSplit^3 cubes, and each cube's cache holds the
+    // triangles that meet the ball about its centre of radius one cube side
+    // (the cube's half-diagonal is 0.87 side, so a short step from anywhere
+    // in the cube stays inside the ball). Built on first use and shared by
+    // every thread: the content is a function of the cube alone, so which
+    // thread builds it never matters. A cache that covers nothing when p is
+    // outside the grid or more than kCellMaxTriangles meet the ball (the
+    // caller then asks Embree).
+    const TriangleCache& cell_cache(const Vec3& p) const;
+    static constexpr int kCellSplit = 3;
+    static constexpr size_t kCellMaxTriangles = 16;
 
   private:
     Float unit_cm_, ambient_n_;
@@ -141,7 +154,22 @@ class Scene {
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
     TriangleGrid grid_;
     std::vector<uint32_t> region_base_;  // scene-wide index of each region's first triangle
-    std::vector<float> isolation_;       // per triangle: lower bound of its distance to other regions
+    // cell_cache's store: per grid cell a block of kCellSplit^3 caches, both
+    // levels allocated on first use (the grid of a large scene has up to
+    // 128^3 cells, few of them ever visited).
+    struct CellBlock {
+        std::atomic<TriangleCache*> cube[kCellSplit * kCellSplit * kCellSplit] = {};
+    };
+    mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
+    std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
+    void release_cell_caches();
+    // gather_triangles with the deduplication of triangles met in several
+    // cells left to first_offer(id) (true the first time id is offered).
+    template <class FirstOffer>
+    bool gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
+                     FirstOffer&& first_offer) const;
+    std::vector<Vec3> corners_;     // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
+    std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions
     void compute_isolation();
 };
 

@@ -65,27 +65,14 @@ struct PacketState {
     bool reuse_hits = false;  // the hits in the buffer are this step's (no new query)
 };
 
-// The local triangle cache (triangle_cache.h): its ball spans a multiple of
-// kBallFreePaths mean free paths of the region the packet is in, so a packet
-// walks many steps before it leaves the ball. The local triangle size sets
-// the rest: the thread remembers a fraction of that radius (halved when more
-// than kMaxCached triangles meet the ball, doubled when it holds few), so a
-// finely tessellated wall gets a small ball and a big flat face a large one.
-// When even a ball of two steps holds too many, the step falls back to the
-// full query and the next kGatherCooldown steps do not try again.
-// The rule, in numbers: r = clamp(f * 16 mfp, 2 (step + look-behind), extent),
-// f in (0, 4] halved above kMaxCached triangles and doubled at kMaxCached / 4
-// or fewer. kMaxCached = 8: every cached step pays a plane test per distinct
-// plane and every gather an exact distance test per triangle, so on a curved
-// wall (one plane per quad) big balls cost more than the steps they cover
-// (callgrind, colon_polyp with the cache forced on: 16 -> 260k instructions
-// per packet; 8, with the grid's bounding-sphere test -> 161k; Embree alone 130k).
-constexpr Float kBallFreePaths = 16;
-constexpr Float kMaxFraction = 4;  // a ball of up to 64 free paths around few triangles
-constexpr size_t kMaxCached = 8;
-constexpr int kGatherCooldown = 16;
-constexpr uint64_t kGathersBeforeChoice = 8;
-constexpr uint64_t kMinStepsPerGather = 16;
+// The local triangle caches (triangle_cache.h) are the scene's, one per small
+// cube of space (Scene::cell_cache): a step inside the ball of the cube it
+// starts in tests that cube's few triangles (one plane per triangle on a
+// curved wall) instead of an Embree query. A packet keeps the last cache it
+// used while its steps stay in that ball. (The earlier per-thread cache,
+// re-gathered around the packet whenever it left the ball, cost ~6k
+// instructions a gather and served ~15 steps on colon_polyp's curved wall,
+// so it switched itself off there: callgrind, 117k instructions a packet.)
 
 // What a step through the crossings ahead ended with.
 enum class Crossing { kNone, kBoundary, kEnded };
@@ -259,9 +246,14 @@ template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
     if constexpr (kGrids) return false;  // the grids' deposits stay in interact()
     const PacketState& st = st_;
-    if (!local_.enabled || local_.unit_off || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
-    // Spectral: only where fluoresce() has nothing to do.
-    return !kSpectral || scene_.region(size_t(st.med.region)).fluorophores.empty();
+    if (!local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
+    // Spectral: only where fluoresce() has nothing to do: a region without
+    // fluorophores, or a packet that already fluoresced under the "paper" rule
+    // (one event per packet; on colon_polyp ~75 of its ~89 steps come after it).
+    if constexpr (kSpectral)
+        return (st.fluorescent && cfg_.rule == FluorescenceRule::kPaper) ||
+               scene_.region(size_t(st.med.region)).fluorophores.empty();
+    return true;
 }
 
 // The loop of interior steps; false when the packet ended (roulette, caps).
@@ -270,7 +262,7 @@ bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     PacketState& st = st_;
-    const TriangleCache& cache = local_.cache;
+    const TriangleCache& cache = *local_.cell;  // the cache of the last cached step
     // The look-behind ray_offset(p) of any p in the ball is at most this
     // (|p|_max <= |center|_max + radius; the factor covers the rounding).
     const Float max_back =
@@ -303,7 +295,6 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         st.max_depth = max_depth;
         st.events += steps;
         st.interactions += steps;
-        local_.cached_steps += steps;
         room = path_cap ? 0 : max_events_ - st.events;
         steps = 0;
         st.scatterings = scatterings;
@@ -411,7 +402,7 @@ void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
         st.reuse_hits = false;
         return;
     }
-    if (local_.enabled && !local_.unit_off && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
+    if (local_.enabled && st.med.region >= 0 && std::isfinite(s) && cached_crossings(s)) return;
     query(-ray_offset(st.p, extent_), s, st.set, st.med.region);
 }
 
@@ -442,46 +433,21 @@ void PacketWalk<kSpectral, kGrids>::query(Float tnear, Float tfar, uint64_t set,
     scene_.intersect_all(st.p, st.d, tnear, tfar, hits_);
 }
 
-// The crossings of the step [-offset, s] from the cache, re-gathered around
-// the packet when the step leaves its ball. False when the cache cannot
-// answer (too many triangles near the packet): the caller queries Embree.
+// The crossings of the step [-offset, s] from the cache of the cube the
+// packet is in. False when that cache cannot answer (the step leaves its
+// ball, or too many triangles meet it): the caller queries Embree.
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
     const PacketState& st = st_;
-    TriangleCache& cache = local_.cache;
     const Float back = ray_offset(st.p, extent_);
     const Vec3 a = st.p - st.d * back, b = st.p + st.d * s;
-    if (!cache.covers(a, b)) {
-        if (local_.cooldown > 0) {
-            --local_.cooldown;
-            return false;
-        }
-        // A ball of (fraction x kBallFreePaths) mean free paths, at least
-        // twice this step, at most the scene.
-        const Float mfp = 1 / (st.med.mut * unit_cm_), min_r = 2 * (s + back);
-        while (!scene_.gather_triangles(
-            st.p, std::min(extent_, std::max(local_.fraction * kBallFreePaths * mfp, min_r)), kMaxCached, cache)) {
-            if (local_.fraction * kBallFreePaths * mfp <= min_r) {
-                local_.cooldown = kGatherCooldown;
-                return false;
-            }
-            local_.fraction *= Float(0.5);
-        }
-        if (cache.size() <= kMaxCached / 4) local_.fraction = std::min(kMaxFraction, 2 * local_.fraction);
-        ++local_.gathers;
-        // The cache pays only where a gather serves enough steps: callgrind on
-        // colon_polyp, a gather ~6k instructions, a cached step ~200 against
-        // ~780 for Embree's query, so below kMinStepsPerGather the unit's
-        // remaining steps go to Embree. Counts, not timings: the choice is the
-        // unit's own (same on any thread count), and both paths give the same hits.
-        if (local_.gathers >= kGathersBeforeChoice && local_.cached_steps < kMinStepsPerGather * local_.gathers) {
-            local_.unit_off = true;
-            return false;
-        }
-        if (!cache.covers(a, b)) return false;
+    const TriangleCache* cache = local_.cell;
+    if (!cache || !cache->covers(a, b)) {
+        cache = &scene_.cell_cache(st.p);
+        if (!cache->covers(a, b)) return false;
+        local_.cell = cache;
     }
-    ++local_.cached_steps;
-    cache.intersect(st.p, st.d, -back, s, hits_);
+    cache->intersect(st.p, st.d, -back, s, hits_);
     return true;
 }
 
@@ -924,10 +890,9 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
     grids_ = cfg.grid_voxel_size > 0;
     hits_.reserve(64);
-    // The local triangle cache serves every scene: its gather goes through the
-    // uniform grid (triangle_grid.h), O(local) whatever the triangle count
-    // (the BVH point query cost ~8.7k instructions per gather on the colon
-    // and was used only up to 4,096 triangles).
+    // The local triangle caches serve every scene: each is gathered once
+    // through the uniform grid (triangle_grid.h), O(local) whatever the
+    // triangle count.
     local_.enabled = cfg.safe_distance;
     // A light is enclosed when every one of 64 probe rays from its centre
     // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
@@ -948,14 +913,11 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
 
 void Tracer::begin_unit() {
     // Units hold the same packets on any number of threads; starting each
-    // with an empty cache makes which steps the cache answers (and so the
+    // with no last cache makes which steps a cache answers (and so the
     // order of tied hits) a function of the unit alone, never of the thread
-    // that traced the packets before it.
-    local_.cache.clear();
-    local_.cooldown = 0;
-    local_.fraction = 1;
-    local_.gathers = local_.cached_steps = 0;
-    local_.unit_off = false;
+    // that traced the packets before it (the scene's caches themselves are
+    // functions of their cube alone).
+    local_.cell = nullptr;
 }
 
 void Tracer::trace(uint64_t index, UnitOutput& out) {

@@ -50,15 +50,11 @@ struct UnitOutput {
     }
 };
 
-// The triangles near the last packet of this thread (triangle_cache.h); the
-// geometry is static, so the cache stays valid from one packet to the next.
+// The local triangle cache this thread used last (Scene::cell_cache); the
+// geometry is static, so it stays valid from one packet to the next.
 struct LocalGeometry {
-    bool enabled = false;  // chosen per scene (Tracer's constructor)
-    TriangleCache cache;
-    int cooldown = 0;                        // steps before the next gather after one that failed
-    double fraction = 1;                     // of the ball radius in free paths (transport.cpp)
-    uint64_t gathers = 0, cached_steps = 0;  // in this work unit
-    bool unit_off = false;                   // the cache did not pay in this unit
+    bool enabled = false;                 // chosen per scene (Tracer's constructor)
+    const TriangleCache* cell = nullptr;  // the cache of the last cached step
 };
 
 class Tracer {

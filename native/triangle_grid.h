@@ -11,6 +11,7 @@
 // spanning several cells appears in each, so visits repeat and the caller
 // deduplicates (TriangleCache keeps a per-thread mailbox).
 #pragma once
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -46,6 +47,20 @@ class TriangleGrid {
                 for (uint32_t k = s[0], e = s[b[0] - a[0] + 1]; k < e; ++k)
                     if (!f(refs_[k])) return;
             }
+    }
+
+    // The cell holding p (its index and centre); false outside the grid.
+    bool cell_of(const Vec3& p, size_t* index, Vec3* centre) const {
+        if (res_[0] == 0) return false;
+        int c[3];
+        for (int k = 0; k < 3; ++k) {
+            const Float f = std::floor((p[k] - origin_[k]) * inv_cell_);
+            if (!(f >= 0 && f < Float(res_[k]))) return false;
+            c[k] = int(f);
+        }
+        *index = (size_t(c[2]) * size_t(res_[1]) + size_t(c[1])) * size_t(res_[0]) + size_t(c[0]);
+        *centre = origin_ + Vec3(c[0] + Float(0.5), c[1] + Float(0.5), c[2] + Float(0.5)) * cell_;
+        return true;
     }
 
     size_t triangle_count() const { return triangle_count_; }
