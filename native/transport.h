@@ -12,6 +12,7 @@
 #include <memory>
 #include <vector>
 
+#include "entry_planes.h"
 #include "halton.h"
 #include "records.h"
 #include "run_config.h"
@@ -45,6 +46,30 @@ struct LocalGeometry {
     bool unit_off = false;                   // the cache did not pay in this unit
 };
 
+// A light without disk or cone (a pencil beam) emits every packet along the
+// same ray, so the ray queries of its packets' first steps -- locate_start's
+// query to infinity and the first boundary's mirror ray -- are the same too:
+// each is kept here, keyed by the exact bits of the ray (issue 11: ~1.6k
+// instructions per query; a memo of a deterministic query is exact).
+struct RayMemo {
+    bool valid = false;
+    Vec3 p, d;
+    std::vector<Hit> hits;
+    NextHit next = kNextAway;  // the mirror ray's landing
+    bool matches(const Vec3& p_, const Vec3& d_) const;
+    void store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits_, NextHit next_ = kNextAway);
+};
+struct LaunchMemo {
+    bool fixed_ray = false;  // the light emits one ray only
+    RayMemo start, mirror;
+};
+
+// Ray queries a thread answers without Embree (issue 11: the fixed cost per packet).
+struct RayShortcuts {
+    std::vector<LaunchMemo> launch;  // per light
+    EntryPlanes entry_planes;        // exits that enter nothing (small scenes)
+};
+
 class Tracer {
   public:
     Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& config);
@@ -67,6 +92,7 @@ class Tracer {
     // Per light: its ambient pocket is closed (every probe ray meets a region),
     // so light that leaves the scene went through the tissue: transmitted.
     std::vector<uint8_t> enclosed_;
+    RayShortcuts shortcuts_;
 };
 
 }  // namespace ep
