@@ -31,17 +31,21 @@ namespace ep {
 
 class EntryPlanes {
   public:
-    // Scenes with more triangles than this ask Embree (the test is linear in planes).
-    static constexpr size_t kMaxTriangles = 32;
+    // Scenes with more triangles than this ask Embree (the test is linear in
+    // planes; a layered slab of five layers has 60 triangles but six normals).
+    static constexpr size_t kMaxTriangles = 64;
 
     // Collects the planes of every triangle of the (committed) scene; disabled
     // when it has more than kMaxTriangles.
     void build(const Scene& scene) {
         planes_.clear();
         enabled_ = false;
+        size_t count = 0;
+        for (size_t r = 0; r < scene.region_count(); ++r) count += scene.region(r).normals.size();
         TriangleCache all;
         // A ball that holds every triangle (the gather only reads its triangles).
-        if (scene.region_count() == 0 || !scene.gather_triangles_bvh(Vec3(0, 0, 0), 1e30, kMaxTriangles, all)) return;
+        if (count == 0 || count > kMaxTriangles || !scene.gather_triangles_bvh(Vec3(0, 0, 0), 1e30, kMaxTriangles, all))
+            return;
         scale_ = 0;
         for (const TriangleCache::Triangle& t : all.triangles()) {
             scale_ = std::max({scale_, max_abs_component(t.v0), max_abs_component(t.v1), max_abs_component(t.v2)});
