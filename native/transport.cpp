@@ -713,9 +713,10 @@ Crossing PacketWalk<kSpectral, kGrids>::leave_tissue(int from_region, const Vec3
     }
     NextHit next;
     if (shortcuts_.entry_planes.none_ahead(st_.p, st_.d, ray_offset(st_.p, extent_))) {
-        // look_ahead's query would find nothing (entry_planes.h): its answer without Embree.
+        // look_ahead's query would find nothing (entry_planes.h): its answer
+        // without Embree, as landing() gives it for no hits.
         hits_.clear();
-        next = landing();
+        next = body() ? landing() : kNextAway;
     } else {
         next = look_ahead();
     }
