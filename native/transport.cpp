@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
 #include "eem.h"
 #include "fast_log.h"
@@ -950,12 +949,6 @@ void PacketWalk<kSpectral, kGrids>::attenuate_clear(Float t) {
 }
 
 }  // namespace
-
-// Exact bits, not ==: the memo answers only for the very ray it saw (0 and -0
-// compare equal but are different inputs).
-bool RayMemo::matches(const Vec3& p_, const Vec3& d_) const {
-    return valid && std::memcmp(&p, &p_, sizeof(Vec3)) == 0 && std::memcmp(&d, &d_, sizeof(Vec3)) == 0;
-}
 
 void RayMemo::store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits_, NextHit next_) {
     valid = true;

@@ -9,6 +9,7 @@
 // cross_interfaces, interact, and leave_tissue / through_ambient; deep in a
 // scattering region, interior_steps runs the same steps in a tight loop.
 #pragma once
+#include <cstring>
 #include <memory>
 #include <vector>
 
@@ -56,7 +57,11 @@ struct RayMemo {
     Vec3 p, d;
     std::vector<Hit> hits;
     NextHit next = kNextAway;  // the mirror ray's landing
-    bool matches(const Vec3& p_, const Vec3& d_) const;
+    // Exact bits, not ==: the memo answers only for the very ray it saw (0 and
+    // -0 compare equal but are different inputs).
+    bool matches(const Vec3& p_, const Vec3& d_) const {
+        return valid && std::memcmp(&p, &p_, sizeof(Vec3)) == 0 && std::memcmp(&d, &d_, sizeof(Vec3)) == 0;
+    }
     void store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits_, NextHit next_ = kNextAway);
 };
 struct LaunchMemo {
