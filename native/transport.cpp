@@ -94,7 +94,7 @@ class PacketWalk {
   public:
     PacketWalk(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg,
                std::vector<Hit>& hits, std::vector<Float>& cuts, const std::vector<uint8_t>& enclosed,
-               LocalGeometry& local, UnitOutput& out)
+               LocalGeometry& local, RayShortcuts& shortcuts, UnitOutput& out)
         : scene_(scene),
           source_(source),
           halton_(halton),
@@ -103,6 +103,7 @@ class PacketWalk {
           cuts_(cuts),
           enclosed_(enclosed),
           local_(local),
+          shortcuts_(shortcuts),
           out_(out),
           unit_cm_(scene.unit_cm()),
           extent_(scene.extent()),
@@ -132,6 +133,11 @@ class PacketWalk {
     bool interact(Float s);
     void fluoresce();
     void escape();
+    // The memo of the packet's light when it emits one ray only, else null.
+    LaunchMemo* launch_memo() {
+        LaunchMemo& m = shortcuts_.launch[size_t(st_.light)];
+        return m.fixed_ray ? &m : nullptr;
+    }
     // The rig head, when the lumen rule is on and the source has one.
     const RigBody* body() const { return cfg_.lumen ? source_.body() : nullptr; }
     bool reflected() const { return !enclosed_[size_t(st_.light)] && dot(st_.d, st_.entry_reference) < 0; }
@@ -161,6 +167,7 @@ class PacketWalk {
     std::vector<Float>& cuts_;
     const std::vector<uint8_t>& enclosed_;
     LocalGeometry& local_;
+    RayShortcuts& shortcuts_;
     UnitOutput& out_;
     const Float unit_cm_, extent_;
     const uint64_t max_events_;
@@ -366,7 +373,13 @@ void PacketWalk<kSpectral, kGrids>::launch(uint64_t index) {
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::locate_start() {
     PacketState& st = st_;
-    scene_.intersect_all(st.p, st.d, 0, kInf, hits_);
+    LaunchMemo* memo = launch_memo();
+    if (memo && memo->start.matches(st.p, st.d)) {
+        hits_.assign(memo->start.hits.begin(), memo->start.hits.end());
+    } else {
+        scene_.intersect_all(st.p, st.d, 0, kInf, hits_);
+        if (memo) memo->start.store(st.p, st.d, hits_);
+    }
     uint64_t seen = 0;
     for (const Hit& h : hits_) {
         const uint64_t bit = uint64_t(1) << h.region;
@@ -608,7 +621,17 @@ bool PacketWalk<kSpectral, kGrids>::first_boundary(const Vec3& n_inc, Float R, i
     if (R > 0 && cfg_.lumen) {
         const Vec3 d_in = st.d;
         st.d = reflect(d_in, n_inc);
-        const NextHit lands = look_ahead();
+        // The mirror ray of a one-ray light is the same for every packet: its
+        // hits and landing come from the memo after the first packet.
+        LaunchMemo* memo = launch_memo();
+        NextHit lands;
+        if (memo && memo->mirror.matches(st.p, st.d)) {
+            hits_.assign(memo->mirror.hits.begin(), memo->mirror.hits.end());
+            lands = memo->mirror.next;
+        } else {
+            lands = look_ahead();
+            if (memo) memo->mirror.store(st.p, st.d, hits_, lands);
+        }
         st.d = d_in;
         if (lands != kNextAway) {
             st.reuse_hits = false;
@@ -653,7 +676,15 @@ Crossing PacketWalk<kSpectral, kGrids>::leave_tissue(int from_region, const Vec3
         escape();
         return Crossing::kEnded;
     }
-    const NextHit next = look_ahead();
+    NextHit next;
+    if (shortcuts_.entry_planes.none_ahead(st_.p, st_.d, ray_offset(st_.p, extent_))) {
+        // look_ahead's query would find nothing (entry_planes.h): its answer
+        // without Embree, as landing() gives it for no hits.
+        hits_.clear();
+        next = body() ? landing() : kNextAway;
+    } else {
+        next = look_ahead();
+    }
     load_medium(-1);
     record_exit(from_region, normal_out, next);
     return through_ambient(next);
@@ -885,6 +916,14 @@ void PacketWalk<kSpectral, kGrids>::attenuate_clear(Float t) {
 
 }  // namespace
 
+void RayMemo::store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits_, NextHit next_) {
+    valid = true;
+    p = p_;
+    d = d_;
+    hits.assign(hits_.begin(), hits_.end());
+    next = next_;
+}
+
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
     : scene_(scene), source_(source), halton_(halton), cfg_(cfg) {
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
@@ -894,6 +933,7 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     // through the uniform grid (triangle_grid.h), O(local) whatever the
     // triangle count.
     local_.enabled = cfg.safe_distance;
+    shortcuts_.entry_planes.build(scene);
     // A light is enclosed when every one of 64 probe rays from its centre
     // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
     // with an opening larger than about 1/64 of the sphere is seen as open.
@@ -908,6 +948,7 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
             closed = !hits_.empty();
         }
         enclosed_.push_back(closed ? 1 : 0);
+        shortcuts_.launch.emplace_back().fixed_ray = l.radius == 0 && l.half_angle == 0;
     }
 }
 
@@ -923,7 +964,7 @@ void Tracer::begin_unit() {
 void Tracer::trace(uint64_t index, UnitOutput& out) {
     auto walk = [&](auto spectral, auto grids) {
         PacketWalk<decltype(spectral)::value, decltype(grids)::value>(scene_, source_, halton_, cfg_, hits_, cuts_,
-                                                                      enclosed_, local_, out)
+                                                                      enclosed_, local_, shortcuts_, out)
             .run(index);
     };
     using T = std::true_type;

@@ -9,9 +9,11 @@
 // cross_interfaces, interact, and leave_tissue / through_ambient; deep in a
 // scattering region, interior_steps runs the same steps in a tight loop.
 #pragma once
+#include <cstring>
 #include <memory>
 #include <vector>
 
+#include "entry_planes.h"
 #include "halton.h"
 #include "records.h"
 #include "run_config.h"
@@ -57,6 +59,34 @@ struct LocalGeometry {
     const TriangleCache* cell = nullptr;  // the cache of the last cached step
 };
 
+// A light without disk or cone (a pencil beam) emits every packet along the
+// same ray, so the ray queries of its packets' first steps -- locate_start's
+// query to infinity and the first boundary's mirror ray -- are the same too:
+// each is kept here, keyed by the exact bits of the ray (issue 11: ~1.6k
+// instructions per query; a memo of a deterministic query is exact).
+struct RayMemo {
+    bool valid = false;
+    Vec3 p, d;
+    std::vector<Hit> hits;
+    NextHit next = kNextAway;  // the mirror ray's landing
+    // Exact bits, not ==: the memo answers only for the very ray it saw (0 and
+    // -0 compare equal but are different inputs).
+    bool matches(const Vec3& p_, const Vec3& d_) const {
+        return valid && std::memcmp(&p, &p_, sizeof(Vec3)) == 0 && std::memcmp(&d, &d_, sizeof(Vec3)) == 0;
+    }
+    void store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits_, NextHit next_ = kNextAway);
+};
+struct LaunchMemo {
+    bool fixed_ray = false;  // the light emits one ray only
+    RayMemo start, mirror;
+};
+
+// Ray queries a thread answers without Embree (issue 11: the fixed cost per packet).
+struct RayShortcuts {
+    std::vector<LaunchMemo> launch;  // per light
+    EntryPlanes entry_planes;        // exits that enter nothing (small scenes)
+};
+
 class Tracer {
   public:
     Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& config);
@@ -79,6 +109,7 @@ class Tracer {
     // Per light: its ambient pocket is closed (every probe ray meets a region),
     // so light that leaves the scene went through the tissue: transmitted.
     std::vector<uint8_t> enclosed_;
+    RayShortcuts shortcuts_;
 };
 
 }  // namespace ep
