@@ -18,13 +18,6 @@ using namespace ep;
 
 namespace {
 
-Medium tissue() {
-    Medium m;
-    m.mua = 1;
-    m.mus = 10;
-    return m;
-}
-
 // Two touching boxes (coincident faces at z = -1) and a small tilted box
 // inside the top one, so that cubes see faces, edges, corners and
 // coincident faces; 36 triangles make a grid of 10 cells a side.
@@ -42,7 +35,7 @@ struct Scenery {
             v[2][i + 2] = float(std::sin(0.3) * y + std::cos(0.3) * z - 0.4);
         }
         const char* names[3] = {"top", "bottom", "inclusion"};
-        for (int r = 0; r < 3; ++r) s.add_region(names[r], v[r].data(), 8, t[r].data(), 12, tissue(), r);
+        for (int r = 0; r < 3; ++r) s.add_region(names[r], v[r].data(), 8, t[r].data(), 12, plain_medium(), r);
         s.commit();
     }
 };

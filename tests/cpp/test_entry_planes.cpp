@@ -18,13 +18,6 @@ using namespace ep;
 
 namespace {
 
-Medium medium() {
-    Medium m;
-    m.mua = 1;
-    m.mus = 10;
-    return m;
-}
-
 // Counts of exits from the box [-1, 1]^2 x [-1, 0] that none_ahead answered,
 // after checking each answer against intersect_first.
 struct Tally {
@@ -75,7 +68,7 @@ TEST(EntryPlanes, ConvexBoxExitsNeedNoQuery) {
     std::vector<float> v;
     std::vector<uint32_t> t;
     box(-1, -1, -1, 1, 1, 0, v, t);
-    s.add_region("box", v.data(), 8, t.data(), 12, medium(), 0);
+    s.add_region("box", v.data(), 8, t.data(), 12, plain_medium(), 0);
     s.commit();
     EntryPlanes planes;
     planes.build(s);
@@ -90,9 +83,9 @@ TEST(EntryPlanes, NeighbourBoxIsNeverMissed) {
     std::vector<float> v, v2;
     std::vector<uint32_t> t, t2;
     box(-1, -1, -1, 1, 1, 0, v, t);
-    s.add_region("box", v.data(), 8, t.data(), 12, medium(), 0);
+    s.add_region("box", v.data(), 8, t.data(), 12, plain_medium(), 0);
     box(1.5, -1, -1, 2.5, 1, 0, v2, t2);  // beside the +x face
-    s.add_region("neighbour", v2.data(), 8, t2.data(), 12, medium(), 0);
+    s.add_region("neighbour", v2.data(), 8, t2.data(), 12, plain_medium(), 0);
     s.commit();
     EntryPlanes planes;
     planes.build(s);
@@ -108,7 +101,7 @@ TEST(EntryPlanes, LargeScenesAreLeftToEmbree) {
     std::vector<std::vector<uint32_t>> ts(6);
     for (int k = 0; k < 6; ++k) {  // 72 triangles > kMaxTriangles
         box(-1, -1, -1 - 2 * k, 1, 1, -2 * k, vs[size_t(k)], ts[size_t(k)]);
-        s.add_region("box" + std::to_string(k), vs[size_t(k)].data(), 8, ts[size_t(k)].data(), 12, medium(), 0);
+        s.add_region("box" + std::to_string(k), vs[size_t(k)].data(), 8, ts[size_t(k)].data(), 12, plain_medium(), 0);
     }
     s.commit();
     EntryPlanes planes;

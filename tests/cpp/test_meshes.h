@@ -3,6 +3,16 @@
 #include <cstdint>
 #include <vector>
 
+#include "medium.h"
+
+// A scattering test medium: mua 1, mus 10 cm^-1, g 0, n 1 (optics do not matter to geometry tests).
+inline ep::Medium plain_medium() {
+    ep::Medium m;
+    m.mua = 1;
+    m.mus = 10;
+    return m;
+}
+
 // An axis-aligned box, 8 vertices and 12 triangles, CCW seen from outside.
 inline void box(float x0, float y0, float z0, float x1, float y1, float z1, std::vector<float>& v,
                 std::vector<uint32_t>& t) {

@@ -196,16 +196,9 @@ int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t see
 
 }  // namespace
 
-Medium tissue() {
-    Medium m;
-    m.mua = 1;
-    m.mus = 10;
-    return m;
-}
-
 // Two unit-thick boxes sharing the face z = -1 (coincident faces), committed.
 void box_pair(Scene& s, std::vector<Mesh>& meshes) {
-    const Medium m = tissue();
+    const Medium m = plain_medium();
     box(-1, -1, -1, 1, 1, 0, meshes[0].v, meshes[0].t);
     s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, m, 0);
     box(-1, -1, -2, 1, 1, -1, meshes[1].v, meshes[1].t);
@@ -223,7 +216,7 @@ TEST(TriangleCache, SameCrossingsAsFullQueryOnBoxesWithCoincidentFaces) {
 
 TEST(TriangleCache, SameCrossingsAsFullQueryOnCurvedMesh) {
     Scene s(1.0, 1.0);
-    const Medium m = tissue();
+    const Medium m = plain_medium();
     std::vector<Mesh> meshes(2);
     sphere(1.0f, 0, 0, 0, 48, 24, meshes[0].v, meshes[0].t);
     s.add_region("sphere", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3, m,
@@ -272,19 +265,19 @@ void colon_like(Scene& s, std::vector<Mesh>& meshes) {
     meshes.resize(2);
     tube(8.0, 2.5, 0.5, 2.0, 0.3, 100, 64, meshes[0].v, meshes[0].t);
     s.add_region("colon", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3,
-                 tissue(), 0);
+                 plain_medium(), 0);
     sphere(0.3f, 5.0f, 0, -2.5f, 48, 24, meshes[1].v, meshes[1].t);
     s.add_region("polyp", meshes[1].v.data(), meshes[1].v.size() / 3, meshes[1].t.data(), meshes[1].t.size() / 3,
-                 tissue(), 1);
+                 plain_medium(), 1);
     s.commit();
 }
 
 void box_pair(Scene& s, std::vector<Mesh>& meshes, float off) {
     meshes.resize(2);
     box(off - 1, off - 1, off - 1, off + 1, off + 1, off, meshes[0].v, meshes[0].t);
-    s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, tissue(), 0);
+    s.add_region("top", meshes[0].v.data(), 8, meshes[0].t.data(), 12, plain_medium(), 0);
     box(off - 1, off - 1, off - 2, off + 1, off + 1, off - 1, meshes[1].v, meshes[1].t);
-    s.add_region("bottom", meshes[1].v.data(), 8, meshes[1].t.data(), 12, tissue(), 1);
+    s.add_region("bottom", meshes[1].v.data(), 8, meshes[1].t.data(), 12, plain_medium(), 1);
     s.commit();
 }
 
@@ -561,7 +554,7 @@ TEST(ClearSteps, ClearOnlyWhereTheCacheFindsNothingOnBoxesWithCoincidentFaces) {
 
 TEST(ClearSteps, ClearOnlyWhereTheCacheFindsNothingOnCurvedMesh) {
     Scene s(1.0, 1.0);
-    const Medium m = tissue();
+    const Medium m = plain_medium();
     std::vector<Mesh> meshes(1);
     sphere(1.0f, 0, 0, 0, 48, 24, meshes[0].v, meshes[0].t);
     s.add_region("sphere", meshes[0].v.data(), meshes[0].v.size() / 3, meshes[0].t.data(), meshes[0].t.size() / 3, m,
