@@ -307,19 +307,24 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
 }
 
 // Claims units, traces their packets and hands them to the merger until the
-// run stops or no unit is left. Deposits go to `grids` (the thread's grids)
-// directly, or, per unit, to the unit's own grids, which come back here once
-// the merger has accepted the unit and are added outside the lock.
+// run stops or no unit is left. Deposits go to a staging grid set that holds
+// one unit and is added to `grids` (the thread's grids) after the unit, or,
+// per unit, to the unit's own grids, which come back here once the merger has
+// accepted the unit and are added outside the lock. The staging set is small
+// (a unit's voxels) and stays in cache, where the thread's grids, holding the
+// whole run, would take a cache miss per deposit (colon_polyp at 0.2 mm:
+// 2 threads did 0.67 of the 1-thread work per CPU-second without it).
 void trace_claimed_units(RunState& st, Tracer& tracer, GridSet* grids) {
     const UnitPlan plan{st.unit_size, st.limit, st.n_units_max};
     std::vector<std::unique_ptr<GridSet>> accepted;
+    std::unique_ptr<GridSet> staging = grids && !grids_per_unit(st.cfg) ? new_grids(st.scene, st.cfg) : nullptr;
     while (!st.stop.load()) {
         if (st.cancelled()) return;
         const uint64_t u = st.next_unit.fetch_add(1);
         if (u >= st.n_units_max) return;
         const uint64_t first = u * st.unit_size, end = std::min(st.limit, first + st.unit_size);
         uint64_t counted = first;
-        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, grids, [&](uint64_t k) {
+        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, staging ? staging.get() : grids, [&](uint64_t k) {
             // Cancel is checked before every packet (two relaxed loads), so a
             // Ctrl-C lands within one packet even when packets are slow.
             if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
@@ -330,6 +335,10 @@ void trace_claimed_units(RunState& st, Tracer& tracer, GridSet* grids) {
             return true;
         });
         if (!out) return;
+        if (staging) {  // exact sums: adding the unit's grids now or its deposits one by one gives the same bits
+            grids->merge_from(*staging);
+            staging->clear_keep_capacity();
+        }
         st.done_packets.fetch_add(end - counted);
         {
             std::lock_guard<std::mutex> lock(st.mu);

@@ -244,6 +244,21 @@ void VoxelAccumulator::clear() {
     dropped_value_ = Fixed192();
 }
 
+void VoxelAccumulator::clear_keep_capacity() {
+    for (Slot& slot : slots_) slot.used = 0;
+    size_ = 0;
+    last_slot_ = kNoSlot;
+    dropped_ = 0;
+    dropped_value_ = Fixed192();
+}
+
+void GridSet::clear_keep_capacity() {
+    absorbed.clear_keep_capacity();
+    fluorescence.clear_keep_capacity();
+    for (auto& g : per_fluorophore) g.clear_keep_capacity();
+    packets = 0;
+}
+
 GridSet::GridSet(double voxel_size, size_t per_fl) : absorbed(voxel_size), fluorescence(voxel_size) {
     per_fluorophore.assign(per_fl, VoxelAccumulator(voxel_size));
 }

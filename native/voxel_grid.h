@@ -146,6 +146,9 @@ class VoxelAccumulator {
 
     // Removes all voxels and counters; keeps the voxel size.
     void clear();
+    // The same, but keeps the table's memory for reuse (a staging grid that
+    // is filled and emptied once per work unit).
+    void clear_keep_capacity();
 
     // Adds to the dropped counters (restoring an accumulator from its byte
     // form, unit_io.cpp, keeps them exact).
@@ -200,6 +203,8 @@ struct GridSet {
     // Adds every grid of `other` (exact, any order); throws
     // std::invalid_argument if the two sets differ in shape or voxel size.
     void merge_from(const GridSet& other);
+    // Empties every grid and the packet count, keeping the tables' memory.
+    void clear_keep_capacity();
     size_t memory_bytes() const;
 };
 
