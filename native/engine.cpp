@@ -10,6 +10,7 @@
 #include <system_error>
 #include <thread>
 
+#include "grid_shards.h"
 #include "scale_check.h"
 #include "transport.h"
 #include "unit_io.h"
@@ -145,39 +146,45 @@ void validate_config(const RunConfig& c, const Scene& scene) {
 // grid sums to the `absorbed` fraction. The file is written atomically
 // (write_vdb). Throws std::logic_error if the grids do not hold the deposits
 // of exactly the merged packets (a unit counted twice or lost).
-void write_grids(const GridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result) {
-    if (grids.packets != result.packets)
-        throw std::logic_error("grids: hold the deposits of " + std::to_string(grids.packets) +
+// The grids are built on up to `threads` threads.
+void write_grids(const SharedGridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result, int threads) {
+    if (grids.packets() != result.packets)
+        throw std::logic_error("grids: hold the deposits of " + std::to_string(grids.packets()) +
                                " packets, but the run merged " + std::to_string(result.packets) +
                                " (internal error: please report it)");
     const double s = 1.0 / double(result.packets);
     std::vector<GridOutput> outs;
-    outs.push_back(
-        {"absorbed",
-         "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet",
-         &grids.absorbed, s});
-    outs.push_back({"fluorescence",
-                    "weight of fluorescent packets summed over their interaction sites (volume photon map "
-                    "density), per launched packet",
-                    &grids.fluorescence, s});
-    for (size_t f = 0; f < grids.per_fluorophore.size(); ++f)
-        outs.push_back({"fluorescence_" + scene.fluorophore_name(int(f)),
-                        "volume photon map density of packets that fluoresced by " + scene.fluorophore_name(int(f)),
-                        &grids.per_fluorophore[f], s});
+    // Grid k of the set (GridSet::grid numbering) with its name and meaning.
+    const auto output = [&](size_t k, std::string name, std::string meaning) {
+        const std::vector<const VoxelAccumulator*> parts = grids.parts(k);
+        outs.push_back({std::move(name), std::move(meaning), parts.front(), s, {parts.begin() + 1, parts.end()}});
+    };
+    output(0, "absorbed",
+           "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet");
+    output(1, "fluorescence",
+           "weight of fluorescent packets summed over their interaction sites (volume photon map density), per "
+           "launched packet");
+    for (size_t f = 0; f + 2 < grids.grid_count(); ++f)
+        output(f + 2, "fluorescence_" + scene.fluorophore_name(int(f)),
+               "volume photon map density of packets that fluoresced by " + scene.fluorophore_name(int(f)));
     std::map<std::string, std::string> meta;
     meta["packets"] = std::to_string(result.packets);
     meta["seed"] = std::to_string(cfg.seed);
     meta["unit_cm"] = std::to_string(scene.unit_cm());
     meta["engine"] = "endophoton " + engine_version();
     meta["voxel_size"] = std::to_string(cfg.grid_voxel_size);
-    write_vdb(cfg.grid_path, outs, meta);
+    write_vdb(cfg.grid_path, outs, meta, threads);
     result.grid_path = cfg.grid_path;
     for (const auto& o : outs) result.grid_names.push_back(o.name);
-    result.grid_absorbed_sum = grids.absorbed.sum() * s;
+    result.grid_absorbed_sum = VoxelAccumulator::sum(grids.parts(0)) * s;
+}
+
+size_t per_fluorophore_grids(const Scene& scene, const RunConfig& cfg) {
+    return cfg.grid_per_fluorophore ? scene.fluorophore_count() : 0;
 }
 
 std::unique_ptr<GridSet> new_grids(const Scene& scene, const RunConfig& cfg) {
-    return std::make_unique<GridSet>(cfg.grid_voxel_size, cfg.grid_per_fluorophore ? scene.fluorophore_count() : 0);
+    return std::make_unique<GridSet>(cfg.grid_voxel_size, per_fluorophore_grids(scene, cfg));
 }
 
 // Merges finished units strictly in unit order (bit-identical totals for any
@@ -271,10 +278,10 @@ struct RunState {
     }
 };
 
-// A unit whose deposits go to `shared` (the grids of the thread or chunk
-// tracing it), or to its own grids when the run keeps grids per unit.
+// A unit whose deposits go to `staging`, or to its own grids when the run
+// keeps grids per unit.
 std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, uint64_t unit_size, uint64_t u,
-                                     GridSet* shared) {
+                                     GridSet* staging) {
     auto out = std::make_unique<UnitOutput>();
     out->tally.reset(scene.region_count());
     out->first_packet = u * unit_size;
@@ -282,49 +289,67 @@ std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, u
         out->own_grids = new_grids(scene, cfg);
         out->deposit_into(out->own_grids.get());
     } else if (cfg.grid_voxel_size > 0) {
-        if (!shared) throw std::logic_error("grids: a unit of a fixed-count run has no grids to deposit into");
-        out->deposit_into(shared);
+        if (!staging) throw std::logic_error("grids: a unit of a fixed-count run has no grids to deposit into");
+        out->deposit_into(staging);
     }
     return out;
 }
 
 // Traces the packets of unit `u` (local threads and trace_units alike).
 // `tick(k)` is called before every packet with its index; returning false
-// abandons the unit (nullptr).
-template <class Tick>
+// abandons the unit (nullptr) and discards its deposits. A fixed-count unit
+// deposits into `staging`, a grid set that holds one unit's voxels and so
+// stays in cache, where the grids of a whole run or chunk would take a cache
+// miss per deposit; `flush(staging)` then adds it to those grids, and it is
+// emptied for the next unit. Exact sums: adding a unit's voxels at once or
+// its deposits one by one gives the same bits.
+template <class Tick, class Flush>
 std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg, const UnitPlan& plan,
-                                       uint64_t u, GridSet* shared, Tick&& tick) {
-    auto out = new_unit(scene, cfg, plan.unit_size, u, shared);
+                                       uint64_t u, GridSet* staging, Tick&& tick, Flush&& flush) {
+    auto out = new_unit(scene, cfg, plan.unit_size, u, staging);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     tracer.begin_unit();
     for (uint64_t k = first; k < end; ++k) {
-        if (!tick(k)) return nullptr;
+        if (!tick(k)) {
+            if (staging) staging->clear_keep_capacity();
+            return nullptr;
+        }
         tracer.trace(k, *out);
         out->tally.record_packet();
     }
     if (out->grids) out->grids->packets += out->tally.packets;
+    if (staging && out->grids == staging) {
+        flush(*staging);
+        staging->clear_keep_capacity();
+    }
     return out;
 }
 
-// Claims units, traces their packets and hands them to the merger until the
-// run stops or no unit is left. Deposits go to a staging grid set that holds
-// one unit and is added to `grids` (the thread's grids) after the unit, or,
-// per unit, to the unit's own grids, which come back here once the merger has
-// accepted the unit and are added outside the lock. The staging set is small
-// (a unit's voxels) and stays in cache, where the thread's grids, holding the
-// whole run, would take a cache miss per deposit (colon_polyp at 0.2 mm:
-// 2 threads did 0.67 of the 1-thread work per CPU-second without it).
-void trace_claimed_units(RunState& st, Tracer& tracer, GridSet* grids) {
+// A staging grid set for trace_unit, or null when the run has no grids or
+// each unit keeps its own.
+std::unique_ptr<GridSet> new_staging(const Scene& scene, const RunConfig& cfg) {
+    return cfg.grid_voxel_size > 0 && !grids_per_unit(cfg) ? new_grids(scene, cfg) : nullptr;
+}
+
+// One worker: claims units, traces their packets and hands them to the
+// merger until the run stops or no unit is left. A unit's deposits are
+// staged and then added to the run's grids (UnitReducer::add_grids, which
+// threads may call at once); the own grids of units of runs that keep grids
+// per unit come back here once the merger has accepted their unit and are
+// added the same way, outside the run's lock.
+void trace_claimed_units(RunState& st) {
     const UnitPlan plan{st.unit_size, st.limit, st.n_units_max};
+    Tracer tracer(st.scene, st.source, st.halton, st.cfg);
     std::vector<std::unique_ptr<GridSet>> accepted;
-    std::unique_ptr<GridSet> staging = grids && !grids_per_unit(st.cfg) ? new_grids(st.scene, st.cfg) : nullptr;
+    std::unique_ptr<GridSet> staging = new_staging(st.scene, st.cfg);
+    const auto flush = [&](const GridSet& g) { st.merger.add_grids(g); };
     while (!st.stop.load()) {
         if (st.cancelled()) return;
         const uint64_t u = st.next_unit.fetch_add(1);
         if (u >= st.n_units_max) return;
         const uint64_t first = u * st.unit_size, end = std::min(st.limit, first + st.unit_size);
         uint64_t counted = first;
-        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, staging ? staging.get() : grids, [&](uint64_t k) {
+        const auto tick = [&](uint64_t k) {
             // Cancel is checked before every packet (two relaxed loads), so a
             // Ctrl-C lands within one packet even when packets are slow.
             if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
@@ -333,34 +358,23 @@ void trace_claimed_units(RunState& st, Tracer& tracer, GridSet* grids) {
                 counted = k;
             }
             return true;
-        });
+        };
+        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, staging.get(), tick, flush);
         if (!out) return;
-        if (staging) {  // exact sums: adding the unit's grids now or its deposits one by one gives the same bits
-            grids->merge_from(*staging);
-            staging->clear_keep_capacity();
-        }
         st.done_packets.fetch_add(end - counted);
         {
             std::lock_guard<std::mutex> lock(st.mu);
             if (st.stop.load()) return;
             if (st.merger.add(u, std::move(out), accepted)) st.stop.store(true);
         }
-        for (const auto& g : accepted) grids->merge_from(*g);
+        for (const auto& g : accepted) st.merger.add_grids(*g);
         accepted.clear();
     }
 }
 
-// One worker: traces units with its own grids for the whole run (when the
-// run has grids) and hands those to the reducer once, at its end.
 void worker(RunState& st) {
     try {
-        Tracer tracer(st.scene, st.source, st.halton, st.cfg);
-        std::unique_ptr<GridSet> grids = st.cfg.grid_voxel_size > 0 ? new_grids(st.scene, st.cfg) : nullptr;
-        trace_claimed_units(st, tracer, grids.get());
-        if (grids) {
-            std::lock_guard<std::mutex> lock(st.mu);
-            st.merger.add_grids(std::move(grids));
-        }
+        trace_claimed_units(st);
     } catch (const std::exception& e) {
         st.fail(e.what());
     }
@@ -439,15 +453,18 @@ UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig&
     const UnitPlan plan = plan_units(cfg);
     UnitBatch batch;
     batch.first_unit = first_unit;
-    // One grid set for the whole chunk unless every unit keeps its own.
-    if (cfg.grid_voxel_size > 0 && !grids_per_unit(cfg)) batch.grids = new_grids(scene, cfg);
+    // One grid set for the whole chunk unless every unit keeps its own; the
+    // units are staged into it as a local worker's are into the run's grids.
+    std::unique_ptr<GridSet> staging = new_staging(scene, cfg);
+    if (staging) batch.grids = new_grids(scene, cfg);
     if (first_unit >= plan.n_units_max) return batch;
     count = std::min(count, plan.n_units_max - first_unit);
     const Halton halton(cfg.seed);
     Tracer tracer(scene, source, halton, cfg);
+    const auto tick = [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); };
+    const auto flush = [&](const GridSet& g) { batch.grids->merge_from(g); };
     for (uint64_t u = first_unit; u < first_unit + count; ++u) {
-        auto out = trace_unit(tracer, scene, cfg, plan, u, batch.grids.get(),
-                              [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); });
+        auto out = trace_unit(tracer, scene, cfg, plan, u, staging.get(), tick, flush);
         if (!out) break;
         batch.units.push_back(std::move(out));
     }
@@ -460,7 +477,7 @@ struct UnitReducer::Impl {
     const RunConfig cfg;
     const UnitPlan plan;
     const std::chrono::steady_clock::time_point t_start;
-    std::unique_ptr<GridSet> grids;  // the run's: the sum of every grid set handed in
+    std::unique_ptr<SharedGridSet> grids;  // the run's: the sum of every grid set handed in (null: no grids)
     UnitMerger merger;
 
     Impl(const Scene& sc, const Source& so, const RunConfig& c)
@@ -470,16 +487,8 @@ struct UnitReducer::Impl {
           t_start(std::chrono::steady_clock::now()),
           merger(cfg, plan.n_units_max, result, t_start) {
         result.unit_size = plan.unit_size;
-    }
-    // Adds a grid set to the run's. The smaller set is merged into the larger
-    // (fewer insertions, less growth); exact addition makes the two ways equal.
-    void add_grids(std::unique_ptr<GridSet> g) {
-        if (!grids) {
-            grids = std::move(g);
-            return;
-        }
-        if (g->absorbed.voxel_count() > grids->absorbed.voxel_count()) std::swap(g, grids);
-        grids->merge_from(*g);
+        if (cfg.grid_voxel_size > 0)
+            grids = std::make_unique<SharedGridSet>(cfg.grid_voxel_size, per_fluorophore_grids(sc, cfg));
     }
 };
 
@@ -497,15 +506,16 @@ bool UnitReducer::add(uint64_t index, std::unique_ptr<UnitOutput> unit,
 bool UnitReducer::add(uint64_t index, std::unique_ptr<UnitOutput> unit) {
     std::vector<std::unique_ptr<GridSet>> accepted;
     const bool stop = add(index, std::move(unit), accepted);
-    for (auto& g : accepted) impl_->add_grids(std::move(g));
+    for (const auto& g : accepted) add_grids(*g);
     return stop;
 }
-void UnitReducer::add_grids(std::unique_ptr<GridSet> grids) {
-    if (grids) impl_->add_grids(std::move(grids));
+void UnitReducer::add_grids(const GridSet& grids) {
+    if (!impl_->grids) throw std::logic_error("grids: a run without grids was handed a grid set");
+    impl_->grids->add(grids);
 }
 bool UnitReducer::add_batch(UnitBatch&& batch) {
     if (stopped()) return true;  // past the stop point: discarded
-    add_grids(std::move(batch.grids));
+    if (batch.grids) add_grids(*batch.grids);
     for (size_t i = 0; i < batch.units.size(); ++i)
         if (add(batch.first_unit + i, std::move(batch.units[i]))) break;
     return stopped();
@@ -537,8 +547,7 @@ RunResult UnitReducer::finish(int threads) {
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");
     if (cfg.grid_voxel_size > 0 && result.packets > 0 && !result.cancelled) {  // cancelled: no file
-        if (!impl_->grids) impl_->grids = new_grids(scene, cfg);
-        write_grids(*impl_->grids, scene, cfg, result);
+        write_grids(*impl_->grids, scene, cfg, result, std::max(threads, 1));
     }
     impl_->grids.reset();
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - impl_->t_start).count();

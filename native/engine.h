@@ -119,8 +119,8 @@ struct GridSet;
 // stop rule may end the run after any unit (store, target, time budget), and
 // the deposits of units past the stop point must then be discarded with
 // them. A fixed count without a time budget ends only after its last unit (or
-// is cancelled, which writes no grid), so its units deposit straight into the
-// grids of the thread or Dask chunk that traces them.
+// is cancelled, which writes no grid), so its units deposit into a staging
+// set that is added to the run's grids (or the Dask chunk's) after each unit.
 bool grids_per_unit(const RunConfig& prepared);
 
 // Traces units [first_unit, first_unit + count) on the calling thread. Returns
@@ -145,8 +145,10 @@ class UnitReducer {
     // additions happen outside the caller's lock.
     bool add(uint64_t index, std::unique_ptr<UnitOutput> unit, std::vector<std::unique_ptr<GridSet>>& accepted);
     // Adds grids whose deposits belong to merged units only (a worker
-    // thread's, a Dask chunk's). Exact: the order of the calls does not matter.
-    void add_grids(std::unique_ptr<GridSet> grids);
+    // thread's unit, a Dask chunk's). Exact: the order of the calls does not
+    // matter. Unlike the other methods, threads may call this at the same
+    // time (the run's grids are sharded, grid_shards.h), but not during finish.
+    void add_grids(const GridSet& grids);
     // Adds a batch from trace_units (its grids, then its units in order);
     // returns stopped(). A batch's own grid set exists only in runs that end
     // after their last unit (not grids_per_unit), so none of its deposits can

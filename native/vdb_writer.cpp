@@ -9,17 +9,22 @@
 #include <sys/statvfs.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <array>
 #include <atomic>
 #include <cerrno>
 #include <cfloat>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <fstream>
 #include <mutex>
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <system_error>
+#include <thread>
 
 namespace ep {
 
@@ -66,18 +71,20 @@ void validate(const std::vector<GridOutput>& grids, const std::map<std::string, 
         if (g.name.empty()) throw std::invalid_argument("grid #" + std::to_string(i) + ": name = '' must not be empty");
         if (!names.insert(g.name).second)
             throw std::invalid_argument("grid '" + g.name + "': name is used by more than one grid");
-        if (g.data == nullptr)
-            throw std::invalid_argument("grid '" + g.name + "': data = null must point to an accumulator");
+        for (const VoxelAccumulator* p : g.parts())
+            if (p == nullptr)
+                throw std::invalid_argument("grid '" + g.name + "': data = null must point to an accumulator");
         if (!(std::isfinite(g.scale) && g.scale > 0)) {
             std::ostringstream msg;
             msg.precision(17);
             msg << "grid '" << g.name << "': scale = " << g.scale << " must be a positive finite number";
             throw std::invalid_argument(msg.str());
         }
-        if (g.data->voxel_size() != grids[0].data->voxel_size()) {
+        for (const VoxelAccumulator* p : g.parts()) {
+            if (p->voxel_size() == grids[0].data->voxel_size()) continue;
             std::ostringstream msg;
             msg.precision(17);
-            msg << "grid '" << g.name << "': voxel_size = " << g.data->voxel_size() << " differs from grid '"
+            msg << "grid '" << g.name << "': voxel_size = " << p->voxel_size() << " differs from grid '"
                 << grids[0].name << "' voxel_size = " << grids[0].data->voxel_size()
                 << "; all grids of a file must share one voxel size";
             throw std::invalid_argument(msg.str());
@@ -90,6 +97,55 @@ void validate(const std::vector<GridOutput>& grids, const std::map<std::string, 
     }
 }
 
+// A voxel of a part, with a key that orders voxels leaf by leaf: the 8^3
+// block (an OpenVDB leaf node; >> floors like a leaf origin), biased to be
+// non-negative (29 bits per axis hold [-2^27, 2^27]), then the voxel's offset
+// inside its leaf. One 128-bit compare instead of six int compares.
+struct LeafVoxel {
+    unsigned __int128 key;
+    VoxelAccumulator::Coord c;
+    double value;  // rounded exact value, not yet scaled
+};
+
+unsigned __int128 leaf_major_key(const VoxelAccumulator::Coord& c) {
+    constexpr int64_t kBias = int64_t(VoxelAccumulator::kMaxIndex >> 3);
+    unsigned __int128 k = 0;
+    for (int a = 0; a < 3; ++a) k = (k << 29) | uint64_t(int64_t(c[a] >> 3) + kBias);
+    return (k << 9) | ((c[0] & 7) << 6) | ((c[1] & 7) << 3) | (c[2] & 7);
+}
+
+// Sets the voxels of `part` (times `scale`) in the grid behind `acc`. Sorted
+// leaf by leaf, so each leaf is looked up (or created) once and its voxels
+// are set by offset; the tree itself does not depend on the order. A part
+// is a shard of the run's grids (a few thousand voxels), so the sort stays
+// in cache. Throws std::logic_error if a voxel is already set (parts overlap).
+void fill_part(const GridOutput& g, const VoxelAccumulator& part, openvdb::FloatGrid::Accessor& acc,
+               std::vector<LeafVoxel>& scratch) {
+    using Leaf = openvdb::FloatTree::LeafNodeType;
+    scratch.clear();
+    part.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& f) {
+        scratch.push_back({leaf_major_key(c), c, f.to_double()});
+    });
+    std::sort(scratch.begin(), scratch.end(), [](const LeafVoxel& a, const LeafVoxel& b) { return a.key < b.key; });
+    Leaf* leaf = nullptr;
+    for (const LeafVoxel& lv : scratch) {
+        const auto& c = lv.c;
+        const double v = lv.value * g.scale;
+        if (!(std::fabs(v) <= double(FLT_MAX))) {
+            std::ostringstream msg;
+            msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2] << ") value = " << v
+                << " is beyond the float range of a VDB grid";
+            throw std::invalid_argument(msg.str());
+        }
+        const openvdb::Coord xyz(c[0], c[1], c[2]);
+        if (!leaf || (xyz & ~(Leaf::DIM - 1)) != leaf->origin()) leaf = acc.touchLeaf(xyz);
+        const openvdb::Index offset = Leaf::coordToOffset(xyz);
+        if (leaf->isValueOn(offset))
+            throw std::logic_error("grid '" + g.name + "': two of its parts hold the same voxel (internal error)");
+        leaf->setValueOn(offset, static_cast<float>(v));
+    }
+}
+
 openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::string, std::string>& metadata) {
     auto grid = openvdb::FloatGrid::create(/*background=*/0.0f);
     grid->setName(g.name);
@@ -97,25 +153,21 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::stri
     // The accumulator rounds x / h to the nearest integer, i.e. voxel centres
     // sit at integer multiples of h; a pure linear scale reproduces exactly that.
     grid->setTransform(openvdb::math::Transform::createLinearTransform(g.data->voxel_size()));
-
     auto acc = grid->getAccessor();
-    // Sorted order makes neighbouring inserts hit the same leaf node, which the
-    // accessor caches, and makes the tree build independent of the hash layout.
-    g.data->for_each_sorted([&](const VoxelAccumulator::Coord& c, double exact) {
-        const double v = exact * g.scale;
-        if (!(std::fabs(v) <= double(FLT_MAX))) {
-            std::ostringstream msg;
-            msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2] << ") value = " << v
-                << " is beyond the float range of a VDB grid";
-            throw std::invalid_argument(msg.str());
-        }
-        acc.setValue(openvdb::Coord(c[0], c[1], c[2]), static_cast<float>(v));
-    });
+    std::vector<LeafVoxel> scratch;
+    for (const VoxelAccumulator* p : g.parts()) fill_part(g, *p, acc, scratch);
 
+    uint64_t dropped = 0;
+    Fixed192 dropped_value;
+    for (const VoxelAccumulator* p : g.parts()) {
+        dropped += p->dropped();
+        if (!dropped_value.add(p->dropped_value_fixed()))
+            throw std::overflow_error("grid '" + g.name + "': the dropped deposits of its parts sum beyond 2^67");
+    }
     grid->insertMeta("meaning", openvdb::StringMetadata(g.meaning));
-    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(g.data->sum() * g.scale));
-    grid->insertMeta("dropped_deposits", openvdb::Int64Metadata(static_cast<int64_t>(g.data->dropped())));
-    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(g.data->dropped_value() * g.scale));
+    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(VoxelAccumulator::sum(g.parts()) * g.scale));
+    grid->insertMeta("dropped_deposits", openvdb::Int64Metadata(static_cast<int64_t>(dropped)));
+    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(dropped_value.to_double() * g.scale));
 #ifdef ENDOPHOTON_VERSION
     grid->setCreator("EndoPhoton " ENDOPHOTON_VERSION);
 #else
@@ -123,6 +175,37 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::stri
 #endif
     for (const auto& kv : metadata) grid->insertMeta(kv.first, openvdb::StringMetadata(kv.second));
     return grid;
+}
+
+// Builds every grid, on up to `threads` threads (each grid is built by one
+// thread; the trees are independent). The first failure in grid order is
+// rethrown, so the error does not depend on the thread timing.
+openvdb::GridCPtrVec build_grids(const std::vector<GridOutput>& grids,
+                                 const std::map<std::string, std::string>& metadata, int threads) {
+    std::vector<openvdb::FloatGrid::Ptr> built(grids.size());
+    std::vector<std::exception_ptr> errors(grids.size());
+    std::atomic<size_t> next{0};
+    const auto work = [&]() {
+        for (size_t i = next.fetch_add(1); i < grids.size(); i = next.fetch_add(1)) {
+            try {
+                built[i] = build_grid(grids[i], metadata);
+            } catch (...) {
+                errors[i] = std::current_exception();
+            }
+        }
+    };
+    std::vector<std::thread> pool;
+    const size_t helpers = std::min(grids.size(), size_t(std::max(threads, 1))) - 1;
+    try {
+        for (size_t t = 0; t < helpers; ++t) pool.emplace_back(work);
+    } catch (const std::system_error&) {
+        // No thread to spare: the calling thread builds the rest alone.
+    }
+    work();
+    for (auto& th : pool) th.join();
+    for (const auto& e : errors)
+        if (e) std::rethrow_exception(e);
+    return openvdb::GridCPtrVec(built.begin(), built.end());
 }
 
 // Creates an empty, uniquely named file next to `path` (same directory, so the
@@ -195,14 +278,12 @@ class CheckedArchive : public openvdb::io::Archive {
 }  // namespace
 
 void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
-               const std::map<std::string, std::string>& metadata) {
+               const std::map<std::string, std::string>& metadata, int threads) {
     if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
     validate(grids, metadata);
     ensure_openvdb_initialized();
 
-    openvdb::GridCPtrVec out;
-    out.reserve(grids.size());
-    for (const GridOutput& g : grids) out.push_back(build_grid(g, metadata));
+    const openvdb::GridCPtrVec out = build_grids(grids, metadata, threads);
 
     openvdb::MetaMap file_meta;
     for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));

@@ -21,6 +21,17 @@ struct GridOutput {
     // Every voxel value, the sum and the dropped value are written multiplied
     // by this (the engine's per-launched-packet normalisation, 1 / packets).
     double scale = 1.0;
+    // Further parts of the same grid (not owned): accumulators holding voxel
+    // sets disjoint from `data`'s and from each other's, such as the shards of
+    // a run's grids (grid_shards.h). The grid is their union, its sum and
+    // dropped counters the totals.
+    std::vector<const VoxelAccumulator*> more_parts = {};
+
+    std::vector<const VoxelAccumulator*> parts() const {
+        std::vector<const VoxelAccumulator*> all{data};
+        all.insert(all.end(), more_parts.begin(), more_parts.end());
+        return all;
+    }
 };
 
 // Writes one openvdb::FloatGrid per entry of `grids` to `path`.
@@ -36,12 +47,14 @@ struct GridOutput {
 // The file is written to a temporary file next to `path` and renamed over it,
 // so readers never see a half-written file and a failed write leaves any
 // previous file untouched.
+// The grids are built on up to `threads` threads (one grid per thread).
 // Throws std::invalid_argument for bad input (empty list, null data, empty or
 // duplicate name, reserved metadata key, voxel sizes that differ, a value
-// beyond float range), naming the grid or key; std::runtime_error naming the
-// path if the file cannot be written.
+// beyond float range), naming the grid or key; std::logic_error if the parts
+// of a grid overlap; std::runtime_error naming the path if the file cannot be
+// written.
 void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
-               const std::map<std::string, std::string>& metadata);
+               const std::map<std::string, std::string>& metadata, int threads = 1);
 
 // Names of the grids stored in a .vdb file, in file order. Throws
 // std::runtime_error naming the path if the file cannot be read.

@@ -52,10 +52,12 @@ size_t VoxelAccumulator::find(const Coord& c) const {
     }
 }
 
-size_t VoxelAccumulator::find_or_insert(const Coord& c) {
+size_t VoxelAccumulator::find_or_insert(const Coord& c) { return find_or_insert(c, hash_coord(c)); }
+
+size_t VoxelAccumulator::find_or_insert(const Coord& c, uint64_t hash) {
     if ((size_ + 1) * kMaxLoadDen > slots_.size() * kMaxLoadNum) grow();
     const size_t mask = slots_.size() - 1;
-    for (size_t i = hash_coord(c) & mask;; i = (i + 1) & mask) {
+    for (size_t i = hash & mask;; i = (i + 1) & mask) {
         Slot& s = slots_[i];
         if (!s.used) {
             s.key = c;
@@ -156,7 +158,7 @@ void VoxelAccumulator::add_fixed(const Coord& c, const Fixed192& value) {
     add_at(c, value);
 }
 
-void VoxelAccumulator::merge_from(const VoxelAccumulator& other) {
+void VoxelAccumulator::check_mergeable(const VoxelAccumulator& other) const {
     if (other.voxel_size_ != voxel_size_) {
         std::ostringstream msg;
         msg.precision(17);
@@ -164,6 +166,10 @@ void VoxelAccumulator::merge_from(const VoxelAccumulator& other) {
             << " cannot be merged into an accumulator with voxel_size = " << voxel_size_;
         throw std::invalid_argument(msg.str());
     }
+}
+
+void VoxelAccumulator::merge_from(const VoxelAccumulator& other) {
+    check_mergeable(other);
     if (&other == this) {
         // Self-merge doubles every value; done explicitly because inserting
         // while iterating our own table would be unsafe.
@@ -174,11 +180,39 @@ void VoxelAccumulator::merge_from(const VoxelAccumulator& other) {
     }
     // Fixed-point addition is exact, so a new voxel and an existing one are
     // treated alike and the result does not depend on which side is merged
-    // into which.
-    for (const Slot& s : other.slots_)
-        if (s.used) add_to(slots_[find_or_insert(s.key)], s.value);
-    last_slot_ = kNoSlot;
+    // into which. Batches of entries let add_entries prefetch.
+    constexpr size_t kBatch = 256;
+    Entry batch[kBatch];
+    size_t n = 0;
+    for (const Slot& s : other.slots_) {
+        if (!s.used) continue;
+        batch[n++] = Entry{s.key, s.value};
+        if (n == kBatch) {
+            add_entries(batch, n);
+            n = 0;
+        }
+    }
+    add_entries(batch, n);
     add_dropped(other.dropped_, other.dropped_value_);
+}
+
+void VoxelAccumulator::add_entries(const Entry* e, size_t n) {
+    // Hashes of the next kAhead entries, whose slots are being prefetched. A
+    // table growth inside the batch only makes some prefetches useless: the
+    // slot itself is always found with the current mask.
+    constexpr size_t kAhead = 8;
+    uint64_t hash[kAhead];
+    const auto prefetch = [&](size_t j) {
+        hash[j % kAhead] = hash_coord(e[j].key);
+        if (!slots_.empty()) __builtin_prefetch(&slots_[hash[j % kAhead] & (slots_.size() - 1)], 1);
+    };
+    for (size_t j = 0; j < std::min(n, kAhead); ++j) prefetch(j);
+    for (size_t j = 0; j < n; ++j) {
+        const uint64_t h = hash[j % kAhead];
+        if (j + kAhead < n) prefetch(j + kAhead);
+        add_to(slots_[find_or_insert(e[j].key, h)], e[j].value);
+    }
+    last_slot_ = kNoSlot;
 }
 
 double VoxelAccumulator::value(const Coord& c) const { return fixed(c).to_double(); }
@@ -212,12 +246,20 @@ std::vector<std::pair<VoxelAccumulator::Coord, double>> VoxelAccumulator::sorted
     return out;
 }
 
-double VoxelAccumulator::sum() const {
+double VoxelAccumulator::sum() const { return sum({this}); }
+
+double VoxelAccumulator::sum(const std::vector<const VoxelAccumulator*>& parts) {
+    uint64_t total[4] = {0, 0, 0, 0};
+    for (const VoxelAccumulator* p : parts) p->add_sum_to(total);
+    return Fixed192::words_to_double(total, 4);
+}
+
+void VoxelAccumulator::add_sum_to(uint64_t total[4]) const {
     // Exact: the voxels' fixed-point values added in a fourth word of headroom
     // (at most 2^64 voxels of |value| < 2^67 cannot leave 256 bits), rounded
-    // once. Tallies mix voxels near the source (large values) with a long
-    // tail of tiny ones; none of the tail is lost, and no order enters.
-    uint64_t total[4] = {0, 0, 0, 0};
+    // once by the caller. Tallies mix voxels near the source (large values)
+    // with a long tail of tiny ones; none of the tail is lost, and no order
+    // enters.
     for (const Slot& s : slots_) {
         if (!s.used) continue;
         const uint64_t* w = s.value.words();
@@ -231,7 +273,6 @@ double VoxelAccumulator::sum() const {
             carry = c1 + (total[k] < b);
         }
     }
-    return Fixed192::words_to_double(total, 4);
 }
 
 size_t VoxelAccumulator::memory_bytes() const { return sizeof(*this) + slots_.capacity() * sizeof(Slot); }
@@ -253,9 +294,7 @@ void VoxelAccumulator::clear_keep_capacity() {
 }
 
 void GridSet::clear_keep_capacity() {
-    absorbed.clear_keep_capacity();
-    fluorescence.clear_keep_capacity();
-    for (auto& g : per_fluorophore) g.clear_keep_capacity();
+    for (size_t k = 0; k < grid_count(); ++k) grid(k).clear_keep_capacity();
     packets = 0;
 }
 
@@ -263,20 +302,23 @@ GridSet::GridSet(double voxel_size, size_t per_fl) : absorbed(voxel_size), fluor
     per_fluorophore.assign(per_fl, VoxelAccumulator(voxel_size));
 }
 
-void GridSet::merge_from(const GridSet& other) {
+void GridSet::check_mergeable(const GridSet& other) const {
     if (other.per_fluorophore.size() != per_fluorophore.size())
         throw std::invalid_argument("grids: a grid set with " + std::to_string(other.per_fluorophore.size()) +
                                     " per-fluorophore grids cannot be merged into one with " +
                                     std::to_string(per_fluorophore.size()));
-    absorbed.merge_from(other.absorbed);
-    fluorescence.merge_from(other.fluorescence);
-    for (size_t f = 0; f < per_fluorophore.size(); ++f) per_fluorophore[f].merge_from(other.per_fluorophore[f]);
+    absorbed.check_mergeable(other.absorbed);
+}
+
+void GridSet::merge_from(const GridSet& other) {
+    check_mergeable(other);
+    for (size_t k = 0; k < grid_count(); ++k) grid(k).merge_from(other.grid(k));
     packets += other.packets;
 }
 
 size_t GridSet::memory_bytes() const {
-    size_t n = absorbed.memory_bytes() + fluorescence.memory_bytes();
-    for (const auto& g : per_fluorophore) n += g.memory_bytes();
+    size_t n = 0;
+    for (size_t k = 0; k < grid_count(); ++k) n += grid(k).memory_bytes();
     return n;
 }
 

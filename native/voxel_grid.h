@@ -87,6 +87,28 @@ class VoxelAccumulator {
     // in any grouping, gives the same bits. Also adds other's dropped
     // counters. Throws std::invalid_argument if the voxel sizes differ.
     void merge_from(const VoxelAccumulator& other);
+    // Throws merge_from's std::invalid_argument if the voxel sizes differ.
+    void check_mergeable(const VoxelAccumulator& other) const;
+
+    // A voxel and its exact value: the unit of batch insertion (add_entries)
+    // and of the writer's gathered voxel lists.
+    struct Entry {
+        Coord key;
+        Fixed192 value;
+    };
+    // this[e.key] += e.value for the n entries (keys from an accumulator of
+    // this voxel size, so in range), exactly, like merge_from. Each entry's
+    // table slot is prefetched a few entries ahead: a table holding a whole
+    // run does not fit the cache, and the independent inserts then overlap
+    // their memory latency instead of paying it one after the other.
+    void add_entries(const Entry* e, size_t n);
+    // Calls f(const Coord&, const Fixed192&) for every voxel, in table order
+    // (which depends on the hash layout: only for order-free uses).
+    template <class F>
+    void for_each(F&& f) const {
+        for (const Slot& s : slots_)
+            if (s.used) f(s.key, s.value);
+    }
 
     // Voxel index of a world position; false if not finite or out of range.
     bool index_of(double x, double y, double z, Coord& out) const {
@@ -119,6 +141,9 @@ class VoxelAccumulator {
     // Sum of all voxel values, computed exactly and rounded once to the
     // nearest double.
     double sum() const;
+    // The same over several accumulators (the parts of one grid), still
+    // rounded once, so it equals sum() of their merge.
+    static double sum(const std::vector<const VoxelAccumulator*>& parts);
 
     // All voxels sorted by (x, y, z) ascending, values rounded to doubles.
     std::vector<std::pair<Coord, double>> sorted() const;
@@ -174,6 +199,8 @@ class VoxelAccumulator {
     }
     [[noreturn]] static void overflow(const Coord& c);
     size_t find_or_insert(const Coord& c);
+    size_t find_or_insert(const Coord& c, uint64_t hash);
+    void add_sum_to(uint64_t total[4]) const;  // total += the exact voxel sum, in 256 bits
     size_t find(const Coord& c) const;
     void grow();
     void drop(double value);  // counts it; sums it too if it converts
@@ -200,9 +227,16 @@ struct GridSet {
     // engine checks that the run's grids hold exactly its merged packets.
     uint64_t packets = 0;
 
+    // The grids by number: 0 absorbed, 1 fluorescence, 2 + f per fluorophore f.
+    size_t grid_count() const { return 2 + per_fluorophore.size(); }
+    VoxelAccumulator& grid(size_t k) { return k == 0 ? absorbed : k == 1 ? fluorescence : per_fluorophore[k - 2]; }
+    const VoxelAccumulator& grid(size_t k) const { return const_cast<GridSet*>(this)->grid(k); }
+
     // Adds every grid of `other` (exact, any order); throws
     // std::invalid_argument if the two sets differ in shape or voxel size.
     void merge_from(const GridSet& other);
+    // Throws what merge_from throws when `other` cannot be merged into this.
+    void check_mergeable(const GridSet& other) const;
     // Empties every grid and the packet count, keeping the tables' memory.
     void clear_keep_capacity();
     size_t memory_bytes() const;

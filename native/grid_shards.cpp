@@ -1,0 +1,70 @@
+#include "grid_shards.h"
+
+#include <array>
+
+namespace ep {
+
+SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore) {
+    shards_.reserve(kShards);
+    for (size_t s = 0; s < kShards; ++s) shards_.push_back(std::make_unique<Shard>(voxel_size, per_fluorophore));
+}
+
+size_t SharedGridSet::shard_of(const VoxelAccumulator::Coord& c) {
+    // Multiplicative hash of the block coordinates (>> 3 floors, as OpenVDB's
+    // leaf origin does); its top bits depend on every bit of all three.
+    const uint64_t h = uint64_t(uint32_t(c[0] >> 3)) * 0x9E3779B97F4A7C15ull ^
+                       uint64_t(uint32_t(c[1] >> 3)) * 0xC2B2AE3D27D4EB4Full ^
+                       uint64_t(uint32_t(c[2] >> 3)) * 0x165667B19E3779F9ull;
+    return size_t((h * 0xBF58476D1CE4E5B9ull) >> (64 - kShardBits));
+}
+
+void SharedGridSet::add(const GridSet& g) {
+    shards_.front()->grids.check_mergeable(g);
+    // The voxels of one grid, grouped by shard (a counting sort), so that each
+    // shard's lock is taken once per grid. Reused across calls of a thread.
+    thread_local std::vector<VoxelAccumulator::Entry> bucketed;
+    std::array<size_t, kShards + 1> start;
+    for (size_t k = 0; k < g.grid_count(); ++k) {
+        const VoxelAccumulator& src = g.grid(k);
+        start.fill(0);
+        src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192&) { ++start[shard_of(c) + 1]; });
+        for (size_t s = 0; s < kShards; ++s) start[s + 1] += start[s];
+        bucketed.resize(src.voxel_count());
+        std::array<size_t, kShards> next;
+        std::copy(start.begin(), start.end() - 1, next.begin());
+        src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& v) {
+            bucketed[next[shard_of(c)]++] = VoxelAccumulator::Entry{c, v};
+        });
+        for (size_t s = 0; s < kShards; ++s) {
+            if (start[s + 1] == start[s]) continue;
+            std::lock_guard<std::mutex> lock(shards_[s]->mu);
+            shards_[s]->grids.grid(k).add_entries(bucketed.data() + start[s], start[s + 1] - start[s]);
+        }
+        if (src.dropped() > 0) {
+            std::lock_guard<std::mutex> lock(shards_.front()->mu);
+            shards_.front()->grids.grid(k).add_dropped(src.dropped(), src.dropped_value_fixed());
+        }
+    }
+    std::lock_guard<std::mutex> lock(shards_.front()->mu);
+    shards_.front()->grids.packets += g.packets;
+}
+
+std::vector<const VoxelAccumulator*> SharedGridSet::parts(size_t k) const {
+    std::vector<const VoxelAccumulator*> out;
+    for (const auto& s : shards_) out.push_back(&s->grids.grid(k));
+    return out;
+}
+
+size_t SharedGridSet::voxel_count(size_t k) const {
+    size_t n = 0;
+    for (const auto& s : shards_) n += s->grids.grid(k).voxel_count();
+    return n;
+}
+
+size_t SharedGridSet::memory_bytes() const {
+    size_t n = sizeof(*this);
+    for (const auto& s : shards_) n += sizeof(Shard) + s->grids.memory_bytes();
+    return n;
+}
+
+}  // namespace ep
