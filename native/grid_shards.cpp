@@ -1,5 +1,6 @@
 #include "grid_shards.h"
 
+#include <algorithm>
 #include <array>
 
 namespace ep {
@@ -21,15 +22,16 @@ size_t SharedGridSet::shard_of(const VoxelAccumulator::Coord& c) {
 void SharedGridSet::add(const GridSet& g) {
     shards_.front()->grids.check_mergeable(g);
     // The voxels of one grid, grouped by shard (a counting sort), so that each
-    // shard's lock is taken once per grid. Reused across calls of a thread.
-    thread_local std::vector<VoxelAccumulator::Entry> bucketed;
+    // shard's lock is taken once per grid.
+    size_t most = 0;
+    for (size_t k = 0; k < g.grid_count(); ++k) most = std::max(most, g.grid(k).voxel_count());
+    std::vector<VoxelAccumulator::Entry> bucketed(most);
     std::array<size_t, kShards + 1> start;
     for (size_t k = 0; k < g.grid_count(); ++k) {
         const VoxelAccumulator& src = g.grid(k);
         start.fill(0);
         src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192&) { ++start[shard_of(c) + 1]; });
         for (size_t s = 0; s < kShards; ++s) start[s + 1] += start[s];
-        bucketed.resize(src.voxel_count());
         std::array<size_t, kShards> next;
         std::copy(start.begin(), start.end() - 1, next.begin());
         src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& v) {
