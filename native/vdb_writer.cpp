@@ -261,6 +261,12 @@ std::string likely_cause(const std::string& tmp) {
 // every failure of that stream is an error naming the cause.
 class CheckedArchive : public openvdb::io::Archive {
   public:
+    // Active-mask compression only (inactive values are not stored). Blosc,
+    // the default on top of it, finds nothing to squeeze in the float noise of
+    // Monte Carlo tallies: at 0.2 mm on colon_polyp it made the file 10%
+    // larger (8.2 MB against 7.4 MB) and the write slower, and a reader built
+    // without Blosc could not open the file.
+    CheckedArchive() { setCompression(openvdb::io::COMPRESS_ACTIVE_MASK); }
     void write_checked(const std::string& tmp, const std::string& path, const openvdb::GridCPtrVec& grids,
                        const openvdb::MetaMap& meta) const {
         std::ofstream os(tmp, std::ios_base::out | std::ios_base::binary | std::ios_base::trunc);
