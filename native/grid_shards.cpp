@@ -10,15 +10,6 @@ SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore) {
     for (size_t s = 0; s < kShards; ++s) shards_.push_back(std::make_unique<Shard>(voxel_size, per_fluorophore));
 }
 
-size_t SharedGridSet::shard_of(const VoxelAccumulator::Coord& c) {
-    // Multiplicative hash of the block coordinates (>> 3 floors, as OpenVDB's
-    // leaf origin does); its top bits depend on every bit of all three.
-    const uint64_t h = uint64_t(uint32_t(c[0] >> 3)) * 0x9E3779B97F4A7C15ull ^
-                       uint64_t(uint32_t(c[1] >> 3)) * 0xC2B2AE3D27D4EB4Full ^
-                       uint64_t(uint32_t(c[2] >> 3)) * 0x165667B19E3779F9ull;
-    return size_t((h * 0xBF58476D1CE4E5B9ull) >> (64 - kShardBits));
-}
-
 void SharedGridSet::add(const GridSet& g) {
     shards_.front()->grids.check_mergeable(g);
     // The voxels of one grid, grouped by shard (a counting sort), so that each

@@ -32,8 +32,15 @@ class SharedGridSet {
     // voxel size.
     void add(const GridSet& g);
 
-    // The shard of voxel c (from its 8^3 block).
-    static size_t shard_of(const VoxelAccumulator::Coord& c);
+    // The shard of voxel c (from its 8^3 block): a multiplicative hash of the
+    // block coordinates (>> 3 floors, as OpenVDB's leaf origin does), whose
+    // top bits depend on every bit of all three.
+    static size_t shard_of(const VoxelAccumulator::Coord& c) {
+        const uint64_t h = uint64_t(uint32_t(c[0] >> 3)) * 0x9E3779B97F4A7C15ull ^
+                           uint64_t(uint32_t(c[1] >> 3)) * 0xC2B2AE3D27D4EB4Full ^
+                           uint64_t(uint32_t(c[2] >> 3)) * 0x165667B19E3779F9ull;
+        return size_t((h * 0xBF58476D1CE4E5B9ull) >> (64 - kShardBits));
+    }
 
     // The following are not safe while another thread adds.
     size_t grid_count() const { return shards_.front()->grids.grid_count(); }

@@ -7,33 +7,6 @@
 
 namespace ep {
 
-namespace {
-
-// Full 64-bit avalanche of the three coordinates. Photon deposits cluster in
-// small neighbourhoods, so a weak hash (xor of scaled coordinates) would pile
-// neighbouring voxels into runs under linear probing; the splitmix64 finalizer
-// spreads them over the whole table.
-inline uint64_t hash_coord(const VoxelAccumulator::Coord& c) {
-    uint64_t h = uint64_t(uint32_t(c[0])) * 0x9E3779B97F4A7C15ull;
-    h ^= uint64_t(uint32_t(c[1])) * 0xC2B2AE3D27D4EB4Full;
-    h ^= uint64_t(uint32_t(c[2])) * 0x165667B19E3779F9ull;
-    h ^= h >> 30;
-    h *= 0xBF58476D1CE4E5B9ull;
-    h ^= h >> 27;
-    h *= 0x94D049BB133111EBull;
-    h ^= h >> 31;
-    return h;
-}
-
-// The table doubles past this fill. Three quarters keeps linear-probe chains
-// short (about 2.5 probes to find a voxel) while a 40-byte slot table stays
-// within 1.3-2.7 times the voxels' own bytes; most deposits hit the cached
-// last slot and probe nothing.
-constexpr size_t kMaxLoadNum = 3, kMaxLoadDen = 4;
-constexpr size_t kInitialCapacity = 64;
-
-}  // namespace
-
 VoxelAccumulator::VoxelAccumulator(double voxel_size) : voxel_size_(voxel_size) {
     if (!(std::isfinite(voxel_size) && voxel_size > 0.0)) {
         std::ostringstream msg;
@@ -53,22 +26,6 @@ size_t VoxelAccumulator::find(const Coord& c) const {
 }
 
 size_t VoxelAccumulator::find_or_insert(const Coord& c) { return find_or_insert(c, hash_coord(c)); }
-
-size_t VoxelAccumulator::find_or_insert(const Coord& c, uint64_t hash) {
-    if ((size_ + 1) * kMaxLoadDen > slots_.size() * kMaxLoadNum) grow();
-    const size_t mask = slots_.size() - 1;
-    for (size_t i = hash & mask;; i = (i + 1) & mask) {
-        Slot& s = slots_[i];
-        if (!s.used) {
-            s.key = c;
-            s.used = 1;
-            s.value = Fixed192();
-            ++size_;
-            return i;
-        }
-        if (same(s.key, c)) return i;
-    }
-}
 
 void VoxelAccumulator::grow() {
     const size_t new_cap = slots_.empty() ? kInitialCapacity : slots_.size() * 2;
