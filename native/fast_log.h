@@ -52,7 +52,8 @@ struct PieceTable {
         }
     }
 };
-inline constexpr PieceTable kPieces{};
+// Internal linkage (no inline): addressed directly, not through the GOT.
+constexpr PieceTable kPieces{};
 
 }  // namespace log_detail
 

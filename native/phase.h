@@ -50,7 +50,8 @@ struct SectorTable {
         for (int i = 0; i < 256; ++i) at[i] = cos_sin_of_odd_256th(2 * i + 1);
     }
 };
-inline constexpr SectorTable kSectors{};
+// Internal linkage (no inline): addressed directly, not through the GOT.
+constexpr SectorTable kSectors{};
 
 }  // namespace azimuth_detail
 
@@ -106,11 +107,13 @@ class HenyeyGreenstein {
     // Inverse CDF (MCML manual eq. 3.28). It divides by 2g, so g -> 0 uses the
     // exact isotropic branch; |g| = 1 are deltas (no deflection / reversal).
     Float sample_cos(Float u) const {
-        if (kind_ == Kind::kHG) {
+        if (likely_hg()) {
             // s = (1 - g^2) / (1 - g + 2 g u), cos = (1 + g^2 - s^2) / (2 g).
             const Float s = one_minus_g2_ / (one_minus_g_ + two_g_ * u);
             const Float c = (one_plus_g2_ - s * s) / two_g_;
-            return std::clamp(c, Float(-1), Float(1));
+            // Clamped to [-1, 1] (rounding), as minsd/maxsd, not branches.
+            const Float below_one = c < 1 ? c : 1;
+            return below_one > -1 ? below_one : -1;
         }
         if (kind_ == Kind::kForward) return 1;
         if (kind_ == Kind::kBackward) return -1;
@@ -139,7 +142,8 @@ class HenyeyGreenstein {
     void scatter(uint64_t bits, uint32_t count, DirectionFrame* frame) const {
         const Float cos_theta = sample_cos(Float(bits >> 32) * 0x1.0p-32);
         // (1 - c)(1 + c): no cancellation near c = 1 (1 - c is exact there).
-        const Float sin_theta = std::sqrt(std::max(Float(0), (1 - cos_theta) * (1 + cos_theta)));
+        // Both factors are >= 0 for cos_theta in [-1, 1].
+        const Float sin_theta = std::sqrt((1 - cos_theta) * (1 + cos_theta));
         Float sin_phi, cos_phi;
         azimuth_from_bits(uint32_t(bits), &sin_phi, &cos_phi);
         frame->turn(cos_theta, sin_theta, cos_phi, sin_phi);
@@ -148,6 +152,14 @@ class HenyeyGreenstein {
 
   private:
     enum class Kind { kHG, kForward, kBackward, kIsotropic };
+    // The HG branch is the common one: laid out on the straight path.
+    bool likely_hg() const {
+#if defined(__GNUC__)
+        return __builtin_expect(kind_ == Kind::kHG, 1);
+#else
+        return kind_ == Kind::kHG;
+#endif
+    }
     Float g_;
     Kind kind_;
     Float one_minus_g2_, one_minus_g_, two_g_, one_plus_g2_;

@@ -310,11 +310,15 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         st.scatterings = scatterings;
         rng_ = rng;
     };
+    // The free path is drawn where walk draws it -- after the scattering and
+    // the roulette of the last interaction -- but at the end of each
+    // iteration, so that the loop has no branch on need_tau.
+    auto draw_tau = [&] {
+        tau = -log_positive(rng.uniform_open_low());  // seed eq. (2), as in walk
+        need_tau = false;
+    };
+    if (need_tau) draw_tau();
     while (true) {
-        if (need_tau) {
-            tau = -log_positive(rng.uniform_open_low());  // seed eq. (2), as in walk
-            need_tau = false;
-        }
         const Float s = tau / mut_cm;
         if (!(s < kInf)) break;
         const Vec3 b = p + d * s;
@@ -345,6 +349,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
             W = st.W;
             rng = rng_;
         }
+        draw_tau();
     }
     store();
     return true;
