@@ -1,7 +1,7 @@
 // Natural logarithm for the free path s = -ln(u) / mu_t (seed eq. 2), without a
 // libm call and without a division: a table of 128 entries and a polynomial of
-// degree 6, about 25 instructions against ~50 for glibc's log. Relative error
-// below 1e-15 (bound below; the measured maximum is printed by
+// degree 6, about 30 instructions against ~50 for glibc's log. Relative error
+// below 1e-15 (bound below; measured 4.4e-16, printed by
 // tests/cpp/test_fast_log.cpp), far under any Monte Carlo resolution (1e9
 // packets resolve 3e-5 relative).
 #pragma once
@@ -24,17 +24,25 @@ struct Piece {
     double c = 0, inv_c = 0, ln_c = 0;
 };
 
-// ln c for c in [0.7, 1.42], at compile time: 2 atanh(s), s = (c - 1)/(c + 1),
-// |s| <= 0.18, by its series (A&S 4.1.27) until the terms fall below 1e-22.
-// c - 1 and c + 1 are exact (c has few bits), so only s and the sum round.
+// ln c for c in [0.7, 1.42], at compile time and to about half a unit in the
+// last place: 2 atanh(s), s = (c - 1)/(c + 1), |s| <= 0.18 (A&S 4.1.27).
+// c - 1 and c + 1 are exact (c has few bits). The rounding error ds of the
+// quotient s is recovered exactly (Veltkamp's split of s into halves of 26
+// bits, whose products with c + 1 are exact) and enters to first order,
+// 2 ds / (1 - s^2); the series beyond 2 s, at most 3 % of the result, is
+// summed until its terms fall below 1e-22. So only the last addition rounds
+// at full weight.
 constexpr double ln_of_short(double c) {
-    const double s = (c - 1) / (c + 1), z = s * s;
-    double sum = 0, power = 1;
-    for (int k = 0; k < 40; ++k) {
-        sum += power / (2 * k + 1);
+    const double num = c - 1, den = c + 1, s = num / den, z = s * s;
+    const double split = s * 134217729.0;  // 2^27 + 1
+    const double s_hi = split - (split - s), s_lo = s - s_hi;
+    const double ds = ((num - s_hi * den) - s_lo * den) / den;
+    double tail = 0, power = z;
+    for (int k = 1; k < 40; ++k) {
+        tail += power / (2 * k + 1);
         power *= z;
     }
-    return 2 * s * sum;
+    return 2 * s + (2 * s * tail + 2 * ds / (1 - z));
 }
 
 struct PieceTable {
@@ -61,7 +69,7 @@ constexpr PieceTable kPieces{};
 // ln x = e ln 2 + ln c + ln(1 + r), r = (z - c) / c, with z - c exact
 // (Sterbenz) and the division a product with the tabulated 1/c: r has two
 // roundings. |r| <= 2^-8, where ln(1 + r) = r + r^2 q(r), q a Chebyshev fit of
-// degree 4 of (ln(1 + r) - r) / r^2 on [-2^-8, 2^-8] (mpmath.chebyfit), off by
+// degree 4 of (ln(1 + r) - r) / r^2 on [-2^-8, 2^-8] (scripts/fit_log1p.py), off by
 // at most 3.2e-17 relative to r. The sum then rounds a few times, relative to
 // |ln x|: near x = 1 (piece 74, c = 1, e = 0) it is r + r^2 q alone, so ln x
 // keeps its relative accuracy there; elsewhere |ln x| >= 2e-3 and is at least
