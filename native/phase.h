@@ -2,7 +2,6 @@
 // scattering model (§4) and MCML's. Interface after pbrt-v4: p, sample_p, pdf (both per
 // steradian, as in pbrt), plus pdf_cos, the density per unit cos(theta) that MCML's sampling uses.
 #pragma once
-#include <algorithm>
 #include <cmath>
 #include <cstdint>
 

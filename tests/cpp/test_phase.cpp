@@ -8,6 +8,7 @@
 // (std::sin / std::cos, a rotation matrix by Rodrigues' formula).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
