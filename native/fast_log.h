@@ -1,43 +1,96 @@
 // Natural logarithm for the free path s = -ln(u) / mu_t (seed eq. 2), without a
-// libm call: about 30 instructions against ~50 for glibc's log, with a relative
-// error below 1e-13 (bound below; measured 1.1e-15 by tests/cpp/test_fast_log.cpp),
-// far under any Monte Carlo resolution (1e9 packets resolve 3e-5 relative).
+// libm call and without a division: a table of 128 entries and a polynomial of
+// degree 6, about 30 instructions against ~50 for glibc's log. Relative error
+// below 1e-15 (bound below; measured 4.4e-16, printed by
+// tests/cpp/test_fast_log.cpp), far under any Monte Carlo resolution (1e9
+// packets resolve 3e-5 relative).
 #pragma once
 #include <cstdint>
 #include <cstring>
 
 namespace ep {
 
+namespace log_detail {
+
+// x = 2^e z with z in [kOff, 2 kOff), kOff = 0.708984375, and that range cut
+// into 128 pieces of equal width in the bits of z (2^45 apart): 74 of width
+// 2^-8 below 1 and 53 of width 2^-7 above, and the piece with index 74,
+// [1 - 2^-9, 1 + 2^-8), across 1. Each piece is centred (in the bits) on c: c = 1
+// exactly for piece 74, and every c has at most 10 significant bits.
+constexpr uint64_t kOffBits = 0x3FF0000000000000ULL - 149 * (uint64_t(1) << 44);
+constexpr int kPieceShift = 45;
+
+struct Piece {
+    double c = 0, inv_c = 0, ln_c = 0;
+};
+
+// ln c for c in [0.7, 1.42], at compile time and to about half a unit in the
+// last place: 2 atanh(s), s = (c - 1)/(c + 1), |s| <= 0.18 (A&S 4.1.27).
+// c - 1 and c + 1 are exact (c has few bits). The rounding error ds of the
+// quotient s is recovered exactly (Veltkamp's split of s into halves of 26
+// bits, whose products with c + 1 are exact) and enters to first order,
+// 2 ds / (1 - s^2); the series beyond 2 s, at most 3 % of the result, is
+// summed until its terms fall below 1e-22. So only the last addition rounds
+// at full weight.
+constexpr double ln_of_short(double c) {
+    const double num = c - 1, den = c + 1, s = num / den, z = s * s;
+    const double split = s * 134217729.0;  // 2^27 + 1
+    const double s_hi = split - (split - s), s_lo = s - s_hi;
+    const double ds = ((num - s_hi * den) - s_lo * den) / den;
+    double tail = 0, power = z;
+    for (int k = 1; k < 40; ++k) {
+        tail += power / (2 * k + 1);
+        power *= z;
+    }
+    return 2 * s + (2 * s * tail + 2 * ds / (1 - z));
+}
+
+struct PieceTable {
+    Piece at[128];
+    constexpr PieceTable() {
+        for (int i = 0; i < 128; ++i) {
+            // The centre's bits, decoded by hand (constexpr cannot memcpy):
+            // exponent 2^-1 or 2^0, mantissa m 2^-52.
+            const uint64_t bits = kOffBits + (uint64_t(i) << kPieceShift) + (uint64_t(1) << (kPieceShift - 1));
+            const double mantissa = 1 + double(bits & ((uint64_t(1) << 52) - 1)) * 0x1.0p-52;
+            const double c = (bits >> 52) == 0x3FF ? mantissa : mantissa * 0.5;
+            at[i].c = c;
+            at[i].inv_c = 1 / c;
+            at[i].ln_c = ln_of_short(c);
+        }
+    }
+};
+// Internal linkage (no inline): addressed directly, not through the GOT.
+constexpr PieceTable kPieces{};
+
+}  // namespace log_detail
+
 // ln x for a positive, finite, normal x (the engine's uniforms are >= 2^-53).
-// Write x = m 2^e with m in [sqrt(1/2), sqrt(2)): then ln x = e ln 2 + ln m and
-// ln m = 2 atanh(s) = 2 (s + s^3/3 + s^5/5 + ...), s = (m - 1)/(m + 1), |s| <= 0.1716
-// (Abramowitz & Stegun 4.1.27 with z = m). Stopping after s^17/17 leaves a
-// tail 2|s| sum_{k>=9} z^k/(2k+1) <= 2|s| z^9 / (19 (1 - z)), z = s^2 <= 0.02944,
-// i.e. at most 9e-16 relative to |ln m| >= 2|s|; and |ln x| >= |ln m| (for e != 0,
-// |e ln 2| >= 2 |ln m|), so the same bound holds for ln x, plus a few roundings.
+// ln x = e ln 2 + ln c + ln(1 + r), r = (z - c) / c, with z - c exact
+// (Sterbenz) and the division a product with the tabulated 1/c: r has two
+// roundings. |r| <= 2^-8, where ln(1 + r) = r + r^2 q(r), q a Chebyshev fit of
+// degree 4 of (ln(1 + r) - r) / r^2 on [-2^-8, 2^-8] (scripts/fit_log1p.py), off by
+// at most 3.2e-17 relative to r. The sum then rounds a few times, relative to
+// |ln x|: near x = 1 (piece 74, c = 1, e = 0) it is r + r^2 q alone, so ln x
+// keeps its relative accuracy there; elsewhere |ln x| >= 2e-3 and is at least
+// about half of the largest term.
 inline double log_positive(double x) {
+    using namespace log_detail;
     uint64_t bits;
     std::memcpy(&bits, &x, sizeof bits);
-    // Subtracting the bits of sqrt(1/2) moves the exponent boundary there: the
-    // arithmetic shift floors, so e = floor(log2(x / sqrt(1/2))).
-    constexpr uint64_t kSqrtHalfBits = 0x3FE6A09E667F3BCDULL;
-    const int64_t e = int64_t(bits - kSqrtHalfBits) >> 52;
-    const uint64_t m_bits = bits - (uint64_t(e) << 52);
-    double m;
-    std::memcpy(&m, &m_bits, sizeof m);
-    const double s = (m - 1) / (m + 1), z = s * s;
-    // 1 + z/3 + z^2/5 + ... + z^8/17 by Horner.
-    double p = 1.0 / 17;
-    p = p * z + 1.0 / 15;
-    p = p * z + 1.0 / 13;
-    p = p * z + 1.0 / 11;
-    p = p * z + 1.0 / 9;
-    p = p * z + 1.0 / 7;
-    p = p * z + 1.0 / 5;
-    p = p * z + 1.0 / 3;
-    p = p * z + 1.0;
+    const uint64_t off = bits - kOffBits;
+    // The arithmetic shift floors, so e = floor(log2(x / kOff)).
+    const int64_t e = int64_t(off) >> 52;
+    const Piece& piece = kPieces.at[(off >> kPieceShift) & 127];
+    const uint64_t z_bits = bits - (uint64_t(e) << 52);
+    double z;
+    std::memcpy(&z, &z_bits, sizeof z);
+    const double r = (z - piece.c) * piece.inv_c, r2 = r * r;
+    // q by Estrin's scheme: a shorter dependency chain than Horner's.
+    const double q = (-0.5 + 0.33333333332293896 * r) +
+                     r2 * ((-0.24999999999090491 + 0.20000272481609913 * r) + r2 * -0.16666905088156186);
     constexpr double kLn2 = 0.693147180559945309417232121458176568;
-    return double(e) * kLn2 + 2 * s * p;
+    return (double(e) * kLn2 + piece.ln_c) + (r + r2 * q);
 }
 
 }  // namespace ep

@@ -43,6 +43,7 @@ struct PacketState {
     uint64_t index = 0;
     int light = 0;
     Vec3 p, d;
+    DirectionFrame frame;  // scattering frame about d, valid while frame.about(d)
     Float W = 1;
     Float lambda = 0;
     Float energy_per_weight = 1;  // photon energy per unit weight (1 when not spectral)
@@ -283,6 +284,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     const Float unit_cm = unit_cm_, threshold = cfg_.roulette_threshold;
     const bool path_cap = cfg_.max_path_cm > 0;
     Vec3 p = st.p, d = st.d;
+    DirectionFrame frame = st.frame.about(d) ? st.frame : DirectionFrame(d);
     Float W = st.W, tau = st.tau, path_cm = st.path_cm, absorbed = st.absorbed, max_depth = st.max_depth;
     uint32_t scatterings = st.scatterings;
     // Steps taken here (interactions, events and cached steps alike), and
@@ -294,6 +296,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     auto store = [&] {
         st.p = p;
         st.d = d;
+        st.frame = frame;
         st.W = W;
         st.tau = tau;
         st.need_tau = need_tau;
@@ -307,11 +310,15 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         st.scatterings = scatterings;
         rng_ = rng;
     };
+    // The free path is drawn where walk draws it -- after the scattering and
+    // the roulette of the last interaction -- but at the end of each
+    // iteration, so that the loop has no branch on need_tau.
+    auto draw_tau = [&] {
+        tau = -log_positive(rng.uniform_open_low());  // seed eq. (2), as in walk
+        need_tau = false;
+    };
+    if (need_tau) draw_tau();
     while (true) {
-        if (need_tau) {
-            tau = -log_positive(rng.uniform_open_low());  // seed eq. (2), as in walk
-            need_tau = false;
-        }
         const Float s = tau / mut_cm;
         if (!(s < kInf)) break;
         const Vec3 b = p + d * s;
@@ -327,11 +334,8 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         absorbed += dW;
         if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
         if (W > 0) {
-            const Float u_cos = rng.uniform();
-            Float sin_phi, cos_phi;
-            sample_azimuth([&rng] { return rng.uniform(); }, &sin_phi, &cos_phi);
-            d = hg.sample_p(d, u_cos, sin_phi, cos_phi);
-            ++scatterings;
+            hg.scatter(rng.next_u64(), ++scatterings, &frame);
+            d = frame.n;
         }
         if (W < threshold || steps >= room) {
             // Roulette and the caps as interact() ends with them (the caps
@@ -345,6 +349,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
             W = st.W;
             rng = rng_;
         }
+        draw_tau();
     }
     store();
     return true;
@@ -746,11 +751,9 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     // Scattering (seed §4): HG cosine, uniform azimuth.
     if (st.med.mus > 0 && st.W > 0) {
         const HenyeyGreenstein hg(st.med.g);
-        const Float u_cos = rng_.uniform();
-        Float sin_phi, cos_phi;
-        sample_azimuth([this] { return rng_.uniform(); }, &sin_phi, &cos_phi);
-        st.d = hg.sample_p(st.d, u_cos, sin_phi, cos_phi);
-        ++st.scatterings;
+        if (!st.frame.about(st.d)) st.frame = DirectionFrame(st.d);
+        hg.scatter(rng_.next_u64(), ++st.scatterings, &st.frame);
+        st.d = st.frame.n;
     }
 
     if (!survives_roulette()) return false;

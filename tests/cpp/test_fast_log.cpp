@@ -1,11 +1,13 @@
 // log_positive (native/fast_log.h) against std::log: the relative error stays
-// below 1e-13 (the series bound of the header, 9e-16, plus a few roundings)
-// over the whole range the engine feeds it -- the uniforms k 2^-53 in (0, 1],
-// the smallest of them included -- and beyond, over every binade of normal doubles.
+// below 1e-15 (the polynomial's 3.2e-17 plus a few roundings, relative to
+// |ln x|) over the whole range the engine feeds it -- the uniforms k 2^-53 in
+// (0, 1], the smallest of them included -- and beyond, over every binade of
+// normal doubles, and at both ends of each of the table's 128 pieces.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -24,15 +26,35 @@ double rel_err(double x) {
 
 TEST(FastLog, ExactPointsAndEnds) {
     EXPECT_EQ(log_positive(1.0), 0.0);
-    EXPECT_LT(rel_err(0x1.0p-53), 1e-13);        // the smallest engine uniform
-    EXPECT_LT(rel_err(1.0 - 0x1.0p-53), 1e-13);  // the largest below 1: ln ~ -1.1e-16
-    EXPECT_LT(rel_err(std::numeric_limits<double>::min()), 1e-13);
-    EXPECT_LT(rel_err(std::numeric_limits<double>::max()), 1e-13);
+    EXPECT_LT(rel_err(0x1.0p-53), 1e-15);        // the smallest engine uniform
+    EXPECT_LT(rel_err(1.0 - 0x1.0p-53), 1e-15);  // the largest below 1: ln ~ -1.1e-16
+    EXPECT_LT(rel_err(std::numeric_limits<double>::min()), 1e-15);
+    EXPECT_LT(rel_err(std::numeric_limits<double>::max()), 1e-15);
     EXPECT_NEAR(log_positive(2.0), std::log(2.0), 1e-16);
     // The binade edges of the reduction: sqrt(1/2) and sqrt(2) and their neighbours.
     for (double x :
          {std::sqrt(0.5), std::sqrt(2.0), std::nextafter(std::sqrt(0.5), 0.0), std::nextafter(std::sqrt(2.0), 4.0)})
-        EXPECT_LT(rel_err(x), 1e-13) << x;
+        EXPECT_LT(rel_err(x), 1e-15) << x;
+}
+
+// The ends of every piece of the table (where |r| is largest) in the binades
+// of the engine's uniforms, and the tabulated ln c against a long double log.
+TEST(FastLog, PieceEnds) {
+    for (int i = 0; i < 128; ++i) {
+        const uint64_t start = ep::log_detail::kOffBits + (uint64_t(i) << ep::log_detail::kPieceShift);
+        for (const uint64_t bits : {start, start + 1, start - 1, start + (uint64_t(1) << 44)}) {
+            double z;
+            std::memcpy(&z, &bits, sizeof z);
+            for (int e = -53; e <= 1; ++e) EXPECT_LT(rel_err(std::ldexp(z, e)), 1e-15) << i << " " << e;
+        }
+        const ep::log_detail::Piece& p = ep::log_detail::kPieces.at[i];
+        // Within 0.51 units in the last place of ln c (long double reference).
+        const long double ref = std::log((long double)p.c);
+        const double ulp = std::nextafter(std::fabs(p.ln_c), 2.0) - std::fabs(p.ln_c);
+        if (i != 74) EXPECT_LE(std::fabs((long double)p.ln_c - ref), 0.51L * ulp) << i;
+        if (i == 74) EXPECT_TRUE(p.c == 1 && p.ln_c == 0);  // the piece across 1
+        EXPECT_EQ(p.inv_c, 1 / p.c);
+    }
 }
 
 TEST(FastLog, EngineUniformsAndEveryBinade) {
@@ -48,6 +70,6 @@ TEST(FastLog, EngineUniformsAndEveryBinade) {
     for (int e = -1022; e <= 1023; ++e)
         for (int j = 0; j < 200; ++j)
             worst = std::max(worst, rel_err(std::ldexp(1.0 + double(rng() >> 12) * 0x1.0p-52, e)));
-    EXPECT_LT(worst, 1e-13);
+    EXPECT_LT(worst, 1e-15);
     std::printf("max relative error of log_positive: %.3g\n", worst);
 }
