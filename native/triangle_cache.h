@@ -126,7 +126,11 @@ class TriangleCache {
 // where covers() and the plane test would both pass.
 class ClearSteps {
   public:
-    static constexpr size_t kMaxPlanes = 8;
+    // As many as a cube's cache holds triangles (Scene::kCellMaxTriangles), so
+    // the interior steps run in every cube that has a cache: on colon_polyp
+    // a limit of 8 turned ~8 loop entries a packet away, near the polyp's
+    // fine tessellation (callgrind).
+    static constexpr size_t kMaxPlanes = 16;
     // Takes the cache's ball and planes; false when p itself is not clear (or
     // the cache has more than kMaxPlanes planes): no step can start there.
     bool start(const TriangleCache& cache, const Vec3& p, Float max_back) {
