@@ -323,7 +323,7 @@ template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     PacketState& st = st_;
     ClearSteps zone;
-    if (!enter_zone(zone, *local_.cell, st.p) && !hop_zone(zone, st.p)) return true;
+    if (!enter_zone(zone, *local_.cell, st.p) && !(zone.beyond_ball(st.p) && hop_zone(zone, st.p))) return true;
     const Float mut_cm = st.med.mut * unit_cm_, loss = st.med.mua / st.med.mut;
     const HenyeyGreenstein hg(st.med.g);
     const bool depth = st.entered && cfg_.record_escapes;
@@ -371,7 +371,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         const Vec3 b = p + d * s;
         // A step that may leave the ball goes on in the cache of the cube it
         // starts in, as cached_crossings would answer it.
-        if (!zone.clear(b, s) && !(hop_zone(zone, p) && zone.clear(b, s))) break;
+        if (!zone.clear(b, s) && !(zone.beyond_ball(b) && hop_zone(zone, p) && zone.clear(b, s))) break;
         // interact(s), its steps in the same order.
         ++steps;
         p = b;  // = p + d * s, bit for bit
@@ -448,7 +448,7 @@ bool PacketWalk<kSpectral, kGrids>::locate_start() {
     LaunchMemo* memo = launch_memo();
     if (memo && memo->start.matches(st.p, st.d)) {
         hits_.assign(memo->start.hits.begin(), memo->start.hits.end());
-    } else if (shortcuts_.launch[size_t(st.light)].in_ambient) {
+    } else if (!memo && shortcuts_.launch[size_t(st.light)].in_ambient) {
         // The start is in no region, so the hits are only the first ambient
         // step's, and query() finds what next_interface needs of them: the
         // first crossing, with the same refined distance (tnear = 0, as here).

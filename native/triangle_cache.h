@@ -135,7 +135,6 @@ class ClearSteps {
     // the cache has more than kMaxPlanes planes): no step can start there.
     bool start(const TriangleCache& cache, const Vec3& p, Float max_back) {
         const auto& planes = cache.planes();
-        if (planes.size() > kMaxPlanes) return false;
         c_ = cache.center();
         const Float scale = max_abs_component(c_) + cache.radius();
         // Per step: the rounding of b = p + d s (a few ulps of |b| and of
@@ -143,6 +142,7 @@ class ClearSteps {
         slack_ = 1e-13 * scale;
         inner_ = cache.radius() - max_back - 1e-14 * scale;
         inner_r2_ = inner_ > 0 ? inner_ * inner_ * (1 - 1e-12) : 0;
+        if (planes.size() > kMaxPlanes) return false;
         n_planes_ = planes.size();
         for (size_t k = 0; k < n_planes_; ++k) {
             const TriangleCache::Plane& q = planes[k];
@@ -164,6 +164,14 @@ class ClearSteps {
             return true;
         }
         return renew(b);
+    }
+
+    // True when x lies outside the ball start() took (less the look-behind):
+    // a step to x needs another cube's cache, where a step that fails clear()
+    // inside it comes near a plane.
+    bool beyond_ball(const Vec3& x) const {
+        const Vec3 dx = x - c_;
+        return !(dot(dx, dx) < inner_r2_);
     }
 
   private:
