@@ -295,7 +295,9 @@ typename PacketWalk<kSpectral, kGrids>::LoopTrials PacketWalk<kSpectral, kGrids>
 
 // Starts the interior steps' zone at p in `cache`; false when p is not clear there.
 template <bool kSpectral, bool kGrids>
-bool PacketWalk<kSpectral, kGrids>::enter_zone(ClearSteps& zone, const TriangleCache& cache, const Vec3& p) const {
+inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::enter_zone(ClearSteps& zone,
+                                                                                     const TriangleCache& cache,
+                                                                                     const Vec3& p) const {
     // The look-behind ray_offset(x) of any x in the ball is at most this
     // (|x|_max <= |center|_max + radius; the factor covers the rounding).
     const Float max_back =
@@ -830,7 +832,7 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
 // The rest of an interaction after capture and fluorescence: scattering,
 // then roulette and the caps. False when the packet ends.
 template <bool kSpectral, bool kGrids>
-bool PacketWalk<kSpectral, kGrids>::scatter_and_survive() {
+inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::scatter_and_survive() {
     PacketState& st = st_;
     // Scattering (seed §4): HG cosine, uniform azimuth.
     if (st.med.mus > 0 && st.W > 0) {

@@ -149,7 +149,9 @@ class ClearSteps {
             // Oriented so that p's side is positive (negation is exact, so
             // the distances are exactly +-intersect()'s).
             const Float side = dot(q.n, p) - q.off > 0 ? 1 : -1;
-            n_[k] = q.n * side;
+            n_[k][0] = q.n.x * side;
+            n_[k][1] = q.n.y * side;
+            n_[k][2] = q.n.z * side;
             off_[k] = q.off * side;
             lo_[k] = q.reach + cache.rounding() + max_back;
         }
@@ -182,7 +184,7 @@ class ClearSteps {
         if (!(q < inner_r2_)) return false;
         Float budget = inner_ - std::sqrt(q);
         for (size_t k = 0; k < n_planes_; ++k) {
-            const Float margin = dot(n_[k], x) - off_[k] - lo_[k];
+            const Float margin = n_[k][0] * x.x + n_[k][1] * x.y + n_[k][2] * x.z - off_[k] - lo_[k];
             if (!(margin > 0)) return false;
             budget = std::min(budget, margin);
         }
@@ -193,7 +195,9 @@ class ClearSteps {
     Vec3 c_;
     Float inner_ = 0, inner_r2_ = 0, slack_ = 0, budget_ = 0;
     size_t n_planes_ = 0;
-    Vec3 n_[kMaxPlanes];
+    // Plain arrays, not Vec3 (whose members start at 0): a zone is made at
+    // every loop entry, and only the first n_planes_ entries are ever set.
+    Float n_[kMaxPlanes][3];
     Float off_[kMaxPlanes], lo_[kMaxPlanes];
 };
 
