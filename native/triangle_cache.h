@@ -17,6 +17,19 @@
 
 namespace ep {
 
+// A read-only view of n elements (the cache's triangles and planes, which
+// live in its own vectors or, frozen, in one block of the scene's store).
+template <class T>
+struct ConstSpan {
+    const T* first = nullptr;
+    size_t n = 0;
+    const T* begin() const { return first; }
+    const T* end() const { return first + n; }
+    size_t size() const { return n; }
+    bool empty() const { return n == 0; }
+    const T& operator[](size_t i) const { return first[i]; }
+};
+
 class TriangleCache {
   public:
     struct Triangle {
@@ -33,11 +46,18 @@ class TriangleCache {
         Float reach;  // margin + the rounding allowance of the plane test
     };
 
+    TriangleCache() = default;
+    // A copy holds the content in its own vectors (not the mailbox).
+    TriangleCache(const TriangleCache& o) { *this = o; }
+    TriangleCache& operator=(const TriangleCache& o);
+    ~TriangleCache() = default;
+
     // Empty and covering nothing.
     void clear() {
         tris_.clear();
         planes_.clear();
         radius_ = 0;
+        sync();
     }
     // Starts a gather around `center`: every triangle meeting the ball of
     // `radius` must then be added (Scene::gather_triangles does this).
@@ -74,8 +94,8 @@ class TriangleCache {
         // A segment whose two ends lie strictly on one side of a plane's slab
         // crosses none of its triangles.
         uint64_t open = 0;  // planes the segment may cross (bit k; planes beyond 63 share bit 63)
-        for (size_t k = 0; k < planes_.size(); ++k) {
-            const Plane& p = planes_[k];
+        for (size_t k = 0; k < n_planes_; ++k) {
+            const Plane& p = planes_view_[k];
             const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
             const bool apart = (da > p.reach && db > p.reach) || (da < -p.reach && db < -p.reach);
             if (!apart || k >= 63) open |= uint64_t(1) << std::min<size_t>(k, 63);
@@ -88,10 +108,17 @@ class TriangleCache {
 
     const Vec3& center() const { return center_; }
     Float radius() const { return radius_; }
-    size_t size() const { return tris_.size(); }
-    const std::vector<Triangle>& triangles() const { return tris_; }
-    size_t plane_count() const { return planes_.size(); }
-    const std::vector<Plane>& planes() const { return planes_; }
+    size_t size() const { return n_tris_; }
+    ConstSpan<Triangle> triangles() const { return {tris_view_, n_tris_}; }
+    size_t plane_count() const { return n_planes_; }
+    ConstSpan<Plane> planes() const { return {planes_view_, n_planes_}; }
+    // A frozen copy for the scene's per-cube store (Scene::cell_cache): the
+    // object, its planes and its triangles in one block of frozen_size(src)
+    // bytes at `bytes` (aligned for TriangleCache), so a cube costs one bump
+    // of the store's arena instead of three allocations. Destroy it with
+    // ~TriangleCache (its vectors are empty); the block is the caller's.
+    static size_t frozen_size(const TriangleCache& src);
+    static TriangleCache* freeze(const TriangleCache& src, void* bytes);
     // The rounding allowance of intersect()'s plane distances over the ball
     // (reset()): a second one of these on top of a plane's reach covers the
     // few-ulp differences of a test computed by other expressions
@@ -103,9 +130,21 @@ class TriangleCache {
     void intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
                         std::vector<Hit>& out) const;
 
+    // Points the views at the vectors (after every change of a builder).
+    void sync() {
+        tris_view_ = tris_.data();
+        n_tris_ = tris_.size();
+        planes_view_ = planes_.data();
+        n_planes_ = planes_.size();
+    }
+
     Vec3 center_;
     Float radius_ = 0, eps_ = 0;
-    std::vector<Triangle> tris_;
+    // What every reader uses: the vectors' content, or a frozen copy's.
+    const Triangle* tris_view_ = nullptr;
+    const Plane* planes_view_ = nullptr;
+    size_t n_tris_ = 0, n_planes_ = 0;
+    std::vector<Triangle> tris_;  // a builder's content (empty when frozen)
     std::vector<Plane> planes_;
     std::vector<uint32_t> seen_;  // first_offer's stamps, one per scene triangle
     uint32_t stamp_ = 0;
