@@ -540,16 +540,18 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
 }
 
 void* Scene::store_allocate(size_t bytes) const {
-    constexpr size_t kUnit = sizeof(std::max_align_t), kChunkUnits = (size_t(1) << 16) / kUnit;
-    const size_t units = (bytes + kUnit - 1) / kUnit;
+    // new[] aligns a chunk for any fundamental type; blocks keep that alignment.
+    constexpr size_t kAlign = __STDCPP_DEFAULT_NEW_ALIGNMENT__, kChunk = size_t(1) << 16;
+    static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
+    bytes = (bytes + kAlign - 1) / kAlign * kAlign;
     std::lock_guard<std::mutex> lock(store_mutex_);
-    if (store_used_ + units > store_capacity_) {
-        store_capacity_ = std::max(kChunkUnits, units);
-        store_chunks_.emplace_back(new std::max_align_t[store_capacity_]);
+    if (store_used_ + bytes > store_capacity_) {
+        store_capacity_ = std::max(kChunk, bytes);
+        store_chunks_.emplace_back(new unsigned char[store_capacity_]);
         store_used_ = 0;
     }
     void* p = store_chunks_.back().get() + store_used_;
-    store_used_ += units;
+    store_used_ += bytes;
     return p;
 }
 

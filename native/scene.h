@@ -169,7 +169,7 @@ class Scene {
     // handed out by a bump under a lock (a build is rare next to the lookups,
     // and a malloc per cube cost ~450 instructions of its ~4k; callgrind).
     mutable std::mutex store_mutex_;
-    mutable std::vector<std::unique_ptr<std::max_align_t[]>> store_chunks_;
+    mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
     mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
     void* store_allocate(size_t bytes) const;
     // gather_triangles with the deduplication of triangles met in several

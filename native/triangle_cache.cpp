@@ -14,8 +14,9 @@ TriangleCache& TriangleCache::operator=(const TriangleCache& o) {
     center_ = o.center_;
     radius_ = o.radius_;
     eps_ = o.eps_;
-    tris_.assign(o.tris_view_, o.tris_view_ + o.n_tris_);
-    planes_.assign(o.planes_view_, o.planes_view_ + o.n_planes_);
+    Store& s = own();
+    s.tris.assign(o.tris_view_, o.tris_view_ + o.n_tris_);
+    s.planes.assign(o.planes_view_, o.planes_view_ + o.n_planes_);
     sync();
     return *this;
 }
@@ -57,14 +58,15 @@ TriangleCache* TriangleCache::freeze(const TriangleCache& src, void* bytes) {
 }
 
 void TriangleCache::reset(const Vec3& center, Float radius) {
-    tris_.clear();
-    planes_.clear();
+    Store& s = own();
+    s.tris.clear();
+    s.planes.clear();
     sync();
     center_ = center;
     radius_ = radius;
-    if (++stamp_ == 0) {  // the stamps wrapped: forget every old one
-        std::fill(seen_.begin(), seen_.end(), 0u);
-        stamp_ = 1;
+    if (++s.stamp == 0) {  // the stamps wrapped: forget every old one
+        std::fill(s.seen.begin(), s.seen.end(), 0u);
+        s.stamp = 1;
     }
     // Rounding allowance of the plane distances in intersect(): a few ulps of
     // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
@@ -78,25 +80,26 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     // test stays conservative for every member.
     const Float scale = max_abs_component(v0) + max_abs_component(v1) + max_abs_component(v2);
     const Float tol = 1e-9 * (scale + radius_);
-    uint32_t plane = uint32_t(planes_.size());
-    for (uint32_t k = 0; k < planes_.size(); ++k) {
-        const Plane& p = planes_[k];
+    std::vector<Plane>& planes = own().planes;
+    uint32_t plane = uint32_t(planes.size());
+    for (uint32_t k = 0; k < planes.size(); ++k) {
+        const Plane& p = planes[k];
         if (dot(p.n, n) < 1 - 1e-12) continue;
         const Float e = std::max(
             {std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off), std::fabs(dot(p.n, v2) - p.off)});
         if (e <= tol) {
-            planes_[k].margin = std::max(p.margin, e);
-            planes_[k].reach = planes_[k].margin + eps_;
+            planes[k].margin = std::max(p.margin, e);
+            planes[k].reach = planes[k].margin + eps_;
             plane = k;
             break;
         }
     }
-    if (plane == planes_.size()) {
+    if (plane == planes.size()) {
         const Float off = dot(n, v0);
         const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
-        planes_.push_back(Plane{n, off, e, e + eps_});
+        planes.push_back(Plane{n, off, e, e + eps_});
     }
-    tris_.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+    own().tris.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
     sync();
 }
 

@@ -10,6 +10,7 @@
 // and the distance is the same double-precision plane refinement.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "scene.h"
@@ -36,7 +37,7 @@ class TriangleCache {
         Vec3 v0, v1, v2;  // vertices (float mesh data, exactly as Embree sees them)
         Vec3 n;           // outward unit normal (Region::normals)
         uint32_t region, prim;
-        uint32_t plane;  // index into planes_
+        uint32_t plane;  // index into planes()
     };
     // Coplanar triangles share one plane test: n.x = off within +-margin holds
     // every vertex of every member triangle.
@@ -54,8 +55,9 @@ class TriangleCache {
 
     // Empty and covering nothing.
     void clear() {
-        tris_.clear();
-        planes_.clear();
+        Store& s = own();
+        s.tris.clear();
+        s.planes.clear();
         radius_ = 0;
         sync();
     }
@@ -67,9 +69,10 @@ class TriangleCache {
     // several cells is offered once per cell: true the first time the
     // scene-wide triangle `id` is offered since reset().
     bool first_offer(uint32_t id) {
-        if (id >= seen_.size()) seen_.resize(size_t(id) + 1, 0);
-        if (seen_[id] == stamp_) return false;
-        seen_[id] = stamp_;
+        Store& s = own();
+        if (id >= s.seen.size()) s.seen.resize(size_t(id) + 1, 0);
+        if (s.seen[id] == s.stamp) return false;
+        s.seen[id] = s.stamp;
         return true;
     }
 
@@ -132,10 +135,11 @@ class TriangleCache {
 
     // Points the views at the vectors (after every change of a builder).
     void sync() {
-        tris_view_ = tris_.data();
-        n_tris_ = tris_.size();
-        planes_view_ = planes_.data();
-        n_planes_ = planes_.size();
+        const Store& s = own();
+        tris_view_ = s.tris.data();
+        n_tris_ = uint32_t(s.tris.size());
+        planes_view_ = s.planes.data();
+        n_planes_ = uint32_t(s.planes.size());
     }
 
     Vec3 center_;
@@ -143,11 +147,20 @@ class TriangleCache {
     // What every reader uses: the vectors' content, or a frozen copy's.
     const Triangle* tris_view_ = nullptr;
     const Plane* planes_view_ = nullptr;
-    size_t n_tris_ = 0, n_planes_ = 0;
-    std::vector<Triangle> tris_;  // a builder's content (empty when frozen)
-    std::vector<Plane> planes_;
-    std::vector<uint32_t> seen_;  // first_offer's stamps, one per scene triangle
-    uint32_t stamp_ = 0;
+    uint32_t n_tris_ = 0, n_planes_ = 0;
+    // A builder's content and first_offer's mailbox, made on first use; none
+    // in a frozen copy, which then holds only the views' header (72 bytes).
+    struct Store {
+        std::vector<Triangle> tris;
+        std::vector<Plane> planes;
+        std::vector<uint32_t> seen;  // first_offer's stamps, one per scene triangle
+        uint32_t stamp = 0;
+    };
+    Store& own() {
+        if (!own_) own_ = std::make_unique<Store>();
+        return *own_;
+    }
+    std::unique_ptr<Store> own_;
 };
 
 // Conservative forms of TriangleCache::covers() and of intersect()'s plane
