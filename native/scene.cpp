@@ -532,18 +532,40 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
         return true;
     });
     if (!few || crowded) scratch.clear();
-    auto built = std::make_unique<TriangleCache>(scratch);
-    return *install(slot, std::move(built));
+    TriangleCache* built = TriangleCache::freeze(scratch, store_allocate(TriangleCache::frozen_size(scratch)));
+    TriangleCache* expected = nullptr;
+    if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
+    built->~TriangleCache();  // another thread was first (the same content); the block stays unused
+    return *expected;
+}
+
+void* Scene::store_allocate(size_t bytes) const {
+    // new[] aligns a chunk for any fundamental type; blocks keep that alignment.
+    constexpr size_t kAlign = __STDCPP_DEFAULT_NEW_ALIGNMENT__, kChunk = size_t(1) << 16;
+    static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
+    bytes = (bytes + kAlign - 1) / kAlign * kAlign;
+    std::lock_guard<std::mutex> lock(store_mutex_);
+    if (store_used_ + bytes > store_capacity_) {
+        store_capacity_ = std::max(kChunk, bytes);
+        store_chunks_.emplace_back(new unsigned char[store_capacity_]);
+        store_used_ = 0;
+    }
+    void* p = store_chunks_.back().get() + store_used_;
+    store_used_ += bytes;
+    return p;
 }
 
 void Scene::release_cell_caches() {
     if (!cell_blocks_) return;
     for (size_t i = 0; i < grid_.cell_count(); ++i)
         if (CellBlock* b = cell_blocks_[i].load()) {
-            for (auto& c : b->cube) delete c.load();
+            for (auto& c : b->cube)
+                if (TriangleCache* t = c.load()) t->~TriangleCache();  // its block is the store's
             delete b;
         }
     cell_blocks_.reset();
+    store_chunks_.clear();
+    store_used_ = store_capacity_ = 0;
 }
 
 bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {

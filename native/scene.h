@@ -5,7 +5,9 @@
 #include <embree3/rtcore.h>
 
 #include <atomic>
+#include <cstddef>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -163,6 +165,13 @@ class Scene {
     mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
+    // The store the frozen caches live in (TriangleCache::freeze): chunks
+    // handed out by a bump under a lock (a build is rare next to the lookups,
+    // and a malloc per cube cost ~450 instructions of its ~4k; callgrind).
+    mutable std::mutex store_mutex_;
+    mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
+    mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
+    void* store_allocate(size_t bytes) const;
     // gather_triangles with the deduplication of triangles met in several
     // cells left to first_offer(id) (true the first time id is offered).
     template <class FirstOffer>

@@ -116,6 +116,15 @@ class PacketWalk {
     void walk(uint64_t index);
     bool interior_ready() const;
     bool interior_steps();
+    // fluoresce()'s trials for the interior steps (loop_trials()).
+    struct LoopTrials {
+        static constexpr size_t kMax = 4;  // fluorophores per region the loop holds
+        int n = 0;                         // 0: fluoresce() would not try
+        Float d[kMax], c[kMax];
+    };
+    LoopTrials loop_trials() const;
+    bool enter_zone(ClearSteps& zone, const TriangleCache& cache, const Vec3& p) const;
+    bool hop_zone(ClearSteps& zone, const Vec3& p, const Vec3& ahead);
     void flush_absorbed();
     void launch(uint64_t index);
     bool locate_start();
@@ -132,7 +141,9 @@ class PacketWalk {
     Crossing leave_tissue(int from_region, const Vec3& normal_out);
     Crossing through_ambient(NextHit next);
     bool interact(Float s);
+    bool scatter_and_survive();
     void fluoresce();
+    void fluoresce_with(const FluorophoreRef& f);
     void escape();
     // The memo of the packet's light when it emits one ray only, else null.
     LaunchMemo* launch_memo() {
@@ -249,18 +260,68 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
 // subtraction per step otherwise; no hit list). Anything else -- a step that
 // may leave the ball or cross a plane, an infinite step -- goes back to the
 // general loop with its free path drawn; roulette and the caps are interact()'s.
+// Spectral packets take fluoresce()'s trials in the loop too (LoopTrials);
+// an actual fluorescence event ends the loop, and fluoresced() finishes that
+// interaction as interact() does.
 // (callgrind, seed tissue: 668 -> 402 instructions per interaction.)
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
     if constexpr (kGrids) return false;  // the grids' deposits stay in interact()
     const PacketState& st = st_;
     if (!local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
-    // Spectral: only where fluoresce() has nothing to do: a region without
-    // fluorophores, or a packet that already fluoresced under the "paper" rule
-    // (one event per packet; on colon_polyp ~75 of its ~89 steps come after it).
-    if constexpr (kSpectral)
-        return (st.fluorescent && cfg_.rule == FluorescenceRule::kPaper) ||
-               scene_.region(size_t(st.med.region)).fluorophores.empty();
+    // Spectral: the loop holds at most LoopTrials::kMax fluorophores.
+    if constexpr (kSpectral) return scene_.region(size_t(st.med.region)).fluorophores.size() <= LoopTrials::kMax;
+    return true;
+}
+
+// fluoresce()'s trials as the interior steps take them, fixed for the loop:
+// the packet's wavelength, so d under the "eem" rule (d times the EEM's
+// efficiency there), and whether fluoresce() tries at all, change only at a
+// fluorescence event, which ends the loop. The same draws in the same order
+// and the same comparisons, so the same events.
+template <bool kSpectral, bool kGrids>
+typename PacketWalk<kSpectral, kGrids>::LoopTrials PacketWalk<kSpectral, kGrids>::loop_trials() const {
+    LoopTrials t;
+    const PacketState& st = st_;
+    if (cfg_.rule != FluorescenceRule::kEEM && st.fluorescent) return t;  // fluoresce()'s `may`
+    for (const FluorophoreRef& f : scene_.region(size_t(st.med.region)).fluorophores) {
+        Float d_eff = f.d;
+        if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene_.eem(f.id).efficiency(st.lambda);
+        t.d[t.n] = d_eff;
+        t.c[t.n] = f.c;
+        ++t.n;
+    }
+    return t;
+}
+
+// Starts the interior steps' zone at p in `cache`; false when p is not clear there.
+template <bool kSpectral, bool kGrids>
+inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::enter_zone(ClearSteps& zone,
+                                                                                     const TriangleCache& cache,
+                                                                                     const Vec3& p) const {
+    // The look-behind ray_offset(x) of any x in the ball is at most this
+    // (|x|_max <= |center|_max + radius; the factor covers the rounding).
+    const Float max_back =
+        ray_offset(Vec3(max_abs_component(cache.center()) + cache.radius(), 0, 0), extent_) * 1.000001;
+    return zone.start(cache, p, max_back);
+}
+
+// Moves the zone, starting at p, to the cache of the cube `ahead` is in (the
+// end of the step that left the ball: the packet heads that way, so the
+// zone lasts longer there than in p's cube; callgrind, colon_polyp: 72.5k ->
+// 71.0k instructions a packet), or else of the cube p is in (the one
+// cached_crossings turns to), and makes it the thread's last cache; false
+// when neither is new and has p clear. Any cache whose ball holds the step
+// answers it alike, so the choice changes no result. (~11 of the loop's ~19
+// exits a packet on colon_polyp were steps that left the ball.)
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearSteps& zone, const Vec3& p, const Vec3& ahead) {
+    const TriangleCache* own = &scene_.cell_cache(ahead);
+    if (own == local_.cell || !enter_zone(zone, *own, p)) {
+        own = &scene_.cell_cache(p);
+        if (own == local_.cell || !enter_zone(zone, *own, p)) return false;
+    }
+    local_.cell = own;
     return true;
 }
 
@@ -270,13 +331,8 @@ bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     PacketState& st = st_;
-    const TriangleCache& cache = *local_.cell;  // the cache of the last cached step
-    // The look-behind ray_offset(p) of any p in the ball is at most this
-    // (|p|_max <= |center|_max + radius; the factor covers the rounding).
-    const Float max_back =
-        ray_offset(Vec3(max_abs_component(cache.center()) + cache.radius(), 0, 0), extent_) * 1.000001;
     ClearSteps zone;
-    if (!zone.start(cache, st.p, max_back)) return true;
+    if (!enter_zone(zone, *local_.cell, st.p) && !(zone.beyond_ball(st.p) && hop_zone(zone, st.p, st.p))) return true;
     const Float mut_cm = st.med.mut * unit_cm_, loss = st.med.mua / st.med.mut;
     const HenyeyGreenstein hg(st.med.g);
     const bool depth = st.entered && cfg_.record_escapes;
@@ -293,7 +349,13 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     uint64_t steps = 0, room = path_cap ? 0 : max_events_ - st.events;
     bool need_tau = st.need_tau;
     Rng rng = rng_;
+    LoopTrials trials;
+    uint64_t n_trials = 0;  // fluorescence trials taken here
+    if constexpr (kSpectral) trials = loop_trials();
     auto store = [&] {
+        // A sum of ones is exact, so adding the count at once is bit-identical.
+        if constexpr (kSpectral) out_.tally.scalar[kFluorescenceTrials] += Float(n_trials);
+        n_trials = 0;
         st.p = p;
         st.d = d;
         st.frame = frame;
@@ -322,7 +384,9 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         const Float s = tau / mut_cm;
         if (!(s < kInf)) break;
         const Vec3 b = p + d * s;
-        if (!zone.clear(b, s)) break;
+        // A step that may leave the ball goes on in the cache of the cube it
+        // starts in, as cached_crossings would answer it.
+        if (!zone.clear(b, s) && !(zone.beyond_ball(b) && hop_zone(zone, p, b) && zone.clear(b, s))) break;
         // interact(s), its steps in the same order.
         ++steps;
         p = b;  // = p + d * s, bit for bit
@@ -333,6 +397,22 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::interior_steps() {
         W -= dW;
         absorbed += dW;
         if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
+        if (kSpectral && trials.n > 0 && W > 0) {
+            // fluoresce()'s trials: an event ends the loop, and interact()'s
+            // rest of this interaction follows it in the general code.
+            int k = 0;
+            while (k < trials.n) {
+                ++n_trials;
+                const Float u1 = rng.uniform(), u2 = rng.uniform();
+                if (u1 < trials.d[k] && u2 < trials.c[k]) break;
+                ++k;
+            }
+            if (k < trials.n) {
+                store();
+                fluoresce_with(scene_.region(size_t(st.med.region)).fluorophores[size_t(k)]);
+                return scatter_and_survive();
+            }
+        }
         if (W > 0) {
             hg.scatter(rng.next_u64(), ++scatterings, &frame);
             d = frame.n;
@@ -381,6 +461,12 @@ bool PacketWalk<kSpectral, kGrids>::locate_start() {
     LaunchMemo* memo = launch_memo();
     if (memo && memo->start.matches(st.p, st.d)) {
         hits_.assign(memo->start.hits.begin(), memo->start.hits.end());
+    } else if (!memo && shortcuts_.launch[size_t(st.light)].in_ambient) {
+        // The start is in no region, so the hits are only the first ambient
+        // step's, and query() finds what next_interface needs of them: the
+        // first crossing, with the same refined distance (tnear = 0, as here).
+        // (callgrind, colon_polyp: ~1k instructions a packet.)
+        query(0, kInf, 0, -1);
     } else {
         scene_.intersect_all(st.p, st.d, 0, kInf, hits_);
         if (memo) memo->start.store(st.p, st.d, hits_);
@@ -462,6 +548,10 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
     const TriangleCache* cache = local_.cell;
     if (!cache || !cache->covers(a, b)) {
         cache = &scene_.cell_cache(st.p);
+        // A step too long for the ball of the cube it starts in may fit in
+        // the ball of the cube of its midpoint (any cache that covers a step
+        // lists its crossings).
+        if (!cache->covers(a, b)) cache = &scene_.cell_cache((a + b) * Float(0.5));
         if (!cache->covers(a, b)) return false;
         local_.cell = cache;
     }
@@ -747,7 +837,14 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
         }
     }
     if constexpr (kSpectral) fluoresce();
+    return scatter_and_survive();
+}
 
+// The rest of an interaction after capture and fluorescence: scattering,
+// then roulette and the caps. False when the packet ends.
+template <bool kSpectral, bool kGrids>
+inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::scatter_and_survive() {
+    PacketState& st = st_;
     // Scattering (seed §4): HG cosine, uniform azimuth.
     if (st.med.mus > 0 && st.W > 0) {
         const HenyeyGreenstein hg(st.med.g);
@@ -779,19 +876,27 @@ void PacketWalk<kSpectral, kGrids>::fluoresce() {
         Float d_eff = f.d;
         if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene_.eem(f.id).efficiency(st.lambda);
         if (u1 < d_eff && u2 < f.c) {
-            st.lambda = scene_.eem(f.id).sample_emission(st.lambda, rng_.uniform(), rng_.uniform());
-            // Stokes loss: the weight (photon count) is kept, the energy per
-            // photon drops from 500/lambda_ex to 500/lambda_em.
-            const Float new_epw = kEnergyReferenceNm / st.lambda;
-            out_.tally.energy[kEnergyStokes] += st.W * (st.energy_per_weight - new_epw);
-            st.energy_per_weight = new_epw;
-            st.fluorescent = true;
-            st.fluorophore = f.id;
-            out_.tally.scalar[kFluorescenceEvents] += 1;
-            load_medium(st.med.region);  // coefficients at the new wavelength
+            fluoresce_with(f);
             break;
         }
     }
+}
+
+// A fluorescence event of fluorophore f: the emission wavelength, the Stokes
+// loss, the coefficients at the new wavelength.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::fluoresce_with(const FluorophoreRef& f) {
+    PacketState& st = st_;
+    st.lambda = scene_.eem(f.id).sample_emission(st.lambda, rng_.uniform(), rng_.uniform());
+    // Stokes loss: the weight (photon count) is kept, the energy per
+    // photon drops from 500/lambda_ex to 500/lambda_em.
+    const Float new_epw = kEnergyReferenceNm / st.lambda;
+    out_.tally.energy[kEnergyStokes] += st.W * (st.energy_per_weight - new_epw);
+    st.energy_per_weight = new_epw;
+    st.fluorescent = true;
+    st.fluorophore = f.id;
+    out_.tally.scalar[kFluorescenceEvents] += 1;
+    load_medium(st.med.region);  // coefficients at the new wavelength
 }
 
 // Leaving the scene for good. Reflected (reflected()) = leaving back through
@@ -927,6 +1032,32 @@ void RayMemo::store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits
     next = next_;
 }
 
+namespace {
+
+// True when every point light l emits from lies in the ambient, farther from
+// every surface than the transport's grouping tolerance (so no crossing lies
+// at the start, where next_interface would need the whole hit list): the
+// disk's centre is in no region (locate_start's rule, along the axis), and no
+// triangle comes within the disk's radius, plus that room, of the centre, so
+// the whole disk lies in the same connected piece of space as the centre.
+bool emits_in_ambient(const Scene& scene, const Light& l, std::vector<Hit>& hits) {
+    const Float room = 1e-5 * (max_abs_component(l.center) + l.radius + scene.extent());
+    // The point query reaches twice as far: its float culling cannot lose a
+    // triangle within radius + room.
+    if (scene.distance_to_surface(l.center, 2 * (l.radius + room)) <= l.radius + room) return false;
+    scene.intersect_all(l.center, l.axis, 0, kInf, hits);
+    uint64_t seen = 0;
+    for (const Hit& h : hits) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if ((seen & bit) || h.cos_dn == 0) continue;
+        seen |= bit;
+        if (h.cos_dn > 0) return false;  // the centre is inside this region
+    }
+    return true;
+}
+
+}  // namespace
+
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
     : scene_(scene), source_(source), halton_(halton), cfg_(cfg) {
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
@@ -951,7 +1082,9 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
             closed = !hits_.empty();
         }
         enclosed_.push_back(closed ? 1 : 0);
-        shortcuts_.launch.emplace_back().fixed_ray = l.radius == 0 && l.half_angle == 0;
+        LaunchMemo& memo = shortcuts_.launch.emplace_back();
+        memo.fixed_ray = l.radius == 0 && l.half_angle == 0;
+        memo.in_ambient = emits_in_ambient(scene, l, hits_);
     }
 }
 

@@ -78,6 +78,9 @@ struct RayMemo {
 };
 struct LaunchMemo {
     bool fixed_ray = false;  // the light emits one ray only
+    // Every point the light emits from lies in the ambient, apart from every
+    // surface (Tracer's constructor): locate_start then needs no all-hits query.
+    bool in_ambient = false;
     RayMemo start, mirror;
 };
 

@@ -2,19 +2,71 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
+#include <new>
 
 #include "scene.h"
 
 namespace ep {
 
+TriangleCache& TriangleCache::operator=(const TriangleCache& o) {
+    if (this == &o) return *this;
+    center_ = o.center_;
+    radius_ = o.radius_;
+    eps_ = o.eps_;
+    Store& s = own();
+    s.tris.assign(o.tris_view_, o.tris_view_ + o.n_tris_);
+    s.planes.assign(o.planes_view_, o.planes_view_ + o.n_planes_);
+    sync();
+    return *this;
+}
+
+namespace {
+
+// Byte offsets of a frozen copy's planes and triangles in its block.
+size_t planes_offset() {
+    static_assert(alignof(TriangleCache::Plane) <= alignof(TriangleCache), "plane alignment");
+    return sizeof(TriangleCache);
+}
+size_t triangles_offset(size_t n_planes) {
+    static_assert(alignof(TriangleCache::Triangle) <= alignof(TriangleCache::Plane), "triangle alignment");
+    static_assert(sizeof(TriangleCache::Plane) % alignof(TriangleCache::Triangle) == 0, "triangle alignment");
+    return planes_offset() + n_planes * sizeof(TriangleCache::Plane);
+}
+
+}  // namespace
+
+size_t TriangleCache::frozen_size(const TriangleCache& src) {
+    return triangles_offset(src.n_planes_) + src.n_tris_ * sizeof(Triangle);
+}
+
+TriangleCache* TriangleCache::freeze(const TriangleCache& src, void* bytes) {
+    auto* c = new (bytes) TriangleCache();
+    c->center_ = src.center_;
+    c->radius_ = src.radius_;
+    c->eps_ = src.eps_;
+    auto* base = static_cast<char*>(bytes);
+    auto* planes = reinterpret_cast<Plane*>(base + planes_offset());
+    auto* tris = reinterpret_cast<Triangle*>(base + triangles_offset(src.n_planes_));
+    std::uninitialized_copy(src.planes_view_, src.planes_view_ + src.n_planes_, planes);
+    std::uninitialized_copy(src.tris_view_, src.tris_view_ + src.n_tris_, tris);
+    c->planes_view_ = planes;
+    c->n_planes_ = src.n_planes_;
+    c->tris_view_ = tris;
+    c->n_tris_ = src.n_tris_;
+    return c;
+}
+
 void TriangleCache::reset(const Vec3& center, Float radius) {
-    tris_.clear();
-    planes_.clear();
+    Store& s = own();
+    s.tris.clear();
+    s.planes.clear();
+    sync();
     center_ = center;
     radius_ = radius;
-    if (++stamp_ == 0) {  // the stamps wrapped: forget every old one
-        std::fill(seen_.begin(), seen_.end(), 0u);
-        stamp_ = 1;
+    if (++s.stamp == 0) {  // the stamps wrapped: forget every old one
+        std::fill(s.seen.begin(), s.seen.end(), 0u);
+        s.stamp = 1;
     }
     // Rounding allowance of the plane distances in intersect(): a few ulps of
     // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
@@ -28,31 +80,33 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     // test stays conservative for every member.
     const Float scale = max_abs_component(v0) + max_abs_component(v1) + max_abs_component(v2);
     const Float tol = 1e-9 * (scale + radius_);
-    uint32_t plane = uint32_t(planes_.size());
-    for (uint32_t k = 0; k < planes_.size(); ++k) {
-        const Plane& p = planes_[k];
+    std::vector<Plane>& planes = own().planes;
+    uint32_t plane = uint32_t(planes.size());
+    for (uint32_t k = 0; k < planes.size(); ++k) {
+        const Plane& p = planes[k];
         if (dot(p.n, n) < 1 - 1e-12) continue;
         const Float e = std::max(
             {std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off), std::fabs(dot(p.n, v2) - p.off)});
         if (e <= tol) {
-            planes_[k].margin = std::max(p.margin, e);
-            planes_[k].reach = planes_[k].margin + eps_;
+            planes[k].margin = std::max(p.margin, e);
+            planes[k].reach = planes[k].margin + eps_;
             plane = k;
             break;
         }
     }
-    if (plane == planes_.size()) {
+    if (plane == planes.size()) {
         const Float off = dot(n, v0);
         const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
-        planes_.push_back(Plane{n, off, e, e + eps_});
+        planes.push_back(Plane{n, off, e, e + eps_});
     }
-    tris_.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+    own().tris.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+    sync();
 }
 
 void TriangleCache::intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
                                    std::vector<Hit>& out) const {
     out.clear();
-    for (const Triangle& tri : tris_) {
+    for (const Triangle& tri : triangles()) {
         if (!((open >> std::min<uint32_t>(tri.plane, 63)) & 1)) continue;
         // Watertight test in double (signed volumes of the ray and each edge):
         // an edge shared by two triangles gives exactly opposite values in

@@ -10,6 +10,7 @@
 // and the distance is the same double-precision plane refinement.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "scene.h"
@@ -17,13 +18,26 @@
 
 namespace ep {
 
+// A read-only view of n elements (the cache's triangles and planes, which
+// live in its own vectors or, frozen, in one block of the scene's store).
+template <class T>
+struct ConstSpan {
+    const T* first = nullptr;
+    size_t n = 0;
+    const T* begin() const { return first; }
+    const T* end() const { return first + n; }
+    size_t size() const { return n; }
+    bool empty() const { return n == 0; }
+    const T& operator[](size_t i) const { return first[i]; }
+};
+
 class TriangleCache {
   public:
     struct Triangle {
         Vec3 v0, v1, v2;  // vertices (float mesh data, exactly as Embree sees them)
         Vec3 n;           // outward unit normal (Region::normals)
         uint32_t region, prim;
-        uint32_t plane;  // index into planes_
+        uint32_t plane;  // index into planes()
     };
     // Coplanar triangles share one plane test: n.x = off within +-margin holds
     // every vertex of every member triangle.
@@ -33,11 +47,19 @@ class TriangleCache {
         Float reach;  // margin + the rounding allowance of the plane test
     };
 
+    TriangleCache() = default;
+    // A copy holds the content in its own vectors (not the mailbox).
+    TriangleCache(const TriangleCache& o) { *this = o; }
+    TriangleCache& operator=(const TriangleCache& o);
+    ~TriangleCache() = default;
+
     // Empty and covering nothing.
     void clear() {
-        tris_.clear();
-        planes_.clear();
+        Store& s = own();
+        s.tris.clear();
+        s.planes.clear();
         radius_ = 0;
+        sync();
     }
     // Starts a gather around `center`: every triangle meeting the ball of
     // `radius` must then be added (Scene::gather_triangles does this).
@@ -47,9 +69,10 @@ class TriangleCache {
     // several cells is offered once per cell: true the first time the
     // scene-wide triangle `id` is offered since reset().
     bool first_offer(uint32_t id) {
-        if (id >= seen_.size()) seen_.resize(size_t(id) + 1, 0);
-        if (seen_[id] == stamp_) return false;
-        seen_[id] = stamp_;
+        Store& s = own();
+        if (id >= s.seen.size()) s.seen.resize(size_t(id) + 1, 0);
+        if (s.seen[id] == s.stamp) return false;
+        s.seen[id] = s.stamp;
         return true;
     }
 
@@ -74,8 +97,8 @@ class TriangleCache {
         // A segment whose two ends lie strictly on one side of a plane's slab
         // crosses none of its triangles.
         uint64_t open = 0;  // planes the segment may cross (bit k; planes beyond 63 share bit 63)
-        for (size_t k = 0; k < planes_.size(); ++k) {
-            const Plane& p = planes_[k];
+        for (size_t k = 0; k < n_planes_; ++k) {
+            const Plane& p = planes_view_[k];
             const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
             const bool apart = (da > p.reach && db > p.reach) || (da < -p.reach && db < -p.reach);
             if (!apart || k >= 63) open |= uint64_t(1) << std::min<size_t>(k, 63);
@@ -88,10 +111,17 @@ class TriangleCache {
 
     const Vec3& center() const { return center_; }
     Float radius() const { return radius_; }
-    size_t size() const { return tris_.size(); }
-    const std::vector<Triangle>& triangles() const { return tris_; }
-    size_t plane_count() const { return planes_.size(); }
-    const std::vector<Plane>& planes() const { return planes_; }
+    size_t size() const { return n_tris_; }
+    ConstSpan<Triangle> triangles() const { return {tris_view_, n_tris_}; }
+    size_t plane_count() const { return n_planes_; }
+    ConstSpan<Plane> planes() const { return {planes_view_, n_planes_}; }
+    // A frozen copy for the scene's per-cube store (Scene::cell_cache): the
+    // object, its planes and its triangles in one block of frozen_size(src)
+    // bytes at `bytes` (aligned for TriangleCache), so a cube costs one bump
+    // of the store's arena instead of three allocations. Destroy it with
+    // ~TriangleCache (its vectors are empty); the block is the caller's.
+    static size_t frozen_size(const TriangleCache& src);
+    static TriangleCache* freeze(const TriangleCache& src, void* bytes);
     // The rounding allowance of intersect()'s plane distances over the ball
     // (reset()): a second one of these on top of a plane's reach covers the
     // few-ulp differences of a test computed by other expressions
@@ -103,12 +133,34 @@ class TriangleCache {
     void intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
                         std::vector<Hit>& out) const;
 
+    // Points the views at the vectors (after every change of a builder).
+    void sync() {
+        const Store& s = own();
+        tris_view_ = s.tris.data();
+        n_tris_ = uint32_t(s.tris.size());
+        planes_view_ = s.planes.data();
+        n_planes_ = uint32_t(s.planes.size());
+    }
+
     Vec3 center_;
     Float radius_ = 0, eps_ = 0;
-    std::vector<Triangle> tris_;
-    std::vector<Plane> planes_;
-    std::vector<uint32_t> seen_;  // first_offer's stamps, one per scene triangle
-    uint32_t stamp_ = 0;
+    // What every reader uses: the vectors' content, or a frozen copy's.
+    const Triangle* tris_view_ = nullptr;
+    const Plane* planes_view_ = nullptr;
+    uint32_t n_tris_ = 0, n_planes_ = 0;
+    // A builder's content and first_offer's mailbox, made on first use; none
+    // in a frozen copy, which then holds only the views' header (72 bytes).
+    struct Store {
+        std::vector<Triangle> tris;
+        std::vector<Plane> planes;
+        std::vector<uint32_t> seen;  // first_offer's stamps, one per scene triangle
+        uint32_t stamp = 0;
+    };
+    Store& own() {
+        if (!own_) own_ = std::make_unique<Store>();
+        return *own_;
+    }
+    std::unique_ptr<Store> own_;
 };
 
 // Conservative forms of TriangleCache::covers() and of intersect()'s plane
@@ -126,12 +178,15 @@ class TriangleCache {
 // where covers() and the plane test would both pass.
 class ClearSteps {
   public:
-    static constexpr size_t kMaxPlanes = 8;
+    // As many as a cube's cache holds triangles (Scene::kCellMaxTriangles), so
+    // the interior steps run in every cube that has a cache: on colon_polyp
+    // a limit of 8 turned ~8 loop entries a packet away, near the polyp's
+    // fine tessellation (callgrind).
+    static constexpr size_t kMaxPlanes = 16;
     // Takes the cache's ball and planes; false when p itself is not clear (or
     // the cache has more than kMaxPlanes planes): no step can start there.
     bool start(const TriangleCache& cache, const Vec3& p, Float max_back) {
         const auto& planes = cache.planes();
-        if (planes.size() > kMaxPlanes) return false;
         c_ = cache.center();
         const Float scale = max_abs_component(c_) + cache.radius();
         // Per step: the rounding of b = p + d s (a few ulps of |b| and of
@@ -139,13 +194,16 @@ class ClearSteps {
         slack_ = 1e-13 * scale;
         inner_ = cache.radius() - max_back - 1e-14 * scale;
         inner_r2_ = inner_ > 0 ? inner_ * inner_ * (1 - 1e-12) : 0;
+        if (planes.size() > kMaxPlanes) return false;
         n_planes_ = planes.size();
         for (size_t k = 0; k < n_planes_; ++k) {
             const TriangleCache::Plane& q = planes[k];
             // Oriented so that p's side is positive (negation is exact, so
             // the distances are exactly +-intersect()'s).
             const Float side = dot(q.n, p) - q.off > 0 ? 1 : -1;
-            n_[k] = q.n * side;
+            n_[k][0] = q.n.x * side;
+            n_[k][1] = q.n.y * side;
+            n_[k][2] = q.n.z * side;
             off_[k] = q.off * side;
             lo_[k] = q.reach + cache.rounding() + max_back;
         }
@@ -162,6 +220,14 @@ class ClearSteps {
         return renew(b);
     }
 
+    // True when x lies outside the ball start() took (less the look-behind):
+    // a step to x needs another cube's cache, where a step that fails clear()
+    // inside it comes near a plane.
+    bool beyond_ball(const Vec3& x) const {
+        const Vec3 dx = x - c_;
+        return !(dot(dx, dx) < inner_r2_);
+    }
+
   private:
     // Tests x and gives it its budget; false when x is not clear.
     bool renew(const Vec3& x) {
@@ -170,7 +236,7 @@ class ClearSteps {
         if (!(q < inner_r2_)) return false;
         Float budget = inner_ - std::sqrt(q);
         for (size_t k = 0; k < n_planes_; ++k) {
-            const Float margin = dot(n_[k], x) - off_[k] - lo_[k];
+            const Float margin = n_[k][0] * x.x + n_[k][1] * x.y + n_[k][2] * x.z - off_[k] - lo_[k];
             if (!(margin > 0)) return false;
             budget = std::min(budget, margin);
         }
@@ -181,7 +247,9 @@ class ClearSteps {
     Vec3 c_;
     Float inner_ = 0, inner_r2_ = 0, slack_ = 0, budget_ = 0;
     size_t n_planes_ = 0;
-    Vec3 n_[kMaxPlanes];
+    // Plain arrays, not Vec3 (whose members start at 0): a zone is made at
+    // every loop entry, and only the first n_planes_ entries are ever set.
+    Float n_[kMaxPlanes][3];
     Float off_[kMaxPlanes], lo_[kMaxPlanes];
 };
 
