@@ -446,7 +446,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         }
         if (W > 0) {
             hg.scatter(rng.next_u64(), ++scatterings, &frame);
-            d = frame.n;
+            d = frame.dir();
         }
         if (W < threshold || steps >= room) {
             // Roulette and the caps as interact() ends with them (the caps
@@ -881,7 +881,7 @@ inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::scatte
         const HenyeyGreenstein hg(st.med.g);
         if (!st.frame.about(st.d)) st.frame = DirectionFrame(st.d);
         hg.scatter(rng_.next_u64(), ++st.scatterings, &st.frame);
-        st.d = st.frame.n;
+        st.d = st.frame.dir();
     }
 
     if (!survives_roulette()) return false;

@@ -52,8 +52,9 @@ Vec3 rotate(const Vec3& v, const Vec3& k, double a) {
 // The largest departure of a frame from orthonormal.
 double frame_error(const DirectionFrame& f) {
     double e = 0;
-    for (const Vec3& v : {f.t, f.b, f.n}) e = std::max(e, std::fabs(dot(v, v) - 1));
-    e = std::max({e, std::fabs(dot(f.t, f.b)), std::fabs(dot(f.t, f.n)), std::fabs(dot(f.b, f.n))});
+    for (const Vec3& v : {f.tangent(), f.bitangent(), f.dir()}) e = std::max(e, std::fabs(dot(v, v) - 1));
+    e = std::max({e, std::fabs(dot(f.tangent(), f.bitangent())), std::fabs(dot(f.tangent(), f.dir())),
+                  std::fabs(dot(f.bitangent(), f.dir()))});
     return e;
 }
 
@@ -101,14 +102,14 @@ TEST(DirectionFrame, TurnIsTheRotationByThetaAndPhi) {
         for (int i = 0; i < 1000; ++i) {
             const double theta = kPi * rng.uniform(), phi = 2 * kPi * rng.uniform();
             DirectionFrame f(axis);
-            const Vec3 t0 = f.t;
+            const Vec3 t0 = f.tangent();
             f.turn(std::cos(theta), std::sin(theta), std::cos(phi), std::sin(phi));
             const Vec3 e1 = rotate(t0, axis, phi);
             const Vec3 want = rotate(axis, cross(axis, e1), theta);
-            EXPECT_NEAR(f.n.x, want.x, 2e-15);
-            EXPECT_NEAR(f.n.y, want.y, 2e-15);
-            EXPECT_NEAR(f.n.z, want.z, 2e-15);
-            EXPECT_NEAR(std::acos(std::clamp(dot(f.n, axis), -1.0, 1.0)), theta, 1e-7);
+            EXPECT_NEAR(f.dir().x, want.x, 2e-15);
+            EXPECT_NEAR(f.dir().y, want.y, 2e-15);
+            EXPECT_NEAR(f.dir().z, want.z, 2e-15);
+            EXPECT_NEAR(std::acos(std::clamp(dot(f.dir(), axis), -1.0, 1.0)), theta, 1e-7);
             ASSERT_LT(frame_error(f), 1e-15);
         }
     }
@@ -128,11 +129,11 @@ TEST(DirectionFrame, ChainedScatteringsStayOrthonormalAndFollowHg) {
     uint32_t count = 0;
     double worst = 0;
     auto step = [&] {
-        const Vec3 before = f.n;
+        const Vec3 before = f.dir();
         hg.scatter(rng.next_u64(), ++count, &f);
         worst = std::max(worst, frame_error(f));
-        if (count % DirectionFrame::kRenormalizeEvery == 0) EXPECT_LT(std::fabs(dot(f.n, f.n) - 1), 5e-16);
-        return std::make_pair(dot(f.n, before), azimuth_turns(before, f.n));
+        if (count % DirectionFrame::kRenormalizeEvery == 0) EXPECT_LT(std::fabs(dot(f.dir(), f.dir()) - 1), 5e-16);
+        return std::make_pair(dot(f.dir(), before), azimuth_turns(before, f.dir()));
     };
     ep_test::expect_chi_square_fit([&](std::mt19937_64&) { return step().first; },
                                    [&](double a, double b) { return hg_cdf(g, b) - hg_cdf(g, a); }, -1.0, 1.0, 200,
@@ -161,8 +162,8 @@ TEST(DirectionFrame, ScatterAboutFixedAxesFollowsHgAndAUniformAzimuth) {
             auto scatter = [&] {
                 DirectionFrame f(axis);
                 hg.scatter(rng.next_u64(), 1, &f);
-                EXPECT_NEAR(dot(f.n, f.n), 1.0, 1e-15);
-                return f.n;
+                EXPECT_NEAR(dot(f.dir(), f.dir()), 1.0, 1e-15);
+                return f.dir();
             };
             const auto cdf = [&](double m) { return g == 0 ? (m + 1) / 2 : hg_cdf(g, m); };
             ep_test::expect_chi_square_fit([&](std::mt19937_64&) { return dot(scatter(), axis); },
