@@ -27,9 +27,10 @@ namespace ep {
 
 // Everything one work unit produces. Its tallies and records are merged in
 // unit order by the engine; its grid deposits go to the grids the engine
-// points it at (engine.cpp, grids_per_unit): the grids of the worker thread
-// or Dask chunk that traces it, summed exactly and in any order, or the
-// unit's own grids when the run's stop rule may discard it.
+// points it at (engine.cpp, grids_per_unit): the staging set of the worker
+// thread or Dask chunk that traces it, added after the unit to the run's
+// shared grids (SharedGridSet) or the chunk's, exactly and in any order; or
+// the unit's own grids when the run's stop rule may discard it.
 struct UnitOutput {
     UnitTally tally;
     EscapeRecords records;
