@@ -393,22 +393,27 @@ void run_workers(RunState& st, int threads, uint64_t total, const ProgressFn& pr
     std::condition_variable done_cv;
     int active = 0;
     std::vector<std::thread> pool;
+    pool.reserve(size_t(threads));  // emplace_back then only fails by the thread's own start
     for (int t = 0; t < threads; ++t) {
+        // Counted before the attempt, so that a failed one is uncounted
+        // exactly once and `active` reaches 0 when the started ones end.
+        {
+            std::lock_guard<std::mutex> lock(done_mu);
+            ++active;
+        }
         try {
             if (st.cfg.test_fail_thread > 0 && t + 1 >= st.cfg.test_fail_thread)
                 throw std::system_error(EAGAIN, std::generic_category(), "Resource temporarily unavailable");
-            {
-                std::lock_guard<std::mutex> lock(done_mu);
-                ++active;
-            }
             pool.emplace_back([&st, &active, &done_mu, &done_cv]() {
                 worker(st);
                 std::lock_guard<std::mutex> lock(done_mu);
                 if (--active == 0) done_cv.notify_all();
             });
         } catch (const std::system_error& e) {
-            std::lock_guard<std::mutex> lock(done_mu);
-            --active;
+            {
+                std::lock_guard<std::mutex> lock(done_mu);
+                --active;
+            }
             st.fail("threads = " + std::to_string(threads) + ": could not start thread " + std::to_string(t + 1) +
                     " (" + e.what() + "); ask for fewer threads");
             break;
