@@ -127,6 +127,11 @@ class PacketWalk {
         Float d[kMax], c[kMax];
     };
     LoopTrials loop_trials() const;
+    // The fluorescence rule's two parts (fluoresce() and loop_trials() both use them).
+    bool may_fluoresce() const { return cfg_.rule == FluorescenceRule::kEEM || !st_.fluorescent; }
+    Float trial_d(const FluorophoreRef& f) const {
+        return cfg_.rule == FluorescenceRule::kEEM ? f.d * scene_.eem(f.id).efficiency(st_.lambda) : f.d;
+    }
     bool enter_zone(ClearSteps& zone, const TriangleCache& cache, const Vec3& p) const;
     bool hop_zone(ClearSteps& zone, const Vec3& p, const Vec3& ahead);
     void flush_absorbed();
@@ -287,11 +292,9 @@ template <bool kSpectral, bool kGrids>
 typename PacketWalk<kSpectral, kGrids>::LoopTrials PacketWalk<kSpectral, kGrids>::loop_trials() const {
     LoopTrials t;
     const PacketState& st = st_;
-    if (cfg_.rule != FluorescenceRule::kEEM && st.fluorescent) return t;  // fluoresce()'s `may`
+    if (!may_fluoresce()) return t;
     for (const FluorophoreRef& f : scene_.region(size_t(st.med.region)).fluorophores) {
-        Float d_eff = f.d;
-        if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene_.eem(f.id).efficiency(st.lambda);
-        t.d[t.n] = d_eff;
+        t.d[t.n] = trial_d(f);
         t.c[t.n] = f.c;
         ++t.n;
     }
@@ -899,14 +902,11 @@ template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::fluoresce() {
     PacketState& st = st_;
     const auto& fl = scene_.region(size_t(st.med.region)).fluorophores;
-    const bool may = cfg_.rule == FluorescenceRule::kEEM || !st.fluorescent;
-    if (!may || st.W <= 0) return;
+    if (!may_fluoresce() || st.W <= 0) return;
     for (const FluorophoreRef& f : fl) {
         out_.tally.scalar[kFluorescenceTrials] += 1;
         const Float u1 = rng_.uniform(), u2 = rng_.uniform();
-        Float d_eff = f.d;
-        if (cfg_.rule == FluorescenceRule::kEEM) d_eff *= scene_.eem(f.id).efficiency(st.lambda);
-        if (u1 < d_eff && u2 < f.c) {
+        if (u1 < trial_d(f) && u2 < f.c) {
             fluoresce_with(f);
             break;
         }
