@@ -36,9 +36,7 @@ class SharedGridSet {
     // block coordinates (>> 3 floors, as OpenVDB's leaf origin does), whose
     // top bits depend on every bit of all three.
     static size_t shard_of(const VoxelAccumulator::Coord& c) {
-        const uint64_t h = uint64_t(uint32_t(c[0] >> 3)) * 0x9E3779B97F4A7C15ull ^
-                           uint64_t(uint32_t(c[1] >> 3)) * 0xC2B2AE3D27D4EB4Full ^
-                           uint64_t(uint32_t(c[2] >> 3)) * 0x165667B19E3779F9ull;
+        const uint64_t h = mix_coord(c[0] >> 3, c[1] >> 3, c[2] >> 3);
         return size_t((h * 0xBF58476D1CE4E5B9ull) >> (64 - kShardBits));
     }
 

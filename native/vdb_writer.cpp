@@ -182,6 +182,7 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::stri
 // rethrown, so the error does not depend on the thread timing.
 openvdb::GridCPtrVec build_grids(const std::vector<GridOutput>& grids,
                                  const std::map<std::string, std::string>& metadata, int threads) {
+    if (grids.empty()) return {};
     std::vector<openvdb::FloatGrid::Ptr> built(grids.size());
     std::vector<std::exception_ptr> errors(grids.size());
     std::atomic<size_t> next{0};

@@ -26,6 +26,15 @@
 
 namespace ep {
 
+// The three integer coordinates of a voxel (or of a block of voxels) mixed into
+// 64 bits by one odd multiplier each (golden-ratio and xxHash primes), so every
+// input bit reaches the high bits. VoxelAccumulator's table hash finalises it;
+// SharedGridSet takes its top bits to pick a shard.
+inline uint64_t mix_coord(int32_t x, int32_t y, int32_t z) {
+    return uint64_t(uint32_t(x)) * 0x9E3779B97F4A7C15ull ^ uint64_t(uint32_t(y)) * 0xC2B2AE3D27D4EB4Full ^
+           uint64_t(uint32_t(z)) * 0x165667B19E3779F9ull;
+}
+
 class VoxelAccumulator {
   public:
     using Coord = std::array<int32_t, 3>;
@@ -203,9 +212,7 @@ class VoxelAccumulator {
     // neighbouring voxels into runs under linear probing; the splitmix64 finalizer
     // spreads them over the whole table.
     static uint64_t hash_coord(const Coord& c) {
-        uint64_t h = uint64_t(uint32_t(c[0])) * 0x9E3779B97F4A7C15ull;
-        h ^= uint64_t(uint32_t(c[1])) * 0xC2B2AE3D27D4EB4Full;
-        h ^= uint64_t(uint32_t(c[2])) * 0x165667B19E3779F9ull;
+        uint64_t h = mix_coord(c[0], c[1], c[2]);
         h ^= h >> 30;
         h *= 0xBF58476D1CE4E5B9ull;
         h ^= h >> 27;

@@ -121,3 +121,20 @@ def test_dask_output_is_quoted_as_text_or_embedded_as_markdown(pd, stored):
     R["dask"].update(returncode=1, stderr_tail="Traceback: boom")
     text = "\n".join(pd.sec_dask(R, figs))
     assert "**it failed**, exit status 1" in text and "Traceback: boom\n```" in text
+
+
+def test_scaling_is_the_median_of_paired_ratios(pd, stored):
+    """With paired ratios the table and goal 3 use their median, not the ratio of the two best runs
+    (which may come from repeats far apart in time); without them, the best/best ratio."""
+    R, figs, B = copy.deepcopy(stored)
+    r1 = {"pps": 100.0}
+    assert pd.scaling_of(r1, {"pps": 190.0}) == pytest.approx(1.9)
+    assert pd.scaling_of(r1, {"pps": 500.0, "paired_scaling": [1.95, 1.80, 2.01]}) == 1.95
+    assert pd.scaling_of(r1, {"pps": 500.0, "paired_scaling": [1.9, 2.0]}) == pytest.approx(1.95)
+    for r in R["throughput"]:
+        if r["threads"] == 2:
+            r["paired_scaling"] = [1.5, 1.91, 1.97]
+    text = "\n".join(pd.sec_throughput(R, figs))
+    assert "1.91× (pairs 1.50, 1.91, 1.97; best/best" in text
+    goals = "\n".join(pd.sec_issue11(R, figs, B))
+    assert "lowest 1.91×" in goals and "≥ 1.9×: **reached**" in goals
