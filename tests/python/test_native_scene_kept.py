@@ -1,0 +1,91 @@
+"""Scene.to_native keeps the engine scene while the scene's content is unchanged (speed only).
+
+A sweep of runs over one scene then builds the meshes' checks, the BVH and the per-cube triangle
+caches once. The kept engine scene must give the same bits as a freshly built one -- its cube
+caches are warm from the earlier runs, which must not matter -- and any change of content, in
+place or by replacement, must build anew, giving what a scene built with that content gives.
+"""
+from __future__ import annotations
+
+import copy
+import os
+import pickle
+import sys
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+
+BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "bench")
+sys.path.insert(0, BENCH)
+import colon_scene as cs  # noqa: E402  (bench/ module, not a package)
+
+ENV_KEYS = {"seconds", "threads", "peak_record_bytes", "grid_path"}
+
+
+def physics(result):
+    """Every tally, standard error and record of a run, without its timing fields."""
+    d = {k: v for k, v in result.to_dict().items() if k not in ENV_KEYS and "time" not in k and "second" not in k}
+    esc = result.escapes or {}
+    d["escapes"] = {k: np.asarray(v).tobytes() for k, v in esc.items()}
+    return d
+
+
+def run(scene, rig, **kw):
+    return physics(ep.run(scene, rig, photons=2000, threads=2, seed=11, record_escapes=True, **kw))
+
+
+@pytest.fixture(scope="module")
+def colon():
+    return cs.colon_scene()
+
+
+def test_kept_scene_gives_the_bits_of_a_fresh_one(colon):
+    scene, rig = colon
+    first = run(scene, rig)
+    native = scene.to_native()
+    assert scene.to_native() is native  # kept
+    again = run(scene, rig)  # on the kept engine scene, its cube caches warm
+    assert scene.to_native() is native
+    fresh_scene, fresh_rig = cs.colon_scene()
+    fresh = run(fresh_scene, fresh_rig)
+    assert first == again == fresh
+    assert len(first["escapes"]["weight"]) > 100
+
+
+def test_any_change_of_content_builds_anew(colon):
+    scene, rig = copy.deepcopy(colon)
+    before = run(scene, rig)
+    native = scene.to_native()
+
+    # In place: the polyp's vertices moved by 1 % about their centre.
+    polyp = scene.region("polyp")
+    c = polyp.vertices.mean(axis=0)
+    polyp.vertices[:] = c + (polyp.vertices - c) * np.float32(1.01)
+    assert scene.to_native() is not native
+    moved = run(scene, rig)
+    other, other_rig = cs.colon_scene()
+    o = other.region("polyp")
+    o.vertices[:] = c + (o.vertices - c) * np.float32(1.01)
+    assert moved == run(other, other_rig) and moved != before
+
+    # By replacement: the tissue's medium, then the polyp's fluorophores.
+    native = scene.to_native()
+    tissue = scene.regions[0]
+    tissue.medium = ep.Medium(mua=tissue.medium.mua * 2, mus=tissue.medium.mus, g=tissue.medium.g, n=tissue.medium.n)
+    assert scene.to_native() is not native
+    native = scene.to_native()
+    polyp.fluorophores = polyp.fluorophores[:1]
+    assert scene.to_native() is not native
+    native = scene.to_native()
+    assert scene.to_native() is native
+
+
+def test_a_scene_with_a_kept_engine_scene_pickles_without_it(colon):
+    scene, _ = colon
+    native = scene.to_native()
+    back = pickle.loads(pickle.dumps(scene))
+    assert "_native" not in back.__dict__
+    assert back.native_key() == scene.native_key()
+    assert back.to_native() is not native
