@@ -134,6 +134,8 @@ class PacketWalk {
     }
     bool enter_zone(ClearSteps& zone, const TriangleCache& cache, const Vec3& p) const;
     bool hop_zone(ClearSteps& zone, const Vec3& p, const Vec3& ahead);
+    // hop_zone's first choice inside zone_steps' loop, where b's cube is built.
+    bool hop_built(ClearSteps& zone, const Vec3& p, const Vec3& b);
     void flush_absorbed();
     void launch(uint64_t index);
     bool locate_start();
@@ -332,6 +334,17 @@ bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearSteps& zone, const Vec3& p, co
     return true;
 }
 
+// hop_zone's first choice, the cube of the step's end b, when that cube's
+// cache is built: no build (and no allocation) inside zone_steps' loop.
+template <bool kSpectral, bool kGrids>
+__attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::hop_built(ClearSteps& zone, const Vec3& p,
+                                                                        const Vec3& b) {
+    const TriangleCache* next = scene_.built_cell_cache(b);
+    if (!next || next == local_.cell || !enter_zone(zone, *next, p)) return false;
+    local_.cell = next;
+    return true;
+}
+
 // The interior steps, zone after zone; false when the packet ended
 // (roulette, caps). A step that leaves the ball goes on in the cache of
 // another cube (hop_zone), as cached_crossings would answer it, at most once
@@ -414,8 +427,20 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         const Float s = tau / mut_cm;
         if (!(s < kInf)) break;
         const Vec3 b = p + d * s;
-        if (!zone.clear(b, s)) {
+        if (__builtin_expect(!zone.clear(b, s), 0)) {
             if (hopped || !zone.beyond_ball(b)) break;
+            // A step leaving the ball hops to the cache of b's cube when it
+            // is built (hop_built), without leaving the loop: no store and
+            // set-up of the loop's state per hop. The branch is marked
+            // unlikely, so that the call on it does not make the compiler
+            // keep the loop's state in memory (callgrind, colon_polyp at
+            // 30,000 packets: 54.2k -> 49.5k instructions a packet; seed
+            // tissue unchanged, 248 -> 247 a step). An unbuilt cube, or one
+            // whose zone does not start at p, is left to hop_zone.
+            if (hop_built(zone, p, b)) {
+                hopped = true;
+                continue;
+            }
             *ahead = b;
             store();
             return ZoneExit::kHop;
