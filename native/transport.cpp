@@ -327,8 +327,9 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearStep
                                                                        const Vec3& ahead) {
     const TriangleCache* own = &scene_.cell_cache(ahead);
     if (own == local_.cell || !enter_zone(zone, *own, p)) {
+        const TriangleCache* first = own;  // tried already (p's cube when `ahead` is in it)
         own = &scene_.cell_cache(p);
-        if (own == local_.cell || !enter_zone(zone, *own, p)) return false;
+        if (own == local_.cell || own == first || !enter_zone(zone, *own, p)) return false;
     }
     local_.cell = own;
     return true;
