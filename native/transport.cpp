@@ -325,10 +325,17 @@ inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::enter_
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearSteps& zone, const Vec3& p,
                                                                        const Vec3& ahead) {
-    const TriangleCache* own = &scene_.cell_cache(ahead);
+    // The lookups inline (built_cell_cache), cell_cache's call only to build
+    // (callgrind, colon_polyp at 30,000 packets: 48.6k -> 48.3k instructions
+    // a packet; cell_cache itself inline cost the other scenes ~1%).
+    auto cache_of = [&](const Vec3& x) {
+        const TriangleCache* c = scene_.built_cell_cache(x);
+        return c ? c : &scene_.cell_cache(x);
+    };
+    const TriangleCache* own = cache_of(ahead);
     if (own == local_.cell || !enter_zone(zone, *own, p)) {
         const TriangleCache* first = own;  // tried already (p's cube when `ahead` is in it)
-        own = &scene_.cell_cache(p);
+        own = cache_of(p);
         if (own == local_.cell || own == first || !enter_zone(zone, *own, p)) return false;
     }
     local_.cell = own;
