@@ -55,6 +55,25 @@ double radical_inverse(const uint16_t* p, uint64_t index) {
     return value;
 }
 
+// Base 2 in closed form, bit-identical to the digit loop above: its terms
+// p[bit] 2^-k (k = 1..52) are distinct powers of two inside one 52-bit
+// window, so every partial sum is exact and the loop's value is the integer
+// M 2^-52, M the index's low 52 bits reversed (bit j to bit 51 - j) and
+// flipped when the permutation swaps 0 and 1 (p[bit] = bit xor p[0]); the
+// leading zeros give the flipped bits beyond the index's highest one.
+// (callgrind, colon_polyp: ~350 of emit's ~1.7k instructions a packet.)
+template <>
+double radical_inverse<2>(const uint16_t* p, uint64_t index) {
+    uint64_t r = index;  // bit reversal of 64 bits by swapping halves, quarters, ...
+    r = ((r >> 1) & 0x5555555555555555ULL) | ((r & 0x5555555555555555ULL) << 1);
+    r = ((r >> 2) & 0x3333333333333333ULL) | ((r & 0x3333333333333333ULL) << 2);
+    r = ((r >> 4) & 0x0F0F0F0F0F0F0F0FULL) | ((r & 0x0F0F0F0F0F0F0F0FULL) << 4);
+    r = __builtin_bswap64(r);
+    const uint64_t mask = (uint64_t(1) << 52) - 1;
+    const uint64_t m = (r >> 12) ^ (p[0] ? mask : 0);
+    return double(m) * 0x1.0p-52;
+}
+
 }  // namespace
 
 double Halton::sample(uint64_t index, int dim) const {

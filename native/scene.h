@@ -138,6 +138,18 @@ class Scene {
     // outside the grid or more than kCellMaxTriangles meet the ball (the
     // caller then asks Embree).
     const TriangleCache& cell_cache(const Vec3& p) const;
+    // The cache of the cube around p if it is built, else null (also outside
+    // the grid): cell_cache's lookup alone, inline and without a call, for
+    // the interior steps' loop (transport.cpp), which hops to a built cube
+    // without leaving its registers.
+    const TriangleCache* built_cell_cache(const Vec3& p) const {
+        size_t cell;
+        int cube;
+        Vec3 centre;
+        if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &centre)) return nullptr;
+        const CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
+        return block ? block->cube[cube].load(std::memory_order_acquire) : nullptr;
+    }
     static constexpr int kCellSplit = 3;
     static constexpr size_t kCellMaxTriangles = 16;
 

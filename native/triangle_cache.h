@@ -195,19 +195,31 @@ class ClearSteps {
         inner_ = cache.radius() - max_back - 1e-14 * scale;
         inner_r2_ = inner_ > 0 ? inner_ * inner_ * (1 - 1e-12) : 0;
         if (planes.size() > kMaxPlanes) return false;
+        // renew(p) with the planes' orientation found in the same pass: the
+        // ball first, then each plane's margin as soon as it is oriented (a
+        // start that fails stops at the first plane too near p).
+        const Vec3 dp = p - c_;
+        const Float q2 = dot(dp, dp);
+        if (!(q2 < inner_r2_)) return false;
+        Float budget = inner_ - std::sqrt(q2);
         n_planes_ = planes.size();
         for (size_t k = 0; k < n_planes_; ++k) {
             const TriangleCache::Plane& q = planes[k];
             // Oriented so that p's side is positive (negation is exact, so
             // the distances are exactly +-intersect()'s).
-            const Float side = dot(q.n, p) - q.off > 0 ? 1 : -1;
+            const Float da = dot(q.n, p) - q.off;
+            const Float side = da > 0 ? 1 : -1;
             n_[k][0] = q.n.x * side;
             n_[k][1] = q.n.y * side;
             n_[k][2] = q.n.z * side;
             off_[k] = q.off * side;
             lo_[k] = q.reach + cache.rounding() + max_back;
+            const Float margin = da * side - lo_[k];  // renew()'s margin at p, bit for bit
+            if (!(margin > 0)) return false;
+            budget = std::min(budget, margin);
         }
-        return renew(p);
+        budget_ = budget - slack_;
+        return true;
     }
     // The step from the last clear point to b, s long: true only when b is
     // clear (the step is in the ball and crosses no cached plane).

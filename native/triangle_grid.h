@@ -63,6 +63,28 @@ class TriangleGrid {
         return true;
     }
 
+    // The cube holding p when every cell is split into kSplit^3 cubes: the
+    // cell's index, the cube's index in the cell ((z kSplit + y) kSplit + x)
+    // and the cube's centre; false outside the grid. One floor per axis on
+    // the grid of cubes, the cell and the cube in it by integer division.
+    template <int kSplit>
+    bool cube_of(const Vec3& p, size_t* cell, int* cube, Vec3* centre) const {
+        if (res_[0] == 0) return false;
+        const Float inv_side = inv_cell_ * kSplit;
+        int q[3], c[3], k[3];
+        for (int a = 0; a < 3; ++a) {
+            const Float f = std::floor((p[a] - origin_[a]) * inv_side);
+            if (!(f >= 0 && f < Float(res_[a] * kSplit))) return false;
+            q[a] = int(f);
+            c[a] = q[a] / kSplit;
+            k[a] = q[a] - c[a] * kSplit;
+        }
+        *cell = (size_t(c[2]) * size_t(res_[1]) + size_t(c[1])) * size_t(res_[0]) + size_t(c[0]);
+        *cube = (k[2] * kSplit + k[1]) * kSplit + k[0];
+        *centre = origin_ + Vec3(q[0] + Float(0.5), q[1] + Float(0.5), q[2] + Float(0.5)) * (cell_ / kSplit);
+        return true;
+    }
+
     size_t triangle_count() const { return triangle_count_; }
     size_t cell_count() const { return start_.empty() ? 0 : start_.size() - 1; }
     size_t ref_count() const { return refs_.size(); }

@@ -161,6 +161,38 @@ TEST(Halton, DeterministicUniformAndScrambled) {
     EXPECT_NE(h.sample(uint64_t(1) << 40, 0), h.sample(0, 0));
 }
 
+// Base 2 is computed in closed form (a bit reversal); it must equal the
+// permuted radical inverse's digit loop bit for bit, for both permutations of
+// {0, 1} (seeds whose tables differ in dimension 0) and for indices of every size.
+TEST(Halton, BaseTwoEqualsTheDigitLoop) {
+    auto digit_loop = [](const Halton& h, uint64_t index) {
+        const double p0 = h.sample(0, 0) > 0.5 ? 1.0 : 0.0;  // p[0]: index 0 is all leading zeros
+        double inv_bk = 0.5, value = 0.0;
+        while (index != 0 && inv_bk > 0x1.0p-53) {
+            value += double(index % 2 == 0 ? p0 : 1 - p0) * inv_bk;
+            index /= 2;
+            inv_bk *= 0.5;
+        }
+        while (inv_bk > 0x1.0p-53) {
+            value += p0 * inv_bk;
+            inv_bk *= 0.5;
+        }
+        return value;
+    };
+    int swapped = 0;
+    for (uint64_t seed = 1; seed <= 8; ++seed) {
+        const Halton h(seed);
+        swapped += h.sample(0, 0) > 0.5;
+        Rng rng(seed, 0);
+        for (uint64_t i = 0; i < 3000; ++i) {
+            const uint64_t index = i < 1000 ? i : rng.next_u64() >> (rng.next_u64() % 64);
+            ASSERT_EQ(h.sample(index, 0), digit_loop(h, index)) << "seed " << seed << " index " << index;
+        }
+    }
+    EXPECT_GT(swapped, 0);  // both permutations were checked
+    EXPECT_LT(swapped, 8);
+}
+
 TEST(MeshCheck, RejectsEveryClassOfBadMesh) {
     std::vector<float> v;
     std::vector<uint32_t> t;
