@@ -111,8 +111,7 @@ class HenyeyGreenstein {
             const Float s = one_minus_g2_ / (one_minus_g_ + two_g_ * u);
             const Float c = (one_plus_g2_ - s * s) / two_g_;
             // Clamped to [-1, 1] (rounding), as minsd/maxsd, not branches.
-            const Float below_one = c < 1 ? c : 1;
-            return below_one > -1 ? below_one : -1;
+            return max_select(min_select(c, 1), -1);
         }
         if (kind_ == Kind::kForward) return 1;
         if (kind_ == Kind::kBackward) return -1;
@@ -142,7 +141,7 @@ class HenyeyGreenstein {
         const Float cos_theta = sample_cos(Float(bits >> 32) * 0x1.0p-32);
         // (1 - c)(1 + c): no cancellation near c = 1 (1 - c is exact there).
         // Both factors are >= 0 for cos_theta in [-1, 1].
-        const Float sin_theta = std::sqrt((1 - cos_theta) * (1 + cos_theta));
+        const Float sin_theta = sqrt_nonneg((1 - cos_theta) * (1 + cos_theta));
         Float sin_phi, cos_phi;
         azimuth_from_bits(uint32_t(bits), &sin_phi, &cos_phi);
         frame->turn(cos_theta, sin_theta, cos_phi, sin_phi);
