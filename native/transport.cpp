@@ -221,7 +221,7 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
     while (true) {
         if (interior_ready() && !interior_steps()) return;
         if (st.need_tau) {
-            st.tau = -log_positive(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
+            st.tau = neg_log_lattice(rng_.lattice_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
             st.need_tau = false;
         }
         const Float s = st.med.mut > 0 ? st.tau / (st.med.mut * unit_cm_) : kInf;
@@ -412,7 +412,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     // the roulette of the last interaction -- but at the end of each
     // iteration, so that the loop has no branch on need_tau.
     auto draw_tau = [&] {
-        tau = -log_positive(rng.uniform_open_low());  // seed eq. (2), as in walk
+        tau = neg_log_lattice(rng.lattice_open_low());  // seed eq. (2), as in walk
         need_tau = false;
     };
     if (need_tau) draw_tau();

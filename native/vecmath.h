@@ -59,9 +59,9 @@ inline bool is_finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinit
 // vmovq xmm, xmm that valgrind 3.19 cannot decode.
 inline Float min_select(Float x, Float y) {
 #if defined(__AVX__)
-    asm("vminsd %2, %1, %0" : "=x"(x) : "x"(x), "x"(y));
+    asm("vminsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
 #elif defined(__SSE2__)
-    asm("minsd %1, %0" : "+x"(x) : "x"(y));
+    asm("minsd %1, %0" : "+x"(x) : "xm"(y));
 #else
     x = x < y ? x : y;
 #endif
@@ -69,9 +69,9 @@ inline Float min_select(Float x, Float y) {
 }
 inline Float max_select(Float x, Float y) {
 #if defined(__AVX__)
-    asm("vmaxsd %2, %1, %0" : "=x"(x) : "x"(x), "x"(y));
+    asm("vmaxsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
 #elif defined(__SSE2__)
-    asm("maxsd %1, %0" : "+x"(x) : "x"(y));
+    asm("maxsd %1, %0" : "+x"(x) : "xm"(y));
 #else
     x = x > y ? x : y;
 #endif
