@@ -426,7 +426,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     while (true) {
         const Float s = tau / mut_cm;
         const Lanes4 b = p + frame.n * s;
-        if (!zone.clear(to_vec3(b), s)) {
+        if (__builtin_expect(!zone.clear(to_vec3(b), s), 0)) {
             if (hopped || !zone.beyond_ball(to_vec3(b))) break;
             *ahead = to_vec3(b);
             store();
@@ -461,7 +461,8 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 return scatter_and_survive() ? ZoneExit::kGeneral : ZoneExit::kEnded;
             }
         }
-        if (W >= fast_min && steps < room) {
+        // The common case, laid out on the straight path to the next step.
+        if (__builtin_expect(W >= fast_min && steps < room, 1)) {
             hg.scatter(rng.next_u64(), ++scatterings, &frame);
         } else {
             if (W > 0) hg.scatter(rng.next_u64(), ++scatterings, &frame);
