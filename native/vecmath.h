@@ -57,26 +57,26 @@ inline bool is_finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinit
 // constants, and std::sqrt tests x < 0 for errno (the build keeps
 // math-errno). Inline assembly because the intrinsics' scalar wrappers emit a
 // vmovq xmm, xmm that valgrind 3.19 cannot decode.
-inline Float min_select(Float x, Float y) {
+// kMin: x < y ? x : y (minsd), else x > y ? x : y (maxsd).
+template <bool kMin>
+inline Float select_sd(Float x, Float y) {
 #if defined(__AVX__)
-    asm("vminsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
+    if constexpr (kMin)
+        asm("vminsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
+    else
+        asm("vmaxsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
 #elif defined(__SSE2__)
-    asm("minsd %1, %0" : "+x"(x) : "xm"(y));
+    if constexpr (kMin)
+        asm("minsd %1, %0" : "+x"(x) : "xm"(y));
+    else
+        asm("maxsd %1, %0" : "+x"(x) : "xm"(y));
 #else
-    x = x < y ? x : y;
+    x = kMin ? (x < y ? x : y) : (x > y ? x : y);
 #endif
     return x;
 }
-inline Float max_select(Float x, Float y) {
-#if defined(__AVX__)
-    asm("vmaxsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
-#elif defined(__SSE2__)
-    asm("maxsd %1, %0" : "+x"(x) : "xm"(y));
-#else
-    x = x > y ? x : y;
-#endif
-    return x;
-}
+inline Float min_select(Float x, Float y) { return select_sd<true>(x, y); }
+inline Float max_select(Float x, Float y) { return select_sd<false>(x, y); }
 inline Float sqrt_nonneg(Float x) {
 #if defined(__AVX__)
     asm("vsqrtsd %1, %1, %0" : "=x"(x) : "x"(x));
