@@ -20,7 +20,9 @@ namespace log_detail {
 constexpr uint64_t kOffBits = 0x3FF0000000000000ULL - 149 * (uint64_t(1) << 44);
 constexpr int kPieceShift = 45;
 
-struct Piece {
+// 32 bytes (a power of two): the entry's address is the piece's bits
+// shifted, with no multiplication by 3.
+struct alignas(32) Piece {
     double c = 0, inv_c = 0, ln_c = 0;
 };
 
@@ -63,34 +65,65 @@ struct PieceTable {
 // Internal linkage (no inline): addressed directly, not through the GOT.
 constexpr PieceTable kPieces{};
 
+// x = 2^e z split by its bits (see kOffBits): off = bits(x) - kOffBits, so
+// e = off >> 52 (arithmetic: it floors) and z's bits are off's low 52 bits
+// plus kOffBits; r = (z - c) / c for the piece's centre c, with z - c exact
+// (Sterbenz) and the division a product with the tabulated 1/c: r has two
+// roundings, |r| <= 2^-8.
+struct Reduced {
+    int64_t e;
+    const Piece* piece;
+    double r;
+};
+inline Reduced reduce_offset(uint64_t off) {
+    const Piece& piece = kPieces.at[(off >> kPieceShift) & 127];
+    const uint64_t z_bits = (off & ((uint64_t(1) << 52) - 1)) + kOffBits;
+    double z;
+    std::memcpy(&z, &z_bits, sizeof z);
+    return {int64_t(off) >> 52, &piece, (z - piece.c) * piece.inv_c};
+}
+
+// ln(1 + r) = r + r^2 q(r) on |r| <= 2^-8, q a Chebyshev fit of degree 4 of
+// (ln(1 + r) - r) / r^2 on [-2^-8, 2^-8] (scripts/fit_log1p.py), off by at
+// most 3.2e-17 relative to r; q by Estrin's scheme, a shorter dependency
+// chain than Horner's.
+inline double log1p_small(double r) {
+    const double r2 = r * r;
+    const double q = (-0.5 + 0.33333333332293896 * r) +
+                     r2 * ((-0.24999999999090491 + 0.20000272481609913 * r) + r2 * -0.16666905088156186);
+    return r + r2 * q;
+}
+
+constexpr double kLn2 = 0.693147180559945309417232121458176568;
+
 }  // namespace log_detail
 
 // ln x for a positive, finite, normal x (the engine's uniforms are >= 2^-53).
-// ln x = e ln 2 + ln c + ln(1 + r), r = (z - c) / c, with z - c exact
-// (Sterbenz) and the division a product with the tabulated 1/c: r has two
-// roundings. |r| <= 2^-8, where ln(1 + r) = r + r^2 q(r), q a Chebyshev fit of
-// degree 4 of (ln(1 + r) - r) / r^2 on [-2^-8, 2^-8] (scripts/fit_log1p.py), off by
-// at most 3.2e-17 relative to r. The sum then rounds a few times, relative to
-// |ln x|: near x = 1 (piece 74, c = 1, e = 0) it is r + r^2 q alone, so ln x
-// keeps its relative accuracy there; elsewhere |ln x| >= 2e-3 and is at least
-// about half of the largest term.
+// ln x = e ln 2 + ln c + ln(1 + r) (log_detail::reduce_offset, log1p_small).
+// The sum rounds a few times, relative to |ln x|: near x = 1 (piece 74, c = 1,
+// e = 0) it is r + r^2 q alone, so ln x keeps its relative accuracy there;
+// elsewhere |ln x| >= 2e-3 and is at least about half of the largest term.
 inline double log_positive(double x) {
     using namespace log_detail;
     uint64_t bits;
     std::memcpy(&bits, &x, sizeof bits);
-    const uint64_t off = bits - kOffBits;
-    // The arithmetic shift floors, so e = floor(log2(x / kOff)).
-    const int64_t e = int64_t(off) >> 52;
-    const Piece& piece = kPieces.at[(off >> kPieceShift) & 127];
-    const uint64_t z_bits = bits - (uint64_t(e) << 52);
-    double z;
-    std::memcpy(&z, &z_bits, sizeof z);
-    const double r = (z - piece.c) * piece.inv_c, r2 = r * r;
-    // q by Estrin's scheme: a shorter dependency chain than Horner's.
-    const double q = (-0.5 + 0.33333333332293896 * r) +
-                     r2 * ((-0.24999999999090491 + 0.20000272481609913 * r) + r2 * -0.16666905088156186);
-    constexpr double kLn2 = 0.693147180559945309417232121458176568;
-    return (double(e) * kLn2 + piece.ln_c) + (r + r2 * q);
+    const Reduced d = reduce_offset(bits - kOffBits);
+    return (double(d.e) * kLn2 + d.piece->ln_c) + log1p_small(d.r);
+}
+
+// -ln(m 2^-53) for an integer m in [1, 2^53] (the engine's (0, 1] uniforms,
+// Rng::lattice_open_low): bit for bit -log_positive(m * 0x1.0p-53), in fewer
+// instructions. m 2^-53 is normal, so its bits are those of double(m) (exact)
+// less 53 in the exponent: that subtraction joins kOffBits, in place of a
+// multiplication. And the negation is carried into the sum, -(a + b) =
+// (-a) - b in round-to-nearest, so no sign flip at the end.
+inline double neg_log_lattice(uint64_t m) {
+    using namespace log_detail;
+    const double dm = double(int64_t(m));
+    uint64_t bits;
+    std::memcpy(&bits, &dm, sizeof bits);
+    const Reduced d = reduce_offset(bits - (kOffBits + (uint64_t(53) << 52)));
+    return (double(d.e) * -kLn2 - d.piece->ln_c) - log1p_small(d.r);
 }
 
 }  // namespace ep

@@ -50,7 +50,10 @@ class Rng {
     // linear generator).
     double uniform() { return double(next_u64() >> 11) * 0x1.0p-53; }
     // Uniform in (0, 1]: safe for -log(u) (eq. 2 of the seed) without a branch.
-    double uniform_open_low() { return double((next_u64() >> 11) + 1) * 0x1.0p-53; }
+    double uniform_open_low() { return double(lattice_open_low()) * 0x1.0p-53; }
+    // The same draw as the integer m in [1, 2^53] of u = m 2^-53
+    // (neg_log_lattice takes it).
+    uint64_t lattice_open_low() { return (next_u64() >> 11) + 1; }
 
   private:
     static uint64_t rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }

@@ -221,7 +221,7 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
     while (true) {
         if (interior_ready() && !interior_steps()) return;
         if (st.need_tau) {
-            st.tau = -log_positive(rng_.uniform_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
+            st.tau = neg_log_lattice(rng_.lattice_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
             st.need_tau = false;
         }
         const Float s = st.med.mut > 0 ? st.tau / (st.med.mut * unit_cm_) : kInf;
@@ -373,10 +373,17 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     const bool depth = st.entered && cfg_.record_escapes;
     const Vec3 entry_p = st.entry_p, entry_in = st.entry_in;
     const Float unit_cm = unit_cm_, threshold = cfg_.roulette_threshold;
+    // W >= fast_min means W > 0 and W >= threshold: scatter, no roulette.
+    const Float fast_min = threshold > 0 ? threshold : std::numeric_limits<Float>::min();
     const bool path_cap = cfg_.max_path_cm > 0;
-    Vec3 p = st.p, d = st.d;
-    DirectionFrame frame = st.frame.about(d) ? st.frame : DirectionFrame(d);
-    Float W = st.W, tau = st.tau, path_cm = st.path_cm, absorbed = st.absorbed, max_depth = st.max_depth;
+    // The position in lanes, like the frame (p + n s is 3 vector operations);
+    // the direction is frame.n, bit for bit.
+    Lanes4 p = to_lanes(st.p);
+    DirectionFrame frame = st.frame.about(st.d) ? st.frame : DirectionFrame(st.d);
+    // path_cm is read by the path cap only (over_caps), and with a cap every
+    // step leaves the loop (room = 0), so the loop adds a step's length on its
+    // way out, and only then: the same sums as interact()'s where they are read.
+    Float W = st.W, tau = st.tau, path_cm = st.path_cm, absorbed = st.absorbed;
     uint32_t scatterings = st.scatterings;
     // Steps taken here (interactions, events and cached steps alike), and
     // how many the event cap leaves (none with a path cap: every step then
@@ -392,15 +399,14 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         // A sum of ones is exact, so adding the count at once is bit-identical.
         if constexpr (kSpectral) out_.tally.scalar[kFluorescenceTrials] += Float(n_trials);
         n_trials = 0;
-        st.p = p;
-        st.d = d;
+        st.p = to_vec3(p);
+        st.d = frame.dir();
         st.frame = frame;
         st.W = W;
         st.tau = tau;
         st.need_tau = need_tau;
         st.path_cm = path_cm;
         st.absorbed = absorbed;
-        st.max_depth = max_depth;
         st.events += steps;
         st.interactions += steps;
         room = path_cap ? 0 : max_events_ - st.events;
@@ -412,16 +418,22 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     // the roulette of the last interaction -- but at the end of each
     // iteration, so that the loop has no branch on need_tau.
     auto draw_tau = [&] {
-        tau = -log_positive(rng.uniform_open_low());  // seed eq. (2), as in walk
+        tau = neg_log_lattice(rng.lattice_open_low());  // seed eq. (2), as in walk
         need_tau = false;
     };
     if (need_tau) draw_tau();
+    // Every free path is at most -ln(2^-53) = 36.7 (the smallest uniform), so
+    // when this one and 64 give finite steps, every step in the loop is
+    // finite; else walk takes the infinite one.
+    if (!(std::max(tau, Float(64)) / mut_cm < kInf)) {
+        store();
+        return ZoneExit::kGeneral;
+    }
     while (true) {
         const Float s = tau / mut_cm;
-        if (!(s < kInf)) break;
-        const Vec3 b = p + d * s;
-        if (__builtin_expect(!zone.clear(b, s), 0)) {
-            if (hopped || !zone.beyond_ball(b) || !hop_zone(zone, p, b)) break;
+        const Lanes4 b = p + frame.n * s;
+        if (__builtin_expect(!zone.clear(to_vec3(b), s), 0)) {
+            if (hopped || !zone.beyond_ball(to_vec3(b)) || !hop_zone(zone, to_vec3(p), to_vec3(b))) break;
             hopped = true;
             continue;
         }
@@ -429,9 +441,10 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         // interact(s), its steps in the same order.
         ++steps;
         p = b;  // = p + d * s, bit for bit
-        path_cm += s * unit_cm;
         need_tau = true;
-        if (depth) max_depth = std::max(max_depth, dot(p - entry_p, entry_in) * unit_cm);
+        // The depth goes to st_ directly: a local would hold registers in
+        // every run, though only runs with exit records read it.
+        if (depth) st.max_depth = std::max(st.max_depth, dot(to_vec3(p) - entry_p, entry_in) * unit_cm);
         const Float dW = W * loss;
         W -= dW;
         absorbed += dW;
@@ -447,26 +460,30 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 ++k;
             }
             if (k < trials.n) {
+                if (path_cap) path_cm += s * unit_cm;
                 store();
                 fluoresce_with(scene_.region(size_t(st.med.region)).fluorophores[size_t(k)]);
                 return scatter_and_survive() ? ZoneExit::kGeneral : ZoneExit::kEnded;
             }
         }
-        if (W > 0) {
+        // The common case, laid out on the straight path to the next step.
+        if (__builtin_expect(W >= fast_min && steps < room, 1)) {
             hg.scatter(rng.next_u64(), ++scatterings, &frame);
-            d = frame.dir();
-        }
-        if (W < threshold || steps >= room) {
-            // Roulette and the caps as interact() ends with them (the caps
-            // can only hold here: see `room`).
-            store();
-            if (!survives_roulette()) return ZoneExit::kEnded;
-            if (over_caps()) {
-                add(kCut, st.W);
-                return ZoneExit::kEnded;
+        } else {
+            if (W > 0) hg.scatter(rng.next_u64(), ++scatterings, &frame);
+            if (W < threshold || steps >= room) {
+                // Roulette and the caps as interact() ends with them (the caps
+                // can only hold here: see `room`).
+                if (path_cap) path_cm += s * unit_cm;
+                store();
+                if (!survives_roulette()) return ZoneExit::kEnded;
+                if (over_caps()) {
+                    add(kCut, st.W);
+                    return ZoneExit::kEnded;
+                }
+                W = st.W;
+                rng = rng_;
             }
-            W = st.W;
-            rng = rng_;
         }
         draw_tau();
     }

@@ -49,6 +49,45 @@ inline Float max_abs_component(const Vec3& v) {
 }
 inline bool is_finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
+// x < y ? x : y, x > y ? x : y and the square root of an x >= 0, each as one
+// SSE2/AVX instruction (minsd and maxsd are defined as exactly these
+// selections, sqrtsd is IEEE's correctly rounded root), so the bits are those
+// of the plain expressions. Plain code costs more in the hot loop: GCC turns
+// a clamp into branches and duplicates the code after it for the clamped
+// constants, and std::sqrt tests x < 0 for errno (the build keeps
+// math-errno). Inline assembly because the intrinsics' scalar wrappers emit a
+// vmovq xmm, xmm that valgrind 3.19 cannot decode.
+// kMin: x < y ? x : y (minsd), else x > y ? x : y (maxsd).
+template <bool kMin>
+inline Float select_sd(Float x, Float y) {
+#if defined(__AVX__)
+    if constexpr (kMin)
+        asm("vminsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
+    else
+        asm("vmaxsd %2, %1, %0" : "=x"(x) : "x"(x), "xm"(y));
+#elif defined(__SSE2__)
+    if constexpr (kMin)
+        asm("minsd %1, %0" : "+x"(x) : "xm"(y));
+    else
+        asm("maxsd %1, %0" : "+x"(x) : "xm"(y));
+#else
+    x = kMin ? (x < y ? x : y) : (x > y ? x : y);
+#endif
+    return x;
+}
+inline Float min_select(Float x, Float y) { return select_sd<true>(x, y); }
+inline Float max_select(Float x, Float y) { return select_sd<false>(x, y); }
+inline Float sqrt_nonneg(Float x) {
+#if defined(__AVX__)
+    asm("vsqrtsd %1, %1, %0" : "=x"(x) : "x"(x));
+#elif defined(__SSE2__)
+    asm("sqrtsd %0, %0" : "+x"(x));
+#else
+    x = std::sqrt(x);
+#endif
+    return x;
+}
+
 // Orthonormal basis around a unit vector n (Duff et al. 2017, "Building an
 // orthonormal basis, revisited"): branch-free and stable for every n, including
 // n = (0,0,-1) where the classic Frisvad form divides by zero.

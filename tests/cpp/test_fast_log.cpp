@@ -73,3 +73,25 @@ TEST(FastLog, EngineUniformsAndEveryBinade) {
     EXPECT_LT(worst, 1e-15);
     std::printf("max relative error of log_positive: %.3g\n", worst);
 }
+
+// neg_log_lattice(m) is -log_positive(m 2^-53) bit for bit: the engine draws
+// its free paths with it, and the bits must not depend on which one a path
+// takes. Random m, every power of two and its neighbours, the smallest and
+// the largest m, and small m (the longest paths).
+TEST(FastLog, NegLogLatticeIsMinusLogPositiveBitForBit) {
+    auto same = [](uint64_t m) {
+        const double a = ep::neg_log_lattice(m), b = -log_positive(double(m) * 0x1.0p-53);
+        return std::memcmp(&a, &b, sizeof a) == 0;
+    };
+    std::mt19937_64 rng(7);
+    for (int i = 0; i < 2000000; ++i) ASSERT_TRUE(same((rng() >> 11) + 1)) << i;
+    for (int k = 0; k <= 53; ++k) {
+        const uint64_t p = uint64_t(1) << k;
+        for (const uint64_t m : {p - 1, p, p + 1})
+            if (m >= 1 && m <= (uint64_t(1) << 53)) ASSERT_TRUE(same(m)) << m;
+    }
+    for (uint64_t m = 1; m < (1u << 16); ++m) ASSERT_TRUE(same(m)) << m;
+    const double at_one = ep::neg_log_lattice(uint64_t(1) << 53);
+    EXPECT_EQ(at_one, 0.0);  // u = 1: a zero-length path
+    EXPECT_NEAR(ep::neg_log_lattice(1), 53 * std::log(2.0), 1e-14);
+}

@@ -11,6 +11,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+#include <limits>
 
 #include "phase.h"
 #include "rng.h"
@@ -185,5 +187,54 @@ TEST(DirectionFrame, DeltaPhaseFunctionsKeepOrReverseTheDirectionExactly) {
         HenyeyGreenstein(-1.0).scatter(rng.next_u64(), 1, &b);
         EXPECT_TRUE(f.about(d));
         EXPECT_TRUE(b.about(-d));
+    }
+}
+
+// scatter's arithmetic is the plain one, bit for bit: the cosine from the
+// lattice constant 2g 2^-32 is sample_cos(k 2^-32), sin(theta) is
+// std::sqrt((1 - c)(1 + c)), and the turn uses azimuth_from_bits' (cos, sin),
+// for every kind of phase function.
+TEST(HenyeyGreenstein, ScatterIsThePlainArithmeticBitForBit) {
+    Rng rng(5, 6);
+    const Vec3 axis = normalize(Vec3(0.48, -0.6, 0.64));
+    for (const double g : {0.9, -0.5, 0.3, 1e-3, 0.0, 1.0, -1.0}) {
+        const HenyeyGreenstein hg(g);
+        for (int i = 0; i < 100000; ++i) {
+            const uint64_t bits = rng.next_u64();
+            DirectionFrame got(axis), want(axis);
+            hg.scatter(bits, 1, &got);
+            const double c = hg.sample_cos(double(bits >> 32) * 0x1.0p-32);
+            double sin_phi, cos_phi;
+            azimuth_from_bits(uint32_t(bits), &sin_phi, &cos_phi);
+            want.turn(c, std::sqrt((1 - c) * (1 + c)), cos_phi, sin_phi);
+            for (int k = 0; k < 3; ++k) {
+                ASSERT_EQ(std::memcmp(&got.n[k], &want.n[k], sizeof(double)), 0) << g << " " << i;
+                ASSERT_EQ(std::memcmp(&got.t[k], &want.t[k], sizeof(double)), 0) << g << " " << i;
+                ASSERT_EQ(std::memcmp(&got.b[k], &want.b[k], sizeof(double)), 0) << g << " " << i;
+            }
+        }
+    }
+}
+
+// min_select, max_select and sqrt_nonneg (vecmath.h, one instruction each)
+// give the bits of x < y ? x : y, x > y ? x : y and std::sqrt, signed zeros,
+// infinities, NaN and subnormals included.
+TEST(Vecmath, SelectsAndSqrtAreThePlainExpressions) {
+    const double inf = std::numeric_limits<double>::infinity(), nan = std::numeric_limits<double>::quiet_NaN();
+    const double values[] = {0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 1e-310, -1e-310, 1e300, inf, -inf, nan, 1 + 0x1.0p-52};
+    auto same = [](double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; };
+    for (const double x : values) {
+        for (const double y : values) {
+            EXPECT_TRUE(same(min_select(x, y), x < y ? x : y)) << x << " " << y;
+            EXPECT_TRUE(same(max_select(x, y), x > y ? x : y)) << x << " " << y;
+        }
+        if (x >= 0) EXPECT_TRUE(same(sqrt_nonneg(x), std::sqrt(x))) << x;
+    }
+    Rng rng(3, 1);
+    for (int i = 0; i < 100000; ++i) {
+        const double x = rng.uniform() * 4 - 2, y = rng.uniform() * 4 - 2;
+        ASSERT_TRUE(same(min_select(x, y), x < y ? x : y));
+        ASSERT_TRUE(same(max_select(x, y), x > y ? x : y));
+        ASSERT_TRUE(same(sqrt_nonneg(x * x), std::sqrt(x * x)));
     }
 }
