@@ -32,7 +32,6 @@ import math
 import os
 import sys
 import uuid
-from collections import OrderedDict
 
 from . import _core
 
@@ -44,26 +43,12 @@ CHUNKS_PER_THREAD = 4
 #: Packets per chunk aimed at in store/target runs (whose length is unknown).
 OPEN_CHUNK_PACKETS = 16384
 
-# Per worker process: native scenes built for recent runs, by scatter key.
-_NATIVE_SCENES: "OrderedDict[str, object]" = OrderedDict()
-_NATIVE_SCENES_KEPT = 16  # a sweep over a scene builder keeps one per angle
 
-
-def _native_scene(scene, key: str):
-    native = _NATIVE_SCENES.get(key)
-    if native is None:
-        native = scene.to_native()
-        _NATIVE_SCENES[key] = native
-        while len(_NATIVE_SCENES) > _NATIVE_SCENES_KEPT:
-            _NATIVE_SCENES.popitem(last=False)
-    return native
-
-
-def trace_chunk(scene, scene_key: str, lights: list, body, options: dict, first_unit: int, count: int):
+def trace_chunk(scene, lights: list, body, options: dict, first_unit: int, count: int):
     """A Dask task: trace units first_unit .. first_unit+count-1 of a run.
 
     Returns (engine version, unit bytes); pure in (scene, options, unit range)."""
-    native = _native_scene(scene, scene_key)
+    native = scene.to_native()  # kept on the worker's copy of the scene (Scene.to_native)
     source = _core.Source(lights, body=body)
     return _core.__version__, _core.trace_units(native, source, _core.RunConfig(**options), first_unit, count)
 
@@ -169,7 +154,6 @@ class _ChunkedRun:
             future = self.client.submit(
                 trace_chunk,
                 self.scene_future,
-                self.scene_future.key,
                 self.lights,
                 self.body,
                 self.options,
