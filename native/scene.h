@@ -185,7 +185,7 @@ class Scene {
     mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
     void* store_allocate(size_t bytes) const;
     // gather_triangles with the deduplication of triangles met in several
-    // cells left to first_offer(id) (true the first time id is offered).
+    // cells left to first_offer(id) (true the first time id is offered), into a cache already reset().
     template <class FirstOffer>
     bool gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
                      FirstOffer&& first_offer) const;

@@ -76,6 +76,23 @@ class TriangleCache {
         return true;
     }
 
+    // first_offer's mailbox for ids below n_ids, for a gather's loop: the
+    // same answers without the per-offer checks (valid until the next reset()).
+    struct Mailbox {
+        uint32_t* seen;
+        uint32_t stamp;
+        bool first_offer(uint32_t id) {
+            if (seen[id] == stamp) return false;
+            seen[id] = stamp;
+            return true;
+        }
+    };
+    Mailbox mailbox(size_t n_ids) {
+        Store& s = own();
+        if (s.seen.size() < n_ids) s.seen.resize(n_ids, 0);
+        return Mailbox{s.seen.data(), s.stamp};
+    }
+
     // True when the segment from a to b lies inside the ball (a ball is convex:
     // both ends inside suffices).
     bool covers(const Vec3& a, const Vec3& b) const {

@@ -53,6 +53,22 @@ TEST(CellCache, HoldsItsCubeAndEveryTriangleMeetingItsBall) {
         const TriangleCache& c = sc.s.cell_cache(p);
         if (c.radius() == 0) continue;  // crowded: the caller asks Embree
         ++used;
+        // Exactly the grid gather's cache about its centre: the same
+        // triangles in the same order, hence the same planes (the cube's
+        // gather goes through its cell's candidates instead of the cells).
+        TriangleCache same;
+        ASSERT_TRUE(sc.s.gather_triangles(c.center(), c.radius(), Scene::kCellMaxTriangles, same));
+        ASSERT_EQ(c.size(), same.size());
+        for (size_t i = 0; i < c.size(); ++i) {
+            EXPECT_EQ(c.triangles()[i].region, same.triangles()[i].region);
+            EXPECT_EQ(c.triangles()[i].prim, same.triangles()[i].prim);
+            EXPECT_EQ(c.triangles()[i].plane, same.triangles()[i].plane);
+        }
+        ASSERT_EQ(c.plane_count(), same.plane_count());
+        for (size_t i = 0; i < c.plane_count(); ++i) {
+            EXPECT_EQ(c.planes()[i].off, same.planes()[i].off);
+            EXPECT_EQ(c.planes()[i].margin, same.planes()[i].margin);
+        }
         EXPECT_NEAR(c.radius(), side, 1e-12);
         // The ball holds the whole cube around p (half-diagonal 0.87 side).
         EXPECT_LT(length(p - c.center()), 0.8661 * side);
