@@ -178,7 +178,7 @@ def sec_throughput(R, figs):
         "One fresh process per configuration; a 2000-packet warm-up, then the timed run; packets/s = packets / "
         "engine seconds (wall clock); packets per CPU-second = packets / (user + system CPU time of the run), which "
         "shows the parallel efficiency even when the shared machine does not give the run two whole cores; best of "
-        "three repeats, interleaved over time. The scaling is the median over the three repeats of the ratio of a 2-thread run to the 1-thread run next to it in time (alternating which runs first), so the machine's drift in speed between repeats does not enter it; the paired ratios and the ratio of the two best runs are shown beside it. Memory is the process's peak resident set (VmHWM, Python + numpy + engine): `base` before the "
+        f"{len(_pairs_of(rows)) or 3} repeats, interleaved over time. The scaling is the median over the repeats of the ratio of a 2-thread run to the 1-thread run next to it in time (alternating which runs first), so the machine's drift in speed between repeats does not enter it; the paired ratios and the ratio of the two best runs are shown beside it. Memory is the process's peak resident set (VmHWM, Python + numpy + engine): `base` before the "
         "timed run (after imports, scene build and warm-up), `peak` after it. (`resource.getrusage().ru_maxrss` is "
         "not used: Linux carries the parent's peak over fork + execve into the child's ru_maxrss, so a child started "
         f"from this bench reported the bench's own peak — here up to {max(r['ru_maxrss_mb'] for r in rows):.0f} MB.)\n"
@@ -813,6 +813,11 @@ def sec_dask(R, figs):
     return L
 
 
+def _pairs_of(rows):
+    """The paired scaling ratios of the first 2-thread row that has them (none in older results)."""
+    return next((r["paired_scaling"] for r in rows if r.get("paired_scaling")), [])
+
+
 def scaling_of(r1, r2):
     """Scaling from 1 to 2 threads: the median of the ratios of adjacent 1- and 2-thread runs
     (bench_throughput's `paired_scaling`, measured at nearly the same machine speed); the ratio of the
@@ -853,7 +858,8 @@ def sec_issue11(R, figs, B):
         f"**Before** = commit {B['commit']} ({B['commit_subject']}): its figures are recorded in "
         f"`bench/baseline.json` ({pv['source']}; {pv['command']}, {pv['date']}, {pv['machine']}, load average "
         f"{pv['load_average_start_end'][0]:.1f} at the start), not measured by this run. Note: {pv['scenes']}. "
-        "**After** = this run (§1, same configurations and method: one process each, best of three). "
+        f"**After** = this run (§1, the same configurations and one process each; best of "
+        f"{len(_pairs_of(R['throughput'])) or 3} repeats, and the packet counts in §1's table). "
         "Speed-ups are after / before.\n"
     )
     after = {(r["key"], r["threads"]): r for r in R["throughput"]}
