@@ -116,6 +116,19 @@ def vm_hwm_kb():
     raise RuntimeError("no VmHWM in /proc/self/status")
 
 
+def steal_seconds():
+    """CPU seconds, summed over the vCPUs, that the hypervisor gave to other guests while a vCPU of
+    this machine wanted to run (/proc/stat "steal"). A run's wall clock includes them."""
+    with open("/proc/stat") as fh:
+        return int(fh.readline().split()[8]) / os.sysconf("SC_CLK_TCK")
+
+
+def steal_free_pps(r):
+    """Packets per engine second less the steal the run met. The units are shared out as threads
+    ask for them, so steal on one thread delays the end by about its share: steal / threads."""
+    return r["packets"] / max(r["seconds"] - r["steal_s"] / r["threads"], 1e-9)
+
+
 def child_main(cfg):
     """One measured run in a fresh process, so that ru_maxrss is its own."""
     import resource
@@ -138,9 +151,11 @@ def child_main(cfg):
         ep.run(scene, src, photons=cfg["warmup"], threads=cfg["threads"], record_escapes=False)
     base = vm_hwm_kb()
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    steal0 = steal_seconds()
     t = time.perf_counter()
     r = ep.run(scene, src, photons=cfg["photons"], grids=grids, **kw)
     wall = time.perf_counter() - t
+    steal = steal_seconds() - steal0
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
     peak = vm_hwm_kb()
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
@@ -148,6 +163,7 @@ def child_main(cfg):
         cfg,
         seconds=r.seconds,
         wall=wall,
+        steal_s=steal,
         cpu=cpu,
         packets=r.photons,
         pps=r.photons / r.seconds,
@@ -271,6 +287,7 @@ def bench_throughput(q):
     keys = list(dict.fromkeys(c["key"] for c in configs))
     best = {}
     pairs = {k: [] for k in keys}
+    steal_free = {k: [] for k in keys}
     for rep in range(THROUGHPUT_REPEATS):
         for key in keys:
             order = (1, 2) if rep % 2 == 0 else (2, 1)
@@ -282,11 +299,13 @@ def bench_throughput(q):
                 if (key, threads) not in best or r["pps"] > best[(key, threads)]["pps"]:
                     best[(key, threads)] = r
             pairs[key].append(got[2]["pps"] / got[1]["pps"])
+            steal_free[key].append(steal_free_pps(got[2]) / steal_free_pps(got[1]))
         log(f"throughput: repeat {rep + 1} of {THROUGHPUT_REPEATS} done")
     rows = [best[(c["key"], c["threads"])] for c in configs]
     for r in rows:
         if r["threads"] == 2:
             r["paired_scaling"] = pairs[r["key"]]
+            r["paired_scaling_steal_free"] = steal_free[r["key"]]
     for r in rows:
         log(
             f"throughput {r['key']:>14} threads={r['threads']}: {r['pps']:.0f} packets/s, peak {r['peak_rss_mb']:.0f} MB"
