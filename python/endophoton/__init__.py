@@ -6,7 +6,7 @@ wavelengths in nm; depths reported in cm.
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
 from .run import CancelToken, GridRequest, Result, Target, run, FRACTIONS, TARGET_TALLIES
-from .scene import Region, Scene, layered_slab
+from .scene import Region, Scene, forget_native_scenes, layered_slab
 from .sources import ConeSource, DiskSource, EndoscopeRig, PencilSource, source_from_dict
 from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
 from .units import UNIT_CM, unit_cm
@@ -25,6 +25,7 @@ __all__ = [
     "Scene",
     "Region",
     "layered_slab",
+    "forget_native_scenes",
     "box_mesh",
     "load_mesh",
     "PencilSource",

@@ -65,6 +65,21 @@ def _as_mesh_arrays(owner, vertices, triangles):
     return np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(t, dtype=np.uint32)
 
 
+# The engine scene built last, by content (Scene.native_key): a new Scene with the same content --
+# the add-on exports one per run -- takes it instead of building it again. One is kept, and the
+# next build replaces it; forget_native_scenes() frees it.
+_last_built: tuple | None = None
+
+
+def forget_native_scenes(*scenes: "Scene") -> None:
+    """Free the engine scene kept for the next Scene with the same content, and those kept on
+    ``scenes`` (see Scene.to_native); the next run builds its engine scene anew."""
+    global _last_built
+    _last_built = None
+    for sc in scenes:
+        sc.__dict__.pop("_native", None)
+
+
 class Scene:
     """A set of regions in an ambient medium.
 
@@ -175,8 +190,11 @@ class Scene:
 
         Built once and kept while the scene's content (:meth:`native_key`) stays the same, so a
         sweep of runs over one scene pays the mesh checks, the BVH build and the lazily built
-        per-cube triangle caches once, not per run. Results do not depend on it: a run gives
-        the same bits on a fresh engine scene and on a kept one (the caches are exact)."""
+        per-cube triangle caches once, not per run. The last one built is also kept for the next
+        Scene with the same content (:func:`forget_native_scenes` frees it). Results do not
+        depend on it: a run gives the same bits on a fresh engine scene and on a kept one (the
+        caches are exact)."""
+        global _last_built
         try:
             key = self.native_key()
         except (TypeError, ValueError):  # content the build rejects by name (e.g. an object array)
@@ -185,9 +203,14 @@ class Scene:
         if kept is not None and kept[0] == key:
             return kept[1]
         self._native = None  # release the old engine scene before building its successor
-        native = self._build_native()
+        last = _last_built
+        if key is not None and last is not None and last[0] == key:
+            native = last[1]
+        else:
+            _last_built = None
+            native = self._build_native()
         if key is not None:
-            self._native = (key, native)
+            self._native = _last_built = (key, native)
         return native
 
     def __getstate__(self):

@@ -1,7 +1,7 @@
 """Scene.to_native keeps the engine scene while the scene's content is unchanged (speed only).
 
 A sweep of runs over one scene then builds the meshes' checks, the BVH and the per-cube triangle
-caches once. The kept engine scene must give the same bits as a freshly built one -- its cube
+caches once, and so does a new Scene of the same content (the add-on exports one per run). The kept engine scene must give the same bits as a freshly built one -- its cube
 caches are warm from the earlier runs, which must not matter -- and any change of content, in
 place or by replacement, must build anew, giving what a scene built with that content gives.
 """
@@ -48,10 +48,17 @@ def test_kept_scene_gives_the_bits_of_a_fresh_one(colon):
     assert scene.to_native() is native  # kept
     again = run(scene, rig)  # on the kept engine scene, its cube caches warm
     assert scene.to_native() is native
+    same_scene, same_rig = cs.colon_scene()  # another Scene, the same content: takes the kept one
+    assert same_scene.to_native() is native
+    ep.forget_native_scenes(same_scene)
     fresh_scene, fresh_rig = cs.colon_scene()
+    assert fresh_scene.to_native() is not native  # built anew
     fresh = run(fresh_scene, fresh_rig)
     assert first == again == fresh
     assert len(first["escapes"]["weight"]) > 100
+    assert scene.to_native() is native  # its own kept one stays until dropped or forgotten
+    ep.forget_native_scenes(scene)
+    assert scene.to_native() is not native
 
 
 def test_any_change_of_content_builds_anew(colon):
@@ -68,6 +75,7 @@ def test_any_change_of_content_builds_anew(colon):
     other, other_rig = cs.colon_scene()
     o = other.region("polyp")
     o.vertices[:] = c + (o.vertices - c) * np.float32(1.01)
+    ep.forget_native_scenes()  # `other` must build its own engine scene
     assert moved == run(other, other_rig) and moved != before
 
     # By replacement: the tissue's medium, then the polyp's fluorophores.
@@ -88,4 +96,5 @@ def test_a_scene_with_a_kept_engine_scene_pickles_without_it(colon):
     back = pickle.loads(pickle.dumps(scene))
     assert "_native" not in back.__dict__
     assert back.native_key() == scene.native_key()
+    ep.forget_native_scenes()  # else `back` may take the engine scene kept for its content
     assert back.to_native() is not native
