@@ -54,10 +54,4 @@ size_t SharedGridSet::voxel_count(size_t k) const {
     return n;
 }
 
-size_t SharedGridSet::memory_bytes() const {
-    size_t n = sizeof(*this);
-    for (const auto& s : shards_) n += sizeof(Shard) + s->grids.memory_bytes();
-    return n;
-}
-
 }  // namespace ep

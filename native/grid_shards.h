@@ -47,7 +47,6 @@ class SharedGridSet {
     std::vector<const VoxelAccumulator*> parts(size_t k) const;
     uint64_t packets() const { return shards_.front()->grids.packets; }
     size_t voxel_count(size_t k) const;
-    size_t memory_bytes() const;
 
   private:
     struct Shard {

@@ -468,13 +468,9 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
 
 bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
     cache.reset(c, radius);
+    // A triangle spanning several cells is listed in each: the mailbox passes
+    // its first listing only.
     TriangleCache::Mailbox box = cache.mailbox(grid_.triangle_count());
-    return gather_with(c, radius, max_count, cache, [&](uint32_t id) { return box.first_offer(id); });
-}
-
-template <class FirstOffer>
-bool Scene::gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
-                        FirstOffer&& first_offer) const {
     const Float r = padded_radius(c, radius, 1e-9);
     GatherData data{&regions_, corners_.data(), region_base_.data(), c, r * r, &cache, max_count, false};
     grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
@@ -483,7 +479,7 @@ bool Scene::gather_with(const Vec3& c, Float radius, size_t max_count, TriangleC
         // triangles), and the sphere test is the same for every listing, so
         // only its first needs it. The bounding sphere then rejects most
         // candidates before the exact test.
-        if (!first_offer(t.id)) return true;
+        if (!box.first_offer(t.id)) return true;
         const Vec3 e = t.centre - c;
         const Float reach = r + t.reach;
         if (dot(e, e) > reach * reach) return true;

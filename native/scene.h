@@ -184,11 +184,6 @@ class Scene {
     mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
     mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
     void* store_allocate(size_t bytes) const;
-    // gather_triangles with the deduplication of triangles met in several
-    // cells left to first_offer(id) (true the first time id is offered), into a cache already reset().
-    template <class FirstOffer>
-    bool gather_with(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache,
-                     FirstOffer&& first_offer) const;
     std::vector<Vec3> corners_;     // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
     std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions
     void compute_isolation();

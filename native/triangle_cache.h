@@ -66,18 +66,9 @@ class TriangleCache {
     void reset(const Vec3& center, Float radius);
     void add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim);
     // Mailbox of a gather through the triangle grid, where a triangle spanning
-    // several cells is offered once per cell: true the first time the
-    // scene-wide triangle `id` is offered since reset().
-    bool first_offer(uint32_t id) {
-        Store& s = own();
-        if (id >= s.seen.size()) s.seen.resize(size_t(id) + 1, 0);
-        if (s.seen[id] == s.stamp) return false;
-        s.seen[id] = s.stamp;
-        return true;
-    }
-
-    // first_offer's mailbox for ids below n_ids, for a gather's loop: the
-    // same answers without the per-offer checks (valid until the next reset()).
+    // several cells is offered once per cell, for scene-wide triangle ids below
+    // n_ids: first_offer(id) is true the first time `id` is offered since
+    // reset() (valid until the next reset()).
     struct Mailbox {
         uint32_t* seen;
         uint32_t stamp;
@@ -165,12 +156,12 @@ class TriangleCache {
     const Triangle* tris_view_ = nullptr;
     const Plane* planes_view_ = nullptr;
     uint32_t n_tris_ = 0, n_planes_ = 0;
-    // A builder's content and first_offer's mailbox, made on first use; none
+    // A builder's content and its gathers' mailbox, made on first use; none
     // in a frozen copy, which then holds only the views' header (72 bytes).
     struct Store {
         std::vector<Triangle> tris;
         std::vector<Plane> planes;
-        std::vector<uint32_t> seen;  // first_offer's stamps, one per scene triangle
+        std::vector<uint32_t> seen;  // the mailbox's stamps, one per scene triangle
         uint32_t stamp = 0;
     };
     Store& own() {

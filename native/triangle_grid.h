@@ -49,20 +49,6 @@ class TriangleGrid {
             }
     }
 
-    // The cell holding p (its index and centre); false outside the grid.
-    bool cell_of(const Vec3& p, size_t* index, Vec3* centre) const {
-        if (res_[0] == 0) return false;
-        int c[3];
-        for (int k = 0; k < 3; ++k) {
-            const Float f = std::floor((p[k] - origin_[k]) * inv_cell_);
-            if (!(f >= 0 && f < Float(res_[k]))) return false;
-            c[k] = int(f);
-        }
-        *index = (size_t(c[2]) * size_t(res_[1]) + size_t(c[1])) * size_t(res_[0]) + size_t(c[0]);
-        *centre = origin_ + Vec3(c[0] + Float(0.5), c[1] + Float(0.5), c[2] + Float(0.5)) * cell_;
-        return true;
-    }
-
     // The cube holding p when every cell is split into kSplit^3 cubes: the
     // cell's index, the cube's index in the cell ((z kSplit + y) kSplit + x)
     // and the cube's centre; false outside the grid. One floor per axis on
