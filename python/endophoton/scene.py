@@ -75,6 +75,9 @@ def forget_native_scenes(*scenes: "Scene") -> None:
     """Free the engine scene kept for the next Scene with the same content, and those kept on
     ``scenes`` (see Scene.to_native); the next run builds its engine scene anew."""
     global _last_built
+    for i, sc in enumerate(scenes):
+        if not isinstance(sc, Scene):
+            raise TypeError(f"forget_native_scenes: scenes[{i}] = {sc!r} must be an endophoton.Scene")
     _last_built = None
     for sc in scenes:
         sc.__dict__.pop("_native", None)

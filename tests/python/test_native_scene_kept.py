@@ -98,3 +98,11 @@ def test_a_scene_with_a_kept_engine_scene_pickles_without_it(colon):
     assert back.native_key() == scene.native_key()
     ep.forget_native_scenes()  # else `back` may take the engine scene kept for its content
     assert back.to_native() is not native
+
+
+def test_forget_native_scenes_names_a_bad_argument(colon):
+    scene, _ = colon
+    native = scene.to_native()
+    with pytest.raises(TypeError, match=r"scenes\[1\] = 'colon' must be an endophoton.Scene"):
+        ep.forget_native_scenes(scene, "colon")
+    assert scene.to_native() is native  # nothing forgotten before the error
