@@ -10,6 +10,13 @@ loop: the operator is invoked with INVOKE_DEFAULT in the 3D viewport, its
 progress is sampled from the status bar text, a real ESC key event is
 injected with Window.event_simulate, and the tick times measure whether the
 UI kept running.  The findings go to OUT.json; the test asserts on them.
+
+No verdict may depend on how fast the engine or the machine is: a run or a β can
+end between two ticks (a 20,000-packet β takes ~40 ms).  So the job's worker
+thread is held, at the points the test looks at, until the UI has ticked a few
+times (``hold_for_ticks``): after a Run's body, and before each β is counted as
+finished.  The UI must tick while the worker waits, which is itself the check
+that the job does not freeze it; a hold that times out is reported.
 """
 
 import json
@@ -27,7 +34,40 @@ SWEEP_DIR = os.path.join(os.path.dirname(os.path.abspath(GRID_DIR)), "sweep")
 TICK = 0.1
 DEADLINE = 300.0  # seconds; the driver quits Blender whatever happens
 START = time.monotonic()
-state = {"phase": "warmup", "t": time.monotonic(), "ticks": [], "report": {}, "texts": []}
+HOLD_TIMEOUT = 120.0  # seconds a held worker waits for the UI's ticks
+state = {"phase": "warmup", "t": time.monotonic(), "ticks": [], "report": {}, "texts": [], "n_ticks": 0}
+held = {"timeouts": 0, "holds": 0}
+
+
+def hold_for_ticks(count):
+    """Worker thread: wait until the UI's timer has ticked ``count`` more times."""
+    target = state["n_ticks"] + count
+    deadline = time.monotonic() + HOLD_TIMEOUT
+    held["holds"] += 1
+    while state["n_ticks"] < target:
+        if time.monotonic() > deadline:
+            held["timeouts"] += 1
+            return
+        time.sleep(0.01)
+
+
+def hold_jobs():
+    """Wrap the jobs' worker-side steps so each waits for the UI (see the docstring)."""
+    from endophoton_addon import simulation, sweep_job
+
+    run_body = simulation.SimulationJob._body
+    on_beta = sweep_job.SweepJob._on_beta
+
+    def held_body(self):
+        run_body(self)
+        hold_for_ticks(5)  # the status text is sampled while the job still runs
+
+    def held_on_beta(self, index, n, row):
+        hold_for_ticks(2)  # the status still names this β, at fraction index / n
+        on_beta(self, index, n, row)
+
+    simulation.SimulationJob._body = held_body
+    sweep_job.SweepJob._on_beta = held_on_beta
 
 
 def finish(extra=None):
@@ -83,6 +123,7 @@ def _tick():
     from endophoton_addon import operators
 
     now = time.monotonic()
+    state["n_ticks"] += 1
     if now - START > DEADLINE:
         finish({"error": f"driver deadline ({DEADLINE:.0f} s) passed in phase {state['phase']}"})
         return None
@@ -188,6 +229,8 @@ def _tick():
                     objects_after_sweep2=sorted(o.name for o in bpy.data.objects),
                     sweep2_files=sorted(os.listdir(SWEEP_DIR)) if os.path.isdir(SWEEP_DIR) else [],
                     sweep_status_cleared=status_text() is None,
+                    holds=held["holds"],
+                    hold_timeouts=held["timeouts"],
                 )
             )
             return None
@@ -201,4 +244,5 @@ import addon_utils  # noqa: E402
 
 addon_utils.enable("endophoton_addon", default_set=True)
 bpy.context.preferences.addons["endophoton_addon"].preferences.package_path = ENGINE_FOLDER
+hold_jobs()
 bpy.app.timers.register(tick, first_interval=1.0)

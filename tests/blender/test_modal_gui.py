@@ -61,3 +61,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["objects_after_sweep2"] == report["objects_after_sweep1"]
     assert report["sweep2_files"] == report["sweep1_files"]
     assert report["sweep_status_cleared"]
+
+    # The driver held each job's worker until the UI had ticked (run 1, run 2, and
+    # each β of sweep 1): the UI ticked every time, none timed out.
+    assert report["holds"] >= 4 and report["hold_timeouts"] == 0
