@@ -27,7 +27,8 @@ import importlib
 # Registration order matters: preferences and properties first (operators and
 # panels refer to them), panels last.  Each module lists its classes in
 # CLASSES; properties.py also lists the PointerProperties it attaches to
-# Blender's types in POINTERS.  This file holds the only registration loop.
+# Blender's types in POINTERS, operators.py its app handlers in HANDLERS.
+# This file holds the only registration loop.
 _MODULE_NAMES = ("preferences", "properties", "operators", "panels")
 
 
@@ -36,7 +37,7 @@ def _modules():
 
 
 def _steps():
-    """(do, undo) pairs in registration order: every class, then every pointer."""
+    """(do, undo) pairs in registration order: every class, every pointer, every handler."""
     import bpy
 
     steps = []
@@ -50,6 +51,15 @@ def _steps():
                 (
                     lambda o=owner, n=name, g=group: setattr(o, n, bpy.props.PointerProperty(type=g)),
                     lambda o=owner, n=name: delattr(o, n),
+                )
+            )
+    for module in modules:
+        for list_name, function in getattr(module, "HANDLERS", ()):
+            handlers = getattr(bpy.app.handlers, list_name)
+            steps.append(
+                (
+                    lambda h=handlers, f=function: h.append(f) if f not in h else None,
+                    lambda h=handlers, f=function: h.remove(f) if f in h else None,
                 )
             )
     return steps
@@ -72,5 +82,6 @@ def unregister():
     from . import simulation
 
     simulation.cancel_all_jobs()
+    simulation.forget_engine_scenes()
     for _do, undo in reversed(_steps()):
         undo()

@@ -503,6 +503,15 @@ class ENDOPHOTON_OT_sweep(_JobOperator, bpy.types.Operator):
     job_module = sweep_job
 
 
+@bpy.app.handlers.persistent
+def _forget_engine_scenes(_file_path=None):
+    """load_post: the new file's scenes must not keep the old file's engine scene alive."""
+    simulation.forget_engine_scenes()
+
+
+# (bpy.app.handlers list name, function): added and removed by the registration loop.
+HANDLERS = (("load_post", _forget_engine_scenes),)
+
 CLASSES = (
     ENDOPHOTON_OT_add_endoscope,
     ENDOPHOTON_OT_fluorophore_add,

@@ -121,6 +121,11 @@ def get():
     return status()[0]
 
 
+def loaded():
+    """The engine module if an earlier lookup imported it, else None (never imports)."""
+    return _state["module"]
+
+
 def forget():
     """Drop the cached lookup so the next :func:`status` tries again."""
     _state.update(key=None, module=None, message=None)

@@ -517,6 +517,16 @@ def untrack_job(job):
         _ACTIVE_JOBS.discard(job)
 
 
+def forget_engine_scenes():
+    """Free the engine scene the package keeps for the next run of the same scene
+    (endophoton.forget_native_scenes; ~100 MB with warm caches on colon_polyp).
+    Called when another file is loaded and on unregister; a no-op while the
+    engine was never imported."""
+    ep = package_finder.loaded()
+    if ep is not None:
+        ep.forget_native_scenes()
+
+
 def cancel_all_jobs(timeout=10.0):
     """Cancel running jobs and wait for their threads (add-on unregister)."""
     with _ACTIVE_LOCK:

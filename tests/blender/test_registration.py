@@ -313,3 +313,27 @@ def test_fluorophore_rows_fit_the_default_sidebar():
     labels = [text for kind, text in log if kind == "label"]
     assert labels == ["Collagen  d 0.20  c 0.40", "Photofrin  d 0.10  c 0.33"]
     assert max(len(t) for t in labels) <= 26  # the default sidebar shows ~30 characters
+
+
+def test_loading_a_file_frees_the_kept_engine_scene(ep, tmp_path):
+    """The package keeps the last engine scene built for the next run of the same content
+    (~100 MB on colon_polyp); loading another file must not keep it alive, and neither must
+    unregistering the add-on.  Checked by behaviour: the same file's scene, exported again
+    after a load, gets a newly built engine scene."""
+    import endophoton_addon
+    from conftest import open_blend
+    from endophoton_addon import operators, simulation
+
+    assert operators._forget_engine_scenes in bpy.app.handlers.load_post
+    open_blend("flat_tissue.blend", tmp_path)
+    native = simulation.prepare_job(bpy.context).engine_scene.to_native()
+    assert simulation.prepare_job(bpy.context).engine_scene.to_native() is native  # kept across exports
+    open_blend("flat_tissue.blend", tmp_path)  # load_post
+    reloaded = simulation.prepare_job(bpy.context).engine_scene.to_native()
+    assert reloaded is not native
+    endophoton_addon.unregister()
+    try:
+        assert operators._forget_engine_scenes not in bpy.app.handlers.load_post
+    finally:
+        endophoton_addon.register()
+    assert simulation.prepare_job(bpy.context).engine_scene.to_native() is not reloaded
