@@ -24,6 +24,7 @@ sys.path.insert(0, HERE)
 GROUPS = {
     "ray query (Embree all-hits)": "ep::Scene::intersect_all",
     "closest-hit query": "ep::Scene::intersect_first",
+    "any-hit query (mirror ray)": "ep::Scene::intersect_any",
     "point query": "ep::Scene::distance_to_surface",
     "triangle cache gather": "ep::Scene::gather_triangles",
     "per-cube cache (lookup, build)": "ep::Scene::cell_cache",

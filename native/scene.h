@@ -114,6 +114,13 @@ class Scene {
     };
     FirstHit intersect_first(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, uint64_t set,
                              Hit& hit) const;
+    // Whether [tnear, tfar] holds a crossing that changes `set`, by Embree's
+    // any-hit (occlusion) query: it ends at the first such crossing its
+    // traversal meets, which need not be the nearest, and is cheaper than the
+    // closest-hit query for a question of yes or no. found = false: there is
+    // none (intersect_first finds none either). Else `hit` and `clearance`
+    // are intersect_first's for that crossing.
+    FirstHit intersect_any(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, uint64_t set, Hit& hit) const;
 
     // Distance from p to the nearest triangle of any region (scene units),
     // searched within `radius`; returns `radius` if nothing is closer.
@@ -187,6 +194,12 @@ class Scene {
     std::vector<Vec3> corners_;     // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
     std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions
     void compute_isolation();
+    // A lower bound of the distance from q (on a triangle of `region`) to
+    // every other region's triangle, at least iso (a bound known already).
+    Float near_clearance(const Vec3& q, uint32_t region, Float iso) const;
+    // intersect_first (any = false) and intersect_any (any = true).
+    FirstHit first_crossing(const Vec3& origin, const Vec3& dir, Float tnear, Float tfar, uint64_t set, bool any,
+                            Hit& hit) const;
 };
 
 }  // namespace ep

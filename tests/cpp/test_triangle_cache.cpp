@@ -416,6 +416,30 @@ std::pair<size_t, size_t> first_interface(const Scene& s, const std::vector<Hit>
     return {hits.size(), hits.size()};
 }
 
+// A segment aimed at a face, an edge or a vertex (`kind`), missing it by
+// 1e-7 to 0.1, from a packet in the true region set at its start; a ray to
+// infinity one time in `inf_one_in`, as the look-ahead across the lumen.
+struct Segment {
+    Vec3 o, d;
+    double tfar, back, miss;
+    uint64_t set;
+    int kind;
+};
+
+Segment random_segment(const Scene& s, const std::vector<Mesh>& meshes, std::mt19937_64& rng, int inf_one_in) {
+    std::uniform_real_distribution<double> U(0, 1);
+    Segment g;
+    const Vec3 q = near_feature(meshes, rng, &g.kind);
+    g.d = random_unit(rng);
+    const double L = 0.05 + 0.2 * U(rng);
+    g.miss = std::pow(10.0, -7 + 6 * U(rng));
+    g.o = q - g.d * (L * U(rng)) + random_unit(rng) * g.miss;
+    g.tfar = rng() % uint64_t(inf_one_in) == 0 ? kInf : L;
+    g.back = 4e-7 * (max_abs_component(g.o) + 1e-3 * s.extent());
+    g.set = regions_at(s, g.o, random_unit(rng));
+    return g;
+}
+
 // Single-hit against all-hits on n segments aimed at faces, edges and vertices
 // (a quarter of them rays to infinity, as the look-ahead across the lumen),
 // for a packet in the true region set at the segment's start. Where the
@@ -425,18 +449,14 @@ std::pair<size_t, size_t> first_interface(const Scene& s, const std::vector<Hit>
 // interface. Returns how many segments the single hit answered alone.
 int compare_single(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t seed, int* shared_fallbacks) {
     std::mt19937_64 rng(seed);
-    std::uniform_real_distribution<double> U(0, 1);
     std::vector<Hit> all;
     int alone = 0, empty = 0;
     for (int k = 0; k < n; ++k) {
-        int kind;
-        const Vec3 q = near_feature(meshes, rng, &kind);
-        const Vec3 d = random_unit(rng);
-        const double L = 0.05 + 0.2 * U(rng), miss = std::pow(10.0, -7 + 6 * U(rng));
-        const Vec3 o = q - d * (L * U(rng)) + random_unit(rng) * miss;
-        const double tfar = rng() % 4 == 0 ? kInf : L;
-        const double back = 4e-7 * (max_abs_component(o) + 1e-3 * s.extent());
-        const uint64_t set = regions_at(s, o, random_unit(rng));
+        const Segment g0 = random_segment(s, meshes, rng, 4);
+        const Vec3 &o = g0.o, &d = g0.d;
+        const double tfar = g0.tfar, back = g0.back, miss = g0.miss;
+        const uint64_t set = g0.set;
+        const int kind = g0.kind;
         Hit h{};
         const Scene::FirstHit f = s.intersect_first(o, d, -back, tfar, set, h);
         s.intersect_all(o, d, -back, tfar, all);
@@ -561,4 +581,69 @@ TEST(ClearSteps, ClearOnlyWhereTheCacheFindsNothingOnCurvedMesh) {
                  0);
     s.commit();
     EXPECT_GT(clear_steps_agree(s, meshes, 4000, 22), 1000);
+}
+
+// The any-hit query (Scene::intersect_any, the transport's mirror-ray test)
+// finds a set-changing crossing exactly where the closest-hit query does, and
+// the one it reports is in the all-hits list bit for bit. From the ambient
+// (set 0), one with clearance above twice the grouping tolerance means the
+// all-hits list has an interface (the ray lands), as mirror_lands assumes.
+TEST(SingleHit, AnyHitAgreesWithClosestHitOnColonTubeWithPolyp) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m;
+    colon_like(s, m);
+    std::mt19937_64 rng(33);
+    std::vector<Hit> all;
+    int found = 0, lands = 0;
+    for (int k = 0; k < 20000; ++k) {
+        const Segment g = random_segment(s, m, rng, 2);
+        const Vec3 &o = g.o, &d = g.d;
+        const double tfar = g.tfar, back = g.back;
+        const uint64_t set = g.set;
+        Hit a{}, f{};
+        const Scene::FirstHit any = s.intersect_any(o, d, -back, tfar, set, a);
+        const Scene::FirstHit first = s.intersect_first(o, d, -back, tfar, set, f);
+        ASSERT_EQ(any.found, first.found) << "segment " << k;
+        if (!any.found) continue;
+        ++found;
+        s.intersect_all(o, d, -back, tfar, all);
+        const bool listed = std::any_of(all.begin(), all.end(), [&](const Hit& h) {
+            return h.region == a.region && h.prim == a.prim && h.t == a.t && h.cos_dn == a.cos_dn;
+        });
+        EXPECT_TRUE(listed) << "segment " << k;
+        const bool inside = (set >> a.region) & 1;
+        EXPECT_TRUE(inside ? a.cos_dn > 0 : a.cos_dn < 0) << "segment " << k << ": the crossing changes no set";
+        if (set == 0 && any.clearance > 2 * group_tol(o, std::max(a.t, 0.0), s)) {
+            ++lands;
+            EXPECT_LT(first_interface(s, all, o, 0).first, all.size()) << "segment " << k << ": no landing";
+        }
+    }
+    EXPECT_GT(found, 20000 / 4);
+    EXPECT_GT(lands, 100);
+}
+
+// A wall whose top face a small block pokes through: the face's triangles
+// touch the block, so their commit-time isolation is 0, but a crossing far
+// from the block is clear of it (near_clearance), and one beside it is not.
+TEST(SingleHit, ClearanceIsMeasuredAtTheCrossing) {
+    Scene s(1.0, 1.0);
+    std::vector<Mesh> m(2);
+    box(-1, -1, -1, 1, 1, 0, m[0].v, m[0].t);
+    s.add_region("wall", m[0].v.data(), 8, m[0].t.data(), 12, plain_medium(), 0);
+    box(-0.05, -0.05, -0.1, 0.05, 0.05, 0.1, m[1].v, m[1].t);
+    s.add_region("block", m[1].v.data(), 8, m[1].t.data(), 12, plain_medium(), 1);
+    s.commit();
+    const Vec3 down(0, 0, -1);
+    Hit h{};
+    Scene::FirstHit f = s.intersect_first(Vec3(0.5, 0.3, 1), down, 0, kInf, 0, h);
+    ASSERT_TRUE(f.found);
+    EXPECT_EQ(h.region, 0u);
+    EXPECT_NEAR(h.t, 1.0, 1e-15);
+    EXPECT_GT(f.clearance, 2 * group_tol(Vec3(0.5, 0.3, 1), 1.0, s));
+    // 1e-6 beside the block's side face x = 0.05: no more clearance than that.
+    f = s.intersect_first(Vec3(0.05 + 1e-6, 0.02, 1), down, 0, kInf, 0, h);
+    ASSERT_TRUE(f.found);
+    EXPECT_EQ(h.region, 0u);
+    EXPECT_LE(f.clearance, 1.0001e-6);
+    EXPECT_GT(f.clearance, 0.9e-6);
 }
