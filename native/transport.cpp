@@ -153,6 +153,7 @@ class PacketWalk {
     Crossing leave_tissue(int from_region, const Vec3& normal_out);
     Crossing through_ambient(NextHit next);
     bool interact(Float s);
+    void deposit_grids(const Vec3& p, Float dW, Float W);
     bool scatter_and_survive();
     void fluoresce();
     void fluoresce_with(const FluorophoreRef& f);
@@ -278,7 +279,6 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
 // (callgrind, seed tissue: 668 -> 402 instructions per interaction.)
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
-    if constexpr (kGrids) return false;  // the grids' deposits stay in interact()
     const PacketState& st = st_;
     if (!local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
     // Spectral: the loop holds at most LoopTrials::kMax fluorophores.
@@ -452,6 +452,9 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         W -= dW;
         absorbed += dW;
         if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
+        // interact()'s deposits: a fluorescence event, which would change
+        // st.fluorescent, ends the loop below.
+        if constexpr (kGrids) deposit_grids(to_vec3(p), dW, W);
         if (kSpectral && trials.n > 0 && W > 0) {
             // fluoresce()'s trials: an event ends the loop, and interact()'s
             // rest of this interaction follows it in the general code.
@@ -916,17 +919,24 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     st.W -= dW;
     st.absorbed += dW;
     if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
-    if constexpr (kGrids) {
-        // The absorbed grid holds energy (= weight when the run is not spectral).
-        const Vec3& p = st.p;
-        out_.absorbed_grid->add(p.x, p.y, p.z, dW * st.energy_per_weight);
-        if (st.fluorescent) {
-            out_.fluorescence_grid->add(p.x, p.y, p.z, st.W);
-            if (!out_.per_fluorophore.empty()) out_.per_fluorophore[size_t(st.fluorophore)]->add(p.x, p.y, p.z, st.W);
-        }
-    }
+    if constexpr (kGrids) deposit_grids(st.p, dW, st.W);
     if constexpr (kSpectral) fluoresce();
     return scatter_and_survive();
+}
+
+// The grids' deposits of an interaction at p: the weight dW it absorbed (the
+// absorbed grid holds energy, = weight when the run is not spectral) and, for
+// a fluorescent packet, its weight W after the capture. interact() and the
+// interior steps both deposit here; each voxel's sum is exact (voxel_grid.h),
+// so the grids do not depend on which of them took a step.
+template <bool kSpectral, bool kGrids>
+inline void PacketWalk<kSpectral, kGrids>::deposit_grids(const Vec3& p, Float dW, Float W) {
+    const PacketState& st = st_;
+    out_.absorbed_grid->add(p.x, p.y, p.z, dW * st.energy_per_weight);
+    if (st.fluorescent) {
+        out_.fluorescence_grid->add(p.x, p.y, p.z, W);
+        if (!out_.per_fluorophore.empty()) out_.per_fluorophore[size_t(st.fluorophore)]->add(p.x, p.y, p.z, W);
+    }
 }
 
 // The rest of an interaction after capture and fluorescence: scattering,

@@ -58,3 +58,30 @@ def test_interior_steps_change_nothing_on_the_colon(colon, rule):
     assert set(esc_fast) == set(esc_slow) and len(esc_fast["weight"]) > 100
     for k in esc_fast:
         assert np.array_equal(np.asarray(esc_fast[k]), np.asarray(esc_slow[k])), f"escapes[{k}] differ"
+
+
+def test_interior_steps_deposit_the_grids_of_the_general_loop(colon, tmp_path):
+    """Grid runs take the interior steps too (they deposit as interact() does): every voxel of
+    every grid -- absorbed, fluorescence and one per fluorophore -- and every tally equal the
+    general loop's bit for bit."""
+    from endophoton import vdb
+
+    scene, rig = colon
+    runs, grids = [], []
+    for safe in (True, False):
+        path = str(tmp_path / f"g{int(safe)}.vdb")
+        request = ep.GridRequest(voxel_size=5e-4, path=path, per_fluorophore=True)
+        runs.append(ep.run(scene, rig, photons=2000, threads=1, seed=9, grids=request, safe_distance=safe))
+        names = list(vdb.read_grid_summary(path)["grids"])
+        grids.append({name: vdb.grid_to_numpy(path, name) for name in names})
+    fast, slow = (r.to_dict() for r in runs)
+    for k in fast:
+        if k in ENV_KEYS or "time" in k or "second" in k:
+            continue
+        assert fast[k] == slow[k], f"{k}: {fast[k]!r} != {slow[k]!r}"
+    assert set(grids[0]) == set(grids[1]) and len(grids[0]) >= 4, sorted(grids[0])
+    for name, (values, origin, size) in grids[0].items():
+        other_values, other_origin, other_size = grids[1][name]
+        assert np.array_equal(origin, other_origin) and size == other_size, name
+        assert np.array_equal(values, other_values), f"grid {name} differs"
+        assert np.count_nonzero(values) > 50, name
