@@ -134,8 +134,11 @@ class HenyeyGreenstein {
     // renormalises it, which bounds its drift from orthonormal to a few units
     // in the last place (tests/cpp/test_phase.cpp). The samples depend only on
     // the bits, the frame and count, so a packet scattered by any caller with
-    // the same frame gets the same direction.
-    void scatter(uint64_t bits, uint32_t count, DirectionFrame* frame) const {
+    // the same frame gets the same direction. Always inline: with the grid
+    // runs' interior loops GCC had more callers and called it out of line in
+    // the general loop (callgrind, seed tissue: 14,862 -> 15,193 instructions
+    // a packet, 14,794 so).
+    __attribute__((always_inline)) void scatter(uint64_t bits, uint32_t count, DirectionFrame* frame) const {
         // 2g u for u = k 2^-32 as k (2g 2^-32): both are the exact 2g k 2^-32
         // rounded once (2g 2^-32 is exact), one multiplication fewer.
         const uint32_t k = uint32_t(bits >> 32);

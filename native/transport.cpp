@@ -930,7 +930,7 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
 // interior steps both deposit here; each voxel's sum is exact (voxel_grid.h),
 // so the grids do not depend on which of them took a step.
 template <bool kSpectral, bool kGrids>
-inline void PacketWalk<kSpectral, kGrids>::deposit_grids(const Vec3& p, Float dW, Float W) {
+__attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::deposit_grids(const Vec3& p, Float dW, Float W) {
     const PacketState& st = st_;
     out_.absorbed_grid->add(p.x, p.y, p.z, dW * st.energy_per_weight);
     if (st.fluorescent) {

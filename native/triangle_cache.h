@@ -93,8 +93,10 @@ class TriangleCache {
     }
     // Scene::intersect_all restricted to the cached triangles: valid only for
     // a segment that covers() accepts ([o + tnear d, o + tfar d], tnear <= 0).
-    // Inline: the plane test, which answers almost every step by itself.
-    void intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar, std::vector<Hit>& out) const {
+    // Inline (always: with more callers GCC kept it out of line): the plane
+    // test, which answers almost every step by itself.
+    __attribute__((always_inline)) void intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
+                                                  std::vector<Hit>& out) const {
         // The same ray as Scene::intersect_all: a negative tnear backs the
         // origin up, and distances are measured from there and shifted back at
         // the end, so the refined distances are bit-identical to the full query's.
