@@ -157,6 +157,18 @@ class Scene {
         const CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
         return block ? block->cube[cube].load(std::memory_order_acquire) : nullptr;
     }
+    // Per scene-wide triangle, for the gathers' ball test (GatherData::offer):
+    // its outward normal (Region::normals, copied) and the three planes
+    // through its edges perpendicular to it, each facing away from the
+    // triangle (unit `side`, offset `off`; off = +inf when the triangle is too
+    // thin to trust them). The triangle lies behind all three, so a point
+    // s beyond one of them is at least s from the triangle.
+    struct EdgePlanes {
+        Vec3 n;
+        Vec3 side[3];
+        Float off[3];
+        Float scale;  // the largest vertex coordinate's magnitude (rounding room)
+    };
     static constexpr int kCellSplit = 3;
     static constexpr size_t kCellMaxTriangles = 16;
 
@@ -191,7 +203,9 @@ class Scene {
     mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
     mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
     void* store_allocate(size_t bytes) const;
-    std::vector<Vec3> corners_;     // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
+    std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
+    std::vector<EdgePlanes> edge_planes_;
+    void compute_edge_planes();
     std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions
     void compute_isolation();
     // A lower bound of the distance from q (on a triangle of `region`) to
