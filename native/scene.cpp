@@ -620,28 +620,41 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     // short list of the candidates offered, searched for every candidate,
     // cost ~400 of a build's ~2.8k instructions on colon_polyp; callgrind.)
     const Float side = grid_.cell_size() / kCellSplit;
-    thread_local TriangleCache scratch;
+    struct Builder {
+        TriangleCache scratch;
+        StoreCursor cursor;
+    };
+    thread_local Builder builder;
+    TriangleCache& scratch = builder.scratch;
     gather_triangles(c, side, kCellMaxTriangles, scratch);
-    TriangleCache* built = TriangleCache::freeze(scratch, store_allocate(TriangleCache::frozen_size(scratch)));
+    void* bytes = store_allocate(TriangleCache::frozen_size(scratch), builder.cursor);
+    TriangleCache* built = TriangleCache::freeze(scratch, bytes);
     TriangleCache* expected = nullptr;
     if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
     built->~TriangleCache();  // another thread was first (the same content); the block stays unused
     return *expected;
 }
 
-void* Scene::store_allocate(size_t bytes) const {
+uint64_t Scene::new_store_id() {
+    static std::atomic<uint64_t> last{0};
+    return ++last;
+}
+
+void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
     // new[] aligns a chunk for any fundamental type; blocks keep that alignment.
     constexpr size_t kAlign = __STDCPP_DEFAULT_NEW_ALIGNMENT__, kChunk = size_t(1) << 16;
     static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
     bytes = (bytes + kAlign - 1) / kAlign * kAlign;
-    std::lock_guard<std::mutex> lock(store_mutex_);
-    if (store_used_ + bytes > store_capacity_) {
-        store_capacity_ = std::max(kChunk, bytes);
-        store_chunks_.emplace_back(new unsigned char[store_capacity_]);
-        store_used_ = 0;
+    if (cursor.store != store_id_ || cursor.left < bytes) {
+        // The rest of the thread's last chunk (of this scene or another) stays unused.
+        const size_t size = std::max(kChunk, bytes);
+        std::lock_guard<std::mutex> lock(store_mutex_);
+        store_chunks_.emplace_back(new unsigned char[size]);
+        cursor = StoreCursor{store_id_, store_chunks_.back().get(), size};
     }
-    void* p = store_chunks_.back().get() + store_used_;
-    store_used_ += bytes;
+    void* p = cursor.next;
+    cursor.next += bytes;
+    cursor.left -= bytes;
     return p;
 }
 
@@ -654,8 +667,7 @@ void Scene::release_cell_caches() {
             delete b;
         }
     cell_blocks_.reset();
-    store_chunks_.clear();
-    store_used_ = store_capacity_ = 0;
+    store_chunks_.clear();  // no thread bumps through them again: store_id_ names this scene only
 }
 
 bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {

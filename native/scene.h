@@ -196,13 +196,22 @@ class Scene {
     mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
-    // The store the frozen caches live in (TriangleCache::freeze): chunks
-    // handed out by a bump under a lock (a build is rare next to the lookups,
-    // and a malloc per cube cost ~450 instructions of its ~4k; callgrind).
+    // The store the frozen caches live in (TriangleCache::freeze): chunks the
+    // scene owns, each thread bumping through one of its own, so a build
+    // takes the lock only for a new chunk (a malloc per cube cost ~450
+    // instructions of its ~4k, a lock on every build ~70; callgrind).
     mutable std::mutex store_mutex_;
     mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
-    mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
-    void* store_allocate(size_t bytes) const;
+    // A thread's place in its chunk: plain data in a thread_local, valid for
+    // the scene whose store_id_ it names (0: none).
+    struct StoreCursor {
+        uint64_t store = 0;
+        unsigned char* next = nullptr;
+        size_t left = 0;
+    };
+    static uint64_t new_store_id();
+    const uint64_t store_id_ = new_store_id();  // unique per Scene object
+    void* store_allocate(size_t bytes, StoreCursor& cursor) const;
     std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
     std::vector<EdgePlanes> edge_planes_;
     void compute_edge_planes();
