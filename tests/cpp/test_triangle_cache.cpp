@@ -296,6 +296,16 @@ double point_triangle_distance(const Vec3& p, const Vec3& a, const Vec3& b, cons
     return std::min({seg(a, b), seg(b, c), seg(c, a)});
 }
 
+// Distance from p to triangle i of a mesh.
+double mesh_triangle_distance(const Vec3& p, const Mesh& mesh, size_t i) {
+    Vec3 P[3];
+    for (int j = 0; j < 3; ++j) {
+        const float* v = &mesh.v[3 * size_t(mesh.t[3 * i + size_t(j)])];
+        P[j] = Vec3(v[0], v[1], v[2]);
+    }
+    return point_triangle_distance(p, P[0], P[1], P[2]);
+}
+
 // The grid gather keeps every triangle within r of the centre (brute force
 // over the whole scene) and none beyond r plus 1e-8 of the coordinates: balls of every size
 // around faces, edges and vertices. Returns how many balls Embree's point
@@ -318,12 +328,7 @@ int same_gathers(const Scene& s, const std::vector<Mesh>& meshes, Float size, in
         bool short_of = false;
         for (size_t m = 0; m < meshes.size(); ++m)
             for (size_t i = 0; i < meshes[m].t.size() / 3; ++i) {
-                Vec3 P[3];
-                for (int j = 0; j < 3; ++j) {
-                    const float* p = &meshes[m].v[3 * size_t(meshes[m].t[3 * i + size_t(j)])];
-                    P[j] = Vec3(p[0], p[1], p[2]);
-                }
-                const double dist = point_triangle_distance(c, P[0], P[1], P[2]);
+                const double dist = mesh_triangle_distance(c, meshes[m], i);
                 const auto id = std::make_pair(uint32_t(m), uint32_t(i));
                 if (dist <= r) {
                     EXPECT_TRUE(got.count(id)) << "ball " << k << " r " << r << " misses " << m << "/" << i;
@@ -381,12 +386,7 @@ void keeps_triangles_at_the_padded_radius(const Scene& s, const std::vector<Mesh
         const Vec3 c = near_feature(meshes, rng, &kind) + random_unit(rng) * (near * U(rng));
         for (size_t m = 0; m < meshes.size(); ++m)
             for (size_t i = 0; i < meshes[m].t.size() / 3; ++i) {
-                Vec3 P[3];
-                for (int j = 0; j < 3; ++j) {
-                    const float* p = &meshes[m].v[3 * size_t(meshes[m].t[3 * i + size_t(j)])];
-                    P[j] = Vec3(p[0], p[1], p[2]);
-                }
-                const double d = point_triangle_distance(c, P[0], P[1], P[2]);
+                const double d = mesh_triangle_distance(c, meshes[m], i);
                 if (!(d < 2 * near) || d < 1e-8 * (max_abs_component(c) + near)) continue;
                 const double r = (d * (1 + 1e-10) - 1e-9 * max_abs_component(c)) / (1 + 1e-8 + 1e-9);
                 ASSERT_TRUE(s.gather_triangles(c, r, 1 << 20, cache));
