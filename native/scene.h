@@ -157,6 +157,18 @@ class Scene {
         const CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
         return block ? block->cube[cube].load(std::memory_order_acquire) : nullptr;
     }
+    // Per scene-wide triangle, for the gathers' ball test (GatherData::offer):
+    // its outward normal (Region::normals, copied) and the three planes
+    // through its edges perpendicular to it, each facing away from the
+    // triangle (unit `side`, offset `off`; off = +inf when the triangle is too
+    // thin to trust them). The triangle lies behind all three, so a point
+    // s beyond one of them is at least s from the triangle.
+    struct EdgePlanes {
+        Vec3 n;
+        Vec3 side[3];
+        Float off[3];
+        Float scale;  // the largest vertex coordinate's magnitude (rounding room)
+    };
     static constexpr int kCellSplit = 3;
     static constexpr size_t kCellMaxTriangles = 16;
 
@@ -184,14 +196,25 @@ class Scene {
     mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
-    // The store the frozen caches live in (TriangleCache::freeze): chunks
-    // handed out by a bump under a lock (a build is rare next to the lookups,
-    // and a malloc per cube cost ~450 instructions of its ~4k; callgrind).
+    // The store the frozen caches live in (TriangleCache::freeze): chunks the
+    // scene owns, each thread bumping through one of its own, so a build
+    // takes the lock only for a new chunk (a malloc per cube cost ~450
+    // instructions of its ~4k, a lock on every build ~70; callgrind).
     mutable std::mutex store_mutex_;
     mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
-    mutable size_t store_used_ = 0, store_capacity_ = 0;  // bytes of the last chunk
-    void* store_allocate(size_t bytes) const;
-    std::vector<Vec3> corners_;     // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
+    // A thread's place in its chunk: plain data in a thread_local, valid for
+    // the scene whose store_id_ it names (0: none).
+    struct StoreCursor {
+        uint64_t store = 0;
+        unsigned char* next = nullptr;
+        size_t left = 0;
+    };
+    static uint64_t new_store_id();
+    const uint64_t store_id_ = new_store_id();  // unique per Scene object
+    void* store_allocate(size_t bytes, StoreCursor& cursor) const;
+    std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
+    std::vector<EdgePlanes> edge_planes_;
+    void compute_edge_planes();
     std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions
     void compute_isolation();
     // A lower bound of the distance from q (on a triangle of `region`) to

@@ -51,22 +51,24 @@ class TriangleGrid {
 
     // The cube holding p when every cell is split into kSplit^3 cubes: the
     // cell's index, the cube's index in the cell ((z kSplit + y) kSplit + x)
-    // and the cube's centre; false outside the grid. One floor per axis on
-    // the grid of cubes, the cell and the cube in it by integer division.
+    // and the cube's centre; false outside the grid. One conversion per axis
+    // on the grid of cubes (a coordinate in [0, res kSplit) truncates to its
+    // floor, so no floor call), the cell and the cube in it by unsigned
+    // division (a multiply and a shift).
     template <int kSplit>
     bool cube_of(const Vec3& p, size_t* cell, int* cube, Vec3* centre) const {
         if (res_[0] == 0) return false;
         const Float inv_side = inv_cell_ * kSplit;
-        int q[3], c[3], k[3];
+        unsigned q[3], c[3], k[3];
         for (int a = 0; a < 3; ++a) {
-            const Float f = std::floor((p[a] - origin_[a]) * inv_side);
+            const Float f = (p[a] - origin_[a]) * inv_side;
             if (!(f >= 0 && f < Float(res_[a] * kSplit))) return false;
-            q[a] = int(f);
-            c[a] = q[a] / kSplit;
-            k[a] = q[a] - c[a] * kSplit;
+            q[a] = unsigned(f);
+            c[a] = q[a] / unsigned(kSplit);
+            k[a] = q[a] - c[a] * unsigned(kSplit);
         }
         *cell = (size_t(c[2]) * size_t(res_[1]) + size_t(c[1])) * size_t(res_[0]) + size_t(c[0]);
-        *cube = (k[2] * kSplit + k[1]) * kSplit + k[0];
+        *cube = int((k[2] * kSplit + k[1]) * kSplit + k[0]);
         *centre = origin_ + Vec3(q[0] + Float(0.5), q[1] + Float(0.5), q[2] + Float(0.5)) * (cell_ / kSplit);
         return true;
     }

@@ -296,6 +296,16 @@ double point_triangle_distance(const Vec3& p, const Vec3& a, const Vec3& b, cons
     return std::min({seg(a, b), seg(b, c), seg(c, a)});
 }
 
+// Distance from p to triangle i of a mesh.
+double mesh_triangle_distance(const Vec3& p, const Mesh& mesh, size_t i) {
+    Vec3 P[3];
+    for (int j = 0; j < 3; ++j) {
+        const float* v = &mesh.v[3 * size_t(mesh.t[3 * i + size_t(j)])];
+        P[j] = Vec3(v[0], v[1], v[2]);
+    }
+    return point_triangle_distance(p, P[0], P[1], P[2]);
+}
+
 // The grid gather keeps every triangle within r of the centre (brute force
 // over the whole scene) and none beyond r plus 1e-8 of the coordinates: balls of every size
 // around faces, edges and vertices. Returns how many balls Embree's point
@@ -318,12 +328,7 @@ int same_gathers(const Scene& s, const std::vector<Mesh>& meshes, Float size, in
         bool short_of = false;
         for (size_t m = 0; m < meshes.size(); ++m)
             for (size_t i = 0; i < meshes[m].t.size() / 3; ++i) {
-                Vec3 P[3];
-                for (int j = 0; j < 3; ++j) {
-                    const float* p = &meshes[m].v[3 * size_t(meshes[m].t[3 * i + size_t(j)])];
-                    P[j] = Vec3(p[0], p[1], p[2]);
-                }
-                const double dist = point_triangle_distance(c, P[0], P[1], P[2]);
+                const double dist = mesh_triangle_distance(c, meshes[m], i);
                 const auto id = std::make_pair(uint32_t(m), uint32_t(i));
                 if (dist <= r) {
                     EXPECT_TRUE(got.count(id)) << "ball " << k << " r " << r << " misses " << m << "/" << i;
@@ -360,6 +365,58 @@ TEST(TriangleGrid, GatherEqualsBvhGather) {
         colon_like(s, m);
         EXPECT_GT(s.grid().cell_count(), 1000u);
         std::cout << "colon: BVH gather short on " << same_gathers(s, m, 1.0, 300, 23) << " of 300 balls\n";
+    }
+}
+
+// The gathers reject most triangles by lower bounds of their distance (the
+// plane, the planes through the edges) before the exact closest-point test;
+// those must never reject a triangle the exact test keeps. The exact test
+// keeps every triangle within the padded radius r (1 + 1e-8) + 1e-9 (|c| + r)
+// (scene.cpp's padded_radius): a ball whose padded radius exceeds a
+// triangle's distance by 1e-10 of it, far above the rounding of either
+// distance, must keep that triangle, at faces, edges and vertices alike.
+void keeps_triangles_at_the_padded_radius(const Scene& s, const std::vector<Mesh>& meshes, Float near, int n,
+                                          uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> U(0, 1);
+    TriangleCache cache;
+    int tested = 0;
+    for (int k = 0; k < n; ++k) {
+        int kind;
+        const Vec3 c = near_feature(meshes, rng, &kind) + random_unit(rng) * (near * U(rng));
+        for (size_t m = 0; m < meshes.size(); ++m)
+            for (size_t i = 0; i < meshes[m].t.size() / 3; ++i) {
+                const double d = mesh_triangle_distance(c, meshes[m], i);
+                if (!(d < 2 * near) || d < 1e-8 * (max_abs_component(c) + near)) continue;
+                const double r = (d * (1 + 1e-10) - 1e-9 * max_abs_component(c)) / (1 + 1e-8 + 1e-9);
+                ASSERT_TRUE(s.gather_triangles(c, r, 1 << 20, cache));
+                bool kept = false;
+                for (const auto& t : cache.triangles()) kept |= t.region == m && t.prim == i;
+                EXPECT_TRUE(kept) << "ball " << k << " at distance " << d << " drops " << m << "/" << i;
+                ++tested;
+            }
+    }
+    EXPECT_GT(tested, n);
+}
+
+TEST(TriangleGrid, GatherKeepsTrianglesAtThePaddedRadius) {
+    {
+        Scene s(1.0, 1.0);
+        std::vector<Mesh> m;
+        box_pair(s, m, 0);
+        keeps_triangles_at_the_padded_radius(s, m, 0.5, 300, 31);
+    }
+    {
+        Scene s(1.0, 1.0);  // huge coordinates: 1e6 away from the origin
+        std::vector<Mesh> m;
+        box_pair(s, m, 1e6f);
+        keeps_triangles_at_the_padded_radius(s, m, 0.5, 300, 32);
+    }
+    {
+        Scene s(1.0, 1.0);
+        std::vector<Mesh> m;
+        colon_like(s, m);
+        keeps_triangles_at_the_padded_radius(s, m, 0.05, 100, 33);
     }
 }
 
