@@ -89,7 +89,7 @@ class TriangleCache {
     bool covers(const Vec3& a, const Vec3& b) const {
         const Vec3 da = a - center_, db = b - center_;
         const Float r2 = radius_ * radius_;
-        return dot(da, da) < r2 && dot(db, db) < r2;
+        return (dot(da, da) < r2) & (dot(db, db) < r2);  // & of bools: no branch on the first
     }
     // Scene::intersect_all restricted to the cached triangles: valid only for
     // a segment that covers() accepts ([o + tnear d, o + tfar d], tnear <= 0).
@@ -105,13 +105,17 @@ class TriangleCache {
         const Float t_end = tfar + back;
         const Vec3 end = org + d * t_end;
         // A segment whose two ends lie strictly on one side of a plane's slab
-        // crosses none of its triangles.
+        // crosses none of its triangles. The comparisons are joined by & and |
+        // on bools and the bit is set by a shift of the verdict: the same
+        // verdicts without a branch on each, which mispredicted often
+        // (callgrind branch simulation, colon_polyp: 349k -> ~220k mispredicts
+        // per 10,000 packets here; interleaved A/B +7% and +18% packets/s).
         uint64_t open = 0;  // planes the segment may cross (bit k; planes beyond 63 share bit 63)
         for (size_t k = 0; k < n_planes_; ++k) {
             const Plane& p = planes_view_[k];
             const Float da = dot(p.n, org) - p.off, db = dot(p.n, end) - p.off;
-            const bool apart = (da > p.reach && db > p.reach) || (da < -p.reach && db < -p.reach);
-            if (!apart || k >= 63) open |= uint64_t(1) << std::min<size_t>(k, 63);
+            const bool apart = ((da > p.reach) & (db > p.reach)) | ((da < -p.reach) & (db < -p.reach));
+            open |= uint64_t(!apart | (k >= 63)) << std::min<size_t>(k, 63);
         }
         if (open)
             intersect_open(org, d, back, t_end, open, out);
