@@ -353,7 +353,7 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
     validate(grids, metadata);
     ensure_openvdb_initialized();
 
-    const openvdb::GridCPtrVec out = build_grids(grids, metadata, threads);
+    openvdb::GridCPtrVec out = build_grids(grids, metadata, threads);
 
     openvdb::MetaMap file_meta;
     for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));
@@ -376,6 +376,10 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
     }
     std::vector<double> sums;
     for (const auto& grid : out) sums.push_back(grid->metaValue<double>("accumulator_sum"));
+    // Each tree holds tens of thousands of leaves: free them on the run's
+    // threads too, one grid each.
+    run_tasks(
+        out.size(), threads, [](size_t) {}, [&](size_t k, size_t) { out[k].reset(); });
     return sums;
 }
 
