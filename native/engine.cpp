@@ -174,10 +174,11 @@ void write_grids(const SharedGridSet& grids, const Scene& scene, const RunConfig
     meta["unit_cm"] = std::to_string(scene.unit_cm());
     meta["engine"] = "endophoton " + engine_version();
     meta["voxel_size"] = std::to_string(cfg.grid_voxel_size);
-    write_vdb(cfg.grid_path, outs, meta, threads);
+    // The writer sums each grid exactly (its "accumulator_sum"); the absorbed
+    // grid's is the result's grid_absorbed_sum.
+    result.grid_absorbed_sum = write_vdb(cfg.grid_path, outs, meta, threads).front();
     result.grid_path = cfg.grid_path;
     for (const auto& o : outs) result.grid_names.push_back(o.name);
-    result.grid_absorbed_sum = VoxelAccumulator::sum(grids.parts(0)) * s;
 }
 
 size_t per_fluorophore_grids(const Scene& scene, const RunConfig& cfg) {

@@ -19,6 +19,7 @@
 #include <cstring>
 #include <exception>
 #include <fstream>
+#include <memory>
 #include <mutex>
 #include <set>
 #include <sstream>
@@ -97,65 +98,117 @@ void validate(const std::vector<GridOutput>& grids, const std::map<std::string, 
     }
 }
 
-// A voxel of a part, with a key that orders voxels leaf by leaf: the 8^3
-// block (an OpenVDB leaf node; >> floors like a leaf origin), biased to be
-// non-negative (29 bits per axis hold [-2^27, 2^27]), then the voxel's offset
-// inside its leaf. One 128-bit compare instead of six int compares.
-struct LeafVoxel {
-    unsigned __int128 key;
-    VoxelAccumulator::Coord c;
-    double value;  // rounded exact value, not yet scaled
-};
+using FloatTree = openvdb::FloatTree;
+using Leaf = FloatTree::LeafNodeType;
 
-unsigned __int128 leaf_major_key(const VoxelAccumulator::Coord& c) {
-    constexpr int64_t kBias = int64_t(VoxelAccumulator::kMaxIndex >> 3);
-    unsigned __int128 k = 0;
-    for (int a = 0; a < 3; ++a) k = (k << 29) | uint64_t(int64_t(c[a] >> 3) + kBias);
-    return (k << 9) | ((c[0] & 7) << 6) | ((c[1] & 7) << 3) | (c[2] & 7);
+// Runs task(i, t) for i in [0, n) on up to `threads` threads, t naming the
+// thread (the calling one is 0); setup(count) learns the thread count before
+// any task starts. A task's exception is kept in its slot, so the caller can
+// rethrow them in task order, whatever the thread timing.
+template <class Setup, class Task>
+std::vector<std::exception_ptr> run_tasks(size_t n, int threads, const Setup& setup, const Task& task) {
+    std::vector<std::exception_ptr> errors(n);
+    std::atomic<size_t> next{0};
+    const auto work = [&](size_t t) {
+        for (size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) {
+            try {
+                task(i, t);
+            } catch (...) {
+                errors[i] = std::current_exception();
+            }
+        }
+    };
+    const size_t count = std::max<size_t>(1, std::min(n, size_t(std::max(threads, 1))));
+    setup(count);
+    std::vector<std::thread> pool;
+    try {
+        for (size_t t = 1; t < count; ++t) pool.emplace_back(work, t);
+    } catch (const std::system_error&) {
+        // No thread to spare: the threads started so far run the rest.
+    }
+    work(0);
+    for (auto& th : pool) th.join();
+    return errors;
 }
 
-// Sets the voxels of `part` (times `scale`) in the grid behind `acc`. Sorted
-// leaf by leaf, so each leaf is looked up (or created) once and its voxels
-// are set by offset; the tree itself does not depend on the order. A part
-// is a shard of the run's grids (a few thousand voxels), so the sort stays
-// in cache. Throws std::logic_error if a voxel is already set (parts overlap).
-void fill_part(const GridOutput& g, const VoxelAccumulator& part, openvdb::FloatGrid::Accessor& acc,
-               std::vector<LeafVoxel>& scratch) {
-    using Leaf = openvdb::FloatTree::LeafNodeType;
-    scratch.clear();
+// Sets the voxels of `part` (times `scale`) in `tree`, through an accessor
+// that keeps the last leaf and internal nodes, in the accumulator's table
+// order (a part is a shard of a run's grids: a few thousand voxels in a few
+// hundred leaves, which stay in cache). A value beyond float range is an
+// error naming the part's smallest such voxel in (x, y, z) order, so the
+// message does not depend on the table order. Throws std::logic_error if a
+// voxel is already set (parts overlap).
+void fill_part(const GridOutput& g, const VoxelAccumulator& part, FloatTree& tree) {
+    openvdb::tree::ValueAccessor<FloatTree> acc(tree);
+    bool bad = false, twice = false;
+    VoxelAccumulator::Coord bad_c{};
+    double bad_v = 0;
     part.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& f) {
-        scratch.push_back({leaf_major_key(c), c, f.to_double()});
-    });
-    std::sort(scratch.begin(), scratch.end(), [](const LeafVoxel& a, const LeafVoxel& b) { return a.key < b.key; });
-    Leaf* leaf = nullptr;
-    for (const LeafVoxel& lv : scratch) {
-        const auto& c = lv.c;
-        const double v = lv.value * g.scale;
+        const double v = f.to_double() * g.scale;
         if (!(std::fabs(v) <= double(FLT_MAX))) {
-            std::ostringstream msg;
-            msg << "grid '" << g.name << "': voxel (" << c[0] << ", " << c[1] << ", " << c[2] << ") value = " << v
-                << " is beyond the float range of a VDB grid";
-            throw std::invalid_argument(msg.str());
+            if (!bad || c < bad_c) bad_c = c, bad_v = v;
+            bad = true;
+            return;
         }
         const openvdb::Coord xyz(c[0], c[1], c[2]);
-        if (!leaf || (xyz & ~(Leaf::DIM - 1)) != leaf->origin()) leaf = acc.touchLeaf(xyz);
+        Leaf* leaf = acc.touchLeaf(xyz);
         const openvdb::Index offset = Leaf::coordToOffset(xyz);
-        if (leaf->isValueOn(offset))
-            throw std::logic_error("grid '" + g.name + "': two of its parts hold the same voxel (internal error)");
+        twice |= leaf->isValueOn(offset);
         leaf->setValueOn(offset, static_cast<float>(v));
+    });
+    if (bad) {
+        std::ostringstream msg;
+        msg << "grid '" << g.name << "': voxel (" << bad_c[0] << ", " << bad_c[1] << ", " << bad_c[2]
+            << ") value = " << bad_v << " is beyond the float range of a VDB grid";
+        throw std::invalid_argument(msg.str());
+    }
+    if (twice) throw std::logic_error("grid '" + g.name + "': two of its parts hold the same voxel (internal error)");
+}
+
+// Moves the leaves of `from` into `into` (two threads' trees of one grid).
+// Parts hold disjoint voxel sets, and a run's shards even disjoint leaves, so
+// a leaf is usually just handed over; a leaf both hold is joined voxel by
+// voxel. Throws std::logic_error if a voxel is set in both (parts overlap).
+void move_leaves(FloatTree& from, FloatTree& into, const GridOutput& g) {
+    std::vector<Leaf*> leaves;
+    leaves.reserve(from.leafCount());
+    from.stealNodes(leaves);
+    std::vector<std::unique_ptr<Leaf>> owned(leaves.begin(), leaves.end());
+    openvdb::tree::ValueAccessor<FloatTree> acc(into);
+    for (auto& leaf : owned) {
+        Leaf* have = acc.probeLeaf(leaf->origin());
+        if (!have) {
+            acc.addLeaf(leaf.release());
+            continue;
+        }
+        for (auto it = leaf->cbeginValueOn(); it; ++it) {
+            if (have->isValueOn(it.pos()))
+                throw std::logic_error("grid '" + g.name + "': two of its parts hold the same voxel (internal error)");
+            have->setValueOn(it.pos(), *it);
+        }
     }
 }
 
-openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::string, std::string>& metadata) {
+// The grid of `g` from its threads' trees (null where a thread filled none
+// of its parts), with its metadata.
+openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree::Ptr> trees,
+                                      const std::map<std::string, std::string>& metadata) {
     auto grid = openvdb::FloatGrid::create(/*background=*/0.0f);
     grid->setName(g.name);
     grid->setGridClass(openvdb::GRID_FOG_VOLUME);
     // The accumulator rounds x / h to the nearest integer, i.e. voxel centres
     // sit at integer multiples of h; a pure linear scale reproduces exactly that.
     grid->setTransform(openvdb::math::Transform::createLinearTransform(g.data->voxel_size()));
-    auto acc = grid->getAccessor();
-    std::vector<LeafVoxel> scratch;
-    for (const VoxelAccumulator* p : g.parts()) fill_part(g, *p, acc, scratch);
+    bool first = true;
+    for (auto& t : trees) {
+        if (!t) continue;
+        if (first)
+            grid->setTree(t);
+        else
+            move_leaves(*t, grid->tree(), g);
+        first = false;
+        t.reset();
+    }
 
     uint64_t dropped = 0;
     Fixed192 dropped_value;
@@ -177,34 +230,44 @@ openvdb::FloatGrid::Ptr build_grid(const GridOutput& g, const std::map<std::stri
     return grid;
 }
 
-// Builds every grid, on up to `threads` threads (each grid is built by one
-// thread; the trees are independent). The first failure in grid order is
-// rethrown, so the error does not depend on the thread timing.
+// Builds every grid on up to `threads` threads, in two passes. First every
+// part of every grid is filled (one task per part, so two threads share even
+// a single grid's work) into its thread's tree of that grid; then each grid
+// takes its threads' trees (one task per grid). Which thread fills which part
+// does not enter the grid: the parts' voxels are disjoint. The first failure
+// in grid order (within a grid, in part order) is rethrown, so the error does
+// not depend on the thread timing.
 openvdb::GridCPtrVec build_grids(const std::vector<GridOutput>& grids,
                                  const std::map<std::string, std::string>& metadata, int threads) {
-    if (grids.empty()) return {};
-    std::vector<openvdb::FloatGrid::Ptr> built(grids.size());
-    std::vector<std::exception_ptr> errors(grids.size());
-    std::atomic<size_t> next{0};
-    const auto work = [&]() {
-        for (size_t i = next.fetch_add(1); i < grids.size(); i = next.fetch_add(1)) {
-            try {
-                built[i] = build_grid(grids[i], metadata);
-            } catch (...) {
-                errors[i] = std::current_exception();
-            }
-        }
-    };
-    std::vector<std::thread> pool;
-    const size_t helpers = std::min(grids.size(), size_t(std::max(threads, 1))) - 1;
-    try {
-        for (size_t t = 0; t < helpers; ++t) pool.emplace_back(work);
-    } catch (const std::system_error&) {
-        // No thread to spare: the calling thread builds the rest alone.
+    std::vector<std::pair<size_t, const VoxelAccumulator*>> parts;  // (grid, part), grid-major
+    std::vector<size_t> first_part(grids.size() + 1, 0);
+    for (size_t k = 0; k < grids.size(); ++k) {
+        for (const VoxelAccumulator* p : grids[k].parts()) parts.emplace_back(k, p);
+        first_part[k + 1] = parts.size();
     }
-    work();
-    for (auto& th : pool) th.join();
-    for (const auto& e : errors)
+    // trees[t][k]: thread t's tree of grid k, created by its first part.
+    std::vector<std::vector<FloatTree::Ptr>> trees;
+    const std::vector<std::exception_ptr> fill_errors = run_tasks(
+        parts.size(), threads,
+        [&](size_t n_threads) { trees.assign(n_threads, std::vector<FloatTree::Ptr>(grids.size())); },
+        [&](size_t i, size_t t) {
+            const size_t k = parts[i].first;
+            FloatTree::Ptr& tree = trees[t][k];
+            if (!tree) tree = std::make_shared<FloatTree>(/*background=*/0.0f);
+            fill_part(grids[k], *parts[i].second, *tree);
+        });
+
+    std::vector<openvdb::FloatGrid::Ptr> built(grids.size());
+    const std::vector<std::exception_ptr> grid_errors = run_tasks(
+        grids.size(), threads, [](size_t) {},
+        [&](size_t k, size_t) {
+            for (size_t i = first_part[k]; i < first_part[k + 1]; ++i)
+                if (fill_errors[i]) std::rethrow_exception(fill_errors[i]);
+            std::vector<FloatTree::Ptr> own;
+            for (auto& per_thread : trees) own.push_back(std::move(per_thread[k]));
+            built[k] = assemble_grid(grids[k], std::move(own), metadata);
+        });
+    for (const auto& e : grid_errors)
         if (e) std::rethrow_exception(e);
     return openvdb::GridCPtrVec(built.begin(), built.end());
 }
@@ -284,13 +347,13 @@ class CheckedArchive : public openvdb::io::Archive {
 
 }  // namespace
 
-void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
-               const std::map<std::string, std::string>& metadata, int threads) {
+std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
+                              const std::map<std::string, std::string>& metadata, int threads) {
     if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
     validate(grids, metadata);
     ensure_openvdb_initialized();
 
-    const openvdb::GridCPtrVec out = build_grids(grids, metadata, threads);
+    openvdb::GridCPtrVec out = build_grids(grids, metadata, threads);
 
     openvdb::MetaMap file_meta;
     for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));
@@ -311,6 +374,13 @@ void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
         std::remove(tmp.c_str());
         throw path_error(path, "cannot rename the temporary file over it: " + why);
     }
+    std::vector<double> sums;
+    for (const auto& grid : out) sums.push_back(grid->metaValue<double>("accumulator_sum"));
+    // Each tree holds tens of thousands of leaves: free them on the run's
+    // threads too, one grid each.
+    run_tasks(
+        out.size(), threads, [](size_t) {}, [&](size_t k, size_t) { out[k].reset(); });
+    return sums;
 }
 
 std::vector<std::string> vdb_grid_names(const std::string& path) {

@@ -47,14 +47,15 @@ struct GridOutput {
 // The file is written to a temporary file next to `path` and renamed over it,
 // so readers never see a half-written file and a failed write leaves any
 // previous file untouched.
-// The grids are built on up to `threads` threads (one grid per thread).
+// The grids are built on up to `threads` threads (their parts in parallel,
+// then the grids). Returns each grid's "accumulator_sum", in `grids` order.
 // Throws std::invalid_argument for bad input (empty list, null data, empty or
 // duplicate name, reserved metadata key, voxel sizes that differ, a value
 // beyond float range), naming the grid or key; std::logic_error if the parts
 // of a grid overlap; std::runtime_error naming the path if the file cannot be
 // written.
-void write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
-               const std::map<std::string, std::string>& metadata, int threads = 1);
+std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
+                              const std::map<std::string, std::string>& metadata, int threads = 1);
 
 // Names of the grids stored in a .vdb file, in file order. Throws
 // std::runtime_error naming the path if the file cannot be read.

@@ -314,11 +314,42 @@ TEST_F(VdbWriterTest, GridFromDisjointPartsHoldsTheirUnionOnAnyThreadCount) {
 }
 
 TEST_F(VdbWriterTest, OverlappingPartsAreAnInternalError) {
-    VoxelAccumulator a(0.5), b(0.5);
+    VoxelAccumulator a(0.5), b(0.5), c(0.5);
     a.add_index({1, 2, 3}, 1.0);
     b.add_index({9, 9, 9}, 1.0);
     b.add_index({1, 2, 3}, 2.0);
+    c.add_index({0, 2, 3}, 1.0);  // a's leaf, another voxel: joined, not an overlap
     const std::string out = path("overlap.vdb");
-    EXPECT_THROW(ep::write_vdb(out, {{"absorbed", "", &a, 1.0, {&b}}}, {}), std::logic_error);
-    EXPECT_TRUE(list_dir().empty());  // nothing written
+    // One thread fills every part into one tree; more threads fill parts into
+    // their own trees and join them: both must see the shared voxel.
+    for (int threads : {1, 2, 3}) {
+        EXPECT_THROW(ep::write_vdb(out, {{"absorbed", "", &a, 1.0, {&c, &b}}}, {}, threads), std::logic_error)
+            << threads << " threads";
+        EXPECT_TRUE(list_dir().empty());  // nothing written
+    }
+}
+
+TEST_F(VdbWriterTest, ValueBeyondFloatRangeNamesTheSameVoxelOnAnyThreadCount) {
+    // Voxels of 1 (1e30 once scaled) fill every part; a few of 1e9 overflow a
+    // float once scaled. The error names the smallest of them, in (x, y, z)
+    // order, in the first part that holds one: the same voxel whatever the
+    // thread count and the accumulators' table order.
+    std::vector<VoxelAccumulator> parts(4, VoxelAccumulator(1.0));
+    for (int i = 0; i < 400; ++i) parts[size_t(i) % 4].add_index({i / 7 - 20, i % 13, i % 5}, 1.0);
+    parts[1].add_index({5, 0, 0}, 1e9);
+    parts[1].add_index({-3, 7, 1}, 1e9);
+    parts[1].add_index({-3, 9, -2}, 1e9);
+    parts[2].add_index({-3, 7, 0}, 1e9);  // smaller, but in a later part
+    parts[3].add_index({-90, 0, 0}, 1e9);
+    for (int threads : {1, 2, 3}) {
+        const std::string out = path("huge.vdb");
+        try {
+            ep::write_vdb(out, {{"huge", "", &parts[0], 1e30, {&parts[1], &parts[2], &parts[3]}}}, {}, threads);
+            ADD_FAILURE() << "no error at " << threads << " threads";
+        } catch (const std::invalid_argument& e) {
+            EXPECT_NE(std::string(e.what()).find("grid 'huge': voxel (-3, 7, 1) value = 1e+39"), std::string::npos)
+                << e.what();
+        }
+        EXPECT_TRUE(list_dir().empty());
+    }
 }
