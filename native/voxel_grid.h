@@ -142,11 +142,15 @@ class VoxelAccumulator {
             // Round half up without branches (the half-way test is a coin flip
             // for the branch predictor, and this runs at every interaction).
             // Not floor(f + 0.5): that sum itself rounds, sending the largest
-            // double below 0.5 into voxel 1. f - floor(f) is exact, so the
-            // half-way test sees the true fractional part.
-            int64_t i = static_cast<int64_t>(f[a]);       // truncation toward zero
-            i -= static_cast<int64_t>(f[a] < double(i));  // -> floor
-            i += static_cast<int64_t>(f[a] - double(i) >= 0.5);
+            // double below 0.5 into voxel 1. Instead floor(f + 1/2) =
+            // floor((floor(2f) + 1) / 2), and 2f is exact (|f| <= 2^30), so
+            // one truncation, its correction to floor and a shift give the
+            // exact rule: one compare fewer per axis than floor(f) plus a
+            // test of f - floor(f) >= 1/2.
+            const double twice = f[a] + f[a];
+            int64_t i = static_cast<int64_t>(twice);       // truncation toward zero
+            i -= static_cast<int64_t>(twice < double(i));  // -> floor(2f)
+            i = (i + 1) >> 1;                              // arithmetic shift: floor((floor(2f) + 1) / 2)
             out[a] = static_cast<int32_t>(i);
         }
         return true;
@@ -297,8 +301,8 @@ struct GridSet {
     // same bits and counters as calling add(x, y, z, ...) on each of those
     // grids; the grids share one voxel size, so the voxel index is computed
     // once, and the weight converted to fixed point once.
-    void deposit(double x, double y, double z, double absorbed_value, bool fluorescent, size_t fluorophore,
-                 double weight) {
+    __attribute__((always_inline)) void deposit(double x, double y, double z, double absorbed_value, bool fluorescent,
+                                                size_t fluorophore, double weight) {
         VoxelAccumulator::Coord c;
         const bool in_range = absorbed.index_of(x, y, z, c);
         unsigned __int128 low;

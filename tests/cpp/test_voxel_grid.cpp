@@ -109,6 +109,40 @@ TEST(VoxelAccumulator, RoundingNearHalfMatchesExtendedPrecisionReference) {
     for (int n = 0; n < 5000; ++n) around(k(rng) + 0.5, 3);
 }
 
+TEST(VoxelAccumulator, RoundingAtZeroAndAtTheIndexLimits) {
+    // Expected voxels written out: halves go up, tiny and subnormal f of
+    // either sign land in voxel 0, and the largest accepted |f| = 2^30 keeps
+    // its exact index.
+    VoxelAccumulator acc(1.0);
+    const double tiny = std::numeric_limits<double>::denorm_min();
+    const double below_half = std::nextafter(0.5, 0.0);
+    const double cases[][2] = {{0.0, 0},
+                               {-0.0, 0},
+                               {tiny, 0},
+                               {-tiny, 0},
+                               {-0x1p-1060, 0},
+                               {0.5, 1},
+                               {-0.5, 0},
+                               {below_half, 0},
+                               {-below_half, 0},
+                               {-std::nextafter(0.5, 1.0), -1},
+                               {-1.5, -1},
+                               {1.5, 2},
+                               {0x1p30, 0x1p30},
+                               {-0x1p30, -0x1p30},
+                               {0x1p30 - 0.5, 0x1p30},
+                               {-0x1p30 + 0.5, -0x1p30 + 1}};
+    for (const auto& c : cases) {
+        const Coord v = index_or_fail(acc, c[0], -c[0], 0.0);
+        EXPECT_EQ(v[0], int32_t(c[1])) << "f = " << c[0];
+        // -f: the mirrored half-way points round up as well
+        const double mirrored = std::floor(-static_cast<long double>(c[0]) + 0.5L);
+        EXPECT_EQ(v[1], int32_t(mirrored)) << "f = " << -c[0];
+    }
+    Coord out{};
+    EXPECT_FALSE(acc.index_of(std::nextafter(0x1p30, 1e300), 0.0, 0.0, out));
+}
+
 TEST(VoxelAccumulator, MatchesReferenceMapThroughGrowthAndCache) {
     // Mix runs of repeated voxels (cache hits) with jumps (cache misses) over
     // enough voxels to force several table growths.
