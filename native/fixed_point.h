@@ -65,11 +65,11 @@ class Fixed192 {
     // *this unchanged) if the total leaves the range.
     bool add_low(unsigned __int128 low) {
         const unsigned __int128 a = low128(), sum = a + low;
-        const uint64_t carry = sum < a;
-        if (carry && int64_t(w_[2]) == INT64_MAX) return false;
+        int64_t top;  // the carry into word 2 overflows it only at INT64_MAX
+        if (__builtin_add_overflow(int64_t(w_[2]), int64_t(sum < a), &top)) return false;
         w_[0] = uint64_t(sum);
         w_[1] = uint64_t(sum >> 64);
-        w_[2] += carry;
+        w_[2] = uint64_t(top);
         return true;
     }
 
@@ -79,11 +79,17 @@ class Fixed192 {
         const unsigned __int128 a = low128(), b = o.low128();
         const unsigned __int128 low = a + b;
         const int64_t carry = low < a;
-        const __int128 high = __int128(int64_t(w_[2])) + int64_t(o.w_[2]) + carry;
-        if (high != __int128(int64_t(high))) return false;
+        // The top word in two signed steps, w2 + o2 then + carry. The sum is
+        // in range exactly when both steps wrap or neither does: a first
+        // step that wraps can only be brought back by the carry when it fell
+        // one below INT64_MIN (and then the second step wraps too).
+        int64_t partial, high;
+        const bool wrap1 = __builtin_add_overflow(int64_t(w_[2]), int64_t(o.w_[2]), &partial);
+        const bool wrap2 = __builtin_add_overflow(partial, carry, &high);
+        if (wrap1 != wrap2) return false;
         w_[0] = uint64_t(low);
         w_[1] = uint64_t(low >> 64);
-        w_[2] = uint64_t(int64_t(high));
+        w_[2] = uint64_t(high);
         return true;
     }
 

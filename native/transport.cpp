@@ -936,11 +936,7 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::deposit_grids(const Vec3& p, Float dW, Float W) {
     const PacketState& st = st_;
-    out_.absorbed_grid->add(p.x, p.y, p.z, dW * st.energy_per_weight);
-    if (st.fluorescent) {
-        out_.fluorescence_grid->add(p.x, p.y, p.z, W);
-        if (!out_.per_fluorophore.empty()) out_.per_fluorophore[size_t(st.fluorophore)]->add(p.x, p.y, p.z, W);
-    }
+    out_.grids->deposit(p.x, p.y, p.z, dW * st.energy_per_weight, st.fluorescent, size_t(st.fluorophore), W);
 }
 
 // The rest of an interaction after capture and fluorescence: scattering,

@@ -161,7 +161,12 @@ void VoxelAccumulator::add_entries(const Entry* e, size_t n) {
     uint64_t hash[kAhead];
     const auto prefetch = [&](size_t j) {
         hash[j % kAhead] = hash_coord(e[j].key);
-        if (!slots_.empty()) __builtin_prefetch(&slots_[hash[j % kAhead] & (slots_.size() - 1)], 1);
+        if (slots_.empty()) return;
+        // A 40-byte slot straddles two cache lines at half of the offsets
+        // (its value then lies partly in the second): fetch both.
+        const char* slot = reinterpret_cast<const char*>(&slots_[hash[j % kAhead] & (slots_.size() - 1)]);
+        __builtin_prefetch(slot, 1);
+        __builtin_prefetch(slot + sizeof(Slot) - 1, 1);
     };
     for (size_t j = 0; j < std::min(n, kAhead); ++j) prefetch(j);
     for (size_t j = 0; j < n; ++j) {

@@ -76,11 +76,22 @@ class VoxelAccumulator {
             drop(value);
             return;
         }
-        // Consecutive deposits of one packet usually fall in the same voxel
-        // (mean free paths are often shorter than a voxel), so remembering the
-        // last slot skips the hash probe in the common case.
-        if (last_slot_ == kNoSlot || !same(c, slots_[last_slot_].key)) last_slot_ = find_or_insert(c);
-        if (!slots_[last_slot_].value.add_low(low)) overflow(c);
+        add_low(c, low);
+    }
+
+    // add(x, y, z, value) with the voxel index already computed by
+    // index_of(x, y, z, c) (returning `in_range`) and `value` converted by
+    // Fixed192::fast_low (returning `fast`, `low`): several grids of one
+    // voxel size that take a deposit at the same point (GridSet::deposit)
+    // share these steps. The same bits and counters as add().
+    void add_resolved(double x, double y, double z, const Coord& c, bool in_range, double value, bool fast,
+                      unsigned __int128 low) {
+        if (!fast)
+            add_general(x, y, z, value);
+        else if (!in_range)
+            drop(value);
+        else
+            add_low(c, low);
     }
 
     // Adds `value` to voxel `c` directly (index space). Indices beyond
@@ -131,11 +142,15 @@ class VoxelAccumulator {
             // Round half up without branches (the half-way test is a coin flip
             // for the branch predictor, and this runs at every interaction).
             // Not floor(f + 0.5): that sum itself rounds, sending the largest
-            // double below 0.5 into voxel 1. f - floor(f) is exact, so the
-            // half-way test sees the true fractional part.
-            int64_t i = static_cast<int64_t>(f[a]);       // truncation toward zero
-            i -= static_cast<int64_t>(f[a] < double(i));  // -> floor
-            i += static_cast<int64_t>(f[a] - double(i) >= 0.5);
+            // double below 0.5 into voxel 1. Instead floor(f + 1/2) =
+            // floor((floor(2f) + 1) / 2), and 2f is exact (|f| <= 2^30), so
+            // one truncation, its correction to floor and a shift give the
+            // exact rule: one compare fewer per axis than floor(f) plus a
+            // test of f - floor(f) >= 1/2.
+            const double twice = f[a] + f[a];
+            int64_t i = static_cast<int64_t>(twice);       // truncation toward zero
+            i -= static_cast<int64_t>(twice < double(i));  // -> floor(2f)
+            i = (i + 1) >> 1;                              // arithmetic shift: floor((floor(2f) + 1) / 2)
             out[a] = static_cast<int32_t>(i);
         }
         return true;
@@ -200,6 +215,14 @@ class VoxelAccumulator {
     // compares are several times cheaper on the probe path.
     static bool same(const Coord& a, const Coord& b) { return ((a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2])) == 0; }
 
+    // Adds a fast_low value to voxel c (in range). Consecutive deposits of one
+    // packet usually fall in the same voxel (mean free paths are often
+    // shorter than a voxel), so remembering the last slot skips the hash
+    // probe in the common case.
+    void add_low(const Coord& c, unsigned __int128 low) {
+        if (last_slot_ == kNoSlot || !same(c, slots_[last_slot_].key)) last_slot_ = find_or_insert(c);
+        if (!slots_[last_slot_].value.add_low(low)) overflow(c);
+    }
     std::vector<size_t> sorted_slots() const;  // used slots by ascending key
     void add_general(double x, double y, double z, double value);
     void add_at(const Coord& c, const Fixed192& value);
@@ -270,6 +293,27 @@ struct GridSet {
     // Packets of the finished units whose deposits these grids hold: the
     // engine checks that the run's grids hold exactly its merged packets.
     uint64_t packets = 0;
+
+    // The deposits of one interaction at world position (x, y, z): `absorbed`
+    // into the absorbed grid and, for a fluorescent packet, `weight` into the
+    // fluorescence grid and, if there are per-fluorophore grids, into that of
+    // its fluorophore `fluorophore`. The
+    // same bits and counters as calling add(x, y, z, ...) on each of those
+    // grids; the grids share one voxel size, so the voxel index is computed
+    // once, and the weight converted to fixed point once.
+    __attribute__((always_inline)) void deposit(double x, double y, double z, double absorbed_value, bool fluorescent,
+                                                size_t fluorophore, double weight) {
+        VoxelAccumulator::Coord c;
+        const bool in_range = absorbed.index_of(x, y, z, c);
+        unsigned __int128 low;
+        bool fast = Fixed192::fast_low(absorbed_value, low);
+        absorbed.add_resolved(x, y, z, c, in_range, absorbed_value, fast, low);
+        if (!fluorescent) return;
+        fast = Fixed192::fast_low(weight, low);
+        fluorescence.add_resolved(x, y, z, c, in_range, weight, fast, low);
+        if (!per_fluorophore.empty())
+            per_fluorophore[fluorophore].add_resolved(x, y, z, c, in_range, weight, fast, low);
+    }
 
     // The grids by number: 0 absorbed, 1 fluorescence, 2 + f per fluorophore f.
     size_t grid_count() const { return 2 + per_fluorophore.size(); }

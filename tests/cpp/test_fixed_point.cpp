@@ -124,6 +124,39 @@ TEST(Fixed192, ReportsOverflowAndStaysUnchanged) {
     EXPECT_EQ(neg.to_double(), -0x1p67);
 }
 
+TEST(Fixed192, TopWordOverflowMatchesWideReference) {
+    // add() decides the range of the top word in two signed 64-bit steps;
+    // the reference sums it in 128 bits. Edge cases first: a carry that
+    // brings a wrapped first step back to INT64_MIN (in range), and one ulp
+    // beyond either end.
+    const uint64_t ones = ~uint64_t(0), min = uint64_t(INT64_MIN), max = uint64_t(INT64_MAX);
+    Fixed192 least = Fixed192::from_words(ones, ones, min);
+    ASSERT_TRUE(least.add(Fixed192::from_words(1, 0, ones)));
+    EXPECT_EQ(least, Fixed192::from_words(0, 0, min));
+    EXPECT_FALSE(least.add(Fixed192::from_words(ones, ones, ones)));
+    EXPECT_EQ(least, Fixed192::from_words(0, 0, min));
+    Fixed192 most = Fixed192::from_words(ones, ones, max);
+    EXPECT_FALSE(most.add(Fixed192::from_words(1, 0, 0)));
+    EXPECT_EQ(most, Fixed192::from_words(ones, ones, max));
+    std::mt19937_64 rng(11);
+    const uint64_t near[] = {0, 1, ones, ones - 1, min, min + 1, max, max - 1};
+    const auto word = [&](bool top) { return rng() % 2 ? near[rng() % 8] : (top ? rng() >> (rng() % 64) : rng()); };
+    for (int n = 0; n < 200000; ++n) {
+        const uint64_t a[3] = {word(false), word(false), word(true)}, b[3] = {word(false), word(false), word(true)};
+        const unsigned __int128 la = (static_cast<unsigned __int128>(a[1]) << 64) | a[0];
+        const unsigned __int128 lb = (static_cast<unsigned __int128>(b[1]) << 64) | b[0];
+        const unsigned __int128 low = la + lb;
+        const __int128 high = __int128(int64_t(a[2])) + int64_t(b[2]) + int64_t(low < la);
+        const bool fits = high == __int128(int64_t(high));
+        Fixed192 s = Fixed192::from_words(a[0], a[1], a[2]);
+        ASSERT_EQ(s.add(Fixed192::from_words(b[0], b[1], b[2])), fits) << n;
+        if (fits)
+            ASSERT_EQ(s, Fixed192::from_words(uint64_t(low), uint64_t(low >> 64), uint64_t(int64_t(high)))) << n;
+        else
+            ASSERT_EQ(s, Fixed192::from_words(a[0], a[1], a[2])) << n;
+    }
+}
+
 TEST(Fixed192, FastPathAdditionCarriesAndStopsAtTheTop) {
     // The deposit loop adds fast_low values straight into the low 128 bits;
     // 10 x 7 = 70 carries into word 2 (16 per unit there) and equals the sum

@@ -12,6 +12,8 @@
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace {
 
@@ -105,6 +107,40 @@ TEST(VoxelAccumulator, RoundingNearHalfMatchesExtendedPrecisionReference) {
     std::mt19937_64 rng(2024);
     std::uniform_int_distribution<int> k(-100000, 100000);
     for (int n = 0; n < 5000; ++n) around(k(rng) + 0.5, 3);
+}
+
+TEST(VoxelAccumulator, RoundingAtZeroAndAtTheIndexLimits) {
+    // Expected voxels written out: halves go up, tiny and subnormal f of
+    // either sign land in voxel 0, and the largest accepted |f| = 2^30 keeps
+    // its exact index.
+    VoxelAccumulator acc(1.0);
+    const double tiny = std::numeric_limits<double>::denorm_min();
+    const double below_half = std::nextafter(0.5, 0.0);
+    const double cases[][2] = {{0.0, 0},
+                               {-0.0, 0},
+                               {tiny, 0},
+                               {-tiny, 0},
+                               {-0x1p-1060, 0},
+                               {0.5, 1},
+                               {-0.5, 0},
+                               {below_half, 0},
+                               {-below_half, 0},
+                               {-std::nextafter(0.5, 1.0), -1},
+                               {-1.5, -1},
+                               {1.5, 2},
+                               {0x1p30, 0x1p30},
+                               {-0x1p30, -0x1p30},
+                               {0x1p30 - 0.5, 0x1p30},
+                               {-0x1p30 + 0.5, -0x1p30 + 1}};
+    for (const auto& c : cases) {
+        const Coord v = index_or_fail(acc, c[0], -c[0], 0.0);
+        EXPECT_EQ(v[0], int32_t(c[1])) << "f = " << c[0];
+        // -f: the mirrored half-way points round up as well
+        const double mirrored = std::floor(-static_cast<long double>(c[0]) + 0.5L);
+        EXPECT_EQ(v[1], int32_t(mirrored)) << "f = " << -c[0];
+    }
+    Coord out{};
+    EXPECT_FALSE(acc.index_of(std::nextafter(0x1p30, 1e300), 0.0, 0.0, out));
 }
 
 TEST(VoxelAccumulator, MatchesReferenceMapThroughGrowthAndCache) {
@@ -317,6 +353,31 @@ TEST(VoxelAccumulator, MemoryGrowsWithVoxelsAndClearReleasesIt) {
     EXPECT_EQ(acc.voxel_count(), 0u);
     EXPECT_EQ(acc.memory_bytes(), empty);
     EXPECT_EQ(acc.voxel_size(), 1.0);
+}
+
+// GridSet::deposit computes the voxel index and the weight's fixed-point form
+// once for its grids; every grid must still get what add() would give it,
+// including the general path (negative, zero, large values) and the drops.
+TEST(GridSet, DepositEqualsAddIntoEachGrid) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    ep::GridSet g(0.5, 2);
+    g.deposit(0.2, 0.3, -0.2, 0.25, false, 0, 8.0);  // not fluorescent: absorbed only
+    g.deposit(0.7, 0.3, -0.2, 0.5, true, 1, 0.75);   // voxel (1, 1, 0)
+    g.deposit(0.6, 0.3, -0.2, 0.0, true, 1, 0.125);  // zero absorbed: no voxel, no drop
+    g.deposit(0.6, 0.3, -0.2, -1.0, true, 0, 16.0);  // negative and >= 8: add_general
+    g.deposit(1e300, 0.0, 0.0, 2.0, true, 0, 4.0);   // out of range: dropped with value
+    g.deposit(nan, 0.0, 0.0, 0.5, true, 1, nan);     // bad position; NaN weight counted only
+    EXPECT_EQ(g.absorbed.sorted(), (std::vector<std::pair<Coord, double>>{{{0, 1, 0}, 0.25}, {{1, 1, 0}, -0.5}}));
+    EXPECT_EQ(g.fluorescence.sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 16.875}}));
+    EXPECT_EQ(g.per_fluorophore[0].sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 16.0}}));
+    EXPECT_EQ(g.per_fluorophore[1].sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 0.875}}));
+    EXPECT_EQ(g.absorbed.dropped(), 2u);
+    EXPECT_EQ(g.absorbed.dropped_value(), 2.5);
+    EXPECT_EQ(g.fluorescence.dropped(), 2u);
+    EXPECT_EQ(g.fluorescence.dropped_value(), 4.0);
+    EXPECT_EQ(g.per_fluorophore[0].dropped(), 1u);
+    EXPECT_EQ(g.per_fluorophore[1].dropped(), 1u);
+    EXPECT_EQ(g.per_fluorophore[1].dropped_value(), 0.0);
 }
 
 }  // namespace
