@@ -17,8 +17,15 @@ class Halton {
     double sample(uint64_t index, int dim) const;
     static int base(int dim);
 
+    // Dimension dim's digit permutation (its table of base(dim) entries).
+    const std::vector<uint16_t>& permutation(int dim) const { return perm_[dim]; }
+
   private:
     std::vector<uint16_t> perm_[kMaxDimensions];
+    // The radical inverse's terms as its digit loop rounds them: terms_[d]
+    // holds p[j] * b^-(k+1) at k b + j, for the places k whose weight b^-(k+1)
+    // exceeds 2^-53.
+    std::vector<double> terms_[kMaxDimensions];
 };
 
 }  // namespace ep

@@ -164,9 +164,22 @@ struct GatherData {
     const uint32_t* base;                  // Scene::region_base_
     Vec3 c;
     Float r, r2;
+    Float c_max;  // max_abs_component(c), for the rounding room below
     TriangleCache* cache;
     size_t max_count;
-    bool overflow;
+    bool overflow = false;
+
+    GatherData(const Vec3* corners_, const Scene::EdgePlanes* edge_planes_, const uint32_t* base_, const Vec3& c_,
+               Float r_, TriangleCache* cache_, size_t max_count_)
+        : corners(corners_),
+          edge_planes(edge_planes_),
+          base(base_),
+          c(c_),
+          r(r_),
+          r2(r_ * r_),
+          c_max(max_abs_component(c_)),
+          cache(cache_),
+          max_count(max_count_) {}
 
     // Keeps triangle (region, prim), scene-wide triangle `id`, if it meets
     // the ball (exact double distance); both gathers (grid and BVH) apply
@@ -187,8 +200,15 @@ struct GatherData {
         if (dp * dp > r2) return;
         const Float s =
             std::max({dot(e.side[0], c) - e.off[0], dot(e.side[1], c) - e.off[1], dot(e.side[2], c) - e.off[2]});
-        if (s > r + 1e-9 * (max_abs_component(c) + e.scale + r)) return;
-        if (closest_distance2(c, P[0], P[1], P[2]) > r2) return;
+        const Float room = 1e-9 * (c_max + e.scale + r);
+        if (s > r + room) return;
+        // Behind all three edge planes by more than that room, the centre's
+        // foot on the plane lies inside the triangle, so the plane distance
+        // (within r, tested above) is the distance: kept without the exact
+        // test, which would keep it too (on colon_polyp most kept triangles
+        // are met so, the cubes being small next to them). A sliver has no
+        // edge planes (s = -inf) and takes the exact test.
+        if (!(s < -room && s > -kInf) && closest_distance2(c, P[0], P[1], P[2]) > r2) return;
         if (cache->size() >= max_count) {
             overflow = true;
             return;
@@ -574,7 +594,7 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
     // its first listing only.
     TriangleCache::Mailbox box = cache.mailbox(grid_.triangle_count());
     const Float r = padded_radius(c, radius, 1e-9);
-    GatherData data{corners_.data(), edge_planes_.data(), region_base_.data(), c, r, r * r, &cache, max_count, false};
+    GatherData data(corners_.data(), edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
         // A triangle met in an earlier cell is skipped first: triangles are
         // large next to a cube (on colon_polyp ~37 listings a gather name ~6
@@ -681,7 +701,7 @@ bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, 
     q.radius = float(r * (1 + 1e-5));
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    GatherData data{corners_.data(), edge_planes_.data(), region_base_.data(), c, r, r * r, &cache, max_count, false};
+    GatherData data(corners_.data(), edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
     if (data.overflow) cache.clear();
     return !data.overflow;

@@ -398,10 +398,20 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     LoopTrials trials;
     uint64_t n_trials = 0;  // fluorescence trials taken here
     bool hopped = false;    // the zone was just entered for this step (hop_zone)
-    if constexpr (kSpectral) trials = loop_trials();
+    // Spectral runs: the absorbed-energy tally in a local through the loop
+    // (the same running sum, added to in the same order, written back by
+    // store(); nothing else adds to it in the loop), and the packet's energy
+    // per weight, fixed here (a fluorescence event ends the loop).
+    Float energy_absorbed = 0, energy_per_weight = 0;
+    if constexpr (kSpectral) {
+        trials = loop_trials();
+        energy_absorbed = out_.tally.energy[kEnergyAbsorbed];
+        energy_per_weight = st.energy_per_weight;
+    }
     auto store = [&] {
         // A sum of ones is exact, so adding the count at once is bit-identical.
         if constexpr (kSpectral) out_.tally.scalar[kFluorescenceTrials] += Float(n_trials);
+        if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] = energy_absorbed;
         n_trials = 0;
         st.p = to_vec3(p);
         st.d = frame.dir();
@@ -452,7 +462,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         const Float dW = W * loss;
         W -= dW;
         absorbed += dW;
-        if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
+        if constexpr (kSpectral) energy_absorbed += dW * energy_per_weight;
         // interact()'s deposits: a fluorescence event, which would change
         // st.fluorescent, ends the loop below.
         if constexpr (kGrids) deposit_grids(to_vec3(p), dW, W);
@@ -490,6 +500,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 }
                 W = st.W;
                 rng = rng_;
+                if constexpr (kSpectral) energy_absorbed = out_.tally.energy[kEnergyAbsorbed];
             }
         }
         draw_tau();

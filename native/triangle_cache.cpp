@@ -77,19 +77,22 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     // Join the plane of an earlier triangle when this one lies in it (the two
     // triangles of a quad, a flat face): vertices within a relative 1e-9 of
     // the plane. The margin records how far they really are, so the plane
-    // test stays conservative for every member.
-    const Float scale = max_abs_component(v0) + max_abs_component(v1) + max_abs_component(v2);
-    const Float tol = 1e-9 * (scale + radius_);
-    std::vector<Plane>& planes = own().planes;
+    // test stays conservative for every member. (The tolerance is worked out
+    // only for a plane of the same normal: most triangles of a cube's cache
+    // have none; callgrind, colon_polyp.)
+    Store& s = own();
+    std::vector<Plane>& planes = s.planes;
     uint32_t plane = uint32_t(planes.size());
     for (uint32_t k = 0; k < planes.size(); ++k) {
-        const Plane& p = planes[k];
+        Plane& p = planes[k];
         if (dot(p.n, n) < 1 - 1e-12) continue;
+        const Float scale = max_abs_component(v0) + max_abs_component(v1) + max_abs_component(v2);
+        const Float tol = 1e-9 * (scale + radius_);
         const Float e = std::max(
             {std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off), std::fabs(dot(p.n, v2) - p.off)});
         if (e <= tol) {
-            planes[k].margin = std::max(p.margin, e);
-            planes[k].reach = planes[k].margin + eps_;
+            p.margin = std::max(p.margin, e);
+            p.reach = p.margin + eps_;
             plane = k;
             break;
         }
@@ -99,7 +102,7 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
         const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
         planes.push_back(Plane{n, off, e, e + eps_});
     }
-    own().tris.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+    s.tris.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
     sync();
 }
 

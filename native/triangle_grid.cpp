@@ -22,8 +22,11 @@ bool TriangleGrid::cell_range(const Vec3& lo, const Vec3& hi, int a[3], int b[3]
         if (!(h >= 0) || !(l <= Float(res_[k]))) return false;
         // Indices are clamped the same way at registration and here: floor and
         // clamp are monotone, so overlapping intervals keep overlapping ranges.
-        a[k] = int(std::min<Float>(std::max<Float>(std::floor(l), 0), res_[k] - 1));
-        b[k] = int(std::min<Float>(std::max<Float>(std::floor(h), 0), res_[k] - 1));
+        // (l <= res and h >= 0 here, so a non-negative l and an h below res
+        // truncate to their floor, as in cube_of: no floor call.)
+        const int top = res_[k] - 1;
+        a[k] = l > 0 ? std::min(int(l), top) : 0;
+        b[k] = h < Float(res_[k]) ? int(h) : top;
     }
     return true;
 }

@@ -193,6 +193,36 @@ TEST(Halton, BaseTwoEqualsTheDigitLoop) {
     EXPECT_LT(swapped, 8);
 }
 
+// The other bases read their terms from a table; they must equal the
+// permuted radical inverse's digit loop bit for bit (the same products, added
+// in the same order), for indices of every size.
+TEST(Halton, TableEqualsTheDigitLoop) {
+    auto digit_loop = [](const std::vector<uint16_t>& p, uint64_t b, uint64_t index) {
+        const double inv_b = 1.0 / double(b);
+        double inv_bk = inv_b, value = 0.0;
+        while (index != 0 && inv_bk > 0x1.0p-53) {
+            value += double(p[index % b]) * inv_bk;
+            index /= b;
+            inv_bk *= inv_b;
+        }
+        while (inv_bk > 0x1.0p-53) {
+            value += double(p[0]) * inv_bk;
+            inv_bk *= inv_b;
+        }
+        return value < 1.0 ? value : 0x1.fffffffffffffp-1;
+    };
+    for (uint64_t seed = 1; seed <= 4; ++seed) {
+        const Halton h(seed);
+        Rng rng(seed, 1);
+        for (int dim = 1; dim < Halton::kMaxDimensions; ++dim)
+            for (uint64_t i = 0; i < 3000; ++i) {
+                const uint64_t index = i < 1000 ? i : rng.next_u64() >> (rng.next_u64() % 64);
+                ASSERT_EQ(h.sample(index, dim), digit_loop(h.permutation(dim), uint64_t(Halton::base(dim)), index))
+                    << "seed " << seed << " dim " << dim << " index " << index;
+            }
+    }
+}
+
 TEST(MeshCheck, RejectsEveryClassOfBadMesh) {
     std::vector<float> v;
     std::vector<uint32_t> t;

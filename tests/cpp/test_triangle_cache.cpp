@@ -420,6 +420,38 @@ TEST(TriangleGrid, GatherKeepsTrianglesAtThePaddedRadius) {
     }
 }
 
+// A sliver keeps no edge planes (scene.cpp's compute_edge_planes), so the
+// gathers' lower bounds cannot place the ball's centre beside it: a ball in
+// the sliver's plane, far beyond its ends, passes the plane test and must
+// still be left out by the exact test (a gather that kept every triangle
+// "behind all its edge planes" would keep it: a sliver's are at -inf). A
+// flat tetrahedron whose bottom face is that sliver, at 0 and 1e6 along z.
+TEST(TriangleGrid, GatherLeavesOutASliverFarInItsPlane) {
+    for (const float z0 : {0.0f, 1e6f}) {
+        Scene s(1.0, 1.0);
+        // A, B on the x axis, C 1e-5 off their line (area 5e-6 of a unit
+        // edge: a sliver), D above; faces outward (det(B-A, C-A, D-A) > 0).
+        const std::vector<float> v = {0, 0, z0, 1, 0, z0, 0.5f, 1e-5f, z0, 0.5f, 0.5f, z0 + 1};
+        const std::vector<uint32_t> t = {0, 2, 1, 0, 1, 3, 1, 2, 3, 2, 0, 3};
+        s.add_region("flat", v.data(), 4, t.data(), 4, plain_medium(), 0);
+        s.commit();
+        TriangleCache cache;
+        for (const double x : {-4.0, 5.0}) {  // on the line AB, 4 beyond A or B
+            const Vec3 c(x, 0, z0);
+            ASSERT_TRUE(s.gather_triangles(c, 0.5, 1 << 20, cache));
+            EXPECT_EQ(cache.size(), 0u) << "ball at x " << x << " z " << z0;
+            ASSERT_TRUE(s.gather_triangles_bvh(c, 0.5, 1 << 20, cache));
+            EXPECT_EQ(cache.size(), 0u) << "BVH ball at x " << x << " z " << z0;
+        }
+        // A ball reaching the sliver's middle from below keeps it (and the
+        // ball's foot on each face decides nothing it should not).
+        ASSERT_TRUE(s.gather_triangles(Vec3(0.5, 0, z0 - 0.1), 0.2, 1 << 20, cache));
+        bool sliver = false;
+        for (const auto& tri : cache.triangles()) sliver |= tri.prim == 0;
+        EXPECT_TRUE(sliver) << "z " << z0;
+    }
+}
+
 TEST(TriangleCache, SameCrossingsAsFullQueryOnColonTubeWithPolyp) {
     Scene s(1.0, 1.0);
     std::vector<Mesh> meshes;
