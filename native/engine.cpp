@@ -299,15 +299,17 @@ std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, u
 
 // Traces the packets of unit `u` (local threads and trace_units alike).
 // `tick(k)` is called before every packet with its index; returning false
-// abandons the unit (nullptr) and discards its deposits. A fixed-count unit
-// deposits into `staging`, a grid set that holds one unit's voxels and so
-// stays in cache, where the grids of a whole run or chunk would take a cache
-// miss per deposit; `flush(staging)` then adds it to those grids, and it is
-// emptied for the next unit. Exact sums: adding a unit's voxels at once or
-// its deposits one by one gives the same bits.
+// abandons the unit (nullptr) and discards every deposit still staged. A
+// fixed-count unit deposits into `staging`, a grid set small enough to stay
+// in cache, where the grids of a whole run or chunk would take a cache miss
+// per deposit; once it holds at least `flush_packets` packets (every unit
+// when 0), `flush(staging)` adds it to those grids and it is emptied. Exact
+// sums: adding a unit's voxels at once, several units' at once, or its
+// deposits one by one gives the same bits.
 template <class Tick, class Flush>
 std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const RunConfig& cfg, const UnitPlan& plan,
-                                       uint64_t u, GridSet* staging, Tick&& tick, Flush&& flush) {
+                                       uint64_t u, GridSet* staging, uint64_t flush_packets, Tick&& tick,
+                                       Flush&& flush) {
     auto out = new_unit(scene, cfg, plan.unit_size, u, staging);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     tracer.begin_unit();
@@ -320,12 +322,21 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
         out->tally.record_packet();
     }
     if (out->grids) out->grids->packets += out->tally.packets;
-    if (staging && out->grids == staging) {
+    if (staging && out->grids == staging && staging->packets >= flush_packets) {
         flush(*staging);
         staging->clear_keep_capacity();
     }
     return out;
 }
+
+// Packets a local worker stages before it adds them to the run's grids: each
+// addition then inserts every distinct voxel of several units into the large
+// shared tables at once, rather than those of each unit (a 150-packet unit of
+// a 150k-packet run), so fewer inserts miss the cache and evict what the
+// tracing keeps there. (Callgrind, colon with grids, 40k packets: 512 staged
+// packets instead of 64 cost 1.7 % fewer instructions and 6.6 % fewer L1
+// read misses.) The staging set then holds a few tens of thousands of voxels.
+constexpr uint64_t kStagedPackets = 512;
 
 // A staging grid set for trace_unit, or null when the run has no grids or
 // each unit keeps its own.
@@ -333,18 +344,11 @@ std::unique_ptr<GridSet> new_staging(const Scene& scene, const RunConfig& cfg) {
     return cfg.grid_voxel_size > 0 && !grids_per_unit(cfg) ? new_grids(scene, cfg) : nullptr;
 }
 
-// One worker: claims units, traces their packets and hands them to the
-// merger until the run stops or no unit is left. A unit's deposits are
-// staged and then added to the run's grids (UnitReducer::add_grids, which
-// threads may call at once); the own grids of units of runs that keep grids
-// per unit come back here once the merger has accepted their unit and are
-// added the same way, outside the run's lock.
-void trace_claimed_units(RunState& st) {
-    const UnitPlan plan{st.unit_size, st.limit, st.n_units_max};
-    Tracer tracer(st.scene, st.source, st.halton, st.cfg);
-    std::vector<std::unique_ptr<GridSet>> accepted;
-    std::unique_ptr<GridSet> staging = new_staging(st.scene, st.cfg);
-    const auto flush = [&](const GridSet& g) { st.merger.add_grids(g); };
+// trace_claimed_units' loop: claims units and traces them until the run stops
+// or no unit is left.
+template <class Flush>
+void trace_units_until_done(RunState& st, const UnitPlan& plan, Tracer& tracer, GridSet* staging, const Flush& flush,
+                            std::vector<std::unique_ptr<GridSet>>& accepted) {
     while (!st.stop.load()) {
         if (st.cancelled()) return;
         const uint64_t u = st.next_unit.fetch_add(1);
@@ -361,7 +365,7 @@ void trace_claimed_units(RunState& st) {
             }
             return true;
         };
-        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, staging.get(), tick, flush);
+        auto out = trace_unit(tracer, st.scene, st.cfg, plan, u, staging, kStagedPackets, tick, flush);
         if (!out) return;
         st.done_packets.fetch_add(end - counted);
         {
@@ -372,6 +376,26 @@ void trace_claimed_units(RunState& st) {
         for (const auto& g : accepted) st.merger.add_grids(*g);
         accepted.clear();
     }
+}
+
+// One worker: claims units, traces their packets and hands them to the
+// merger until the run stops or no unit is left. A unit's deposits are
+// staged and then added to the run's grids (UnitReducer::add_grids, which
+// threads may call at once); the own grids of units of runs that keep grids
+// per unit come back here once the merger has accepted their unit and are
+// added the same way, outside the run's lock.
+void trace_claimed_units(RunState& st) {
+    const UnitPlan plan{st.unit_size, st.limit, st.n_units_max};
+    Tracer tracer(st.scene, st.source, st.halton, st.cfg);
+    std::vector<std::unique_ptr<GridSet>> accepted;
+    std::unique_ptr<GridSet> staging = new_staging(st.scene, st.cfg);
+    const auto flush = [&](const GridSet& g) { st.merger.add_grids(g); };
+    trace_units_until_done(st, plan, tracer, staging.get(), flush, accepted);
+    // The worker leaves: the units still staged are added. (An abandoned unit
+    // emptied the staging set, deposits of earlier units included; units are
+    // only abandoned when the run is cancelled or failed, and then no grid is
+    // written. A fixed-count run stops once its last unit merged.)
+    if (staging && staging->packets > 0) flush(*staging);
 }
 
 void worker(RunState& st) {
@@ -481,7 +505,7 @@ UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig&
     const auto tick = [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); };
     const auto flush = [&](const GridSet& g) { batch.grids->merge_from(g); };
     for (uint64_t u = first_unit; u < first_unit + count; ++u) {
-        auto out = trace_unit(tracer, scene, cfg, plan, u, staging.get(), tick, flush);
+        auto out = trace_unit(tracer, scene, cfg, plan, u, staging.get(), /*flush_packets=*/0, tick, flush);
         if (!out) break;
         batch.units.push_back(std::move(out));
     }

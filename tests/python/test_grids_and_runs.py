@@ -262,7 +262,9 @@ def test_grids_are_the_same_bits_on_any_thread_count_and_either_grid_path(tmp_pa
     """Voxels are exact fixed-point sums (docs/numerics.md, "Grid sums"): one thread, two
     threads (each with its own grids for the whole run) and the per-unit grids that runs with a
     stop rule keep (a time budget that never fires) give every voxel of every grid bit for bit,
-    and the absorbed grid sums to the absorbed tally."""
+    and the absorbed grid sums to the absorbed tally. Workers stage several units before they
+    add them to the run's grids (engine.cpp, kStagedPackets) and add what is left when they end:
+    64-packet units (the last one short) give the same bits too."""
     rig = ep.PencilSource((0, 0, 1), (0, 0, -1))
     kw = dict(photons=4000, unit_size=250, seed=6, record_escapes=False)
     runs = {}
@@ -270,9 +272,13 @@ def test_grids_are_the_same_bits_on_any_thread_count_and_either_grid_path(tmp_pa
         ("t1", dict(threads=1)),
         ("t2", dict(threads=2)),
         ("t2-budget", dict(threads=2, time_budget_s=1e6)),
+        ("t1-units64", dict(threads=1, unit_size=64)),
+        ("t2-units64", dict(threads=2, unit_size=64)),
     ):
         path = tmp_path / f"{label}.vdb"
-        res = ep.run(_fluor_scene(), rig, grids=ep.GridRequest(0.05, str(path), per_fluorophore=True), **kw, **extra)
+        res = ep.run(
+            _fluor_scene(), rig, grids=ep.GridRequest(0.05, str(path), per_fluorophore=True), **{**kw, **extra}
+        )
         assert res.photons == 4000 and res.stop_reason == "photons"
         runs[label] = (res, _all_grids(path))
     ref_res, ref = runs["t1"]
