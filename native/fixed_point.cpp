@@ -1,6 +1,7 @@
 #include "fixed_point.h"
 
 #include <cmath>
+#include <cstring>
 
 namespace ep {
 
@@ -77,7 +78,15 @@ double Fixed192::words_to_double(const uint64_t* w_in, int n) {
         sticky = (w[q] & ((uint64_t(1) << r) - 1)) != 0;
         for (int i = 0; i < q; ++i) sticky = sticky || w[i] != 0;
     }
-    const double mag = std::ldexp(double(int64_t(head | uint64_t(sticky))), low - kFracBits);
+    // head | sticky lies in [2^62, 2^63): the conversion to double rounds it
+    // once, and the scale 2^(low - kFracBits), with low - kFracBits in
+    // [-186, 132), keeps it a normal double, so multiplying by that power of
+    // two is exact, as ldexp would be, without the library call (the writer
+    // converts every voxel of a run's grids).
+    const uint64_t scale_bits = uint64_t(1023 + low - kFracBits) << 52;
+    double scale;
+    std::memcpy(&scale, &scale_bits, sizeof scale);
+    const double mag = double(int64_t(head | uint64_t(sticky))) * scale;
     return neg ? -mag : mag;
 }
 

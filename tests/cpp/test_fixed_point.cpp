@@ -88,6 +88,15 @@ TEST(Fixed192, ConversionBackRoundsOnceToNearest) {
     EXPECT_EQ(Fixed192::from_words(0, 0, uint64_t(1) << 63).to_double(), -0x1p67);
     // The largest value: 2^67 less one last bit, rounded to 2^67.
     EXPECT_EQ(Fixed192::from_words(~uint64_t(0), ~uint64_t(0), ~uint64_t(0) >> 1).to_double(), 0x1p67);
+    // The four-word sums of voxel totals reach 2^131: the extremes of the
+    // scale (the last bit, the top word) and a rounding at the top.
+    // 2^130 + 2^77 is half an ulp above 2^130 (word 3 counts 2^68).
+    const uint64_t last_bit[4] = {1, 0, 0, 0}, top[4] = {0, 0, 0, uint64_t(1) << 62},
+                   tie[4] = {0, 0, 0, (uint64_t(1) << 62) | 0x200}, above_tie[4] = {1, 0, 0, tie[3]};
+    EXPECT_EQ(Fixed192::words_to_double(last_bit, 4), 0x1p-124);
+    EXPECT_EQ(Fixed192::words_to_double(top, 4), 0x1p130);
+    EXPECT_EQ(Fixed192::words_to_double(tie, 4), 0x1p130);                 // a tie: to even
+    EXPECT_EQ(Fixed192::words_to_double(above_tie, 4), 0x1p130 + 0x1p78);  // the last bit decides: up
 }
 
 TEST(Fixed192, SumsDoNotDependOnOrder) {
