@@ -173,7 +173,7 @@ class Scene {
     static constexpr int kCellSplit = 3;
     // The radii (in cube sides, widest first) an empty cube's ball tries
     // (cell_cache): the widest that no triangle meets is its ball.
-    static constexpr Float kEmptyWiden[] = {3, 2};
+    static constexpr Float kEmptyWiden[] = {2};
     static constexpr size_t kCellMaxTriangles = 16;
 
   private:
