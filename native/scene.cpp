@@ -646,13 +646,29 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     };
     thread_local Builder builder;
     TriangleCache& scratch = builder.scratch;
-    gather_triangles(c, side, kCellMaxTriangles, scratch);
+    if (gather_triangles(c, side, kCellMaxTriangles, scratch) && scratch.size() == 0) widen_empty(c, side, scratch);
     void* bytes = store_allocate(TriangleCache::frozen_size(scratch), builder.cursor);
     TriangleCache* built = TriangleCache::freeze(scratch, bytes);
     TriangleCache* expected = nullptr;
     if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
     built->~TriangleCache();  // another thread was first (the same content); the block stays unused
     return *expected;
+}
+
+void Scene::widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const {
+    // No triangle meets the ball of one side: the first wider ball that
+    // none meets either (the same gather, stopped at its first triangle by a
+    // limit of none) is the cube's. Any step inside a ball no triangle
+    // meets crosses nothing, so the wider ball answers as the narrow one
+    // did; the steps then go farther before the next hop. (Callgrind,
+    // colon_polyp, instructions a packet for 20,000 packets on a new scene /
+    // 20,000 more on the same scene / 150,000 on a new one: one side 41.6k /
+    // 36.7k / 39.3k; {2} 41.8k / 35.9k / 39.0k; {3, 2} 42.6k / 35.8k; {2.5}
+    // 42.4k / 36.0k; {1.5} 42.2k / 35.9k: a wider ball's failed gathers cost
+    // more than its longer stays save.)
+    for (const Float k : kEmptyWiden)
+        if (gather_triangles(c, k * side, 0, scratch)) return;
+    scratch.reset(c, side);  // known empty at one side
 }
 
 uint64_t Scene::new_store_id() {

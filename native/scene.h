@@ -139,7 +139,8 @@ class Scene {
     // cell is split into kCellSplit^3 cubes, and each cube's cache holds the
     // triangles that meet the ball about its centre of radius one cube side
     // (the cube's half-diagonal is 0.87 side, so a short step from anywhere
-    // in the cube stays inside the ball). Built on first use and shared by
+    // in the cube stays inside the ball); an empty cube's ball is the widest
+    // of kEmptyWiden that no triangle meets. Built on first use and shared by
     // every thread: the content is a function of the cube alone, so which
     // thread builds it never matters. A cache that covers nothing when p is
     // outside the grid or more than kCellMaxTriangles meet the ball (the
@@ -170,6 +171,9 @@ class Scene {
         Float scale;  // the largest vertex coordinate's magnitude (rounding room)
     };
     static constexpr int kCellSplit = 3;
+    // The radii (in cube sides, widest first) an empty cube's ball tries
+    // (cell_cache): the widest that no triangle meets is its ball.
+    static constexpr Float kEmptyWiden[] = {2};
     static constexpr size_t kCellMaxTriangles = 16;
 
   private:
@@ -196,6 +200,8 @@ class Scene {
     mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
+    // Widens the ball of the empty cache `scratch` (centre c, radius side).
+    void widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const;
     // The store the frozen caches live in (TriangleCache::freeze): chunks the
     // scene owns, each thread bumping through one of its own, so a build
     // takes the lock only for a new chunk (a malloc per cube cost ~450
