@@ -1,6 +1,8 @@
 #include "vdb_writer.h"
 
 #include <openvdb/io/File.h>
+#include <openvdb/io/GridDescriptor.h>
+#include <openvdb/io/io.h>
 #include <openvdb/openvdb.h>
 
 #include <fcntl.h>
@@ -15,6 +17,7 @@
 #include <cerrno>
 #include <cfloat>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <cstring>
 #include <exception>
@@ -230,47 +233,120 @@ openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree
     return grid;
 }
 
-// Builds every grid on up to `threads` threads, in two passes. First every
-// part of every grid is filled (one task per part, so two threads share even
-// a single grid's work) into its thread's tree of that grid; then each grid
-// takes its threads' trees (one task per grid). Which thread fills which part
-// does not enter the grid: the parts' voxels are disjoint. The first failure
-// in grid order (within a grid, in part order) is rethrown, so the error does
-// not depend on the thread timing.
-openvdb::GridCPtrVec build_grids(const std::vector<GridOutput>& grids,
-                                 const std::map<std::string, std::string>& metadata, int threads) {
-    std::vector<std::pair<size_t, const VoxelAccumulator*>> parts;  // (grid, part), grid-major
-    std::vector<size_t> first_part(grids.size() + 1, 0);
-    for (size_t k = 0; k < grids.size(); ++k) {
-        for (const VoxelAccumulator* p : grids[k].parts()) parts.emplace_back(k, p);
-        first_part[k + 1] = parts.size();
+// Builds the grids on up to `threads` threads while the caller writes them,
+// in grid order: the file is written grid by grid, so grid 0 can go out while
+// grid 1 is still being filled (OpenVDB's write itself is serial). Every part
+// of every grid is a task (so threads share even a single grid's work),
+// filled into its thread's tree of that grid; the thread that fills a grid's
+// last part joins its threads' trees into the grid. Which thread fills which
+// part does not enter the grid: the parts' voxels are disjoint. get(k)
+// rethrows grid k's first failure (in part order), so the error does not
+// depend on the thread timing.
+class GridBuilder {
+  public:
+    GridBuilder(const std::vector<GridOutput>& grids, const std::map<std::string, std::string>& metadata, int threads)
+        : grids_(grids),
+          metadata_(metadata),
+          remaining_(grids.size()),
+          built_(grids.size()),
+          grid_errors_(grids.size()) {
+        for (size_t k = 0; k < grids.size(); ++k) {
+            for (const VoxelAccumulator* p : grids[k].parts()) parts_.emplace_back(k, p);
+            remaining_[k].store(grids[k].parts().size());
+        }
+        fill_errors_.resize(parts_.size());
+        const size_t count = std::max<size_t>(1, std::min(parts_.size(), size_t(std::max(threads, 1))));
+        trees_.assign(count, std::vector<FloatTree::Ptr>(grids.size()));
+        try {
+            for (size_t t = 1; t < count; ++t)
+                helpers_.emplace_back([this, t] {
+                    while (fill_next(t)) {
+                    }
+                });
+        } catch (const std::system_error&) {
+            // No thread to spare: the caller fills the rest in get().
+        }
     }
-    // trees[t][k]: thread t's tree of grid k, created by its first part.
-    std::vector<std::vector<FloatTree::Ptr>> trees;
-    const std::vector<std::exception_ptr> fill_errors = run_tasks(
-        parts.size(), threads,
-        [&](size_t n_threads) { trees.assign(n_threads, std::vector<FloatTree::Ptr>(grids.size())); },
-        [&](size_t i, size_t t) {
-            const size_t k = parts[i].first;
-            FloatTree::Ptr& tree = trees[t][k];
-            if (!tree) tree = std::make_shared<FloatTree>(/*background=*/0.0f);
-            fill_part(grids[k], *parts[i].second, *tree);
-        });
+    ~GridBuilder() {
+        next_.store(parts_.size());  // an early exit (an error) leaves the parts not started
+        for (auto& th : helpers_) th.join();
+    }
 
-    std::vector<openvdb::FloatGrid::Ptr> built(grids.size());
-    const std::vector<std::exception_ptr> grid_errors = run_tasks(
-        grids.size(), threads, [](size_t) {},
-        [&](size_t k, size_t) {
-            for (size_t i = first_part[k]; i < first_part[k + 1]; ++i)
-                if (fill_errors[i]) std::rethrow_exception(fill_errors[i]);
-            std::vector<FloatTree::Ptr> own;
-            for (auto& per_thread : trees) own.push_back(std::move(per_thread[k]));
-            built[k] = assemble_grid(grids[k], std::move(own), metadata);
-        });
-    for (const auto& e : grid_errors)
-        if (e) std::rethrow_exception(e);
-    return openvdb::GridCPtrVec(built.begin(), built.end());
-}
+    // Grid k, once built: the calling thread fills parts (of any grid, in
+    // order) until it is.
+    openvdb::FloatGrid::ConstPtr get(size_t k) {
+        while (!ready(k))
+            if (!fill_next(0)) {
+                std::unique_lock<std::mutex> lock(mu_);
+                cv_.wait(lock, [&] { return built_[k].done; });
+            }
+        if (grid_errors_[k]) std::rethrow_exception(grid_errors_[k]);
+        return built_[k].grid;
+    }
+    // Gives up grid k (its memory), once written.
+    void release(size_t k) { built_[k].grid.reset(); }
+
+  private:
+    struct Built {
+        openvdb::FloatGrid::Ptr grid;
+        bool done = false;  // guarded by mu_
+    };
+    bool ready(size_t k) {
+        std::lock_guard<std::mutex> lock(mu_);
+        return built_[k].done;
+    }
+    // Fills the next part not yet taken, on thread t; false if none is left.
+    bool fill_next(size_t t) {
+        const size_t i = next_.fetch_add(1);
+        if (i >= parts_.size()) return false;
+        const size_t k = parts_[i].first;
+        try {
+            FloatTree::Ptr& tree = trees_[t][k];
+            if (!tree) tree = std::make_shared<FloatTree>(/*background=*/0.0f);
+            fill_part(grids_[k], *parts_[i].second, *tree);
+        } catch (...) {
+            fill_errors_[i] = std::current_exception();
+        }
+        if (remaining_[k].fetch_sub(1, std::memory_order_acq_rel) == 1) assemble(k);
+        return true;
+    }
+    // Joins grid k's trees, once its last part is filled.
+    void assemble(size_t k) {
+        openvdb::FloatGrid::Ptr grid;
+        std::exception_ptr error;
+        for (size_t i = 0; i < parts_.size() && !error; ++i)
+            if (parts_[i].first == k && fill_errors_[i]) error = fill_errors_[i];
+        if (!error) {
+            try {
+                std::vector<FloatTree::Ptr> own;
+                for (auto& per_thread : trees_) own.push_back(std::move(per_thread[k]));
+                grid = assemble_grid(grids_[k], std::move(own), metadata_);
+            } catch (...) {
+                error = std::current_exception();
+            }
+        }
+        {
+            std::lock_guard<std::mutex> lock(mu_);
+            built_[k].grid = std::move(grid);
+            grid_errors_[k] = error;
+            built_[k].done = true;
+        }
+        cv_.notify_all();
+    }
+
+    const std::vector<GridOutput>& grids_;
+    const std::map<std::string, std::string>& metadata_;
+    std::vector<std::pair<size_t, const VoxelAccumulator*>> parts_;  // (grid, part), grid-major
+    std::vector<std::atomic<size_t>> remaining_;                     // parts of grid k not yet filled
+    std::vector<std::vector<FloatTree::Ptr>> trees_;                 // [thread][grid]
+    std::vector<std::exception_ptr> fill_errors_;                    // per part
+    std::atomic<size_t> next_{0};
+    std::mutex mu_;
+    std::condition_variable cv_;
+    std::vector<Built> built_;
+    std::vector<std::exception_ptr> grid_errors_;  // written with built_[k].done, under mu_
+    std::vector<std::thread> helpers_;
+};
 
 // Creates an empty, uniquely named file next to `path` (same directory, so the
 // final rename stays on one filesystem and is atomic). O_EXCL makes the name
@@ -331,12 +407,30 @@ class CheckedArchive : public openvdb::io::Archive {
     // larger (8.2 MB against 7.4 MB) and the write slower, and a reader built
     // without Blosc could not open the file.
     CheckedArchive() { setCompression(openvdb::io::COMPRESS_ACTIVE_MASK); }
-    void write_checked(const std::string& tmp, const std::string& path, const openvdb::GridCPtrVec& grids,
+    // Writes the grids of `builder`, each as soon as it is built. The sequence
+    // is Archive::write's for grids of unique, non-empty names and their own
+    // trees: stream flags, header, file metadata, the grid count, then each
+    // grid under its own name (the bytes are the same but for the header's
+    // random UUID; checked against Archive::write when this was written).
+    void write_checked(const std::string& tmp, const std::string& path, GridBuilder& builder, size_t n,
                        const openvdb::MetaMap& meta) const {
         std::ofstream os(tmp, std::ios_base::out | std::ios_base::binary | std::ios_base::trunc);
         if (!os) throw path_error(path, "cannot open the temporary file '" + tmp + "': " + std::strerror(errno));
         errno = 0;
-        Archive::write(os, grids, /*seekable=*/true, meta);
+        openvdb::io::StreamMetadata::Ptr stream_meta(new openvdb::io::StreamMetadata);
+        openvdb::io::setStreamMetadataPtr(os, stream_meta, /*transfer=*/false);
+        openvdb::io::setDataCompression(os, compression());
+        openvdb::io::setWriteGridStatsMetadata(os, isGridStatsMetadataEnabled());
+        writeHeader(os, /*seekable=*/true);
+        meta.writeMeta(os);
+        const int32_t count = int32_t(n);
+        os.write(reinterpret_cast<const char*>(&count), sizeof count);
+        for (size_t k = 0; k < n; ++k) {
+            const openvdb::FloatGrid::ConstPtr grid = builder.get(k);
+            openvdb::io::GridDescriptor gd(grid->getName(), grid->type(), grid->saveFloatAsHalf());
+            writeGrid(gd, grid, os, /*seekable=*/true);
+            openvdb::io::setDataCompression(os, compression());  // a grid may change it
+        }
         os.flush();
         const int err = errno;
         if (!os) throw path_error(path, "write failed: " + (err ? std::string(std::strerror(err)) : likely_cause(tmp)));
@@ -353,14 +447,13 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
     validate(grids, metadata);
     ensure_openvdb_initialized();
 
-    openvdb::GridCPtrVec out = build_grids(grids, metadata, threads);
-
     openvdb::MetaMap file_meta;
     for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));
 
+    GridBuilder builder(grids, metadata, threads);
     const std::string tmp = create_temp_file(path);
     try {
-        CheckedArchive().write_checked(tmp, path, out, file_meta);
+        CheckedArchive().write_checked(tmp, path, builder, grids.size(), file_meta);
         sync_file(tmp, path);
     } catch (const openvdb::Exception& e) {
         std::remove(tmp.c_str());
@@ -375,11 +468,11 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
         throw path_error(path, "cannot rename the temporary file over it: " + why);
     }
     std::vector<double> sums;
-    for (const auto& grid : out) sums.push_back(grid->metaValue<double>("accumulator_sum"));
+    for (size_t k = 0; k < grids.size(); ++k) sums.push_back(builder.get(k)->metaValue<double>("accumulator_sum"));
     // Each tree holds tens of thousands of leaves: free them on the run's
     // threads too, one grid each.
     run_tasks(
-        out.size(), threads, [](size_t) {}, [&](size_t k, size_t) { out[k].reset(); });
+        grids.size(), threads, [](size_t) {}, [&](size_t k, size_t) { builder.release(k); });
     return sums;
 }
 
