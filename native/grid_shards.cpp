@@ -6,10 +6,11 @@
 namespace ep {
 
 namespace {
-// Entries a thread's shard bucket keeps between adds: a staging set of one
-// unit puts a few hundred voxels in each bucket (colon_polyp at 0.2 mm, 150
-// packets a unit: ~100), so this keeps every unit's buckets in memory, and
-// at most 64 x 4096 x 40 bytes = 10 MB per thread.
+// Entries a thread's shard bucket keeps between adds: a worker's staging set
+// (512 packets, engine.cpp) puts a few hundred voxels in each bucket
+// (colon_polyp at 0.2 mm: ~100 per 150 packets), so this keeps every
+// staging set's buckets in memory, and at most 64 x 4096 x 40 bytes = 10 MB
+// per thread.
 constexpr size_t kKeptBucketEntries = 4096;
 }  // namespace
 

@@ -104,34 +104,22 @@ void validate(const std::vector<GridOutput>& grids, const std::map<std::string, 
 using FloatTree = openvdb::FloatTree;
 using Leaf = FloatTree::LeafNodeType;
 
-// Runs task(i, t) for i in [0, n) on up to `threads` threads, t naming the
-// thread (the calling one is 0); setup(count) learns the thread count before
-// any task starts. A task's exception is kept in its slot, so the caller can
-// rethrow them in task order, whatever the thread timing.
-template <class Setup, class Task>
-std::vector<std::exception_ptr> run_tasks(size_t n, int threads, const Setup& setup, const Task& task) {
-    std::vector<std::exception_ptr> errors(n);
+// Runs task(i) for i in [0, n) on up to `threads` threads (the calling one
+// included), each task on one thread.
+template <class Task>
+void run_tasks(size_t n, int threads, const Task& task) {
     std::atomic<size_t> next{0};
-    const auto work = [&](size_t t) {
-        for (size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) {
-            try {
-                task(i, t);
-            } catch (...) {
-                errors[i] = std::current_exception();
-            }
-        }
+    const auto work = [&] {
+        for (size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) task(i);
     };
-    const size_t count = std::max<size_t>(1, std::min(n, size_t(std::max(threads, 1))));
-    setup(count);
     std::vector<std::thread> pool;
     try {
-        for (size_t t = 1; t < count; ++t) pool.emplace_back(work, t);
+        for (size_t t = 1; t < std::min(n, size_t(std::max(threads, 1))); ++t) pool.emplace_back(work);
     } catch (const std::system_error&) {
         // No thread to spare: the threads started so far run the rest.
     }
-    work(0);
+    work();
     for (auto& th : pool) th.join();
-    return errors;
 }
 
 // Sets the voxels of `part` (times `scale`) in `tree`, through an accessor
@@ -471,8 +459,7 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
     for (size_t k = 0; k < grids.size(); ++k) sums.push_back(builder.get(k)->metaValue<double>("accumulator_sum"));
     // Each tree holds tens of thousands of leaves: free them on the run's
     // threads too, one grid each.
-    run_tasks(
-        grids.size(), threads, [](size_t) {}, [&](size_t k, size_t) { builder.release(k); });
+    run_tasks(grids.size(), threads, [&](size_t k) { builder.release(k); });
     return sums;
 }
 

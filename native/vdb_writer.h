@@ -47,8 +47,9 @@ struct GridOutput {
 // The file is written to a temporary file next to `path` and renamed over it,
 // so readers never see a half-written file and a failed write leaves any
 // previous file untouched.
-// The grids are built on up to `threads` threads (their parts in parallel,
-// then the grids). Returns each grid's "accumulator_sum", in `grids` order.
+// The grids are built on up to `threads` threads (their parts in parallel),
+// and each is written as soon as it is built. Returns each grid's
+// "accumulator_sum", in `grids` order.
 // Throws std::invalid_argument for bad input (empty list, null data, empty or
 // duplicate name, reserved metadata key, voxel sizes that differ, a value
 // beyond float range), naming the grid or key; std::logic_error if the parts

@@ -64,26 +64,19 @@ class VoxelAccumulator {
     // creates no voxel. A voxel total leaving the fixed-point range throws
     // std::overflow_error naming the voxel (never a silent wrap).
     void add(double x, double y, double z, double value) {
-        // The common deposit (2^-72 <= value < 8) stays in registers; every
-        // other value (zero included) takes add_general.
-        unsigned __int128 low;
-        if (!Fixed192::fast_low(value, low)) {
-            add_general(x, y, z, value);
-            return;
-        }
         Coord c;
-        if (!index_of(x, y, z, c)) {
-            drop(value);
-            return;
-        }
-        add_low(c, low);
+        const bool in_range = index_of(x, y, z, c);
+        unsigned __int128 low;
+        const bool fast = Fixed192::fast_low(value, low);
+        add_resolved(x, y, z, c, in_range, value, fast, low);
     }
 
     // add(x, y, z, value) with the voxel index already computed by
     // index_of(x, y, z, c) (returning `in_range`) and `value` converted by
     // Fixed192::fast_low (returning `fast`, `low`): several grids of one
     // voxel size that take a deposit at the same point (GridSet::deposit)
-    // share these steps. The same bits and counters as add().
+    // share these steps. The common deposit (2^-72 <= value < 8) stays in
+    // registers; every other value (zero included) takes add_general.
     void add_resolved(double x, double y, double z, const Coord& c, bool in_range, double value, bool fast,
                       unsigned __int128 low) {
         if (!fast)
