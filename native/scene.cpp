@@ -445,14 +445,15 @@ void Scene::compute_isolation() {
             corners(r, i, P, lo, hi);
             Float iso = cap;
             grid_.visit(lo - Vec3(cap, cap, cap), hi + Vec3(cap, cap, cap), [&](const TriangleGrid::Ref& o) {
-                if (o.region == r) return true;
+                if (grid_.in_region(o.id, r)) return true;
+                const uint32_t o_region = grid_.region_of(o.id), o_prim = grid_.prim_of(o.id, o_region);
                 Vec3 Q[3], qlo, qhi;
-                corners(o.region, o.prim, Q, qlo, qhi);
+                corners(o_region, o_prim, Q, qlo, qhi);
                 const Vec3 gap(std::max({Float(0), qlo.x - hi.x, lo.x - qhi.x}),
                                std::max({Float(0), qlo.y - hi.y, lo.y - qhi.y}),
                                std::max({Float(0), qlo.z - hi.z, lo.z - qhi.z}));
                 const Float bound = std::max({length(gap), plane_gap(regions_[r].normals[i], P[0], Q),
-                                              plane_gap(regions_[o.region].normals[o.prim], Q[0], P)});
+                                              plane_gap(regions_[o_region].normals[o_prim], Q[0], P)});
                 iso = std::min(iso, bound);
                 return true;
             });
@@ -563,8 +564,8 @@ Float Scene::near_clearance(const Vec3& q, uint32_t region, Float iso) const {
     if (iso >= rho) return iso;
     Float best2 = rho * rho;
     grid_.visit(q - Vec3(rho, rho, rho), q + Vec3(rho, rho, rho), [&](const TriangleGrid::Ref& o) {
-        if (o.region == region) return true;
-        const Vec3 e = o.centre - q;
+        if (grid_.in_region(o.id, region)) return true;
+        const Vec3 e = o.centre() - q;
         const Float reach = o.reach + rho;
         if (dot(e, e) > reach * reach) return true;  // its bounding sphere lies beyond rho
         const Vec3* c = &corners_[3 * size_t(o.id)];
@@ -602,10 +603,11 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
         // only its first needs it. The bounding sphere then rejects most
         // candidates before the exact test.
         if (!box.first_offer(t.id)) return true;
-        const Vec3 e = t.centre - c;
+        const Vec3 e = t.centre() - c;
         const Float reach = r + t.reach;
         if (dot(e, e) > reach * reach) return true;
-        data.offer(t.id, t.region, t.prim);
+        const uint32_t region = grid_.region_of(t.id);
+        data.offer(t.id, region, grid_.prim_of(t.id, region));
         return !data.overflow;
     });
     if (data.overflow) cache.clear();
