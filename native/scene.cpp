@@ -1,6 +1,7 @@
 #include "scene.h"
 
 #include <algorithm>
+#include <memory>
 #include <numeric>
 #include <sstream>
 #include <stdexcept>
@@ -679,16 +680,21 @@ uint64_t Scene::new_store_id() {
 }
 
 void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
-    // new[] aligns a chunk for any fundamental type; blocks keep that alignment.
-    constexpr size_t kAlign = __STDCPP_DEFAULT_NEW_ALIGNMENT__, kChunk = size_t(1) << 16;
+    // Blocks start on a cache line (TriangleCache::kFrozenAlign): a frozen
+    // cache's object is then one line, its planes the next ones.
+    constexpr size_t kAlign = TriangleCache::kFrozenAlign, kChunk = size_t(1) << 16;
     static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
     bytes = (bytes + kAlign - 1) / kAlign * kAlign;
     if (cursor.store != store_id_ || cursor.left < bytes) {
-        // The rest of the thread's last chunk (of this scene or another) stays unused.
+        // The rest of the thread's last chunk (of this scene or another) stays
+        // unused. new[] aligns less: the chunk's first kAlign bytes leave room.
         const size_t size = std::max(kChunk, bytes);
         std::lock_guard<std::mutex> lock(store_mutex_);
-        store_chunks_.emplace_back(new unsigned char[size]);
-        cursor = StoreCursor{store_id_, store_chunks_.back().get(), size};
+        store_chunks_.emplace_back(new unsigned char[size + kAlign]);
+        void* first = store_chunks_.back().get();
+        size_t room = size + kAlign;
+        std::align(kAlign, size, first, room);
+        cursor = StoreCursor{store_id_, static_cast<unsigned char*>(first), size};
     }
     void* p = cursor.next;
     cursor.next += bytes;
