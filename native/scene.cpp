@@ -162,7 +162,6 @@ bool closest_callback(RTCPointQueryFunctionArguments* args) {
 }
 
 struct GatherData {
-    const Vec3* corners;                   // Scene::corners_
     const Scene::EdgePlanes* edge_planes;  // Scene::edge_planes_
     const uint32_t* base;                  // Scene::region_base_
     Vec3 c;
@@ -172,10 +171,9 @@ struct GatherData {
     size_t max_count;
     bool overflow = false;
 
-    GatherData(const Vec3* corners_, const Scene::EdgePlanes* edge_planes_, const uint32_t* base_, const Vec3& c_,
-               Float r_, TriangleCache* cache_, size_t max_count_)
-        : corners(corners_),
-          edge_planes(edge_planes_),
+    GatherData(const Scene::EdgePlanes* edge_planes_, const uint32_t* base_, const Vec3& c_, Float r_,
+               TriangleCache* cache_, size_t max_count_)
+        : edge_planes(edge_planes_),
           base(base_),
           c(c_),
           r(r_),
@@ -189,7 +187,6 @@ struct GatherData {
     // this one test.
     void offer(uint32_t id, unsigned region, unsigned prim) {
         if (overflow) return;
-        const Vec3* P = &corners[3 * size_t(id)];
         // Two lower bounds of the distance to the triangle reject most
         // neighbours before the exact test: the distance to its plane, and
         // how far the centre lies beyond one of its edge planes (on
@@ -199,7 +196,7 @@ struct GatherData {
         // ~1e6 ulps), so that every triangle it rejects closest_distance2
         // rejects as well: the cache is the same as with the exact test alone.
         const Scene::EdgePlanes& e = edge_planes[id];
-        const Float dp = dot(e.n, c - P[0]);
+        const Float dp = dot(e.n, c - e.p0);
         if (dp * dp > r2) return;
         const Float s =
             std::max({dot(e.side[0], c) - e.off[0], dot(e.side[1], c) - e.off[1], dot(e.side[2], c) - e.off[2]});
@@ -211,12 +208,13 @@ struct GatherData {
         // test, which would keep it too (on colon_polyp most kept triangles
         // are met so, the cubes being small next to them). A sliver has no
         // edge planes (s = -inf) and takes the exact test.
-        if (!(s < -room && s > -kInf) && closest_distance2(c, P[0], P[1], P[2]) > r2) return;
+        const Vec3 p1 = e.v1(), p2 = e.v2();
+        if (!(s < -room && s > -kInf) && closest_distance2(c, e.p0, p1, p2) > r2) return;
         if (cache->size() >= max_count) {
             overflow = true;
             return;
         }
-        cache->add(P[0], P[1], P[2], e.n, region, prim);
+        cache->add(e.p0, p1, p2, e.n, region, prim);
     }
 };
 
@@ -395,6 +393,11 @@ void Scene::compute_edge_planes() {
             const Vec3* P = &corners_[3 * id];
             EdgePlanes& e = edge_planes_[id];
             e.n = regions_[r].normals[i];
+            e.p0 = P[0];
+            for (int k = 0; k < 3; ++k) {  // float mesh data: exact
+                e.p1[k] = float(P[1][k]);
+                e.p2[k] = float(P[2][k]);
+            }
             e.scale = std::max({max_abs_component(P[0]), max_abs_component(P[1]), max_abs_component(P[2])});
             // The plane through edge (P[k], P[k+1]) containing the triangle's
             // geometric normal g; its unit normal cross(edge, g) points away
@@ -602,7 +605,7 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
     // its first listing only.
     TriangleCache::Mailbox box = cache.mailbox(grid_.triangle_count());
     const Float r = padded_radius(c, radius, 1e-9);
-    GatherData data(corners_.data(), edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
+    GatherData data(edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
         // A triangle met in an earlier cell is skipped first: triangles are
         // large next to a cube (on colon_polyp ~37 listings a gather name ~6
@@ -712,7 +715,7 @@ bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, 
     q.radius = float(r * (1 + 1e-5));
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    GatherData data(corners_.data(), edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
+    GatherData data(edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
     if (data.overflow) cache.clear();
     return !data.overflow;
