@@ -675,7 +675,7 @@ uint64_t Scene::new_store_id() {
 
 void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
     // Blocks start on a cache line (TriangleCache::kFrozenAlign): a frozen
-    // cache's object is then one line, its planes the next ones.
+    // cache's members that a hop reads are then one line, its planes next.
     constexpr size_t kAlign = TriangleCache::kFrozenAlign, kChunk = size_t(1) << 16;
     static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
     bytes = (bytes + kAlign - 1) / kAlign * kAlign;

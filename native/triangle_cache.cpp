@@ -13,6 +13,7 @@ TriangleCache& TriangleCache::operator=(const TriangleCache& o) {
     if (this == &o) return *this;
     center_ = o.center_;
     radius_ = o.radius_;
+    eps_ = o.eps_;
     Store& s = own();
     s.tris.assign(o.tris_view_, o.tris_view_ + o.n_tris_);
     s.planes.assign(o.planes_view_, o.planes_view_ + o.n_planes_);
@@ -25,7 +26,8 @@ namespace {
 // Byte offsets of a frozen copy's planes and triangles in its block.
 size_t planes_offset() {
     static_assert(alignof(TriangleCache::Plane) <= alignof(TriangleCache), "plane alignment");
-    static_assert(sizeof(TriangleCache) == TriangleCache::kFrozenAlign, "a frozen cache's object is one line");
+    static_assert(sizeof(TriangleCache) - sizeof(void*) == TriangleCache::kFrozenAlign,
+                  "a frozen cache's members but own_ are one line");
     return sizeof(TriangleCache);
 }
 size_t triangles_offset(size_t n_planes) {
@@ -44,6 +46,7 @@ TriangleCache* TriangleCache::freeze(const TriangleCache& src, void* bytes) {
     auto* c = new (bytes) TriangleCache();
     c->center_ = src.center_;
     c->radius_ = src.radius_;
+    c->eps_ = src.eps_;
     auto* base = static_cast<char*>(bytes);
     auto* planes = reinterpret_cast<Plane*>(base + planes_offset());
     auto* tris = reinterpret_cast<Triangle*>(base + triangles_offset(src.n_planes_));
@@ -63,6 +66,9 @@ void TriangleCache::reset(const Vec3& center, Float radius) {
     sync();
     center_ = center;
     radius_ = radius;
+    // Rounding allowance of the plane distances in intersect(): a few ulps of
+    // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
+    eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
     if (++s.stamp == 0) {  // the stamps wrapped: forget every old one
         std::fill(s.seen.begin(), s.seen.end(), 0u);
         s.stamp = 1;
@@ -76,9 +82,6 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     // test stays conservative for every member. (The tolerance is worked out
     // only for a plane of the same normal: most triangles of a cube's cache
     // have none; callgrind, colon_polyp.)
-    // Rounding allowance of the plane distances in intersect(): a few ulps of
-    // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
-    const Float eps = rounding();
     Store& s = own();
     std::vector<Plane>& planes = s.planes;
     uint32_t plane = uint32_t(planes.size());
@@ -91,7 +94,7 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
             {std::fabs(dot(p.n, v0) - p.off), std::fabs(dot(p.n, v1) - p.off), std::fabs(dot(p.n, v2) - p.off)});
         if (e <= tol) {
             p.margin = std::max(p.margin, e);
-            p.reach = p.margin + eps;
+            p.reach = p.margin + eps_;
             plane = k;
             break;
         }
@@ -99,7 +102,7 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
     if (plane == planes.size()) {
         const Float off = dot(n, v0);
         const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
-        planes.push_back(Plane{n, off, e, e + eps});
+        planes.push_back(Plane{n, off, e, e + eps_});
     }
     s.tris.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
     sync();
