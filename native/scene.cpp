@@ -1,6 +1,9 @@
 #include "scene.h"
 
 #include <algorithm>
+#include <cstdlib>
+#include <memory>
+#include <new>
 #include <numeric>
 #include <sstream>
 #include <stdexcept>
@@ -159,7 +162,6 @@ bool closest_callback(RTCPointQueryFunctionArguments* args) {
 }
 
 struct GatherData {
-    const Vec3* corners;                   // Scene::corners_
     const Scene::EdgePlanes* edge_planes;  // Scene::edge_planes_
     const uint32_t* base;                  // Scene::region_base_
     Vec3 c;
@@ -169,10 +171,9 @@ struct GatherData {
     size_t max_count;
     bool overflow = false;
 
-    GatherData(const Vec3* corners_, const Scene::EdgePlanes* edge_planes_, const uint32_t* base_, const Vec3& c_,
-               Float r_, TriangleCache* cache_, size_t max_count_)
-        : corners(corners_),
-          edge_planes(edge_planes_),
+    GatherData(const Scene::EdgePlanes* edge_planes_, const uint32_t* base_, const Vec3& c_, Float r_,
+               TriangleCache* cache_, size_t max_count_)
+        : edge_planes(edge_planes_),
           base(base_),
           c(c_),
           r(r_),
@@ -186,7 +187,6 @@ struct GatherData {
     // this one test.
     void offer(uint32_t id, unsigned region, unsigned prim) {
         if (overflow) return;
-        const Vec3* P = &corners[3 * size_t(id)];
         // Two lower bounds of the distance to the triangle reject most
         // neighbours before the exact test: the distance to its plane, and
         // how far the centre lies beyond one of its edge planes (on
@@ -196,7 +196,7 @@ struct GatherData {
         // ~1e6 ulps), so that every triangle it rejects closest_distance2
         // rejects as well: the cache is the same as with the exact test alone.
         const Scene::EdgePlanes& e = edge_planes[id];
-        const Float dp = dot(e.n, c - P[0]);
+        const Float dp = dot(e.n, c - e.p0);
         if (dp * dp > r2) return;
         const Float s =
             std::max({dot(e.side[0], c) - e.off[0], dot(e.side[1], c) - e.off[1], dot(e.side[2], c) - e.off[2]});
@@ -208,12 +208,13 @@ struct GatherData {
         // test, which would keep it too (on colon_polyp most kept triangles
         // are met so, the cubes being small next to them). A sliver has no
         // edge planes (s = -inf) and takes the exact test.
-        if (!(s < -room && s > -kInf) && closest_distance2(c, P[0], P[1], P[2]) > r2) return;
+        const Vec3 p1 = e.v1(), p2 = e.v2();
+        if (!(s < -room && s > -kInf) && closest_distance2(c, e.p0, p1, p2) > r2) return;
         if (cache->size() >= max_count) {
             overflow = true;
             return;
         }
-        cache->add(P[0], P[1], P[2], e.n, region, prim);
+        cache->add(e.p0, p1, p2, e.n, region, prim);
     }
 };
 
@@ -375,8 +376,12 @@ void Scene::commit() {
     compute_edge_planes();
     compute_isolation();
     no_cache_ = std::make_unique<TriangleCache>();
-    cell_blocks_ = std::make_unique<std::atomic<CellBlock*>[]>(grid_.cell_count());
-    for (size_t i = 0; i < grid_.cell_count(); ++i) cell_blocks_[i].store(nullptr);
+    release_cell_caches();
+    if (grid_.cell_count() > 0) {
+        cube_slots_ =
+            static_cast<TriangleCache**>(std::calloc(grid_.cell_count() * kCellCubes, sizeof(TriangleCache*)));
+        if (!cube_slots_) throw std::bad_alloc();
+    }
     committed_ = true;
 }
 
@@ -388,6 +393,11 @@ void Scene::compute_edge_planes() {
             const Vec3* P = &corners_[3 * id];
             EdgePlanes& e = edge_planes_[id];
             e.n = regions_[r].normals[i];
+            e.p0 = P[0];
+            for (int k = 0; k < 3; ++k) {  // float mesh data: exact
+                e.p1[k] = float(P[1][k]);
+                e.p2[k] = float(P[2][k]);
+            }
             e.scale = std::max({max_abs_component(P[0]), max_abs_component(P[1]), max_abs_component(P[2])});
             // The plane through edge (P[k], P[k+1]) containing the triangle's
             // geometric normal g; its unit normal cross(edge, g) points away
@@ -445,14 +455,15 @@ void Scene::compute_isolation() {
             corners(r, i, P, lo, hi);
             Float iso = cap;
             grid_.visit(lo - Vec3(cap, cap, cap), hi + Vec3(cap, cap, cap), [&](const TriangleGrid::Ref& o) {
-                if (o.region == r) return true;
+                if (grid_.in_region(o.id, r)) return true;
+                const uint32_t o_region = grid_.region_of(o.id), o_prim = grid_.prim_of(o.id, o_region);
                 Vec3 Q[3], qlo, qhi;
-                corners(o.region, o.prim, Q, qlo, qhi);
+                corners(o_region, o_prim, Q, qlo, qhi);
                 const Vec3 gap(std::max({Float(0), qlo.x - hi.x, lo.x - qhi.x}),
                                std::max({Float(0), qlo.y - hi.y, lo.y - qhi.y}),
                                std::max({Float(0), qlo.z - hi.z, lo.z - qhi.z}));
                 const Float bound = std::max({length(gap), plane_gap(regions_[r].normals[i], P[0], Q),
-                                              plane_gap(regions_[o.region].normals[o.prim], Q[0], P)});
+                                              plane_gap(regions_[o_region].normals[o_prim], Q[0], P)});
                 iso = std::min(iso, bound);
                 return true;
             });
@@ -563,8 +574,8 @@ Float Scene::near_clearance(const Vec3& q, uint32_t region, Float iso) const {
     if (iso >= rho) return iso;
     Float best2 = rho * rho;
     grid_.visit(q - Vec3(rho, rho, rho), q + Vec3(rho, rho, rho), [&](const TriangleGrid::Ref& o) {
-        if (o.region == region) return true;
-        const Vec3 e = o.centre - q;
+        if (grid_.in_region(o.id, region)) return true;
+        const Vec3 e = o.centre() - q;
         const Float reach = o.reach + rho;
         if (dot(e, e) > reach * reach) return true;  // its bounding sphere lies beyond rho
         const Vec3* c = &corners_[3 * size_t(o.id)];
@@ -594,7 +605,7 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
     // its first listing only.
     TriangleCache::Mailbox box = cache.mailbox(grid_.triangle_count());
     const Float r = padded_radius(c, radius, 1e-9);
-    GatherData data(corners_.data(), edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
+    GatherData data(edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
         // A triangle met in an earlier cell is skipped first: triangles are
         // large next to a cube (on colon_polyp ~37 listings a gather name ~6
@@ -602,38 +613,24 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
         // only its first needs it. The bounding sphere then rejects most
         // candidates before the exact test.
         if (!box.first_offer(t.id)) return true;
-        const Vec3 e = t.centre - c;
+        const Vec3 e = t.centre() - c;
         const Float reach = r + t.reach;
         if (dot(e, e) > reach * reach) return true;
-        data.offer(t.id, t.region, t.prim);
+        const uint32_t region = grid_.region_of(t.id);
+        data.offer(t.id, region, grid_.prim_of(t.id, region));
         return !data.overflow;
     });
     if (data.overflow) cache.clear();
     return !data.overflow;
 }
 
-namespace {
-
-// Installs a freshly built object in an atomic slot unless another thread
-// was first; returns the one installed (the same content either way).
-template <class T>
-T* install(std::atomic<T*>& slot, std::unique_ptr<T> built) {
-    T* expected = nullptr;
-    if (slot.compare_exchange_strong(expected, built.get(), std::memory_order_acq_rel)) return built.release();
-    return expected;
-}
-
-}  // namespace
-
 const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     size_t cell;
     int cube;
     Vec3 c;  // the cube's centre
     if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &c)) return *no_cache_;
-    CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
-    if (!block) block = install(cell_blocks_[cell], std::make_unique<CellBlock>());
-    std::atomic<TriangleCache*>& slot = block->cube[cube];
-    if (const TriangleCache* built = slot.load(std::memory_order_acquire)) return *built;
+    TriangleCache** slot = &cube_slots_[cell * kCellCubes + size_t(cube)];
+    if (const TriangleCache* built = __atomic_load_n(slot, __ATOMIC_ACQUIRE)) return *built;
     // Gathered into a per-thread cache (its vectors keep their capacity from
     // cube to cube, and its mailbox drops the triangles met again in another
     // grid cell for a stamp compare each), then frozen into the store. (A
@@ -650,7 +647,7 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     void* bytes = store_allocate(TriangleCache::frozen_size(scratch), builder.cursor);
     TriangleCache* built = TriangleCache::freeze(scratch, bytes);
     TriangleCache* expected = nullptr;
-    if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
+    if (__atomic_compare_exchange_n(slot, &expected, built, false, __ATOMIC_ACQ_REL, __ATOMIC_ACQUIRE)) return *built;
     built->~TriangleCache();  // another thread was first (the same content); the block stays unused
     return *expected;
 }
@@ -677,16 +674,21 @@ uint64_t Scene::new_store_id() {
 }
 
 void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
-    // new[] aligns a chunk for any fundamental type; blocks keep that alignment.
-    constexpr size_t kAlign = __STDCPP_DEFAULT_NEW_ALIGNMENT__, kChunk = size_t(1) << 16;
+    // Blocks start on a cache line (TriangleCache::kFrozenAlign): a frozen
+    // cache's members that a hop reads are then one line, its planes next.
+    constexpr size_t kAlign = TriangleCache::kFrozenAlign, kChunk = size_t(1) << 16;
     static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
     bytes = (bytes + kAlign - 1) / kAlign * kAlign;
     if (cursor.store != store_id_ || cursor.left < bytes) {
-        // The rest of the thread's last chunk (of this scene or another) stays unused.
+        // The rest of the thread's last chunk (of this scene or another) stays
+        // unused. new[] aligns less: the chunk's first kAlign bytes leave room.
         const size_t size = std::max(kChunk, bytes);
         std::lock_guard<std::mutex> lock(store_mutex_);
-        store_chunks_.emplace_back(new unsigned char[size]);
-        cursor = StoreCursor{store_id_, store_chunks_.back().get(), size};
+        store_chunks_.emplace_back(new unsigned char[size + kAlign]);
+        void* first = store_chunks_.back().get();
+        size_t room = size + kAlign;
+        std::align(kAlign, size, first, room);
+        cursor = StoreCursor{store_id_, static_cast<unsigned char*>(first), size};
     }
     void* p = cursor.next;
     cursor.next += bytes;
@@ -695,14 +697,10 @@ void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
 }
 
 void Scene::release_cell_caches() {
-    if (!cell_blocks_) return;
-    for (size_t i = 0; i < grid_.cell_count(); ++i)
-        if (CellBlock* b = cell_blocks_[i].load()) {
-            for (auto& c : b->cube)
-                if (TriangleCache* t = c.load()) t->~TriangleCache();  // its block is the store's
-            delete b;
-        }
-    cell_blocks_.reset();
+    // The frozen caches own nothing (their vectors are empty), so their
+    // blocks go with the store's chunks without a destructor call each.
+    std::free(cube_slots_);
+    cube_slots_ = nullptr;
     store_chunks_.clear();  // no thread bumps through them again: store_id_ names this scene only
 }
 
@@ -717,7 +715,7 @@ bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, 
     q.radius = float(r * (1 + 1e-5));
     RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    GatherData data(corners_.data(), edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
+    GatherData data(edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     rtcPointQuery(scene_, &q, &qc, gather_callback, &data);
     if (data.overflow) cache.clear();
     return !data.overflow;

@@ -155,22 +155,31 @@ class Scene {
         int cube;
         Vec3 centre;
         if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &centre)) return nullptr;
-        const CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
-        return block ? block->cube[cube].load(std::memory_order_acquire) : nullptr;
+        return __atomic_load_n(&cube_slots_[cell * kCellCubes + size_t(cube)], __ATOMIC_ACQUIRE);
     }
     // Per scene-wide triangle, for the gathers' ball test (GatherData::offer):
     // its outward normal (Region::normals, copied) and the three planes
     // through its edges perpendicular to it, each facing away from the
     // triangle (unit `side`, offset `off`; off = +inf when the triangle is too
     // thin to trust them). The triangle lies behind all three, so a point
-    // s beyond one of them is at least s from the triangle.
-    struct EdgePlanes {
+    // s beyond one of them is at least s from the triangle. With its
+    // vertices, in three cache lines in the order the test reads them: the
+    // plane's line (n, vertex 0) decides most offers alone, and the edge
+    // planes and the other vertices follow. (Apart, the edge planes and the
+    // vertices cost ~4 lines an offer; callgrind, colon: ~5 last-level misses
+    // a gather.) Vertices 1 and 2 are float mesh data, exact as float.
+    struct alignas(64) EdgePlanes {
         Vec3 n;
-        Vec3 side[3];
-        Float off[3];
+        Vec3 p0;      // vertex 0
         Float scale;  // the largest vertex coordinate's magnitude (rounding room)
+        Float off[3];
+        Vec3 side[3];
+        float p1[3], p2[3];  // vertices 1 and 2
+        Vec3 v1() const { return Vec3(p1[0], p1[1], p1[2]); }
+        Vec3 v2() const { return Vec3(p2[0], p2[1], p2[2]); }
     };
     static constexpr int kCellSplit = 3;
+    static constexpr size_t kCellCubes = size_t(kCellSplit) * kCellSplit * kCellSplit;  // cubes per grid cell
     // The radii (in cube sides, widest first) an empty cube's ball tries
     // (cell_cache): the widest that no triangle meets is its ball.
     static constexpr Float kEmptyWiden[] = {2};
@@ -191,13 +200,14 @@ class Scene {
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
     TriangleGrid grid_;
     std::vector<uint32_t> region_base_;  // scene-wide index of each region's first triangle
-    // cell_cache's store: per grid cell a block of kCellSplit^3 caches, both
-    // levels allocated on first use (the grid of a large scene has up to
-    // 128^3 cells, few of them ever visited).
-    struct CellBlock {
-        std::atomic<TriangleCache*> cube[kCellSplit * kCellSplit * kCellSplit] = {};
-    };
-    mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
+    // cell_cache's slots: one per cube, a cell's kCellCubes in a row (so the
+    // cubes of one cell share a few cache lines), null until the cube is
+    // built; read and set with the __atomic builtins. One array from calloc,
+    // whose zero pages the system maps on first touch: of a large scene's up
+    // to 128^3 cells few are ever visited, and a lookup is one load from the
+    // cell index. (A block of slots per cell, made on first use, cost a
+    // second dependent load on every hop; callgrind, colon.)
+    mutable TriangleCache** cube_slots_ = nullptr;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
     // Widens the ball of the empty cache `scratch` (centre c, radius side).
@@ -218,7 +228,7 @@ class Scene {
     static uint64_t new_store_id();
     const uint64_t store_id_ = new_store_id();  // unique per Scene object
     void* store_allocate(size_t bytes, StoreCursor& cursor) const;
-    std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double (the gathers)
+    std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double
     std::vector<EdgePlanes> edge_planes_;
     void compute_edge_planes();
     std::vector<float> isolation_;  // per triangle: lower bound of its distance to other regions

@@ -26,6 +26,8 @@ namespace {
 // Byte offsets of a frozen copy's planes and triangles in its block.
 size_t planes_offset() {
     static_assert(alignof(TriangleCache::Plane) <= alignof(TriangleCache), "plane alignment");
+    static_assert(sizeof(TriangleCache) - sizeof(void*) == TriangleCache::kFrozenAlign,
+                  "a frozen cache's members but own_ are one line");
     return sizeof(TriangleCache);
 }
 size_t triangles_offset(size_t n_planes) {
@@ -64,13 +66,13 @@ void TriangleCache::reset(const Vec3& center, Float radius) {
     sync();
     center_ = center;
     radius_ = radius;
+    // Rounding allowance of the plane distances in intersect(): a few ulps of
+    // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
+    eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
     if (++s.stamp == 0) {  // the stamps wrapped: forget every old one
         std::fill(s.seen.begin(), s.seen.end(), 0u);
         s.stamp = 1;
     }
-    // Rounding allowance of the plane distances in intersect(): a few ulps of
-    // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
-    eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
 }
 
 void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim) {

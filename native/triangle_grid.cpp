@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace ep {
 
@@ -35,8 +36,10 @@ void TriangleGrid::build(const std::vector<std::vector<float>>& vertices,
                          const std::vector<std::vector<uint32_t>>& triangles) {
     Vec3 lo(kInf, kInf, kInf), hi(-kInf, -kInf, -kInf);
     triangle_count_ = 0;
+    region_start_.assign(1, 0);
     for (size_t r = 0; r < vertices.size(); ++r) {
         triangle_count_ += triangles[r].size() / 3;
+        region_start_.push_back(uint32_t(triangle_count_));
         for (size_t i = 0; i < vertices[r].size() / 3; ++i) {
             const Vec3 p = vertex(vertices[r], uint32_t(i));
             lo = Vec3(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
@@ -86,10 +89,16 @@ void TriangleGrid::build(const std::vector<std::vector<float>>& vertices,
             for (size_t i = 0; i < triangles[r].size() / 3; ++i, ++id) {
                 const uint32_t* t = &triangles[r][3 * i];
                 const Vec3 a = vertex(vertices[r], t[0]), b = vertex(vertices[r], t[1]), c = vertex(vertices[r], t[2]);
-                // Bounding sphere about the centroid, padded by the margin.
-                const Vec3 m = (a + b + c) / 3;
+                // Bounding sphere about the centroid rounded to float (then
+                // exact in double), padded by the margin; its reach rounded
+                // up to float.
+                const Vec3 m0 = (a + b + c) / 3;
+                const float mf[3] = {float(m0.x), float(m0.y), float(m0.z)};
+                const Vec3 m(mf[0], mf[1], mf[2]);
                 const Float reach = std::max({length(a - m), length(b - m), length(c - m)}) * (1 + 1e-9) + margin_;
-                const Ref ref{m, reach, uint32_t(r), uint32_t(i), id};
+                float rf = float(reach);
+                if (Float(rf) < reach) rf = std::nextafter(rf, std::numeric_limits<float>::infinity());
+                const Ref ref{{mf[0], mf[1], mf[2]}, rf, id};
                 each_cell(a, b, c, [&](size_t cell) { f(cell, ref); });
             }
     };

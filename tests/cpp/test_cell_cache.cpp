@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
 #include <random>
 #include <set>
 #include <vector>
@@ -74,9 +75,16 @@ TEST(CellCache, HoldsItsCubeAndEveryTriangleMeetingItsBall) {
         EXPECT_GT(c.radius(), side * (1 - 1e-12));
         // The ball holds the whole cube around p (half-diagonal 0.87 side).
         EXPECT_LT(length(p - c.center()), 0.8661 * side);
-        // The same cache for another point of the same cube.
+        // The same cache for another point of the same cube, and the lookup
+        // alone finds it built.
         const Vec3 q = c.center() + (p - c.center()) * 0.5;
         EXPECT_EQ(&sc.s.cell_cache(q), &c);
+        EXPECT_EQ(sc.s.built_cell_cache(q), &c);
+        // A frozen cache starts a cache line, and its planes follow it.
+        EXPECT_EQ(reinterpret_cast<uintptr_t>(&c) % TriangleCache::kFrozenAlign, 0u);
+        if (c.plane_count() > 0)
+            EXPECT_EQ(reinterpret_cast<const char*>(&c.planes()[0]),
+                      reinterpret_cast<const char*>(&c) + sizeof(TriangleCache));
         // The same triangles as the grid gather about its centre (itself
         // checked against brute force in test_triangle_cache).
         TriangleCache ref;
