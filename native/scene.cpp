@@ -1,9 +1,7 @@
 #include "scene.h"
 
 #include <algorithm>
-#include <cstdlib>
 #include <memory>
-#include <new>
 #include <numeric>
 #include <sstream>
 #include <stdexcept>
@@ -376,12 +374,8 @@ void Scene::commit() {
     compute_edge_planes();
     compute_isolation();
     no_cache_ = std::make_unique<TriangleCache>();
-    release_cell_caches();
-    if (grid_.cell_count() > 0) {
-        cube_slots_ =
-            static_cast<TriangleCache**>(std::calloc(grid_.cell_count() * kCellCubes, sizeof(TriangleCache*)));
-        if (!cube_slots_) throw std::bad_alloc();
-    }
+    cell_blocks_ = std::make_unique<std::atomic<CellBlock*>[]>(grid_.cell_count());
+    for (size_t i = 0; i < grid_.cell_count(); ++i) cell_blocks_[i].store(nullptr);
     committed_ = true;
 }
 
@@ -624,13 +618,28 @@ bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, Tria
     return !data.overflow;
 }
 
+namespace {
+
+// Installs a freshly built object in an atomic slot unless another thread
+// was first; returns the one installed (the same content either way).
+template <class T>
+T* install(std::atomic<T*>& slot, std::unique_ptr<T> built) {
+    T* expected = nullptr;
+    if (slot.compare_exchange_strong(expected, built.get(), std::memory_order_acq_rel)) return built.release();
+    return expected;
+}
+
+}  // namespace
+
 const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     size_t cell;
     int cube;
     Vec3 c;  // the cube's centre
     if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &c)) return *no_cache_;
-    TriangleCache** slot = &cube_slots_[cell * kCellCubes + size_t(cube)];
-    if (const TriangleCache* built = __atomic_load_n(slot, __ATOMIC_ACQUIRE)) return *built;
+    CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
+    if (!block) block = install(cell_blocks_[cell], std::make_unique<CellBlock>());
+    std::atomic<TriangleCache*>& slot = block->cube[cube];
+    if (const TriangleCache* built = slot.load(std::memory_order_acquire)) return *built;
     // Gathered into a per-thread cache (its vectors keep their capacity from
     // cube to cube, and its mailbox drops the triangles met again in another
     // grid cell for a stamp compare each), then frozen into the store. (A
@@ -647,7 +656,7 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     void* bytes = store_allocate(TriangleCache::frozen_size(scratch), builder.cursor);
     TriangleCache* built = TriangleCache::freeze(scratch, bytes);
     TriangleCache* expected = nullptr;
-    if (__atomic_compare_exchange_n(slot, &expected, built, false, __ATOMIC_ACQ_REL, __ATOMIC_ACQUIRE)) return *built;
+    if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
     built->~TriangleCache();  // another thread was first (the same content); the block stays unused
     return *expected;
 }
@@ -697,10 +706,14 @@ void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
 }
 
 void Scene::release_cell_caches() {
-    // The frozen caches own nothing (their vectors are empty), so their
-    // blocks go with the store's chunks without a destructor call each.
-    std::free(cube_slots_);
-    cube_slots_ = nullptr;
+    if (!cell_blocks_) return;
+    for (size_t i = 0; i < grid_.cell_count(); ++i)
+        if (CellBlock* b = cell_blocks_[i].load()) {
+            for (auto& c : b->cube)
+                if (TriangleCache* t = c.load()) t->~TriangleCache();  // its block is the store's
+            delete b;
+        }
+    cell_blocks_.reset();
     store_chunks_.clear();  // no thread bumps through them again: store_id_ names this scene only
 }
 

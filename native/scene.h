@@ -155,7 +155,8 @@ class Scene {
         int cube;
         Vec3 centre;
         if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &centre)) return nullptr;
-        return __atomic_load_n(&cube_slots_[cell * kCellCubes + size_t(cube)], __ATOMIC_ACQUIRE);
+        const CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
+        return block ? block->cube[cube].load(std::memory_order_acquire) : nullptr;
     }
     // Per scene-wide triangle, for the gathers' ball test (GatherData::offer):
     // its outward normal (Region::normals, copied) and the three planes
@@ -179,7 +180,6 @@ class Scene {
         Vec3 v2() const { return Vec3(p2[0], p2[1], p2[2]); }
     };
     static constexpr int kCellSplit = 3;
-    static constexpr size_t kCellCubes = size_t(kCellSplit) * kCellSplit * kCellSplit;  // cubes per grid cell
     // The radii (in cube sides, widest first) an empty cube's ball tries
     // (cell_cache): the widest that no triangle meets is its ball.
     static constexpr Float kEmptyWiden[] = {2};
@@ -200,14 +200,13 @@ class Scene {
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
     TriangleGrid grid_;
     std::vector<uint32_t> region_base_;  // scene-wide index of each region's first triangle
-    // cell_cache's slots: one per cube, a cell's kCellCubes in a row (so the
-    // cubes of one cell share a few cache lines), null until the cube is
-    // built; read and set with the __atomic builtins. One array from calloc,
-    // whose zero pages the system maps on first touch: of a large scene's up
-    // to 128^3 cells few are ever visited, and a lookup is one load from the
-    // cell index. (A block of slots per cell, made on first use, cost a
-    // second dependent load on every hop; callgrind, colon.)
-    mutable TriangleCache** cube_slots_ = nullptr;
+    // cell_cache's store: per grid cell a block of kCellSplit^3 caches, both
+    // levels allocated on first use (the grid of a large scene has up to
+    // 128^3 cells, few of them ever visited).
+    struct CellBlock {
+        std::atomic<TriangleCache*> cube[kCellSplit * kCellSplit * kCellSplit] = {};
+    };
+    mutable std::unique_ptr<std::atomic<CellBlock*>[]> cell_blocks_;
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     void release_cell_caches();
     // Widens the ball of the empty cache `scratch` (centre c, radius side).
