@@ -287,13 +287,13 @@ struct GridSet {
     // engine checks that the run's grids hold exactly its merged packets.
     uint64_t packets = 0;
 
-    // The deposits of one interaction at world position (x, y, z): `absorbed`
-    // into the absorbed grid and, for a fluorescent packet, `weight` into the
-    // fluorescence grid and, if there are per-fluorophore grids, into that of
-    // its fluorophore `fluorophore`. The
-    // same bits and counters as calling add(x, y, z, ...) on each of those
-    // grids; the grids share one voxel size, so the voxel index is computed
-    // once, and the weight converted to fixed point once.
+    // The deposits of one interaction at world position (x, y, z):
+    // `absorbed_value` into the absorbed grid and, for a fluorescent packet,
+    // `weight` into the fluorescence grid and, if there are per-fluorophore
+    // grids, into that of its fluorophore `fluorophore`. The same bits and
+    // counters as calling add(x, y, z, ...) on each of those grids; the grids
+    // share one voxel size, so the voxel index is computed once, and the
+    // weight converted to fixed point once.
     __attribute__((always_inline)) void deposit(double x, double y, double z, double absorbed_value, bool fluorescent,
                                                 size_t fluorophore, double weight) {
         VoxelAccumulator::Coord c;
