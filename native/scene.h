@@ -179,6 +179,8 @@ class Scene {
         Vec3 v1() const { return Vec3(p1[0], p1[1], p1[2]); }
         Vec3 v2() const { return Vec3(p2[0], p2[1], p2[2]); }
     };
+    // Measured best on colon_polyp (docs/numerics.md): 2 gives cubes too
+    // crowded with triangles, 4 more hops and builds.
     static constexpr int kCellSplit = 3;
     // The radii (in cube sides, widest first) an empty cube's ball tries
     // (cell_cache): the widest that no triangle meets is its ball.
