@@ -637,9 +637,16 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     Vec3 c;  // the cube's centre
     if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &c)) return *no_cache_;
     CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
-    if (!block) block = install(cell_blocks_[cell], std::make_unique<CellBlock>());
+    if (!block) {
+        if (store_full()) return *no_cache_;
+        auto made = std::make_unique<CellBlock>();
+        const CellBlock* own = made.get();
+        block = install(cell_blocks_[cell], std::move(made));
+        if (block == own) store_bytes_.fetch_add(sizeof(CellBlock), std::memory_order_relaxed);
+    }
     std::atomic<TriangleCache*>& slot = block->cube[cube];
     if (const TriangleCache* built = slot.load(std::memory_order_acquire)) return *built;
+    if (store_full()) return *no_cache_;  // the same answers through the full query
     // Gathered into a per-thread cache (its vectors keep their capacity from
     // cube to cube, and its mailbox drops the triangles met again in another
     // grid cell for a stamp compare each), then frozen into the store. (A
@@ -694,6 +701,7 @@ void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
         const size_t size = std::max(kChunk, bytes);
         std::lock_guard<std::mutex> lock(store_mutex_);
         store_chunks_.emplace_back(new unsigned char[size + kAlign]);
+        store_bytes_.fetch_add(size + kAlign, std::memory_order_relaxed);
         void* first = store_chunks_.back().get();
         size_t room = size + kAlign;
         std::align(kAlign, size, first, room);
@@ -715,6 +723,7 @@ void Scene::release_cell_caches() {
         }
     cell_blocks_.reset();
     store_chunks_.clear();  // no thread bumps through them again: store_id_ names this scene only
+    store_bytes_.store(0, std::memory_order_relaxed);
 }
 
 bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {

@@ -146,6 +146,17 @@ class Scene {
     // outside the grid or more than kCellMaxTriangles meet the ball (the
     // caller then asks Embree).
     const TriangleCache& cell_cache(const Vec3& p) const;
+    // The cube store's size and budget in bytes (cell slot blocks and cache
+    // blocks together). Once the store holds the budget, a cube not built
+    // yet gets no cache: its steps take the full query, which gives the same
+    // answers more slowly. So a long run in a finely meshed scene, whose
+    // light reaches millions of cubes, keeps its memory bounded; the cubes
+    // built by then, where the light came first, keep their caches.
+    static constexpr size_t kDefaultStoreCapBytes = size_t(1) << 29;  // 512 MiB
+    size_t cache_store_bytes() const { return store_bytes_.load(std::memory_order_relaxed); }
+    size_t cache_store_cap_bytes() const { return store_cap_.load(std::memory_order_relaxed); }
+    // For the scene's next builds (also mid-run: a thread reads it per build).
+    void set_cache_store_cap_bytes(size_t bytes) { store_cap_.store(bytes, std::memory_order_relaxed); }
     // The cache of the cube around p if it is built, else null (also outside
     // the grid): cell_cache's lookup alone, inline and without a call, for
     // the interior steps' loop (transport.cpp), which hops to a built cube
@@ -219,6 +230,9 @@ class Scene {
     // instructions of its ~4k, a lock on every build ~70; callgrind).
     mutable std::mutex store_mutex_;
     mutable std::vector<std::unique_ptr<unsigned char[]>> store_chunks_;
+    mutable std::atomic<size_t> store_bytes_{0};  // chunks and cell blocks allocated
+    std::atomic<size_t> store_cap_{kDefaultStoreCapBytes};
+    bool store_full() const { return cache_store_bytes() >= cache_store_cap_bytes(); }
     // A thread's place in its chunk: plain data in a thread_local, valid for
     // the scene whose store_id_ it names (0: none).
     struct StoreCursor {

@@ -41,7 +41,12 @@ void bind_scene(py::module_& m) {
                 s.set_region_fluorophores(region, out);
             },
             py::arg("region"), py::arg("fluorophores"))
-        .def("commit", &Scene::commit);
+        .def("commit", &Scene::commit)
+        .def_property_readonly("cache_store_bytes", &Scene::cache_store_bytes,
+                               "Bytes the per-cube triangle caches' store holds (grows on first use of a cube).")
+        .def_property("cache_store_cap_bytes", &Scene::cache_store_cap_bytes, &Scene::set_cache_store_cap_bytes,
+                      "The store's budget in bytes: past it, cubes not yet cached take the full ray query "
+                      "(the same results, more slowly).");
 }
 
 }  // namespace ep::bind

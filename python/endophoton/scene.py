@@ -65,6 +65,15 @@ def _as_mesh_arrays(owner, vertices, triangles):
     return np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(t, dtype=np.uint32)
 
 
+DEFAULT_CACHE_STORE_MB = 512  # native/scene.h kDefaultStoreCapBytes
+
+
+def _check_cache_store_mb(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 2**40:
+        raise ValueError(f"scene.cache_store_mb = {value!r} must be a finite number of MiB in [0, 2**40)")
+    return float(value)
+
+
 # The engine scene built last, by content (Scene.native_key): a new Scene with the same content --
 # the add-on exports one per run -- takes it instead of building it again. One is kept, and the
 # next build replaces it; forget_native_scenes() frees it.
@@ -90,9 +99,15 @@ class Scene:
     ----------
     unit : length unit of every coordinate: "m", "cm" or "mm"
     ambient_n : refractive index of the ambient medium (>= 1)
+    cache_store_mb : memory budget in MiB of the engine's per-cube triangle caches (a speed-up
+        filled as light reaches new places; past the budget the rest of the scene takes the
+        full ray query, with the same results). Not part of the scene's content or file; a
+        run applies the value the scene holds then, in Dask workers too.
     """
 
-    def __init__(self, unit: str = "cm", ambient_n: float = 1.0):
+    def __init__(self, unit: str = "cm", ambient_n: float = 1.0, cache_store_mb: float = DEFAULT_CACHE_STORE_MB):
+        self.cache_store_mb = cache_store_mb
+        _check_cache_store_mb(cache_store_mb)
         self.unit = unit
         self.unit_cm = unit_cm(unit)
         if (
@@ -202,18 +217,21 @@ class Scene:
             key = self.native_key()
         except (TypeError, ValueError):  # content the build rejects by name (e.g. an object array)
             key = None
+        cap_mb = _check_cache_store_mb(getattr(self, "cache_store_mb", DEFAULT_CACHE_STORE_MB))
         kept = getattr(self, "_native", None)
         if kept is not None and kept[0] == key:
-            return kept[1]
-        self._native = None  # release the old engine scene before building its successor
-        last = _last_built
-        if key is not None and last is not None and last[0] == key:
-            native = last[1]
+            native = kept[1]
         else:
-            _last_built = None
-            native = self._build_native()
-        if key is not None:
-            self._native = _last_built = (key, native)
+            self._native = None  # release the old engine scene before building its successor
+            last = _last_built
+            if key is not None and last is not None and last[0] == key:
+                native = last[1]
+            else:
+                _last_built = None
+                native = self._build_native()
+            if key is not None:
+                self._native = _last_built = (key, native)
+        native.cache_store_cap_bytes = int(cap_mb * 2**20)
         return native
 
     def __getstate__(self):

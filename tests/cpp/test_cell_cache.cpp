@@ -195,3 +195,41 @@ TEST(CellCache, WidenedEmptyBallMeetsNoTriangle) {
     EXPECT_GT(widened, 100);
     EXPECT_GT(near_sliver, 10);  // the test has teeth: these balls end within a side of a triangle
 }
+
+// The store's budget (Scene::set_cache_store_cap_bytes): a cube built before
+// the store filled keeps its cache; a cube not built by then gets one that
+// covers nothing (the caller asks Embree), and the store stops growing.
+TEST(CellCache, StoreStopsGrowingAtItsBudget) {
+    Scenery sc;
+    EXPECT_EQ(sc.s.cache_store_cap_bytes(), Scene::kDefaultStoreCapBytes);
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> U(0, 1);
+    auto point = [&] { return Vec3(-1.05 + 2.1 * U(rng), -1.05 + 2.1 * U(rng), -2.05 + 2.1 * U(rng)); };
+    std::vector<Vec3> early;
+    std::vector<const TriangleCache*> early_cache;
+    for (int k = 0; k < 200; ++k) {
+        early.push_back(point());
+        early_cache.push_back(&sc.s.cell_cache(early.back()));
+    }
+    const size_t bytes = sc.s.cache_store_bytes();
+    ASSERT_GT(bytes, 0u);
+    sc.s.set_cache_store_cap_bytes(bytes);  // full from now on
+    int refused = 0;
+    for (int k = 0; k < 3000; ++k) {
+        const Vec3 p = point();
+        const TriangleCache& c = sc.s.cell_cache(p);
+        if (c.radius() == 0 && c.size() == 0) ++refused;
+    }
+    EXPECT_GT(refused, 500);  // most cubes were not built among the first 200 points'
+    EXPECT_EQ(sc.s.cache_store_bytes(), bytes);
+    for (size_t k = 0; k < early.size(); ++k) EXPECT_EQ(&sc.s.cell_cache(early[k]), early_cache[k]);
+
+    Scenery none;
+    none.s.set_cache_store_cap_bytes(0);
+    for (int k = 0; k < 100; ++k) {
+        const TriangleCache& c = none.s.cell_cache(point());
+        EXPECT_EQ(c.radius(), 0);
+        EXPECT_EQ(c.size(), 0u);
+    }
+    EXPECT_EQ(none.s.cache_store_bytes(), 0u);
+}

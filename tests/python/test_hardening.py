@@ -100,6 +100,33 @@ def test_refractive_index_beyond_100_is_refused():
     assert _core._testing.fresnel(1.0, 1.0, 100.0) == pytest.approx((99 / 101) ** 2, rel=1e-12)
 
 
+@pytest.mark.parametrize("value", [-1, float("nan"), float("inf"), True, "512", 2.0**40])
+def test_bad_cache_store_budget_is_refused(value):
+    """The engine's cache budget is checked where it is given and where a run applies it."""
+    with pytest.raises(ValueError, match=r"scene.cache_store_mb = .* must be a finite number of MiB in \[0, 2\*\*40\)"):
+        ep.Scene("cm", cache_store_mb=value)
+    scene = ep.Scene("cm")
+    scene.add_box("tissue", (-1, -1, -1), (1, 1, 0), ep.Medium(mua=1, mus=10, g=0.9, n=1.4))
+    scene.cache_store_mb = value
+    with pytest.raises(ValueError, match=r"scene.cache_store_mb = "):
+        ep.run(scene, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=10)
+
+
+def test_a_zero_cache_store_budget_still_runs():
+    """No caches at all: every step takes the full query, with the same results."""
+    runs = []
+    for mb in (512, 0):
+        ep.forget_native_scenes()
+        scene = ep.Scene("cm", cache_store_mb=mb)
+        scene.add_box("tissue", (-1, -1, -1), (1, 1, 0), ep.Medium(mua=1, mus=10, g=0.9, n=1.4))
+        runs.append(ep.run(scene, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=2000, seed=3).to_dict())
+        assert (scene.to_native().cache_store_bytes > 0) == (mb > 0)
+    for k in runs[0]:
+        if "second" not in k and "time" not in k and k not in ("threads", "peak_record_bytes"):
+            assert runs[0][k] == runs[1][k], k
+    ep.forget_native_scenes()
+
+
 @pytest.mark.parametrize("photons", [1, 2, 63, 64, 65])
 def test_runs_of_one_work_unit_are_finite(photons):
     """1-64 packets are one unit: stderrs come from the per-packet variance. Independent

@@ -85,3 +85,36 @@ def test_interior_steps_deposit_the_grids_of_the_general_loop(colon, tmp_path):
         assert np.array_equal(origin, other_origin) and size == other_size, name
         assert np.array_equal(values, other_values), f"grid {name} differs"
         assert np.count_nonzero(values) > 50, name
+
+
+def test_a_full_cache_store_changes_nothing_on_the_colon():
+    """The cube store's budget (``cache_store_cap_bytes``) bounds its memory: once the store
+    holds it, cubes not cached yet take the full ray query. Same answers, so a run on a store
+    capped at 256 kB, at 2 threads, equals a run on an uncapped store at 1 thread bit for bit,
+    and the capped store stays within its budget plus one chunk a thread."""
+    kwargs = dict(photons=3000, seed=5, record_escapes=True)
+    ep.forget_native_scenes()
+    scene, rig = cs.colon_scene()
+    free = ep.run(scene, rig, threads=1, **kwargs)
+    free_bytes = scene.to_native().cache_store_bytes
+    assert scene.cache_store_mb == 512 and scene.to_native().cache_store_cap_bytes == 512 << 20
+    ep.forget_native_scenes()
+    scene, rig = cs.colon_scene()  # the same content, a new engine scene and store
+    scene.cache_store_mb = 0.25
+    native = scene.to_native()
+    cap = 256 * 1024
+    assert native.cache_store_bytes == 0 and native.cache_store_cap_bytes == cap
+    capped = ep.run(scene, rig, threads=2, **kwargs)
+    # The test has teeth: the free store grew far past the budget.
+    assert free_bytes > 8 * cap, free_bytes
+    # A build is refused once the store holds the budget; each thread may have just taken a
+    # chunk (64 kB and one line) and a cell block (27 slots) before it saw the store full.
+    assert cap <= native.cache_store_bytes <= cap + 2 * (65536 + 64 + 27 * 8), native.cache_store_bytes
+    a, b = free.to_dict(), capped.to_dict()
+    for k in a:
+        if k in ENV_KEYS or "time" in k or "second" in k:
+            continue
+        assert a[k] == b[k], f"{k}: {a[k]!r} != {b[k]!r}"
+    for k in free.escapes:
+        assert np.array_equal(np.asarray(free.escapes[k]), np.asarray(capped.escapes[k])), f"escapes[{k}] differ"
+    ep.forget_native_scenes()
