@@ -253,6 +253,66 @@ def test_self_intersecting_mesh_is_refused():
     assert_energy_conserved(r)
 
 
+def _orient3d(a, b, c, d):
+    """The sign-defining determinant of native/mesh_check.cpp's orient3d, in the same order."""
+    ab, ac, ad = b - a, c - a, d - a
+    return (
+        ab[..., 0] * (ac[..., 1] * ad[..., 2] - ac[..., 2] * ad[..., 1])
+        - ab[..., 1] * (ac[..., 0] * ad[..., 2] - ac[..., 2] * ad[..., 0])
+        + ab[..., 2] * (ac[..., 0] * ad[..., 1] - ac[..., 1] * ad[..., 0])
+    )
+
+
+def _crossing_pairs(v, t):
+    """Every pair (i < j) of triangles without a common vertex of which an edge of one strictly
+    crosses the other's plane through the closed triangle: all pairs, by brute force."""
+    P = v.astype(np.float64)[t]  # (n, 3 corners, 3)
+    n = len(t)
+    i, j = np.triu_indices(n, 1)
+    shared = (t[i][:, :, None] == t[j][:, None, :]).any(axis=(1, 2))
+    i, j = i[~shared], j[~shared]
+
+    def pierces(e, f):
+        a, b, c = P[f, 0], P[f, 1], P[f, 2]
+        hit = np.zeros(len(e), bool)
+        for k in range(3):
+            p, q = P[e, k], P[e, (k + 1) % 3]
+            sp, sq = _orient3d(a, b, c, p), _orient3d(a, b, c, q)
+            s1, s2, s3 = _orient3d(p, q, a, b), _orient3d(p, q, b, c), _orient3d(p, q, c, a)
+            opposite = ((sp > 0) & (sq < 0)) | ((sp < 0) & (sq > 0))
+            inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))
+            hit |= opposite & inside & ~((s1 == 0) & (s2 == 0) & (s3 == 0))
+        return hit
+
+    cross = pierces(i, j) | pierces(j, i)
+    return list(zip(i[cross].tolist(), j[cross].tolist()))
+
+
+@pytest.mark.parametrize("offset", [(0.7, 0.1, 0.05), (1.2, 0.9, -0.4), (0.0, 0.3, 1.5)])
+def test_self_intersection_names_the_first_crossing_pair(offset):
+    """Two overlapping spheres in one mesh cross along a curve: the check names the pair with
+    the lowest indices among all crossing pairs, found here by brute force over every pair."""
+    from endophoton import meshes
+
+    v1, t1 = meshes.uv_sphere((0, 0, 0), 1.0, n_lat=8, n_lon=14)
+    v2, t2 = meshes.uv_sphere(offset, 0.8, n_lat=7, n_lon=12)
+    v = np.vstack([v1, v2]).astype(np.float32)
+    t = np.vstack([t2 + len(v1), t1])  # the second sphere first: its triangles have the low indices
+    pairs = _crossing_pairs(v, t)
+    assert len(pairs) > 10, len(pairs)  # the spheres cross along a curve
+    first = min(pairs)
+    with pytest.raises(
+        ValueError,
+        match=rf"mesh intersects itself: mesh.triangles\[{first[0]}\] and mesh.triangles\[{first[1]}\] cross",
+    ):
+        _core.check_mesh("two spheres", v, t)
+    # Apart, no pair crosses, and the check passes.
+    v_apart = np.vstack([v1, v2 + np.float32(5.0)])
+    assert _crossing_pairs(v_apart, t) == []
+    distinct = len(np.unique(np.ascontiguousarray(v_apart).view(np.uint32), axis=0))  # by bits, as welded
+    assert _core.check_mesh("apart", v_apart, t)["welded_vertices"] == distinct
+
+
 @pytest.mark.parametrize(
     "kw,match",
     [
