@@ -12,7 +12,8 @@ oracle references versus packets and wall time); knobs (Russian roulette thresho
 voxel size of the grids, max_steps cap, target accuracy and its stop rule; the quality presets);
 profile (instructions per step and per part of the loop, callgrind, bench/callgrind_steps.py);
 lumen (bench/lumen_colon.py); render (bench/render_speed.py); dask (bench/dask_cluster.py --quick,
-its printed table); issue11 (seed-tissue Rd at 1e6 packets against MCML; the before / after tables
+its printed table); meshes (scene build time and packets/s against the tube's tessellation,
+bench/mesh_size.py); issue11 (seed-tissue Rd at 1e6 packets against MCML; the before / after tables
 use bench/baseline.json and the throughput and profile sections; with --mcml-binary PATH, MCML itself
 is run beside this engine, one core each, on the seed tissue and the MCML slab).
 
@@ -985,6 +986,13 @@ def bench_dask(q):
     )
 
 
+def bench_mesh_size(q):
+    import mesh_size
+
+    sizes = mesh_size.SIZES[:2] if q else mesh_size.SIZES
+    return dict(rows=mesh_size.measure(sizes, photons=5_000 if q else 30_000))
+
+
 def bench_mcml_rd(q):
     """Issue 11's accuracy goal: the seed tissue's Rd at 1e6 packets against MCML's answer."""
     import endophoton as ep
@@ -1080,6 +1088,7 @@ MEASURE = {
     "render": _one("render", bench_render),
     "dask": _one("dask", bench_dask),
     "issue11": _issue11,
+    "meshes": _one("mesh_size", bench_mesh_size),
 }
 
 
