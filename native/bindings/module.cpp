@@ -32,6 +32,7 @@ PYBIND11_MODULE(_core, m) {
     py::register_exception<std::invalid_argument>(m, "InvalidArgument", PyExc_ValueError);
     m.attr("MAX_REGIONS") = int(ep::Scene::kMaxRegions);
     m.attr("MAX_PACKET_REQUEST") = ep::kMaxPacketRequest;
+    m.attr("DEFAULT_CACHE_STORE_BYTES") = ep::Scene::kDefaultStoreCapBytes;
     // Read-only: the names of the balance tallies (native/tally.h), for the package's tests.
     py::tuple balance(ep::kBalanceTallies);
     for (int i = 0; i < ep::kBalanceTallies; ++i) balance[i] = ep::tally_name(i);

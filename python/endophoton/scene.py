@@ -65,12 +65,11 @@ def _as_mesh_arrays(owner, vertices, triangles):
     return np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(t, dtype=np.uint32)
 
 
-DEFAULT_CACHE_STORE_MB = 512  # native/scene.h kDefaultStoreCapBytes
-
-
-def _check_cache_store_mb(value) -> float:
+def _check_cache_store_mb(value) -> float | None:
+    if value is None:
+        return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 2**40:
-        raise ValueError(f"scene.cache_store_mb = {value!r} must be a finite number of MiB in [0, 2**40)")
+        raise ValueError(f"scene.cache_store_mb = {value!r} must be None or a finite number of MiB in [0, 2**40)")
     return float(value)
 
 
@@ -101,11 +100,12 @@ class Scene:
     ambient_n : refractive index of the ambient medium (>= 1)
     cache_store_mb : memory budget in MiB of the engine's per-cube triangle caches (a speed-up
         filled as light reaches new places; past the budget the rest of the scene takes the
-        full ray query, with the same results). Not part of the scene's content or file; a
-        run applies the value the scene holds then, in Dask workers too.
+        full ray query, with the same results); None: the engine's default,
+        ``_core.DEFAULT_CACHE_STORE_BYTES`` (512 MiB). Not part of the scene's content or file;
+        a run applies the value the scene holds then, in Dask workers too.
     """
 
-    def __init__(self, unit: str = "cm", ambient_n: float = 1.0, cache_store_mb: float = DEFAULT_CACHE_STORE_MB):
+    def __init__(self, unit: str = "cm", ambient_n: float = 1.0, cache_store_mb: float | None = None):
         self.cache_store_mb = cache_store_mb
         _check_cache_store_mb(cache_store_mb)
         self.unit = unit
@@ -217,7 +217,7 @@ class Scene:
             key = self.native_key()
         except (TypeError, ValueError):  # content the build rejects by name (e.g. an object array)
             key = None
-        cap_mb = _check_cache_store_mb(getattr(self, "cache_store_mb", DEFAULT_CACHE_STORE_MB))
+        cap_mb = _check_cache_store_mb(getattr(self, "cache_store_mb", None))
         kept = getattr(self, "_native", None)
         if kept is not None and kept[0] == key:
             native = kept[1]
@@ -231,7 +231,9 @@ class Scene:
                 native = self._build_native()
             if key is not None:
                 self._native = _last_built = (key, native)
-        native.cache_store_cap_bytes = int(cap_mb * 2**20)
+        from . import _core
+
+        native.cache_store_cap_bytes = _core.DEFAULT_CACHE_STORE_BYTES if cap_mb is None else int(cap_mb * 2**20)
         return native
 
     def __getstate__(self):

@@ -103,7 +103,9 @@ def test_refractive_index_beyond_100_is_refused():
 @pytest.mark.parametrize("value", [-1, float("nan"), float("inf"), True, "512", 2.0**40])
 def test_bad_cache_store_budget_is_refused(value):
     """The engine's cache budget is checked where it is given and where a run applies it."""
-    with pytest.raises(ValueError, match=r"scene.cache_store_mb = .* must be a finite number of MiB in \[0, 2\*\*40\)"):
+    with pytest.raises(
+        ValueError, match=r"scene.cache_store_mb = .* must be None or a finite number of MiB in \[0, 2\*\*40\)"
+    ):
         ep.Scene("cm", cache_store_mb=value)
     scene = ep.Scene("cm")
     scene.add_box("tissue", (-1, -1, -1), (1, 1, 0), ep.Medium(mua=1, mus=10, g=0.9, n=1.4))
@@ -115,15 +117,32 @@ def test_bad_cache_store_budget_is_refused(value):
 def test_a_zero_cache_store_budget_still_runs():
     """No caches at all: every step takes the full query, with the same results."""
     runs = []
-    for mb in (512, 0):
+    for mb in (None, 0):
         ep.forget_native_scenes()
         scene = ep.Scene("cm", cache_store_mb=mb)
         scene.add_box("tissue", (-1, -1, -1), (1, 1, 0), ep.Medium(mua=1, mus=10, g=0.9, n=1.4))
         runs.append(ep.run(scene, ep.PencilSource((0, 0, 1), (0, 0, -1)), photons=2000, seed=3).to_dict())
-        assert (scene.to_native().cache_store_bytes > 0) == (mb > 0)
+        assert (scene.to_native().cache_store_bytes > 0) == (mb != 0)
     for k in runs[0]:
         if "second" not in k and "time" not in k and k not in ("threads", "peak_record_bytes"):
             assert runs[0][k] == runs[1][k], k
+    ep.forget_native_scenes()
+
+
+def test_a_kept_engine_scene_takes_each_scenes_budget():
+    """Scenes of the same content share the kept engine scene; each run applies its own scene's
+    budget, the engine's default for None."""
+
+    def box(mb):
+        scene = ep.Scene("cm", cache_store_mb=mb)
+        scene.add_box("tissue", (-1, -1, -1), (1, 1, 0), ep.Medium(mua=1, mus=10, g=0.9, n=1.4))
+        return scene
+
+    ep.forget_native_scenes()
+    first = box(1).to_native()
+    assert first.cache_store_cap_bytes == 1 << 20
+    again = box(None).to_native()
+    assert again is first and again.cache_store_cap_bytes == _core.DEFAULT_CACHE_STORE_BYTES
     ep.forget_native_scenes()
 
 

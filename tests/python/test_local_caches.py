@@ -97,7 +97,8 @@ def test_a_full_cache_store_changes_nothing_on_the_colon():
     scene, rig = cs.colon_scene()
     free = ep.run(scene, rig, threads=1, **kwargs)
     free_bytes = scene.to_native().cache_store_bytes
-    assert scene.cache_store_mb == 512 and scene.to_native().cache_store_cap_bytes == 512 << 20
+    assert scene.cache_store_mb is None  # the engine's default
+    assert scene.to_native().cache_store_cap_bytes == ep._core.DEFAULT_CACHE_STORE_BYTES == 512 << 20
     ep.forget_native_scenes()
     scene, rig = cs.colon_scene()  # the same content, a new engine scene and store
     scene.cache_store_mb = 0.25
