@@ -106,8 +106,8 @@ class Scene:
     """
 
     def __init__(self, unit: str = "cm", ambient_n: float = 1.0, cache_store_mb: float | None = None):
-        self.cache_store_mb = cache_store_mb
         _check_cache_store_mb(cache_store_mb)
+        self.cache_store_mb = cache_store_mb
         self.unit = unit
         self.unit_cm = unit_cm(unit)
         if (

@@ -340,3 +340,16 @@ def distance_to_box_surface(p, lo, hi):
     inside = np.all((p >= lo) & (p <= hi), axis=1)
     d_in = np.min(np.concatenate([p - lo, hi - p], axis=1), axis=1)
     return np.where(inside, d_in, d_out)
+
+
+# Fields of Result.to_dict() that describe the run's environment, not its physics.
+RUN_ENV_KEYS = {"seconds", "threads", "peak_record_bytes", "grid_path"}
+
+
+def run_physics(result):
+    """Every tally, standard error and escape record of a run, without its timing and
+    environment fields: equal for runs that must agree bit for bit."""
+    d = {k: v for k, v in result.to_dict().items() if k not in RUN_ENV_KEYS and "time" not in k and "second" not in k}
+    esc = result.escapes or {}
+    d["escapes"] = {k: np.asarray(v).tobytes() for k, v in esc.items()}
+    return d

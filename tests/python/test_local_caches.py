@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import endophoton as ep
+from physics_helpers import run_physics
 
 BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "bench")
 sys.path.insert(0, BENCH)
@@ -111,11 +112,6 @@ def test_a_full_cache_store_changes_nothing_on_the_colon():
     # A build is refused once the store holds the budget; each thread may have just taken a
     # chunk (64 kB and one line) and a cell block (27 slots) before it saw the store full.
     assert cap <= native.cache_store_bytes <= cap + 2 * (65536 + 64 + 27 * 8), native.cache_store_bytes
-    a, b = free.to_dict(), capped.to_dict()
-    for k in a:
-        if k in ENV_KEYS or "time" in k or "second" in k:
-            continue
-        assert a[k] == b[k], f"{k}: {a[k]!r} != {b[k]!r}"
-    for k in free.escapes:
-        assert np.array_equal(np.asarray(free.escapes[k]), np.asarray(capped.escapes[k])), f"escapes[{k}] differ"
+    assert len(free.escapes["weight"]) > 100
+    assert run_physics(free) == run_physics(capped)
     ep.forget_native_scenes()

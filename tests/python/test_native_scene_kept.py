@@ -21,15 +21,7 @@ BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "be
 sys.path.insert(0, BENCH)
 import colon_scene as cs  # noqa: E402  (bench/ module, not a package)
 
-ENV_KEYS = {"seconds", "threads", "peak_record_bytes", "grid_path"}
-
-
-def physics(result):
-    """Every tally, standard error and record of a run, without its timing fields."""
-    d = {k: v for k, v in result.to_dict().items() if k not in ENV_KEYS and "time" not in k and "second" not in k}
-    esc = result.escapes or {}
-    d["escapes"] = {k: np.asarray(v).tobytes() for k, v in esc.items()}
-    return d
+from physics_helpers import run_physics as physics  # noqa: E402
 
 
 def run(scene, rig, **kw):
