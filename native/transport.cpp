@@ -1151,6 +1151,20 @@ void RayMemo::store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits
 
 namespace {
 
+// True when the hits of a ray from x (sorted by distance) show x inside a
+// region: the first crossing of some region's surface leaves it
+// (locate_start's rule). Grazing hits (cos_dn = 0) decide nothing.
+bool starts_inside(const std::vector<Hit>& hits) {
+    uint64_t seen = 0;
+    for (const Hit& h : hits) {
+        const uint64_t bit = uint64_t(1) << h.region;
+        if ((seen & bit) || h.cos_dn == 0) continue;
+        seen |= bit;
+        if (h.cos_dn > 0) return true;
+    }
+    return false;
+}
+
 // True when every point light l emits from lies in the ambient, farther from
 // every surface than the transport's grouping tolerance (so no crossing lies
 // at the start, where next_interface would need the whole hit list): the
@@ -1163,12 +1177,39 @@ bool emits_in_ambient(const Scene& scene, const Light& l, std::vector<Hit>& hits
     // triangle within radius + room.
     if (scene.distance_to_surface(l.center, 2 * (l.radius + room)) <= l.radius + room) return false;
     scene.intersect_all(l.center, l.axis, 0, kInf, hits);
+    return !starts_inside(hits);
+}
+
+// True when a ray with these hits (sorted by distance) enters some region:
+// the first crossing of that region's surface enters it.
+bool enters_a_region(const std::vector<Hit>& hits) {
     uint64_t seen = 0;
     for (const Hit& h : hits) {
         const uint64_t bit = uint64_t(1) << h.region;
         if ((seen & bit) || h.cos_dn == 0) continue;
         seen |= bit;
-        if (h.cos_dn > 0) return false;  // the centre is inside this region
+        if (h.cos_dn < 0) return true;
+    }
+    return false;
+}
+
+// Whether a light sits in a closed pocket (a cavity, such as the lumen
+// around an endoscope, filled with ambient or with a region of its own):
+// each of 64 probe rays from its centre (a Fibonacci sphere, near-uniform
+// directions) enters a region the centre is outside of. A pocket with an
+// opening larger than about 1/64 of the sphere is seen as open. A centre
+// inside a slab of tissue, or on its surface, is no pocket: the rays that
+// leave the slab on the ambient side enter nothing, so such a light keeps
+// its source axis for reflected and transmitted (docs/design.md).
+bool in_closed_pocket(const Scene& scene, const Light& l, std::vector<Hit>& hits) {
+    constexpr int kProbes = 64;
+    if (scene.region_count() == 0) return false;
+    for (int k = 0; k < kProbes; ++k) {
+        const Float z = 1 - (2 * k + 1) / Float(kProbes);
+        const Float r = std::sqrt(std::max(Float(0), 1 - z * z));
+        const Float phi = k * kPi * (3 - std::sqrt(Float(5)));
+        scene.intersect_all(l.center, Vec3(r * std::cos(phi), r * std::sin(phi), z), 0, kInf, hits);
+        if (!enters_a_region(hits)) return false;
     }
     return true;
 }
@@ -1185,20 +1226,8 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     // triangle count.
     local_.enabled = cfg.safe_distance;
     shortcuts_.entry_planes.build(scene);
-    // A light is enclosed when every one of 64 probe rays from its centre
-    // (a Fibonacci sphere, near-uniform directions) meets a region. A pocket
-    // with an opening larger than about 1/64 of the sphere is seen as open.
-    constexpr int kProbes = 64;
     for (const Light& l : source.lights()) {
-        bool closed = scene.region_count() > 0;
-        for (int k = 0; k < kProbes && closed; ++k) {
-            const Float z = 1 - (2 * k + 1) / Float(kProbes);
-            const Float r = std::sqrt(std::max(Float(0), 1 - z * z));
-            const Float phi = k * kPi * (3 - std::sqrt(Float(5)));
-            scene.intersect_all(l.center, Vec3(r * std::cos(phi), r * std::sin(phi), z), 0, kInf, hits_);
-            closed = !hits_.empty();
-        }
-        enclosed_.push_back(closed ? 1 : 0);
+        enclosed_.push_back(in_closed_pocket(scene, l, hits_) ? 1 : 0);
         LaunchMemo& memo = shortcuts_.launch.emplace_back();
         memo.fixed_ray = l.radius == 0 && l.half_angle == 0;
         memo.in_ambient = emits_in_ambient(scene, l, hits_);

@@ -164,6 +164,45 @@ def test_closed_cavity_filled_with_clear_fluid():
     assert np.all(e["next_hit"] == AWAY) and np.all(e["exit_order"] == 1)
 
 
+# A light whose centre lies on the slab's surface (MCML's convention) or inside
+# the slab is in no pocket: the probe rays that leave on the ambient side enter
+# no region. Its escapes are classified by its axis, so Rd is the weight that
+# leaves against the beam. (The probe once counted any ray that met a surface,
+# and such a light got Rd = 0 and Tt = every escape.)
+VDH_RD, VDH_TT = 0.09739, 0.66096  # van de Hulst, as in test_mcml.py
+
+
+def _slab_from(z):
+    scene, _ = _example("mcml_slab.json")
+    return scene, ep.PencilSource(position=(0.0, 0.0, z), direction=(0.0, 0.0, -1.0))
+
+
+def _assert_rd_is_the_upward_weight(res):
+    e = res.escapes
+    up = e["direction"][:, 2] > 0
+    assert res.diffuse_reflectance * res.photons == pytest.approx(e["weight"][up].sum(), rel=1e-12)
+    assert res.transmittance * res.photons == pytest.approx(e["weight"][~up].sum(), rel=1e-12)
+    assert np.all(e["kind"][up] == 0) and np.all(e["kind"][~up] == 1)
+
+
+def test_a_beam_launched_on_the_surface_reflects_like_van_de_hulst():
+    res = ep.run(*_slab_from(0.0), photons=20000, seed=5)
+    assert_energy_conserved(res)
+    _assert_rd_is_the_upward_weight(res)
+    for label, v, s, ref in (
+        ("Rd", res.diffuse_reflectance, res.diffuse_reflectance_stderr, VDH_RD),
+        ("Tt", res.transmittance, res.transmittance_stderr, VDH_TT),
+    ):
+        assert abs(v - ref) <= K * s, (label, v, s, ref)
+
+
+def test_a_light_inside_the_slab_reflects_what_leaves_against_its_axis():
+    res = ep.run(*_slab_from(-0.01), photons=20000, seed=5)
+    assert_energy_conserved(res)
+    _assert_rd_is_the_upward_weight(res)
+    assert res.diffuse_reflectance > 10 * res.diffuse_reflectance_stderr
+
+
 def _write_cavity_json(path, wall):
     v, t = hollow_box(1.0 + wall, 1.0)
     data = {
