@@ -25,6 +25,9 @@ struct RunConfig {
     double grid_voxel_size = 0;  // scene units
     bool grid_per_fluorophore = false;
     std::string grid_path;
+    // The most the .vdb writer's OpenVDB trees may take (write_vdb); 0: three
+    // quarters of the memory available when the file is written.
+    uint64_t grid_max_tree_bytes = 0;
     // Target-accuracy mode: stop once stderr/mean of `target_tally` <= target_rel_error.
     int target_tally = -1;  // a TallyIndex, or -1
     double target_rel_error = 0;

@@ -103,6 +103,35 @@ void validate(const std::vector<GridOutput>& grids, const std::map<std::string, 
 
 using FloatTree = openvdb::FloatTree;
 using Leaf = FloatTree::LeafNodeType;
+using Upper = FloatTree::RootNodeType::ChildNodeType;  // internal node of 32^3 children
+using Lower = Upper::ChildNodeType;                    // internal node of 16^3 leaves
+
+// The bytes of tree nodes the write may still make, shared by its threads and
+// grids (write_vdb's max_tree_bytes). A voxel whose leaf does not exist yet
+// charges the leaf (its object and 512 float values) and any internal node it
+// would add, before touchLeaf makes them; a charge past the limit throws.
+class TreeBudget {
+  public:
+    TreeBudget(uint64_t max_bytes, double voxel_size) : max_(max_bytes), voxel_size_(voxel_size) {}
+    void charge_new_leaf(const openvdb::tree::ValueAccessor<FloatTree>& acc, const openvdb::Coord& xyz) {
+        uint64_t bytes = sizeof(Leaf) + Leaf::SIZE * sizeof(float);
+        if (!acc.template probeConstNode<Lower>(xyz)) bytes += sizeof(Lower);
+        if (!acc.template probeConstNode<Upper>(xyz)) bytes += sizeof(Upper);
+        if (used_.fetch_add(bytes, std::memory_order_relaxed) + bytes <= max_) return;
+        std::ostringstream msg;
+        msg.precision(6);
+        msg << "grids.voxel_size = " << voxel_size_ << ": the deposits lie too scattered at this voxel size: "
+            << "their OpenVDB tree nodes would need more than the " << max_ / (1 << 20)
+            << " MiB the .vdb writer may use (each leaf of 8^3 voxels takes 2 kB and each internal node 34 kB "
+               "or 270 kB, however few voxels it holds); use a larger voxel_size";
+        throw std::runtime_error(msg.str());
+    }
+
+  private:
+    const uint64_t max_;
+    const double voxel_size_;
+    std::atomic<uint64_t> used_{0};
+};
 
 // Runs task(i) for i in [0, n) on up to `threads` threads (the calling one
 // included), each task on one thread.
@@ -129,7 +158,7 @@ void run_tasks(size_t n, int threads, const Task& task) {
 // error naming the part's smallest such voxel in (x, y, z) order, so the
 // message does not depend on the table order. Throws std::logic_error if a
 // voxel is already set (parts overlap).
-void fill_part(const GridOutput& g, const VoxelAccumulator& part, FloatTree& tree) {
+void fill_part(const GridOutput& g, const VoxelAccumulator& part, FloatTree& tree, TreeBudget& budget) {
     openvdb::tree::ValueAccessor<FloatTree> acc(tree);
     bool bad = false, twice = false;
     VoxelAccumulator::Coord bad_c{};
@@ -142,6 +171,7 @@ void fill_part(const GridOutput& g, const VoxelAccumulator& part, FloatTree& tre
             return;
         }
         const openvdb::Coord xyz(c[0], c[1], c[2]);
+        if (!acc.probeConstLeaf(xyz)) budget.charge_new_leaf(acc, xyz);
         Leaf* leaf = acc.touchLeaf(xyz);
         const openvdb::Index offset = Leaf::coordToOffset(xyz);
         twice |= leaf->isValueOn(offset);
@@ -232,8 +262,10 @@ openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree
 // depend on the thread timing.
 class GridBuilder {
   public:
-    GridBuilder(const std::vector<GridOutput>& grids, const std::map<std::string, std::string>& metadata, int threads)
-        : grids_(grids),
+    GridBuilder(const std::vector<GridOutput>& grids, const std::map<std::string, std::string>& metadata, int threads,
+                uint64_t max_tree_bytes)
+        : budget_(max_tree_bytes, grids.front().data->voxel_size()),
+          grids_(grids),
           metadata_(metadata),
           remaining_(grids.size()),
           built_(grids.size()),
@@ -291,7 +323,7 @@ class GridBuilder {
         try {
             FloatTree::Ptr& tree = trees_[t][k];
             if (!tree) tree = std::make_shared<FloatTree>(/*background=*/0.0f);
-            fill_part(grids_[k], *parts_[i].second, *tree);
+            fill_part(grids_[k], *parts_[i].second, *tree, budget_);
         } catch (...) {
             fill_errors_[i] = std::current_exception();
         }
@@ -322,6 +354,7 @@ class GridBuilder {
         cv_.notify_all();
     }
 
+    TreeBudget budget_;
     const std::vector<GridOutput>& grids_;
     const std::map<std::string, std::string>& metadata_;
     std::vector<std::pair<size_t, const VoxelAccumulator*>> parts_;  // (grid, part), grid-major
@@ -429,16 +462,58 @@ class CheckedArchive : public openvdb::io::Archive {
 
 }  // namespace
 
+uint64_t tree_memory_limit() {
+    const uint64_t page = uint64_t(::sysconf(_SC_PAGESIZE));
+    uint64_t avail = 0;
+    std::ifstream info("/proc/meminfo");
+    std::string key;
+    uint64_t kb = 0;
+    while (info >> key >> kb) {
+        if (key == "MemAvailable:") {
+            avail = kb * 1024;
+            break;
+        }
+        info.ignore(256, '\n');
+    }
+    if (avail == 0) avail = uint64_t(std::max(0L, ::sysconf(_SC_AVPHYS_PAGES))) * page;
+    rlimit lim{};
+    if (::getrlimit(RLIMIT_AS, &lim) == 0 && lim.rlim_cur != RLIM_INFINITY) {
+        uint64_t pages = 0;  // the address space in use (/proc/self/statm: size in pages)
+        std::ifstream statm("/proc/self/statm");
+        statm >> pages;
+        const uint64_t used = pages * page;
+        avail = std::min<uint64_t>(avail, uint64_t(lim.rlim_cur) > used ? uint64_t(lim.rlim_cur) - used : 0);
+    }
+    return avail / 4 * 3;
+}
+
+bool vdb_voxel_size_supported(double voxel_size) {
+    if (!(voxel_size > 0) || !std::isfinite(voxel_size)) return false;
+    try {
+        openvdb::math::Transform::createLinearTransform(voxel_size);
+        return true;
+    } catch (const openvdb::Exception&) {
+        return false;
+    }
+}
+
 std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
-                              const std::map<std::string, std::string>& metadata, int threads) {
+                              const std::map<std::string, std::string>& metadata, int threads,
+                              uint64_t max_tree_bytes) {
     if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
     validate(grids, metadata);
     ensure_openvdb_initialized();
+    if (!vdb_voxel_size_supported(grids.front().data->voxel_size())) {
+        std::ostringstream msg;
+        msg << "grids.voxel_size = " << grids.front().data->voxel_size()
+            << " is below the smallest voxel OpenVDB can scale to (about 1e-5 scene units)";
+        throw std::invalid_argument(msg.str());
+    }
 
     openvdb::MetaMap file_meta;
     for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));
 
-    GridBuilder builder(grids, metadata, threads);
+    GridBuilder builder(grids, metadata, threads, max_tree_bytes ? max_tree_bytes : tree_memory_limit());
     const std::string tmp = create_temp_file(path);
     try {
         CheckedArchive().write_checked(tmp, path, builder, grids.size(), file_meta);

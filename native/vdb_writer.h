@@ -6,6 +6,7 @@
 // -fvisibility=hidden as in the pybind11 module.
 #pragma once
 
+#include <cstdint>
 #include <map>
 #include <string>
 #include <vector>
@@ -55,8 +56,26 @@ struct GridOutput {
 // beyond float range), naming the grid or key; std::logic_error if the parts
 // of a grid overlap; std::runtime_error naming the path if the file cannot be
 // written.
+// The grids' OpenVDB trees may take at most `max_tree_bytes` (0: three
+// quarters of the memory available when the write starts, tree_memory_limit).
+// A tree node costs far more than a voxel (a leaf 2 kB, an internal node
+// 34 kB or 270 kB), so deposits scattered at a tiny voxel size could need
+// many gigabytes for a few thousand voxels: before a node is made, the write
+// charges it, and once the next would pass the limit it throws
+// std::runtime_error naming grids.voxel_size, leaving no file.
 std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
-                              const std::map<std::string, std::string>& metadata, int threads = 1);
+                              const std::map<std::string, std::string>& metadata, int threads = 1,
+                              uint64_t max_tree_bytes = 0);
+
+// Three quarters of the memory this process can still take: the smaller of
+// the system's available memory (/proc/meminfo MemAvailable, else the free
+// physical pages) and what the address-space limit (ulimit -v) leaves.
+uint64_t tree_memory_limit();
+
+// Whether OpenVDB can scale its index space to voxels of `voxel_size` (its
+// linear transform refuses a scale whose cube is within 1e-15 of zero, so
+// voxels below ~1e-5 scene units cannot be written).
+bool vdb_voxel_size_supported(double voxel_size);
 
 // Names of the grids stored in a .vdb file, in file order. Throws
 // std::runtime_error naming the path if the file cannot be read.

@@ -99,6 +99,7 @@ void bind_config(py::module_& m) {
         .def_readwrite("grid_voxel_size", &RunConfig::grid_voxel_size)
         .def_readwrite("grid_per_fluorophore", &RunConfig::grid_per_fluorophore)
         .def_readwrite("grid_path", &RunConfig::grid_path)
+        .def_readwrite("grid_max_tree_bytes", &RunConfig::grid_max_tree_bytes)
         .def_readwrite("target_rel_error", &RunConfig::target_rel_error)
         .def_readwrite("time_budget_s", &RunConfig::time_budget_s)
         .def_readwrite("max_photons", &RunConfig::max_photons)

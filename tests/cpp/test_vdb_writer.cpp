@@ -353,3 +353,41 @@ TEST_F(VdbWriterTest, ValueBeyondFloatRangeNamesTheSameVoxelOnAnyThreadCount) {
         EXPECT_TRUE(list_dir().empty());
     }
 }
+
+// Deposits scattered one to a node: 40 voxels, each 4096 voxels from the
+// next, need 40 leaves and 40 internal nodes of each level, about 12 MB of
+// tree for 40 voxels. Under a 1 MiB limit the write stops before making them,
+// naming grids.voxel_size, and leaves no file; under an ample one it writes
+// every voxel. The limit counts the nodes exactly as OpenVDB sizes them.
+TEST_F(VdbWriterTest, ScatteredVoxelsStopAtTheTreeMemoryLimit) {
+    VoxelAccumulator a(0.25);
+    for (int i = 0; i < 40; ++i) a.add_index({4096 * i, -4096 * i, 0}, 1.0 + i);
+    const std::string out = path("scattered.vdb");
+    try {
+        ep::write_vdb(out, {{"absorbed", "", &a}}, {}, 2, uint64_t(1) << 20);
+        FAIL() << "a 1 MiB limit let 40 scattered voxels through";
+    } catch (const std::runtime_error& e) {
+        const std::string what = e.what();
+        EXPECT_NE(what.find("grids.voxel_size = 0.25"), std::string::npos) << what;
+        EXPECT_NE(what.find("1 MiB"), std::string::npos) << what;
+    }
+    EXPECT_TRUE(list_dir().empty());
+    ep::write_vdb(out, {{"absorbed", "", &a}}, {}, 2, uint64_t(64) << 20);
+    auto grid = read_float_grid(out, "absorbed");
+    ASSERT_TRUE(grid);
+    EXPECT_EQ(grid->activeVoxelCount(), 40u);
+    EXPECT_EQ(grid->tree().getValue(openvdb::Coord(4096 * 39, -4096 * 39, 0)), 40.0f);
+}
+
+// Voxels too small for OpenVDB's linear transform are refused by name
+// before anything is written; the smallest accepted one writes.
+TEST_F(VdbWriterTest, VoxelBelowOpenVdbScaleIsRefusedByName) {
+    EXPECT_FALSE(ep::vdb_voxel_size_supported(1e-5));
+    EXPECT_FALSE(ep::vdb_voxel_size_supported(0.0));
+    EXPECT_TRUE(ep::vdb_voxel_size_supported(2e-5));
+    VoxelAccumulator tiny(1e-5);
+    tiny.add_index({1, 2, 3}, 1.0);
+    expect_rejected(path("tiny.vdb"), {{"absorbed", "", &tiny}}, {}, "grids.voxel_size = 1e-05");
+    EXPECT_TRUE(list_dir().empty());
+    EXPECT_GT(ep::tree_memory_limit(), uint64_t(0));
+}
