@@ -432,12 +432,12 @@ def layered_slab(
 
 def _slab_layers(layers) -> list:
     """``layers`` as a list (its items are checked one by one)."""
-    try:
-        if isinstance(layers, (str, bytes, Mapping)):
-            raise TypeError
-        return list(layers)
-    except TypeError:
-        raise ValueError(f"layers = {layers!r} must be a list of (Medium, thickness) pairs") from None
+    if not isinstance(layers, (str, bytes, Mapping)):
+        try:
+            return list(layers)
+        except TypeError:
+            pass
+    raise ValueError(f"layers = {layers!r} must be a list of (Medium, thickness) pairs")
 
 
 def _slab_names(names, n: int):
