@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .io import real_or_none, shown
 from .sources import _vec3
 
 
@@ -39,15 +40,15 @@ class Camera:
         self.up = _vec3("camera", "up", self.up, unit_length=True)
         if abs(float(np.dot(self.forward, self.up))) > 1 - 1e-9:
             raise ValueError(f"camera.up = {self.up.tolist()} is parallel to the viewing direction")
-        _positive("fov_deg", self.fov_deg, 179.0)
-        self.fov_deg = float(self.fov_deg)
-        a = self.aperture_radius
-        if isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) or a < 0:
-            raise ValueError(f"camera.aperture_radius = {a!r} must be a finite number >= 0 (scene units)")
-        self.aperture_radius = float(a)
+        self.fov_deg = _positive("fov_deg", self.fov_deg, 179.0)
+        a = real_or_none(self.aperture_radius)
+        if a is None or not 0 <= a < math.inf:
+            raise ValueError(
+                f"camera.aperture_radius = {shown(self.aperture_radius)} must be a finite number >= 0 (scene units)"
+            )
+        self.aperture_radius = a
         if self.focus_distance is not None:
-            _positive("focus_distance", self.focus_distance)
-            self.focus_distance = float(self.focus_distance)
+            self.focus_distance = _positive("focus_distance", self.focus_distance)
 
     @classmethod
     def look_at(
@@ -137,7 +138,10 @@ class Camera:
         )
 
 
-def _positive(name, v, hi=math.inf):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0 or v > hi:
+def _positive(name, v, hi=math.inf) -> float:
+    """``v`` as a float in (0, hi] (finite): ValueError naming camera.``name`` otherwise."""
+    x = real_or_none(v)
+    if x is None or not math.isfinite(x) or x <= 0 or x > hi:
         rng = f"in (0, {hi:g}]" if math.isfinite(hi) else "> 0"
-        raise ValueError(f"camera.{name} = {v!r} must be a finite number {rng}")
+        raise ValueError(f"camera.{name} = {shown(v)} must be a finite number {rng}")
+    return x

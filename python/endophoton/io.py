@@ -11,6 +11,7 @@ This module imports nothing from the package (it is a leaf of the import graph).
 """
 from __future__ import annotations
 
+import decimal
 import json
 import math
 import numbers
@@ -30,6 +31,9 @@ __all__ = [
     "check_int",
     "check_real",
     "check_bool",
+    "real_or_none",
+    "shown",
+    "check_path",
 ]
 
 
@@ -39,7 +43,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, make_dirs: bool = T
     ``make_dirs`` creates the folder if it is missing.  The file gets mode 0644
     (mkstemp's 0600 would hide ordinary data from other users).  Returns the path.
     """
-    path = os.fspath(path)
+    path = check_path("path", path)
     folder = os.path.dirname(os.path.abspath(path))
     if make_dirs:
         os.makedirs(folder, exist_ok=True)
@@ -106,22 +110,56 @@ def check_keys(owner: str, d: Any, required: set, extra: set = frozenset()) -> N
             raise ValueError(f"{owner}: missing key {k!r}")
 
 
+def real_or_none(v) -> float | None:
+    """``v`` as a Python float if it is a real number (int, float, a numpy integer or floating
+    scalar; not a bool, numpy's included, nor a string), else None. An int beyond the float
+    range gives +-inf: a non-finite number, which the caller refuses by name."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+        return None
+    try:
+        return float(v)
+    except OverflowError:
+        return math.inf if v > 0 else -math.inf
+
+
+def shown(v) -> str:
+    """``repr(v)`` for a message, kept short: an int of more than ~30 digits as ``1.00000e+400``
+    (lists and tuples of them too)."""
+    if isinstance(v, (list, tuple)):
+        inner = ", ".join(shown(x) for x in v)
+        return f"[{inner}]" if isinstance(v, list) else f"({inner}{',' if len(v) == 1 else ''})"
+    if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 100:
+        return format(decimal.Decimal(v), ".6g")
+    return repr(v)
+
+
+def check_path(name: str, v) -> str:
+    """``v`` is a file path (str or os.PathLike, not empty, no NUL byte): the path as a str."""
+    p = os.fspath(v) if isinstance(v, (str, os.PathLike)) else None
+    if not isinstance(p, str) or not p:
+        raise ValueError(f"{name} = {v!r} must be a file path")
+    if "\0" in p:
+        raise ValueError(f"{name} = {v!r} contains a NUL byte")
+    return p
+
+
 def check_int(name: str, v, lo: int, hi: int) -> int:
     """``v`` is an integer (not a bool, not a float, not a string) in [lo, hi]."""
-    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-        raise ValueError(f"{name} = {v!r} must be an integer")
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"{name} = {shown(v)} must be an integer")
     if not lo <= int(v) <= hi:
-        raise ValueError(f"{name} = {v!r} must be in [{lo}, {hi}]")
+        raise ValueError(f"{name} = {shown(v)} must be in [{lo}, {hi}]")
     return int(v)
 
 
 def check_real(name: str, v, lo: float, hi: float, lo_open: bool = False) -> float:
     """``v`` is a finite real number (not a bool, not a string) in [lo, hi] (or (lo, hi])."""
-    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-        raise ValueError(f"{name} = {v!r} must be a finite number")
-    if not (lo < v if lo_open else lo <= v) or not v <= hi:
-        raise ValueError(f"{name} = {v!r} must be in {'(' if lo_open else '['}{lo}, {hi}]")
-    return float(v)
+    x = real_or_none(v)
+    if x is None or not math.isfinite(x):
+        raise ValueError(f"{name} = {shown(v)} must be a finite number")
+    if not (lo < x if lo_open else lo <= x) or not x <= hi:
+        raise ValueError(f"{name} = {shown(v)} must be in {'(' if lo_open else '['}{lo}, {hi}]")
+    return x
 
 
 def check_bool(name: str, v) -> bool:

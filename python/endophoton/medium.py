@@ -5,6 +5,9 @@ import math
 from dataclasses import dataclass
 from typing import Union
 
+import numpy as np
+
+from .io import real_or_none, shown
 from .spectra import Spectrum
 
 Coefficient = Union[float, Spectrum]
@@ -13,10 +16,11 @@ Coefficient = Union[float, Spectrum]
 def _check_coefficient(owner: str, field: str, value) -> None:
     if isinstance(value, Spectrum):
         return  # validated by Spectrum itself (finite, >= 0, increasing wavelengths)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{owner}medium.{field} = {value!r} must be a number (cm^-1) or an endophoton.Spectrum")
-    if not math.isfinite(value) or value < 0:
-        raise ValueError(f"{owner}medium.{field} = {value!r} must be a finite number >= 0 (cm^-1)")
+    x = real_or_none(value)
+    if x is None:
+        raise ValueError(f"{owner}medium.{field} = {shown(value)} must be a number (cm^-1) or an endophoton.Spectrum")
+    if not math.isfinite(x) or x < 0:
+        raise ValueError(f"{owner}medium.{field} = {shown(value)} must be a finite number >= 0 (cm^-1)")
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,9 @@ class Medium:
 
     def __post_init__(self):
         self.validate()
+        for name in ("mua", "mus", "g", "n"):  # numpy scalars as Python floats
+            if isinstance(getattr(self, name), np.generic):
+                object.__setattr__(self, name, float(getattr(self, name)))
 
     def validate(self, owner: str = "") -> None:
         """Raise ValueError naming ``owner`` (e.g. "region 'tissue': "), the field and the value."""
@@ -45,10 +52,11 @@ class Medium:
         _check_coefficient(owner, "mus", self.mus)
         for field, lo, hi, rule in (("g", -1.0, 1.0, "must be in [-1, 1]"), ("n", 1.0, 100.0, "must be in [1, 100]")):
             v = getattr(self, field)
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ValueError(f"{owner}medium.{field} = {v!r} must be a number")
-            if not math.isfinite(v) or v < lo or v > hi:
-                raise ValueError(f"{owner}medium.{field} = {v!r} {rule}")
+            x = real_or_none(v)
+            if x is None:
+                raise ValueError(f"{owner}medium.{field} = {shown(v)} must be a number")
+            if not math.isfinite(x) or x < lo or x > hi:
+                raise ValueError(f"{owner}medium.{field} = {shown(v)} {rule}")
 
     @property
     def spectral(self) -> bool:

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 from . import _core
 from .quality import quality_preset
 from .scene import Scene
-from .io import check_bool, check_int, check_real
+from .io import check_bool, check_int, check_path, check_real
 from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
 
 CancelToken = _core.CancelToken
@@ -38,8 +38,7 @@ class GridRequest:
 
     def __post_init__(self):
         check_real("grids.voxel_size", self.voxel_size, 0.0, math.inf, lo_open=True)
-        if not isinstance(self.path, (str, os.PathLike)) or not str(self.path):
-            raise ValueError(f"grids.path = {self.path!r} must be a file path")
+        check_path("grids.path", self.path)
         check_bool("grids.per_fluorophore", self.per_fluorophore)
 
 
@@ -80,12 +79,19 @@ def _require_finite(raw: dict, path: str = "result") -> None:
     """Every number of a result, nested ones included, is finite (no NaN ever reaches a
     result): an engine bug is reported here, naming the field, rather than passed on."""
     for k, v in raw.items():
-        if k == "escapes":
-            continue
-        if isinstance(v, dict):
-            _require_finite(v, f"{path}.{k}")
-        elif isinstance(v, float) and not math.isfinite(v):
-            raise RuntimeError(f"{path}.{k} = {v!r} is not finite (engine bug: please report)")
+        if k != "escapes":
+            _require_finite_value(v, f"{path}.{k}")
+
+
+def _require_finite_value(v, path: str) -> None:
+    """:func:`_require_finite` of one value: a dict, a list or tuple (each item, ``path[i]``) or a number."""
+    if isinstance(v, dict):
+        _require_finite(v, path)
+    elif isinstance(v, (list, tuple)):
+        for i, x in enumerate(v):
+            _require_finite_value(x, f"{path}[{i}]")
+    elif isinstance(v, float) and not math.isfinite(v):
+        raise RuntimeError(f"{path} = {v!r} is not finite (engine bug: please report)")
 
 
 def _check_arguments(a: SimpleNamespace) -> None:
@@ -117,6 +123,21 @@ def _check_arguments(a: SimpleNamespace) -> None:
         raise ValueError(f"fluorescence_rule = {a.fluorescence_rule!r} must be 'paper' or 'eem'")
     if not isinstance(a.lumen, bool):
         raise ValueError(f"lumen = {a.lumen!r} must be True or False")
+    _check_source_and_callbacks(a)
+
+
+def _check_source_and_callbacks(a: SimpleNamespace) -> None:
+    """``source`` is an endophoton source; ``progress`` None or a callable; ``cancel`` None or a
+    CancelToken (on a cluster, anything with a ``cancelled`` flag, as endophoton.distributed reads it)."""
+    if not all(callable(getattr(a.source, m, None)) for m in ("native_lights", "native_body")):
+        raise ValueError(
+            f"source = {a.source!r} must be an endophoton source (PencilSource, DiskSource, ConeSource or EndoscopeRig)"
+        )
+    if a.progress is not None and not callable(a.progress):
+        raise ValueError(f"progress = {a.progress!r} must be None or a callable progress(done, total)")
+    duck = a.client is not None and hasattr(a.cancel, "cancelled")
+    if a.cancel is not None and not isinstance(a.cancel, CancelToken) and not duck:
+        raise ValueError(f"cancel = {a.cancel!r} must be None or an endophoton.CancelToken")
 
 
 def _as_field_object(name: str, value, cls):

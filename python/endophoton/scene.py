@@ -13,14 +13,14 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
 from .spectra import EEM, Fluorophore, Spectrum
-from .io import check_keys as _check_keys
+from .io import check_keys as _check_keys, check_real, real_or_none, shown
 from .scene_schema import MAX_REGIONS, validate_document
 from .units import unit_cm
 
@@ -56,21 +56,28 @@ def _as_mesh_arrays(owner, vertices, triangles):
             f"{owner}: mesh.triangles[{i}][{k}] = {int(t[i, k])} is not a vertex index "
             f"(the mesh has {len(v)} vertices)"
         )
-    if not np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_:
-        raise ValueError(f"{owner}: mesh.vertices must hold numbers, got dtype {v.dtype}")
+    if not np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_ or np.issubdtype(v.dtype, np.complexfloating):
+        raise ValueError(f"{owner}: mesh.vertices must hold real numbers, got dtype {v.dtype}")
     bad = ~np.isfinite(v)
     if bad.any():
         i, k = map(int, np.argwhere(bad)[0])
         raise ValueError(f"{owner}: mesh.vertices[{i}][{k}] = {v[i, k]} is not finite")
-    return np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(t, dtype=np.uint32)
+    with np.errstate(over="ignore"):
+        v32 = np.ascontiguousarray(v, dtype=np.float32)
+    bad = ~np.isfinite(v32)
+    if bad.any():
+        i, k = map(int, np.argwhere(bad)[0])
+        raise ValueError(f"{owner}: mesh.vertices[{i}][{k}] = {v[i, k]} exceeds the float32 range")
+    return v32, np.ascontiguousarray(t, dtype=np.uint32)
 
 
 def _check_cache_store_mb(value) -> float | None:
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 2**40:
-        raise ValueError(f"scene.cache_store_mb = {value!r} must be None or a finite number of MiB in [0, 2**40)")
-    return float(value)
+    x = real_or_none(value)
+    if x is None or not 0 <= x < 2**40:
+        raise ValueError(f"scene.cache_store_mb = {shown(value)} must be None or a finite number of MiB in [0, 2**40)")
+    return x
 
 
 # The engine scene built last, by content (Scene.native_key): a new Scene with the same content --
@@ -106,18 +113,16 @@ class Scene:
     """
 
     def __init__(self, unit: str = "cm", ambient_n: float = 1.0, cache_store_mb: float | None = None):
-        _check_cache_store_mb(cache_store_mb)
-        self.cache_store_mb = cache_store_mb
+        mb = _check_cache_store_mb(cache_store_mb)
+        self.cache_store_mb = mb if isinstance(cache_store_mb, np.generic) else cache_store_mb
         self.unit = unit
         self.unit_cm = unit_cm(unit)
-        if (
-            isinstance(ambient_n, bool)
-            or not isinstance(ambient_n, (int, float))
-            or not math.isfinite(ambient_n)
-            or not 1 <= ambient_n <= MAX_REFRACTIVE_INDEX
-        ):
-            raise ValueError(f"scene.ambient_n = {ambient_n!r} must be a finite number in [1, {MAX_REFRACTIVE_INDEX}]")
-        self.ambient_n = float(ambient_n)
+        n = real_or_none(ambient_n)
+        if n is None or not 1 <= n <= MAX_REFRACTIVE_INDEX:  # nan and +-inf fail the range
+            raise ValueError(
+                f"scene.ambient_n = {shown(ambient_n)} must be a finite number in [1, {MAX_REFRACTIVE_INDEX}]"
+            )
+        self.ambient_n = n
         self.regions: list[Region] = []
         self._names: set[str] = set()
 
@@ -407,13 +412,38 @@ def layered_slab(
     are in scene units. A source above the stack points along -z.
     """
     scene = Scene(unit=unit, ambient_n=ambient_n)
-    z = float(top)
-    half = 0.5 * float(width)
+    z = check_real("top", top, -math.inf, math.inf)
+    half = 0.5 * check_real("width", width, 0.0, math.inf, lo_open=True)
+    layers = _slab_layers(layers)
+    names = _slab_names(names, len(layers))
     for i, item in enumerate(layers):
-        medium, thickness = item
+        try:
+            medium, thickness = item
+        except (TypeError, ValueError):
+            raise ValueError(f"layers[{i}] = {item!r} must be a (Medium, thickness) pair") from None
         name = names[i] if names else f"layer{i + 1}"
-        if not (isinstance(thickness, (int, float)) and math.isfinite(thickness) and thickness > 0):
-            raise ValueError(f"region '{name}': thickness = {thickness!r} must be a positive number")
-        scene.add_box(name, (-half, -half, z - thickness), (half, half, z), medium, priority=0)
-        z -= thickness
+        t = real_or_none(thickness)
+        if t is None or not math.isfinite(t) or t <= 0:
+            raise ValueError(f"region '{name}': thickness = {shown(thickness)} must be a positive number")
+        scene.add_box(name, (-half, -half, z - t), (half, half, z), medium, priority=0)
+        z -= t
     return scene
+
+
+def _slab_layers(layers) -> list:
+    """``layers`` as a list (its items are checked one by one)."""
+    if not isinstance(layers, (str, bytes, Mapping)):
+        try:
+            return list(layers)
+        except TypeError:
+            pass
+    raise ValueError(f"layers = {layers!r} must be a list of (Medium, thickness) pairs")
+
+
+def _slab_names(names, n: int):
+    """``names`` (None or empty: layer1, layer2, ...) as a list of ``n`` names."""
+    if names is None or (isinstance(names, (list, tuple)) and not names):
+        return None
+    if isinstance(names, str) or not isinstance(names, Sequence) or len(names) != n:
+        raise ValueError(f"names = {names!r} must be a list of {n} names, one per layer")
+    return list(names)

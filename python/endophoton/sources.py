@@ -7,19 +7,31 @@ scrambled Halton sequence indexed by packet number.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .spectra import Spectrum
-from .io import check_keys as _check_keys
+from .io import check_keys as _check_keys, real_or_none, shown
 from .units import unit_cm as _unit_cm
 
 
+def _float_array(v):
+    """``v`` as a float64 array, or None if it is not numbers (strings, dicts, ragged or
+    complex values, ints beyond the float range)."""
+    if isinstance(v, (str, bytes, Mapping)):
+        return None
+    try:
+        return None if np.iscomplexobj(v) else np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
 def _vec3(owner, field_name, v, unit_length=False):
-    a = np.asarray(v, dtype=np.float64)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{owner}.{field_name} = {v!r} must be 3 finite numbers")
+    a = _float_array(v)
+    if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{owner}.{field_name} = {shown(v)} must be 3 finite numbers")
     if unit_length:
         n = float(np.linalg.norm(a))
         if n < 1e-12:
@@ -29,10 +41,11 @@ def _vec3(owner, field_name, v, unit_length=False):
 
 
 def _nonneg(owner, field_name, v, hi=math.inf):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or v > hi:
+    x = real_or_none(v)
+    if x is None or not math.isfinite(x) or x < 0 or x > hi:
         rng = f"[0, {hi}]" if math.isfinite(hi) else ">= 0"
-        raise ValueError(f"{owner}.{field_name} = {v!r} must be a finite number {rng}")
-    return float(v)
+        raise ValueError(f"{owner}.{field_name} = {shown(v)} must be a finite number {rng}")
+    return x
 
 
 class _Source:
@@ -189,9 +202,9 @@ class EndoscopeRig(_Source):
     body: bool = True
 
     def __post_init__(self):
-        M = np.asarray(self.transform, dtype=np.float64)
-        if M.shape != (4, 4) or not np.all(np.isfinite(M)):
-            raise ValueError(f"rig.transform = {self.transform!r} must be a finite 4x4 matrix")
+        M = _float_array(self.transform)
+        if M is None or M.shape != (4, 4) or not np.all(np.isfinite(M)):
+            raise ValueError(f"rig.transform = {shown(self.transform)} must be a finite 4x4 matrix")
         R = M[:3, :3]
         scales = np.linalg.norm(R, axis=0)
         if np.any(scales < 1e-12):
@@ -283,20 +296,12 @@ class EndoscopeRig(_Source):
         the normal). The light guides lie in the plane of tilt, so at beta > 0 one
         light is nearer the surface than the other.
         """
-        if (
-            isinstance(beta_deg, bool)
-            or not isinstance(beta_deg, (int, float))
-            or not math.isfinite(beta_deg)
-            or abs(beta_deg) >= 90
-        ):
-            raise ValueError(f"rig.beta_deg = {beta_deg!r} must be a finite angle in (-90, 90) degrees")
-        if (
-            isinstance(distance, bool)
-            or not isinstance(distance, (int, float))
-            or not math.isfinite(distance)
-            or distance <= 0
-        ):
-            raise ValueError(f"rig.distance = {distance!r} must be a positive number (scene units)")
+        beta, dist = real_or_none(beta_deg), real_or_none(distance)
+        if beta is None or not abs(beta) < 90:  # nan fails too
+            raise ValueError(f"rig.beta_deg = {shown(beta_deg)} must be a finite angle in (-90, 90) degrees")
+        if dist is None or not 0 < dist < math.inf:
+            raise ValueError(f"rig.distance = {shown(distance)} must be a positive number (scene units)")
+        beta_deg, distance = beta, dist
         p = _vec3("rig", "point", point)
         n = _vec3("rig", "normal", normal, unit_length=True)
         if tilt_axis is None:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_write_text
+from .io import atomic_write_text, shown
 from .paper import FLUOROPHORES
 
 __all__ = [
@@ -69,7 +69,7 @@ def _check_wavelengths(where, field, w, min_size):
 def _as_float_array(value, where, field):
     try:
         return np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{where}{field} must be numeric: {exc}") from None
 
 
@@ -390,8 +390,10 @@ class Fluorophore:
     def _probability(self, field, value):
         try:
             x = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"fluorophore '{self._name}': {field} = {value!r} must be a number " "in [0, 1]") from None
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(
+                f"fluorophore '{self._name}': {field} = {shown(value)} must be a number in [0, 1]"
+            ) from None
         if not (0.0 <= x <= 1.0):  # also rejects NaN
             raise ValueError(f"fluorophore '{self._name}': {field} = {_g(x)} must be in [0, 1]")
         return x

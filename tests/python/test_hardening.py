@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import numpy as np
 import pytest
@@ -532,3 +533,182 @@ def test_short_or_bad_box_corner_names_the_field_in_the_api(corner):
     s = ep.Scene("cm")
     with pytest.raises(ValueError, match=r"region 'b': box.min = .* must be 3 numbers"):
         s.add_box("b", corner, (1, 1, 1), TISSUE)
+
+
+# ---------------------------------------------------------------- input validation audit
+HUGE = 10**400  # a Python int no float holds
+HUGE_SHOWN = "1.00000e+400"
+
+
+@pytest.mark.parametrize(
+    "make,field",
+    [
+        (lambda: ep.Medium(mua=HUGE), "medium.mua"),
+        (lambda: ep.Medium(g=-HUGE), "medium.g"),
+        (lambda: ep.Scene(ambient_n=HUGE), "scene.ambient_n"),
+        (lambda: ep.Scene(cache_store_mb=HUGE), "scene.cache_store_mb"),
+        (lambda: ep.PencilSource(position=[HUGE, 0, 0]), "source.position"),
+        (lambda: ep.DiskSource(radius=HUGE), "source.radius"),
+        (lambda: ep.EndoscopeRig.from_beta(HUGE, 2.0), "rig.beta_deg"),
+        (lambda: ep.EndoscopeRig.from_beta(10.0, HUGE), "rig.distance"),
+        (lambda: ep.EndoscopeRig(head_diameter_mm=HUGE), "rig.head_diameter_mm"),
+        (lambda: ep.Camera((0, 0, 1), (0, 0, -1), (0, 1, 0), fov_deg=HUGE), "camera.fov_deg"),
+        (lambda: ep.Camera((0, 0, 1), (0, 0, -1), (0, 1, 0), aperture_radius=HUGE), "camera.aperture_radius"),
+        (lambda: ep.layered_slab([(TISSUE, HUGE)]), "thickness"),
+        (lambda: ep.layered_slab([(TISSUE, 1.0)], top=HUGE), "top"),
+        (lambda: ep.run(slab(1.0), DOWN, photons=10, max_path_cm=HUGE), "max_path_cm"),
+        (lambda: ep.run(slab(1.0), DOWN, photons=HUGE), "photons"),
+    ],
+)
+def test_ints_beyond_the_float_range_are_named_short_errors(make, field):
+    with pytest.raises(ValueError) as ei:
+        make()
+    msg = str(ei.value)
+    assert field + " = " in msg and HUGE_SHOWN in msg, msg
+    assert len(msg) < 300, msg  # not 400 digits
+
+
+@pytest.mark.parametrize("scalar", [np.float32, np.float64, np.int64, np.int32, np.uint8])
+def test_numpy_scalars_are_numbers_and_become_python_floats(scalar):
+    m = ep.Medium(mua=scalar(1), mus=scalar(10), g=np.float32(0.9), n=np.float32(1.3))
+    assert all(type(getattr(m, f)) is float for f in ("mua", "mus", "g", "n"))
+    assert (m.mua, m.mus, m.n) == (1.0, 10.0, pytest.approx(1.3))
+    s = ep.Scene(ambient_n=np.float32(1.3))  # 1.2999999523..., still in [1, 100]
+    assert type(s.ambient_n) is float and s.ambient_n == pytest.approx(1.3)
+    rig = ep.EndoscopeRig.from_beta(scalar(10), scalar(2), camera_fov_deg=scalar(100))
+    assert type(rig.beta_deg) is float and rig.beta_deg == 10.0 and type(rig.camera_fov_deg) is float
+    cam = ep.Camera((0, 0, 1), (0, 0, -1), (0, 1, 0), fov_deg=scalar(40))
+    assert type(cam.fov_deg) is float and cam.fov_deg == 40.0
+    layered = ep.layered_slab([(m, scalar(2))], width=scalar(4))
+    assert layered.regions[0].vertices[:, 2].min() == -2.0 and layered.regions[0].vertices[:, 0].max() == 2.0
+    assert ep.run(layered, DOWN, photons=10, max_path_cm=scalar(100)).photons == 10
+
+
+@pytest.mark.parametrize(
+    "make,text",
+    [
+        (lambda: ep.Medium(mua=np.bool_(True)), "medium.mua = True must be a number"),
+        (lambda: ep.Medium(n=np.float32(0.5)), "medium.n = 0.5 must be in [1, 100]"),
+        (lambda: ep.Scene(ambient_n=np.float32(0.5)), "scene.ambient_n = 0.5 must be a finite number in [1, 100"),
+        (lambda: ep.EndoscopeRig.from_beta(np.float32(90), 2), "rig.beta_deg = 90.0 must be a finite angle"),
+        (lambda: ep.DiskSource(radius=np.float32(-1)), "source.radius = -1.0 must be a finite number >= 0"),
+    ],
+)
+def test_bad_numpy_scalars_are_named_by_their_value(make, text):
+    with pytest.raises(ValueError) as ei:
+        make()
+    assert text in str(ei.value), str(ei.value)
+
+
+@pytest.mark.parametrize(
+    "kw,text",
+    [
+        (dict(source=None), "source = None must be an endophoton source"),
+        (dict(source={}), "source = {} must be an endophoton source"),
+        (dict(source=5), "source = 5 must be an endophoton source"),
+        (dict(cancel=5), "cancel = 5 must be None or an endophoton.CancelToken"),
+        (dict(cancel=True), "cancel = True must be None or an endophoton.CancelToken"),
+        (dict(progress=5), "progress = 5 must be None or a callable"),
+        (dict(progress="bar"), "progress = 'bar' must be None or a callable"),
+    ],
+)
+def test_run_names_a_bad_source_progress_or_cancel(kw, text):
+    kw = {"source": DOWN, **kw}
+    with pytest.raises(ValueError) as ei:
+        ep.run(slab(1.0), photons=10, **kw)
+    assert text in str(ei.value), str(ei.value)
+
+
+@pytest.mark.parametrize(
+    "make,text",
+    [
+        (lambda: ep.PencilSource(position={}), "source.position = {} must be 3 finite numbers"),
+        (lambda: ep.PencilSource(position="abc"), "source.position = 'abc' must be 3 finite numbers"),
+        (lambda: ep.PencilSource(position=[1j, 0, 0]), "source.position = [1j, 0, 0] must be 3 finite numbers"),
+        (lambda: ep.ConeSource(direction=[[0, 0], -1]), "source.direction = [[0, 0], -1] must be 3 finite numbers"),
+        (lambda: ep.EndoscopeRig(transform={}), "rig.transform = {} must be a finite 4x4 matrix"),
+        (
+            lambda: ep.EndoscopeRig(transform=[[1, 0, 0, 0], [0, 1, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
+            "rig.transform = [[1, 0, 0, 0], [0, 1, 0], [0, 0, 1, 0], [0, 0, 0, 1]] must be a finite 4x4 matrix",
+        ),
+    ],
+)
+def test_vectors_and_transforms_that_are_not_numbers_are_named(make, text):
+    with pytest.raises(ValueError) as ei:
+        make()
+    assert text in str(ei.value), str(ei.value)
+
+
+@pytest.mark.parametrize(
+    "args,kw,text",
+    [
+        (([(TISSUE, 1), (TISSUE, 1)],), dict(names=["a"]), "names = ['a'] must be a list of 2 names"),
+        (([(TISSUE, 1)],), dict(names="a"), "names = 'a' must be a list of 1 names"),
+        (([TISSUE],), {}, "layers[0] = Medium("),
+        (([(TISSUE, 1, 2)],), {}, "layers[0] = ("),
+        ((5,), {}, "layers = 5 must be a list of (Medium, thickness) pairs"),
+        (([(TISSUE, 1)],), dict(width="x"), "width = 'x' must be a finite number"),
+        (([(TISSUE, 1)],), dict(width=-1.0), "width = -1.0 must be in (0.0, inf]"),
+        (([(TISSUE, "1")],), {}, "region 'layer1': thickness = '1' must be a positive number"),
+    ],
+)
+def test_layered_slab_names_bad_layers_names_and_width(args, kw, text):
+    with pytest.raises(ValueError) as ei:
+        ep.layered_slab(*args, **kw)
+    assert text in str(ei.value), str(ei.value)
+    if "layers[0]" in text:
+        assert "must be a (Medium, thickness) pair" in str(ei.value)
+
+
+@pytest.mark.parametrize("scale,shown", [(1e39, "1e+39"), (-3.5e38, "-3.5e+38")])
+def test_vertices_beyond_the_float32_range_are_refused_at_add_mesh(scale, shown):
+    v, t = cube_mesh((0, 0, 0), (1, 1, 1))
+    v = np.asarray(v, dtype=np.float64) * scale
+    i, k = map(int, np.argwhere(v != 0)[0])
+    s = ep.Scene("cm")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning on the way
+        with pytest.raises(ValueError) as ei:
+            s.add_mesh("far", v, t, TISSUE)
+    assert f"region 'far': mesh.vertices[{i}][{k}] = {shown} exceeds the float32 range" in str(ei.value)
+    assert s.regions == []
+
+
+def test_complex_vertices_are_refused_by_dtype():
+    v, t = cube_mesh((0, 0, 0), (1, 1, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way
+        with pytest.raises(ValueError) as ei:
+            ep.Scene("cm").add_mesh("c", np.asarray(v, dtype=np.float64) * (1 + 0j), t, TISSUE)
+    assert "region 'c': mesh.vertices must hold real numbers, got dtype complex128" in str(ei.value)
+
+
+def test_a_nul_byte_in_the_grid_path_is_refused_and_nothing_is_written(tmp_path):
+    path = str(tmp_path / "x\x00.vdb")
+    with pytest.raises(ValueError) as ei:
+        ep.run(slab(1.0), DOWN, photons=10, grids=dict(voxel_size=0.5, path=path))
+    assert str(ei.value) == f"grids.path = {path!r} contains a NUL byte"
+    with pytest.raises(ValueError, match=r"grids.path = .* contains a NUL byte"):
+        ep.GridRequest(0.5, tmp_path / "y\x00.vdb")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_nul_byte_in_an_output_path_is_refused_by_the_atomic_writer(tmp_path):
+    from endophoton.io import write_json
+
+    path = str(tmp_path / "r\x00.json")
+    with pytest.raises(ValueError) as ei:
+        write_json(path, {"a": 1})
+    assert str(ei.value) == f"path = {path!r} contains a NUL byte"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_require_finite_descends_into_lists_and_tuples():
+    from endophoton.run import _require_finite
+
+    _require_finite({"a": [1.0, (2.0, {"b": [3.0]})], "escapes": [float("nan")]})  # finite; escapes skipped
+    with pytest.raises(RuntimeError) as ei:
+        _require_finite({"a": [1.0, {"b": (2.0, float("nan"))}]})
+    assert "result.a[1].b[1] = nan is not finite" in str(ei.value)
+    with pytest.raises(RuntimeError, match=r"result.c\[0\] = inf is not finite"):
+        _require_finite({"c": [float("inf")]})
