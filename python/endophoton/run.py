@@ -30,16 +30,24 @@ class GridRequest:
     voxel_size : edge of a voxel in scene units
     path : the .vdb file to write (atomically)
     per_fluorophore : also one fluorescence grid per fluorophore
+    max_memory_mb : the most memory (MiB) the file's OpenVDB trees may take while
+        it is written; None: three quarters of the memory available then. Deposits
+        scattered at a tiny voxel size need a tree node (2 kB to 270 kB) for a few
+        voxels each; a write that would pass the limit stops with an error naming
+        ``grids.voxel_size`` and leaves no file.
     """
 
     voxel_size: float
     path: str
     per_fluorophore: bool = False
+    max_memory_mb: float | None = None
 
     def __post_init__(self):
         check_real("grids.voxel_size", self.voxel_size, 0.0, math.inf, lo_open=True)
         check_path("grids.path", self.path)
         check_bool("grids.per_fluorophore", self.per_fluorophore)
+        if self.max_memory_mb is not None:
+            self.max_memory_mb = check_real("grids.max_memory_mb", self.max_memory_mb, 1.0, 2.0**40)
 
 
 class Result:
@@ -225,6 +233,8 @@ def _native_options(a: SimpleNamespace) -> dict:
         opts["grid_voxel_size"] = float(a.grids.voxel_size)
         opts["grid_path"] = os.fspath(a.grids.path)
         opts["grid_per_fluorophore"] = bool(a.grids.per_fluorophore)
+        if a.grids.max_memory_mb is not None:
+            opts["grid_max_tree_bytes"] = int(a.grids.max_memory_mb * 2**20)
     return opts
 
 

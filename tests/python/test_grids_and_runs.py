@@ -324,3 +324,40 @@ def test_target_on_a_tally_that_stays_zero_stops_and_says_so():
     )
     assert res.stop_reason == "target_zero" and not res.target_reached
     assert res.transmittance == 0.0
+
+
+# The .vdb writer's limits (native/vdb_writer.h). A tree node costs far more
+# than a voxel, so deposits scattered at a tiny voxel size once took gigabytes
+# of OpenVDB nodes for a few thousand voxels and aborted the process.
+def _scattering_slab():
+    return ep.layered_slab([(ep.Medium(mua=1, mus=100, g=0.9, n=1.4), 0.5)])
+
+
+_DOWN = ep.PencilSource(position=(0, 0, 1), direction=(0, 0, -1))
+
+
+def test_a_voxel_below_openvdbs_scale_is_refused_before_the_run(tmp_path):
+    out = tmp_path / "tiny.vdb"
+    with pytest.raises(ValueError, match=r"grids\.voxel_size = 1(\.0+1)?e-05 is below the smallest voxel OpenVDB"):
+        ep.run(_scattering_slab(), _DOWN, photons=10, threads=1, grids=ep.GridRequest(1e-5, str(out)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_scattered_deposits_stop_at_the_writers_memory_limit_and_leave_no_file(tmp_path):
+    out = tmp_path / "scattered.vdb"
+    # 20 packets at 1 um voxels: ~5,000 voxels, nearly each in its own leaf and
+    # internal node (~36 kB a voxel), far more than 1 MiB.
+    grids = ep.GridRequest(voxel_size=1e-4, path=str(out), max_memory_mb=1)
+    with pytest.raises(RuntimeError, match=r"grids\.voxel_size = 0\.0001: .* more than the 1 MiB"):
+        ep.run(_scattering_slab(), _DOWN, photons=20, threads=2, grids=grids)
+    assert list(tmp_path.iterdir()) == []
+    # With room for them, the same deposits are written, and sum to the absorbed tally.
+    grids = ep.GridRequest(voxel_size=1e-4, path=str(out), max_memory_mb=4096)
+    res = ep.run(_scattering_slab(), _DOWN, photons=20, threads=2, grids=grids)
+    assert out.exists() and res.grid_absorbed_sum == pytest.approx(res.absorbed, rel=1e-9)
+
+
+@pytest.mark.parametrize("bad", [0, 0.5, -1, float("nan"), float("inf"), True, "1"])
+def test_bad_writer_memory_limits_are_refused_by_name(tmp_path, bad):
+    with pytest.raises(ValueError, match=r"grids\.max_memory_mb = "):
+        ep.GridRequest(voxel_size=0.01, path=str(tmp_path / "g.vdb"), max_memory_mb=bad)
