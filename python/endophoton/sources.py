@@ -164,6 +164,25 @@ def rotation_about(axis, angle_rad):
     return np.eye(3) + math.sin(angle_rad) * K + (1 - math.cos(angle_rad)) * (K @ K)
 
 
+# The largest image side (pixels) a view renders (render._resolve_camera's limit).
+MAX_IMAGE_SIDE = 8192
+
+
+def _resolution(name: str, v) -> tuple:
+    """``v`` as a (width, height) pair of integers in [1, MAX_IMAGE_SIDE] pixels."""
+    bad = ValueError(f"{name} = {shown(v)} must be (width, height) in pixels, integers in [1, {MAX_IMAGE_SIDE}]")
+    if isinstance(v, (str, bytes, dict)):
+        raise bad
+    try:
+        w, h = v
+    except (TypeError, ValueError):
+        raise bad from None
+    for x in (w, h):
+        if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)) or not 1 <= x <= MAX_IMAGE_SIDE:
+            raise bad
+    return int(w), int(h)
+
+
 @dataclass
 class EndoscopeRig(_Source):
     """The endoscope head of the seed's §5: two disk lights and a pinhole camera.
@@ -221,8 +240,10 @@ class EndoscopeRig(_Source):
             setattr(self, name, _nonneg("rig", name, getattr(self, name)))
         self.cone_angle_deg = _nonneg("rig", "cone_angle_deg", self.cone_angle_deg, 180.0)
         self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0)
-        if not isinstance(self.body, bool):
+        if not isinstance(self.body, (bool, np.bool_)):
             raise ValueError(f"rig.body = {self.body!r} must be True or False")
+        self.body = bool(self.body)
+        self.camera_resolution = _resolution("rig.camera_resolution", self.camera_resolution)
         if self.camera_aperture_mm > self.head_diameter_mm:
             raise ValueError(
                 f"rig.camera_aperture_mm = {self.camera_aperture_mm} is wider than the head "

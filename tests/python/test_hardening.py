@@ -712,3 +712,15 @@ def test_require_finite_descends_into_lists_and_tuples():
     assert "result.a[1].b[1] = nan is not finite" in str(ei.value)
     with pytest.raises(RuntimeError, match=r"result.c\[0\] = inf is not finite"):
         _require_finite({"c": [float("inf")]})
+
+
+@pytest.mark.parametrize("bad", ["ab", (0, 0), (256,), (256, 256, 3), (256.0, 256), (True, 2), (9000, 10), None, {}])
+def test_rig_camera_resolution_is_checked_by_name(bad):
+    with pytest.raises(ValueError, match=r"rig\.camera_resolution = .* must be \(width, height\) in pixels"):
+        ep.EndoscopeRig(camera_resolution=bad)
+
+
+def test_rig_takes_numpy_resolution_and_body():
+    rig = ep.EndoscopeRig(camera_resolution=np.array([64, 48]), body=np.bool_(False))
+    assert rig.camera_resolution == (64, 48) and type(rig.camera_resolution[0]) is int
+    assert rig.body is False
