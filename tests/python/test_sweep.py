@@ -343,6 +343,35 @@ def test_sweep_cli_bad_betas_exit_2_naming_the_option(capsys):
     assert "Traceback" not in err
 
 
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (
+            ["--out", "/proc/x"],
+            "endophoton: error: --out /proc/x: cannot create the directory: No such file or directory",
+        ),
+        (["--out", "/etc/passwd"], "endophoton: error: --out /etc/passwd: cannot create the directory: File exists"),
+        (["--blend", "/nonexistent.blend"], "endophoton: error: --blend '/nonexistent.blend': no such file"),
+        (["--blend", "/tmp"], "endophoton: error: --blend '/tmp': not a regular file"),
+    ],
+)
+def test_sweep_cli_bad_paths_exit_2_naming_the_option(tmp_path, capsys, monkeypatch, args, text):
+    """Checked before the sweep runs or Blender starts (a missing .blend used to exit 1 with
+    Blender's own message; --out errors were bare OSErrors after the whole sweep)."""
+    from endophoton.cli import main as cli_main
+
+    def no_sweep(*a, **k):
+        raise AssertionError("the sweep or Blender started")
+
+    monkeypatch.setattr(sweep_cli, "sweep", no_sweep)
+    monkeypatch.setattr(sweep_cli.subprocess, "call", no_sweep)
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["sweep", "--betas", "0", "--no-progress", *args]) == 2
+    err = capsys.readouterr().err
+    assert text in err, err
+    assert "Traceback" not in err and not (tmp_path / "sweep_out").exists()
+
+
 def test_sweep_api_betas_are_capped_and_may_be_a_spec_string():
     import itertools
 
