@@ -41,9 +41,9 @@ def _load(path: str):
     from .scene import Scene
     from .sources import source_from_dict
 
-    from .cli import _load_scene_file
+    from .cli_files import load_scene_file
 
-    data = _load_scene_file(path)  # errors name the file
+    data = load_scene_file(path)  # errors name the file
     if not isinstance(data, dict):
         raise ValueError(f"scene = {type(data).__name__} must be a JSON object")
     scene = Scene.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)))
@@ -67,7 +67,7 @@ def _check_int(name, v, lo):
 
 
 def render_main(args) -> int:
-    from .cli import check_out_dir, out_dir_errors
+    from .cli_files import check_out_dir, out_dir_errors
     from .render import check_kernel, excitation_spectrum, render_view
     from .run import run
 

@@ -201,7 +201,7 @@ def sweep_main(args: argparse.Namespace) -> int:
 
     Writes sweep.csv, sweep.json, the PNG plots and report.md into ``--out``.
     """
-    from .cli import check_out_dir, out_dir_errors
+    from .cli_files import check_out_dir, out_dir_errors
 
     if getattr(args, "blend", None):
         _check_blend(args.blend)
