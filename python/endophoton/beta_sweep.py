@@ -27,8 +27,10 @@ the paper's constants (:mod:`endophoton.paper`), the reduction of one run
 """
 from __future__ import annotations
 
+import argparse
 import functools
 import inspect
+import itertools
 import os
 import sys
 import time
@@ -46,7 +48,7 @@ from .scene import Scene
 from .sources import EndoscopeRig
 from .spectra import Fluorophore
 from .sweep_reduce import analyse_run, finish_relative, rig_geometry
-from .sweep_schema import CSV_COLUMNS, VISIBILITY_COLUMNS, SweepResult, parse_betas
+from .sweep_schema import CSV_COLUMNS, MAX_BETAS, VISIBILITY_COLUMNS, SweepResult, parse_betas
 from .units import UNIT_CM
 
 __all__ = [
@@ -241,7 +243,18 @@ def _sweep_meta(
 
 
 def _checked_betas(betas: Iterable[float], store: int, n_batches: int) -> list[float]:
-    """``betas`` as floats, after checking the arguments every sweep needs (clear errors)."""
+    """``betas`` as floats, after checking the arguments every sweep needs (clear errors).
+
+    A string is parsed with the command line's grammar (:func:`parse_betas`); at most
+    :data:`MAX_BETAS` angles are taken from any iterable (an endless one is an error, not a hang)."""
+    if isinstance(betas, str):
+        try:
+            return _checked_betas(parse_betas(betas, field="betas ="), store, n_batches)
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(str(e)) from None
+    betas = list(itertools.islice(betas, MAX_BETAS + 1))
+    if len(betas) > MAX_BETAS:
+        raise ValueError(f"betas: more than {MAX_BETAS} angles (each is a full run)")
     betas = [float(b) for b in betas]
     if not betas:
         raise ValueError("betas: empty")

@@ -14,6 +14,7 @@ import math
 import signal
 import sys
 
+from .cli_files import load_scene_file as _load_scene_file
 from .sweep_cli import add_sweep_arguments, sweep_main
 
 #: Errors of the input: exit 2 with the message (which names the field and value).
@@ -68,16 +69,6 @@ def real_arg(lo: float, hi: float = math.inf, lo_open: bool = False):
         return v
 
     return parse
-
-
-def _load_scene_file(path: str) -> dict:
-    with open(path, "r", encoding="utf-8") as fh:
-        try:
-            return json.load(fh)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"scene file {path!r}: not JSON: {e}") from None
-        except RecursionError:
-            raise ValueError(f"scene file {path!r}: nested too deeply to be a SCENE.json") from None
 
 
 def _run_main(args) -> int:

@@ -42,6 +42,9 @@ WINDOW_PER_THREAD = 2
 CHUNKS_PER_THREAD = 4
 #: Packets per chunk aimed at in store/target runs (whose length is unknown).
 OPEN_CHUNK_PACKETS = 16384
+#: Most worker processes ``local:N`` starts: each is a Python process with the engine loaded, far
+#: dearer than a thread (endophoton.run.MAX_THREADS = 4096); more is refused before any starts.
+MAX_LOCAL_WORKERS = 256
 
 
 def trace_chunk(scene, lights: list, body, options: dict, first_unit: int, count: int):
@@ -277,6 +280,24 @@ def run(scene, source, options: dict, client, *, chunk_units: int = 0, progress=
     return run_many(client, [(scene, source, options, progress)], chunk_units=chunk_units, cancel=cancel)[0]
 
 
+def local_workers(address: str) -> int | None:
+    """N of a ``local:N`` address (1 <= N <= MAX_LOCAL_WORKERS, else ValueError naming the
+    address), or None for any other address."""
+    if not address.startswith("local:"):
+        return None
+    n = address[len("local:") :]
+    digits = n.lstrip("0")
+    if not (n.isascii() and n.isdigit()) or not digits:
+        raise ValueError(f"scheduler = {address!r}: N in local:N must be a positive integer")
+    if len(digits) > 9 or int(digits) > MAX_LOCAL_WORKERS:
+        shown = digits if len(digits) <= 30 else f"{digits[:30]}... ({len(digits)} digits)"
+        raise ValueError(
+            f"scheduler = {address[:40]!r}: N = {shown} local worker processes is more than {MAX_LOCAL_WORKERS} "
+            "(for more, start a scheduler and its workers and give tcp://host:port)"
+        )
+    return int(digits)
+
+
 @contextlib.contextmanager
 def connect(address: str, timeout_s: float = 10.0):
     """A Dask client for ``address``: ``tcp://host:port`` of a running
@@ -284,18 +305,16 @@ def connect(address: str, timeout_s: float = 10.0):
     processes that import this very package. Closes what it opened.
 
     An unreachable scheduler raises ValueError naming the address."""
-    from distributed import Client, LocalCluster
-
     if not isinstance(address, str) or not address:
         raise ValueError(f"scheduler = {address!r} must be tcp://host:port or local:N")
-    if address.startswith("local:"):
-        n = address[len("local:") :]
-        if not n.isdigit() or int(n) < 1:
-            raise ValueError(f"scheduler = {address!r}: N in local:N must be a positive integer")
+    n_workers = local_workers(address)  # checked before anything is imported or started
+    from distributed import Client, LocalCluster
+
+    if n_workers is not None:
         package_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         path = os.pathsep.join(p for p in (package_parent, os.environ.get("PYTHONPATH", "")) if p)
         cluster = LocalCluster(
-            n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=":0", env={"PYTHONPATH": path}
+            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0", env={"PYTHONPATH": path}
         )
         try:
             with Client(cluster) as client:

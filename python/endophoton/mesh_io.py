@@ -59,8 +59,10 @@ def load_mesh(path: str):
     Polygons are fan-triangulated. Returns (vertices float32 (N,3), triangles uint32 (M,3)).
     """
     ext = os.path.splitext(path)[1].lower()
-    if not os.path.isfile(path):
+    if not os.path.exists(path):
         raise ValueError(f"mesh = {path!r}: file not found")
+    if not os.path.isfile(path):
+        raise ValueError(f"mesh = {path!r}: not a regular file")
     if ext not in (".obj", ".ply"):
         raise ValueError(f"mesh = {path!r}: unsupported format {ext!r} (use .ply or .obj)")
     try:
@@ -68,6 +70,8 @@ def load_mesh(path: str):
     except ValueError as e:
         msg = str(e)
         raise ValueError(msg if msg.startswith("mesh = ") else f"mesh = {path!r}: {msg}") from None
+    except OSError as e:
+        raise ValueError(f"mesh = {path!r}: cannot read the file: {e.strerror or e}") from None
     except (IndexError, KeyError, struct.error, OverflowError, UnicodeError) as e:
         raise ValueError(
             f"mesh = {path!r}: malformed or truncated {ext[1:].upper()} file " f"({type(e).__name__}: {e})"
@@ -157,13 +161,22 @@ def _load_ply(path):
             elif words[0] == "element":
                 if len(words) < 3 or not words[2].isdigit():
                     raise ValueError(f"PLY element line {line!r} must be 'element NAME COUNT'")
-                elements.append([words[1], int(words[2]), []])
+                try:
+                    count = int(words[2])
+                except ValueError:  # more digits than Python converts
+                    raise ValueError(f"PLY element {words[1]!r} count {words[2][:20]}... is too large") from None
+                elements.append([words[1], count, []])
             elif words[0] == "property":
                 if not elements:
                     raise ValueError("PLY property before any element")
                 types = [w for w in words[1:-1] if w != "list"]
                 if not types or any(w not in _PLY_TYPES for w in types):
                     raise ValueError(f"PLY property {' '.join(words[1:])!r} has an unknown type")
+                if words[1] == "list" and (len(words) != 5 or _PLY_TYPES[words[2]] in "fd"):
+                    raise ValueError(
+                        f"PLY property {' '.join(words[1:])!r} must be 'property list COUNT_TYPE ITEM_TYPE NAME' "
+                        "with an integer COUNT_TYPE"
+                    )
                 elements[-1][2].append(words[1:])
             elif words[0] == "end_header":
                 break
@@ -173,6 +186,12 @@ def _load_ply(path):
         text = fh.read()
     pos = 0
     tokens = text.split() if fmt == "ascii" else None
+    # Every read takes at least one value (ASCII) or its size in bytes (binary) of what is left, so
+    # no count in the file can make the reader loop beyond what the file holds.
+    total, unit = (len(tokens), "values") if tokens is not None else (len(text), "bytes")
+
+    def size(kind):
+        return 1 if tokens is not None else struct.calcsize("<" + _PLY_TYPES[kind])
 
     def read(kind):
         nonlocal pos
@@ -181,10 +200,18 @@ def _load_ply(path):
             pos += 1
             return float(v) if _PLY_TYPES[kind] in "fd" else int(v)
         code = "<" + _PLY_TYPES[kind]
-        size = struct.calcsize(code)
         (v,) = struct.unpack_from(code, text, pos)
-        pos += size
+        pos += struct.calcsize(code)
         return v
+
+    def read_list(name, item, p):
+        n = read(p[1])
+        if n < 0 or n * size(p[2]) > total - pos:
+            raise ValueError(
+                f"mesh = {path!r}: malformed or truncated PLY file: element {name!r} item {item}: list {p[-1]!r} "
+                f"length {n} does not fit the {total - pos} {unit} left in the file"
+            )
+        return [read(p[2]) for _ in range(n)]
 
     for name, count, props in elements:
         if name == "vertex":
@@ -192,28 +219,35 @@ def _load_ply(path):
             if not all(k in names for k in ("x", "y", "z")):
                 raise ValueError(f"mesh = {path!r}: PLY vertices lack x, y, z")
             ix = [names.index(k) for k in ("x", "y", "z")]
+            for i in ix:
+                if props[i][0] == "list":
+                    raise ValueError(f"mesh = {path!r}: PLY vertex property {names[i]!r} is a list, not a number")
+        # The least one item takes: a value per scalar property and the length of each list.
+        least = sum(size(p[1] if p[0] == "list" else p[0]) for p in props)
+        if least == 0:  # an element without properties holds no data: nothing to read
+            continue
+        if count > (total - pos) // least:
+            raise ValueError(
+                f"mesh = {path!r}: malformed or truncated PLY file: element {name!r} count {count} "
+                f"does not fit the {total - pos} {unit} left in the file (an item takes at least {least})"
+            )
+        if name == "vertex":
             rows = []
-            for _ in range(count):
-                row = [read(p[0]) if p[0] != "list" else None for p in props]
+            for item in range(count):
+                row = [read_list(name, item, p) if p[0] == "list" else read(p[0]) for p in props]
                 rows.append([row[i] for i in ix])
             verts = np.asarray(rows, dtype=np.float32).reshape(-1, 3)
-        elif name == "face":
-            for _ in range(count):
-                for p in props:
-                    if p[0] == "list":
-                        n = read(p[1])
-                        idx = [read(p[2]) for _ in range(n)]
-                        if p[-1] in ("vertex_indices", "vertex_index"):
-                            tris += _fan(idx)
-                    else:
-                        read(p[0])
         else:
-            for _ in range(count):
+            for item in range(count):
                 for p in props:
                     if p[0] == "list":
-                        n = read(p[1])
-                        for _ in range(n):
-                            read(p[2])
+                        idx = read_list(name, item, p)
+                        if name == "face" and p[-1] in ("vertex_indices", "vertex_index"):
+                            if idx and min(idx) < 0:
+                                raise ValueError(
+                                    f"mesh = {path!r}: PLY face {item}: vertex index {min(idx)} is negative"
+                                )
+                            tris += _fan(idx)
                     else:
                         read(p[0])
     if verts is None:

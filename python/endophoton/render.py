@@ -262,17 +262,39 @@ def _resolve_camera(result, camera, width, height):
     return camera, int(w), int(h)
 
 
-def _check_knobs(kernel_radius, kernel_angle_deg, n_batches):
-    if kernel_radius is not None and (
-        isinstance(kernel_radius, bool)
-        or not isinstance(kernel_radius, (int, float))
-        or not math.isfinite(kernel_radius)
-        or kernel_radius <= 0
-    ):
-        raise ValueError(f"kernel_radius = {kernel_radius!r} must be a positive number (scene units) or None")
-    a = kernel_angle_deg
+def check_kernel(kernel_radius, kernel_angle_deg, unit_cm=None, names=("kernel_radius", "kernel_angle_deg")):
+    """Check the kernel's size: radius None (the default, resolved later) or a positive finite number
+    (scene units), angle in (0, 90] degrees, and, with ``unit_cm``, both such that the kernel's
+    normalisations 1 / (A Omega) at full and half size are finite and nonzero in double precision.
+    ValueError naming the knob (``names``: the API's or the command line's spelling) and its value."""
+    rn, an = names
+    r, a = kernel_radius, kernel_angle_deg
+    if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r <= 0):
+        raise ValueError(f"{rn} = {r!r} must be a positive number (scene units) or None")
     if isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) or not 0 < a <= 90:
-        raise ValueError(f"kernel_angle_deg = {a!r} must be in (0, 90] degrees")
+        raise ValueError(f"{an} = {a!r} must be in (0, 90] degrees")
+    theta = math.radians(a)
+    omega, omega_h = (2.0 * math.pi * (1.0 - math.cos(t)) for t in (theta, theta / 2))
+    if not omega_h > 0 or not math.isfinite(1.0 / (2.0 * math.sin(theta / 2))):
+        raise ValueError(f"{an} = {a!r} is too small: the kernel's solid angle 2 pi (1 - cos) is 0 in double precision")
+    if r is None or unit_cm is None:
+        return
+    rc = float(r) * float(unit_cm)
+    area, area_h = math.pi * rc * rc, math.pi * (0.5 * rc) * (0.5 * rc)  # x * x: inf, never OverflowError
+    if not area_h > 0 or not math.isfinite(1.0 / r):
+        raise ValueError(f"{rn} = {r!r} is too small: the kernel's area pi r^2 is 0 in double precision")
+    if not math.isfinite(area):
+        raise ValueError(f"{rn} = {r!r} is too large: the kernel's area pi r^2 overflows double precision")
+    for x in (area * omega, area_h * omega_h):
+        if not (x > 0 and math.isfinite(x) and math.isfinite(1.0 / x)):
+            raise ValueError(
+                f"{rn} = {r!r} with {an} = {a!r}: the kernel's normalisation 1 / (pi r^2 x 2 pi (1 - cos)) "
+                "is not a finite nonzero number in double precision"
+            )
+
+
+def _check_knobs(kernel_radius, kernel_angle_deg, n_batches):
+    check_kernel(kernel_radius, kernel_angle_deg)
     if isinstance(n_batches, bool) or not isinstance(n_batches, int) or not 2 <= n_batches <= 1000:
         raise ValueError(f"n_batches = {n_batches!r} must be an integer in [2, 1000]")
 
@@ -482,6 +504,7 @@ def render_view(
     if kernel_radius is None:
         med = float(np.median(depth[hit])) if hit.any() else 1.0
         kernel_radius = 2.0 * (2.0 * fr["tan_x"] / W) * med
+    check_kernel(kernel_radius, kernel_angle_deg, scene.unit_cm)
     P = _packets(result)
     rec = _records(result, n_batches, P, T)
     rec["cam"] = camera.position

@@ -41,8 +41,9 @@ def _load(path: str):
     from .scene import Scene
     from .sources import source_from_dict
 
-    with open(path, "r", encoding="utf-8") as fh:
-        data = json.load(fh)
+    from .cli_files import load_scene_file
+
+    data = load_scene_file(path)  # errors name the file
     if not isinstance(data, dict):
         raise ValueError(f"scene = {type(data).__name__} must be a JSON object")
     scene = Scene.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)))
@@ -66,7 +67,8 @@ def _check_int(name, v, lo):
 
 
 def render_main(args) -> int:
-    from .render import excitation_spectrum, render_view
+    from .cli_files import check_out_dir, out_dir_errors
+    from .render import check_kernel, excitation_spectrum, render_view
     from .run import run
 
     for name, lo in (("photons", 1), ("seed", 0), ("threads", 0), ("width", 1), ("height", 1)):
@@ -79,6 +81,9 @@ def render_main(args) -> int:
             f"camera: SCENE.json has no 'camera' object and source.type = "
             f"{type(source).__name__} has no camera of its own"
         )
+    # before the run: the kernel's size against the scene's unit, and the output folder
+    check_kernel(args.kernel_radius, args.kernel_angle, scene.unit_cm, names=("--kernel-radius", "--kernel-angle"))
+    check_out_dir(args.out)
     source.spectrum = excitation_spectrum(args.excitation)
     kwargs = {k: v for k, v in defaults.items() if k != "photons"}
     photons = args.photons if args.photons is not None else int(defaults.get("photons", 1_000_000))
@@ -106,6 +111,7 @@ def render_main(args) -> int:
     }
     if args.target is not None:
         out["contrast"] = view.contrast(args.target, args.background)
-    view.save(args.out)
+    with out_dir_errors(args.out):
+        view.save(args.out)
     print(json.dumps(out, sort_keys=True, allow_nan=False))
     return 0

@@ -14,7 +14,6 @@ import contextlib
 import os
 import shutil
 import subprocess
-import sys
 
 from .analysis import DEFAULT_BATCHES
 from .beta_sweep import default_flat_scene, sweep, write_outputs
@@ -162,12 +161,28 @@ def addon_folder() -> str | None:
     return folder if os.path.isdir(os.path.join(folder, "endophoton_addon")) else None
 
 
-def run_in_blender(args: argparse.Namespace) -> int:
-    """Start ``blender -b FILE`` and run ``endophoton_addon.sweep_blend.main`` inside it."""
+def _blender() -> str:
+    """The Blender executable (``$BLENDER``, else ``blender`` on PATH); ValueError if there is none."""
     blender = shutil.which(os.environ.get("BLENDER", "blender"))
     if blender is None:
-        print("error: blender not found (set $BLENDER)", file=sys.stderr)
-        return 2
+        raise ValueError(f"blender not found (set $BLENDER; BLENDER = {os.environ.get('BLENDER', 'blender')!r})")
+    return blender
+
+
+def _check_blend(path) -> None:
+    """``--blend FILE`` names an existing regular file (checked before Blender or a cluster starts)."""
+    try:
+        ok = os.path.isfile(path)
+    except (TypeError, ValueError):  # an embedded NUL
+        ok = False
+    if not ok:
+        why = "not a regular file" if os.path.lexists(path) else "no such file"
+        raise ValueError(f"--blend {path!r}: {why}")
+
+
+def run_in_blender(args: argparse.Namespace) -> int:
+    """Start ``blender -b FILE`` and run ``endophoton_addon.sweep_blend.main`` inside it."""
+    blender = _blender()
     pkg_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     paths = [pkg_parent] + [p for p in (addon_folder(),) if p]
     expr = (
@@ -186,17 +201,25 @@ def sweep_main(args: argparse.Namespace) -> int:
 
     Writes sweep.csv, sweep.json, the PNG plots and report.md into ``--out``.
     """
+    from .cli_files import check_out_dir, out_dir_errors
+
     if getattr(args, "blend", None):
+        _check_blend(args.blend)
+        _blender()
+        check_out_dir(args.out)
         with scheduler_client(args) as client:
             if client is not None:  # Blender connects to it: a local:N cluster lives in this process
                 args.scheduler = client.scheduler.address
             return run_in_blender(args)
     polyp = None if args.polyp == "none" else args.polyp
     scene = default_flat_scene(polyp=polyp)
+    kwargs = sweep_kwargs(args)
+    check_out_dir(args.out)
     with scheduler_client(args) as client:
-        res = sweep(scene, client=client, **sweep_kwargs(args))
+        res = sweep(scene, client=client, **kwargs)
     res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
-    paths = write_outputs(res, args.out)
+    with out_dir_errors(args.out):
+        paths = write_outputs(res, args.out)
     print(
         f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
         f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}"

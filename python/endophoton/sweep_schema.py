@@ -12,13 +12,22 @@ import argparse
 import json
 import math
 import os
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .io import atomic_write_text, jsonable, unjson, write_json
 
-__all__ = ["CSV_COLUMNS", "VISIBILITY_COLUMNS", "PLOT_FILES", "SweepResult", "parse_betas", "polar_filename"]
+__all__ = [
+    "CSV_COLUMNS",
+    "VISIBILITY_COLUMNS",
+    "PLOT_FILES",
+    "SweepResult",
+    "parse_betas",
+    "MAX_BETAS",
+    "polar_filename",
+]
 
 # CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
 # (tests/python/test_sweep.py checks that the documentation and the header agree).
@@ -173,23 +182,62 @@ class SweepResult:
         return cls(rows=rows, histograms=hists, batches=batches, meta=d.get("meta", {}))
 
 
-def parse_betas(text: str) -> list:
-    """Parse ``"0,5,10"`` or ``"start:stop:step"`` (stop exclusive, like range) into floats (degrees)."""
+#: Most angles one β list may hold (``--betas``, ``ep.sweep(betas=...)``): each is a full run.
+MAX_BETAS = 10_000
+
+
+def _count_text(n: float) -> str:
+    """An angle count for a message: exact up to a million, else 3 digits (1e18)."""
+    if not math.isfinite(n):
+        return f"over {sys.float_info.max:.2g}".replace("e+", "e")
+    return str(int(n)) if n < 1e6 else f"{n:.3g}".replace("e+", "e")
+
+
+def parse_betas(text: str, field: str = "--betas") -> list:
+    """Parse ``"0,5,10"`` or ``"start:stop:step"`` (stop exclusive, like range) into floats (degrees).
+
+    start and stop must be finite and step > 0 (a step beyond the range gives just start); at most
+    :data:`MAX_BETAS` angles, counted before any list is built. Errors are ``argparse.ArgumentTypeError``
+    naming ``field`` and the text.
+    """
     text = str(text).strip()
-    try:
-        if ":" in text:
-            parts = [float(x) for x in text.split(":")]
-            if len(parts) != 3 or parts[2] <= 0:
+    usage = f"{field} {text!r}: use '0,5,10' or 'start:stop:step'"
+    if ":" in text:
+        parts = text.split(":")
+        try:
+            if len(parts) != 3:
                 raise ValueError
-            start, stop, step = parts
-            n = int(math.floor((stop - start) / step - 1e-9)) + 1
-            vals = [start + k * step for k in range(max(n, 0))]
+            start, stop, step = (float(x) for x in parts)
+        except ValueError:
+            raise argparse.ArgumentTypeError(usage) from None
+        for name, v in (("start", start), ("stop", stop)):
+            if not math.isfinite(v):
+                raise argparse.ArgumentTypeError(f"{field} {text!r}: {name} = {v} must be a finite angle")
+        if not step > 0:  # NaN too
+            raise argparse.ArgumentTypeError(f"{field} {text!r}: step = {step} must be a positive number")
+        span = stop - start  # inf if it overflows
+        if span <= 0:
+            n = 0.0
+        elif math.isinf(step):
+            n = 1.0
         else:
+            q = span / step  # inf if it overflows
+            # stop excluded up to rounding (0.3:0.9:0.2 is 3 angles); start < stop gives start at least
+            n = q if not math.isfinite(q) or q > MAX_BETAS + 1 else max(1, math.floor(q - 1e-9) + 1)
+        if n > MAX_BETAS:
+            raise argparse.ArgumentTypeError(f"{field} {text!r} gives {_count_text(n)} angles, more than {MAX_BETAS}")
+        vals = [start + k * step if k else start for k in range(int(n))]  # 0 * inf step is NaN
+    else:
+        try:
             vals = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--betas {text!r}: use '0,5,10' or 'start:stop:step'") from None
+        except ValueError:
+            raise argparse.ArgumentTypeError(usage) from None
+        if len(vals) > MAX_BETAS:
+            raise argparse.ArgumentTypeError(
+                f"{field} {text[:40]!r}... gives {len(vals)} angles, more than {MAX_BETAS}"
+            )
     if not vals:
-        raise argparse.ArgumentTypeError(f"--betas {text!r}: no angles")
+        raise argparse.ArgumentTypeError(f"{field} {text!r}: no angles")
     return vals
 
 

@@ -202,6 +202,40 @@ def test_bad_local_worker_count_exits_2():
     assert out.returncode == 2 and "local:zero" in out.stderr
 
 
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_local_worker_count_beyond_the_cap_exits_2_before_any_process_starts(command, capsys, monkeypatch):
+    """local:N with N > MAX_LOCAL_WORKERS (256) used to start N processes; now it is refused by name,
+    before distributed is even imported (a LocalCluster cannot start: the test would fail loudly)."""
+    from endophoton.cli import main as cli_main
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a LocalCluster was started")
+
+    monkeypatch.setitem(sys.modules, "distributed", type(sys)("distributed"))
+    sys.modules["distributed"].LocalCluster = sys.modules["distributed"].Client = no_cluster
+    args = [MCML_SLAB, "--photons", "100"] if command == "run" else ["--betas", "0", "--no-progress"]
+    assert cli_main([command, *args, "--scheduler", "local:100000"]) == 2
+    err = capsys.readouterr().err
+    assert "endophoton: error: scheduler = 'local:100000': N = 100000 local worker processes is more than 256" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "address,text",
+    [
+        ("local:257", "N = 257 local worker processes is more than 256"),
+        ("local:" + "9" * 5000, "(5000 digits) local worker processes is more than 256"),
+        ("local:" + "0" * 5000, "N in local:N must be a positive integer"),
+        ("local:\u0662", "N in local:N must be a positive integer"),
+    ],
+)
+def test_local_worker_count_is_checked_by_name(address, text):
+    with pytest.raises(ValueError) as ei:
+        distributed.local_workers(address)
+    assert "scheduler = 'local:" in str(ei.value) and text in str(ei.value)
+    assert distributed.local_workers("local:256") == 256 and distributed.local_workers("tcp://h:1") is None
+
+
 def test_sweep_on_two_workers_matches_the_local_sweep_csv(client, tmp_path):
     import csv
 

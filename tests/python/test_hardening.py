@@ -518,6 +518,118 @@ def test_bad_mesh_files_are_named_errors(tmp_path, capsys, name, content, text):
     assert "region 'polyp_7'" in err and name in err and text in err, err
 
 
+_PLY_CUBE = (
+    b"ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\n",
+    b"0 0 0\n1 0 0\n0 1 0\n1 1 0\n0 0 1\n1 0 1\n0 1 1\n1 1 1\n",
+)
+_PLY_BIN3 = (
+    b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+    b"property float z\n"
+)
+
+
+@pytest.mark.parametrize(
+    "content,text",
+    [
+        (  # a count no file can hold: refused before any item is read (it used to loop ~forever)
+            _PLY_CUBE[0]
+            + b"element face 1000000000000000000\nproperty list uchar int vertex_indices\nend_header\n"
+            + _PLY_CUBE[1],
+            "element 'face' count 1000000000000000000 does not fit the 0 values left",
+        ),
+        (
+            _PLY_BIN3.replace(b"vertex 3", b"vertex 1000000000000000000") + b"end_header\n" + bytes(36),
+            "element 'vertex' count 1000000000000000000 does not fit the 36 bytes left",
+        ),
+        (
+            _PLY_BIN3 + b"element face 1\nproperty list uint uint vertex_indices\nend_header\n" + bytes(36)
+            # one face whose list claims 4e9 indices
+            + (4_000_000_000).to_bytes(4, "little") + bytes(12),
+            "list 'vertex_indices' length 4000000000 does not fit the 12 bytes left",
+        ),
+        (
+            _PLY_CUBE[0]
+            + b"element face 1\nproperty list int int vertex_indices\nend_header\n"
+            + _PLY_CUBE[1]
+            + b"-3 0 1 2\n",
+            "list 'vertex_indices' length -3 does not fit",
+        ),
+        (
+            _PLY_CUBE[0]
+            + b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            + _PLY_CUBE[1]
+            + b"3 -1 1 2\n",
+            "face 0: vertex index -1 is negative",
+        ),
+        (
+            _PLY_CUBE[0] + b"element face 1\nproperty list float int vertex_indices\nend_header\n" + _PLY_CUBE[1],
+            "'list float int vertex_indices' must be 'property list COUNT_TYPE ITEM_TYPE NAME'",
+        ),
+        (
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar float x\nproperty float y\n"
+            b"property float z\nend_header\n1 0 0 0\n",
+            "vertex property 'x' is a list",
+        ),
+        (_PLY_CUBE[0] + b"element junk " + b"9" * 5000 + b"\nend_header\n", "element 'junk' count 9999"),
+    ],
+    ids=[
+        "ascii-face-1e18",
+        "binary-vertex-1e18",
+        "binary-list-4e9",
+        "negative-list",
+        "negative-index",
+        "float-list-count",
+        "vertex-x-list",
+        "5000-digit-count",
+    ],
+)
+def test_ply_counts_beyond_the_file_are_named_errors(tmp_path, content, text):
+    path = tmp_path / "bad_count.ply"
+    path.write_bytes(content)
+    with pytest.raises(ValueError) as ei:
+        ep.load_mesh(str(path))
+    msg = str(ei.value)
+    assert repr(str(path)) in msg and text in msg, msg
+
+
+def test_ply_elements_without_properties_are_skipped_and_vertex_lists_are_read(tmp_path):
+    """An element with no properties holds no bytes whatever its count (it used to be looped over
+    10^18 times); a list property on the vertices is read past, not misread as the next number."""
+    path = tmp_path / "junk.ply"
+    path.write_bytes(
+        _PLY_CUBE[0]
+        + b"element junk 1000000000000000000\nelement face 1000000000000000000\n"
+        + b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        + _PLY_CUBE[1]
+        + b"3 0 1 2\n"
+    )
+    v, t = ep.load_mesh(str(path))
+    assert v.shape == (8, 3) and v[7].tolist() == [1, 1, 1] and t.tolist() == [[0, 1, 2]]
+    path = tmp_path / "vlist.ply"
+    path.write_bytes(
+        b"ply\nformat ascii 1.0\nelement vertex 3\nproperty list uchar float extra\nproperty float x\n"
+        b"property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+        b"end_header\n2 9 9 0 0 0\n0 1 0 0\n1 9 0 1 0\n3 0 1 2\n"
+    )
+    v, t = ep.load_mesh(str(path))
+    assert v.tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]] and t.tolist() == [[0, 1, 2]]
+    path = tmp_path / "vlist.bin.ply"
+    path.write_bytes(
+        _PLY_BIN3.replace(b"property float x", b"property list uchar int extra\nproperty float x")
+        + b"end_header\n"
+        + b"".join(bytes([k]) + bytes(4 * k) + np.array([k, 2 * k, 3 * k], dtype="<f4").tobytes() for k in range(3))
+    )
+    v, _ = ep.load_mesh(str(path))
+    assert v.tolist() == [[0, 0, 0], [1, 2, 3], [2, 4, 6]]
+
+
+@pytest.mark.parametrize("path", ["/tmp", "/dev/zero"])
+def test_mesh_path_that_is_not_a_regular_file_says_so(path):
+    with pytest.raises(ValueError) as ei:
+        ep.load_mesh(path)
+    assert f"mesh = {path!r}: not a regular file" in str(ei.value)
+
+
 def test_zero_weight_escapes_are_not_records():
     """A clear region with mua = 1e10 cm^-1: the transmitted weight exp(-1e10) is exactly 0 in
     double, so no packet carries weight out and no record may be stored (a zero-weight record

@@ -163,6 +163,25 @@ def test_camera_inside_tissue_and_bad_knobs_are_errors():
         render_view(_Records(_plane_scene(), None, 10), cam, 4, 4)
 
 
+@pytest.mark.parametrize(
+    "kw,text",
+    [
+        (dict(kernel_radius=1e-300), "kernel_radius = 1e-300 is too small"),
+        (dict(kernel_radius=1e308), "kernel_radius = 1e+308 is too large"),
+        (dict(kernel_radius=1e-160), "kernel_radius = 1e-160 with kernel_angle_deg = 15"),
+        (dict(kernel_angle_deg=1e-308), "kernel_angle_deg = 1e-308 is too small"),
+    ],
+)
+def test_kernel_sizes_whose_normalisation_is_not_finite_are_named(kw, text):
+    """1e-300 / 1e-308 used to be a ZeroDivisionError in _kernel_gather, 1e308 an OverflowError
+    naming neither the knob nor the value."""
+    res = _Records(_plane_scene(), _lambertian(100), 100)
+    cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0))
+    with pytest.raises(ValueError) as ei:
+        render_view(res, cam, 4, 4, **kw)
+    assert text in str(ei.value)
+
+
 def test_excitation_and_emission_filter_rules():
     assert excitation_spectrum("white") is None
     blue = excitation_spectrum("blue")

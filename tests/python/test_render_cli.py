@@ -132,6 +132,12 @@ def test_render_cli_uses_the_endoscope_camera_by_default(tmp_path):
         (("camera", "look_at", [0, 0, 2.5]), (), "camera.look_at"),
         (("camera", None, None), (), "camera:"),
         (None, ("--excitation", "green"), "excitation = 'green'"),
+        (None, ("--kernel-radius", "1e-300"), "--kernel-radius = 1e-300 is too small"),
+        (None, ("--kernel-angle", "1e-308"), "--kernel-angle = 1e-308 is too small"),
+        (None, ("--kernel-radius", "1e308"), "--kernel-radius = 1e+308 is too large"),
+        (None, ("--kernel-angle", "nan"), "--kernel-angle = nan must be in (0, 90]"),
+        (None, ("--out", "/proc/x"), "--out /proc/x: cannot create the directory: "),
+        (None, ("--out", "/etc/passwd"), "--out /etc/passwd: cannot create the directory: File exists"),
     ],
 )
 def test_render_cli_bad_input_exits_2_naming_field_and_value(tmp_path, change, args, needle):
@@ -148,3 +154,16 @@ def test_render_cli_bad_input_exits_2_naming_field_and_value(tmp_path, change, a
     assert p.returncode == 2, (p.returncode, p.stderr)
     assert needle in p.stderr, p.stderr
     assert "Traceback" not in p.stderr
+
+
+@pytest.mark.parametrize("command", ["run", "render"])
+def test_scene_file_that_is_not_utf8_is_named(tmp_path, capsys, command):
+    from endophoton.cli import main as cli_main
+
+    path = tmp_path / "latin1.json"
+    path.write_bytes(b'{"unit": "\xff"}')
+    args = [command, str(path)] + (["--out", str(tmp_path / "o")] if command == "render" else [])
+    assert cli_main(args) == 2
+    err = capsys.readouterr().err
+    assert f"endophoton: error: scene file {str(path)!r}: not UTF-8 text (byte 0xff" in err, err
+    assert not (tmp_path / "o").exists()

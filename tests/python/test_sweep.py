@@ -302,6 +302,86 @@ def test_parse_betas():
             sw.parse_betas(bad)
 
 
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("0:1e9:1e-9", "--betas '0:1e9:1e-9' gives 1e18 angles, more than 10000"),
+        ("0:60:1e-300", "--betas '0:60:1e-300' gives 6e301 angles, more than 10000"),
+        ("0:1e308:1e-308", "--betas '0:1e308:1e-308' gives over 1.8e308 angles, more than 10000"),
+        ("-1e308:1e308:1", "--betas '-1e308:1e308:1' gives over 1.8e308 angles, more than 10000"),
+        ("0:inf:1", "--betas '0:inf:1': stop = inf must be a finite angle"),
+        ("nan:60:1", "--betas 'nan:60:1': start = nan must be a finite angle"),
+        ("0:60:nan", "--betas '0:60:nan': step = nan must be a positive number"),
+        ("0:60:-5", "--betas '0:60:-5': step = -5.0 must be a positive number"),
+        (",".join(["1"] * 10_001), "gives 10001 angles, more than 10000"),
+    ],
+)
+def test_parse_betas_caps_the_count_and_names_non_finite_parts(text, message):
+    """The count is found before any list is built (1e18 angles used to fill the memory; 0:inf:1 and
+    0:1e308:1e-308 were OverflowError tracebacks, 0:60:1e-300 a MemoryError)."""
+    with pytest.raises(argparse.ArgumentTypeError) as ei:
+        sw.parse_betas(text)
+    assert message in str(ei.value)
+
+
+def test_parse_betas_step_beyond_the_range_gives_the_start():
+    assert sw.parse_betas("0:60:inf") == [0.0]
+    assert sw.parse_betas("5:60:100") == [5.0]
+    assert sw.parse_betas("0:1e-10:1") == [0.0]
+    assert sw.parse_betas("0.3:0.9:0.2") == [0.3, 0.5, 0.7]
+    assert len(sw.parse_betas("0:10000:1")) == sw.MAX_BETAS
+
+
+def test_sweep_cli_bad_betas_exit_2_naming_the_option(capsys):
+    from endophoton.cli import main as cli_main
+
+    with pytest.raises(SystemExit) as ei:
+        cli_main(["sweep", "--betas", "0:1e9:1e-9", "--no-progress"])
+    assert ei.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --betas: --betas '0:1e9:1e-9' gives 1e18 angles, more than 10000" in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (
+            ["--out", "/proc/x"],
+            "endophoton: error: --out /proc/x: cannot create the directory: ",  # ENOENT (root) or EACCES
+        ),
+        (["--out", "/etc/passwd"], "endophoton: error: --out /etc/passwd: cannot create the directory: File exists"),
+        (["--blend", "/nonexistent.blend"], "endophoton: error: --blend '/nonexistent.blend': no such file"),
+        (["--blend", "/tmp"], "endophoton: error: --blend '/tmp': not a regular file"),
+    ],
+)
+def test_sweep_cli_bad_paths_exit_2_naming_the_option(tmp_path, capsys, monkeypatch, args, text):
+    """Checked before the sweep runs or Blender starts (a missing .blend used to exit 1 with
+    Blender's own message; --out errors were bare OSErrors after the whole sweep)."""
+    from endophoton.cli import main as cli_main
+
+    def no_sweep(*a, **k):
+        raise AssertionError("the sweep or Blender started")
+
+    monkeypatch.setattr(sweep_cli, "sweep", no_sweep)
+    monkeypatch.setattr(sweep_cli.subprocess, "call", no_sweep)
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["sweep", "--betas", "0", "--no-progress", *args]) == 2
+    err = capsys.readouterr().err
+    assert text in err, err
+    assert "Traceback" not in err and not (tmp_path / "sweep_out").exists()
+
+
+def test_sweep_api_betas_are_capped_and_may_be_a_spec_string():
+    import itertools
+
+    with pytest.raises(ValueError, match=r"betas = '0:1e9:1e-9' gives 1e18 angles, more than 10000"):
+        sw.sweep(sw.default_flat_scene(), betas="0:1e9:1e-9", progress=False)
+    with pytest.raises(ValueError, match=r"betas: more than 10000 angles"):
+        sw.sweep(sw.default_flat_scene(), betas=itertools.count(), progress=False)
+    assert sw._checked_betas("0:20:10", 100, 2) == [0.0, 10.0]
+
+
 # ---------------------------------------------------------------- rig geometry
 
 
