@@ -93,10 +93,10 @@ def parse_betas(ep, text, who):
         raise InputError(f"{field} is empty; give angles in degrees, e.g. '0,10,20' or '0:60:5'")
     try:
         values = ep.beta_sweep.parse_betas(text)
-    except (ValueError, argparse.ArgumentTypeError):
+    except (ValueError, argparse.ArgumentTypeError) as e:
         raise InputError(
             f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
-            "(degrees, stop excluded) giving at least one angle"
+            f"(degrees, stop excluded) giving at least one angle: {e}"
         ) from None
     seen = set()
     for beta in values:

@@ -83,6 +83,10 @@ def _run_main(args) -> int:
     if "source" not in data:
         raise ValueError("scene: missing key 'source'")
     source = source_from_dict(data["source"])
+    if "camera" in data:  # render's camera: run does not use it, but checks it as render does
+        from .camera import Camera
+
+        Camera.from_dict(data["camera"])
     defaults = dict(data.get("run", {}))
     photons = args.photons if args.photons is not None else defaults.pop("photons", 100000)
     defaults.pop("photons", None)

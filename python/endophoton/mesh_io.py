@@ -10,6 +10,8 @@ import struct
 
 import numpy as np
 
+from .io import check_path, shown
+
 
 def box_mesh(lo, hi):
     """Closed, outward-oriented box from corner ``lo`` to corner ``hi`` (scene units).
@@ -20,14 +22,14 @@ def box_mesh(lo, hi):
     for field, c in (("box.min", lo), ("box.max", hi)):
         try:
             a = np.asarray(c, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond the float range
             a = None
         if (
             a is None
             or a.shape != (3,)
             or any(isinstance(x, (bool, np.bool_)) for x in np.ravel(np.asarray(c, dtype=object)))
         ):
-            raise ValueError(f"{field} = {c!r} must be 3 numbers")
+            raise ValueError(f"{field} = {shown(c)} must be 3 finite numbers")
         corners.append(a)
     lo, hi = corners
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
@@ -58,6 +60,7 @@ def load_mesh(path: str):
 
     Polygons are fan-triangulated. Returns (vertices float32 (N,3), triangles uint32 (M,3)).
     """
+    path = check_path("mesh", path)
     ext = os.path.splitext(path)[1].lower()
     if not os.path.exists(path):
         raise ValueError(f"mesh = {path!r}: file not found")

@@ -224,6 +224,7 @@ def _assert_rejected(pattern, out_dir, invoke=False):
         ("betas", "0,10,0", r"β = 0° is given twice"),
         ("betas", "10:0:5", r"sweep.betas = '10:0:5' must be a list '0,10,20' or a range"),
         ("betas", "ten", r"sweep.betas = 'ten' must be a list"),
+        ("betas", "0:1e9:1e-9", r"sweep.betas = '0:1e9:1e-9' must be a list .* gives 1e18 angles, more than 10000"),
         ("store", 0, r"Scene '[^']+': sweep.store = 0 must be > 0"),
         ("store", 10, r"sweep.store = 10 must be >= sweep.batches = 20"),
         ("batches", 1, r"sweep.batches = 1 must be >= 2"),

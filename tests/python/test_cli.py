@@ -117,6 +117,15 @@ def test_cli_bad_medium_exits_nonzero_naming_the_field(tmp_path, field, value, s
     assert "Traceback" not in p.stderr, p.stderr
 
 
+def test_cli_run_checks_the_scene_files_camera_as_render_does(tmp_path):
+    # run does not use the camera, but the file is one SCENE.json for both commands.
+    d = _base()
+    d["camera"] = {"position": [0, 0, 5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": float("nan")}
+    p = _cli("run", _write(tmp_path, d), "--photons", "100")
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "fov_deg" in p.stderr and "nan" in p.stderr.lower() and "Traceback" not in p.stderr, p.stderr
+
+
 def test_cli_unknown_key_exits_nonzero_naming_it(tmp_path):
     d = _base()
     d["regions"][0]["medium"]["mus_prime"] = 20
