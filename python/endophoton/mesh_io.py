@@ -29,7 +29,7 @@ def box_mesh(lo, hi):
             or a.shape != (3,)
             or any(isinstance(x, (bool, np.bool_)) for x in np.ravel(np.asarray(c, dtype=object)))
         ):
-            raise ValueError(f"{field} = {shown(c)} must be 3 finite numbers")
+            raise ValueError(f"{field} = {shown(c)} must be 3 numbers")
         corners.append(a)
     lo, hi = corners
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):

@@ -839,7 +839,7 @@ def test_rig_takes_numpy_resolution_and_body():
 
 
 def test_box_corner_beyond_float_range_and_mesh_path_none_are_named():
-    with pytest.raises(ValueError, match=r"box\.max = \(1, 1, 1\.0+e\+400\) must be 3 finite numbers"):
+    with pytest.raises(ValueError, match=r"box\.max = \(1, 1, 1\.0+e\+400\) must be 3 numbers"):
         ep.box_mesh((0, 0, 0), (1, 1, 10**400))
     with pytest.raises(ValueError, match=r"box\.max = .*e\+400"):
         ep.Scene("cm").add_box("b", (0, 0, 0), (1, 1, 10**400), ep.Medium(mua=1, mus=1, g=0, n=1))
