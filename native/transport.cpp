@@ -1151,16 +1151,17 @@ void RayMemo::store(const Vec3& p_, const Vec3& d_, const std::vector<Hit>& hits
 
 namespace {
 
-// True when the hits of a ray from x (sorted by distance) show x inside a
-// region: the first crossing of some region's surface leaves it
-// (locate_start's rule). Grazing hits (cos_dn = 0) decide nothing.
-bool starts_inside(const std::vector<Hit>& hits) {
+// True when some region's first crossing in these hits of a ray (sorted by
+// distance) leaves it (`leaving`: the ray starts inside that region,
+// locate_start's rule) or enters it (!leaving). Grazing hits (cos_dn = 0)
+// decide nothing.
+bool some_first_crossing(const std::vector<Hit>& hits, bool leaving) {
     uint64_t seen = 0;
     for (const Hit& h : hits) {
         const uint64_t bit = uint64_t(1) << h.region;
         if ((seen & bit) || h.cos_dn == 0) continue;
         seen |= bit;
-        if (h.cos_dn > 0) return true;
+        if ((h.cos_dn > 0) == leaving) return true;
     }
     return false;
 }
@@ -1177,20 +1178,7 @@ bool emits_in_ambient(const Scene& scene, const Light& l, std::vector<Hit>& hits
     // triangle within radius + room.
     if (scene.distance_to_surface(l.center, 2 * (l.radius + room)) <= l.radius + room) return false;
     scene.intersect_all(l.center, l.axis, 0, kInf, hits);
-    return !starts_inside(hits);
-}
-
-// True when a ray with these hits (sorted by distance) enters some region:
-// the first crossing of that region's surface enters it.
-bool enters_a_region(const std::vector<Hit>& hits) {
-    uint64_t seen = 0;
-    for (const Hit& h : hits) {
-        const uint64_t bit = uint64_t(1) << h.region;
-        if ((seen & bit) || h.cos_dn == 0) continue;
-        seen |= bit;
-        if (h.cos_dn < 0) return true;
-    }
-    return false;
+    return !some_first_crossing(hits, /*leaving=*/true);
 }
 
 // Whether a light sits in a closed pocket (a cavity, such as the lumen
@@ -1209,7 +1197,7 @@ bool in_closed_pocket(const Scene& scene, const Light& l, std::vector<Hit>& hits
         const Float r = std::sqrt(std::max(Float(0), 1 - z * z));
         const Float phi = k * kPi * (3 - std::sqrt(Float(5)));
         scene.intersect_all(l.center, Vec3(r * std::cos(phi), r * std::sin(phi), z), 0, kInf, hits);
-        if (!enters_a_region(hits)) return false;
+        if (!some_first_crossing(hits, /*leaving=*/false)) return false;
     }
     return true;
 }

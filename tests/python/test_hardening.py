@@ -648,6 +648,14 @@ def test_short_or_bad_box_corner_names_the_field_in_the_api(corner):
 
 
 # ---------------------------------------------------------------- input validation audit
+def _raises_naming(make, text):
+    """``make()`` raises ValueError whose message contains ``text``; returns the message."""
+    with pytest.raises(ValueError) as ei:
+        make()
+    assert text in str(ei.value), str(ei.value)
+    return str(ei.value)
+
+
 HUGE = 10**400  # a Python int no float holds
 HUGE_SHOWN = "1.00000e+400"
 
@@ -707,9 +715,7 @@ def test_numpy_scalars_are_numbers_and_become_python_floats(scalar):
     ],
 )
 def test_bad_numpy_scalars_are_named_by_their_value(make, text):
-    with pytest.raises(ValueError) as ei:
-        make()
-    assert text in str(ei.value), str(ei.value)
+    _raises_naming(make, text)
 
 
 @pytest.mark.parametrize(
@@ -726,9 +732,7 @@ def test_bad_numpy_scalars_are_named_by_their_value(make, text):
 )
 def test_run_names_a_bad_source_progress_or_cancel(kw, text):
     kw = {"source": DOWN, **kw}
-    with pytest.raises(ValueError) as ei:
-        ep.run(slab(1.0), photons=10, **kw)
-    assert text in str(ei.value), str(ei.value)
+    _raises_naming(lambda: ep.run(slab(1.0), photons=10, **kw), text)
 
 
 @pytest.mark.parametrize(
@@ -746,9 +750,7 @@ def test_run_names_a_bad_source_progress_or_cancel(kw, text):
     ],
 )
 def test_vectors_and_transforms_that_are_not_numbers_are_named(make, text):
-    with pytest.raises(ValueError) as ei:
-        make()
-    assert text in str(ei.value), str(ei.value)
+    _raises_naming(make, text)
 
 
 @pytest.mark.parametrize(
@@ -765,11 +767,9 @@ def test_vectors_and_transforms_that_are_not_numbers_are_named(make, text):
     ],
 )
 def test_layered_slab_names_bad_layers_names_and_width(args, kw, text):
-    with pytest.raises(ValueError) as ei:
-        ep.layered_slab(*args, **kw)
-    assert text in str(ei.value), str(ei.value)
+    msg = _raises_naming(lambda: ep.layered_slab(*args, **kw), text)
     if "layers[0]" in text:
-        assert "must be a (Medium, thickness) pair" in str(ei.value)
+        assert "must be a (Medium, thickness) pair" in msg
 
 
 @pytest.mark.parametrize("scale,shown", [(1e39, "1e+39"), (-3.5e38, "-3.5e+38")])
