@@ -534,7 +534,9 @@ struct UnitReducer::Impl {
           merger(cfg, plan.n_units_max, result, t_start) {
         result.unit_size = plan.unit_size;
         if (cfg.grid_voxel_size > 0)
-            grids = std::make_unique<SharedGridSet>(cfg.grid_voxel_size, per_fluorophore_grids(sc, cfg));
+            grids = std::make_unique<SharedGridSet>(
+                cfg.grid_voxel_size, per_fluorophore_grids(sc, cfg),
+                cfg.grid_max_tree_bytes ? cfg.grid_max_tree_bytes : tree_memory_limit());
     }
 };
 

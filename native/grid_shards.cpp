@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <array>
+#include <sstream>
+#include <stdexcept>
 
 namespace ep {
 
@@ -14,9 +16,28 @@ namespace {
 constexpr size_t kKeptBucketEntries = 4096;
 }  // namespace
 
-SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore) {
+SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t max_bytes)
+    : voxel_size_(voxel_size), max_bytes_(max_bytes) {
     shards_.reserve(kShards);
-    for (size_t s = 0; s < kShards; ++s) shards_.push_back(std::make_unique<Shard>(voxel_size, per_fluorophore));
+    for (size_t s = 0; s < kShards; ++s) {
+        shards_.push_back(std::make_unique<Shard>(voxel_size, per_fluorophore));
+        shards_.back()->bytes = shards_.back()->grids.memory_bytes();
+        bytes_ += shards_.back()->bytes;
+    }
+}
+
+void SharedGridSet::charge(Shard& s) {
+    const size_t now = s.grids.memory_bytes();
+    const uint64_t total = bytes_.fetch_add(now - s.bytes, std::memory_order_relaxed) + (now - s.bytes);
+    s.bytes = now;
+    if (max_bytes_ == 0 || total <= max_bytes_) return;
+    std::ostringstream msg;
+    msg.precision(6);
+    msg << "grids.voxel_size = " << voxel_size_ << ": the run's voxel tables took " << (total >> 20)
+        << " MiB, more than the " << (max_bytes_ >> 20)
+        << " MiB its grids may use (the deposits lie scattered, a new voxel for most of them); use a larger "
+           "voxel_size, or fewer packets";
+    throw std::runtime_error(msg.str());
 }
 
 void SharedGridSet::add(const GridSet& g) {
@@ -37,6 +58,7 @@ void SharedGridSet::add(const GridSet& g) {
             if (buckets[s].empty()) continue;
             std::lock_guard<std::mutex> lock(shards_[s]->mu);
             shards_[s]->grids.grid(k).add_entries(buckets[s].data(), buckets[s].size());
+            charge(*shards_[s]);
         }
         if (src.dropped() > 0) {
             std::lock_guard<std::mutex> lock(shards_.front()->mu);

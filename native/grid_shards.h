@@ -11,6 +11,8 @@
 // order in which threads add their sets does not enter a result.
 #pragma once
 
+#include <atomic>
+#include <cstdint>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -24,12 +26,15 @@ class SharedGridSet {
     static constexpr int kShardBits = 6;
     static constexpr size_t kShards = size_t(1) << kShardBits;
 
-    // The shape of GridSet(voxel_size, per_fluorophore).
-    SharedGridSet(double voxel_size, size_t per_fluorophore);
+    // The shape of GridSet(voxel_size, per_fluorophore). Its voxel tables may
+    // take at most `max_bytes` (0: no limit): add() that grows them past it
+    // throws std::runtime_error naming grids.voxel_size, so that deposits
+    // scattered at a tiny voxel size stop the run instead of filling memory.
+    SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t max_bytes = 0);
 
     // Adds every voxel, dropped counter and the packet count of `g`, exactly.
     // Thread-safe. Throws std::invalid_argument if `g` differs in shape or
-    // voxel size.
+    // voxel size, and std::runtime_error past the memory limit.
     void add(const GridSet& g);
 
     // The shard of voxel c (from its 8^3 block): a multiplicative hash of the
@@ -53,8 +58,14 @@ class SharedGridSet {
         Shard(double voxel_size, size_t per_fluorophore) : grids(voxel_size, per_fluorophore) {}
         std::mutex mu;
         GridSet grids;
+        size_t bytes = 0;  // grids.memory_bytes() after the last add (guarded by mu)
     };
+    // Counts shard s's table growth (under its lock) and throws past the limit.
+    void charge(Shard& s);
     std::vector<std::unique_ptr<Shard>> shards_;
+    const double voxel_size_;
+    const uint64_t max_bytes_;
+    std::atomic<uint64_t> bytes_{0};
 };
 
 }  // namespace ep

@@ -30,10 +30,12 @@ class GridRequest:
     voxel_size : edge of a voxel in scene units
     path : the .vdb file to write (atomically)
     per_fluorophore : also one fluorescence grid per fluorophore
-    max_memory_mb : the most memory (MiB) the file's OpenVDB trees may take while
-        it is written; None: three quarters of the memory available then. Deposits
-        scattered at a tiny voxel size need a tree node (2 kB to 270 kB) for a few
-        voxels each; a write that would pass the limit stops with an error naming
+    max_memory_mb : the most memory (MiB) the run's voxel tables may take, and
+        again the most the file's OpenVDB trees may take while it is written; None:
+        three quarters of the memory available when the run starts (the tables) and
+        when the file is written (the trees). Deposits scattered at a tiny voxel size
+        need a new voxel each, and a tree node (2 kB to 270 kB) for a few voxels: a
+        run or write that would pass the limit stops with an error naming
         ``grids.voxel_size`` and leaves no file.
     """
 

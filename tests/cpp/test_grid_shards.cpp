@@ -163,4 +163,29 @@ TEST(SharedGridSet, RejectsAnotherShapeOrVoxelSize) {
     }
 }
 
+// The run's voxel tables stop at their memory limit with an error naming
+// grids.voxel_size: 20,000 scattered voxels (~0.9 MB of slots and more with
+// the tables' doubling) under a 1 MiB limit; the same voxels under no limit
+// and under an ample one are all kept.
+TEST(SharedGridSet, VoxelTablesStopAtTheirMemoryLimit) {
+    GridSet g(0.5, 0);
+    std::mt19937_64 rng(9);
+    for (int n = 0; n < 20000; ++n) g.absorbed.add_index(random_voxel(rng), 1.0);
+    const size_t voxels = g.absorbed.voxel_count();
+    for (const uint64_t limit : {uint64_t(0), uint64_t(256) << 20}) {
+        SharedGridSet ample(0.5, 0, limit);
+        ample.add(g);
+        EXPECT_EQ(ample.voxel_count(0), voxels);
+    }
+    SharedGridSet tight(0.5, 0, uint64_t(1) << 20);
+    try {
+        tight.add(g);
+        FAIL() << "20,000 voxels fit a 1 MiB limit";
+    } catch (const std::runtime_error& e) {
+        const std::string what = e.what();
+        EXPECT_NE(what.find("grids.voxel_size = 0.5: the run's voxel tables took"), std::string::npos) << what;
+        EXPECT_NE(what.find("more than the 1 MiB"), std::string::npos) << what;
+    }
+}
+
 }  // namespace

@@ -343,15 +343,25 @@ def test_a_voxel_below_openvdbs_scale_is_refused_before_the_run(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_scattered_deposits_stop_at_the_writers_memory_limit_and_leave_no_file(tmp_path):
-    out = tmp_path / "scattered.vdb"
-    # 20 packets at 1 um voxels: ~5,000 voxels, nearly each in its own leaf and
-    # internal node (~36 kB a voxel), far more than 1 MiB.
-    grids = ep.GridRequest(voxel_size=1e-4, path=str(out), max_memory_mb=1)
-    with pytest.raises(RuntimeError, match=r"grids\.voxel_size = 0\.0001: .* more than the 1 MiB"):
-        ep.run(_scattering_slab(), _DOWN, photons=20, threads=2, grids=grids)
+@pytest.mark.parametrize(
+    "photons, stage",
+    [
+        # 20 packets at 1 um voxels: ~5,000 voxels, nearly each in its own leaf
+        # and internal node (~36 kB a voxel): the writer's trees pass 1 MiB.
+        (20, r"their OpenVDB tree nodes would need more than the 1 MiB"),
+        # 2,000 packets: ~500,000 voxels a grid, tens of MB of the run's tables.
+        (2000, r"the run's voxel tables took \d+ MiB, more than the 1 MiB"),
+    ],
+)
+def test_scattered_deposits_stop_at_the_memory_limit_and_leave_no_file(tmp_path, photons, stage):
+    grids = ep.GridRequest(voxel_size=1e-4, path=str(tmp_path / "scattered.vdb"), max_memory_mb=1)
+    with pytest.raises(RuntimeError, match=r"grids\.voxel_size = 0\.0001: .*" + stage):
+        ep.run(_scattering_slab(), _DOWN, photons=photons, threads=2, grids=grids)
     assert list(tmp_path.iterdir()) == []
-    # With room for them, the same deposits are written, and sum to the absorbed tally.
+
+
+def test_scattered_deposits_with_room_are_written_whole(tmp_path):
+    out = tmp_path / "scattered.vdb"
     grids = ep.GridRequest(voxel_size=1e-4, path=str(out), max_memory_mb=4096)
     res = ep.run(_scattering_slab(), _DOWN, photons=20, threads=2, grids=grids)
     assert out.exists() and res.grid_absorbed_sum == pytest.approx(res.absorbed, rel=1e-9)
