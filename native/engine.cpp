@@ -130,10 +130,7 @@ void validate_config(const RunConfig& c, const Scene& scene) {
         bad("grids.voxel_size", c.grid_voxel_size, "must be a positive finite number");
     if (c.grid_voxel_size > 0 && c.grid_path.empty()) throw std::invalid_argument("grids.path is empty");
     // Checked before the run, which the file could not be written after.
-    if (c.grid_voxel_size > 0 && !vdb_voxel_size_supported(c.grid_voxel_size))
-        bad("grids.voxel_size", c.grid_voxel_size,
-            "is below the smallest voxel OpenVDB can scale to (about 1e-5 scene units): give the scene in a "
-            "smaller unit, or a larger voxel");
+    if (c.grid_voxel_size > 0) check_vdb_voxel_size(c.grid_voxel_size);
     if (c.target_tally >= kScalarTallies) bad("target.tally", c.target_tally, "is not a tally index");
     if (c.target_tally >= 0 && !(c.target_rel_error > 0 && std::isfinite(c.target_rel_error)))
         bad("target.rel_error", c.target_rel_error, "must be a finite number > 0");

@@ -497,18 +497,22 @@ bool vdb_voxel_size_supported(double voxel_size) {
     }
 }
 
+void check_vdb_voxel_size(double voxel_size) {
+    if (vdb_voxel_size_supported(voxel_size)) return;
+    std::ostringstream msg;
+    msg << "grids.voxel_size = " << voxel_size
+        << " is below the smallest voxel OpenVDB can scale to (about 1e-5 scene units): give the scene in a "
+           "smaller unit, or a larger voxel";
+    throw std::invalid_argument(msg.str());
+}
+
 std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
                               const std::map<std::string, std::string>& metadata, int threads,
                               uint64_t max_tree_bytes) {
     if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
     validate(grids, metadata);
     ensure_openvdb_initialized();
-    if (!vdb_voxel_size_supported(grids.front().data->voxel_size())) {
-        std::ostringstream msg;
-        msg << "grids.voxel_size = " << grids.front().data->voxel_size()
-            << " is below the smallest voxel OpenVDB can scale to (about 1e-5 scene units)";
-        throw std::invalid_argument(msg.str());
-    }
+    check_vdb_voxel_size(grids.front().data->voxel_size());
 
     openvdb::MetaMap file_meta;
     for (const auto& kv : metadata) file_meta.insertMeta(kv.first, openvdb::StringMetadata(kv.second));

@@ -76,6 +76,9 @@ uint64_t tree_memory_limit();
 // linear transform refuses a scale whose cube is within 1e-15 of zero, so
 // voxels below ~1e-5 scene units cannot be written).
 bool vdb_voxel_size_supported(double voxel_size);
+// Throws std::invalid_argument naming grids.voxel_size unless it is supported
+// (the engine checks it before a run, write_vdb before a write).
+void check_vdb_voxel_size(double voxel_size);
 
 // Names of the grids stored in a .vdb file, in file order. Throws
 // std::runtime_error naming the path if the file cannot be read.

@@ -32,6 +32,7 @@ __all__ = [
     "check_real",
     "check_bool",
     "real_or_none",
+    "float_array",
     "shown",
     "check_path",
 ]
@@ -120,6 +121,17 @@ def real_or_none(v) -> float | None:
         return float(v)
     except OverflowError:
         return math.inf if v > 0 else -math.inf
+
+
+def float_array(v):
+    """``v`` as a float64 array, or None if it is not numbers (strings, mappings, ragged or
+    complex values, ints beyond the float range)."""
+    if isinstance(v, (str, bytes, Mapping)):
+        return None
+    try:
+        return None if np.iscomplexobj(v) else np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return None
 
 
 def shown(v) -> str:

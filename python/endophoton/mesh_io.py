@@ -10,7 +10,7 @@ import struct
 
 import numpy as np
 
-from .io import check_path, shown
+from .io import check_path, float_array, shown
 
 
 def box_mesh(lo, hi):
@@ -20,10 +20,7 @@ def box_mesh(lo, hi):
     """
     corners = []
     for field, c in (("box.min", lo), ("box.max", hi)):
-        try:
-            a = np.asarray(c, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond the float range
-            a = None
+        a = float_array(c)
         if (
             a is None
             or a.shape != (3,)

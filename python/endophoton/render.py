@@ -44,7 +44,7 @@ import numpy as np
 from . import _core, colour
 from .analysis import batch_index
 from .camera import Camera
-from .sources import MAX_IMAGE_SIDE
+from .sources import MAX_IMAGE_SIDE, is_image_side
 from .spectra import Spectrum
 
 __all__ = ["render_view", "View", "excitation_spectrum", "emission_filter_function"]
@@ -258,7 +258,7 @@ def _resolve_camera(result, camera, width, height):
     w = res[0] if width is None else width
     h = res[1] if height is None else height
     for name, v in (("width", w), ("height", h)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_IMAGE_SIDE:
+        if not is_image_side(v):
             raise ValueError(f"{name} = {v!r} must be an integer in [1, {MAX_IMAGE_SIDE}] (pixels)")
     return camera, int(w), int(h)
 

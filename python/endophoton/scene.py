@@ -113,8 +113,7 @@ class Scene:
     """
 
     def __init__(self, unit: str = "cm", ambient_n: float = 1.0, cache_store_mb: float | None = None):
-        mb = _check_cache_store_mb(cache_store_mb)
-        self.cache_store_mb = mb if isinstance(cache_store_mb, np.generic) else cache_store_mb
+        self.cache_store_mb = _check_cache_store_mb(cache_store_mb)
         self.unit = unit
         self.unit_cm = unit_cm(unit)
         n = real_or_none(ambient_n)

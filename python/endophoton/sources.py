@@ -7,29 +7,17 @@ scrambled Halton sequence indexed by packet number.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .spectra import Spectrum
-from .io import check_keys as _check_keys, real_or_none, shown
+from .io import check_keys as _check_keys, float_array, real_or_none, shown
 from .units import unit_cm as _unit_cm
 
 
-def _float_array(v):
-    """``v`` as a float64 array, or None if it is not numbers (strings, dicts, ragged or
-    complex values, ints beyond the float range)."""
-    if isinstance(v, (str, bytes, Mapping)):
-        return None
-    try:
-        return None if np.iscomplexobj(v) else np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        return None
-
-
 def _vec3(owner, field_name, v, unit_length=False):
-    a = _float_array(v)
+    a = float_array(v)
     if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{owner}.{field_name} = {shown(v)} must be 3 finite numbers")
     if unit_length:
@@ -168,6 +156,11 @@ def rotation_about(axis, angle_rad):
 MAX_IMAGE_SIDE = 8192
 
 
+def is_image_side(x) -> bool:
+    """Whether ``x`` is an image width or height: an integer (not a bool) in [1, MAX_IMAGE_SIDE] pixels."""
+    return not isinstance(x, (bool, np.bool_)) and isinstance(x, (int, np.integer)) and 1 <= x <= MAX_IMAGE_SIDE
+
+
 def _resolution(name: str, v) -> tuple:
     """``v`` as a (width, height) pair of integers in [1, MAX_IMAGE_SIDE] pixels."""
     bad = ValueError(f"{name} = {shown(v)} must be (width, height) in pixels, integers in [1, {MAX_IMAGE_SIDE}]")
@@ -177,9 +170,8 @@ def _resolution(name: str, v) -> tuple:
         w, h = v
     except (TypeError, ValueError):
         raise bad from None
-    for x in (w, h):
-        if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)) or not 1 <= x <= MAX_IMAGE_SIDE:
-            raise bad
+    if not (is_image_side(w) and is_image_side(h)):
+        raise bad
     return int(w), int(h)
 
 
@@ -221,7 +213,7 @@ class EndoscopeRig(_Source):
     body: bool = True
 
     def __post_init__(self):
-        M = _float_array(self.transform)
+        M = float_array(self.transform)
         if M is None or M.shape != (4, 4) or not np.all(np.isfinite(M)):
             raise ValueError(f"rig.transform = {shown(self.transform)} must be a finite 4x4 matrix")
         R = M[:3, :3]
