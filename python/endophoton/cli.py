@@ -88,6 +88,7 @@ def _run_main(args) -> int:
 
         Camera.from_dict(data["camera"])
     defaults = dict(data.get("run", {}))
+    _check_one_budget(args)
     photons = args.photons if args.photons is not None else defaults.pop("photons", 100000)
     defaults.pop("photons", None)
     kwargs = dict(defaults)
@@ -113,6 +114,19 @@ def _run_main(args) -> int:
     res = _run_interruptible(run, scene, source, photons=photons, record_escapes=False, **kwargs)
     print(json.dumps(res.to_dict(), indent=None, sort_keys=True, allow_nan=False))
     return EXIT_INTERRUPTED if res.cancelled else 0
+
+
+def _check_one_budget(args) -> None:
+    """A fixed --photons count and a run to an accuracy (--quality, --target-rel-error)
+    exclude each other, as in ep.run (which also refuses --quality with a target): refused
+    by name instead of dropping --photons."""
+    others = [(f, v) for f, v in (("--quality", args.quality), ("--target-rel-error", args.target_rel_error)) if v]
+    if args.photons is not None and others:
+        given = " and ".join(f"{f} {v}" for f, v in others)
+        raise ValueError(
+            f"--photons {args.photons} and {given}: a fixed count and a run to an accuracy exclude each other; "
+            "give one (--max-photons bounds a run to an accuracy)"
+        )
 
 
 #: SIGINTs received while the CLI was still loading modules or reading the scene.

@@ -126,6 +126,24 @@ def test_cli_run_checks_the_scene_files_camera_as_render_does(tmp_path):
     assert "fov_deg" in p.stderr and "nan" in p.stderr.lower() and "Traceback" not in p.stderr, p.stderr
 
 
+@pytest.mark.parametrize(
+    "budget,named",
+    [(("--quality", "preview"), "--quality preview"), (("--target-rel-error", "0.05"), "--target-rel-error 0.05")],
+)
+def test_cli_photons_with_an_accuracy_run_is_refused_by_name(tmp_path, budget, named):
+    # ep.run refuses photons= with quality= or target=; the CLI used to drop --photons silently.
+    p = _cli("run", _write(tmp_path, _base()), "--photons", "1000", *budget)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert p.stdout.strip() == "", p.stdout
+    assert "--photons 1000" in p.stderr and named in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
+def test_cli_quality_with_a_target_is_refused_by_name(tmp_path):
+    p = _cli("run", _write(tmp_path, _base()), "--quality", "preview", "--target-rel-error", "0.05")
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "quality = 'preview'" in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
 def test_cli_unknown_key_exits_nonzero_naming_it(tmp_path):
     d = _base()
     d["regions"][0]["medium"]["mus_prime"] = 20
