@@ -457,6 +457,12 @@ void run_workers(RunState& st, int threads, uint64_t total, const ProgressFn& pr
     for (auto& th : pool) th.join();
 }
 
+// The most memory a run's voxel tables may take: grids.max_memory_mb, or
+// three quarters of the memory available now (tree_memory_limit).
+uint64_t grid_memory_limit(const RunConfig& cfg) {
+    return cfg.grid_max_tree_bytes ? cfg.grid_max_tree_bytes : tree_memory_limit();
+}
+
 }  // namespace
 
 RunConfig prepare_config(const Scene& scene, const Source& source, const RunConfig& cfg_in,
@@ -506,10 +512,18 @@ UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig&
     Tracer tracer(scene, source, halton, cfg);
     const auto tick = [&](uint64_t) { return !(cancel && cancel->load(std::memory_order_relaxed)); };
     const auto flush = [&](const GridSet& g) { batch.grids->merge_from(g); };
+    // The chunk's grids (or its units' own) have the run's memory limit on
+    // the worker too: the client's SharedGridSet checks it only when the
+    // chunk arrives, after the worker has held (and packed) all of it.
+    const uint64_t limit = cfg.grid_voxel_size > 0 ? grid_memory_limit(cfg) : 0;
+    uint64_t own_bytes = 0;  // the kept units' own grids
     for (uint64_t u = first_unit; u < first_unit + count; ++u) {
         auto out = trace_unit(tracer, scene, cfg, plan, u, staging.get(), /*flush_packets=*/0, tick, flush);
         if (!out) break;
+        if (out->own_grids) own_bytes += out->own_grids->memory_bytes();
         batch.units.push_back(std::move(out));
+        const uint64_t took = own_bytes + (batch.grids ? batch.grids->memory_bytes() : 0);
+        if (limit > 0 && took > limit) throw_voxel_tables_over(cfg.grid_voxel_size, took, limit);
     }
     return batch;
 }
@@ -531,9 +545,8 @@ struct UnitReducer::Impl {
           merger(cfg, plan.n_units_max, result, t_start) {
         result.unit_size = plan.unit_size;
         if (cfg.grid_voxel_size > 0)
-            grids = std::make_unique<SharedGridSet>(
-                cfg.grid_voxel_size, per_fluorophore_grids(sc, cfg),
-                cfg.grid_max_tree_bytes ? cfg.grid_max_tree_bytes : tree_memory_limit());
+            grids = std::make_unique<SharedGridSet>(cfg.grid_voxel_size, per_fluorophore_grids(sc, cfg),
+                                                    grid_memory_limit(cfg));
     }
 };
 

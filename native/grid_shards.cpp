@@ -26,18 +26,22 @@ SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t
     }
 }
 
+void throw_voxel_tables_over(double voxel_size, uint64_t took_bytes, uint64_t limit_bytes) {
+    std::ostringstream msg;
+    msg.precision(6);
+    msg << "grids.voxel_size = " << voxel_size << ": the run's voxel tables took " << (took_bytes >> 20)
+        << " MiB, more than the " << (limit_bytes >> 20)
+        << " MiB its grids may use (the deposits lie scattered, a new voxel for most of them); use a larger "
+           "voxel_size, or fewer packets";
+    throw std::runtime_error(msg.str());
+}
+
 void SharedGridSet::charge(Shard& s) {
     const size_t now = s.grids.memory_bytes();
     const uint64_t total = bytes_.fetch_add(now - s.bytes, std::memory_order_relaxed) + (now - s.bytes);
     s.bytes = now;
     if (max_bytes_ == 0 || total <= max_bytes_) return;
-    std::ostringstream msg;
-    msg.precision(6);
-    msg << "grids.voxel_size = " << voxel_size_ << ": the run's voxel tables took " << (total >> 20)
-        << " MiB, more than the " << (max_bytes_ >> 20)
-        << " MiB its grids may use (the deposits lie scattered, a new voxel for most of them); use a larger "
-           "voxel_size, or fewer packets";
-    throw std::runtime_error(msg.str());
+    throw_voxel_tables_over(voxel_size_, total, max_bytes_);
 }
 
 void SharedGridSet::add(const GridSet& g) {

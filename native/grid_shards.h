@@ -21,6 +21,11 @@
 
 namespace ep {
 
+// Throws the std::runtime_error of voxel tables that took `took_bytes`,
+// past the `limit_bytes` a run's grids may use (grids.voxel_size named):
+// the run's shared grids and a Dask chunk's grids (engine.cpp) stop alike.
+[[noreturn]] void throw_voxel_tables_over(double voxel_size, uint64_t took_bytes, uint64_t limit_bytes);
+
 class SharedGridSet {
   public:
     static constexpr int kShardBits = 6;

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from endophoton import distributed
+from endophoton import _core, distributed
 from endophoton.beta_sweep import default_flat_scene
+from endophoton.run import run_request
 from endophoton.vdb import grid_to_numpy
 from physics_helpers import assert_energy_conserved
 
@@ -413,3 +414,36 @@ def test_run_many_fixed_store_and_target_at_once_each_match_their_local_run(clie
     a, _, _ = grid_to_numpy(dist[0].grid_path, "absorbed")
     b, _, _ = grid_to_numpy(local[0].grid_path, "absorbed")
     assert np.array_equal(a, b)
+
+
+def _scattered_chunk_request(max_memory_mb, tmp_path):
+    """A slab at 1 um voxels (a new voxel for nearly every deposit; test_grids_and_runs)."""
+    scene = ep.layered_slab([(ep.Medium(mua=1, mus=100, g=0.9, n=1.4), 0.5)])
+    source = ep.PencilSource(position=(0, 0, 1), direction=(0, 0, -1))
+    grids = ep.GridRequest(voxel_size=1e-4, path=str(tmp_path / "scattered.vdb"), max_memory_mb=max_memory_mb)
+    opts = run_request(scene, source, photons=2000, seed=3, grids=grids)
+    return scene, source, opts
+
+
+def test_a_workers_chunk_grids_stop_at_the_memory_limit(tmp_path):
+    # The worker's own task, in this process: its chunk's voxel tables (~500,000 voxels a grid
+    # for 2,000 packets) pass 1 MiB, and the chunk stops by name instead of filling the worker.
+    scene, source, opts = _scattered_chunk_request(1, tmp_path)
+    lights, body = source.native_lights(scene.unit_cm), source.native_body(scene.unit_cm)
+    every_unit = 1 << 20  # trace_units stops at the request's last unit
+    with pytest.raises(
+        RuntimeError, match=r"grids\.voxel_size = 0\.0001: the run's voxel tables took \d+ MiB, more " r"than the 1 MiB"
+    ):
+        distributed.trace_chunk(scene, lights, body, opts, 0, every_unit)
+    # With room the same chunk is traced whole.
+    scene, source, opts = _scattered_chunk_request(4096, tmp_path)
+    version, data = distributed.trace_chunk(scene, lights, body, opts, 0, every_unit)
+    assert version == _core.__version__ and len(data) > 0
+
+
+def test_a_cluster_run_past_the_memory_limit_raises_it_by_name(client, tmp_path):
+    scene, source, _ = _scattered_chunk_request(1, tmp_path)
+    grids = ep.GridRequest(voxel_size=1e-4, path=str(tmp_path / "scattered.vdb"), max_memory_mb=1)
+    with pytest.raises(RuntimeError, match=r"grids\.voxel_size = 0\.0001: the run's voxel tables took"):
+        ep.run(scene, source, photons=2000, seed=3, grids=grids, client=client, chunk_units=64)
+    assert list(tmp_path.iterdir()) == []
