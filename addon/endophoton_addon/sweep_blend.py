@@ -145,14 +145,21 @@ def main(argv):
     """Inside ``blender -b FILE``: parse the ``sweep`` arguments forwarded by the package's CLI,
     register the add-on, sweep the open scene and write the outputs.  Returns the exit code."""
     enable_addon()
-    ep = package_finder.require()
-    from endophoton import sweep_cli
+    package_finder.require()
+    from endophoton import cli, sweep_cli
 
     parser = argparse.ArgumentParser(prog="endophoton sweep (blender)")
     sweep_cli.add_sweep_arguments(parser)
-    args = parser.parse_args(argv)
+    # Bad input (e.g. a beta whose head enters the wall) exits 2 with the message, as the package's CLI.
+    return cli.run_guarded(_sweep_and_write, parser.parse_args(argv))
+
+
+def _sweep_and_write(args) -> int:
+    """Sweep the open scene with the parsed ``sweep`` arguments and write the outputs; the exit code."""
+    from endophoton import beta_sweep, sweep_cli
+
     with sweep_cli.scheduler_client(args) as client:  # --scheduler: the angles run on that cluster
         res = sweep_blend(None, client=client, **sweep_cli.sweep_kwargs(args))
-    ep.beta_sweep.write_outputs(res, args.out)
+    beta_sweep.write_outputs(res, args.out)
     print(f"sweep: wrote {args.out}")
     return 130 if res.meta.get("cancelled") else 0

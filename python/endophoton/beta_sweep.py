@@ -38,7 +38,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from . import _core, meshes
+from . import _core, meshes, placement
 from .analysis import DEFAULT_BATCHES
 from .io import atomic_write_text, jsonable
 from .medium import Medium
@@ -347,6 +347,23 @@ class _Rows:
         return SweepResult(rows=self.rows, histograms=self.hists, batches=self.batches, meta=self.meta)
 
 
+def _check_placements(betas, setup: Callable) -> None:
+    """Every beta's rig in the ambient (:func:`placement.check_rig`) before the first run: one
+    ValueError naming every refused beta, instead of failing after the runs before it."""
+    bad = []
+    for beta in betas:
+        scene, _, rig = setup(beta)
+        try:
+            placement.check_rig(scene, rig)
+        except ValueError as e:
+            bad.append((beta, str(e)))
+    if bad:
+        angles = ", ".join(f"{b:g}" for b, _ in bad)
+        raise ValueError(
+            f"betas: at rig.beta_deg = {angles} the endoscope head enters the tissue; drop them. {bad[0][1]}"
+        )
+
+
 def _sweep_locally(betas, setup: Callable, kw: dict, outcome: Callable, rows: _Rows, bar: _Progress, cancel) -> None:
     """One beta after the other on this machine; a cancel ends the sweep at the cancelled run."""
     for i, beta in enumerate(betas):
@@ -417,9 +434,10 @@ def _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows: _Row
     beta order as soon as it and every run before it have ended; after a cancel the sweep ends
     at the first unfinished beta, as a local sweep ends at its cancelled run."""
     from . import distributed
-    from .run import Result, run_request
+    from .run import Result, run_request, with_warnings
 
     setups = [setup(beta) for beta in betas]
+    notes = [placement.check_rig(scene, rig) for scene, _, rig in setups]  # as ep.run checks each run
     request_kw = {k: v for k, v in kw.items() if k not in ("progress", "cancel")}
     requests = [
         (scene, rig, run_request(scene, rig, **request_kw), functools.partial(bar.engine_of, i))
@@ -430,7 +448,7 @@ def _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows: _Row
 
     def finished(i, raw):
         scene, _, rig = setups[i]
-        results[i] = Result(raw, scene, rig, requests[i][2])
+        results[i] = Result(with_warnings(raw, notes[i]), scene, rig, requests[i][2])
         while state["open"] and state["next"] < len(setups) and results[state["next"]] is not None:
             j = state["next"]
             _, unit, rig = setups[j]
@@ -553,6 +571,8 @@ def sweep(
             on_run(i, beta, res)
         return analyse(res, seconds, beta, rig, unit)
 
+    if static_scene is not None:
+        _check_placements(betas, setup)
     rows = _Rows(betas, meta, bar, on_beta)
     try:
         if client is not None:

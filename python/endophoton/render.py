@@ -137,15 +137,20 @@ class View:
     def __init__(self, **kw):
         self.__dict__.update(kw)
 
-    def region_index(self, name: str, field: str = "region") -> int:
+    def pixels_of(self, name: str, field: str = "region") -> int:
+        """How many pixels see region ``name`` (0 if none); ValueError naming ``field`` if the scene has no such region."""
         if name not in self.region_names:
             raise ValueError(
                 f"{field} = {name!r} is not a region of the scene " f"(regions: {', '.join(self.region_names)})"
             )
-        i = self.region_names.index(name)
-        if self.region_pixels[i] == 0:
+        return int(self.region_pixels[self.region_names.index(name)])
+
+    def region_index(self, name: str, field: str = "region") -> int:
+        """Index of region ``name``; ValueError naming ``field`` if the scene has no such region or the camera
+        sees none of it."""
+        if self.pixels_of(name, field) == 0:
             raise ValueError(f"{field} = {name!r}: the camera sees no pixel of this region")
-        return i
+        return self.region_names.index(name)
 
     def regions(self) -> dict:
         """Mean radiance of each region's pixels: {name: {pixels, white_radiance, white_radiance_stderr,
@@ -504,7 +509,15 @@ def render_view(
     depth[hit] = t[hit] * (dirs[hit] @ fr["forward"])
     if kernel_radius is None:
         med = float(np.median(depth[hit])) if hit.any() else 1.0
-        kernel_radius = 2.0 * (2.0 * fr["tan_x"] / W) * med
+        default = 2.0 * (2.0 * fr["tan_x"] / W) * med
+        try:
+            check_kernel(default, kernel_angle_deg, scene.unit_cm)
+        except ValueError as e:  # name what the user gave: the field of view and the width
+            raise ValueError(
+                f"camera.fov_deg = {camera.fov_deg!r} with width = {W}: the default kernel_radius (2 pixel "
+                f"footprints, {default:.3g} scene units) is unusable ({e}); give kernel_radius"
+            ) from None
+        kernel_radius = default
     check_kernel(kernel_radius, kernel_angle_deg, scene.unit_cm)
     P = _packets(result)
     rec = _records(result, n_batches, P, T)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 
-from . import _core
+from . import _core, placement
 from .quality import quality_preset
 from .scene import Scene
 from .io import check_bool, check_int, check_path, check_real
@@ -296,12 +296,21 @@ def run(
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
     opts = _request(SimpleNamespace(**locals()))  # every argument of this call, captured once by name
+    notes = placement.check_rig(scene, source)  # the endoscope head in the ambient (ValueError), its body
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 
         raw = distributed.run(scene, source, opts, client, chunk_units=chunk_units, progress=progress, cancel=cancel)
-        return Result(raw, scene, source, opts)
-    native_scene = scene.to_native()
-    native_source = _core.Source(source.native_lights(scene.unit_cm), body=source.native_body(scene.unit_cm))
-    raw = _core.run(native_scene, native_source, _core.RunConfig(**opts), progress, cancel)
-    return Result(raw, scene, source, opts)
+    else:
+        native_scene = scene.to_native()
+        native_source = _core.Source(source.native_lights(scene.unit_cm), body=source.native_body(scene.unit_cm))
+        raw = _core.run(native_scene, native_source, _core.RunConfig(**opts), progress, cancel)
+    return Result(with_warnings(raw, notes), scene, source, opts)
+
+
+def with_warnings(raw: dict, notes: list[str]) -> dict:
+    """The engine's result ``raw`` with the run's own ``notes`` (e.g. :func:`placement.check_rig`'s)
+    appended to its ``warnings``."""
+    if notes:
+        raw["warnings"] = list(raw.get("warnings", [])) + list(notes)
+    return raw

@@ -28,10 +28,12 @@ def _vec3(owner, field_name, v, unit_length=False):
     return a
 
 
-def _nonneg(owner, field_name, v, hi=math.inf):
+def _nonneg(owner, field_name, v, hi=math.inf, positive=False):
+    """``v`` as a float in [0, hi] ((0, hi] if ``positive``): ValueError naming ``owner.field_name`` otherwise."""
     x = real_or_none(v)
-    if x is None or not math.isfinite(x) or x < 0 or x > hi:
-        rng = f"[0, {hi}]" if math.isfinite(hi) else ">= 0"
+    if x is None or not math.isfinite(x) or x < 0 or x > hi or (positive and x == 0):
+        lo = "(0" if positive else "[0"
+        rng = f"{lo}, {hi}]" if math.isfinite(hi) else ("> 0" if positive else ">= 0")
         raise ValueError(f"{owner}.{field_name} = {shown(v)} must be a finite number {rng}")
     return x
 
@@ -231,7 +233,7 @@ class EndoscopeRig(_Source):
         ):
             setattr(self, name, _nonneg("rig", name, getattr(self, name)))
         self.cone_angle_deg = _nonneg("rig", "cone_angle_deg", self.cone_angle_deg, 180.0)
-        self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0)
+        self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0, positive=True)
         if not isinstance(self.body, (bool, np.bool_)):
             raise ValueError(f"rig.body = {self.body!r} must be True or False")
         self.body = bool(self.body)

@@ -44,6 +44,13 @@ def visibility_columns(result, target: str, background: str, out_dir=None, prefi
     flat, JSON-able dict (None where a contrast is undefined). ``render_kwargs`` go to ``render_view``;
     with ``out_dir`` the view's images and arrays are saved there with file names starting ``prefix``."""
     view = render_view(result, **render_kwargs)
+    pixels = {field: view.pixels_of(name, field) for field, name in (("target", target), ("background", background))}
+    if not all(pixels.values()):  # a region out of view (e.g. the polyp at a steep beta): undefined, not an error
+        cols = {k: None for k in VISIBILITY_COLUMNS}
+        cols["target_pixels"], cols["background_pixels"] = pixels["target"], pixels["background"]
+        if out_dir is not None:
+            view.save(out_dir, prefix=prefix)
+        return cols
     c = contrast(view, target, background)
     cols = {}
     for key in ("fluorescence", "white", "red_green"):
@@ -52,8 +59,7 @@ def visibility_columns(result, target: str, background: str, out_dir=None, prefi
     cam = contrast(view, target, background, "camera")
     cols["red_green_camera_contrast"] = cam["red_green"]
     cols["red_green_camera_contrast_stderr"] = cam["red_green_stderr"]
-    cols["target_pixels"] = int(view.region_pixels[view.region_index(target, "target")])
-    cols["background_pixels"] = int(view.region_pixels[view.region_index(background, "background")])
+    cols["target_pixels"], cols["background_pixels"] = pixels["target"], pixels["background"]
     if out_dir is not None:
         view.save(out_dir, prefix=prefix)
     return cols

@@ -1,6 +1,7 @@
 """Synthetic inputs shared by tests: escape records with known distributions, and a small polyp scene.
 
-The records need no engine: every column of docs/design.md's escape-record table is
+The records need no engine (``make_records``, ``lambertian_records``; ``RecordsResult`` stands in for an
+``ep.Result``): every column of docs/design.md's escape-record table is
 filled, with the distributions chosen by the test so the expected answers can
 be computed analytically. ``polyp_box_scene`` is the wall-and-polyp box scene the
 render and visibility tests trace.
@@ -116,3 +117,45 @@ def polyp_box_scene(c_photofrin=0.33):
         fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, c_photofrin)],
     )
     return s
+
+
+class RecordsResult:
+    """A stand-in for ep.Result built from synthetic escape records."""
+
+    def __init__(self, scene, escapes, packets, source=None):
+        self.scene, self.escapes, self.source = scene, escapes, source
+        self.packets_traced = self.photons = packets
+
+
+def lambertian_records(n, half=1.0, wavelength=500.0, seed=1):
+    """n records uniform on [-half, half]^2 at z = 0 with cosine-weighted directions: radiance
+    L = n / (P A pi) per packet (A = (2 half)^2 cm^2), the same in every direction."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-half, half, size=(n, 2))
+    u1, u2 = rng.random(n), rng.random(n)
+    r, phi = np.sqrt(u1), 2 * np.pi * u2
+    d = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - u1)], axis=1)
+    wl = np.broadcast_to(np.asarray(wavelength, dtype=np.float32), (n,)).copy()
+    return {
+        "position": np.column_stack([xy, np.zeros(n)]).astype(np.float32),
+        "direction": d.astype(np.float32),
+        "normal": np.tile(np.float32([0, 0, 1]), (n, 1)),
+        "weight": np.ones(n),
+        "energy": 500.0 / wl.astype(np.float64),
+        "wavelength": wl,
+        "fluorescent": np.zeros(n, np.uint8),
+        "packet": np.arange(n, dtype=np.uint64),
+        "region": np.zeros(n, np.int32),
+    }
+
+
+def hollow_box(outer, inner):
+    """One region's mesh: an outer box facing out and an inner cavity facing into the cavity
+    (half sides ``outer`` > ``inner`` about the origin, scene units)."""
+    from endophoton.mesh_io import box_mesh
+
+    vo, to = box_mesh((-outer,) * 3, (outer,) * 3)
+    vi, ti = box_mesh((-inner,) * 3, (inner,) * 3)
+    v = np.vstack([vo, vi]).astype(np.float32)
+    t = np.vstack([to, ti[:, ::-1] + len(vo)]).astype(np.uint32)
+    return v, t

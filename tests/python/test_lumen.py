@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from endophoton.mesh_io import box_mesh
 from physics_helpers import assert_energy_conserved
+from _synth import hollow_box
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 EXAMPLES = os.path.join(ROOT, "examples")
@@ -96,15 +96,6 @@ def test_convex_scenes_are_bit_identical_with_the_lumen_rule_on_and_off(name, lu
 # Acceptance 1: a closed cavity lets nothing escape to infinity.
 # ----------------------------------------------------------------------------
 SHELL = ep.Medium(mua=2.0, mus=100.0, g=0.9, n=1.4)
-
-
-def hollow_box(outer, inner):
-    """One region's mesh: an outer box facing out and an inner cavity facing into the cavity."""
-    vo, to = box_mesh((-outer,) * 3, (outer,) * 3)
-    vi, ti = box_mesh((-inner,) * 3, (inner,) * 3)
-    v = np.vstack([vo, vi]).astype(np.float32)
-    t = np.vstack([to, ti[:, ::-1] + len(vo)]).astype(np.uint32)
-    return v, t
 
 
 def _cavity_scene(wall):

@@ -16,15 +16,7 @@ from endophoton.camera import Camera
 from endophoton.render import emission_filter_function, excitation_spectrum, render_view
 from physics_helpers import K_SIGMA
 
-from _synth import polyp_box_scene
-
-
-class _Records:
-    """A stand-in for ep.Result built from synthetic escape records."""
-
-    def __init__(self, scene, escapes, packets, source=None):
-        self.scene, self.escapes, self.source = scene, escapes, source
-        self.packets_traced = self.photons = packets
+from _synth import RecordsResult, lambertian_records, polyp_box_scene
 
 
 def _plane_scene():
@@ -33,35 +25,13 @@ def _plane_scene():
     return s
 
 
-def _lambertian(n, half=1.0, wavelength=500.0, seed=1):
-    """n records uniform on [-half, half]^2 at z = 0 with cosine-weighted directions: radiance
-    L = n / (P A pi) per packet (A = (2 half)^2 cm^2), the same in every direction."""
-    rng = np.random.default_rng(seed)
-    xy = rng.uniform(-half, half, size=(n, 2))
-    u1, u2 = rng.random(n), rng.random(n)
-    r, phi = np.sqrt(u1), 2 * np.pi * u2
-    d = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - u1)], axis=1)
-    wl = np.broadcast_to(np.asarray(wavelength, dtype=np.float32), (n,)).copy()
-    return {
-        "position": np.column_stack([xy, np.zeros(n)]).astype(np.float32),
-        "direction": d.astype(np.float32),
-        "normal": np.tile(np.float32([0, 0, 1]), (n, 1)),
-        "weight": np.ones(n),
-        "energy": 500.0 / wl.astype(np.float64),
-        "wavelength": wl,
-        "fluorescent": np.zeros(n, np.uint8),
-        "packet": np.arange(n, dtype=np.uint64),
-        "region": np.zeros(n, np.int32),
-    }
-
-
 def _region_value(view, key="white"):
     return view.regions()["tissue"][key + "_radiance"], view.regions()["tissue"][key + "_radiance_stderr"]
 
 
 def test_kernel_and_aperture_estimate_lambertian_radiance():
     n = 400_000
-    res = _Records(_plane_scene(), _lambertian(n), n)
+    res = RecordsResult(_plane_scene(), lambertian_records(n), n)
     L_true = 1.0 / (4.0 * math.pi)  # n / (P * 4 cm^2 * pi)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30, aperture_radius=0.3)
     view = render_view(res, cam, 8, 8, kernel_radius=0.1, kernel_angle_deg=15)
@@ -77,12 +47,12 @@ def test_kernel_and_aperture_estimate_lambertian_radiance():
 def test_scene_units_do_not_change_radiance():
     # The same records in mm: radiance per cm^2 must not change.
     n = 200_000
-    esc = _lambertian(n)
+    esc = lambertian_records(n)
     esc["position"] = esc["position"] * 10
     s = ep.Scene(unit="mm")
     s.add_box("tissue", (-50, -50, -10), (50, 50, 0), ep.Medium(mua=1.0, mus=10.0))
     cam = Camera.look_at((0, 0, 20), (0, 0, 0), up=(0, 1, 0), fov_deg=30)
-    view = render_view(_Records(s, esc, n), cam, 8, 8, kernel_radius=1.0)
+    view = render_view(RecordsResult(s, esc, n), cam, 8, 8, kernel_radius=1.0)
     L, se = _region_value(view)
     assert abs(L - 1 / (4 * math.pi)) < K_SIGMA * se + 0.005 / (4 * math.pi)
 
@@ -91,7 +61,7 @@ def test_scene_units_do_not_change_radiance():
 def test_spectral_records_render_their_hue(lam, channel):
     n = 100_000
     view = render_view(
-        _Records(_plane_scene(), _lambertian(n, wavelength=lam), n),
+        RecordsResult(_plane_scene(), lambertian_records(n, wavelength=lam), n),
         Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30),
         6,
         6,
@@ -105,11 +75,11 @@ def test_spectral_records_render_their_hue(lam, channel):
 def test_flat_spectrum_records_render_neutral():
     n = 1_000_000
     rng = np.random.default_rng(5)
-    esc = _lambertian(n)
+    esc = lambertian_records(n)
     esc["wavelength"] = rng.uniform(400, 700, n).astype(np.float32)  # photon counts flat in 400-700 nm
     esc["energy"] = 500.0 / esc["wavelength"].astype(np.float64)
     view = render_view(
-        _Records(_plane_scene(), esc, n),
+        RecordsResult(_plane_scene(), esc, n),
         Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30),
         6,
         6,
@@ -130,7 +100,7 @@ def test_primary_rays_see_the_analytic_surface_and_regions():
     s.add_box("wall", (-5, -5, -1), (5, 5, 0), ep.Medium(mua=1.0, mus=10.0))
     s.add_box("polyp", (-0.5, -0.5, -0.2), (0.5, 0.5, 0.3), ep.Medium(mua=1.0, mus=10.0), priority=1)
     n = 1000
-    res = _Records(s, _lambertian(n), n)
+    res = RecordsResult(s, lambertian_records(n), n)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=60)
     view = render_view(res, cam, 16, 16, kernel_radius=0.1)
     # Independent pinhole recomputation: pixel centre rays hit z = 0.3 inside |x|,|y| < 0.5, else z = 0.
@@ -143,7 +113,7 @@ def test_primary_rays_see_the_analytic_surface_and_regions():
 
 
 def test_camera_inside_tissue_and_bad_knobs_are_errors():
-    res = _Records(_plane_scene(), _lambertian(100), 100)
+    res = RecordsResult(_plane_scene(), lambertian_records(100), 100)
     with pytest.raises(ValueError, match="camera.position"):
         render_view(res, Camera.look_at((0, 0, -0.5), (0, 0, -0.9), up=(0, 1, 0)), 4, 4)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0))
@@ -160,7 +130,7 @@ def test_camera_inside_tissue_and_bad_knobs_are_errors():
     with pytest.raises(ValueError, match="camera.up"):
         Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 0, 1))
     with pytest.raises(ValueError, match="record_escapes"):
-        render_view(_Records(_plane_scene(), None, 10), cam, 4, 4)
+        render_view(RecordsResult(_plane_scene(), None, 10), cam, 4, 4)
 
 
 @pytest.mark.parametrize(
@@ -175,7 +145,7 @@ def test_camera_inside_tissue_and_bad_knobs_are_errors():
 def test_kernel_sizes_whose_normalisation_is_not_finite_are_named(kw, text):
     """1e-300 / 1e-308 used to be a ZeroDivisionError in _kernel_gather, 1e308 an OverflowError
     naming neither the knob nor the value."""
-    res = _Records(_plane_scene(), _lambertian(100), 100)
+    res = RecordsResult(_plane_scene(), lambertian_records(100), 100)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0))
     with pytest.raises(ValueError) as ei:
         render_view(res, cam, 4, 4, **kw)
@@ -305,7 +275,7 @@ def test_photofrin_shows_in_the_red_green_contrast():
 
 def test_same_records_same_image_on_any_thread_count():
     n = 50_000
-    res = _Records(_plane_scene(), _lambertian(n), n)
+    res = RecordsResult(_plane_scene(), lambertian_records(n), n)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30, aperture_radius=0.2)
     a = render_view(res, cam, 10, 10, kernel_radius=0.1, threads=1)
     b = render_view(res, cam, 10, 10, kernel_radius=0.1, threads=2)
@@ -317,13 +287,17 @@ def test_same_records_same_image_on_any_thread_count():
 def test_empty_kernels_give_zeros_and_undefined_contrast_is_none():
     # Records far outside the field of view: every pixel sees tissue but gathers nothing.
     n = 1000
-    esc = _lambertian(n)
+    esc = lambertian_records(n)
     esc["position"][:, 0] += 4.0
     s = ep.Scene(unit="cm")
     s.add_box("wall", (-5, -5, -1), (5, 5, 0), ep.Medium(mua=1.0, mus=10.0))
     s.add_box("polyp", (-0.5, -0.5, -0.2), (0.5, 0.5, 0.3), ep.Medium(mua=1.0, mus=10.0), priority=1)
     view = render_view(
-        _Records(s, esc, n), Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=60), 8, 8, kernel_radius=0.1
+        RecordsResult(s, esc, n),
+        Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=60),
+        8,
+        8,
+        kernel_radius=0.1,
     )
     for img in view.images.values():
         for key, v in img.items():
