@@ -14,7 +14,9 @@ Two rules (docs/numerics.md, "The endoscope head at the extremes"):
   a straight 50 mm head in a 5 cm colon reaches the opposite wall. The engine stops light on the
   body only where the body lies in the ambient, so :func:`check_rig` returns a warning for the run's
   ``Result.warnings`` naming the region. The body is probed by 64 rays along its side, its back
-  rim and back face (Embree) and by every region vertex inside the cylinder.
+  rim and back face (Embree; the probes stop where the scene's bounding box ends) and by every region
+  vertex inside the cylinder. A head beyond the engine's coordinate limit is left to the engine, which
+  refuses it by name.
 
 Lengths in scene units.
 """
@@ -25,6 +27,7 @@ import math
 import numpy as np
 
 from . import _core
+from .scene_schema import MAX_COORDINATE
 from .sources import EndoscopeRig
 
 __all__ = ["check_rig", "face_contact", "FACE_TOLERANCE"]
@@ -131,9 +134,14 @@ def check_rig(scene, source) -> list[str]:
                 "scene units): put the head in the ambient, e.g. a larger rig.distance or a smaller rig.beta_deg"
             )
     body = source.native_body(scene.unit_cm)
-    if body is None:
+    if body is None or not scene.regions:
         return []
-    name = _body_crossing(scene, source, body["radius"], body["length"])
+    if float(np.max(np.abs(source.position))) + body["radius"] > MAX_COORDINATE:
+        return []  # the engine refuses such a head by name (its light positions); Embree could not take the probes
+    lo = np.min([r.vertices.min(axis=0) for r in scene.regions], axis=0).astype(np.float64)
+    hi = np.max([r.vertices.max(axis=0) for r in scene.regions], axis=0).astype(np.float64)
+    reach = float(np.linalg.norm(np.maximum(np.abs(lo - source.position), np.abs(hi - source.position))))
+    name = _body_crossing(scene, source, body["radius"], min(body["length"], reach + body["radius"]))
     if name is None:
         return []
     which = f"region '{name}'" if name else "a region"

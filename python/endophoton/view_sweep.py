@@ -89,8 +89,12 @@ def plot_visibility(betas, rows, path) -> str:
     fits = visibility_fits(b, rows)
     fig = Figure(figsize=(7.5, 4.5))
     ax = fig.add_subplot(1, 1, 1)
+    drawn = 0
     for (key, label), colour in zip(_SERIES, ("tab:red", "tab:purple", "tab:gray")):
         y, se = _column(rows, key), _column(rows, key + "_stderr")
+        if not np.isfinite(y).any():  # undefined at every beta (e.g. the target never in view): no series
+            continue
+        drawn += 1
         ax.errorbar(b, y, yerr=np.nan_to_num(se), fmt="o", color=colour, capsize=3, label=label)
         f = fits[key]
         if f["x_peak"] is not None:
@@ -98,6 +102,8 @@ def plot_visibility(betas, rows, path) -> str:
             ax.plot(xs, np.polyval(f["coeffs"], xs), "-", color=colour, lw=1)
             ax.axvspan(f["x_peak"] - f["x_peak_stderr"], f["x_peak"] + f["x_peak_stderr"], color=colour, alpha=0.12)
             ax.axvline(f["x_peak"], color=colour, ls=":", lw=1)
+    if not drawn:
+        ax.text(0.5, 0.5, "no contrast is defined at any β", transform=ax.transAxes, ha="center", va="center")
     ax.axvline(PAPER_BETA_DEG, color="k", ls="--", lw=1, label=f"paper: {PAPER_BETA_DEG:g}°")
     ax.set_xlabel("β (deg)")
     ax.set_ylabel("contrast of the target against the background")

@@ -101,7 +101,8 @@ def _gap_scene(c):
             thickness = float(v32[:, 2].max() - v32[:, 2].min()) / k  # what the engine's float32 geometry holds
     th = math.radians(c["theta"])
     src = ep.PencilSource(
-        position=(R @ np.array([0.0, 0.0, 0.5 * gap]) + off) * k, direction=R @ np.array([math.sin(th), 0, -math.cos(th)])
+        position=(R @ np.array([0.0, 0.0, 0.5 * gap]) + off) * k,
+        direction=R @ np.array([math.sin(th), 0, -math.cos(th)]),
     )
     return scene, src, R @ np.array([0.0, 0.0, 1.0]), thickness
 
@@ -202,3 +203,387 @@ def test_huge_mus_cavity_first_landing_reflects_like_chandrasekhar():
     v, s = _records_fraction(res, e["exit_order"] == 1)
     assert_within("first landing R (mus = 1e5)", v, s, semi_infinite_isotropic_reflectance(mua, mus), 1e-6)
     assert np.all(e["next_hit"] != AWAY)
+
+
+# ----------------------------------------------------------------------------
+# The endoscope rig at the extremes
+# ----------------------------------------------------------------------------
+def _flat_wall(unit="cm"):
+    """The paper's flat tissue without a polyp (100 cm wide, n = 1.1; beta_sweep.default_flat_scene)."""
+    return ep.default_flat_scene(unit=unit, polyp=None)
+
+
+@pytest.mark.parametrize("unit", ["mm", "cm", "m"])
+def test_front_face_meets_the_wall_where_geometry_says(unit):
+    """from_beta orbits the head at d = 1 cm from the surface point, tilted by beta about y; a face point u
+    from the centre along the tilt lies at height d cos(beta) - u sin(beta). A 12 mm or 10 um head's rim
+    (u = r) reaches the wall at tan(beta) = d / r (59.04 deg; 89.97 deg); a 10 m head first meets the 1 m
+    wall's edge (x = 50 cm), at sin(beta) = d / 50 cm (1.146 deg). Just inside: no complaint; just beyond:
+    a ValueError naming the region and rig.beta_deg, in every unit."""
+    k = 1.0 / unit_cm(unit)
+    scene = _flat_wall(unit)
+    for head_mm, beta_max in (
+        (12.0, math.degrees(math.atan(1.0 / 0.6))),
+        (0.01, math.degrees(math.atan(1.0 / 5e-4))),
+        (1e4, math.degrees(math.asin(1.0 / 50.0))),
+    ):
+        kw = dict(head_diameter_mm=head_mm, light_offset_mm=0.25 * head_mm, light_diameter_mm=0.25 * head_mm)
+        kw["camera_aperture_mm"] = 0.1 * head_mm
+        delta = 0.01 * min(1.0, 90.0 - beta_max, beta_max)
+        assert placement.check_rig(scene, ep.EndoscopeRig.from_beta(beta_max - delta, 1.0 * k, **kw)) == []
+        beyond = ep.EndoscopeRig.from_beta(beta_max + delta, 1.0 * k, **kw)
+        with pytest.raises(ValueError, match=r"front face .* region 'tissue' \(rig.beta_deg = "):
+            ep.run(scene, beyond, photons=10)
+    res = ep.run(scene, ep.EndoscopeRig.from_beta(59.0, 1.0 * k), photons=2_000, seed=16, threads=2)
+    assert_energy_conserved(res)
+    assert res.warnings == []
+
+
+def test_rig_face_touching_the_wall_is_refused_and_a_hair_above_it_runs():
+    """A head (transform) whose face lies exactly on the wall would launch its light on the surface and let
+    the light leaving the wall under it pass through the (opaque) head: refused by name. 1e-4 cm above the
+    wall (50 times the contact tolerance) it runs and conserves energy."""
+    scene = _flat_wall()
+    M = np.eye(4)  # looks along -z: the face lies in the plane z = height
+    for height, ok in ((0.0, False), (1e-4, True)):
+        M[2, 3] = height
+        rig = ep.EndoscopeRig(transform=M.copy())
+        if ok:
+            assert_energy_conserved(ep.run(scene, rig, photons=2_000, seed=17, threads=2))
+        else:
+            with pytest.raises(ValueError, match="crosses or touches region 'tissue'"):
+                ep.run(scene, rig, photons=10)
+
+
+def test_rig_body_through_the_opposite_wall_is_a_warning():
+    """A 50 mm head in a 3 cm tube looks at the floor; its body reaches through the ceiling: the run goes on
+    (the engine stops light on the body only in the ambient) and says so in Result.warnings, naming the region.
+    A 5 mm head in the same place has no warning."""
+    v_out, t_out = box_mesh((-5.0, -1.6, -1.6), (5.0, 1.6, 1.6))
+    v_in, t_in = box_mesh((-6.0, -1.5, -1.5), (6.0, 1.5, 1.5))
+    scene = ep.Scene(unit="cm")
+    scene.add_box("floor", (-5.0, -1.6, -1.6), (5.0, 1.6, -1.5), ep.Medium(mua=5.0, mus=100.0, g=0.9, n=1.4))
+    scene.add_box("ceiling", (-5.0, -1.6, 1.5), (5.0, 1.6, 1.6), ep.Medium(mua=5.0, mus=100.0, g=0.9, n=1.4))
+    for length, warned in ((50.0, True), (5.0, False)):
+        rig = ep.EndoscopeRig.from_beta(20.0, 1.0, point=(0.0, 0.0, -1.5), head_length_mm=length)
+        res = ep.run(scene, rig, photons=2_000, seed=18, threads=2)
+        assert_energy_conserved(res)
+        assert any("body" in w and "region 'ceiling'" in w for w in res.warnings) == warned, res.warnings
+
+
+def test_collimated_rig_at_89_degrees_reflects_fresnel_exactly():
+    """beta = 89 deg, 50 cm from the wall (the face clears it: tan 89 = 57 < 50 / 0.6), collimated light:
+    every packet meets the n = 1.1 wall at 89 deg and its mirror ray leaves the scene, so the specular part
+    is MCML's deterministic split, Rsp = R_Fresnel(89 deg) to rounding."""
+    rig = ep.EndoscopeRig.from_beta(89.0, 50.0, cone_angle_deg=0.0)
+    res = ep.run(_flat_wall(), rig, photons=5_000, seed=19, threads=2)
+    assert_energy_conserved(res)
+    ref = fresnel_unpolarized(1.0, 1.1, math.radians(89.0))
+    assert res.specular_reflectance == pytest.approx(ref, rel=1e-9)
+    assert res.specular_reflectance_stderr < 1e-9 and res.missed == 0.0
+
+
+def test_huge_head_over_the_wall_stops_all_light_that_leaves_it():
+    """A 10 m head 1 cm above the 1 m wide wall at beta = 0: every exit ray that rises more than
+    atan(1 cm / 450 cm) = 0.13 deg above the wall meets the face, so Rd is bounded by the share of exits
+    flatter than that (< (0.13 deg in rad)^2 for a cosine-law exit, ~5e-6 of the exits); the specular part
+    returns onto the head. Everything else is absorbed, occluded or collected: the balance to 1e-12."""
+    rig = ep.EndoscopeRig.from_beta(0.0, 1.0, head_diameter_mm=1e4)
+    res = ep.run(_flat_wall(), rig, photons=20_000, seed=20, threads=2)
+    assert_energy_conserved(res, tol=1e-12)
+    assert res.specular_reflectance == 0.0 and res.transmittance == 0.0
+    assert res.diffuse_reflectance <= K_SIGMA * res.diffuse_reflectance_stderr + 1e-5
+    assert res.occluded + res.camera_collected > 0.03
+
+
+@pytest.mark.parametrize("unit", ["mm", "cm", "m"])
+def test_tiny_rig_returns_the_walls_mirror_light_onto_its_guides(unit):
+    """A 10 um head (guides 2.5 um across) 1 cm over a clear glass block (n = 1.5, strongly absorbing) at
+    beta = 0, collimated: the only light that comes back is the face's Fresnel reflection R = 0.04, straight
+    back onto the guides: occluded = R within the binomial error, nothing collected, in every unit."""
+    k = 1.0 / unit_cm(unit)
+    scene = ep.Scene(unit=unit)
+    scene.add_box("glass", (-5 * k, -5 * k, -5 * k), (5 * k, 5 * k, 0.0), ep.Medium(mua=50.0, mus=0.0, n=1.5))
+    rig = ep.EndoscopeRig.from_beta(
+        0.0,
+        1.0 * k,
+        cone_angle_deg=0.0,
+        head_diameter_mm=0.01,
+        light_diameter_mm=0.0025,
+        light_offset_mm=0.0025,
+        camera_aperture_mm=0.001,
+    )
+    n = 20_000
+    res = ep.run(scene, rig, photons=n, seed=21, threads=2)
+    assert_energy_conserved(res, tol=1e-12)
+    R = 0.04
+    assert_within(f"occluded [{unit}]", res.occluded, math.sqrt(R * (1 - R) / n), R)
+    assert res.camera_collected == 0.0 and res.specular_reflectance == 0.0
+
+
+def test_from_beta_near_90_degrees_keeps_the_head_on_its_orbit():
+    """beta = +-89.999 deg at d = 50 cm: the head sits at point + d (sin b, 0, cos b), looks back at the point,
+    and its lights (in the plane of tilt) at heights d cos b -+ 0.35 sin b cm; beta = 90 is a named error."""
+    for beta in (89.999, -89.999, 0.0):
+        b = math.radians(beta)
+        rig = ep.EndoscopeRig.from_beta(beta, 50.0, point=(1.0, 2.0, 0.0))
+        expected = np.array([1.0 + 50 * math.sin(b), 2.0, 50 * math.cos(b)])
+        assert np.allclose(rig.position, expected, rtol=0, atol=1e-12)
+        assert np.allclose(rig.forward, -(expected - [1.0, 2.0, 0.0]) / 50.0, atol=1e-14)
+        heights = sorted(rig.light_positions("cm")[:, 2])
+        ref = sorted([50 * math.cos(b) - 0.35 * math.sin(b), 50 * math.cos(b) + 0.35 * math.sin(b)])
+        assert np.allclose(heights, ref, atol=1e-12)
+    for bad in (90.0, -90.0, float("nan")):
+        with pytest.raises(ValueError, match="rig.beta_deg"):
+            ep.EndoscopeRig.from_beta(bad, 50.0)
+    with pytest.raises(ValueError, match=r"rig.camera_fov_deg = 0 must be a finite number \(0, 179"):
+        ep.EndoscopeRig.from_beta(0.0, 1.0, camera_fov_deg=0)  # was accepted, then refused as camera.fov_deg
+
+
+# ----------------------------------------------------------------------------
+# The endoscope's view at the extremes (synthetic Lambertian records: L = 1 / (4 pi) per packet)
+# ----------------------------------------------------------------------------
+L_LAMBERT = 1.0 / (4.0 * math.pi)  # lambertian_records(n) on [-1, 1]^2 cm: n / (P * 4 cm^2 * pi)
+
+
+def _plane_records(n=200_000, scene=None):
+    if scene is None:
+        scene = ep.Scene(unit="cm")
+        scene.add_box("tissue", (-5, -5, -1), (5, 5, 0), ep.Medium(mua=1.0, mus=10.0))
+    return RecordsResult(scene, lambertian_records(n), n)
+
+
+def _assert_image_defined(img):
+    for key, v in img.items():
+        assert np.all(np.isfinite(np.asarray(v, dtype=np.float64))), key
+    assert np.all(img["radiance_stderr"] >= 0)
+
+
+def test_camera_looking_away_from_all_tissue_gives_a_defined_black_view(tmp_path):
+    """Nothing in view: every pixel and every image is exactly 0 with stderr 0 (no NaN), the auto exposure
+    is 1 (its rule for a 0 percentile), no region is seen, a contrast is a named error, and the PNGs are black."""
+    cam = Camera.look_at((0, 0, 2), (0, 0, 5), up=(0, 1, 0), aperture_radius=0.1)
+    view = ep.render_view(_plane_records(1000), cam, 5, 3)
+    assert np.all(view.region_map == -1) and view.regions() == {} and view.kernel_summary()["bias"] == {}
+    for images in (view.images, view.aperture):
+        for img in images.values():
+            _assert_image_defined(img)
+            assert not img["radiance"].any() and not img["radiance_stderr"].any() and not img["srgb8"].any()
+            assert float(img["exposure"]) == 1.0
+    with pytest.raises(ValueError, match="target = 'tissue': the camera sees no pixel"):
+        view.contrast("tissue", "tissue")
+    import matplotlib.image as mpimg
+
+    png = mpimg.imread(view.save(tmp_path)["white"])
+    assert png.shape[:2] == (3, 5) and not png[..., :3].any()
+
+
+@pytest.mark.parametrize("fov,size", [(30.0, (1, 1)), (179.0, (3, 3)), (1e-4, (3, 3))])
+def test_extreme_fields_of_view_see_the_lambertian_radiance(fov, size):
+    """One pixel; the widest field the camera accepts (179 deg: the centre pixel looks straight down, the
+    corner pixels graze past the records' patch and see nothing); a 1e-4 deg field (all pixels see the same
+    point). Every pixel that sees the records estimates L = 1/(4 pi) within K sigma + the kernel's 0.5 %
+    cone bias (test_render); the others are exactly 0 with stderr 0; a 1 x 1 image's largest channel is
+    exposed to 0.5, i.e. 8-bit round(255 (1.055 0.5^(1/2.4) - 0.055)) = 188."""
+    W, H = size
+    cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=fov)
+    view = ep.render_view(_plane_records(400_000), cam, W, H, kernel_radius=0.3)
+    img = view.images["white"]
+    _assert_image_defined(img)
+    L, se = img["radiance"], img["radiance_stderr"]
+    seen = L > 0
+    assert seen[H // 2, W // 2]
+    for y, x in zip(*np.nonzero(seen)):
+        assert_within(f"L pixel ({y},{x}) at fov {fov}", L[y, x], se[y, x], L_LAMBERT, 0.005 * L_LAMBERT)
+    assert not se[~seen].any()
+    if fov == 179.0:
+        assert seen.sum() == 1  # the corner rays meet the plane ~90 cm out, far from the 2 x 2 cm records
+    if W * H == 1:
+        encoded = 1.055 * 0.5 ** (1 / 2.4) - 0.055
+        assert int(img["srgb8"].max()) == round(255 * encoded) == 188
+
+
+@pytest.mark.parametrize("size", [(7, 3), (3, 7), (1, 5)])
+def test_non_square_images_follow_the_larger_side_field_of_view(size):
+    """fov is the full angle across the larger image side, the other side gets tan(fov/2) x smaller/larger
+    (Blender's AUTO fit). A hand projection of the pixel centres onto the polyp box's top (z = 0.3) and the
+    wall (z = 0) from 2 cm gives each pixel's region and depth."""
+    W, H = size
+    scene = ep.Scene(unit="cm")
+    scene.add_box("wall", (-5, -5, -1), (5, 5, 0), ep.Medium(mua=1.0, mus=10.0))
+    scene.add_box("polyp", (-0.3, -0.3, -0.2), (0.3, 0.3, 0.3), ep.Medium(mua=1.0, mus=10.0), priority=1)
+    view = ep.render_view(
+        _plane_records(1000, scene), Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=40), W, H
+    )
+    t = math.tan(math.radians(20.0))
+    tx, ty = (t, t * H / W) if W >= H else (t * W / H, t)
+    X, Y = np.meshgrid(((np.arange(W) + 0.5) / W * 2 - 1) * tx, (1 - (np.arange(H) + 0.5) / H * 2) * ty)
+    on_polyp = (np.abs(X * 1.7) < 0.3) & (np.abs(Y * 1.7) < 0.3)
+    assert view.region_map.shape == (H, W)
+    assert np.array_equal(view.region_map, np.where(on_polyp, 1, 0))
+    assert np.allclose(view.depth, np.where(on_polyp, 1.7, 2.0), rtol=1e-6)
+    for img in view.images.values():
+        _assert_image_defined(img)
+
+
+def test_field_of_view_limits_are_named_errors():
+    """fov 0, 180, negative, NaN: ValueError naming camera.fov_deg; a 1e-300 deg field whose default kernel
+    (2 pixel footprints) is 0 in double precision names camera.fov_deg too (it used to name the derived
+    kernel_radius, which the caller never gave)."""
+    for bad in (0.0, 180.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="camera.fov_deg"):
+            Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=bad)
+    cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=1e-300)
+    with pytest.raises(ValueError, match=r"camera.fov_deg = 1e-300 with width = 3: the default kernel_radius"):
+        ep.render_view(_plane_records(1000), cam, 3, 3)
+
+
+def test_target_out_of_view_gives_undefined_visibility_not_an_error():
+    """The camera looks at wall only: the polyp has no pixel, so every contrast is undefined (None; nan in a
+    sweep row) and target_pixels = 0, background_pixels = W x H; a region the scene lacks is still a named
+    error, and view.contrast still names the unseen target."""
+    scene = polyp_box_scene()
+    res = RecordsResult(scene, lambertian_records(5000), 5000)
+    cam = dict(camera=Camera.look_at((2.0, 2.0, 1.0), (2.0, 2.0, 0.0), up=(0, 1, 0), fov_deg=20), width=6, height=4)
+    cols = visibility_columns(res, "polyp", "wall", **cam)
+    assert cols["target_pixels"] == 0 and cols["background_pixels"] == 24
+    assert all(v is None for k, v in cols.items() if "pixels" not in k)
+    row = add_visibility({}, res, 10.0, {"target": "polyp", "background": "wall", **cam})
+    assert all(math.isnan(v) for k, v in row.items() if "pixels" not in k)
+    with pytest.raises(ValueError, match="target = 'tumour' is not a region"):
+        visibility_columns(res, "tumour", "wall", **cam)
+    with pytest.raises(ValueError, match="target = 'polyp': the camera sees no pixel"):
+        ep.render_view(res, **cam).contrast("polyp", "wall")
+
+
+@pytest.mark.filterwarnings("error")
+def test_colour_and_legend_of_empty_and_one_pixel_views(tmp_path):
+    """All-zero image: exposure 1, black 8-bit image; one pixel (0.2, 0.1, 0.05): exposure 0.5 / 0.2 = 2.5
+    and the IEC sRGB encoding of (0.5, 0.25, 0.125); a negative channel clips to 0. A sweep whose contrasts
+    are all undefined still plots (a PNG, no series and no warning: it used to draw masked NaN points) and
+    reports that no maximum can be located."""
+    assert colour.auto_exposure(np.zeros((4, 4)), np.ones((4, 4), bool)) == 1.0
+    assert not colour.to_srgb8(np.zeros((4, 4, 3)), 1.0).any()
+    px = np.array([[[0.2, 0.1, 0.05]]])
+    k = colour.auto_exposure(px.max(axis=-1))
+    assert k == pytest.approx(2.5, rel=1e-15)
+    lin = np.array([0.5, 0.25, 0.125])
+    iec = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    assert colour.to_srgb8(px, k)[0, 0].tolist() == np.round(255 * iec).astype(int).tolist()
+    assert colour.to_srgb8(np.array([[[-0.1, 0.2, 0.0]]]), 2.5)[0, 0, 0] == 0
+    rows = [{k: None for k in ("red_green_contrast", "fluorescence_contrast", "white_contrast")} for _ in range(3)]
+    for r in rows:
+        r.update({k + "_stderr": None for k in list(r)})
+    assert fit_peak([0, 10, 20], [math.nan] * 3, [math.nan] * 3)["x_peak"] is None
+    path = plot_visibility([0, 10, 20], rows, tmp_path / "visibility.png")
+    with open(path, "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+    assert "Too few β values" in visibility_report([0, 10, 20], rows)
+
+
+# ----------------------------------------------------------------------------
+# The beta sweep with visibility at its extremes
+# ----------------------------------------------------------------------------
+def test_sweep_refuses_an_angle_whose_head_enters_the_wall_before_any_run():
+    """At d = 1 cm the 12 mm head's face reaches the wall at 59.04 deg: a sweep over 0, 70 and 80 deg names
+    both refused angles and the region before it traces a single packet."""
+    runs = []
+    with pytest.raises(ValueError, match=r"betas: at rig.beta_deg = 70, 80 .* region 'tissue'"):
+        ep.sweep(
+            ep.default_flat_scene(), betas=[0, 70, 80], store=100, progress=False, on_run=lambda *a: runs.append(a)
+        )
+    assert runs == []
+
+
+def test_sweep_with_visibility_at_beta_0_and_the_steepest_accepted_beta(tmp_path):
+    """beta = 0 and 58.5 deg (0.5 deg short of the face touching the wall): both runs conserve energy, the
+    head looks at the polyp's top so the polyp is in view (target_pixels > 0: the image centre sees it),
+    every column is finite or nan (never an error), and the views, plot and report are written."""
+    out = []
+    res = ep.sweep(
+        ep.default_flat_scene(),
+        betas=[0.0, 58.5],
+        store=1000,
+        progress=False,
+        threads=2,
+        out_dir=tmp_path,
+        visibility={"target": "polyp", "background": "tissue", "width": 16, "height": 16},
+        on_run=lambda i, beta, r: out.append(r),
+    )
+    for r in out:
+        assert_energy_conserved(r)
+        assert r.warnings == []
+    for row in res.rows:
+        assert row["target_pixels"] > 0 and row["target_pixels"] + row["background_pixels"] <= 256
+        for key in ("fluorescence_contrast", "white_contrast", "red_green_contrast"):
+            assert row[key] is not None and not math.isinf(row[key])
+    assert (tmp_path / "visibility.png").exists() and (tmp_path / "views" / "beta58.5_fluorescence.png").exists()
+
+
+# ----------------------------------------------------------------------------
+# Units, placement and rotation of the rig's scene: fractions and the camera image
+# ----------------------------------------------------------------------------
+def _rig_scene(unit, offset_cm=(0.0, 0.0, 0.0), rot=None):
+    """A wall (20 x 20 x 5 cm, the paper's tissue) with a box polyp (0.8 x 0.8 x 0.4 cm above the wall),
+    and a rig 1 cm above the polyp's top at beta = 30 deg, 32 x 32 camera: in ``unit``, moved by
+    ``offset_cm``, turned by the random rotation of seed ``rot`` (rig included)."""
+    k = 1.0 / unit_cm(unit)
+    R = np.eye(3) if rot is None else random_rotation(np.random.default_rng(rot))
+    off = np.asarray(offset_cm, dtype=np.float64)
+    tissue = ep.Medium(mua=20.0, mus=200.0, g=0.9, n=1.1)
+    scene = ep.Scene(unit=unit)
+    for name, lo, hi, prio in (
+        ("wall", (-10, -10, -5), (10, 10, 0), 0),
+        ("polyp", (-0.4, -0.4, -0.2), (0.4, 0.4, 0.4), 1),
+    ):
+        v, t = box_mesh(lo, hi)
+        scene.add_mesh(name, (((v.astype(np.float64) @ R.T) + off) * k).astype(np.float32), t, tissue, priority=prio)
+    rig = ep.EndoscopeRig.from_beta(
+        30.0,
+        1.0 * k,
+        point=(R @ np.array([0.0, 0.0, 0.4]) + off) * k,
+        normal=R @ np.array([0.0, 0.0, 1.0]),
+        tilt_axis=R @ np.array([0.0, 1.0, 0.0]),
+        camera_resolution=(32, 32),
+    )
+    return scene, rig
+
+
+RIG_VARIANTS = {
+    "mm": dict(unit="mm"),
+    "m": dict(unit="m"),
+    "m_20m_away": dict(unit="m", offset_cm=(2e3, -1e3, 1e3)),
+    "cm_5000cm_away": dict(unit="cm", offset_cm=(-5e3, 3e3, 2e3)),
+    "rotated": dict(unit="cm", rot=3),
+}
+
+
+@pytest.fixture(scope="module")
+def rig_reference():
+    scene, rig = _rig_scene("cm")
+    res = ep.run(scene, rig, photons=60_000, seed=30, threads=2)
+    return res, ep.render_view(res, kernel_angle_deg=30.0, threads=2)
+
+
+@pytest.mark.parametrize("variant", sorted(RIG_VARIANTS))
+def test_rig_scene_gives_the_same_fractions_and_image_in_any_unit_place_and_orientation(rig_reference, variant):
+    """The same physical scene and rig in mm and m, 20 m and 5000 cm from the origin, and turned as a
+    whole: Rd, occluded, camera_collected, absorbed and each region's mean radiance (per cm^2 per sr) in the
+    rig camera's image agree with the cm scene at the origin within K sigma of the two independent runs;
+    each region covers the same pixels up to its outline (float32 vertices)."""
+    ref, ref_view = rig_reference
+    scene, rig = _rig_scene(**RIG_VARIANTS[variant])
+    res = ep.run(scene, rig, photons=60_000, seed=31, threads=2)
+    assert_energy_conserved(res)
+    assert res.warnings == []
+    for key in ("diffuse_reflectance", "occluded", "camera_collected", "absorbed"):
+        a, sa = getattr(res, key), getattr(res, key + "_stderr")
+        b, sb = getattr(ref, key), getattr(ref, key + "_stderr")
+        assert_same_within_stats(f"{key} [{variant}]", a, sa, b, sb)
+    view = ep.render_view(res, kernel_angle_deg=30.0, threads=2)
+    got, want = view.regions(), ref_view.regions()
+    for name in ("wall", "polyp"):
+        assert abs(got[name]["pixels"] - want[name]["pixels"]) <= 4
+        a, sa = got[name]["white_radiance"], got[name]["white_radiance_stderr"]
+        b, sb = want[name]["white_radiance"], want[name]["white_radiance_stderr"]
+        assert_same_within_stats(f"{name} radiance [{variant}]", a, sa, b, sb)
