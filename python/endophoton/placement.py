@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from . import _core
+from .scene import Scene
 from .scene_schema import MAX_COORDINATE
 from .sources import EndoscopeRig
 
@@ -116,11 +117,11 @@ def _body_crossing(scene, rig: EndoscopeRig, radius: float, length: float) -> st
 
 
 def check_rig(scene, source) -> list[str]:
-    """Check an EndoscopeRig's placement in ``scene`` before a run (other sources pass): ValueError if
+    """Check an EndoscopeRig's placement in an ep.Scene before a run (other sources pass): ValueError if
     its front face crosses or touches a region; returns the run's warnings (the body behind the face
     passing through a region), else []."""
-    if not isinstance(source, EndoscopeRig):
-        return []
+    if not isinstance(source, EndoscopeRig) or not isinstance(scene, Scene):
+        return []  # ep.run refuses a scene that is not an ep.Scene by name
     mm = 0.1 / float(scene.unit_cm)
     radius = 0.5 * source.head_diameter_mm * mm
     if radius <= 0:
