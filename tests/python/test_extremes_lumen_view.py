@@ -256,11 +256,10 @@ def test_rig_face_touching_the_wall_is_refused_and_a_hair_above_it_runs():
 
 
 def test_rig_body_through_the_opposite_wall_is_a_warning():
-    """A 50 mm head in a 3 cm tube looks at the floor; its body reaches through the ceiling: the run goes on
-    (the engine stops light on the body only in the ambient) and says so in Result.warnings, naming the region.
-    A 5 mm head in the same place has no warning."""
-    v_out, t_out = box_mesh((-5.0, -1.6, -1.6), (5.0, 1.6, 1.6))
-    v_in, t_in = box_mesh((-6.0, -1.5, -1.5), (6.0, 1.5, 1.5))
+    """A head 1 cm over a floor, tilted 20 deg, under a ceiling 3 cm above the floor: a 50 mm body's back
+    reaches z = -1.5 + (1 + 5) cos 20 = 4.1 cm, through the ceiling (1.5-1.6 cm): the run goes on (the engine stops
+    light on the body only in the ambient) and says so in Result.warnings, naming the region. A 5 mm body
+    (back at z = -1.5 + 1.5 cos 20 = -0.09 cm) has no warning."""
     scene = ep.Scene(unit="cm")
     scene.add_box("floor", (-5.0, -1.6, -1.6), (5.0, 1.6, -1.5), ep.Medium(mua=5.0, mus=100.0, g=0.9, n=1.4))
     scene.add_box("ceiling", (-5.0, -1.6, 1.5), (5.0, 1.6, 1.6), ep.Medium(mua=5.0, mus=100.0, g=0.9, n=1.4))
