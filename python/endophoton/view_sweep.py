@@ -88,7 +88,8 @@ def plot_visibility(betas, rows, path) -> str:
     ax = fig.add_subplot(1, 1, 1)
     for (key, label), colour in zip(_SERIES, ("tab:red", "tab:purple", "tab:gray")):
         y, se = _column(rows, key), _column(rows, key + "_stderr")
-        ax.errorbar(b, y, yerr=np.nan_to_num(se), fmt="o", color=colour, capsize=3, label=label)
+        ok = np.isfinite(y)  # an undefined (None) contrast is not drawn; an undefined stderr has no bar
+        ax.errorbar(b[ok], y[ok], yerr=np.nan_to_num(se[ok]), fmt="o", color=colour, capsize=3, label=label)
         f = fits[key]
         if f["x_peak"] is not None:
             xs = np.linspace(*f["fit_range"], 200)
