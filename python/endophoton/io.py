@@ -44,6 +44,7 @@ __all__ = [
     "float_array",
     "shown",
     "check_path",
+    "check_output_files",
 ]
 
 
@@ -186,6 +187,17 @@ def check_path(name: str, v) -> str:
     if "\0" in p:
         raise ValueError(f"{name} = {v!r} contains a NUL byte")
     return p
+
+
+def check_output_files(folder: str | os.PathLike, names) -> list[str]:
+    """The paths ``folder/name`` of the files a writer is about to write, checked before it writes
+    any: a path that exists must not be a directory (``os.replace`` cannot put a file there, so the
+    writer would stop half way, leaving its new files beside old ones). ValueError naming the path."""
+    paths = [os.path.join(os.fspath(folder), n) for n in names]
+    for p in paths:
+        if os.path.isdir(p) and not os.path.islink(p):
+            raise ValueError(f"output file {p!r} is a directory: remove or rename it (nothing was written)")
+    return paths
 
 
 def check_int(name: str, v, lo: int, hi: int) -> int:
