@@ -404,7 +404,7 @@ def _beta_outcome(
 
         add_visibility(full, res, beta, visibility, out_dir)
     else:
-        full.update({k: float("nan") for k in VISIBILITY_COLUMNS})
+        full.update({k: None for k in VISIBILITY_COLUMNS})  # undefined without a view
     meta.setdefault("light_positions", {})[f"{beta:g}"] = geo["light_positions"].tolist()
     meta.setdefault("camera", {})[f"{beta:g}"] = jsonable(geo["camera"])
     meta.setdefault("azimuth_reference", {})[f"{beta:g}"] = jsonable(geo["reference"])

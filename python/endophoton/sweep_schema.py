@@ -74,7 +74,7 @@ CSV_COLUMNS: dict[str, str] = {
     "cancelled": "1 if the run was cancelled (partial), else 0",
 }
 
-# Visibility columns (endophoton.view_sweep.add_visibility; nan unless the sweep ran with visibility=...).
+# Visibility columns (endophoton.view_sweep.add_visibility; None unless the sweep ran with visibility=...).
 VISIBILITY_COLUMNS = {
     "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
     "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
@@ -98,9 +98,11 @@ class SweepResult:
 
     Attributes
     ----------
-    rows : one dict per beta with the keys of :data:`CSV_COLUMNS`.
+    rows : one dict per beta with the keys of :data:`CSV_COLUMNS`; an undefined value is None,
+        never NaN (``null`` in the JSON file, an empty cell in the CSV).
     histograms : per row (same order) a dict with ``counts`` and ``stderr``
-        (n_elev x n_azim float arrays, record counts) and ``chi2_p`` (per ring).
+        (n_elev x n_azim float arrays, record counts) and ``chi2_p`` (per ring; nan for a ring
+        without records: in numpy arrays nan marks an undefined entry, ``null`` in the JSON).
     batches : per row a dict of per-batch arrays (length B) used for the
         batch-means standard errors of derived trends (``energy_per_packet``,
         ``energy_per_record``, ``important_fraction``, ``record_rate``,
@@ -119,7 +121,8 @@ class SweepResult:
         return np.array([r["beta_deg"] for r in self.rows], dtype=np.float64)
 
     def column(self, name: str) -> np.ndarray:
-        """One CSV column over beta as a float array (missing values -> nan)."""
+        """One CSV column over beta as a float array, for arithmetic and plots: a missing or undefined
+        (None) cell is nan there (the rows themselves hold None)."""
         if name not in CSV_COLUMNS:
             raise ValueError(f"column '{name}' is not a sweep column")
         return np.array([unjson(r.get(name)) for r in self.rows], dtype=np.float64)
@@ -132,7 +135,8 @@ class SweepResult:
         raise ValueError(f"beta = {beta} not in the sweep")
 
     def to_csv(self, path: str | os.PathLike) -> str:
-        """Write the rows as CSV (header = CSV_COLUMNS keys; nan as empty), atomically."""
+        """Write the rows as CSV (header = CSV_COLUMNS keys; None, or a non-finite float, as an empty
+        cell), atomically."""
         lines = [",".join(CSV_COLUMNS)]
         for r in self.rows:
             cells = []
@@ -166,12 +170,13 @@ class SweepResult:
 
     @classmethod
     def from_json(cls, path: str | os.PathLike) -> "SweepResult":
-        """Read a file written by :meth:`to_json` (arrays come back as numpy float arrays)."""
+        """Read a file written by :meth:`to_json`: a ``null`` cell of a row comes back as None, arrays as
+        numpy float arrays (``null`` -> nan)."""
         with open(path, "r", encoding="utf-8") as f:
             d = json.load(f)
         if d.get("format") != "endophoton-sweep/1":
             raise ValueError(f"{path}: format = {d.get('format')!r} is not endophoton-sweep/1")
-        rows = [{k: unjson(v) for k, v in r.items()} for r in d["rows"]]
+        rows = [dict(r) for r in d["rows"]]
         arr = (
             lambda v: np.array([[unjson(x) for x in row] for row in v], dtype=np.float64)
             if v and isinstance(v[0], list)

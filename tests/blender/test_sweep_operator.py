@@ -109,7 +109,10 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     packets = [int(r["packets_traced"]) for r in rows]
     assert summary["n_betas"] == 2 and summary["images"] == len(files)
     assert (summary["packets_min"], summary["packets_max"]) == (min(packets), max(packets))
-    assert math.isnan(summary["best_beta_energy_total"])  # 2 angles: no degree-6 fit
+    # 2 angles: no degree-6 fit; undefined is None in memory (never NaN), absent from the ID property
+    assert job.summary["best_beta_energy_total"] is None and job.summary["best_beta_energy_total_se"] is None
+    assert "best_beta_energy_total" not in summary and summary["fit_degree"] == 0
+    assert not [k for k, v in job.summary.items() if isinstance(v, float) and not math.isfinite(v)]
     assert sweep_job.summary_rows(scene)[2][1].startswith(f"– (needs ≥ {sweep_job.MIN_FIT_POINTS} β values)")
     assert summary["out_dir"] == str(out)
     labels = dict(sweep_job.summary_rows(scene))
@@ -283,7 +286,7 @@ def test_best_beta_needs_enough_angles_and_has_uncertainty(ep):
     assert interior and 0.0 < beta_se < 2.0
     assert abs(beta - 25.0) < max(3 * beta_se, 0.1)
     few = slice(0, sweep_job.MIN_FIT_POINTS - 1)
-    assert math.isnan(sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few])[0])
+    assert sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few]) == (None, None, False)
 
 
 def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
