@@ -27,6 +27,9 @@ __all__ = [
     "parse_betas",
     "MAX_BETAS",
     "polar_filename",
+    "polar_plots",
+    "output_file_names",
+    "VISIBILITY_FILES",
 ]
 
 # CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
@@ -259,3 +262,33 @@ def polar_filename(beta: float, frame: str = "light") -> str:
     """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_fixed_beta_12.5.png."""
     stem = "polar_beta_" if frame == "light" else "polar_fixed_beta_"
     return f"{stem}{beta:02.0f}.png" if float(beta).is_integer() else f"{stem}{beta:g}.png"
+
+
+#: File names of a sweep with visibility (endophoton.view_sweep): the plot and the contact sheet.
+VISIBILITY_FILES = {"plot": "visibility.png", "contact_sheet": "views_contact_sheet.png"}
+
+
+def polar_plots(result) -> list[tuple[float, str, str]]:
+    """(beta, frame, file name) of every polar plot of ``result``: the light frame for each beta,
+    the fixed frame too where the result has it."""
+    out = []
+    for beta in result.betas:
+        out.append((float(beta), "light", polar_filename(beta)))
+        if "counts_fixed" in result.histogram(float(beta)):
+            out.append((float(beta), "fixed", polar_filename(beta, "fixed")))
+    return out
+
+
+def output_file_names(betas, visibility: bool = False, plots: bool = True, report: bool = True) -> list[str]:
+    """The files endophoton.beta_sweep.write_outputs may write for a sweep over ``betas`` (degrees),
+    by name in its folder: a superset (both polar frames for every beta), so that the command line
+    can check them before the sweep runs."""
+    names = ["sweep.csv", "sweep.json"]
+    if plots:
+        names += list(PLOT_FILES.values())
+        names += [polar_filename(b, frame) for b in betas for frame in ("light", "fixed")]
+        if visibility:
+            names += list(VISIBILITY_FILES.values())
+    if report:
+        names.append("report.md")
+    return names

@@ -16,7 +16,7 @@ import numpy as np
 from .io import no_nan, unjson
 from .paper import PAPER_TRENDS
 from .render import render_view
-from .sweep_schema import VISIBILITY_COLUMNS
+from .sweep_schema import VISIBILITY_COLUMNS, VISIBILITY_FILES
 from .visibility import contrast, fit_peak
 
 __all__ = [
@@ -209,9 +209,9 @@ def write_visibility_outputs(betas, rows, out_dir, target: str = "polyp", backgr
     """After a sweep with visibility columns: ``visibility.png`` (plot with fitted maxima),
     ``views_contact_sheet.png`` (fluorescence views across beta, if saved) and the report section
     (returned under ``"report"``; the caller appends it to report.md)."""
-    out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, "visibility.png"))}
+    out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, VISIBILITY_FILES["plot"]))}
     views = [os.path.join(out_dir, "views", f"beta{float(b):g}_fluorescence.png") for b in betas]
     if views and all(os.path.exists(p) for p in views):
-        out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, "views_contact_sheet.png"))
+        out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, VISIBILITY_FILES["contact_sheet"]))
     out["report"] = visibility_report(betas, rows, target, background)
     return out
