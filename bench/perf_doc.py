@@ -615,8 +615,9 @@ def sec_presets(R, figs):
     L = []
     a = L.append
     a(
-        "Presets defined by a target relative standard error on the run's main tally (diffuse reflectance; "
-        "fluorescent escaped weight for fluorescence scenes), measured above with 2 threads:\n"
+        "Presets defined by a target relative standard error on the diffuse reflectance (`ep.run(quality=...)`; "
+        "this bench also aims the colon runs at the fluorescent escaped weight, with `target=`), measured above "
+        "with 2 threads:\n"
     )
     tr = []
     for name, t in (("Preview", 0.05), ("Standard", 0.01), ("Reference", 0.002)):
