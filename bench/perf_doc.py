@@ -378,8 +378,10 @@ def _knob_safe_distance(R, figs):
     a(
         "`safe_distance=True` (the default) lets the engine answer steps near surfaces from its local geometry "
         "(issue 11's triangle cache, on scenes it serves) instead of a full Embree query; `False` queries Embree "
-        "at every step. Wall clock, 1 thread, best of three interleaved repeats; the tallies must be identical "
-        "(same random numbers, same decisions).\n"
+        "at every step. Wall clock, 1 thread, best of three interleaved repeats; the tallies are identical "
+        "(same random numbers, same decisions) but where a crossing lies within float rounding of a shared "
+        "triangle edge, which the two may resolve to different triangles (`docs/numerics.md`, \"Vertices and "
+        "edges\").\n"
     )
     tr = []
     for r in R["safe_distance"]:
@@ -613,8 +615,9 @@ def sec_presets(R, figs):
     L = []
     a = L.append
     a(
-        "Presets defined by a target relative standard error on the run's main tally (diffuse reflectance; "
-        "fluorescent escaped weight for fluorescence scenes), measured above with 2 threads:\n"
+        "Presets defined by a target relative standard error on the diffuse reflectance (`ep.run(quality=...)`; "
+        "this bench also aims the colon runs at the fluorescent escaped weight, with `target=`), measured above "
+        "with 2 threads:\n"
     )
     tr = []
     for name, t in (("Preview", 0.05), ("Standard", 0.01), ("Reference", 0.002)):

@@ -107,7 +107,7 @@ void check_self_intersection(const std::string& owner, const float* v, const uin
     mesh.idx.resize(nt);
     for (size_t t = 0; t < nt; ++t)
         for (int k = 0; k < 3; ++k) mesh.idx[t][k] = canon[tri[3 * t + k]];
-    struct Embree {  // released on every path out, a throw included
+    struct Embree {                                // released on every path out, a throw included
         RTCDevice device = rtcNewDevice(nullptr);  // every core: offer() is thread-safe
         RTCScene scene = device ? rtcNewScene(device) : nullptr;
         ~Embree() {
@@ -133,12 +133,9 @@ void check_self_intersection(const std::string& owner, const float* v, const uin
                         "] cross (split overlapping parts into separate regions)");
 }
 
-}  // namespace
-
-MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const uint32_t* tri, size_t nt) {
-    MeshReport rep;
-    if (nv < 4) fail(owner, "mesh.vertices has " + std::to_string(nv) + " rows; a closed mesh needs at least 4");
-    if (nt < 4) fail(owner, "mesh.triangles has " + std::to_string(nt) + " rows; a closed mesh needs at least 4");
+// Every coordinate finite; the bounding box into rep. Returns the largest
+// side of the box (> 0).
+double check_vertices(const std::string& owner, const float* v, size_t nv, MeshReport& rep) {
     for (size_t i = 0; i < nv; ++i) {
         for (int k = 0; k < 3; ++k) {
             const float x = v[3 * i + k];
@@ -160,38 +157,44 @@ MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const
     const double extent = std::max(
         {rep.bbox_max[0] - rep.bbox_min[0], rep.bbox_max[1] - rep.bbox_min[1], rep.bbox_max[2] - rep.bbox_min[2]});
     if (!(extent > 0)) fail(owner, "mesh has zero extent");
+    return extent;
+}
 
-    // Exact welding: canonical index per distinct position (bit for bit), the
-    // lowest index that has it. By sorting, not hashing: a hash node per
-    // vertex and per directed edge below cost seconds on million-triangle
-    // meshes.
+// Exact welding: canonical index per distinct position (bit for bit), the
+// lowest index that has it; the number of distinct positions into rep. By
+// sorting, not hashing: a hash node per vertex and per directed edge below
+// cost seconds on million-triangle meshes.
+std::vector<uint32_t> weld_exact(const float* v, size_t nv, MeshReport& rep) {
     std::vector<uint32_t> canon(nv);
-    {
-        auto bits = [v](size_t i) {
-            std::array<uint32_t, 3> b;
-            std::memcpy(b.data(), v + 3 * i, sizeof b);
-            return b;
-        };
-        std::vector<uint32_t> order(nv);
-        std::iota(order.begin(), order.end(), 0u);
-        std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
-            const auto ka = bits(a), kb = bits(b);
-            return ka != kb ? ka < kb : a < b;
-        });
-        size_t groups = 0;
-        for (size_t i = 0; i < nv; ++i) {
-            const bool first = i == 0 || bits(order[i]) != bits(order[i - 1]);
-            groups += first;
-            canon[order[i]] = first ? order[i] : canon[order[i - 1]];
-        }
-        rep.welded_vertices = groups;
+    auto bits = [v](size_t i) {
+        std::array<uint32_t, 3> b;
+        std::memcpy(b.data(), v + 3 * i, sizeof b);
+        return b;
+    };
+    std::vector<uint32_t> order(nv);
+    std::iota(order.begin(), order.end(), 0u);
+    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+        const auto ka = bits(a), kb = bits(b);
+        return ka != kb ? ka < kb : a < b;
+    });
+    size_t groups = 0;
+    for (size_t i = 0; i < nv; ++i) {
+        const bool first = i == 0 || bits(order[i]) != bits(order[i - 1]);
+        groups += first;
+        canon[order[i]] = first ? order[i] : canon[order[i - 1]];
     }
+    rep.welded_vertices = groups;
+    return canon;
+}
 
-    // Degenerate triangles: out-of-range or repeated indices, or an area that is
-    // zero at the precision of the mesh (|cross| below 1e-12 extent^2).
+// Degenerate triangles: out-of-range or repeated indices, or an area that is
+// zero at the precision of the mesh (|cross| below 1e-12 extent^2). Appends
+// each triangle's directed edges a->b, as (a << 32) | b of welded indices, to
+// `directed`; returns six times the signed volume.
+double check_triangles(const std::string& owner, const float* v, size_t nv, const uint32_t* tri, size_t nt,
+                       const std::vector<uint32_t>& canon, double extent, std::vector<uint64_t>& directed) {
     double volume6 = 0;
     const double area_floor = 1e-12 * extent * extent;
-    std::vector<uint64_t> directed;  // directed edge a->b as (a << 32) | b
     directed.reserve(3 * nt);
     for (size_t t = 0; t < nt; ++t) {
         uint32_t idx[3];
@@ -225,9 +228,13 @@ MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const
             directed.push_back((from << 32) | to);
         }
     }
-    // Watertight and consistently oriented <=> every directed edge a->b occurs
-    // exactly once and its twin b->a occurs exactly once. The first edge that
-    // fails, in sorted order, is named.
+    return volume6;
+}
+
+// Watertight and consistently oriented <=> every directed edge a->b occurs
+// exactly once and its twin b->a occurs exactly once. The first edge that
+// fails, in sorted order, is named.
+void check_edges(const std::string& owner, std::vector<uint64_t>& directed) {
     std::sort(directed.begin(), directed.end());
     for (size_t i = 0; i < directed.size();) {
         const uint64_t key = directed[i];
@@ -247,6 +254,19 @@ MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const
         }
         i = j;
     }
+}
+
+}  // namespace
+
+MeshReport check_mesh(const std::string& owner, const float* v, size_t nv, const uint32_t* tri, size_t nt) {
+    MeshReport rep;
+    if (nv < 4) fail(owner, "mesh.vertices has " + std::to_string(nv) + " rows; a closed mesh needs at least 4");
+    if (nt < 4) fail(owner, "mesh.triangles has " + std::to_string(nt) + " rows; a closed mesh needs at least 4");
+    const double extent = check_vertices(owner, v, nv, rep);
+    const std::vector<uint32_t> canon = weld_exact(v, nv, rep);
+    std::vector<uint64_t> directed;
+    const double volume6 = check_triangles(owner, v, nv, tri, nt, canon, extent, directed);
+    check_edges(owner, directed);
     rep.signed_volume = volume6 / 6.0;
     if (!(rep.signed_volume > 0)) {
         std::ostringstream os;

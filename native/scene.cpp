@@ -19,16 +19,26 @@ struct CollectContext {
     const std::vector<Region>* regions;
     const std::vector<std::vector<float>>* vertices;
     const std::vector<std::vector<uint32_t>>* triangles;
-    Vec3 org, dir;  // the ray as traced, in double
+    Vec3 org, dir;         // the ray in double; distances are measured from org
+    Float t_begin, t_end;  // the window: hits with refined distance in [t_begin, t_end] count
     std::vector<Hit>* hits;
 };
+
+// Distance along the ray (org, dir) to the plane of triangle `prim` of
+// `region`, in double: t = (v0 - org).n / (dir.n), cos_dn = dir.n != 0. The
+// triangle cache computes the same expression (TriangleCache::intersect_open).
+Float plane_distance(const std::vector<std::vector<float>>& vertices,
+                     const std::vector<std::vector<uint32_t>>& triangles, const Vec3& n, unsigned region, unsigned prim,
+                     const Vec3& org, Float cos_dn) {
+    const float* v = &vertices[region][3 * size_t(triangles[region][3 * size_t(prim)])];
+    return dot(Vec3(v[0], v[1], v[2]) - org, n) / cos_dn;
+}
 
 void collect_filter(const RTCFilterFunctionNArguments* args) {
     if (args->N != 1 || !args->valid[0]) return;
     auto* ctx = reinterpret_cast<CollectContext*>(args->context);
     const unsigned geom = RTCHitN_geomID(args->hit, args->N, 0);
     const unsigned prim = RTCHitN_primID(args->hit, args->N, 0);
-    const float t = RTCRayN_tfar(args->ray, args->N, 0);
     const unsigned region = geom;  // geometry ids equal region indices (checked in add_region)
     const Vec3& n = (*ctx->regions)[region].normals[prim];
     // A BVH may reference a triangle from two leaves; keep each triangle once.
@@ -42,20 +52,33 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
     // paths (Beer-Lambert, thin layers) are exact to double rounding. The
     // plane distance is the double ray's own (also for grazing rays, where
     // Embree's float distance is the less accurate one), and it is the value
-    // the local triangle cache computes, so both give identical hits.
-    const Float cos_dn = dot(ctx->dir, n);
-    Float t_hit = Float(t);
-    if (cos_dn != 0) {
-        const float* v = &(*ctx->vertices)[region][3 * size_t((*ctx->triangles)[region][3 * size_t(prim)])];
-        t_hit = dot(Vec3(v[0], v[1], v[2]) - ctx->org, n) / cos_dn;
-    }
-    ctx->hits->push_back(Hit{t_hit, region, prim, cos_dn});
+    // the local triangle cache computes; the window is applied to it, not to
+    // Embree's float distance (embree_window), and a hit in the triangle's
+    // plane (cos 0, which the transport ignores) is dropped, as the cache
+    // drops both: the two give identical hit lists.
     args->valid[0] = 0;  // reject: traversal goes on and collects every crossing
+    const Float cos_dn = dot(ctx->dir, n);
+    if (cos_dn == 0) return;
+    const Float t_hit = plane_distance(*ctx->vertices, *ctx->triangles, n, region, prim, ctx->org, cos_dn);
+    if (!(t_hit >= ctx->t_begin && t_hit <= ctx->t_end)) return;
+    ctx->hits->push_back(Hit{t_hit, region, prim, cos_dn});
 }
 
-// The ray handed to Embree (float), from org over [tnear, tfar] (tfar may be
-// infinite).
-RTCRayHit embree_ray(const Vec3& org, const Vec3& d, Float tnear, Float tfar) {
+// The ray handed to Embree (float) for the window [t_begin, t_end] of the
+// double ray from org (t_end may be infinite), its end widened by `margin`:
+// Embree's float distances err by ~1e-7 of the coordinates and of t, so a
+// crossing that a step ends just past could fall beyond Embree's float tfar
+// while its refined distance lies inside the window. The filters apply the
+// window to the refined distance; the margin only makes Embree offer every
+// candidate. (Without it, a colon_polyp packet whose step ended 2.7e-10 past
+// the wall stayed inside under the full query and crossed under the cache,
+// and safe_distance on and off parted after ~40,000 packets.) The ray's
+// origin, direction and tnear are unchanged: Embree's float tests of the
+// triangles, edges and vertices stay as they were. (The start needs no
+// margin: the transport's queries look behind the packet, and what lies at
+// the very start of that look-behind is the surface just crossed.)
+RTCRayHit embree_window(const Vec3& org, const Vec3& d, Float t_begin, Float t_end) {
+    const Float margin = 4e-7 * (max_abs_component(org) + (std::isfinite(t_end) ? t_end : Float(0)));
     RTCRayHit rh;
     rh.ray.org_x = float(org.x);
     rh.ray.org_y = float(org.y);
@@ -63,8 +86,8 @@ RTCRayHit embree_ray(const Vec3& org, const Vec3& d, Float tnear, Float tfar) {
     rh.ray.dir_x = float(d.x);
     rh.ray.dir_y = float(d.y);
     rh.ray.dir_z = float(d.z);
-    rh.ray.tnear = float(tnear);
-    rh.ray.tfar = std::isfinite(tfar) ? float(tfar) : std::numeric_limits<float>::infinity();
+    rh.ray.tnear = float(t_begin);
+    rh.ray.tfar = std::isfinite(t_end) ? float(t_end + margin) : std::numeric_limits<float>::infinity();
     rh.ray.time = 0;
     rh.ray.mask = 0xFFFFFFFFu;
     rh.ray.id = 0;
@@ -78,7 +101,10 @@ RTCRayHit embree_ray(const Vec3& org, const Vec3& d, Float tnear, Float tfar) {
 struct FirstContext {
     RTCIntersectContext base;  // must be first
     const std::vector<Region>* regions;
-    Vec3 dir;
+    const std::vector<std::vector<float>>* vertices;
+    const std::vector<std::vector<uint32_t>>* triangles;
+    Vec3 org, dir;  // as CollectContext's
+    Float t_begin, t_end;
     uint64_t set;
     unsigned region = RTC_INVALID_GEOMETRY_ID, prim = 0;  // the last crossing accepted
 };
@@ -94,9 +120,16 @@ void first_filter(const RTCFilterFunctionNArguments* args) {
     auto* ctx = reinterpret_cast<FirstContext*>(args->context);
     const unsigned region = RTCHitN_geomID(args->hit, args->N, 0);
     const unsigned prim = RTCHitN_primID(args->hit, args->N, 0);
-    const Float cos_dn = dot(ctx->dir, (*ctx->regions)[region].normals[prim]);
+    const Vec3& n = (*ctx->regions)[region].normals[prim];
+    const Float cos_dn = dot(ctx->dir, n);
     const bool inside = (ctx->set >> region) & 1;
     if (!((cos_dn < 0 && !inside) || (cos_dn > 0 && inside))) {
+        args->valid[0] = 0;
+        return;
+    }
+    // The window on the refined distance, as collect_filter applies it.
+    const Float t = plane_distance(*ctx->vertices, *ctx->triangles, n, region, prim, ctx->org, cos_dn);
+    if (!(t >= ctx->t_begin && t <= ctx->t_end)) {
         args->valid[0] = 0;
         return;
     }
@@ -483,7 +516,9 @@ void Scene::intersect_all(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
     // lose a crossing that rounding put just behind the packet.
     const Float back = tnear < 0 ? -tnear : Float(0);
     ctx.org = back > 0 ? o - d * back : o;
-    RTCRayHit rh = embree_ray(ctx.org, d, std::max(tnear, Float(0)), tfar + back);
+    ctx.t_begin = std::max(tnear, Float(0));
+    ctx.t_end = tfar + back;
+    RTCRayHit rh = embree_window(ctx.org, d, ctx.t_begin, ctx.t_end);
     rtcIntersect1(scene_, &ctx.base, &rh);
     if (back > 0)
         for (Hit& h : out) h.t -= back;
@@ -507,13 +542,19 @@ Scene::FirstHit Scene::first_crossing(const Vec3& o, const Vec3& d, Float tnear,
     rtcInitIntersectContext(&ctx.base);
     ctx.base.filter = first_filter;
     ctx.regions = &regions_;
+    ctx.vertices = &vertices_;
+    ctx.triangles = &triangles_;
     ctx.dir = d;
     ctx.set = set;
-    // The same backed-up ray as intersect_all, so the refined distance below
-    // is bit-identical to the one collect_filter gives for this triangle.
+    // The same backed-up ray and window as intersect_all, so the refined
+    // distance below is bit-identical to the one collect_filter gives for
+    // this triangle.
     const Float back = tnear < 0 ? -tnear : Float(0);
     const Vec3 org = back > 0 ? o - d * back : o;
-    RTCRayHit rh = embree_ray(org, d, std::max(tnear, Float(0)), tfar + back);
+    ctx.org = org;
+    ctx.t_begin = std::max(tnear, Float(0));
+    ctx.t_end = tfar + back;
+    RTCRayHit rh = embree_window(org, d, ctx.t_begin, ctx.t_end);
     if (any) {
         // The occlusion query sets tfar to -inf when a crossing passed the
         // filter, which noted it in the context.

@@ -386,13 +386,13 @@ BOOTSTRAP = 200  # parametric bootstrap replicas for the peak's standard error
 def best_beta(an, betas, y, y_se, seed=0):
     """β of the fitted energy maximum, its standard error and whether it is interior.
 
-    Only with at least MIN_FIT_POINTS angles (else NaN): a degree-6 polynomial
+    Only with at least MIN_FIT_POINTS angles (else None, None, False): a degree-6 polynomial
     through fewer points interpolates the noise.  The standard error comes from
     refitting BOOTSTRAP curves drawn from N(y, y_se) per β (a fixed seed, so the
     summary is reproducible).  Returns (beta, se, interior)."""
     ok = np.isfinite(y) & np.isfinite(y_se)
     if ok.sum() < MIN_FIT_POINTS:
-        return float("nan"), float("nan"), False
+        return None, None, False
     x, y, y_se = betas[ok], y[ok], y_se[ok]
     fit = an.poly_peak(x, y, deg=FIT_DEGREE)
     rng = np.random.default_rng(seed)
@@ -407,7 +407,9 @@ def sweep_summary(ep, result, paths, out_dir):
     """Plain-value summary of a finished sweep (no bpy): the β of the energy
     maximum by the paper's degree-6 fit (sum over stored records, and per packet
     traced) with its bootstrap standard error when there are enough angles, the
-    range of packets traced, times and where the files are."""
+    range of packets traced, times and where the files are.  A β without a fit (too few
+    angles) is None, never NaN; the scene's copy leaves it out (Blender's ID properties
+    hold no None), which :func:`summary_rows` shows as "needs ≥ N β values"."""
     an = ep.analysis
     betas = result.betas
     best = {}
@@ -415,23 +417,25 @@ def sweep_summary(ep, result, paths, out_dir):
         beta, se, interior = best_beta(an, betas, result.column(column), result.column(column + "_stderr"))
         best.update({f"best_beta_{key}": beta, f"best_beta_{key}_se": se, f"best_beta_{key}_interior": interior})
     best_total, best_packet = best["best_beta_energy_total"], best["best_beta_energy_per_packet"]
-    degree = FIT_DEGREE if math.isfinite(best_total) else 0
+    degree = FIT_DEGREE if best_total is not None else 0
     packets = result.column("packets_traced")
-    return {
-        "out_dir": out_dir,
-        "csv": paths["csv"],
-        "n_betas": len(result.rows),
-        "beta_min": float(betas.min()),
-        "beta_max": float(betas.max()),
-        "store": int(result.meta.get("store", 0)),
-        "seed": int(result.meta.get("seed", 0)),
-        **best,
-        "fit_degree": degree,
-        "packets_min": float(np.nanmin(packets)),
-        "packets_max": float(np.nanmax(packets)),
-        "seconds": float(np.nansum(result.column("seconds"))),
-        "plots": len(paths.get("plots", [])),
-    }
+    return ep.io.no_nan(
+        {
+            "out_dir": out_dir,
+            "csv": paths["csv"],
+            "n_betas": len(result.rows),
+            "beta_min": float(betas.min()),
+            "beta_max": float(betas.max()),
+            "store": int(result.meta.get("store", 0)),
+            "seed": int(result.meta.get("seed", 0)),
+            **best,
+            "fit_degree": degree,
+            "packets_min": float(np.nanmin(packets)),
+            "packets_max": float(np.nanmax(packets)),
+            "seconds": float(np.nansum(result.column("seconds"))),
+            "plots": len(paths.get("plots", [])),
+        }
+    )
 
 
 # --- main thread: start, finish ----------------------------------------------------
@@ -513,7 +517,8 @@ def finish_sweep(context, job):
     collections = make_beta_collections(context, job)
     images = load_plot_images(job.paths.get("plots", []))
     scene = bpy.data.scenes.get(job.inputs.scene_name) or context.scene
-    scene[SUMMARY_KEY] = dict(job.summary, images=len(images), collections=[c.name for c in collections])
+    summary = {k: v for k, v in job.summary.items() if v is not None}  # ID properties hold no None
+    scene[SUMMARY_KEY] = dict(summary, images=len(images), collections=[c.name for c in collections])
     return images
 
 

@@ -34,6 +34,11 @@ batches are independent replicas of the experiment.
 * maximum (``max_depth``): the maximum has no batch-means standard error; we
   report the per-batch maxima's mean and sd as a spread measure
   (:func:`max_depth_spread`).
+
+Undefined values: these are numeric helpers, and an undefined statistic (a ratio
+over nothing, a fit through fewer than two points) is ``nan`` here, the working
+value of numpy arithmetic.  A result the package returns turns it into ``None``
+(:func:`endophoton.io.no_nan`: the sweep rows, ``report.compute_trends``).
 """
 
 from __future__ import annotations

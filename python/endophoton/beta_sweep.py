@@ -40,7 +40,7 @@ import numpy as np
 
 from . import _core, meshes, placement
 from .analysis import DEFAULT_BATCHES
-from .io import atomic_write_text, jsonable
+from .io import atomic_write_text, check_output_files, jsonable
 from .medium import Medium
 from .paper import DISTANCE_CM, FLUOROPHORES, IMPORTANT_ANGLE_DEG, TISSUE
 from .run import run
@@ -48,7 +48,7 @@ from .scene import Scene
 from .sources import EndoscopeRig
 from .spectra import Fluorophore
 from .sweep_reduce import analyse_run, finish_relative, rig_geometry
-from .sweep_schema import CSV_COLUMNS, MAX_BETAS, VISIBILITY_COLUMNS, SweepResult, parse_betas
+from .sweep_schema import CSV_COLUMNS, MAX_BETAS, VISIBILITY_COLUMNS, SweepResult, output_file_names, parse_betas
 from .units import UNIT_CM
 
 __all__ = [
@@ -421,7 +421,7 @@ def _beta_outcome(
 
         add_visibility(full, res, beta, visibility, out_dir)
     else:
-        full.update({k: float("nan") for k in VISIBILITY_COLUMNS})
+        full.update({k: None for k in VISIBILITY_COLUMNS})  # undefined without a view
     meta.setdefault("light_positions", {})[f"{beta:g}"] = geo["light_positions"].tolist()
     meta.setdefault("camera", {})[f"{beta:g}"] = jsonable(geo["camera"])
     meta.setdefault("azimuth_reference", {})[f"{beta:g}"] = jsonable(geo["reference"])
@@ -588,8 +588,12 @@ def sweep(
 
 
 def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool = True, report: bool = True) -> dict:
-    """Write sweep.csv, sweep.json, the plots and report.md into ``out_dir``; returns the paths."""
+    """Write sweep.csv, sweep.json, the plots and report.md into ``out_dir``; returns the paths.
+    Every file's path is checked before any is written (a directory named like one of them is
+    refused by name, ValueError), so a refused write leaves the folder as it was."""
     os.makedirs(out_dir, exist_ok=True)
+    vis = bool(result.meta.get("visibility"))
+    check_output_files(out_dir, output_file_names(result.betas, visibility=vis, plots=plots, report=report))
     paths = {
         "csv": result.to_csv(os.path.join(out_dir, "sweep.csv")),
         "json": result.to_json(os.path.join(out_dir, "sweep.json")),

@@ -118,14 +118,20 @@ def _run_main(args) -> int:
 
 def _check_one_budget(args) -> None:
     """A fixed --photons count and a run to an accuracy (--quality, --target-rel-error)
-    exclude each other, as in ep.run (which also refuses --quality with a target): refused
-    by name instead of dropping --photons."""
+    exclude each other, as in ep.run (which also refuses --quality with a target), and a
+    preset's packet cap is its own: refused by name instead of dropping --photons or
+    --max-photons."""
     others = [(f, v) for f, v in (("--quality", args.quality), ("--target-rel-error", args.target_rel_error)) if v]
     if args.photons is not None and others:
         given = " and ".join(f"{f} {v}" for f, v in others)
         raise ValueError(
             f"--photons {args.photons} and {given}: a fixed count and a run to an accuracy exclude each other; "
-            "give one (--max-photons bounds a run to an accuracy)"
+            "give one (--max-photons bounds a --target-rel-error run)"
+        )
+    if args.quality and args.max_photons:
+        raise ValueError(
+            f"--quality {args.quality} brings its own packet cap; --max-photons {args.max_photons} would not change "
+            "it (--max-photons bounds a --target-rel-error run)"
         )
 
 

@@ -5,7 +5,14 @@ through :func:`atomic_write_bytes`: the data are written to a temporary file in
 the destination folder, flushed to disk and renamed over the target with
 ``os.replace``, so a reader sees either the old file or the complete new one,
 never a torn one.  JSON is strict (RFC 8259): non-finite floats become ``null``
-on the way out (:func:`jsonable`) and ``nan`` on the way back (:func:`unjson`).
+on the way out (:func:`jsonable`).
+
+An undefined result value is ``None``, never NaN (the product's rule: no NaN ever
+reaches a result).  :func:`finite_or_none` owns that rule for one number and
+:func:`no_nan` for a nested result; the files follow from it (``null`` in JSON,
+an empty cell in CSV).  numpy float arrays (histograms, per-batch values and
+plotting columns) keep NaN as their mark of an undefined entry (:func:`unjson`
+turns a JSON ``null`` back into it).
 
 This module imports nothing from the package (it is a leaf of the import graph).
 """
@@ -27,6 +34,8 @@ __all__ = [
     "write_json",
     "jsonable",
     "unjson",
+    "finite_or_none",
+    "no_nan",
     "check_keys",
     "check_int",
     "check_real",
@@ -35,6 +44,7 @@ __all__ = [
     "float_array",
     "shown",
     "check_path",
+    "check_output_files",
 ]
 
 
@@ -83,13 +93,37 @@ def jsonable(x: Any) -> Any:
     if isinstance(x, (np.integer, int)):
         return int(x)
     if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(float(x)) else None
+        return finite_or_none(x)
     return x
 
 
 def unjson(x: Any) -> Any:
-    """Inverse of :func:`jsonable` for one value: ``None`` -> nan."""
+    """A JSON value as an entry of a numpy float array: ``None`` -> nan (the arrays' mark of an
+    undefined entry; result values keep ``None``)."""
     return float("nan") if x is None else x
+
+
+def finite_or_none(x: Any) -> Any:
+    """One result value under the rule "an undefined value is None, never NaN": a float (Python
+    or numpy) as a Python float if finite, else ``None`` (NaN and +-inf alike); anything else
+    (ints, bools, strings, None) unchanged."""
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    return x
+
+
+def no_nan(x: Any) -> Any:
+    """:func:`finite_or_none` of every number of a nested result: dicts and lists are copied with
+    their values mapped, as are lists and tuples; numpy float arrays are kept as they are
+    (NaN marks an undefined entry there); numpy scalars become Python numbers."""
+    if isinstance(x, Mapping):
+        return {k: no_nan(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(no_nan(v) for v in x) if type(x) in (list, tuple) else [no_nan(v) for v in x]
+    if isinstance(x, (np.bool_, np.integer)):
+        return x.item()
+    return finite_or_none(x)
 
 
 def write_json(path: str | os.PathLike, obj: Any, indent: int | None = 1) -> str:
@@ -153,6 +187,17 @@ def check_path(name: str, v) -> str:
     if "\0" in p:
         raise ValueError(f"{name} = {v!r} contains a NUL byte")
     return p
+
+
+def check_output_files(folder: str | os.PathLike, names) -> list[str]:
+    """The paths ``folder/name`` of the files a writer is about to write, checked before it writes
+    any: a path that exists must not be a directory (``os.replace`` cannot put a file there, so the
+    writer would stop half way, leaving its new files beside old ones). ValueError naming the path."""
+    paths = [os.path.join(os.fspath(folder), n) for n in names]
+    for p in paths:
+        if os.path.isdir(p) and not os.path.islink(p):
+            raise ValueError(f"output file {p!r} is a directory: remove or rename it (nothing was written)")
+    return paths
 
 
 def check_int(name: str, v, lo: int, hi: int) -> int:

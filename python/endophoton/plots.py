@@ -21,7 +21,7 @@ from matplotlib.figure import Figure  # noqa: E402  (object API: no pyplot state
 
 from . import analysis as an  # noqa: E402
 from .io import atomic_write_bytes  # noqa: E402
-from .sweep_schema import PLOT_FILES, polar_filename  # noqa: E402
+from .sweep_schema import PLOT_FILES, polar_plots  # noqa: E402
 
 __all__ = ["plot_packets", "plot_energy", "plot_important", "plot_depth", "plot_polar", "plot_all", "PLOT_FILES"]
 
@@ -188,10 +188,6 @@ def plot_all(result: Any, out_dir: str | os.PathLike) -> list:
         plot_important(result, os.path.join(out_dir, PLOT_FILES["important"])),
         plot_depth(result, os.path.join(out_dir, PLOT_FILES["depth"])),
     ]
-    for beta in result.betas:
-        paths.append(plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta))))
-        if "counts_fixed" in result.histogram(float(beta)):
-            paths.append(
-                plot_polar(result, float(beta), os.path.join(out_dir, polar_filename(beta, "fixed")), frame="fixed")
-            )
+    for beta, frame, name in polar_plots(result):
+        paths.append(plot_polar(result, beta, os.path.join(out_dir, name), frame=frame))
     return paths

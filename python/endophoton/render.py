@@ -192,20 +192,17 @@ class View:
 
     def save(self, out_dir, prefix: str = "") -> dict:
         """Write ``white.png``, ``fluorescence.png`` (and ``aperture_*.png``) and ``view.npz`` (float arrays)
-        atomically into ``out_dir``; returns {name: path}."""
-        from .io import atomic_write_bytes
+        atomically into ``out_dir``; returns {name: path}. Every path is checked before any file is written
+        (:func:`endophoton.io.check_output_files`: ValueError naming a path that is a directory)."""
+        from .io import atomic_write_bytes, check_output_files
 
+        files = view_file_names(prefix, self.aperture is not None)
+        targets = dict(zip(files, check_output_files(out_dir, files.values())))
         os.makedirs(out_dir, exist_ok=True)
         paths = {}
-        for key in ("white", "fluorescence"):
-            paths[key] = atomic_write_bytes(
-                os.path.join(out_dir, f"{prefix}{key}.png"), _png_bytes(self.images[key]["srgb8"])
-            )
-        if self.aperture is not None:
-            for key in ("white", "fluorescence"):
-                paths["aperture_" + key] = atomic_write_bytes(
-                    os.path.join(out_dir, f"{prefix}aperture_{key}.png"), _png_bytes(self.aperture[key]["srgb8"])
-                )
+        for key in list(files)[:-1]:  # the PNGs ("arrays", the .npz, is last)
+            images = self.aperture if key.startswith("aperture_") else self.images
+            paths[key] = atomic_write_bytes(targets[key], _png_bytes(images[key.removeprefix("aperture_")]["srgb8"]))
         arrays = {
             "region_map": self.region_map,
             "depth": self.depth,
@@ -223,8 +220,17 @@ class View:
                     arrays[f"aperture_{key}_{k}"] = v
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
-        paths["arrays"] = atomic_write_bytes(os.path.join(out_dir, f"{prefix}view.npz"), buf.getvalue())
+        paths["arrays"] = atomic_write_bytes(targets["arrays"], buf.getvalue())
         return paths
+
+
+def view_file_names(prefix: str = "", aperture: bool = False) -> dict:
+    """The files :meth:`View.save` writes, {key: file name}: ``white``, ``fluorescence`` (PNG), with an
+    aperture image also ``aperture_white``, ``aperture_fluorescence``, and ``arrays`` (``view.npz``)."""
+    keys = ["white", "fluorescence"] + (["aperture_white", "aperture_fluorescence"] if aperture else [])
+    names = {k: f"{prefix}{k}.png" for k in keys}
+    names["arrays"] = f"{prefix}view.npz"
+    return names
 
 
 def _png_bytes(srgb8: np.ndarray) -> bytes:

@@ -68,7 +68,8 @@ def _check_int(name, v, lo):
 
 def render_main(args) -> int:
     from .cli_files import check_out_dir, out_dir_errors
-    from .render import check_kernel, excitation_spectrum, render_view
+    from .io import check_output_files
+    from .render import check_kernel, excitation_spectrum, render_view, view_file_names
     from .run import run
 
     for name, lo in (("photons", 1), ("seed", 0), ("threads", 0), ("width", 1), ("height", 1)):
@@ -81,9 +82,11 @@ def render_main(args) -> int:
             f"camera: SCENE.json has no 'camera' object and source.type = "
             f"{type(source).__name__} has no camera of its own"
         )
-    # before the run: the kernel's size against the scene's unit, and the output folder
+    # before the run: the kernel's size against the scene's unit, the output folder and every output file
     check_kernel(args.kernel_radius, args.kernel_angle, scene.unit_cm, names=("--kernel-radius", "--kernel-angle"))
     check_out_dir(args.out)
+    aperture = camera is not None and camera.aperture_radius > 0  # the rig's own camera is a pinhole
+    check_output_files(args.out, view_file_names("", aperture).values())
     source.spectrum = excitation_spectrum(args.excitation)
     kwargs = {k: v for k, v in defaults.items() if k != "photons"}
     photons = args.photons if args.photons is not None else int(defaults.get("photons", 1_000_000))

@@ -30,7 +30,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from . import analysis as an
-from .io import atomic_write_text
+from .io import atomic_write_text, no_nan, unjson
 from .paper import PAPER_TRENDS
 from .sweep_schema import PLOT_FILES, polar_filename
 
@@ -117,7 +117,14 @@ def _direction_verdict(value: float, se: float, paper_sign: int) -> tuple[str, f
 
 
 def compute_trends(result: Any, paper: Mapping[str, Any] = PAPER_TRENDS) -> dict:
-    """All comparison numbers of the report (dict of plain floats/lists), computed from ``result``."""
+    """All comparison numbers of the report, computed from ``result``: a dict of plain floats, lists
+    and dicts (betas and fitted peaks in degrees, depths in cm), None where a number is undefined
+    (never NaN)."""
+    return no_nan(_trends(result, paper))
+
+
+def _trends(result: Any, paper: Mapping[str, Any]) -> dict:
+    """:func:`compute_trends` with nan for an undefined number (the report's working values)."""
     b = result.betas
     n = b.size
     t: dict = {"betas": b.tolist(), "n_beta": n}
@@ -203,7 +210,7 @@ def compute_trends(result: Any, paper: Mapping[str, Any] = PAPER_TRENDS) -> dict
             t["uniform_beta"] = float(b[zero[0]])
             t["uniform_records"] = float(np.asarray(h["counts"]).sum())
             t["uniform_p" + sfx] = np.asarray(h["chi2_p" + sfx], dtype=np.float64).tolist()
-            t["uniform_p_bonferroni" + sfx] = float(result.rows[zero[0]]["azimuth_chi2_p_bonferroni" + sfx])
+            t["uniform_p_bonferroni" + sfx] = float(unjson(result.rows[zero[0]]["azimuth_chi2_p_bonferroni" + sfx]))
         for part in ("low", "high"):
             name = f"azimuth_asym_{part}{sfx}"
             col = result.column(name)
@@ -234,7 +241,8 @@ def _camera_at(r: Any, t: Mapping[str, Any], beta: float) -> tuple[float, float,
     b = r.betas
     at = [i for i in range(t["n_beta"]) if abs(b[i] - beta) < 1e-9]
     if at:
-        return r.rows[at[0]]["important_fraction"], r.rows[at[0]]["important_fraction_stderr"], "measured"
+        row = r.rows[at[0]]
+        return unjson(row["important_fraction"]), unjson(row["important_fraction_stderr"]), "measured"
     src = "linear fit (extrapolated)" if beta > b.max() or beta < b.min() else "linear fit (interpolated)"
     return t["camera_fit_at_paper_last"], t["camera_fit_at_paper_last_se"], src
 
@@ -286,9 +294,9 @@ def _write_run(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any])
             f"{_pm(row['azimuth_asym_low'], row['azimuth_asym_low_stderr'], 3)} | "
             f"{_pm(row['azimuth_asym_high'], row['azimuth_asym_high_stderr'], 3)} | "
             f"{_fmt_p(row['azimuth_chi2_p_min'])} | "
-            f"{_pm(row.get('azimuth_asym_low_fixed', float('nan')), row.get('azimuth_asym_low_fixed_stderr', float('nan')), 3)} | "
-            f"{_pm(row.get('azimuth_asym_high_fixed', float('nan')), row.get('azimuth_asym_high_fixed_stderr', float('nan')), 3)} | "
-            f"{_fmt_p(row.get('azimuth_chi2_p_min_fixed', float('nan')))} |"
+            f"{_pm(row.get('azimuth_asym_low_fixed'), row.get('azimuth_asym_low_fixed_stderr'), 3)} | "
+            f"{_pm(row.get('azimuth_asym_high_fixed'), row.get('azimuth_asym_high_fixed_stderr'), 3)} | "
+            f"{_fmt_p(row.get('azimuth_chi2_p_min_fixed'))} |"
         )
     w(
         "\nasym. = mean cos(azimuth) of the exit directions in the rings below / above 45° elevation; a negative "
@@ -614,7 +622,7 @@ def write_report(
     r = sweep_result
     pt = dict(PAPER_TRENDS)
     pt.update(paper_trends or {})
-    t = compute_trends(r, pt)
+    t = _trends(r, pt)
     L: list = []
     w = L.append
     w("# EndoPhoton beta sweep: comparison with the seed paper\n")

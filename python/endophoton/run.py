@@ -178,6 +178,11 @@ def _apply_quality(a: SimpleNamespace) -> None:
     if a.photons is not None or a.store is not None or a.target is not None:
         raise ValueError(f"quality = {a.quality!r} replaces photons, store and target: give only one")
     preset = quality_preset(a.quality)
+    if a.max_photons:
+        raise ValueError(
+            f"quality = {a.quality!r} brings its own packet cap ({preset.max_photons:,}); max_photons = "
+            f"{a.max_photons!r} would not change it: bound a run to an accuracy with target= and max_photons="
+        )
     a.target, a.max_photons = preset.target, preset.max_photons
 
 

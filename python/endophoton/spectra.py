@@ -14,6 +14,7 @@ See docs/fluorescence.md for the fluorescence model and the CSV format.
 """
 
 import math
+import reprlib
 from pathlib import Path
 
 import numpy as np
@@ -382,8 +383,9 @@ class Fluorophore:
                     f"fluorophore '{name}': no eem given and no default EEM named " f"'{name}' (known: {known})"
                 ) from None
         elif not isinstance(eem, EEM):
-            raise TypeError(
-                f"fluorophore '{name}': eem must be an endophoton EEM or None, " f"got {type(eem).__name__}"
+            raise ValueError(
+                f"fluorophore '{name}': eem = {reprlib.repr(eem)} ({type(eem).__name__}) must be an "
+                "endophoton EEM or None"
             )
         self._eem = eem
 

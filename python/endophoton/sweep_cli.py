@@ -17,7 +17,8 @@ import subprocess
 
 from .analysis import DEFAULT_BATCHES
 from .beta_sweep import default_flat_scene, sweep, write_outputs
-from .sweep_schema import parse_betas
+from .io import check_output_files
+from .sweep_schema import output_file_names, parse_betas
 
 __all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", "scheduler_client"]
 
@@ -215,6 +216,7 @@ def sweep_main(args: argparse.Namespace) -> int:
     scene = default_flat_scene(polyp=polyp)
     kwargs = sweep_kwargs(args)
     check_out_dir(args.out)
+    check_output_files(args.out, output_file_names(args.betas, visibility=bool(kwargs.get("visibility"))))
     with scheduler_client(args) as client:
         res = sweep(scene, client=client, **kwargs)
     res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"

@@ -8,12 +8,12 @@ CSV row, the exit-direction histograms and the per-batch values, all through
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from . import analysis as an
+from .io import finite_or_none, no_nan
 from .paper import IMPORTANT_ANGLE_DEG
 from .units import unit_cm
 
@@ -117,7 +117,9 @@ def analyse_run(
     ``packets_traced`` is P for the batch means (packets 0..P-1 were traced).
     The exit-direction histogram is made in the light frame (azimuth 0 toward
     the record's light) and, if ``reference`` (world direction) is given, in the
-    fixed frame too (``*_fixed`` keys; without it they are nan).
+    fixed frame too (``*_fixed`` keys; without it they are None).  An undefined value is
+    ``None``, never NaN (:func:`endophoton.io.no_nan`): e.g. the chi-square p-values when no ring
+    holds records, ``packets_traced_stderr`` when no record was stored per packet.
     """
     K = int(np.asarray(escapes["packet"]).shape[0]) if "packet" in escapes else 0
     if K == 0:
@@ -143,14 +145,14 @@ def analyse_run(
         a_high_b = an.azimuth_asymmetry(hb, high)
         pvals = an.azimuthal_uniformity_test(counts)
         finite_p = pvals[np.isfinite(pvals)]
-        pmin = float(finite_p.min()) if finite_p.size else float("nan")
+        pmin = float(finite_p.min()) if finite_p.size else None
         vals = {
             "azimuth_asym_low": an.azimuth_asymmetry(counts, low),
             "azimuth_asym_low_stderr": an.batch_se(a_low_b),
             "azimuth_asym_high": an.azimuth_asymmetry(counts, high),
             "azimuth_asym_high_stderr": an.batch_se(a_high_b),
             "azimuth_chi2_p_min": pmin,
-            "azimuth_chi2_p_bonferroni": min(1.0, pmin * finite_p.size) if finite_p.size else float("nan"),
+            "azimuth_chi2_p_bonferroni": min(1.0, pmin * finite_p.size) if finite_p.size else None,
         }
         return (
             vals,
@@ -166,7 +168,7 @@ def analyse_run(
     row = {
         "records": K,
         "packets_traced": P,
-        "packets_traced_stderr": P * rate_se / rate if rate > 0 else float("nan"),
+        "packets_traced_stderr": P * rate_se / rate if rate > 0 else None,
         "record_rate": rate,
         "record_rate_stderr": rate_se,
         "energy_per_packet": epp,
@@ -200,8 +202,8 @@ def analyse_run(
         hist.update({k + "_fixed": v for k, v in hist_f.items()})
         batches.update({k + "_fixed": v for k, v in fb_f.items()})
     else:
-        row.update({_fixed_name(k): float("nan") for k in vals})
-    return row, hist, batches
+        row.update({_fixed_name(k): None for k in vals})
+    return no_nan(row), hist, batches
 
 
 def _fixed_name(key: str) -> str:
@@ -210,12 +212,13 @@ def _fixed_name(key: str) -> str:
 
 
 def finish_relative(rows: list) -> None:
-    """Fill the *_rel columns (value / max over the sweep)."""
+    """Fill the *_rel columns (value / max over the sweep); None where the value is undefined
+    or the maximum is not a positive finite number (e.g. every value 0)."""
     for name in ("energy_per_packet", "energy_total"):
-        vals = np.array([r[name] for r in rows], dtype=np.float64)
+        vals = np.array([r[name] for r in rows], dtype=np.float64)  # None -> nan
         finite = vals[np.isfinite(vals)]
-        mx = float(finite.max()) if finite.size else float("nan")
+        mx = float(finite.max()) if finite.size else 0.0
         for r in rows:
-            ok = math.isfinite(mx) and mx > 0
-            r[name + "_rel"] = r[name] / mx if ok else float("nan")
-            r[name + "_rel_stderr"] = r[name + "_stderr"] / mx if ok else float("nan")
+            for suffix in ("", "_stderr"):
+                v = r[name + suffix]
+                r[name + "_rel" + suffix] = finite_or_none(v / mx) if mx > 0 and v is not None else None

@@ -27,6 +27,9 @@ __all__ = [
     "parse_betas",
     "MAX_BETAS",
     "polar_filename",
+    "polar_plots",
+    "output_file_names",
+    "VISIBILITY_FILES",
 ]
 
 # CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
@@ -74,7 +77,7 @@ CSV_COLUMNS: dict[str, str] = {
     "cancelled": "1 if the run was cancelled (partial), else 0",
 }
 
-# Visibility columns (endophoton.view_sweep.add_visibility; nan unless the sweep ran with visibility=...).
+# Visibility columns (endophoton.view_sweep.add_visibility; None unless the sweep ran with visibility=...).
 VISIBILITY_COLUMNS = {
     "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
     "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
@@ -98,9 +101,11 @@ class SweepResult:
 
     Attributes
     ----------
-    rows : one dict per beta with the keys of :data:`CSV_COLUMNS`.
+    rows : one dict per beta with the keys of :data:`CSV_COLUMNS`; an undefined value is None,
+        never NaN (``null`` in the JSON file, an empty cell in the CSV).
     histograms : per row (same order) a dict with ``counts`` and ``stderr``
-        (n_elev x n_azim float arrays, record counts) and ``chi2_p`` (per ring).
+        (n_elev x n_azim float arrays, record counts) and ``chi2_p`` (per ring; nan for a ring
+        without records: in numpy arrays nan marks an undefined entry, ``null`` in the JSON).
     batches : per row a dict of per-batch arrays (length B) used for the
         batch-means standard errors of derived trends (``energy_per_packet``,
         ``energy_per_record``, ``important_fraction``, ``record_rate``,
@@ -119,7 +124,8 @@ class SweepResult:
         return np.array([r["beta_deg"] for r in self.rows], dtype=np.float64)
 
     def column(self, name: str) -> np.ndarray:
-        """One CSV column over beta as a float array (missing values -> nan)."""
+        """One CSV column over beta as a float array, for arithmetic and plots: a missing or undefined
+        (None) cell is nan there (the rows themselves hold None)."""
         if name not in CSV_COLUMNS:
             raise ValueError(f"column '{name}' is not a sweep column")
         return np.array([unjson(r.get(name)) for r in self.rows], dtype=np.float64)
@@ -132,7 +138,8 @@ class SweepResult:
         raise ValueError(f"beta = {beta} not in the sweep")
 
     def to_csv(self, path: str | os.PathLike) -> str:
-        """Write the rows as CSV (header = CSV_COLUMNS keys; nan as empty), atomically."""
+        """Write the rows as CSV (header = CSV_COLUMNS keys; None, or a non-finite float, as an empty
+        cell), atomically."""
         lines = [",".join(CSV_COLUMNS)]
         for r in self.rows:
             cells = []
@@ -166,12 +173,13 @@ class SweepResult:
 
     @classmethod
     def from_json(cls, path: str | os.PathLike) -> "SweepResult":
-        """Read a file written by :meth:`to_json` (arrays come back as numpy float arrays)."""
+        """Read a file written by :meth:`to_json`: a ``null`` cell of a row comes back as None, arrays as
+        numpy float arrays (``null`` -> nan)."""
         with open(path, "r", encoding="utf-8") as f:
             d = json.load(f)
         if d.get("format") != "endophoton-sweep/1":
             raise ValueError(f"{path}: format = {d.get('format')!r} is not endophoton-sweep/1")
-        rows = [{k: unjson(v) for k, v in r.items()} for r in d["rows"]]
+        rows = [dict(r) for r in d["rows"]]
         arr = (
             lambda v: np.array([[unjson(x) for x in row] for row in v], dtype=np.float64)
             if v and isinstance(v[0], list)
@@ -254,3 +262,33 @@ def polar_filename(beta: float, frame: str = "light") -> str:
     """File name of the polar plot for ``beta`` (degrees), e.g. polar_beta_05.png, polar_fixed_beta_12.5.png."""
     stem = "polar_beta_" if frame == "light" else "polar_fixed_beta_"
     return f"{stem}{beta:02.0f}.png" if float(beta).is_integer() else f"{stem}{beta:g}.png"
+
+
+#: File names of a sweep with visibility (endophoton.view_sweep): the plot and the contact sheet.
+VISIBILITY_FILES = {"plot": "visibility.png", "contact_sheet": "views_contact_sheet.png"}
+
+
+def polar_plots(result) -> list[tuple[float, str, str]]:
+    """(beta, frame, file name) of every polar plot of ``result``: the light frame for each beta,
+    the fixed frame too where the result has it."""
+    out = []
+    for beta in result.betas:
+        out.append((float(beta), "light", polar_filename(beta)))
+        if "counts_fixed" in result.histogram(float(beta)):
+            out.append((float(beta), "fixed", polar_filename(beta, "fixed")))
+    return out
+
+
+def output_file_names(betas, visibility: bool = False, plots: bool = True, report: bool = True) -> list[str]:
+    """The files endophoton.beta_sweep.write_outputs may write for a sweep over ``betas`` (degrees),
+    by name in its folder: a superset (both polar frames for every beta), so that the command line
+    can check them before the sweep runs."""
+    names = ["sweep.csv", "sweep.json"]
+    if plots:
+        names += list(PLOT_FILES.values())
+        names += [polar_filename(b, frame) for b in betas for frame in ("light", "fixed")]
+        if visibility:
+            names += list(VISIBILITY_FILES.values())
+    if report:
+        names.append("report.md")
+    return names

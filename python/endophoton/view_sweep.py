@@ -13,9 +13,10 @@ import os
 
 import numpy as np
 
+from .io import no_nan, unjson
 from .paper import PAPER_TRENDS
 from .render import render_view
-from .sweep_schema import VISIBILITY_COLUMNS
+from .sweep_schema import VISIBILITY_COLUMNS, VISIBILITY_FILES
 from .visibility import contrast, fit_peak
 
 __all__ = [
@@ -66,7 +67,9 @@ def visibility_columns(result, target: str, background: str, out_dir=None, prefi
 
 
 def _column(rows, key):
-    return np.array([np.nan if r.get(key) is None else float(r[key]) for r in rows], dtype=np.float64)
+    """Column ``key`` of ``rows`` as a float array for fits and plots: an undefined (None) cell is nan,
+    which the fit leaves out and matplotlib does not draw."""
+    return np.array([unjson(r.get(key)) for r in rows], dtype=np.float64)
 
 
 def visibility_fits(betas, rows) -> dict:
@@ -92,10 +95,11 @@ def plot_visibility(betas, rows, path) -> str:
     drawn = 0
     for (key, label), colour in zip(_SERIES, ("tab:red", "tab:purple", "tab:gray")):
         y, se = _column(rows, key), _column(rows, key + "_stderr")
-        if not np.isfinite(y).any():  # undefined at every beta (e.g. the target never in view): no series
+        ok = np.isfinite(y)  # an undefined (None) contrast is not drawn; an undefined stderr has no bar
+        if not ok.any():  # undefined at every beta (e.g. the target never in view): no series
             continue
         drawn += 1
-        ax.errorbar(b, y, yerr=np.nan_to_num(se), fmt="o", color=colour, capsize=3, label=label)
+        ax.errorbar(b[ok], y[ok], yerr=np.nan_to_num(se[ok]), fmt="o", color=colour, capsize=3, label=label)
         f = fits[key]
         if f["x_peak"] is not None:
             xs = np.linspace(*f["fit_range"], 200)
@@ -198,8 +202,8 @@ def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> 
     """Sweep hook: add the visibility columns of one beta's run to its row, saving its views to
     ``out_dir/views/beta<β>_*.png`` when ``out_dir`` is given. ``visibility`` is a mapping with ``target``,
     ``background``, optional ``images_dir`` (where the views go; default ``out_dir/views``) and optional
-    ``render_view`` keyword arguments (width, height, kernel_radius, ...). Undefined contrasts become nan,
-    the sweep's mark for an undefined cell."""
+    ``render_view`` keyword arguments (width, height, kernel_radius, ...). An undefined contrast is None,
+    the sweep's mark for an undefined cell (never NaN)."""
     vis = dict(visibility)
     try:
         target, background = vis.pop("target"), vis.pop("background")
@@ -209,7 +213,7 @@ def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> 
     if img_dir is None and out_dir is not None:
         img_dir = os.path.join(os.fspath(out_dir), "views")
     cols = visibility_columns(result, target, background, out_dir=img_dir, prefix=f"beta{float(beta):g}_", **vis)
-    row.update({k: float("nan") if v is None else v for k, v in cols.items()})  # the sweep's "undefined"
+    row.update(no_nan(cols))
     return row
 
 
@@ -217,9 +221,9 @@ def write_visibility_outputs(betas, rows, out_dir, target: str = "polyp", backgr
     """After a sweep with visibility columns: ``visibility.png`` (plot with fitted maxima),
     ``views_contact_sheet.png`` (fluorescence views across beta, if saved) and the report section
     (returned under ``"report"``; the caller appends it to report.md)."""
-    out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, "visibility.png"))}
+    out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, VISIBILITY_FILES["plot"]))}
     views = [os.path.join(out_dir, "views", f"beta{float(b):g}_fluorescence.png") for b in betas]
     if views and all(os.path.exists(p) for p in views):
-        out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, "views_contact_sheet.png"))
+        out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, VISIBILITY_FILES["contact_sheet"]))
     out["report"] = visibility_report(betas, rows, target, background)
     return out

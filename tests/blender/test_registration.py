@@ -125,6 +125,8 @@ def test_bl_info_and_manifest():
     assert tuple(int(p) for p in manifest["version"].split(".")) == info["version"]
     for key in ("id", "name", "tagline", "maintainer", "license"):
         assert manifest[key], key
+    # What the add-on does outside Blender: read the package, write grids, reach a Dask scheduler.
+    assert set(manifest["permissions"]) == {"files", "network"}
 
 
 def test_install_from_zip_in_fresh_blender(tmp_path):

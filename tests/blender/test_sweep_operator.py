@@ -9,6 +9,7 @@ import csv
 import math
 import os
 import re
+import threading
 import time
 
 import bpy
@@ -33,12 +34,26 @@ def _setup(tmp_path, betas=BETAS, store=STORE, keep_runs="OFF"):
 
 
 def _run_job(context):
-    """Start, poll like the modal timer, finish.  Returns (job, images, progress seen)."""
+    """Start, poll like the modal timer, finish.  Returns (job, images, progress seen).
+
+    The progress seen holds, besides the polls, the job's progress as each β ends, taken
+    in the worker just before the job counts that β as done: a β that ends between two
+    polls (a fast machine) is still seen while it is the current one, so no verdict
+    depends on timing."""
     job = sweep_job.prepare_job(context)
+    seen, lock = [], threading.Lock()
+    on_beta = job._on_beta
+
+    def seen_on_beta(index, n, row):
+        with lock:
+            seen.append(job.progress())
+        on_beta(index, n, row)
+
+    job._on_beta = seen_on_beta  # read by the worker's sweep call, after start()
     job.start()
-    seen = []
     while not job.wait(0.05):
-        seen.append(job.progress())
+        with lock:
+            seen.append(job.progress())
     return job, sweep_job.finish_sweep(context, job), seen
 
 
@@ -78,6 +93,7 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     assert seen and all(0.0 <= p.fraction <= 1.0 for p in seen)
     assert [p.fraction for p in seen] == sorted(p.fraction for p in seen)
     assert any(p.text().startswith("Sweep β=0° (1/2), ETA ") for p in seen)
+    assert any(p.text().startswith("Sweep β=30° (2/2), ETA ") for p in seen)
 
     # The CSV: the documented columns, one row per β, store-N records.
     with open(out / "sweep.csv", newline="", encoding="utf-8") as f:
@@ -109,7 +125,10 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     packets = [int(r["packets_traced"]) for r in rows]
     assert summary["n_betas"] == 2 and summary["images"] == len(files)
     assert (summary["packets_min"], summary["packets_max"]) == (min(packets), max(packets))
-    assert math.isnan(summary["best_beta_energy_total"])  # 2 angles: no degree-6 fit
+    # 2 angles: no degree-6 fit; undefined is None in memory (never NaN), absent from the ID property
+    assert job.summary["best_beta_energy_total"] is None and job.summary["best_beta_energy_total_se"] is None
+    assert "best_beta_energy_total" not in summary and summary["fit_degree"] == 0
+    assert not [k for k, v in job.summary.items() if isinstance(v, float) and not math.isfinite(v)]
     assert sweep_job.summary_rows(scene)[2][1].startswith(f"– (needs ≥ {sweep_job.MIN_FIT_POINTS} β values)")
     assert summary["out_dir"] == str(out)
     labels = dict(sweep_job.summary_rows(scene))
@@ -283,7 +302,7 @@ def test_best_beta_needs_enough_angles_and_has_uncertainty(ep):
     assert interior and 0.0 < beta_se < 2.0
     assert abs(beta - 25.0) < max(3 * beta_se, 0.1)
     few = slice(0, sweep_job.MIN_FIT_POINTS - 1)
-    assert math.isnan(sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few])[0])
+    assert sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few]) == (None, None, False)
 
 
 def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):

@@ -346,6 +346,56 @@ int same_gathers(const Scene& s, const std::vector<Mesh>& meshes, Float size, in
 
 }  // namespace
 
+// Steps that end within Embree's float rounding of a face, just past it or
+// just short of it (1e-13 to 1e-8 of the distance; Embree's float distance
+// errs by ~1e-7): every query applies its window to the refined double
+// distance, so the full query, the single-hit query and the cache all cross
+// the face exactly when its refined distance is within the step. (The full
+// queries once took Embree's float tfar as the window and missed ~1 in 10^5
+// of the crossings a colon_polyp step ended just past; the cache found them.)
+TEST(TriangleCache, StepsEndingAtAFaceCrossItInEveryQuery) {
+    for (const double off : {0.0, 1000.0}) {  // also far from the origin
+        Scene s(1.0, 1.0);
+        std::vector<Mesh> meshes(2);
+        box_pair(s, meshes, float(off));
+        std::mt19937_64 rng(21);
+        std::uniform_real_distribution<double> U(0, 1);
+        TriangleCache cache;
+        std::vector<Hit> full, cached;
+        int past = 0;
+        for (int k = 0; k < 4000; ++k) {
+            // A point of the top box's top face (z = off), away from its edges and diagonal.
+            const Vec3 q(off - 0.9 + 1.8 * U(rng), off - 0.9 + 0.8 * U(rng), off);
+            Vec3 d = random_unit(rng);
+            if (std::fabs(d.z) < 0.2) continue;
+            if (d.z < 0) d = d * -1.0;  // leaving the top box upward
+            const Vec3 o = q - d * (0.01 + 0.1 * U(rng));
+            const double t_face = (off - o.z) / d.z;  // the refined distance's value up to rounding
+            const double rel = std::pow(10.0, -13 + 5 * U(rng)), sign = (k % 2) ? 1.0 : -1.0;
+            const double s_end = t_face * (1 + sign * rel);
+            const double back = 4e-7 * (max_abs_component(o) + 1e-3 * s.extent());
+            ASSERT_TRUE(s.gather_triangles(o, 0.3, 4096, cache));
+            ASSERT_TRUE(cache.covers(o - d * back, o + d * s_end));
+            s.intersect_all(o, d, -back, s_end, full);
+            cache.intersect(o, d, -back, s_end, cached);
+            ASSERT_EQ(full.size(), cached.size()) << "k " << k << " rel " << rel * sign;
+            for (size_t i = 0; i < full.size(); ++i) {
+                EXPECT_EQ(full[i].t, cached[i].t);
+                EXPECT_EQ(full[i].region, cached[i].region);
+            }
+            // The refined distance decides: crossed exactly when it is within the step.
+            const bool crossed = !full.empty() && full.back().t > 0;
+            if (crossed) EXPECT_LE(full.back().t, s_end);
+            past += crossed;
+            Hit h;
+            const Scene::FirstHit f = s.intersect_first(o, d, -back, s_end, uint64_t(1), h);
+            EXPECT_EQ(f.found, crossed) << "k " << k << " rel " << rel * sign;
+            if (f.found && crossed) EXPECT_EQ(h.t, full.back().t);
+        }
+        EXPECT_GT(past, 1000);  // about half the steps end past the face
+    }
+}
+
 TEST(TriangleGrid, GatherEqualsBvhGather) {
     {
         Scene s(1.0, 1.0);

@@ -17,6 +17,7 @@ same per-comparison false-alarm probability (``chi2_limit``). Why 4.5 and not
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 
@@ -185,6 +186,26 @@ def assert_no_nan(res):
             arr = np.asarray(arr)
             if arr.dtype.kind == "f":
                 assert np.all(np.isfinite(arr)), f"escapes[{key}] holds non-finite values"
+
+
+def assert_nan_free(obj, where="result"):
+    """No NaN or inf anywhere in ``obj``, nested fields included (the product's rule: an undefined
+    value is None): dicts, lists, tuples, dataclasses (each field), numpy arrays and scalars are
+    walked; ``where`` names the path of the first offending value in the message."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        for f in dataclasses.fields(obj):
+            assert_nan_free(getattr(obj, f.name), f"{where}.{f.name}")
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            assert_nan_free(v, f"{where}[{k!r}]")
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            assert_nan_free(v, f"{where}[{i}]")
+    elif isinstance(obj, np.ndarray) and obj.dtype.kind in "fc":
+        bad = np.argwhere(~np.isfinite(obj))
+        assert bad.size == 0, f"{where}{bad[0].tolist()} is not finite"
+    elif isinstance(obj, (float, np.floating)):
+        assert math.isfinite(obj), f"{where} = {obj!r} (an undefined value must be None)"
 
 
 # ----------------------------------------------------------------------------

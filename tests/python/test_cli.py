@@ -138,6 +138,14 @@ def test_cli_photons_with_an_accuracy_run_is_refused_by_name(tmp_path, budget, n
     assert "--photons 1000" in p.stderr and named in p.stderr and "Traceback" not in p.stderr, p.stderr
 
 
+def test_cli_quality_with_max_photons_is_refused_by_name(tmp_path):
+    # A preset brings its own cap; --max-photons used to be dropped silently (1,126,912 packets traced).
+    p = _cli("run", _write(tmp_path, _base()), "--quality", "reference", "--max-photons", "5000")
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "--quality reference" in p.stderr and "--max-photons 5000" in p.stderr, p.stderr
+    assert "Traceback" not in p.stderr, p.stderr
+
+
 def test_cli_quality_with_a_target_is_refused_by_name(tmp_path):
     p = _cli("run", _write(tmp_path, _base()), "--quality", "preview", "--target-rel-error", "0.05")
     assert p.returncode == 2, (p.returncode, p.stderr)

@@ -7,7 +7,9 @@ random numbers in the same order -- fluorescence trials included -- and finds
 the same crossings. So the two must agree bit for bit: every tally, every
 standard error and every escape record, under both fluorescence rules, on the
 colon benchmark (curved walls, a polyp of higher priority with two
-fluorophores, the lumen rule, the rig head).
+fluorophores, the lumen rule, the rig head). (Up to a crossing within float
+rounding of a shared triangle edge, where the two may name different triangles:
+docs/numerics.md, "Vertices and edges"; none occurs in these runs.)
 """
 from __future__ import annotations
 

@@ -36,5 +36,7 @@ def test_presets_get_stricter_and_cost_more():
 def test_quality_excludes_other_budgets():
     with pytest.raises(ValueError, match="quality"):
         ep.run(_slab(), ep.PencilSource(), photons=100, quality="preview")
+    with pytest.raises(ValueError, match=r"quality = 'reference' brings its own packet cap .*max_photons = 5000"):
+        ep.run(_slab(), ep.PencilSource(), quality="reference", max_photons=5000)
     with pytest.raises(ValueError, match="quality = 'best'"):
         ep.run(_slab(), ep.PencilSource(), quality="best")

@@ -167,3 +167,34 @@ def test_scene_file_that_is_not_utf8_is_named(tmp_path, capsys, command):
     err = capsys.readouterr().err
     assert f"endophoton: error: scene file {str(path)!r}: not UTF-8 text (byte 0xff" in err, err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("aperture,blocked", [(False, "view.npz"), (True, "aperture_fluorescence.png")])
+def test_render_cli_refuses_an_output_path_that_is_a_directory_before_writing_any(tmp_path, aperture, blocked):
+    """A folder named like one of the outputs (the last one written) is refused with exit 2 naming it,
+    before the run: the old files stay as they were, no new one appears."""
+    out = tmp_path / "o"
+    (out / blocked).mkdir(parents=True)
+    (out / "white.png").write_bytes(b"old")
+    scene = copy.deepcopy(SCENE)
+    if aperture:
+        scene["camera"]["aperture_radius"] = 0.2
+    p = _render(tmp_path, scene, "--photons", "2000", "--width", "4", "--height", "4", "--out", str(out))
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert f"output file {str(out / blocked)!r} is a directory" in p.stderr and "Traceback" not in p.stderr
+    assert sorted(os.listdir(out)) == sorted([blocked, "white.png"]) and (out / "white.png").read_bytes() == b"old"
+
+
+def test_view_save_checks_every_path_before_writing_any(tmp_path):
+    import endophoton as ep
+
+    scene = ep.Scene(unit="cm")
+    scene.add_box("wall", min=(-3, -3, -2), max=(3, 3, 0), medium=ep.Medium(mua=1, mus=10, g=0.0, n=1.0))
+    source = ep.sources.source_from_dict(SCENE["source"])
+    res = ep.run(scene, source, photons=2000, seed=1, record_escapes=True, spectral=True, threads=1)
+    view = ep.render_view(res, SCENE["camera"], 4, 4)
+    (tmp_path / "beta5_view.npz").mkdir()
+    with pytest.raises(ValueError, match=r"output file '.*beta5_view\.npz' is a directory: remove or rename it"):
+        view.save(tmp_path, prefix="beta5_")
+    assert os.listdir(tmp_path) == ["beta5_view.npz"]
+    assert set(view.save(tmp_path, prefix="beta0_")) == {"white", "fluorescence", "arrays"}

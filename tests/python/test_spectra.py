@@ -185,8 +185,14 @@ def test_fluorophore_defaults_and_validation():
         Fluorophore("collagen", NAN, 0.4)
     with raises_exactly(ValueError, "fluorophore 'collagen': c = 'x' must be a number in [0, 1]"):
         Fluorophore("collagen", 0.2, "x")
-    with pytest.raises(TypeError, match="fluorophore 'collagen': eem must be an endophoton EEM"):
+    with raises_exactly(ValueError, "fluorophore 'collagen': eem = [1, 2, 3] (list) must be an endophoton EEM or None"):
         Fluorophore("collagen", 0.2, 0.4, eem=[1, 2, 3])
+    with raises_exactly(
+        ValueError, "fluorophore 'collagen': eem = 'collagen.csv' (str) must be an endophoton EEM or None"
+    ):
+        Fluorophore("collagen", 0.2, 0.4, eem="collagen.csv")
+    with pytest.raises(ValueError, match=r"^fluorophore 'collagen': eem = array\(.{0,30}\) \(ndarray\) must be"):
+        Fluorophore("collagen", 0.2, 0.4, eem=np.zeros(10_000))  # a long value is shown short
 
 
 def test_unknown_fluorophore_without_eem_names_it_and_lists_known():

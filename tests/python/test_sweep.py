@@ -11,6 +11,7 @@ import math
 import os
 import re
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -177,7 +178,7 @@ def test_json_round_trip(fake_result, tmp_path):
     for a, b in zip(res.rows, back.rows):
         for k in sw.CSV_COLUMNS:
             x, y = a[k], b[k]
-            assert (x == y) or (isinstance(x, float) and math.isnan(x) and math.isnan(y)), k
+            assert x == y, k  # an undefined cell is None in memory and after the round trip
     for a, b in zip(res.histograms, back.histograms):
         assert np.array_equal(a["counts"], b["counts"]) and np.allclose(a["stderr"], b["stderr"])
     p2 = back.to_json(str(tmp_path / "again.json"))
@@ -370,6 +371,40 @@ def test_sweep_cli_bad_paths_exit_2_naming_the_option(tmp_path, capsys, monkeypa
     err = capsys.readouterr().err
     assert text in err, err
     assert "Traceback" not in err and not (tmp_path / "sweep_out").exists()
+
+
+def test_sweep_outputs_are_the_files_output_file_names_lists(fake_result, tmp_path):
+    # One owner of the outputs' names: what write_outputs writes is among them.
+    res, out = fake_result
+    written = {p.name for p in Path(out).iterdir() if p.is_file()}
+    names = set(sw.output_file_names(res.betas))
+    assert {"sweep.csv", "sweep.json", "report.md", "polar_beta_20.png"} <= written <= names
+
+
+@pytest.mark.parametrize("blocked", ["report.md", "polar_beta_40.png", "sweep.json"])
+def test_sweep_outputs_refuse_a_directory_in_their_place_before_writing_any(fake_result, tmp_path, blocked):
+    """A directory named like an output (os.replace cannot put a file there) is refused by path before
+    any file is written: the folder stays as it was (it used to hold some new files, then fail)."""
+    res, _ = fake_result
+    (tmp_path / blocked).mkdir()
+    (tmp_path / "sweep.csv").write_text("old")
+    with pytest.raises(ValueError, match=re.escape(f"output file {str(tmp_path / blocked)!r} is a directory")):
+        sw.write_outputs(res, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({blocked, "sweep.csv"})
+    assert (tmp_path / "sweep.csv").read_text() == "old"
+
+
+def test_sweep_cli_refuses_a_directory_in_an_outputs_place_before_the_sweep(tmp_path, capsys, monkeypatch):
+    from endophoton.cli import main as cli_main
+
+    def no_sweep(*a, **k):
+        raise AssertionError("the sweep started")
+
+    monkeypatch.setattr(sweep_cli, "sweep", no_sweep)
+    (tmp_path / "polar_fixed_beta_30.png").mkdir()
+    assert cli_main(["sweep", "--betas", "0,30", "--no-progress", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "polar_fixed_beta_30.png' is a directory" in err and "Traceback" not in err, err
 
 
 def test_sweep_api_betas_are_capped_and_may_be_a_spec_string():
@@ -760,7 +795,7 @@ def _synthetic_result(rng, B=20):
     sw.finish_relative(rows)
     for r in rows:
         for k in sw.CSV_COLUMNS:
-            r.setdefault(k, float("nan"))
+            r.setdefault(k, None)
     return sw.SweepResult(
         rows=rows,
         histograms=hists,

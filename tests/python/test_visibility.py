@@ -117,7 +117,7 @@ def test_sweep_with_visibility_writes_columns_views_plot_sheet_and_answer(tmp_pa
 
 def test_sweep_without_visibility_leaves_the_columns_undefined():
     res = ep.sweep(ep.default_flat_scene(), betas=[0], store=500, progress=False)
-    assert all(math.isnan(res.rows[0][k]) for k in VISIBILITY_COLUMNS)
+    assert all(res.rows[0][k] is None for k in VISIBILITY_COLUMNS)  # undefined is None, never NaN
 
 
 def test_sweep_cli_target_needs_background(tmp_path):
