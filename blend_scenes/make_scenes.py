@@ -216,7 +216,7 @@ def make_flat_tissue():
 def make_colon_polyp():
     scene, export, meshutil, rig = _fresh_scene()
     coll = scene.collection
-    length, radius, fold_depth, period, wall = 0.08, 0.025, 4 * MM, 0.02, 3 * MM
+    length, radius, fold_depth, period, wall = 0.08, 0.025, 3 * MM, 0.02, 3 * MM
     colon = _add_object(
         meshutil,
         "Colon",

@@ -180,3 +180,16 @@ def test_scene_opens_framed_in_mm(name):
         assert 0.5 * size <= space.region_3d.view_distance <= 5 * size
     camera = [o for o in bpy.data.objects if o.type == "CAMERA"][0]
     assert camera.data.display_size == pytest.approx(0.012, rel=1e-3)
+
+
+def test_colon_polyp_head_stays_in_the_lumen_over_the_default_sweep():
+    """The default sweep's last angle, 55 deg, keeps the 12 mm head's face clear of the haustral
+    fold beside the polyp (the folds are 3 mm deep; at 4 mm the face met the fold at 55 deg and the
+    main job's colon sweep was refused), and 60 deg is refused by name: the face reaches the fold."""
+    from endophoton_addon import sweep_blend
+
+    scene = _open(os.path.join(BLEND_DIR, "colon_polyp.blend"))
+    res = sweep_blend.sweep_blend(scene, betas=[55], store=50, seed=1, threads=1, progress=False)
+    assert [r["beta_deg"] for r in res.rows] == [55.0] and res.rows[0]["records"] == 50
+    with pytest.raises(ValueError, match=r"rig\.beta_deg = 60 the endoscope head enters the tissue.*'Colon'"):
+        sweep_blend.sweep_blend(scene, betas=[60], store=50, seed=1, threads=1, progress=False)
