@@ -25,6 +25,7 @@ Verdict rules (stated in the report):
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -124,7 +125,16 @@ def compute_trends(result: Any, paper: Mapping[str, Any] = PAPER_TRENDS) -> dict
 
 
 def _trends(result: Any, paper: Mapping[str, Any]) -> dict:
-    """:func:`compute_trends` with nan for an undefined number (the report's working values)."""
+    """:func:`compute_trends` with nan for an undefined number (the report's working values). A batch
+    without records (a small store split into many batches) makes some numbers undefined: numpy's
+    warnings about them are silenced, as those numbers are nan here and None or "n/a" outside."""
+    with np.errstate(divide="ignore", invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # nanmax/nanmean of all-nan batches
+        return _trend_values(result, paper)
+
+
+def _trend_values(result: Any, paper: Mapping[str, Any]) -> dict:
+    """The body of :func:`_trends`."""
     b = result.betas
     n = b.size
     t: dict = {"betas": b.tolist(), "n_beta": n}

@@ -822,3 +822,19 @@ def test_report_recovers_known_trends(tmp_path):
     assert "fitted peak vs 34°: **consistent**" in text
     assert "shift toward 180°: **agrees**" in text
     assert "so the fit degree is" not in text  # 12 angles: full degree-6 fit, no reduced-degree note
+
+
+def test_a_tiny_store_writes_its_report_without_numpy_warnings(tmp_path):
+    """store = 40 in 20 batches leaves batches without records: their numbers are undefined ("n/a" in
+    report.md, None in compute_trends), and numpy's warnings about them no longer reach the user."""
+    import warnings
+
+    from endophoton.report import compute_trends
+
+    res = sw.sweep(sw.default_flat_scene(), betas=[0, 30], store=40, seed=1, progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        paths = sw.write_outputs(res, tmp_path)
+        trends = compute_trends(res)
+    assert "n/a" in Path(paths["report"]).read_text(encoding="utf-8")
+    assert trends["energy_total_peak"] is None or math.isfinite(trends["energy_total_peak"])
