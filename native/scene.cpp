@@ -574,7 +574,7 @@ Scene::FirstHit Scene::first_crossing(const Vec3& o, const Vec3& d, Float tnear,
     const Vec3 a = vert(tri[0]), b = vert(tri[1]), c = vert(tri[2]);
     const Vec3& n = regions_[region].normals[prim];
     const Float cos_dn = dot(d, n);  // != 0: first_filter rejects grazing hits
-    const Float t = dot(a - org, n) / cos_dn;
+    const Float t = plane_distance(vertices_, triangles_, n, region, prim, org, cos_dn);
     hit = Hit{t - back, region, prim, cos_dn};
     // Clearance: how far the crossing point is from T's edges (where the
     // neighbour triangle would be hit too) and from every other region's

@@ -114,9 +114,9 @@ def finite_or_none(x: Any) -> Any:
 
 
 def no_nan(x: Any) -> Any:
-    """:func:`finite_or_none` of every number of a nested result: dicts and lists are copied with
-    their values mapped, as are lists and tuples; numpy float arrays are kept as they are
-    (NaN marks an undefined entry there); numpy scalars become Python numbers."""
+    """:func:`finite_or_none` of every number of a nested result: mappings, lists and tuples are
+    copied with their values mapped; numpy float arrays are kept as they are (NaN marks an
+    undefined entry there); numpy scalars become Python numbers."""
     if isinstance(x, Mapping):
         return {k: no_nan(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):

@@ -200,7 +200,7 @@ class View:
         targets = dict(zip(files, check_output_files(out_dir, files.values())))
         os.makedirs(out_dir, exist_ok=True)
         paths = {}
-        for key in list(files)[:-1]:  # the PNGs ("arrays", the .npz, is last)
+        for key in (k for k in files if k != "arrays"):  # the PNGs (the .npz follows)
             images = self.aperture if key.startswith("aperture_") else self.images
             paths[key] = atomic_write_bytes(targets[key], _png_bytes(images[key.removeprefix("aperture_")]["srgb8"]))
         arrays = {
