@@ -233,3 +233,29 @@ TEST(CellCache, StoreStopsGrowingAtItsBudget) {
     }
     EXPECT_EQ(none.s.cache_store_bytes(), 0u);
 }
+
+// The store grows by small chunks while it is small (a small scene's store
+// stays small) and by huge pages once it holds one (Scene::store_block).
+TEST(CellCache, StoreGrowsBySmallChunksThenByHugePages) {
+    Scenery sc;
+    const double side = sc.s.grid().cell_size() / Scene::kCellSplit;
+    size_t last = 0, small_steps = 0, huge_steps = 0;
+    // Every cube's centre, one after the other: ~27k cubes.
+    for (double z = -2.05 + side / 2; z < 0.05; z += side)
+        for (double y = -1.05 + side / 2; y < 1.05; y += side)
+            for (double x = -1.05 + side / 2; x < 1.05; x += side) {
+                sc.s.cell_cache(Vec3(x, y, z));
+                const size_t now = sc.s.cache_store_bytes();
+                if (now == last) continue;
+                if (last < Scene::kHugePage) {
+                    EXPECT_EQ(now - last, Scene::kStoreSmallChunk) << "at " << last << " bytes";
+                    ++small_steps;
+                } else {
+                    EXPECT_EQ(now - last, Scene::kHugePage) << "at " << last << " bytes";
+                    ++huge_steps;
+                }
+                last = now;
+            }
+    EXPECT_EQ(small_steps, Scene::kHugePage / Scene::kStoreSmallChunk);
+    EXPECT_GE(huge_steps, 1u);  // the test has teeth: the store grew past a huge page
+}
