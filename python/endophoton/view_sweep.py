@@ -99,11 +99,14 @@ def plot_visibility(betas, rows, path) -> str:
         if not ok.any():  # undefined at every beta (e.g. the target never in view): no series
             continue
         drawn += 1
-        ax.errorbar(b[ok], y[ok], yerr=np.nan_to_num(se[ok]), fmt="o", color=colour, capsize=3, label=label)
         f = fits[key]
+        if f["x_peak"] is not None and not _varies(f):  # flat within its errors: no maximum to mark
+            label += f" (no dependence on β, {_p_text(f['flat_p'])})"
+        ax.errorbar(b[ok], y[ok], yerr=np.nan_to_num(se[ok]), fmt="o", color=colour, capsize=3, label=label)
         if f["x_peak"] is not None:
             xs = np.linspace(*f["fit_range"], 200)
             ax.plot(xs, np.polyval(f["coeffs"], xs), "-", color=colour, lw=1)
+        if f["x_peak"] is not None and f["vertex"] and _varies(f):
             ax.axvspan(f["x_peak"] - f["x_peak_stderr"], f["x_peak"] + f["x_peak_stderr"], color=colour, alpha=0.12)
             ax.axvline(f["x_peak"], color=colour, ls=":", lw=1)
     if not drawn:
@@ -151,10 +154,80 @@ def _fmt(v, digits=1):
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
+_CRITERIA = (
+    ("red_green_contrast", "red/green contrast"),
+    ("fluorescence_contrast", "fluorescence Weber contrast"),
+    ("white_contrast", "white-light Weber contrast"),
+)
+
+
+def _varies(f) -> bool:
+    """True when the contrast depends on beta beyond its standard errors: the chi-square test of one
+    value for every beta (``fit_peak``'s ``flat_p``) rejects it at the report's level ``ALPHA``."""
+    from .report import ALPHA
+
+    return f["flat_p"] is not None and f["flat_p"] < ALPHA
+
+
+def _p_text(p: float) -> str:
+    """A p-value as text ("p = 0.67"; one below the smallest double, "p < 1e-300")."""
+    return f"p = {p:.2g}" if p > 0 else "p < 1e-300"
+
+
+def _flat_words(f) -> str:
+    return f"χ² = {f['flat_chi2']:.1f}, {f['flat_dof']} degrees of freedom, {_p_text(f['flat_p'])}"
+
+
+def _peak_sentence(f, label: str) -> str:
+    """Where a contrast that varies with beta is largest, with the fit's verdict against 34 deg."""
+    if not f["vertex"]:
+        where = (
+            "an end of the swept range, so the true maximum may lie outside it"
+            if not f["interior"]
+            else (
+                "an end of the five points fitted around its largest value, whose parabola has no maximum "
+                "inside them: no β of maximum is fitted"
+            )
+        )
+        return f"The {label} varies with β ({_flat_words(f)}) and is largest at β = {f['x_peak']:.1f}°, {where}."
+    z = (f["x_peak"] - PAPER_BETA_DEG) / f["x_peak_stderr"] if f["x_peak_stderr"] else float("inf")
+    verdict = "consistent with" if abs(z) <= 2 else "different from"
+    return (
+        f"By the {label}, the polyp is most visible at β = {f['x_peak']:.1f}° ± {f['x_peak_stderr']:.1f}° "
+        f"(68 % range {f['x_peak_lo']:.1f}–{f['x_peak_hi']:.1f}°; the contrast varies with β, {_flat_words(f)}). "
+        f"The paper's 34° is {abs(z):.1f} σ away: {verdict} it."
+    )
+
+
+def _answer(fits) -> str:
+    """The report's answer: from the red/green contrast when it varies with beta; else it says so,
+    and the other criteria that do vary answer in its place."""
+    from .report import ALPHA
+
+    rg = fits["red_green_contrast"]
+    if rg["x_peak"] is None:
+        return "Too few β values with a defined red/green contrast to locate a maximum."
+    label = "red/green contrast (photofrin's red fluorescence against the wall)"
+    if _varies(rg):
+        return "**Answer.** " + _peak_sentence(rg, label)
+    text = (
+        f"**Answer.** By the {label}, no β makes the polyp more visible than another: the contrast does "
+        f"not vary with β beyond its standard errors ({_flat_words(rg)} ≥ {ALPHA:g}), so its largest "
+        f"value, at β = {rg['x_max']:g}°, is noise, and it can neither confirm nor rule out the "
+        "paper's 34°."
+    )
+    for key, other in _CRITERIA[1:]:
+        f = fits[key]
+        if f["x_peak"] is not None and _varies(f):
+            text += " " + _peak_sentence(f, other)
+    return text
+
+
 def visibility_report(betas, rows, target: str = "polyp", background: str = "wall") -> str:
     """Markdown section answering the paper's question from the visibility columns."""
+    from .report import ALPHA
+
     fits = visibility_fits(betas, rows)
-    rg = fits["red_green_contrast"]
     lines = [
         "## At which β is the polyp most visible?",
         "",
@@ -163,38 +236,22 @@ def visibility_report(betas, rows, target: str = "polyp", background: str = "wal
         "the red/green ratio contrast of the fluorescence image, each with a jackknife standard error "
         "over packet batches. The maximum is the vertex of a weighted parabola through the five points "
         "around the largest value; its uncertainty comes from a parametric bootstrap of the points "
-        "within their standard errors (`visibility.fit_peak`).",
+        "within their standard errors (`visibility.fit_peak`). Whether a contrast depends on β at all "
+        "is the chi-square test of one value for every β (the runs are independent); at p ≥ "
+        f"{ALPHA:g} its largest value is not a maximum but noise.",
         "",
-        "| criterion | β at maximum | ± stderr | 68 % range | inside the swept range |",
-        "|---|---|---|---|---|",
+        "| criterion | β at maximum | ± stderr | 68 % range | fitted maximum | inside the swept range | varies with β (p) |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for key, label in (
-        ("red_green_contrast", "red/green contrast"),
-        ("fluorescence_contrast", "fluorescence Weber contrast"),
-        ("white_contrast", "white-light Weber contrast"),
-    ):
+    for key, label in _CRITERIA:
         f = fits[key]
+        varies = "n/a" if f["flat_p"] is None else f"{'yes' if _varies(f) else 'no'} ({_p_text(f['flat_p'])})"
         lines.append(
             f"| {label} | {_fmt(f['x_peak'])}° | {_fmt(f['x_peak_stderr'])}° | "
-            f"{_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {'yes' if f['interior'] else 'no'} |"
+            f"{_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {'yes' if f['vertex'] else 'no'} | "
+            f"{'yes' if f['interior'] else 'no'} | {varies} |"
         )
-    lines.append("")
-    if rg["x_peak"] is None:
-        lines.append("Too few β values with a defined red/green contrast to locate a maximum.")
-    else:
-        z = (rg["x_peak"] - PAPER_BETA_DEG) / rg["x_peak_stderr"] if rg["x_peak_stderr"] else float("inf")
-        verdict = "consistent with" if abs(z) <= 2 else "different from"
-        edge = (
-            ""
-            if rg["interior"]
-            else (" The maximum lies at an end of the swept range, so the true " "maximum may lie outside it.")
-        )
-        lines.append(
-            f"**Answer.** By the red/green contrast (photofrin's red fluorescence against the wall), the "
-            f"polyp is most visible at β = {rg['x_peak']:.1f}° ± {rg['x_peak_stderr']:.1f}° (68 % range "
-            f"{rg['x_peak_lo']:.1f}–{rg['x_peak_hi']:.1f}°). The paper's 34° is {abs(z):.1f} σ away: "
-            f"{verdict} it.{edge}"
-        )
+    lines += ["", _answer(fits)]
     return "\n".join(lines) + "\n"
 
 

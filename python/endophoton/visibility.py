@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from .analysis import chi2_sf
+
 __all__ = ["jackknife", "weber", "contrast", "fit_peak"]
 
 
@@ -97,7 +99,14 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     parametric bootstrap: y is redrawn from N(y, stderr) ``n_boot`` times (fixed ``seed``, so the
     answer is reproducible) and the fit repeated; ``x_peak_stderr`` is the sd of the bootstrap peaks and
     ``x_peak_lo``/``x_peak_hi`` their 16th/84th percentiles. ``interior`` tells whether the peak lies
-    strictly inside the swept range (else the maximum may lie outside it).
+    strictly inside the swept range (else the maximum may lie outside it); ``vertex`` whether it is
+    the parabola's maximum (False: the parabola has none inside the fitted points, and ``x_peak`` is
+    merely the better end of them). ``x_max`` is the x of the largest point.
+
+    Whether y depends on x at all: ``flat_chi2`` is the chi-square of every point about their
+    weighted mean, ``flat_dof`` = n - 1 and ``flat_p`` its p-value. The points come from independent
+    runs, so with no dependence on x (one true value) the chi-square has n - 1 degrees of freedom; a
+    large ``flat_p`` means the largest value is not a maximum but noise, whatever the fit gives.
     """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
@@ -107,13 +116,18 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     if x.size < 3:
         return {
             "x_peak": None,
+            "x_max": None,
             "x_peak_stderr": None,
             "x_peak_lo": None,
             "x_peak_hi": None,
             "y_peak": None,
             "interior": False,
+            "vertex": False,
             "coeffs": [],
             "n": int(x.size),
+            "flat_chi2": None,
+            "flat_dof": None,
+            "flat_p": None,
         }
     order = np.argsort(x)
     x, y, se = x[order], y[order], se[order]
@@ -126,21 +140,28 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
         if c[0] < 0:
             v = -c[1] / (2 * c[0])
             if xs[0] < v < xs[-1]:
-                return float(v), c
+                return float(v), c, True
         grid = np.array([xs[0], xs[-1]])
-        return float(grid[np.argmax(np.polyval(c, grid))]), c
+        return float(grid[np.argmax(np.polyval(c, grid))]), c, False
 
-    x0, c0 = peak(ys)
+    x0, c0, vertex = peak(ys)
     rng = np.random.default_rng(seed)
     boots = np.array([peak(ys + rng.standard_normal(ys.size) * ss)[0] for _ in range(int(n_boot))])
+    w = 1.0 / se**2
+    flat_chi2 = float(np.sum(((y - np.sum(w * y) / np.sum(w)) / se) ** 2))
     return {
         "x_peak": x0,
+        "x_max": float(x[k]),
         "x_peak_stderr": float(np.std(boots, ddof=1)),
         "x_peak_lo": float(np.percentile(boots, 16)),
         "x_peak_hi": float(np.percentile(boots, 84)),
         "y_peak": float(np.polyval(c0, x0)),
         "interior": bool(x[0] < x0 < x[-1]),
+        "vertex": vertex,
         "coeffs": [float(v) for v in c0],
         "fit_range": [float(xs[0]), float(xs[-1])],
         "n": int(x.size),
+        "flat_chi2": flat_chi2,
+        "flat_dof": int(x.size) - 1,
+        "flat_p": chi2_sf(flat_chi2, int(x.size) - 1),
     }

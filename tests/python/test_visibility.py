@@ -48,6 +48,76 @@ def test_fit_peak_at_the_end_of_a_monotone_range_is_not_interior():
     assert fit_peak([0, 1], [1, 2], [0.1, 0.1])["x_peak"] is None
 
 
+def test_fit_peak_without_a_maximum_in_its_window_is_no_vertex():
+    # The largest point (30) is inside the sweep, but the parabola through 20..40 opens upward: the
+    # fit has no maximum there, so x_peak is only the better end of the window.
+    x = np.arange(0.0, 60.0, 5.0)
+    y = np.zeros(x.size)
+    y[4:9] = [0.9, 0.5, 1.0, 0.5, 0.95]
+    f = fit_peak(x, y, np.full(x.size, 0.01), n_boot=50)
+    assert f["x_max"] == 30.0 and f["x_peak"] in (20.0, 40.0)
+    assert f["interior"] and not f["vertex"]
+    assert fit_peak(x, 1.0 - (x - 31.0) ** 2 / 900.0, np.full(x.size, 0.02), n_boot=50)["vertex"]
+
+
+def test_fit_peak_flatness_p_value_against_scipy_and_its_calibration():
+    from scipy import stats
+
+    x = np.arange(0.0, 60.0, 5.0)
+    se = np.linspace(0.1, 0.3, x.size)
+    rng = np.random.default_rng(11)
+    y = 0.6 + rng.standard_normal(x.size) * se
+    f = fit_peak(x, y, se, n_boot=50)
+    mean = np.average(y, weights=se**-2)  # the weighted mean, by numpy's own weighting
+    chi2 = float(np.sum((y - mean) ** 2 / se**2))
+    assert f["flat_dof"] == x.size - 1 and f["flat_chi2"] == pytest.approx(chi2, rel=1e-12)
+    assert f["flat_p"] == pytest.approx(stats.chi2.sf(chi2, x.size - 1), rel=1e-9)
+    # With no dependence on beta the p-value is uniform: 2,000 sweeps, rejections at 1 % and 50 %
+    # within 4 binomial sigma of 20 and 1,000 (seeded, so the verdict is fixed).
+    p = np.array([fit_peak(x, 0.6 + rng.standard_normal(x.size) * se, se, n_boot=2)["flat_p"] for _ in range(2000)])
+    for level in (0.01, 0.5):
+        expected, sd = 2000 * level, math.sqrt(2000 * level * (1 - level))
+        assert abs(int(np.sum(p < level)) - expected) < 4 * sd, level
+    # A contrast that does depend on beta is found to: a parabola 10 stderr deep.
+    assert fit_peak(x, 1.0 - (x - 31.0) ** 2 / 900.0 * 3.0, np.full(x.size, 0.1), n_boot=50)["flat_p"] < 1e-6
+
+
+def _contrast_rows(x, series):
+    """Visibility rows from {column: (values, stderrs)}."""
+    rows = [{} for _ in x]
+    for key, (y, se) in series.items():
+        for row, v, s in zip(rows, y, se):
+            row[key], row[key + "_stderr"] = float(v), float(s)
+    return rows
+
+
+def test_visibility_report_answers_only_from_contrasts_that_vary_with_beta():
+    x = np.arange(0.0, 60.0, 5.0)
+    rng = np.random.default_rng(5)
+    flat = (0.6 + rng.standard_normal(x.size) * 0.05, np.full(x.size, 0.2))  # noise well inside its errors
+    peaked = (20.0 - (x - 20.0) ** 2 / 40.0, np.full(x.size, 0.5))  # a maximum at 20 deg
+    rows = _contrast_rows(x, {"red_green_contrast": flat, "fluorescence_contrast": peaked, "white_contrast": peaked})
+    answer = visibility_report(x, rows).split("**Answer.**")[1]
+    assert "no β makes the polyp more visible than another" in answer
+    assert f"at β = {x[np.argmax(flat[0])]:g}°, is noise" in answer
+    assert "By the fluorescence Weber contrast, the polyp is most visible at β = 20.0°" in answer
+    # The red/green contrast itself peaked: it answers, and alone.
+    rows = _contrast_rows(x, {"red_green_contrast": peaked, "fluorescence_contrast": flat, "white_contrast": flat})
+    text = visibility_report(x, rows)
+    assert "| red/green contrast | 20.0° |" in text and "| yes | yes | yes (p " in text
+    answer = text.split("**Answer.**")[1]
+    assert (
+        "By the red/green contrast (photofrin's red fluorescence against the wall), the polyp is most visible at β = 20.0°"
+        in answer
+    )
+    assert "no β makes" not in answer and "Weber" not in answer
+    # Rising to the end of the sweep: largest at its end, no maximum claimed.
+    rising = (0.1 * x, np.full(x.size, 0.1))
+    rows = _contrast_rows(x, {"red_green_contrast": rising, "fluorescence_contrast": flat, "white_contrast": flat})
+    answer = visibility_report(x, rows).split("**Answer.**")[1]
+    assert "largest at β = 55.0°, an end of the swept range" in answer and "most visible at" not in answer
+
+
 def test_jackknife_of_a_mean_equals_batch_means():
     rng = np.random.default_rng(3)
     sums = rng.normal(10.0, 1.0, 20)
