@@ -97,8 +97,9 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     value (all points if fewer) gives the peak: its vertex if the parabola opens downward and the
     vertex lies inside the fitted range, else the best end of the range. The uncertainty is a
     parametric bootstrap: y is redrawn from N(y, stderr) ``n_boot`` times (fixed ``seed``, so the
-    answer is reproducible) and the fit repeated; ``x_peak_stderr`` is the sd of the bootstrap peaks and
-    ``x_peak_lo``/``x_peak_hi`` their 16th/84th percentiles. ``interior`` tells whether the peak lies
+    answer is reproducible) and the whole fit repeated, the choice of the five points included;
+    ``x_peak_stderr`` is the sd of the bootstrap peaks and ``x_peak_lo``/``x_peak_hi`` their
+    16th/84th percentiles. ``interior`` tells whether the peak lies
     strictly inside the swept range (else the maximum may lie outside it); ``vertex`` whether it is
     the parabola's maximum (False: the parabola has none inside the fitted points, and ``x_peak`` is
     merely the better end of them). ``x_max`` is the x of the largest point.
@@ -132,21 +133,24 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     order = np.argsort(x)
     x, y, se = x[order], y[order], se[order]
     k = int(np.argmax(y))
-    lo, hi = max(0, min(k - 2, x.size - 5)), min(x.size, max(k + 3, 5))
-    xs, ys, ss = x[lo:hi], y[lo:hi], se[lo:hi]
 
     def peak(yy):
-        c = np.polyfit(xs, yy, 2, w=1.0 / ss)
+        # The five points around the largest value of yy: chosen again for every bootstrap draw, so
+        # that a rival point nearly as large elsewhere in the sweep widens the peak's spread.
+        j = int(np.argmax(yy))
+        lo, hi = max(0, min(j - 2, x.size - 5)), min(x.size, max(j + 3, 5))
+        xs = x[lo:hi]
+        c = np.polyfit(xs, yy[lo:hi], 2, w=1.0 / se[lo:hi])
         if c[0] < 0:
             v = -c[1] / (2 * c[0])
             if xs[0] < v < xs[-1]:
-                return float(v), c, True
+                return float(v), c, True, xs
         grid = np.array([xs[0], xs[-1]])
-        return float(grid[np.argmax(np.polyval(c, grid))]), c, False
+        return float(grid[np.argmax(np.polyval(c, grid))]), c, False, xs
 
-    x0, c0, vertex = peak(ys)
+    x0, c0, vertex, xs = peak(y)
     rng = np.random.default_rng(seed)
-    boots = np.array([peak(ys + rng.standard_normal(ys.size) * ss)[0] for _ in range(int(n_boot))])
+    boots = np.array([peak(y + rng.standard_normal(y.size) * se)[0] for _ in range(int(n_boot))])
     w = 1.0 / se**2
     flat_chi2 = float(np.sum(((y - np.sum(w * y) / np.sum(w)) / se) ** 2))
     return {

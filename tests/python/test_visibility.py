@@ -32,7 +32,9 @@ def _delta_method_vertex_se(x, se, coeffs):
 def test_fit_peak_finds_the_vertex_and_its_uncertainty():
     x = np.arange(0.0, 60.0, 5.0)
     y_true = 1.0 - (x - 31.0) ** 2 / 900.0
-    se = np.full(x.size, 0.02)
+    # The largest point (30) beats the next (35) by 8.5 stderr, so the bootstrap draws keep its five
+    # points, and the delta method of that one window is the reference.
+    se = np.full(x.size, 0.002)
     f = fit_peak(x, y_true, se)
     assert f["x_peak"] == pytest.approx(31.0, abs=1e-6) and f["interior"]
     window = (x >= f["fit_range"][0]) & (x <= f["fit_range"][1])
@@ -58,6 +60,18 @@ def test_fit_peak_without_a_maximum_in_its_window_is_no_vertex():
     assert f["x_max"] == 30.0 and f["x_peak"] in (20.0, 40.0)
     assert f["interior"] and not f["vertex"]
     assert fit_peak(x, 1.0 - (x - 31.0) ** 2 / 900.0, np.full(x.size, 0.02), n_boot=50)["vertex"]
+
+
+def test_fit_peak_spread_covers_a_rival_point_elsewhere_in_the_sweep():
+    # Two bumps of equal height, 15 and 35 deg, the one at 15 a hair higher: the fit sits on it, but
+    # every bootstrap draw chooses its five points again, so about half the draws land near 35.
+    x = np.arange(0.0, 60.0, 5.0)
+    y = np.exp(-((x - 15.0) ** 2) / 30.0) + np.exp(-((x - 35.0) ** 2) / 30.0)
+    y[3] += 1e-3
+    f = fit_peak(x, y, np.full(x.size, 0.05), n_boot=400)
+    assert abs(f["x_peak"] - 15.0) < 2.0 and f["vertex"]
+    boots_far = f["x_peak_hi"] > 30.0 and f["x_peak_lo"] < 20.0
+    assert boots_far and f["x_peak_stderr"] > 7.0  # two modes 20 deg apart, near half and half: sd ~10
 
 
 def test_fit_peak_flatness_p_value_against_scipy_and_its_calibration():
