@@ -16,6 +16,7 @@ import numpy as np
 from .io import no_nan, unjson
 from .paper import PAPER_TRENDS
 from .render import render_view
+from .report import ALPHA
 from .sweep_schema import VISIBILITY_COLUMNS, VISIBILITY_FILES
 from .visibility import contrast, fit_peak
 
@@ -164,8 +165,6 @@ _CRITERIA = (
 def _varies(f) -> bool:
     """True when the contrast depends on beta beyond its standard errors: the chi-square test of one
     value for every beta (``fit_peak``'s ``flat_p``) rejects it at the report's level ``ALPHA``."""
-    from .report import ALPHA
-
     return f["flat_p"] is not None and f["flat_p"] < ALPHA
 
 
@@ -202,8 +201,6 @@ def _peak_sentence(f, label: str) -> str:
 def _answer(fits) -> str:
     """The report's answer: from the red/green contrast when it varies with beta; else it says so,
     and the other criteria that do vary answer in its place."""
-    from .report import ALPHA
-
     rg = fits["red_green_contrast"]
     if rg["x_peak"] is None:
         return "Too few β values with a defined red/green contrast to locate a maximum."
@@ -225,8 +222,6 @@ def _answer(fits) -> str:
 
 def visibility_report(betas, rows, target: str = "polyp", background: str = "wall") -> str:
     """Markdown section answering the paper's question from the visibility columns."""
-    from .report import ALPHA
-
     fits = visibility_fits(betas, rows)
     lines = [
         "## At which β is the polyp most visible?",

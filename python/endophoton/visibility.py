@@ -99,10 +99,10 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     parametric bootstrap: y is redrawn from N(y, stderr) ``n_boot`` times (fixed ``seed``, so the
     answer is reproducible) and the whole fit repeated, the choice of the five points included;
     ``x_peak_stderr`` is the sd of the bootstrap peaks and ``x_peak_lo``/``x_peak_hi`` their
-    16th/84th percentiles. ``interior`` tells whether the peak lies
-    strictly inside the swept range (else the maximum may lie outside it); ``vertex`` whether it is
-    the parabola's maximum (False: the parabola has none inside the fitted points, and ``x_peak`` is
-    merely the better end of them). ``x_max`` is the x of the largest point.
+    16th/84th percentiles. ``interior`` tells whether the peak lies strictly inside the swept range
+    (else the maximum may lie outside it); ``vertex`` whether it is the parabola's maximum (False:
+    the parabola has none inside the fitted points, and ``x_peak`` is merely the better end of
+    them). ``x_max`` is the x of the largest point.
 
     Whether y depends on x at all: ``flat_chi2`` is the chi-square of every point about their
     weighted mean, ``flat_dof`` = n - 1 and ``flat_p`` its p-value. The points come from independent
