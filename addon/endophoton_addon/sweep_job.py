@@ -33,7 +33,6 @@ IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton 
 IMAGE_KEY = "endophoton_sweep_plot"  # ID property on every image the sweep loaded
 SUMMARY_KEY = "endophoton_sweep"  # ID property on the scene: the last finished sweep
 DEFAULT_DIR_NAME = "endophoton_sweep"
-FIT_DEGREE = 6  # the paper's polynomial fit of the energy curve
 # keep_runs "AUTO": per-β collections up to β values × Store N records; a kept escape
 # record costs 100 bytes (17 columns, measured on the engine's records): 2e6 -> 200 MB.
 KEEP_AUTO_RECORDS = 2_000_000
@@ -379,45 +378,39 @@ def beta_run_inputs(inputs, beta, result):
     )
 
 
-MIN_FIT_POINTS = FIT_DEGREE + 3  # the degree-6 fit keeps >= 2 degrees of freedom
-BOOTSTRAP = 200  # parametric bootstrap replicas for the peak's standard error
-
-
-def best_beta(an, betas, y, y_se, seed=0):
-    """β of the fitted energy maximum, its standard error and whether it is interior.
-
-    Only with at least MIN_FIT_POINTS angles (else None, None, False): a degree-6 polynomial
-    through fewer points interpolates the noise.  The standard error comes from
-    refitting BOOTSTRAP curves drawn from N(y, y_se) per β (a fixed seed, so the
-    summary is reproducible).  Returns (beta, se, interior)."""
-    ok = np.isfinite(y) & np.isfinite(y_se)
-    if ok.sum() < MIN_FIT_POINTS:
-        return None, None, False
-    x, y, y_se = betas[ok], y[ok], y_se[ok]
-    fit = an.poly_peak(x, y, deg=FIT_DEGREE)
-    rng = np.random.default_rng(seed)
-    peaks = [
-        an.poly_peak(x, y + rng.normal(0.0, 1.0, len(y)) * y_se, deg=FIT_DEGREE, n_grid=1001)["x_peak"]
-        for _ in range(BOOTSTRAP)
-    ]
-    return float(fit["x_peak"]), float(np.std(peaks, ddof=1)), bool(fit["interior"])
+def min_fit_points(ep):
+    """Angles the panel needs before it shows a best β: the paper's fit degree + 3, so that the
+    fit keeps >= 2 degrees of freedom (a degree-6 polynomial through fewer points interpolates
+    the noise)."""
+    return int(ep.paper.PAPER_TRENDS["energy_fit_degree"]) + 3
 
 
 def sweep_summary(ep, result, paths, out_dir):
     """Plain-value summary of a finished sweep (no bpy): the β of the energy
     maximum by the paper's degree-6 fit (sum over stored records, and per packet
-    traced) with its bootstrap standard error when there are enough angles, the
-    range of packets traced, times and where the files are.  A β without a fit (too few
-    angles) is None, never NaN; the scene's copy leaves it out (Blender's ID properties
-    hold no None), which :func:`summary_rows` shows as "needs ≥ N β values"."""
-    an = ep.analysis
+    traced) with its standard error when there are enough angles, the range of
+    packets traced, times and where the files are.  The fit and its error are the
+    written report's (``ep.report.compute_trends``: the fit's maximum computed again
+    from every batch of packets, one rule in one place), so the panel shows the
+    numbers of report.md.  A β without a fit (too few angles) is None, never NaN; the scene's copy
+    leaves it out (Blender's ID properties hold no None), which :func:`summary_rows`
+    shows as "needs ≥ N β values"."""
     betas = result.betas
+    trends = ep.report.compute_trends(result)
+    enough = len(result.rows) >= min_fit_points(ep)
     best = {}
-    for key, column in (("energy_total", "energy_total_rel"), ("energy_per_packet", "energy_per_packet_rel")):
-        beta, se, interior = best_beta(an, betas, result.column(column), result.column(column + "_stderr"))
-        best.update({f"best_beta_{key}": beta, f"best_beta_{key}_se": se, f"best_beta_{key}_interior": interior})
-    best_total, best_packet = best["best_beta_energy_total"], best["best_beta_energy_per_packet"]
-    degree = FIT_DEGREE if best_total is not None else 0
+    for key in ("energy_total", "energy_per_packet"):
+        fit = trends.get(key + "_fit") or {}
+        found = enough and trends.get(key + "_peak") is not None
+        best.update(
+            {
+                f"best_beta_{key}": trends[key + "_peak"] if found else None,
+                f"best_beta_{key}_se": trends.get(key + "_peak_se") if found else None,
+                f"best_beta_{key}_interior": bool(found and fit.get("interior")),
+            }
+        )
+    best_total = best["best_beta_energy_total"]
+    degree = int(trends["energy_total_fit"]["deg"]) if best_total is not None else 0
     packets = result.column("packets_traced")
     return ep.io.no_nan(
         {
@@ -430,6 +423,7 @@ def sweep_summary(ep, result, paths, out_dir):
             "seed": int(result.meta.get("seed", 0)),
             **best,
             "fit_degree": degree,
+            "fit_min_betas": min_fit_points(ep),
             "packets_min": float(np.nanmin(packets)),
             "packets_max": float(np.nanmax(packets)),
             "seconds": float(np.nansum(result.column("seconds"))),
@@ -611,9 +605,10 @@ def summary_rows(scene):
     def angle(key):
         value, se = s.get(f"best_beta_{key}"), s.get(f"best_beta_{key}_se")
         if value is None or not math.isfinite(value):
-            return f"– (needs ≥ {MIN_FIT_POINTS} β values)"
+            return f"– (needs ≥ {s.get('fit_min_betas', '?')} β values)"
         edge = "" if s.get(f"best_beta_{key}_interior") else " at range edge"
-        return f"{value:.1f} ± {se:.1f}°{edge}"
+        error = f"{se:.1f}" if se is not None and math.isfinite(se) else "n/a"
+        return f"{value:.1f} ± {error}°{edge}"
 
     degree = s.get("fit_degree", 0)
     rows = [

@@ -8,8 +8,10 @@ Uncertainties of derived trends (slopes, fitted peaks, differences between
 angles) follow the batch-means rule of :mod:`endophoton.analysis`: the derived
 statistic is computed once per batch b (from the b-th batch value of every
 beta), and its standard error is sd(batch values, ddof=1) / sqrt(B).  Runs at
-different beta use the same seed, so batch b covers the same packet indices at
-every beta (paired batches).
+different beta use the same seed, so packet k draws the same random numbers at
+every beta; batch b is the b-th of B equal blocks of each run's own packets, so
+where the betas traced different numbers of packets (a fixed store) batch b of
+two betas holds the same packets only in part.
 
 Verdict rules (stated in the report):
 
@@ -96,7 +98,9 @@ def _pct(v: float, se: float | None = None) -> str:
     return f"{100 * v:.2f} %" if se is None else f"{100 * v:.2f} ± {100 * se:.2f} %"
 
 
-def _value_verdict(ours: float, se: float, paper: float) -> tuple[str, float]:
+def value_verdict(ours: float, se: float, paper: float) -> tuple[str, float]:
+    """The rule for a value against the paper's: ("consistent", z) when |ours - paper| <= SIGMAS
+    standard errors, else ("differs", z); ("n/a", nan) without a positive finite error."""
     if not (np.isfinite(ours) and np.isfinite(se)) or se <= 0:
         return ("n/a", float("nan"))
     z = (ours - paper) / se
@@ -348,7 +352,7 @@ def _write_packets(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, A
             f"{'flat within 3 σ, as the paper' if vf == 'not significant' else 'not flat'})."
         )
     v, z = _direction_verdict(t["packets_drop"], t["packets_drop_se"], +1)
-    v2, z2 = _value_verdict(t["packets_drop"], t["packets_drop_se"], pt["packets_relative_drop"])
+    v2, z2 = value_verdict(t["packets_drop"], t["packets_drop_se"], pt["packets_relative_drop"])
     w(
         f"- relative drop first → last angle: {_pct(t['packets_drop'], t['packets_drop_se'])}; "
         f"direction (fewer at larger β): **{v}** ({_fmt(z, 3)} σ); size vs the paper's "
@@ -392,7 +396,7 @@ def _write_energy(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, An
         )
         vmin = "agrees" if abs(t[key + "_argmin_beta"] - pt["energy_min_beta_deg"]) < 1e-9 else "differs"
         if fit["interior"]:
-            vp, zp = _value_verdict(t[key + "_peak"], t[key + "_peak_se"], pt["energy_peak_beta_deg"])
+            vp, zp = value_verdict(t[key + "_peak"], t[key + "_peak_se"], pt["energy_peak_beta_deg"])
         else:
             vp, zp = "differs (the fit has no interior maximum)", float("nan")
         rise = t.get(key + "_rise_first_step")
@@ -441,7 +445,7 @@ def _write_camera(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, An
     )
     last_b = pt["camera_fraction_last_beta_deg"]
     val, se, src = _camera_at(r, t, last_b)
-    vv, zz = _value_verdict(val, se, pt["camera_fraction_last"])
+    vv, zz = value_verdict(val, se, pt["camera_fraction_last"])
     w(
         f"- at β = {last_b}° ({src}): {_pct(val, se)} vs the paper's {100 * pt['camera_fraction_last']:g} %: "
         f"**{vv}** ({_fmt(zz, 3)} σ).\n"
@@ -570,7 +574,7 @@ def _write_summary(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, A
     """The summary table: each paper trend beside ours and the verdict."""
     w("## Summary\n")
     val, se, src = _camera_at(r, t, pt["camera_fraction_last_beta_deg"])
-    vv = _value_verdict(val, se, pt["camera_fraction_last"])[0]
+    vv = value_verdict(val, se, pt["camera_fraction_last"])[0]
     rel = _depth_rel(t, pt)
     w("| paper trend | ours | verdict |")
     w("|---|---|---|")
@@ -578,7 +582,7 @@ def _write_summary(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, A
     w(
         f"| packets traced fall ~{100 * pt['packets_relative_drop']:g} % from first to last angle | "
         f"{_pct(t['packets_drop'], t['packets_drop_se'])} | direction {vd}; size "
-        f"{_value_verdict(t['packets_drop'], t['packets_drop_se'], pt['packets_relative_drop'])[0]} |"
+        f"{value_verdict(t['packets_drop'], t['packets_drop_se'], pt['packets_relative_drop'])[0]} |"
     )
     w(
         f"| energy lowest at β = {pt['energy_min_beta_deg']}° | lowest at β = {t['energy_total_argmin_beta']:g}° "
@@ -589,7 +593,7 @@ def _write_summary(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, A
         f"| degree-{pt['energy_fit_degree']} fit peak ≈ {pt['energy_peak_beta_deg']}° | "
         f"{_pm(t['energy_total_peak'], t['energy_total_peak_se'], 3)}° (sum of stored), "
         f"{_pm(t['energy_per_packet_peak'], t['energy_per_packet_peak_se'], 3)}° (per packet) | "
-        f"{_value_verdict(t['energy_total_peak'], t['energy_total_peak_se'], pt['energy_peak_beta_deg'])[0] if t['energy_total_fit']['interior'] else 'differs (no interior maximum)'} (sum of stored) |"
+        f"{value_verdict(t['energy_total_peak'], t['energy_total_peak_se'], pt['energy_peak_beta_deg'])[0] if t['energy_total_fit']['interior'] else 'differs (no interior maximum)'} (sum of stored) |"
     )
     w(
         f"| camera fraction < {100 * pt['camera_fraction_max']:g} %, falling | max {_pct(t['camera_max'])}, slope "

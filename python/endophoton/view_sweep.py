@@ -16,7 +16,7 @@ import numpy as np
 from .io import no_nan, unjson
 from .paper import PAPER_TRENDS
 from .render import render_view
-from .report import ALPHA
+from .report import ALPHA, SIGMAS, value_verdict
 from .sweep_schema import VISIBILITY_COLUMNS, VISIBILITY_FILES
 from .visibility import contrast, fit_peak
 
@@ -189,12 +189,20 @@ def _peak_sentence(f, label: str) -> str:
             )
         )
         return f"The {label} varies with β ({_flat_words(f)}) and is largest at β = {f['x_peak']:.1f}°, {where}."
-    z = (f["x_peak"] - PAPER_BETA_DEG) / f["x_peak_stderr"] if f["x_peak_stderr"] else float("inf")
-    verdict = "consistent with" if abs(z) <= 2 else "different from"
+    # The report's rule for a value against the paper's (report.value_verdict, SIGMAS).
+    verdict, z = value_verdict(f["x_peak"], f["x_peak_stderr"], PAPER_BETA_DEG)
+    if verdict == "n/a":
+        against = (
+            f"The paper's 34° is {abs(f['x_peak'] - PAPER_BETA_DEG):.1f}° away; the fit's spread is zero, "
+            "so no σ distance is given."
+        )
+    else:
+        words = "consistent with" if verdict == "consistent" else "different from"
+        against = f"The paper's 34° is {abs(z):.1f} σ away: {words} it (within {SIGMAS:g} σ is consistent)."
     return (
         f"By the {label}, the polyp is most visible at β = {f['x_peak']:.1f}° ± {f['x_peak_stderr']:.1f}° "
         f"(68 % range {f['x_peak_lo']:.1f}–{f['x_peak_hi']:.1f}°; the contrast varies with β, {_flat_words(f)}). "
-        f"The paper's 34° is {abs(z):.1f} σ away: {verdict} it."
+        + against
     )
 
 
@@ -208,10 +216,10 @@ def _answer(fits) -> str:
     if _varies(rg):
         return "**Answer.** " + _peak_sentence(rg, label)
     text = (
-        f"**Answer.** By the {label}, no β makes the polyp more visible than another: the contrast does "
-        f"not vary with β beyond its standard errors ({_flat_words(rg)} ≥ {ALPHA:g}), so its largest "
-        f"value, at β = {rg['x_max']:g}°, is noise, and it can neither confirm nor rule out the "
-        "paper's 34°."
+        f"**Answer.** By the {label}, no β is shown to make the polyp more visible than another: the "
+        f"contrast does not vary with β detectably beyond its standard errors ({_flat_words(rg)} ≥ "
+        f"{ALPHA:g}), so its largest value, at β = {rg['x_max']:g}°, is noise, and it can neither confirm "
+        "nor rule out the paper's 34°."
     )
     for key, other in _CRITERIA[1:]:
         f = fits[key]
@@ -232,8 +240,11 @@ def visibility_report(betas, rows, target: str = "polyp", background: str = "wal
         "over packet batches. The maximum is the vertex of a weighted parabola through the five points "
         "around the largest value; its uncertainty comes from a parametric bootstrap of the points "
         "within their standard errors (`visibility.fit_peak`). Whether a contrast depends on β at all "
-        "is the chi-square test of one value for every β (the runs are independent); at p ≥ "
-        f"{ALPHA:g} its largest value is not a maximum but noise.",
+        "is the chi-square test of one value for every β; at p ≥ "
+        f"{ALPHA:g} its largest value is not a maximum but noise. The test takes the β values' errors as "
+        "independent, while the sweep runs every β with the same seed, which correlates them positively, "
+        "so the test is conservative: a contrast it calls flat shows no dependence on β at this store, "
+        "but a small one can be missed (docs/render.md).",
         "",
         "| criterion | β at maximum | ± stderr | 68 % range | fitted maximum | inside the swept range | varies with β (p) |",
         "|---|---|---|---|---|---|---|",

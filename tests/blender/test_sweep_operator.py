@@ -129,7 +129,7 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     assert job.summary["best_beta_energy_total"] is None and job.summary["best_beta_energy_total_se"] is None
     assert "best_beta_energy_total" not in summary and summary["fit_degree"] == 0
     assert not [k for k, v in job.summary.items() if isinstance(v, float) and not math.isfinite(v)]
-    assert sweep_job.summary_rows(scene)[2][1].startswith(f"– (needs ≥ {sweep_job.MIN_FIT_POINTS} β values)")
+    assert sweep_job.summary_rows(scene)[2][1].startswith(f"– (needs ≥ {sweep_job.min_fit_points(ep)} β values)")
     assert summary["out_dir"] == str(out)
     labels = dict(sweep_job.summary_rows(scene))
     assert labels["Packets"] == f"{min(packets):,} – {max(packets):,}"
@@ -291,18 +291,31 @@ def test_no_tissue_rejected(ep, tmp_path):
     _assert_rejected(r"Scene '[^']+': no object has role 'tissue'", tmp_path / "sweep")
 
 
-def test_best_beta_needs_enough_angles_and_has_uncertainty(ep):
-    """A parabola peaking at β = 25° (12 angles, 1 % noise bars): the fit finds
-    25° within its bootstrap error, which is small and positive; with fewer
-    angles than the fit needs there is no best β."""
-    betas = np.arange(0.0, 60.0, 5.0)
-    y = 1.0 - ((betas - 25.0) / 40.0) ** 2
-    se = np.full_like(y, 0.01)
-    beta, beta_se, interior = sweep_job.best_beta(ep.analysis, betas, y, se)
-    assert interior and 0.0 < beta_se < 2.0
-    assert abs(beta - 25.0) < max(3 * beta_se, 0.1)
-    few = slice(0, sweep_job.MIN_FIT_POINTS - 1)
-    assert sweep_job.best_beta(ep.analysis, betas[few], y[few], se[few]) == (None, None, False)
+def test_summary_best_beta_is_the_reports_fit(ep, tmp_path):
+    """With enough angles for the paper's degree-6 fit, the panel's best β and its error are the
+    written report's: the fit's maximum and its error from the paired batches (every β runs the
+    same seed, so the runs are correlated and an error drawn independently per β would not hold
+    that), the same numbers report.md prints, with or without "at range edge"."""
+    n = sweep_job.min_fit_points(ep)
+    betas = [5.0 * k for k in range(n)]
+    scene = _setup(tmp_path, betas=",".join(f"{b:g}" for b in betas), store=500)
+    job, _, _ = _run_job(bpy.context)
+    assert job.error is None and not job.cancelled, job.error_traceback
+    assert list(job.result.betas) == betas
+    trends = ep.report.compute_trends(job.result)
+    summary = scene[sweep_job.SUMMARY_KEY].to_dict()
+    report = (tmp_path / "sweep" / "report.md").read_text(encoding="utf-8")
+    rows = dict(sweep_job.summary_rows(scene))
+    for key, label in (("energy_total", "Best β (sum)"), ("energy_per_packet", "Best β (/packet)")):
+        peak, se, fit = trends[key + "_peak"], trends[key + "_peak_se"], trends[key + "_fit"]
+        assert fit["deg"] == ep.paper.PAPER_TRENDS["energy_fit_degree"] == summary["fit_degree"]
+        assert min(betas) <= peak <= max(betas) and se is not None and se > 0
+        assert (summary[f"best_beta_{key}"], summary[f"best_beta_{key}_se"]) == (peak, se)
+        assert summary[f"best_beta_{key}_interior"] == fit["interior"]
+        assert f"fit maximum at β = {peak:.3g} ± {se:.2g}°" in report
+        shown = f"{peak:.1f} ± {se:.1f}°" + ("" if fit["interior"] else " at range edge")
+        assert rows[label].startswith(shown), (rows[label], shown)
+    assert not [k for k, v in job.summary.items() if isinstance(v, float) and not math.isfinite(v)]
 
 
 def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
