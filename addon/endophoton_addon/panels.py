@@ -180,6 +180,7 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         row = layout.row(align=True)
         row.prop(s, "seed")
         row.prop(s, "threads")
+        layout.prop(s, "seed_per_beta")
         layout.prop(s, "batches")
         layout.prop(s, "fluorescent_only")
         layout.prop(s, "fluorescence_rule", text="Rule")

@@ -227,6 +227,12 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         soft_min=1,
     )
     seed: IntProperty(name="Seed", description="Engine seed, the same for every β", default=1, min=0)
+    seed_per_beta: BoolProperty(
+        name="Seed per β",
+        description="β k runs with seed + k × 0x9E3779B97F4A7C15 (mod 2^64) instead of the same seed: "
+        "independent runs, so the report's test of whether a contrast depends on β holds its level",
+        default=False,
+    )
     threads: IntProperty(
         name="Threads",
         description="0 = all cores (all but one while the UI runs)",

@@ -823,6 +823,13 @@ def apply_result(context, inputs, result, grid_info=(), render_grids=None, view=
     return collection
 
 
+def id_int(value):
+    """``value`` as an ID property holds it: an int within Blender's 32-bit range, else its
+    decimal string (a β's own seed in a sweep with a seed per β reaches 2^64 - 1)."""
+    value = int(value)
+    return value if -(2**31) <= value < 2**31 else str(value)
+
+
 def run_parameters(inputs):
     """The run's parameters as plain values (the tag that tells runs apart)."""
     return {
@@ -831,7 +838,7 @@ def run_parameters(inputs):
         "kind": inputs.kind,
         "count": int(inputs.count),
         "target_error": float(inputs.target_error or 0.0),
-        "seed": int(inputs.seed),
+        "seed": id_int(inputs.seed),
         "fluorescent_only": bool(inputs.fluorescent_only),
         "fluorescence_rule": inputs.fluorescence_rule,
         "scale_length_m": float(inputs.scale_length),

@@ -60,6 +60,7 @@ class SweepInputs:
     rig_params: dict  # head_diameter_mm, ... (EndoscopeRig keywords)
     out_dir: str
     scale_length: float
+    seed_per_beta: bool = False  # β k runs with its own seed (ep.sweep_schema.beta_seed)
     keep_runs: bool = False  # every β becomes a results collection (its records kept until the end)
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
     timestamp: str = ""
@@ -80,6 +81,7 @@ class SweepInputs:
             tilt_axis=self.tilt_axis,
             rig_kwargs=dict(self.rig_params),
             n_batches=self.n_batches,
+            seed_per_beta=self.seed_per_beta,
         )
 
 
@@ -173,6 +175,7 @@ def collect_sweep_inputs(context, ep):
         betas=betas,
         store=int(settings.store),
         seed=int(settings.seed),
+        seed_per_beta=bool(settings.seed_per_beta),
         threads=int(settings.threads),
         n_batches=int(settings.batches),
         fluorescent_only=bool(settings.fluorescent_only),
@@ -345,14 +348,16 @@ class SweepJob(simulation.BackgroundJob):
     def _beta_run(self, index, result):
         """(RunInputs, Result, view, view error) of β ``index``: what a single Run of
         that β in store-N mode would hand to simulation.collection_from_run (worker thread)."""
-        inputs = beta_run_inputs(self.inputs, self.inputs.betas[index], result)
+        inputs = beta_run_inputs(self.inputs, index, result, self.ep)
         view, view_error = simulation.endoscope_view(self.ep, inputs, result)
         return inputs, result, view, view_error
 
 
-def beta_run_inputs(inputs, beta, result):
-    """simulation.RunInputs of one β of the sweep ``inputs`` (plain values, no bpy):
-    a store-N run of that β, no grids (the sweep asks for none)."""
+def beta_run_inputs(inputs, index, result, ep):
+    """simulation.RunInputs of the sweep ``inputs``' β number ``index`` (plain values, no bpy):
+    a store-N run of that β with its seed (``ep.sweep_schema.beta_seed``), no grids (the sweep
+    asks for none)."""
+    beta = inputs.betas[index]
     source = getattr(result, "source", None)
     matrix = getattr(source, "transform", None)
     return simulation.RunInputs(
@@ -364,7 +369,7 @@ def beta_run_inputs(inputs, beta, result):
         beta_deg=float(beta),
         kind="store",
         count=int(inputs.store),
-        seed=int(inputs.seed),
+        seed=ep.sweep_schema.beta_seed(inputs.seed, index, inputs.seed_per_beta),
         threads=int(inputs.threads),
         fluorescent_only=inputs.fluorescent_only,
         fluorescence_rule=inputs.fluorescence_rule,
@@ -421,6 +426,7 @@ def sweep_summary(ep, result, paths, out_dir):
             "beta_max": float(betas.max()),
             "store": int(result.meta.get("store", 0)),
             "seed": int(result.meta.get("seed", 0)),
+            "seed_per_beta": bool(result.meta.get("seed_per_beta", False)),
             **best,
             "fit_degree": degree,
             "fit_min_betas": min_fit_points(ep),
@@ -613,7 +619,10 @@ def summary_rows(scene):
     degree = s.get("fit_degree", 0)
     rows = [
         ("β", f"{s.get('beta_min', 0):g}…{s.get('beta_max', 0):g}° ({s.get('n_betas', 0)} values)"),
-        ("Store N", f"{s.get('store', 0):,} · seed {s.get('seed', 0)}"),
+        (
+            "Store N",
+            f"{s.get('store', 0):,} · seed {s.get('seed', 0)}" + (" (+ one per β)" if s.get("seed_per_beta") else ""),
+        ),
         ("Best β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
         ("Best β (/packet)", angle("energy_per_packet")),
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),

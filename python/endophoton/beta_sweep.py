@@ -48,7 +48,15 @@ from .scene import Scene
 from .sources import EndoscopeRig
 from .spectra import Fluorophore
 from .sweep_reduce import analyse_run, finish_relative, rig_geometry
-from .sweep_schema import CSV_COLUMNS, MAX_BETAS, VISIBILITY_COLUMNS, SweepResult, output_file_names, parse_betas
+from .sweep_schema import (
+    CSV_COLUMNS,
+    MAX_BETAS,
+    VISIBILITY_COLUMNS,
+    SweepResult,
+    beta_seed,
+    output_file_names,
+    parse_betas,
+)
 from .units import UNIT_CM
 
 __all__ = [
@@ -364,8 +372,11 @@ def _check_placements(betas, setup: Callable) -> None:
         )
 
 
-def _sweep_locally(betas, setup: Callable, kw: dict, outcome: Callable, rows: _Rows, bar: _Progress, cancel) -> None:
-    """One beta after the other on this machine; a cancel ends the sweep at the cancelled run."""
+def _sweep_locally(
+    betas, seeds, setup: Callable, kw: dict, outcome: Callable, rows: _Rows, bar: _Progress, cancel
+) -> None:
+    """One beta after the other on this machine (beta i with seeds[i]); a cancel ends the sweep at
+    the cancelled run."""
     for i, beta in enumerate(betas):
         if cancel is not None and getattr(cancel, "cancelled", False):
             rows.stop_at(i)  # cancelled between two runs: nothing to analyse
@@ -373,7 +384,7 @@ def _sweep_locally(betas, setup: Callable, kw: dict, outcome: Callable, rows: _R
         bar.start(i, beta)
         scene, unit, rig = setup(beta)
         t0 = time.perf_counter()
-        res = run(scene, rig, **kw)
+        res = run(scene, rig, **dict(kw, seed=seeds[i]))
         seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
         if not rows.accept(i, outcome(i, res, seconds, beta, rig, unit)):
             break
@@ -385,6 +396,7 @@ def _beta_outcome(
     beta: float,
     rig: Any,
     unit: str,
+    seed: int,
     normal,
     run_kwargs: Mapping[str, Any],
     meta: dict,
@@ -413,7 +425,7 @@ def _beta_outcome(
         "store": int(run_kwargs["store"]),
         **row,
         "seconds": seconds,
-        "seed": int(run_kwargs["seed"]),
+        "seed": int(seed),
         "cancelled": int(cancelled),
     }
     if visibility is not None:  # the endoscope's view of this run (docs/render.md)
@@ -428,7 +440,7 @@ def _beta_outcome(
     return full, hist, bt, cancelled
 
 
-def _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows: _Rows, bar, on_chunks, cancel) -> None:
+def _sweep_on_cluster(client, chunk_units, betas, seeds, setup, kw, outcome, rows, bar, on_chunks, cancel) -> None:
     """Every beta's run at once on ``client``'s workers (:func:`endophoton.distributed.run_many`:
     the same requests, reducer and stop rule as ``ep.run``). A run is analysed and accepted in
     beta order as soon as it and every run before it have ended; after a cancel the sweep ends
@@ -440,7 +452,7 @@ def _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows: _Row
     notes = [placement.check_rig(scene, rig) for scene, _, rig in setups]  # as ep.run checks each run
     request_kw = {k: v for k, v in kw.items() if k not in ("progress", "cancel")}
     requests = [
-        (scene, rig, run_request(scene, rig, **request_kw), functools.partial(bar.engine_of, i))
+        (scene, rig, run_request(scene, rig, **dict(request_kw, seed=seeds[i])), functools.partial(bar.engine_of, i))
         for i, (scene, _, rig) in enumerate(setups)
     ]
     results = [None] * len(setups)
@@ -495,6 +507,7 @@ def sweep(
     chunk_units: int = 0,
     on_chunks: Callable | None = None,
     on_run: Callable | None = None,
+    seed_per_beta: bool = False,
 ) -> SweepResult:
     """Run the seed's beta sweep and analyse every run; returns a :class:`SweepResult`
     (rows in the order of ``betas``).
@@ -511,12 +524,17 @@ def sweep(
         there (``plots``/``report`` switch the last two; :func:`write_outputs`).
     n_batches : B for the batch-means standard errors.
     max_angle_deg : angle criterion of the important fraction (seed: 15 deg).
+    seed_per_beta : False (default): ``seed`` at every beta (common random numbers); True: beta k
+        runs with its own seed, :func:`beta_seed` (independent runs, docs/sweep.md).
     on_run : ``on_run(i_beta, beta_deg, result)`` is given each beta's engine ``Result``
         (records, totals, rig; also a cancelled one) before it is analysed. The sweep keeps
         only the reduced rows; a caller that wants every beta's records (the add-on's per-beta
         collections) keeps them here, at about 100 bytes per record.
     """
     betas = _checked_betas(betas, store, n_batches)
+    if not isinstance(seed_per_beta, bool):
+        raise ValueError(f"seed_per_beta = {seed_per_beta!r} must be True or False")
+    seeds = [beta_seed(seed, k, seed_per_beta) for k in range(len(betas))]
     rig_kwargs = dict(rig_kwargs or {})
     run_kwargs = dict(run_kwargs or {})
     client = run_kwargs.pop("client", None) if client is None else client
@@ -541,6 +559,7 @@ def sweep(
         tilt_axis,
         rig_kwargs,
     )
+    meta["seed_per_beta"] = seed_per_beta
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
     setup = functools.partial(
@@ -569,16 +588,16 @@ def sweep(
     def outcome(i, res, seconds, beta, rig, unit):
         if on_run is not None:
             on_run(i, beta, res)
-        return analyse(res, seconds, beta, rig, unit)
+        return analyse(res, seconds, beta, rig, unit, seeds[i])
 
     if static_scene is not None:
         _check_placements(betas, setup)
     rows = _Rows(betas, meta, bar, on_beta)
     try:
         if client is not None:
-            _sweep_on_cluster(client, chunk_units, betas, setup, kw, outcome, rows, bar, on_chunks, cancel)
+            _sweep_on_cluster(client, chunk_units, betas, seeds, setup, kw, outcome, rows, bar, on_chunks, cancel)
         else:
-            _sweep_locally(betas, setup, kw, outcome, rows, bar, cancel)
+            _sweep_locally(betas, seeds, setup, kw, outcome, rows, bar, cancel)
     finally:
         bar.close()
     result = rows.result()
@@ -612,7 +631,14 @@ def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool =
     if vis and plots and result.rows:
         from .view_sweep import write_visibility_outputs
 
-        extra = write_visibility_outputs(result.betas, result.rows, out_dir, vis["target"], vis["background"])
+        extra = write_visibility_outputs(
+            result.betas,
+            result.rows,
+            out_dir,
+            vis["target"],
+            vis["background"],
+            seed_per_beta=bool(result.meta.get("seed_per_beta", False)),
+        )
         paths.update({k: v for k, v in extra.items() if k != "report"})
         if "report" in paths:
             with open(paths["report"], encoding="utf-8") as fh:

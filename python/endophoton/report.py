@@ -8,10 +8,11 @@ Uncertainties of derived trends (slopes, fitted peaks, differences between
 angles) follow the batch-means rule of :mod:`endophoton.analysis`: the derived
 statistic is computed once per batch b (from the b-th batch value of every
 beta), and its standard error is sd(batch values, ddof=1) / sqrt(B).  Runs at
-different beta use the same seed, so packet k draws the same random numbers at
-every beta; batch b is the b-th of B equal blocks of each run's own packets, so
-where the betas traced different numbers of packets (a fixed store) batch b of
-two betas holds the same packets only in part.
+different beta use the same seed unless the sweep gave each its own
+(``seed_per_beta``): then packet k draws the same random numbers at every beta;
+batch b is the b-th of B equal blocks of each run's own packets, so where the
+betas traced different numbers of packets (a fixed store) batch b of two betas
+holds the same packets only in part.
 
 Verdict rules (stated in the report):
 
@@ -35,7 +36,7 @@ import numpy as np
 from . import analysis as an
 from .io import atomic_write_text, no_nan, unjson
 from .paper import PAPER_TRENDS
-from .sweep_schema import PLOT_FILES, polar_filename
+from .sweep_schema import PLOT_FILES, SEED_STEP, polar_filename
 
 __all__ = ["PAPER_TRENDS", "write_report", "compute_trends"]
 
@@ -276,7 +277,9 @@ def _write_run(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any])
         f"(**paper**: {pt['store']:,} at {pt['betas_deg'][0]}-{pt['betas_deg'][-1]} deg)"
     )
     w(
-        f"- seed {m.get('seed')} (same for every angle), threads {m.get('threads')}, "
+        f"- seed {m.get('seed')} "
+        f"({'angle k: seed + k × ' + hex(SEED_STEP) + ' mod 2^64' if m.get('seed_per_beta') else 'same for every angle'}), "
+        f"threads {m.get('threads')}, "
         f"fluorescent only: {m.get('fluorescent_only')}, fluorescence rule: {m.get('fluorescence_rule')}"
     )
     w(

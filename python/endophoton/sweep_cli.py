@@ -36,6 +36,12 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     )
     parser.add_argument("--store", type=int, default=500_000, help="records stored per beta (default 500000)")
     parser.add_argument("--seed", type=int, default=1, help="engine seed, same for every beta (default 1)")
+    parser.add_argument(
+        "--seed-per-beta",
+        action="store_true",
+        help="beta k runs with seed + k * 0x9E3779B97F4A7C15 (mod 2^64) instead: independent runs, so the "
+        "report's test of whether a contrast depends on beta holds its level (docs/render.md)",
+    )
     parser.add_argument("--threads", type=int, default=0, help="engine threads, 0 = all cores")
     parser.add_argument("--out", default="sweep_out", help="output folder (default ./sweep_out)")
     parser.add_argument(
@@ -90,6 +96,7 @@ def sweep_kwargs(args: argparse.Namespace) -> dict:
         distance=args.distance,
         progress=not args.no_progress,
         n_batches=args.batches,
+        seed_per_beta=bool(getattr(args, "seed_per_beta", False)),
     )
     target, background = getattr(args, "target", None), getattr(args, "background", None)
     if (target is None) != (background is None):
@@ -127,6 +134,8 @@ def forward_argv(args: argparse.Namespace) -> list:
     ]
     if args.distance is not None:
         argv += ["--distance", str(args.distance)]
+    if getattr(args, "seed_per_beta", False):
+        argv.append("--seed-per-beta")
     if args.all_photons:
         argv.append("--all-photons")
     if args.no_progress:

@@ -30,6 +30,8 @@ __all__ = [
     "polar_plots",
     "output_file_names",
     "VISIBILITY_FILES",
+    "SEED_STEP",
+    "beta_seed",
 ]
 
 # CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
@@ -192,6 +194,17 @@ class SweepResult:
 
 #: Most angles one β list may hold (``--betas``, ``ep.sweep(betas=...)``): each is a full run.
 MAX_BETAS = 10_000
+
+#: A seed per β (``ep.sweep(seed_per_beta=True)``, ``--seed-per-beta``): β k runs with
+#: seed + k * SEED_STEP (mod 2^64), an odd step (2^64 / golden ratio), so that no two β of one
+#: sweep share a seed.
+SEED_STEP = 0x9E3779B97F4A7C15
+
+
+def beta_seed(seed: int, k: int, per_beta: bool) -> int:
+    """The engine seed of a sweep's k-th β: ``seed`` at every β (common random numbers), or with
+    ``per_beta`` ``(seed + k * SEED_STEP) mod 2**64``, a seed of its own (independent runs)."""
+    return (int(seed) + int(k) * SEED_STEP) % 2**64 if per_beta else int(seed)
 
 
 def _count_text(n: float) -> str:

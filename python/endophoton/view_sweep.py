@@ -177,6 +177,21 @@ def _flat_words(f) -> str:
     return f"χ² = {f['flat_chi2']:.1f}, {f['flat_dof']} degrees of freedom, {_p_text(f['flat_p'])}"
 
 
+def _seed_words(seed_per_beta: bool) -> str:
+    """What the sweep's seeds mean for the flatness test (bench/visibility_seeds.py measures it)."""
+    if seed_per_beta:
+        return (
+            "The test takes the β values' errors as independent, and they are: every β ran with a seed of "
+            "its own, so the test holds its level."
+        )
+    return (
+        "The test takes the β values' errors as independent, while the sweep ran every β with the same "
+        "seed, which correlates them positively, so the test is conservative: a contrast it calls flat "
+        "shows no dependence on β at this store, but a small one can be missed (docs/render.md; "
+        "`--seed-per-beta` runs a sweep whose test holds its level)."
+    )
+
+
 def _peak_sentence(f, label: str) -> str:
     """Where a contrast that varies with beta is largest, with the fit's verdict against 34 deg."""
     if not f["vertex"]:
@@ -228,8 +243,10 @@ def _answer(fits) -> str:
     return text
 
 
-def visibility_report(betas, rows, target: str = "polyp", background: str = "wall") -> str:
-    """Markdown section answering the paper's question from the visibility columns."""
+def visibility_report(betas, rows, target: str = "polyp", background: str = "wall", seed_per_beta: bool = False) -> str:
+    """Markdown section answering the paper's question from the visibility columns; ``seed_per_beta``
+    says whether the betas ran with seeds of their own (independent errors: the flatness test holds
+    its level) or with one seed (correlated errors: the test is conservative)."""
     fits = visibility_fits(betas, rows)
     lines = [
         "## At which β is the polyp most visible?",
@@ -241,10 +258,7 @@ def visibility_report(betas, rows, target: str = "polyp", background: str = "wal
         "around the largest value; its uncertainty comes from a parametric bootstrap of the points "
         "within their standard errors (`visibility.fit_peak`). Whether a contrast depends on β at all "
         "is the chi-square test of one value for every β; at p ≥ "
-        f"{ALPHA:g} its largest value is not a maximum but noise. The test takes the β values' errors as "
-        "independent, while the sweep runs every β with the same seed, which correlates them positively, "
-        "so the test is conservative: a contrast it calls flat shows no dependence on β at this store, "
-        "but a small one can be missed (docs/render.md).",
+        f"{ALPHA:g} its largest value is not a maximum but noise. " + _seed_words(seed_per_beta),
         "",
         "| criterion | β at maximum | ± stderr | 68 % range | fitted maximum | inside the swept range | varies with β (p) |",
         "|---|---|---|---|---|---|---|",
@@ -280,13 +294,16 @@ def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> 
     return row
 
 
-def write_visibility_outputs(betas, rows, out_dir, target: str = "polyp", background: str = "wall") -> dict:
+def write_visibility_outputs(
+    betas, rows, out_dir, target: str = "polyp", background: str = "wall", seed_per_beta: bool = False
+) -> dict:
     """After a sweep with visibility columns: ``visibility.png`` (plot with fitted maxima),
     ``views_contact_sheet.png`` (fluorescence views across beta, if saved) and the report section
-    (returned under ``"report"``; the caller appends it to report.md)."""
+    (returned under ``"report"``; the caller appends it to report.md). ``seed_per_beta``: whether
+    the sweep ran every beta with a seed of its own (the report's words on the flatness test)."""
     out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, VISIBILITY_FILES["plot"]))}
     views = [os.path.join(out_dir, "views", f"beta{float(b):g}_fluorescence.png") for b in betas]
     if views and all(os.path.exists(p) for p in views):
         out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, VISIBILITY_FILES["contact_sheet"]))
-    out["report"] = visibility_report(betas, rows, target, background)
+    out["report"] = visibility_report(betas, rows, target, background, seed_per_beta=seed_per_beta)
     return out

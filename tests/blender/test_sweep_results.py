@@ -16,11 +16,12 @@ from conftest import data_snapshot, open_blend
 BETAS, STORE, SEED = (0.0, 20.0, 40.0), 1_500, 7
 
 
-def _sweep(tmp_path):
+def _sweep(tmp_path, seed_per_beta=False):
     scene = open_blend("flat_tissue.blend", tmp_path / "grids")
     s = scene.endophoton.sweep
     assert s.keep_runs == "AUTO"  # the default: kept for a small sweep like this one
     s.betas, s.store, s.seed, s.threads = ",".join(f"{b:g}" for b in BETAS), STORE, SEED, 1
+    s.seed_per_beta = seed_per_beta
     s.output_dir = str(tmp_path / "sweep")
     before = data_snapshot()
     job = sweep_job.prepare_job(bpy.context)
@@ -45,6 +46,27 @@ def _reference_records(ep, job):
         **job.inputs.sweep_kwargs(),
     )
     return ref, kept
+
+
+def test_seed_per_beta_gives_every_beta_and_its_collection_its_own_seed(ep, tmp_path):
+    """With "Seed per β" every β runs with ep.sweep_schema.beta_seed (seed + k x 0x9E3779B97F4A7C15
+    mod 2^64): the CSV rows and each β's collection record that seed (as text where it exceeds an
+    ID property's 32-bit int), and the records are ep.sweep(seed_per_beta=True)'s."""
+    scene, job, _ = _sweep(tmp_path, seed_per_beta=True)
+    seeds = [(SEED + k * 0x9E3779B97F4A7C15) % 2**64 for k in range(len(BETAS))]
+    assert [ep.sweep_schema.beta_seed(SEED, k, True) for k in range(len(BETAS))] == seeds
+    assert len(set(seeds)) == len(BETAS) and seeds[0] == SEED
+    assert [row["seed"] for row in job.result.rows] == seeds and job.result.meta["seed_per_beta"] is True
+    ref, kept = _reference_records(ep, job)
+    collections = sweep_job.sweep_collections(scene, sweep_job.sweep_id(job.inputs))
+    for i, collection in enumerate(collections):
+        params = collection[results.PARAMS_KEY].to_dict()
+        assert params["seed"] == (seeds[i] if seeds[i] < 2**31 else str(seeds[i]))
+        _, co = _points(collection)
+        expected = np.asarray(kept[i]["position"], np.float64).reshape(-1, 3) / scene.unit_settings.scale_length
+        np.testing.assert_allclose(co, expected.astype(np.float32), rtol=0, atol=1e-6 * np.abs(expected).max())
+    assert [row["seed"] for row in ref.rows] == seeds
+    assert dict(sweep_job.summary_rows(scene))["Store N"] == f"{STORE:,} · seed {SEED} (+ one per β)"
 
 
 def _points(collection):

@@ -310,6 +310,17 @@ def test_sweep_angles_run_at_once_and_give_the_local_sweep(client, tmp_path):
     assert len(set(units)) > 1  # the angles' runs did not all stop at the same packet
 
 
+def test_cluster_sweep_with_a_seed_per_beta_gives_the_local_sweep(client, tmp_path):
+    """seed_per_beta on a cluster: every angle's run gets its own seed there too (the CSV's seed
+    column, ep.sweep_schema.beta_seed), and the CSV equals the local sweep's."""
+    scene, _ = fluorescent_endoscope()
+    kw = dict(betas=[0, 30], store=300, seed=6, seed_per_beta=True, plots=False, report=False, progress=False)
+    dist = ep.sweep(scene, out_dir=tmp_path / "dist", client=client, chunk_units=2, **kw)
+    ep.sweep(scene, out_dir=tmp_path / "local", threads=1, **kw)
+    assert [r["seed"] for r in dist.rows] == [6, ep.sweep_schema.beta_seed(6, 1, True)]
+    assert _csv_rows(tmp_path / "dist" / "sweep.csv") == _csv_rows(tmp_path / "local" / "sweep.csv")
+
+
 def test_cancelling_a_cluster_sweep_cancels_its_tasks(client):
     """A cancel after the first merged chunk ends the sweep at its first angle (no
     angle can have stored 20 000 records from one 1024-packet unit) and leaves no

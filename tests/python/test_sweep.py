@@ -553,6 +553,50 @@ def test_real_small_sweep_outputs(tmp_path):
 
 
 @needs_engine
+def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
+    """seed_per_beta: beta k runs with (seed + k x 0x9E3779B97F4A7C15) mod 2^64, written out here,
+    and its row is bit for bit the one-beta sweep with that seed; the report says so, and its
+    visibility section says the flatness test holds its level (with one seed: conservative)."""
+    betas, seed = [0.0, 20.0, 40.0], 2**64 - 2  # near the top: the step wraps around 2^64
+    vis = {"target": "polyp", "background": "tissue", "width": 16, "height": 16}
+    res = sw.sweep(
+        None, betas=betas, store=1000, seed=seed, seed_per_beta=True, progress=False, out_dir=tmp_path, visibility=vis
+    )
+    seeds = [(seed + k * 11400714819323198485) % 18446744073709551616 for k in range(3)]
+    assert [r["seed"] for r in res.rows] == seeds and seeds[1] < seed and res.meta["seed_per_beta"] is True
+    for k in (1, 2):
+        one = sw.sweep(None, betas=[betas[k]], store=1000, seed=seeds[k], progress=False, visibility=vis).rows[0]
+        skip = {"seconds"} | {c for c in one if "_rel" in c}
+        assert {c: v for c, v in one.items() if c not in skip} == {
+            c: v for c, v in res.rows[k].items() if c not in skip
+        }
+    report = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert f"seed {seed} (angle k: seed + k × 0x9e3779b97f4a7c15 mod 2^64)" in report
+    assert "every β ran with a seed of its own, so the test holds its level" in report
+    common = sw.sweep(
+        None, betas=betas[:2], store=1000, seed=3, progress=False, out_dir=tmp_path / "one", visibility=vis
+    )
+    assert [r["seed"] for r in common.rows] == [3, 3] and common.meta["seed_per_beta"] is False
+    text = (tmp_path / "one" / "report.md").read_text(encoding="utf-8")
+    assert "seed 3 (same for every angle)" in text and "so the test is conservative" in text
+    with pytest.raises(ValueError, match=r"seed_per_beta = 'yes' must be True or False"):
+        sw.sweep(None, betas=betas, store=1000, seed_per_beta="yes", progress=False)
+
+
+def test_sweep_cli_seed_per_beta_reaches_the_sweep_and_blender():
+    p = argparse.ArgumentParser()
+    sweep_cli.add_sweep_arguments(p)
+    args = p.parse_args(["--betas", "0,10", "--seed-per-beta"])
+    assert sweep_cli.sweep_kwargs(args)["seed_per_beta"] is True
+    assert "--seed-per-beta" in sweep_cli.forward_argv(args)
+    assert p.parse_args(sweep_cli.forward_argv(args)).seed_per_beta is True
+    plain = p.parse_args(["--betas", "0,10"])
+    assert sweep_cli.sweep_kwargs(plain)["seed_per_beta"] is False and "--seed-per-beta" not in sweep_cli.forward_argv(
+        plain
+    )
+
+
+@needs_engine
 @pytest.mark.parametrize("polyp", [None, "dome"])
 def test_real_beta0_azimuth_uniform(polyp):
     """Acceptance: at beta = 0 every elevation ring is azimuthally uniform (chi-square).
