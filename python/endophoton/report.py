@@ -7,9 +7,9 @@ reported trend values in :data:`endophoton.paper.PAPER_TRENDS`, labelled as the 
 Uncertainties of derived trends (slopes, fitted peaks, differences between
 angles) follow the batch-means rule of :mod:`endophoton.analysis`: the derived
 statistic is computed once per batch b (from the b-th batch value of every
-beta), and its standard error is sd(batch values, ddof=1) / sqrt(B).  Runs at
-different beta use the same seed unless the sweep gave each its own
-(``seed_per_beta``): then packet k draws the same random numbers at every beta;
+beta), and its standard error is sd(batch values, ddof=1) / sqrt(B).  Unless
+the sweep gave every beta a seed of its own (``seed_per_beta``), all betas run
+with the same seed, so packet k draws the same random numbers at every beta;
 batch b is the b-th of B equal blocks of each run's own packets, so where the
 betas traced different numbers of packets (a fixed store) batch b of two betas
 holds the same packets only in part.
