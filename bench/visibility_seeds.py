@@ -5,8 +5,9 @@
     /usr/bin/python3 bench/visibility_seeds.py [--reps 10] [--store 20000]
 
 Runs ``--reps`` sweeps of ``ep.default_flat_scene()`` over beta = 0, 5, ..., 55 deg two ways: as
-``ep.sweep`` runs them (the same seed at every beta, so packet k of every beta draws the same
-random numbers) and with a seed of its own for every beta (independent runs). Prints, per contrast:
+``ep.sweep`` runs them by default (the same seed at every beta, so packet k of every beta draws the
+same random numbers) and with ``seed_per_beta=True`` (a seed of its own for every beta: independent
+runs). Prints, per contrast:
 the mean flatness chi-square (11 degrees of freedom: its mean is 11 for independent errors and a
 contrast flat in beta), how many sweeps reject flatness at report.ALPHA, the correlation across the
 sweeps of the values at betas 5 deg apart and 20 deg or more apart, and the fitted peak's spread over
@@ -41,18 +42,19 @@ def contrasts(rows):
     return out
 
 
-def one_sweep(store, seed, own_seeds, view):
-    """One sweep's contrasts: every beta with ``seed``, or beta k with seed ``seed * 1000 + k``."""
-    if not own_seeds:
-        res = ep.sweep(ep.default_flat_scene(), betas=BETAS, store=store, seed=seed, progress=False, visibility=view)
-        return contrasts(res.rows)
-    rows = []
-    for k, beta in enumerate(BETAS):
-        one = ep.sweep(
-            ep.default_flat_scene(), betas=[beta], store=store, seed=seed * 1000 + k, progress=False, visibility=view
-        )
-        rows += one.rows
-    return contrasts(rows)
+def one_sweep(store, seed, seed_per_beta, view):
+    """One sweep's contrasts: every beta with ``seed``, or with ``seed_per_beta`` beta k with its own
+    seed (``sweep_schema.beta_seed``)."""
+    res = ep.sweep(
+        ep.default_flat_scene(),
+        betas=BETAS,
+        store=store,
+        seed=seed,
+        seed_per_beta=seed_per_beta,
+        progress=False,
+        visibility=view,
+    )
+    return contrasts(res.rows)
 
 
 def summarise(label, sweeps):

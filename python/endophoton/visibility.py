@@ -112,7 +112,7 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     The test and the bootstrap take the points' errors as independent. Errors that are positively
     correlated, as in a beta sweep, where every beta runs the same seed, make the test conservative:
     the chi-square is smaller than with independent errors (bench/visibility_seeds.py: a flat
-    contrast over 12 betas had a mean chi-square of 6.8 in 10 sweeps, against 11.1 with a seed per
+    contrast over 12 betas had a mean chi-square of 6.8 in 10 sweeps, against 10.0 with a seed per
     beta).
     """
     x = np.asarray(x, dtype=np.float64)

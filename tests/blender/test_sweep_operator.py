@@ -293,9 +293,8 @@ def test_no_tissue_rejected(ep, tmp_path):
 
 def test_summary_best_beta_is_the_reports_fit(ep, tmp_path):
     """With enough angles for the paper's degree-6 fit, the panel's best β and its error are the
-    written report's: the fit's maximum and its error from the paired batches (every β runs the
-    same seed, so the runs are correlated and an error drawn independently per β would not hold
-    that), the same numbers report.md prints, with or without "at range edge"."""
+    written report's (ep.report.compute_trends: the fit's maximum refitted per batch of packets,
+    one rule in one place), the same numbers report.md prints, with or without "at range edge"."""
     n = sweep_job.min_fit_points(ep)
     betas = [5.0 * k for k in range(n)]
     scene = _setup(tmp_path, betas=",".join(f"{b:g}" for b in betas), store=500)
