@@ -93,19 +93,21 @@ def parse_betas(ep, text, who):
     if not text.strip():
         raise InputError(f"{field} is empty; give angles in degrees, e.g. '0,10,20' or '0:60:5'")
     try:
-        values = ep.beta_sweep.parse_betas(text)
+        values = ep.beta_sweep.parse_betas(text, spacing=False)  # spacing: below, worded for this field
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise InputError(
             f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
             f"(degrees, stop excluded) giving at least one angle: {e}"
         ) from None
-    seen = set()
     for beta in values:
         if not math.isfinite(beta) or not -90.0 < beta < 90.0:
-            raise InputError(f"{field}: β = {beta:g}° must be a finite angle in (-90, 90) degrees")
-        if beta in seen:
-            raise InputError(f"{field}: β = {beta:g}° is given twice")
-        seen.add(beta)
+            raise InputError(
+                f"{field}: β = {ep.sweep_schema.beta_text(beta)}° must be a finite angle in (-90, 90) degrees"
+            )
+    try:  # the package's own rule: no two β closer than its resolution (sweep_schema.BETA_RESOLUTION_DEG)
+        ep.sweep_schema.check_beta_spacing(values, field)
+    except ValueError as e:
+        raise InputError(str(e)) from None
     return [float(b) for b in values]
 
 
@@ -192,20 +194,20 @@ def collect_sweep_inputs(context, ep):
         engine_scene = simulation.build_engine_scene(ep, regions)
     except ValueError as exc:
         raise InputError(f"Engine rejected the input: {exc}") from exc
-    # The head for every β, as the sweep will build it: the engine's own checks
-    # run here, before anything starts.
-    for beta in betas:
-        try:
-            ep.EndoscopeRig.from_beta(
-                beta_deg=beta,
-                distance=inputs.distance_m,
-                point=inputs.point_m,
-                normal=inputs.normal,
-                tilt_axis=inputs.tilt_axis,
-                **inputs.rig_params,
-            )
-        except ValueError as exc:
-            raise InputError(f"Object '{rig_obj.name}': at β = {beta:g}°: {exc}") from exc
+    # The head for every β, as the sweep will build it, and its placement in the
+    # scene: the package's own check (ep.sweep makes it too), before anything starts.
+    try:
+        ep.beta_sweep.check_placements(
+            engine_scene,
+            betas,
+            distance=inputs.distance_m,
+            point=inputs.point_m,
+            normal=inputs.normal,
+            tilt_axis=inputs.tilt_axis,
+            rig_kwargs=inputs.rig_params,
+        )
+    except ValueError as exc:
+        raise InputError(f"{who}: sweep.betas = '{settings.betas}' with rig '{rig_obj.name}': {exc}") from None
     return inputs, engine_scene
 
 

@@ -54,6 +54,8 @@ from .sweep_schema import (
     VISIBILITY_COLUMNS,
     SweepResult,
     beta_seed,
+    beta_text,
+    check_beta_spacing,
     output_file_names,
     parse_betas,
 )
@@ -68,6 +70,7 @@ __all__ = [
     "rig_geometry",
     "CSV_COLUMNS",
     "parse_betas",
+    "check_placements",
 ]
 
 
@@ -254,7 +257,8 @@ def _checked_betas(betas: Iterable[float], store: int, n_batches: int) -> list[f
     """``betas`` as floats, after checking the arguments every sweep needs (clear errors).
 
     A string is parsed with the command line's grammar (:func:`parse_betas`); at most
-    :data:`MAX_BETAS` angles are taken from any iterable (an endless one is an error, not a hang)."""
+    :data:`MAX_BETAS` angles are taken from any iterable (an endless one is an error, not a hang);
+    no two closer than ``sweep_schema.BETA_RESOLUTION_DEG`` (:func:`check_beta_spacing`)."""
     if isinstance(betas, str):
         try:
             return _checked_betas(parse_betas(betas, field="betas ="), store, n_batches)
@@ -266,6 +270,7 @@ def _checked_betas(betas: Iterable[float], store: int, n_batches: int) -> list[f
     betas = [float(b) for b in betas]
     if not betas:
         raise ValueError("betas: empty")
+    check_beta_spacing(betas, "betas")
     if int(store) < n_batches:
         raise ValueError(f"store = {store} must be >= n_batches = {n_batches}")
     return betas
@@ -320,6 +325,22 @@ def _setup_beta(
     return scene, unit, _rig_from_beta(beta, dist, point, normal, tilt_axis, rig_kwargs)
 
 
+def _setup_of(static_scene, builder, distance, point, normal, tilt_axis, rig_kwargs, rig_builder, meta) -> Callable:
+    """``setup(beta) -> (scene, unit, rig)``: :func:`_setup_beta` with a sweep's arguments."""
+    return functools.partial(
+        _setup_beta,
+        static_scene=static_scene,
+        builder=builder,
+        distance=distance,
+        point=point,
+        normal=normal,
+        tilt_axis=tilt_axis,
+        rig_kwargs=rig_kwargs,
+        rig_builder=rig_builder,
+        meta=meta,
+    )
+
+
 class _Rows:
     """The sweep's rows, histograms and batch values, accepted in beta order."""
 
@@ -366,10 +387,29 @@ def _check_placements(betas, setup: Callable) -> None:
         except ValueError as e:
             bad.append((beta, str(e)))
     if bad:
-        angles = ", ".join(f"{b:g}" for b, _ in bad)
+        angles = ", ".join(beta_text(b) for b, _ in bad)
         raise ValueError(
             f"betas: at rig.beta_deg = {angles} the endoscope head enters the tissue; drop them. {bad[0][1]}"
         )
+
+
+def check_placements(
+    scene: Any,
+    betas: Iterable[float],
+    distance: float | None = None,
+    point: Sequence[float] = (0.0, 0.0, 0.0),
+    normal: Sequence[float] = (0.0, 0.0, 1.0),
+    tilt_axis: Sequence[float] = (0.0, 1.0, 0.0),
+    rig_kwargs: Mapping[str, Any] | None = None,
+    rig_builder: Callable | None = None,
+) -> None:
+    """The check :func:`sweep` makes before its first run, on its own: the head of every beta, built
+    as the sweep builds it (``EndoscopeRig.from_beta``, or ``rig_builder(beta, scene)``), must lie in
+    the ambient of ``scene`` (an ``ep.Scene``; arguments as :func:`sweep`'s). Raises ValueError naming
+    the refused betas, or the rig's own error; returns None when every head fits. The add-on calls it
+    on the main thread before its sweep starts."""
+    setup = _setup_of(scene, scene, distance, point, normal, tilt_axis, dict(rig_kwargs or {}), rig_builder, {})
+    _check_placements([float(b) for b in betas], setup)
 
 
 def _sweep_locally(
@@ -562,18 +602,7 @@ def sweep(
     meta["seed_per_beta"] = seed_per_beta
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
-    setup = functools.partial(
-        _setup_beta,
-        static_scene=static_scene,
-        builder=scene_or_builder,
-        distance=distance,
-        point=point,
-        normal=normal,
-        tilt_axis=tilt_axis,
-        rig_kwargs=rig_kwargs,
-        rig_builder=rig_builder,
-        meta=meta,
-    )
+    setup = _setup_of(static_scene, scene_or_builder, distance, point, normal, tilt_axis, rig_kwargs, rig_builder, meta)
     analyse = functools.partial(
         _beta_outcome,
         normal=normal,
@@ -609,7 +638,10 @@ def sweep(
 def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool = True, report: bool = True) -> dict:
     """Write sweep.csv, sweep.json, the plots and report.md into ``out_dir``; returns the paths.
     Every file's path is checked before any is written (a directory named like one of them is
-    refused by name, ValueError), so a refused write leaves the folder as it was."""
+    refused by name, ValueError), so a refused write leaves the folder as it was. So are betas
+    closer than ``sweep_schema.BETA_RESOLUTION_DEG`` (a result read from a JSON file not written by
+    :func:`sweep`): no fit over them is posed."""
+    check_beta_spacing(result.betas, "result.betas")
     os.makedirs(out_dir, exist_ok=True)
     vis = bool(result.meta.get("visibility"))
     check_output_files(out_dir, output_file_names(result.betas, visibility=vis, plots=plots, report=report))

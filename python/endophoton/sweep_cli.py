@@ -18,7 +18,7 @@ import subprocess
 from .analysis import DEFAULT_BATCHES
 from .beta_sweep import default_flat_scene, sweep, write_outputs
 from .io import check_output_files
-from .sweep_schema import output_file_names, parse_betas
+from .sweep_schema import beta_text, output_file_names, parse_betas
 
 __all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", "scheduler_client"]
 
@@ -118,7 +118,7 @@ def forward_argv(args: argparse.Namespace) -> list:
     """The ``sweep`` arguments, as a list the add-on's ``sweep_blend.main`` parses again inside Blender."""
     argv = [
         "--betas",
-        ",".join(f"{b:g}" for b in args.betas),
+        ",".join(beta_text(b) for b in args.betas),  # as given: :g would turn 89.9999999 into 90
         "--store",
         str(args.store),
         "--seed",

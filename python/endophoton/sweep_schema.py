@@ -14,6 +14,7 @@ import math
 import os
 import sys
 from dataclasses import dataclass, field
+from typing import Iterable
 
 import numpy as np
 
@@ -32,6 +33,9 @@ __all__ = [
     "VISIBILITY_FILES",
     "SEED_STEP",
     "beta_seed",
+    "BETA_RESOLUTION_DEG",
+    "beta_text",
+    "check_beta_spacing",
 ]
 
 # CSV columns: name -> description.  docs/sweep.md lists exactly these, in this order
@@ -207,6 +211,36 @@ def beta_seed(seed: int, k: int, per_beta: bool) -> int:
     return (int(seed) + int(k) * SEED_STEP) % 2**64 if per_beta else int(seed)
 
 
+#: Two β of one sweep must differ by at least this many degrees. A millionth of a degree tilts the
+#: head of a rig 1 cm from the tissue by 0.2 nm, far below any length the geometry resolves; β values
+#: closer than that are one angle run twice. It also keeps every fit over β well posed: numpy.polyfit
+#: scales the Vandermonde columns by their norms, and β spaced 1e-200 apart make those inf/NaN, which
+#: LAPACK (DLASCL) answers by ending the process. SweepResult.histogram matches β to 1e-9.
+BETA_RESOLUTION_DEG = 1e-6
+
+
+def beta_text(beta: float) -> str:
+    """``beta`` (degrees) for a message, as given: the shortest text that reads back as the same
+    float ("80", "89.99999", "1e-200"), never rounded as ``:g`` would (89.9999999 is not 90)."""
+    text = repr(float(beta))
+    return text[:-2] if text.endswith(".0") else text
+
+
+def check_beta_spacing(betas: Iterable[float], field: str = "betas") -> None:
+    """ValueError naming ``field`` and two values if two β (degrees) lie closer than
+    :data:`BETA_RESOLUTION_DEG` (the same value twice included); the one check of the β lists of
+    ``ep.sweep``, the command line's ``--betas`` and the add-on's ``sweep.betas``."""
+    finite = sorted(float(b) for b in betas if math.isfinite(float(b)))
+    for a, b in zip(finite, finite[1:]):
+        if a == b:
+            raise ValueError(f"{field}: β = {beta_text(a)} is given twice; give each angle once")
+        if b - a < BETA_RESOLUTION_DEG:
+            raise ValueError(
+                f"{field}: β = {beta_text(a)} and β = {beta_text(b)} are closer than "
+                f"{BETA_RESOLUTION_DEG:g} degrees, the sweep's resolution; drop one"
+            )
+
+
 def _count_text(n: float) -> str:
     """An angle count for a message: exact up to a million, else 3 digits (1e18)."""
     if not math.isfinite(n):
@@ -214,12 +248,14 @@ def _count_text(n: float) -> str:
     return str(int(n)) if n < 1e6 else f"{n:.3g}".replace("e+", "e")
 
 
-def parse_betas(text: str, field: str = "--betas") -> list:
+def parse_betas(text: str, field: str = "--betas", spacing: bool = True) -> list:
     """Parse ``"0,5,10"`` or ``"start:stop:step"`` (stop exclusive, like range) into floats (degrees).
 
     start and stop must be finite and step > 0 (a step beyond the range gives just start); at most
-    :data:`MAX_BETAS` angles, counted before any list is built. Errors are ``argparse.ArgumentTypeError``
-    naming ``field`` and the text.
+    :data:`MAX_BETAS` angles, counted before any list is built; no two closer than
+    :data:`BETA_RESOLUTION_DEG` (:func:`check_beta_spacing`; ``spacing=False`` leaves that check to a
+    caller that words its errors itself). Errors are ``argparse.ArgumentTypeError`` naming ``field``
+    and the text.
     """
     text = str(text).strip()
     usage = f"{field} {text!r}: use '0,5,10' or 'start:stop:step'"
@@ -259,6 +295,11 @@ def parse_betas(text: str, field: str = "--betas") -> list:
             )
     if not vals:
         raise argparse.ArgumentTypeError(f"{field} {text!r}: no angles")
+    try:
+        if spacing:
+            check_beta_spacing(vals, f"{field} {text!r}" if len(text) <= 60 else f"{field} {text[:40]!r}...")
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
     return vals
 
 

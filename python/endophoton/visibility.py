@@ -24,7 +24,7 @@ import numpy as np
 
 from .analysis import chi2_sf
 
-__all__ = ["jackknife", "weber", "contrast", "fit_peak"]
+__all__ = ["jackknife", "weber", "contrast", "fit_peak", "polyfit_ready"]
 
 
 def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[float | None, float | None]:
@@ -90,6 +90,48 @@ def contrast(view, target: str, background: str, channels: str = "srgb") -> dict
     return out
 
 
+def polyfit_ready(x, y, deg: int, w=None) -> bool:
+    """Whether ``numpy.polyfit(x, y, deg, w=w)`` is posed on these values: more points than ``deg``,
+    x, y and w finite, and the least-squares system polyfit hands to LAPACK finite. polyfit scales
+    each column of the (weighted) Vandermonde matrix by its norm; x values so close together near 0
+    that a column's norm underflows to 0 (x spaced 1e-200 apart), or so large that a power
+    overflows, make that matrix inf/NaN, and LAPACK's DLASCL then ends the whole process (Blender
+    with it). Every polyfit of the sweep's reports (:func:`fit_peak`, ``endophoton.report``) asks
+    this first and returns its not-fitted outcome when the answer is False."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim != 1 or y.shape != x.shape or x.size <= int(deg) or int(deg) < 0:
+        return False
+    w = np.ones_like(x) if w is None else np.asarray(w, dtype=np.float64)
+    if w.shape != x.shape or not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(w).all()):
+        return False
+    with np.errstate(all="ignore"):
+        lhs = np.vander(x, int(deg) + 1) * w[:, None]
+        scale = np.sqrt((lhs * lhs).sum(axis=0))
+        scaled = lhs / scale
+        rhs = y * w
+    return bool(np.isfinite(scale).all() and (scale > 0).all() and np.isfinite(scaled).all() and np.isfinite(rhs).all())
+
+
+def _not_fitted(n: int) -> dict:
+    """:func:`fit_peak`'s outcome when there is no fit (fewer than 3 points, or none posed)."""
+    return {
+        "x_peak": None,
+        "x_max": None,
+        "x_peak_stderr": None,
+        "x_peak_lo": None,
+        "x_peak_hi": None,
+        "y_peak": None,
+        "interior": False,
+        "vertex": False,
+        "coeffs": [],
+        "n": int(n),
+        "flat_chi2": None,
+        "flat_dof": None,
+        "flat_p": None,
+    }
+
+
 def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     """Where a contrast peaks over beta, and how sure we are.
 
@@ -102,7 +144,9 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     16th/84th percentiles. ``interior`` tells whether the peak lies strictly inside the swept range
     (else the maximum may lie outside it); ``vertex`` whether it is the parabola's maximum (False:
     the parabola has none inside the fitted points, and ``x_peak`` is merely the better end of
-    them). ``x_max`` is the x of the largest point.
+    them). ``x_max`` is the x of the largest point. Fewer than 3 finite points, or points no
+    parabola can be fitted to (:func:`polyfit_ready`), give the not-fitted outcome: every number
+    None, ``coeffs`` empty.
 
     Whether y depends on x at all: ``flat_chi2`` is the chi-square of every point about their
     weighted mean, ``flat_dof`` = n - 1 and ``flat_p`` its p-value. With independent errors and no
@@ -121,21 +165,7 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
     ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(se) & (se > 0)
     x, y, se = x[ok], y[ok], se[ok]
     if x.size < 3:
-        return {
-            "x_peak": None,
-            "x_max": None,
-            "x_peak_stderr": None,
-            "x_peak_lo": None,
-            "x_peak_hi": None,
-            "y_peak": None,
-            "interior": False,
-            "vertex": False,
-            "coeffs": [],
-            "n": int(x.size),
-            "flat_chi2": None,
-            "flat_dof": None,
-            "flat_p": None,
-        }
+        return _not_fitted(x.size)
     order = np.argsort(x)
     x, y, se = x[order], y[order], se[order]
     k = int(np.argmax(y))
@@ -146,7 +176,11 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
         j = int(np.argmax(yy))
         lo, hi = max(0, min(j - 2, x.size - 5)), min(x.size, max(j + 3, 5))
         xs = x[lo:hi]
-        c = np.polyfit(xs, yy[lo:hi], 2, w=1.0 / se[lo:hi])
+        with np.errstate(divide="ignore", over="ignore"):
+            w = 1.0 / se[lo:hi]  # inf for a stderr of 5e-324: not posed
+        if not polyfit_ready(xs, yy[lo:hi], 2, w):
+            return None
+        c = np.polyfit(xs, yy[lo:hi], 2, w=w)
         if c[0] < 0:
             v = -c[1] / (2 * c[0])
             if xs[0] < v < xs[-1]:
@@ -154,17 +188,22 @@ def fit_peak(x, y, y_stderr, n_boot: int = 2000, seed: int = 12345) -> dict:
         grid = np.array([xs[0], xs[-1]])
         return float(grid[np.argmax(np.polyval(c, grid))]), c, False, xs
 
-    x0, c0, vertex, xs = peak(y)
+    fit = peak(y)
+    if fit is None:
+        return _not_fitted(x.size)
+    x0, c0, vertex, xs = fit
     rng = np.random.default_rng(seed)
-    boots = np.array([peak(y + rng.standard_normal(y.size) * se)[0] for _ in range(int(n_boot))])
+    boots = [peak(y + rng.standard_normal(y.size) * se) for _ in range(int(n_boot))]
+    boots = np.array([b[0] for b in boots if b is not None])  # a draw that overflows is no fit
+    spread = boots.size >= 2
     w = 1.0 / se**2
     flat_chi2 = float(np.sum(((y - np.sum(w * y) / np.sum(w)) / se) ** 2))
     return {
         "x_peak": x0,
         "x_max": float(x[k]),
-        "x_peak_stderr": float(np.std(boots, ddof=1)),
-        "x_peak_lo": float(np.percentile(boots, 16)),
-        "x_peak_hi": float(np.percentile(boots, 84)),
+        "x_peak_stderr": float(np.std(boots, ddof=1)) if spread else None,
+        "x_peak_lo": float(np.percentile(boots, 16)) if spread else None,
+        "x_peak_hi": float(np.percentile(boots, 84)) if spread else None,
         "y_peak": float(np.polyval(c0, x0)),
         "interior": bool(x[0] < x0 < x[-1]),
         "vertex": vertex,

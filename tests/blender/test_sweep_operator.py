@@ -240,7 +240,11 @@ def _assert_rejected(pattern, out_dir, invoke=False):
         ("betas", "  ", r"sweep.betas = '  ' is empty"),
         ("betas", "0,90", r"sweep.betas = '0,90': β = 90° must be a finite angle in \(-90, 90\)"),
         ("betas", "-95,0", r"β = -95° must be a finite angle"),
-        ("betas", "0,10,0", r"β = 0° is given twice"),
+        ("betas", "0,10,0", r"sweep.betas = '0,10,0': β = 0 is given twice"),
+        # closer than the package's resolution (1e-6 degrees): these used to end Blender in LAPACK mid-sweep
+        ("betas", "0,1e-200", r"sweep.betas = '0,1e-200': β = 0 and β = 1e-200 are closer than 1e-06 degrees"),
+        ("betas", "0,1e-300", r"sweep.betas = '0,1e-300': β = 0 and β = 1e-300 are closer than 1e-06 degrees"),
+        ("betas", "20,10,20.0000005", r"β = 20 and β = 20.0000005 are closer than 1e-06 degrees"),
         ("betas", "10:0:5", r"sweep.betas = '10:0:5' must be a list '0,10,20' or a range"),
         ("betas", "ten", r"sweep.betas = 'ten' must be a list"),
         ("betas", "0:1e9:1e-9", r"sweep.betas = '0:1e9:1e-9' must be a list .* gives 1e18 angles, more than 10000"),
@@ -253,6 +257,30 @@ def test_bad_settings_rejected(ep, tmp_path, field, value, pattern):
     _setup(tmp_path)
     setattr(bpy.context.scene.endophoton.sweep, field, value)
     _assert_rejected(pattern, tmp_path / "sweep")
+
+
+@pytest.mark.parametrize(
+    "betas, refused", [("0,80", "80"), ("0,89.99999", "89.99999"), ("0,80,89.99999", "80, 89.99999")]
+)
+def test_head_entering_the_tissue_rejected_before_the_sweep_starts(ep, tmp_path, capfd, monkeypatch, betas, refused):
+    """A β inside (-90, 90) whose head enters the tissue (flat_tissue.blend: from about 59°) is the
+    package's placement check (ep.beta_sweep.check_placements), made on the main thread before the
+    worker starts: the operator's error names the field and the β as typed (89.99999, not 90),
+    no traceback is printed, no folder is made and the scene is untouched."""
+    _setup(tmp_path, betas=betas)
+
+    def no_start(self):
+        raise AssertionError("the sweep's worker started")
+
+    monkeypatch.setattr(sweep_job.SweepJob, "start", no_start)
+    capfd.readouterr()
+    pattern = (
+        rf"sweep.betas = '{re.escape(betas)}' with rig 'EP Endoscope': betas: at rig.beta_deg = {re.escape(refused)} "
+        r"the endoscope head enters the tissue; drop them\. .*region '"
+    )
+    _assert_rejected(pattern, tmp_path / "sweep")
+    out, err = capfd.readouterr()
+    assert "Traceback" not in out + err, out + err
 
 
 def test_bad_input_through_invoke(ep, tmp_path):
