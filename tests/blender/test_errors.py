@@ -3,6 +3,7 @@
 object and field, and the scene stays exactly as it was."""
 
 import math
+import os
 
 import bpy
 import numpy as np
@@ -168,3 +169,63 @@ def test_previous_result_survives_a_rejected_run():
     bpy.context.scene.endophoton.photons = 0
     _assert_rejected(r"simulation.photons = 0")
     assert bpy.context.scene.endophoton.result_collection == previous
+
+
+def _assert_engine_rejected(pattern, capfd):
+    """The run is refused with "Engine rejected the input: ..." matching ``pattern``, prints no
+    traceback (the worker's error is bad input, not a failure) and leaves the scene as it was."""
+    capfd.readouterr()
+    _assert_rejected(r"^Error: Engine rejected the input: " + pattern)
+    out, err = capfd.readouterr()
+    assert "Traceback" not in out + err
+    assert "run failed" not in out + err
+
+
+def test_engine_rejects_a_self_intersecting_mesh(capfd, tmp_path):
+    """Repro A (D3, D4): the engine's mesh check ends the run as bad input, and the grid folder
+    the run would have made for its file is not left behind."""
+    tissue = mesh_object("Tissue", np.concatenate([BOX_V, BOX_V * 0.5]), [BOX_F, BOX_F + 8])
+    tissue.endophoton.role = "TISSUE"
+    _rig()
+    s = bpy.context.scene.endophoton
+    s.quality = "CUSTOM"
+    s.photons = 1000
+    s.output_grids = True
+    s.grid_dir = str(tmp_path / "new" / "a" / "b")
+    _assert_engine_rejected(r"region 'Tissue': mesh intersects itself", capfd)
+    assert os.listdir(tmp_path) == []
+
+
+def test_engine_rejects_fluorescent_only_store_without_fluorophores(capfd):
+    """Repro B (D3): the message names the add-on's fields."""
+    tissue, _root = _valid_scene()
+    tissue.endophoton.fluorophores.clear()
+    s = bpy.context.scene.endophoton
+    s.mode = "STORE"
+    s.store = 10
+    s.fluorescent_only = True
+    _assert_engine_rejected(
+        r"simulation\.store = 10 with simulation\.fluorescent_only = True needs a fluorophore", capfd
+    )
+
+
+def test_failed_run_removes_only_the_folders_it_made(tmp_path, monkeypatch):
+    """D4: a run that fails after its checks removes the (empty) folders it made, and only those."""
+    from endophoton_addon import simulation
+
+    _valid_scene()
+    s = bpy.context.scene.endophoton
+    s.output_grids = True
+    (tmp_path / "kept").mkdir()
+    s.grid_dir = str(tmp_path / "kept" / "new" / "deeper")
+
+    def broken_run(self):
+        assert os.path.isdir(os.path.dirname(self.inputs.grid_path))  # made after the checks
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(simulation.SimulationJob, "_run", broken_run)
+    before = data_snapshot()
+    with pytest.raises(RuntimeError, match="EndoPhoton run failed: RuntimeError: disk on fire"):
+        bpy.ops.endophoton.run_simulation()
+    assert data_snapshot() == before
+    assert os.listdir(tmp_path) == ["kept"] and os.listdir(tmp_path / "kept") == []
