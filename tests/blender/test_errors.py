@@ -229,3 +229,41 @@ def test_failed_run_removes_only_the_folders_it_made(tmp_path, monkeypatch):
         bpy.ops.endophoton.run_simulation()
     assert data_snapshot() == before
     assert os.listdir(tmp_path) == ["kept"] and os.listdir(tmp_path / "kept") == []
+
+
+def _result_with_camera():
+    """A small run (a coloured point cloud, the active result) and a scene camera."""
+    _valid_scene()
+    s = bpy.context.scene.endophoton
+    s.output_grids = False
+    s.output_points = True
+    assert bpy.ops.endophoton.run_simulation() == {"FINISHED"}
+    scene = bpy.context.scene
+    camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    camera.location = (0.0, 0.0, 0.2)
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x, scene.render.resolution_y = 32, 24
+    return scene
+
+
+def test_render_legend_unwritable_path_is_named_before_rendering():
+    """D5: a path that cannot be written (under a regular file: root may write anywhere else)
+    is refused by name before the render, and no datablock (no Render Result) is left."""
+    _result_with_camera()
+    before = data_snapshot()
+    with pytest.raises(RuntimeError, match=r"render_legend\.filepath = '/etc/passwd/x\.png': '/etc/passwd' is a file"):
+        bpy.ops.endophoton.render_legend(filepath="/etc/passwd/x.png")
+    assert data_snapshot() == before
+
+
+def test_render_legend_writes_only_the_png(tmp_path):
+    """D5: the linear render it exposes is a temporary file, not left beside the PNG."""
+    _result_with_camera()
+    path = tmp_path / "l.png"
+    assert bpy.ops.endophoton.render_legend(filepath=str(path)) == {"FINISHED"}
+    assert os.listdir(tmp_path) == ["l.png"]
+    assert bpy.data.images.load(str(path), check_existing=True).size[0] > 32
