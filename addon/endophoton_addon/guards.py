@@ -198,14 +198,15 @@ def check_voxels(regions, voxel_m, who):
         )
 
 
-def resolve_folder(raw, field, default_name):
+def resolve_folder(raw, field, default_name, value=None):
     """Absolute output folder for a folder field ('' = //default_name next to the
     saved .blend, else in the temp folder).  Checks it can be created and written;
-    creates nothing.  ``field`` names owner and field for the message."""
+    creates nothing.  ``field`` names owner and field for the message, ``value``
+    the field's value when that is not the folder itself (a file path's folder)."""
     import bpy
 
     raw = raw.strip()
-    field = f"{field} = '{raw}'"
+    field = f"{field} = '{raw if value is None else value}'"
     if not raw:
         path = (
             bpy.path.abspath("//" + default_name)

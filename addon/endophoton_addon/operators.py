@@ -313,10 +313,16 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
     def execute(self, context):
         collection = context.scene.endophoton.result_collection
         try:
-            path = self.filepath or os.path.join(
-                simulation.grid_folder(context.scene.endophoton), bpy.path.clean_name(collection.name) + "_legend.png"
-            )
-            image = results.render_with_legend(context.scene, collection, bpy.path.abspath(path))
+            if self.filepath:
+                path = os.path.abspath(bpy.path.abspath(self.filepath))
+                folder = os.path.dirname(path)  # checked before the render, not after it
+                guards.resolve_folder(folder, "render_legend.filepath", "", value=self.filepath)
+            else:
+                path = os.path.join(
+                    simulation.grid_folder(context.scene.endophoton),
+                    bpy.path.clean_name(collection.name) + "_legend.png",
+                )
+            image = results.render_with_legend(context.scene, collection, path)
         except (RuntimeError, InputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

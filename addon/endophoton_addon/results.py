@@ -343,25 +343,35 @@ def render_with_legend(scene, collection, path):
         raise RuntimeError(f"Collection '{collection.name}' has no coloured point cloud to make a legend of")
     if scene.camera is None:
         raise RuntimeError(f"Scene '{scene.name}' has no camera to render from")
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    raw = os.path.splitext(path)[0] + "_raw.exr"  # linear scene values, no view transform
-    saved = scene.render.filepath, scene.render.image_settings.file_format
+    import tempfile
+
+    images_before = set(bpy.data.images)
     try:
-        scene.render.filepath = raw
-        scene.render.image_settings.file_format = "OPEN_EXR"
-        bpy.ops.render.render(write_still=True, scene=scene.name)
-    finally:
-        scene.render.filepath, scene.render.image_settings.file_format = saved
-    rendered = bpy.data.images.load(raw)
-    try:
-        w, h = rendered.size
-        pixels = np.empty(w * h * 4, np.float32)
-        rendered.pixels.foreach_get(pixels)
-    finally:
-        bpy.data.images.remove(rendered)
-    # Blender's rows run bottom-up; exposed like the endoscope-view images.
-    picture, exposure = colour_maps.exposed_srgb(pixels.reshape(h, w, 4)[::-1, :, :3])
-    colour_maps.legend_figure(legend, path, image=picture, title=f"{collection.name} (exposure ×{exposure:.3g})")
+        with tempfile.TemporaryDirectory(prefix="endophoton_legend_") as tmp:
+            raw = os.path.join(tmp, "raw.exr")  # linear scene values, no view transform; removed with tmp
+            saved = scene.render.filepath, scene.render.image_settings.file_format
+            try:
+                scene.render.filepath = raw
+                scene.render.image_settings.file_format = "OPEN_EXR"
+                bpy.ops.render.render(write_still=True, scene=scene.name)
+            finally:
+                scene.render.filepath, scene.render.image_settings.file_format = saved
+            rendered = bpy.data.images.load(raw)
+            try:
+                w, h = rendered.size
+                pixels = np.empty(w * h * 4, np.float32)
+                rendered.pixels.foreach_get(pixels)
+            finally:
+                bpy.data.images.remove(rendered)
+        # Blender's rows run bottom-up; exposed like the endoscope-view images.
+        picture, exposure = colour_maps.exposed_srgb(pixels.reshape(h, w, 4)[::-1, :, :3])
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        colour_maps.legend_figure(legend, path, image=picture, title=f"{collection.name} (exposure ×{exposure:.3g})")
+    except BaseException:  # no image of ours left behind (Blender's own "Render Result" slot stays, as after F12)
+        for image in set(bpy.data.images) - images_before:
+            if image.type != "RENDER_RESULT":
+                bpy.data.images.remove(image)
+        raise
     image = bpy.data.images.load(path, check_existing=True)
     image.reload()
     image[RUN_KEY] = collection.get(RUN_KEY)

@@ -5,7 +5,7 @@ wavelengths in nm; depths reported in cm.
 """
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
-from .run import CancelToken, GridRequest, Result, Target, run, FRACTIONS, TARGET_TALLIES
+from .run import CancelToken, GridRequest, Result, Target, check_run, run, FRACTIONS, TARGET_TALLIES
 from .scene import Region, Scene, forget_native_scenes, layered_slab
 from .sources import ConeSource, DiskSource, EndoscopeRig, PencilSource, source_from_dict
 from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
@@ -34,6 +34,7 @@ __all__ = [
     "EndoscopeRig",
     "source_from_dict",
     "run",
+    "check_run",
     "Result",
     "GridRequest",
     "Target",

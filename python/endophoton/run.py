@@ -195,13 +195,39 @@ def _request(a: SimpleNamespace) -> dict:
     return _native_options(a)
 
 
+def _arguments(scene, source, kwargs: dict) -> SimpleNamespace:
+    """``run(scene, source, **kwargs)``'s arguments by name, defaults filled in (unknown keywords: TypeError)."""
+    bound = inspect.signature(run).bind(scene, source, **kwargs)
+    bound.apply_defaults()
+    return SimpleNamespace(**bound.arguments)
+
+
 def run_request(scene: Scene, source, **kwargs) -> dict:
     """The engine request (checked) that ``run(scene, source, **kwargs)`` would make, without
     running it: the sweep on a cluster (endophoton.distributed.run_many) starts all its runs from
     these. Unknown keywords raise TypeError, as run() does."""
-    bound = inspect.signature(run).bind(scene, source, **kwargs)
-    bound.apply_defaults()
-    return _request(SimpleNamespace(**bound.arguments))
+    return _request(_arguments(scene, source, kwargs))
+
+
+def check_run(scene: Scene, source, **kwargs) -> list[str]:
+    """Every check ``run(scene, source, **kwargs)`` makes before it traces a packet, without
+    tracing: its arguments, the rig's placement, the engine scene's build (mesh checks; kept on
+    ``scene``, so the run that follows does not build it again), the source and the engine's own
+    validation of the request. Raises ValueError naming the field or region (the engine's own
+    errors are ``_core.InvalidArgument``, a ValueError); returns the notes the run would add to
+    its warnings. Writes no file."""
+    return _prepare(_arguments(scene, source, kwargs))[1]
+
+
+def _prepare(a: SimpleNamespace) -> tuple[dict, list[str], object, object]:
+    """:func:`check_run` of :func:`run`'s arguments ``a``: (engine options, notes, native scene,
+    native source)."""
+    opts = _request(a)
+    notes = placement.check_rig(a.scene, a.source)  # the endoscope head in the ambient (ValueError), its body
+    native_scene = a.scene.to_native()
+    native_source = _core.Source(a.source.native_lights(a.scene.unit_cm), body=a.source.native_body(a.scene.unit_cm))
+    _core.unit_plan(native_scene, native_source, _core.RunConfig(**opts))  # the engine's validation, no tracing
+    return opts, notes, native_scene, native_source
 
 
 def _native_options(a: SimpleNamespace) -> dict:
@@ -300,15 +326,13 @@ def run(
 
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
-    opts = _request(SimpleNamespace(**locals()))  # every argument of this call, captured once by name
-    notes = placement.check_rig(scene, source)  # the endoscope head in the ambient (ValueError), its body
+    # every argument of this call, captured once by name, checked as check_run() checks them
+    opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**locals()))
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 
         raw = distributed.run(scene, source, opts, client, chunk_units=chunk_units, progress=progress, cancel=cancel)
     else:
-        native_scene = scene.to_native()
-        native_source = _core.Source(source.native_lights(scene.unit_cm), body=source.native_body(scene.unit_cm))
         raw = _core.run(native_scene, native_source, _core.RunConfig(**opts), progress, cancel)
     return Result(with_warnings(raw, notes), scene, source, opts)
 

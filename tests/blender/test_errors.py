@@ -3,6 +3,7 @@
 object and field, and the scene stays exactly as it was."""
 
 import math
+import os
 
 import bpy
 import numpy as np
@@ -168,3 +169,101 @@ def test_previous_result_survives_a_rejected_run():
     bpy.context.scene.endophoton.photons = 0
     _assert_rejected(r"simulation.photons = 0")
     assert bpy.context.scene.endophoton.result_collection == previous
+
+
+def _assert_engine_rejected(pattern, capfd):
+    """The run is refused with "Engine rejected the input: ..." matching ``pattern``, prints no
+    traceback (the worker's error is bad input, not a failure) and leaves the scene as it was."""
+    capfd.readouterr()
+    _assert_rejected(r"^Error: Engine rejected the input: " + pattern)
+    out, err = capfd.readouterr()
+    assert "Traceback" not in out + err
+    assert "run failed" not in out + err
+
+
+def test_engine_rejects_a_self_intersecting_mesh(capfd, tmp_path):
+    """Repro A (D3, D4): the engine's mesh check ends the run as bad input, and the grid folder
+    the run would have made for its file is not left behind."""
+    tissue = mesh_object("Tissue", np.concatenate([BOX_V, BOX_V * 0.5]), [BOX_F, BOX_F + 8])
+    tissue.endophoton.role = "TISSUE"
+    _rig()
+    s = bpy.context.scene.endophoton
+    s.quality = "CUSTOM"
+    s.photons = 1000
+    s.output_grids = True
+    s.grid_dir = str(tmp_path / "new" / "a" / "b")
+    _assert_engine_rejected(r"region 'Tissue': mesh intersects itself", capfd)
+    assert os.listdir(tmp_path) == []
+
+
+def test_engine_rejects_fluorescent_only_store_without_fluorophores(capfd):
+    """Repro B (D3): the message names the add-on's fields."""
+    tissue, _root = _valid_scene()
+    tissue.endophoton.fluorophores.clear()
+    s = bpy.context.scene.endophoton
+    s.mode = "STORE"
+    s.store = 10
+    s.fluorescent_only = True
+    _assert_engine_rejected(
+        r"simulation\.store = 10 with simulation\.fluorescent_only = True needs a fluorophore", capfd
+    )
+
+
+def test_failed_run_removes_only_the_folders_it_made(tmp_path, monkeypatch):
+    """D4: a run that fails after its checks removes the (empty) folders it made, and only those."""
+    from endophoton_addon import simulation
+
+    _valid_scene()
+    s = bpy.context.scene.endophoton
+    s.output_grids = True
+    (tmp_path / "kept").mkdir()
+    s.grid_dir = str(tmp_path / "kept" / "new" / "deeper")
+
+    def broken_run(self):
+        assert os.path.isdir(os.path.dirname(self.inputs.grid_path))  # made after the checks
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(simulation.SimulationJob, "_run", broken_run)
+    before = data_snapshot()
+    with pytest.raises(RuntimeError, match="EndoPhoton run failed: RuntimeError: disk on fire"):
+        bpy.ops.endophoton.run_simulation()
+    assert data_snapshot() == before
+    assert os.listdir(tmp_path) == ["kept"] and os.listdir(tmp_path / "kept") == []
+
+
+def _result_with_camera():
+    """A small run (a coloured point cloud, the active result) and a scene camera."""
+    _valid_scene()
+    s = bpy.context.scene.endophoton
+    s.output_grids = False
+    s.output_points = True
+    assert bpy.ops.endophoton.run_simulation() == {"FINISHED"}
+    scene = bpy.context.scene
+    camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    camera.location = (0.0, 0.0, 0.2)
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x, scene.render.resolution_y = 32, 24
+    return scene
+
+
+def test_render_legend_unwritable_path_is_named_before_rendering():
+    """D5: a path that cannot be written (under a regular file: root may write anywhere else)
+    is refused by name before the render, and no datablock (no Render Result) is left."""
+    _result_with_camera()
+    before = data_snapshot()
+    with pytest.raises(RuntimeError, match=r"render_legend\.filepath = '/etc/passwd/x\.png': '/etc/passwd' is a file"):
+        bpy.ops.endophoton.render_legend(filepath="/etc/passwd/x.png")
+    assert data_snapshot() == before
+
+
+def test_render_legend_writes_only_the_png(tmp_path):
+    """D5: the linear render it exposes is a temporary file, not left beside the PNG."""
+    _result_with_camera()
+    path = tmp_path / "l.png"
+    assert bpy.ops.endophoton.render_legend(filepath=str(path)) == {"FINISHED"}
+    assert os.listdir(tmp_path) == ["l.png"]
+    assert bpy.data.images.load(str(path), check_existing=True).size[0] > 32
