@@ -472,6 +472,7 @@ RunConfig prepare_config(const Scene& scene, const Source& source, const RunConf
     check_scale(scene, source, cfg);
     std::vector<std::string> ignored;
     if (cfg.max_steps == 0) cfg.max_steps = pathological_event_cap(scene, warnings ? *warnings : ignored);
+    edge_resolution_warnings(scene, warnings ? *warnings : ignored);
     return cfg;
 }
 

@@ -101,6 +101,27 @@ void check_scale(const Scene& scene, const Source& source, const RunConfig& cfg)
     }
 }
 
+void edge_resolution_warnings(const Scene& scene, std::vector<std::string>& warnings) {
+    for (size_t i = 0; i < scene.region_count(); ++i) {
+        const Region& r = scene.region(i);
+        const double mut = double(r.medium.mua) + double(r.medium.mus);
+        if (!(double(r.medium.mus) > 0)) continue;               // no scattering: no walk that wanders to an edge
+        const double mfp = 1 / (mut * double(scene.unit_cm()));  // scene units
+        const double mag = std::max(max_abs3(r.report.bbox_min), max_abs3(r.report.bbox_max));
+        const double tol = tolerance_bound(mag, mfp, scene.extent());
+        if (tol <= kEdgeResolutionMfp * mfp) continue;
+        std::ostringstream os;
+        os.precision(3);
+        os << "region '" << r.name << "': at |coordinate| up to " << mag
+           << " scene units, surface crossings closer than " << tol
+           << " scene units are one crossing (float32 ray tracing), " << tol / mfp << " of its mean free path (" << mfp
+           << " scene units): light that reaches its edges and corners is "
+           << "resolved only to that and may be biased there (docs/numerics.md, 'Edges far from the origin'); "
+           << "move the scene nearer the origin";
+        warnings.push_back(os.str());
+    }
+}
+
 uint64_t pathological_event_cap(const Scene& scene, std::vector<std::string>& warnings) {
     for (size_t i = 0; i < scene.region_count(); ++i) {
         const Region& r = scene.region(i);

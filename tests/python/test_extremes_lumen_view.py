@@ -574,7 +574,11 @@ def test_rig_scene_gives_the_same_fractions_and_image_in_any_unit_place_and_orie
     scene, rig = _rig_scene(**RIG_VARIANTS[variant])
     res = ep.run(scene, rig, photons=60_000, seed=31, threads=2)
     assert_energy_conserved(res)
-    assert res.warnings == []
+    # Far from the origin the edges are resolved more coarsely, and the run says so for both boxes
+    # (scale_check.h, kEdgeResolutionMfp); the fractions and image below still agree.
+    far = "away" in variant
+    assert [w.split("'")[1] for w in res.warnings] == (["wall", "polyp"] if far else [])
+    assert all("are one crossing" in w for w in res.warnings)
     for key in ("diffuse_reflectance", "occluded", "camera_collected", "absorbed"):
         a, sa = getattr(res, key), getattr(res, key + "_stderr")
         b, sb = getattr(ref, key), getattr(ref, key + "_stderr")
