@@ -686,13 +686,37 @@ def max_depth_spread(
 # --------------------------------------------------------------------------
 
 
+def polyfit_ready(x, y, deg: int, w=None) -> bool:
+    """Whether ``numpy.polyfit(x, y, deg, w=w)`` is posed on these values: more points than ``deg``,
+    x, y and w finite, and the least-squares system polyfit hands to LAPACK finite. polyfit scales
+    each column of the (weighted) Vandermonde matrix by its norm; x values so close together near 0
+    that a column's norm underflows to 0 (x spaced 1e-200 apart), or so large that a power
+    overflows, make that matrix inf/NaN, and LAPACK's DLASCL then ends the whole process (Blender
+    with it). Every polyfit of the package (:func:`linear_fit`, :func:`poly_peak`,
+    ``visibility.fit_peak``) asks this first and returns its not-fitted outcome when the answer is False."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim != 1 or y.shape != x.shape or x.size <= int(deg) or int(deg) < 0:
+        return False
+    w = np.ones_like(x) if w is None else np.asarray(w, dtype=np.float64)
+    if w.shape != x.shape or not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(w).all()):
+        return False
+    with np.errstate(all="ignore"):
+        lhs = np.vander(x, int(deg) + 1) * w[:, None]
+        scale = np.sqrt((lhs * lhs).sum(axis=0))
+        scaled = lhs / scale
+        rhs = y * w
+    return bool(np.isfinite(scale).all() and (scale > 0).all() and np.isfinite(scaled).all() and np.isfinite(rhs).all())
+
+
 def linear_fit(x: Sequence[float], y: Sequence[float]) -> dict:
-    """Least-squares line y = slope x + intercept; returns slope, intercept and R^2 (nan-safe)."""
+    """Least-squares line y = slope x + intercept; returns slope, intercept and R^2 (nan-safe; nan where
+    no line is posed, :func:`polyfit_ready`)."""
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
-    if x.size < 2 or np.ptp(x) == 0:
+    if x.size < 2 or np.ptp(x) == 0 or not polyfit_ready(x, y, 1):
         return {"slope": float("nan"), "intercept": float("nan"), "r2": float("nan"), "n": int(x.size)}
     slope, intercept = np.polyfit(x, y, 1)
     resid = y - (slope * x + intercept)
@@ -726,7 +750,7 @@ def poly_peak(x: Sequence[float], y: Sequence[float], deg: int = 6, n_grid: int 
     y = np.asarray(y, dtype=np.float64)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
-    if x.size < 2:
+    if x.size < 2 or not polyfit_ready(x, y, min(deg, x.size - 1)):
         return {
             "deg": 0,
             "coeffs": [],

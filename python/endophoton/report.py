@@ -37,7 +37,6 @@ from . import analysis as an
 from .io import atomic_write_text, no_nan, unjson
 from .paper import PAPER_TRENDS
 from .sweep_schema import PLOT_FILES, SEED_STEP, polar_filename
-from .visibility import polyfit_ready
 
 __all__ = ["PAPER_TRENDS", "write_report", "compute_trends"]
 
@@ -67,30 +66,6 @@ def _batched(
     value = float(fn(betas, full))
     per = np.array([fn(betas, mat[:, b]) for b in range(mat.shape[1])], dtype=np.float64)
     return value, an.batch_se(per), per
-
-
-def _finite_pairs(x, y) -> tuple[np.ndarray, np.ndarray]:
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    ok = np.isfinite(x) & np.isfinite(y)
-    return x[ok], y[ok]
-
-
-def _linear_fit(x, y) -> dict:
-    """``analysis.linear_fit``, or its not-fitted outcome (nan slope, intercept and R^2) where no line
-    is posed on the finite pairs (:func:`visibility.polyfit_ready`: e.g. betas 1e-200 apart)."""
-    xf, yf = _finite_pairs(x, y)
-    if xf.size >= 2 and not polyfit_ready(xf, yf, 1):
-        return dict(an.linear_fit([], []), n=int(xf.size))
-    return an.linear_fit(x, y)
-
-
-def _poly_peak(x, y, deg: int) -> dict:
-    """``analysis.poly_peak``, or its not-fitted outcome (nan peak, no coefficients) where no
-    polynomial is posed on the finite pairs (:func:`visibility.polyfit_ready`)."""
-    xf, yf = _finite_pairs(x, y)
-    if xf.size >= 2 and not polyfit_ready(xf, yf, min(int(deg), xf.size - 1)):
-        return an.poly_peak([], [], deg)
-    return an.poly_peak(x, y, deg)
 
 
 def _fmt(x: float, digits: int = 4) -> str:
@@ -183,12 +158,12 @@ def _trend_values(result: Any, paper: Mapping[str, Any]) -> dict:
     t["packets_per_record_first"] = P[i0] / records[i0]
     drop = lambda x, y: (y[0] - y[-1]) / y[0]
     t["packets_drop"], t["packets_drop_se"], _ = _batched(b, P, p_m, drop)
-    lin = lambda x, y: _linear_fit(x, y)["slope"]
-    t["packets_fit"] = _linear_fit(b, P)
+    lin = lambda x, y: an.linear_fit(x, y)["slope"]
+    t["packets_fit"] = an.linear_fit(b, P)
     t["packets_slope"], t["packets_slope_se"], _ = _batched(b, P, p_m, lin)
     flat_from = paper["packets_flat_until_deg"]
     sel = b >= flat_from
-    t["packets_fit_beyond"] = _linear_fit(b[sel], P[sel]) if sel.sum() >= 2 else None
+    t["packets_fit_beyond"] = an.linear_fit(b[sel], P[sel]) if sel.sum() >= 2 else None
     t["packets_rel_slope_per_deg"] = t["packets_slope"] / P[i0]
     if n >= 2:
         step = lambda x, y: (y[1] - y[0]) / y[0]
@@ -200,11 +175,11 @@ def _trend_values(result: Any, paper: Mapping[str, Any]) -> dict:
     e_tot = result.column("energy_total")
     epp_m = _batch_matrix(result, "energy_per_packet")
     etot_m = records[:, None] * _batch_matrix(result, "energy_per_record")
-    peak = lambda x, y: _poly_peak(x, y / np.nanmax(y), deg)["x_peak"]
+    peak = lambda x, y: an.poly_peak(x, y / np.nanmax(y), deg)["x_peak"]
     for key, full, mat in (("energy_per_packet", e_pp, epp_m), ("energy_total", e_tot, etot_m)):
         t[key + "_argmin_beta"] = float(b[int(np.nanargmin(full))])
         t[key + "_argmax_beta"] = float(b[int(np.nanargmax(full))])
-        fit = _poly_peak(b, full / np.nanmax(full), deg)
+        fit = an.poly_peak(b, full / np.nanmax(full), deg)
         t[key + "_fit"] = fit
         t[key + "_peak"], t[key + "_peak_se"], _ = _batched(b, full, mat, peak)
         if n >= 2:
@@ -218,13 +193,13 @@ def _trend_values(result: Any, paper: Mapping[str, Any]) -> dict:
     t["camera_first"], t["camera_first_se"] = f[i0], fse[i0]
     t["camera_last"], t["camera_last_se"] = f[i1], fse[i1]
     t["camera_max"], t["camera_max_beta"] = float(np.nanmax(f)), float(b[int(np.nanargmax(f))])
-    t["camera_fit"] = _linear_fit(b, f)
+    t["camera_fit"] = an.linear_fit(b, f)
     t["camera_slope"], t["camera_slope_se"], _ = _batched(b, f, f_m, lin)
     t["camera_fit_at_paper_last"] = (
         t["camera_fit"]["slope"] * paper["camera_fraction_last_beta_deg"] + t["camera_fit"]["intercept"]
     )
     fit_at = lambda x, y: (
-        _linear_fit(x, y)["slope"] * paper["camera_fraction_last_beta_deg"] + _linear_fit(x, y)["intercept"]
+        an.linear_fit(x, y)["slope"] * paper["camera_fraction_last_beta_deg"] + an.linear_fit(x, y)["intercept"]
     )
     _, t["camera_fit_at_paper_last_se"], _ = _batched(b, f, f_m, fit_at)
 
@@ -234,7 +209,7 @@ def _trend_values(result: Any, paper: Mapping[str, Any]) -> dict:
     t["depth_sd"] = float(np.nanstd(md, ddof=1)) if n > 1 else float("nan")
     t["depth_min"], t["depth_max"] = float(np.nanmin(md)), float(np.nanmax(md))
     t["depth_r"] = an.pearson_r(b, md)
-    t["depth_fit"] = _linear_fit(b, md)
+    t["depth_fit"] = an.linear_fit(b, md)
     md_m = _batch_matrix(result, "max_depth_cm")
     t["depth_slope"], t["depth_slope_se"], _ = _batched(b, md, md_m, lin)
     t["depth_batch_sd_mean"] = float(np.nanmean(result.column("max_depth_batch_sd_cm")))

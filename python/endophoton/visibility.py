@@ -22,9 +22,9 @@ import math
 
 import numpy as np
 
-from .analysis import chi2_sf
+from .analysis import chi2_sf, polyfit_ready
 
-__all__ = ["jackknife", "weber", "contrast", "fit_peak", "polyfit_ready"]
+__all__ = ["jackknife", "weber", "contrast", "fit_peak"]
 
 
 def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[float | None, float | None]:
@@ -88,29 +88,6 @@ def contrast(view, target: str, background: str, channels: str = "srgb") -> dict
 
     out["red_green"], out["red_green_stderr"] = jackknife(rgb, view.packets_per_batch, rg)
     return out
-
-
-def polyfit_ready(x, y, deg: int, w=None) -> bool:
-    """Whether ``numpy.polyfit(x, y, deg, w=w)`` is posed on these values: more points than ``deg``,
-    x, y and w finite, and the least-squares system polyfit hands to LAPACK finite. polyfit scales
-    each column of the (weighted) Vandermonde matrix by its norm; x values so close together near 0
-    that a column's norm underflows to 0 (x spaced 1e-200 apart), or so large that a power
-    overflows, make that matrix inf/NaN, and LAPACK's DLASCL then ends the whole process (Blender
-    with it). Every polyfit of the sweep's reports (:func:`fit_peak`, ``endophoton.report``) asks
-    this first and returns its not-fitted outcome when the answer is False."""
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    if x.ndim != 1 or y.shape != x.shape or x.size <= int(deg) or int(deg) < 0:
-        return False
-    w = np.ones_like(x) if w is None else np.asarray(w, dtype=np.float64)
-    if w.shape != x.shape or not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(w).all()):
-        return False
-    with np.errstate(all="ignore"):
-        lhs = np.vander(x, int(deg) + 1) * w[:, None]
-        scale = np.sqrt((lhs * lhs).sum(axis=0))
-        scaled = lhs / scale
-        rhs = y * w
-    return bool(np.isfinite(scale).all() and (scale > 0).all() and np.isfinite(scaled).all() and np.isfinite(rhs).all())
 
 
 def _not_fitted(n: int) -> dict:

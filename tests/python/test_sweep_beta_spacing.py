@@ -15,7 +15,7 @@ import pytest
 
 import endophoton as ep
 from endophoton import beta_sweep as sw
-from endophoton import report, sweep_cli, visibility
+from endophoton import analysis, sweep_cli, visibility
 from endophoton.sweep_schema import BETA_RESOLUTION_DEG, SweepResult, beta_text, check_beta_spacing, parse_betas
 
 CLOSE = [[0.0, 1e-200], [0.0, 1e-280], [0.0, 1e-300], [10.0, 10.0 + 5e-7]]
@@ -91,13 +91,13 @@ def test_polyfit_ready_says_no_where_polyfit_would_reach_lapack_with_inf_or_nan(
     x = np.arange(5) * step
     y = np.array([1.0, 2.0, 3.0, 2.0, 1.0])
     for deg in (1, 2, 4):
-        assert not visibility.polyfit_ready(x, y, deg)
-    assert visibility.polyfit_ready(np.arange(5.0), y, 2)
-    assert visibility.polyfit_ready(np.arange(5.0), y, 2, w=np.full(5, 10.0))
-    assert not visibility.polyfit_ready(np.arange(5.0), y, 2, w=np.array([1, 1, math.inf, 1, 1]))
-    assert not visibility.polyfit_ready(np.array([0, 1, math.nan, 3, 4]), y, 2)
-    assert not visibility.polyfit_ready(np.arange(5.0) * 1e200, y, 2)  # x^2 overflows
-    assert not visibility.polyfit_ready(np.arange(2.0), y[:2], 2)  # fewer points than coefficients
+        assert not analysis.polyfit_ready(x, y, deg)
+    assert analysis.polyfit_ready(np.arange(5.0), y, 2)
+    assert analysis.polyfit_ready(np.arange(5.0), y, 2, w=np.full(5, 10.0))
+    assert not analysis.polyfit_ready(np.arange(5.0), y, 2, w=np.array([1, 1, math.inf, 1, 1]))
+    assert not analysis.polyfit_ready(np.array([0, 1, math.nan, 3, 4]), y, 2)
+    assert not analysis.polyfit_ready(np.arange(5.0) * 1e200, y, 2)  # x^2 overflows
+    assert not analysis.polyfit_ready(np.arange(2.0), y[:2], 2)  # fewer points than coefficients
 
 
 @pytest.mark.parametrize("step", [1e-200, 1e-300])
@@ -111,16 +111,16 @@ def test_fit_peak_is_not_fitted_on_betas_too_close_to_fit(step):
     assert fit["vertex"] and abs(fit["x_peak"] - 3.0) < 1e-9 and fit["x_peak_stderr"] > 0
 
 
-def test_report_fits_are_not_fitted_on_betas_too_close_to_fit():
+def test_analysis_fits_are_not_fitted_on_betas_too_close_to_fit():
     x = np.array([0.0, 1e-200, 2e-200, 3e-200])
     y = np.array([1.0, 2.0, 4.0, 3.0])
-    lin = report._linear_fit(x, y)
+    lin = analysis.linear_fit(x, y)
     assert math.isnan(lin["slope"]) and math.isnan(lin["intercept"]) and lin["n"] == 4
-    pk = report._poly_peak(x, y, 6)
+    pk = analysis.poly_peak(x, y, 6)
     assert math.isnan(pk["x_peak"]) and pk["coeffs"] == []
     # ordinary betas: the very fits of analysis (the line through (0, 1) and (1, 3) has slope 2)
-    assert report._linear_fit([0.0, 1.0, math.nan], [1.0, 3.0, 5.0])["slope"] == pytest.approx(2.0)
-    assert report._poly_peak([0.0, 1.0, 2.0], [0.0, 1.0, 0.0], 6)["x_peak"] == pytest.approx(1.0)
+    assert analysis.linear_fit([0.0, 1.0, math.nan], [1.0, 3.0, 5.0])["slope"] == pytest.approx(2.0)
+    assert analysis.poly_peak([0.0, 1.0, 2.0], [0.0, 1.0, 0.0], 6)["x_peak"] == pytest.approx(1.0)
 
 
 def test_check_placements_is_the_sweeps_own_check_and_names_the_betas_as_given(monkeypatch):
