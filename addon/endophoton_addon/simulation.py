@@ -220,11 +220,11 @@ def needs_records(inputs):
 _RUN_FIELDS = ("photons", "store", "seed", "threads", "fluorescent_only", "fluorescence_rule")
 
 
-def engine_rejected(exc):
+def engine_rejected(exc, panel="simulation"):
     """The InputError for the engine's (or the package's) ValueError ``exc`` about a run's input:
-    "Engine rejected the input: ...", its keywords named as the add-on's fields
-    (``fluorescent_only = True`` -> ``simulation.fluorescent_only = True``)."""
-    text = re.sub(r"(?<![\w.])(%s) = " % "|".join(_RUN_FIELDS), r"simulation.\1 = ", str(exc))
+    "Engine rejected the input: ...", its keywords named as the fields of the add-on's ``panel``
+    settings (``fluorescent_only = True`` -> ``simulation.fluorescent_only = True``)."""
+    text = re.sub(r"(?<![\w.])(%s) = " % "|".join(_RUN_FIELDS), panel + r".\1 = ", str(exc))
     return InputError(f"Engine rejected the input: {text}")
 
 

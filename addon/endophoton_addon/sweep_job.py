@@ -193,7 +193,7 @@ def collect_sweep_inputs(context, ep):
     try:
         engine_scene = simulation.build_engine_scene(ep, regions)
     except ValueError as exc:
-        raise InputError(f"Engine rejected the input: {exc}") from exc
+        raise simulation.engine_rejected(exc, "sweep") from exc
     # The head for every β, as the sweep will build it, and its placement in the
     # scene: the package's own check (ep.sweep makes it too), before anything starts.
     try:
