@@ -31,6 +31,7 @@ import argparse
 import functools
 import inspect
 import itertools
+import math
 import os
 import sys
 import time
@@ -40,10 +41,10 @@ import numpy as np
 
 from . import _core, meshes, placement
 from .analysis import DEFAULT_BATCHES
-from .io import atomic_write_text, check_output_files, jsonable
+from .io import atomic_write_text, check_bool, check_int, check_output_files, check_path, check_real, jsonable
 from .medium import Medium
 from .paper import DISTANCE_CM, FLUOROPHORES, IMPORTANT_ANGLE_DEG, TISSUE
-from .run import run
+from .run import check_client, run
 from .scene import Scene
 from .sources import EndoscopeRig
 from .spectra import Fluorophore
@@ -264,16 +265,62 @@ def _checked_betas(betas: Iterable[float], store: int, n_batches: int) -> list[f
             return _checked_betas(parse_betas(betas, field="betas ="), store, n_batches)
         except argparse.ArgumentTypeError as e:
             raise ValueError(str(e)) from None
+    if betas is None or not isinstance(betas, Iterable):
+        raise ValueError(f"betas = {betas!r} must be a list of angles in degrees or a string such as '0:60:5'")
     betas = list(itertools.islice(betas, MAX_BETAS + 1))
     if len(betas) > MAX_BETAS:
         raise ValueError(f"betas: more than {MAX_BETAS} angles (each is a full run)")
-    betas = [float(b) for b in betas]
+    betas = [check_real(f"betas[{i}]", b, -math.inf, math.inf) for i, b in enumerate(betas)]
     if not betas:
         raise ValueError("betas: empty")
     check_beta_spacing(betas, "betas")
     if int(store) < n_batches:
         raise ValueError(f"store = {store} must be >= n_batches = {n_batches}")
     return betas
+
+
+# ep.run's keyword arguments (all but scene and source), the keys run_kwargs may hold.
+_RUN_KEYWORDS = tuple(inspect.signature(run).parameters)[2:]
+
+
+def _keywords_of(name: str, value, accepted: Iterable[str], of: str) -> dict:
+    """``value`` (None or a mapping whose keys are among ``accepted``) as a dict; ValueError naming ``name``."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name} = {value!r} must be None or a dict of {of}'s keyword arguments")
+    accepted = set(accepted)
+    unknown = sorted(str(k) for k in value if k not in accepted)
+    if unknown:
+        raise ValueError(f"{name}: {', '.join(map(repr, unknown))} is not a keyword argument of {of}")
+    return dict(value)
+
+
+def _check_sweep_arguments(a: dict) -> None:
+    """The types of :func:`sweep`'s arguments ``a`` (by name), before anything runs: ValueError naming
+    the argument and its value (the betas: :func:`_checked_betas`; seed, threads and the rest of
+    ``run_kwargs``: ep.run's own checks, before the first run)."""
+    check_int("store", a["store"], 1, 2**62)
+    check_int("n_batches", a["n_batches"], 2, 1_000_000)
+    for name in ("fluorescent_only", "plots", "report", "seed_per_beta"):
+        check_bool(name, a[name])
+    if a["distance"] is not None:
+        check_real("distance", a["distance"], 0.0, math.inf, lo_open=True)
+    check_real("max_angle_deg", a["max_angle_deg"], 0.0, 180.0)
+    if not isinstance(a["progress"], bool) and not callable(a["progress"]):
+        raise ValueError(f"progress = {a['progress']!r} must be True, False or a callable")
+    for name in ("rig_builder", "on_beta", "on_chunks", "on_run"):
+        if a[name] is not None and not callable(a[name]):
+            raise ValueError(f"{name} = {a[name]!r} must be None or a callable")
+    if a["out_dir"] is not None:
+        out = check_path("out_dir", a["out_dir"])
+        if os.path.exists(out) and not os.path.isdir(out):
+            raise ValueError(f"out_dir = {out!r} exists and is not a folder")
+    rig_params = [p for p in inspect.signature(EndoscopeRig.__init__).parameters if p != "self"]
+    _keywords_of("rig_kwargs", a["rig_kwargs"], rig_params, "EndoscopeRig")
+    run_kwargs = _keywords_of("run_kwargs", a["run_kwargs"], _RUN_KEYWORDS, "ep.run")
+    check_client("client", a["client"])
+    check_client("run_kwargs['client']", run_kwargs.get("client"))
 
 
 def _engine_kwargs(store, fluorescent_only, fluorescence_rule, seed, threads, progress, cancel, run_kwargs) -> dict:
@@ -571,9 +618,8 @@ def sweep(
         only the reduced rows; a caller that wants every beta's records (the add-on's per-beta
         collections) keeps them here, at about 100 bytes per record.
     """
+    _check_sweep_arguments(dict(locals()))
     betas = _checked_betas(betas, store, n_batches)
-    if not isinstance(seed_per_beta, bool):
-        raise ValueError(f"seed_per_beta = {seed_per_beta!r} must be True or False")
     seeds = [beta_seed(seed, k, seed_per_beta) for k in range(len(betas))]
     rig_kwargs = dict(rig_kwargs or {})
     run_kwargs = dict(run_kwargs or {})

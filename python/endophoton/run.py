@@ -143,11 +143,31 @@ def _check_source_and_callbacks(a: SimpleNamespace) -> None:
         raise ValueError(
             f"source = {a.source!r} must be an endophoton source (PencilSource, DiskSource, ConeSource or EndoscopeRig)"
         )
-    if a.progress is not None and not callable(a.progress):
+    if a.progress is not None and not (callable(a.progress) and _takes_two(a.progress)):
         raise ValueError(f"progress = {a.progress!r} must be None or a callable progress(done, total)")
+    check_client("client", a.client)
     duck = a.client is not None and hasattr(a.cancel, "cancelled")
     if a.cancel is not None and not isinstance(a.cancel, CancelToken) and not duck:
         raise ValueError(f"cancel = {a.cancel!r} must be None or an endophoton.CancelToken")
+
+
+def check_client(name: str, client) -> None:
+    """``client`` is None or a dask.distributed.Client (anything with its ``submit``); ValueError naming ``name``."""
+    if client is not None and not callable(getattr(client, "submit", None)):
+        raise ValueError(
+            f"{name} = {client!r} must be a dask.distributed.Client (endophoton.distributed.connect(address))"
+        )
+
+
+def _takes_two(f) -> bool:
+    """Whether ``f(done, total)`` binds (True where Python cannot tell, e.g. some builtins)."""
+    try:
+        inspect.signature(f).bind(0, 0)
+    except TypeError:
+        return False
+    except ValueError:  # no signature to read
+        return True
+    return True
 
 
 def _as_field_object(name: str, value, cls):

@@ -34,7 +34,12 @@ def test_valid_request_returns_the_runs_notes_and_traces_nothing(tmp_path):
     progress = []
     t0 = time.perf_counter()
     notes = ep.check_run(
-        _slab(), DOWN, photons=10**15, seed=3, grids=ep.GridRequest(0.1, str(grid)), progress=progress.append
+        _slab(),
+        DOWN,
+        photons=10**15,
+        seed=3,
+        grids=ep.GridRequest(0.1, str(grid)),
+        progress=lambda done, total: progress.append(done),
     )
     assert time.perf_counter() - t0 < 5.0  # 10^15 packets would take years: nothing was traced
     assert notes == []

@@ -579,7 +579,7 @@ def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
     assert [r["seed"] for r in common.rows] == [3, 3] and common.meta["seed_per_beta"] is False
     text = (tmp_path / "one" / "report.md").read_text(encoding="utf-8")
     assert "seed 3 (same for every angle)" in text and "so the test is conservative" in text
-    with pytest.raises(ValueError, match=r"seed_per_beta = 'yes' must be True or False"):
+    with pytest.raises(ValueError, match=r"seed_per_beta = 'yes' must be true or false"):
         sw.sweep(None, betas=betas, store=1000, seed_per_beta="yes", progress=False)
 
 
