@@ -97,7 +97,7 @@ def _run_main(args) -> int:
     if args.threads is not None:
         kwargs["threads"] = args.threads
     if args.target_rel_error is not None:
-        kwargs["target"] = Target(tally=args.target_tally, rel_error=args.target_rel_error)
+        kwargs["target"] = Target(tally=args.target_tally or "diffuse_reflectance", rel_error=args.target_rel_error)
         kwargs["max_photons"] = args.max_photons
         photons = None
     if args.quality is not None:
@@ -133,6 +133,10 @@ def _check_one_budget(args) -> None:
             f"--quality {args.quality} brings its own packet cap; --max-photons {args.max_photons} would not change "
             "it (--max-photons bounds a --target-rel-error run)"
         )
+    if args.target_rel_error is None:
+        for flag, value in (("--target-tally", args.target_tally), ("--max-photons", args.max_photons)):
+            if value:
+                raise ValueError(f"{flag} {value} belongs to a --target-rel-error run, and none was given")
 
 
 #: SIGINTs received while the CLI was still loading modules or reading the scene.
@@ -186,7 +190,7 @@ def _main(argv) -> int:
     )
     p_run.add_argument(
         "--target-tally",
-        default="diffuse_reflectance",
+        default=None,
         help="tally for --target-rel-error (default diffuse_reflectance)",
     )
     p_run.add_argument(

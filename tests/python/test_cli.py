@@ -146,6 +146,23 @@ def test_cli_quality_with_max_photons_is_refused_by_name(tmp_path):
     assert "Traceback" not in p.stderr, p.stderr
 
 
+@pytest.mark.parametrize("option", [("--target-tally", "absorbed"), ("--max-photons", "5000")])
+def test_cli_target_options_without_a_target_are_refused_by_name(tmp_path, option):
+    # They belong to a --target-rel-error run; without one they used to be ignored (run.photons ran).
+    p = _cli("run", _write(tmp_path, _base()), *option)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert p.stdout.strip() == "", p.stdout
+    assert f"{option[0]} {option[1]} belongs to a --target-rel-error run" in p.stderr, p.stderr
+    assert "Traceback" not in p.stderr, p.stderr
+
+
+def test_cli_target_tally_is_the_target_runs_tally(tmp_path):
+    p = _cli("run", _write(tmp_path, _base()), "--target-rel-error", "0.2", "--target-tally", "absorbed")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["stop_reason"] == "target" and out["absorbed_stderr"] <= 0.2 * out["absorbed"], out
+
+
 def test_cli_quality_with_a_target_is_refused_by_name(tmp_path):
     p = _cli("run", _write(tmp_path, _base()), "--quality", "preview", "--target-rel-error", "0.05")
     assert p.returncode == 2, (p.returncode, p.stderr)
