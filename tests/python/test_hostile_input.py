@@ -71,3 +71,43 @@ def test_grid_path_regular_file_is_replaced_atomically(tmp_path):
     assert r.to_dict()["grid_path"] == str(path)
     assert path.read_bytes()[:4] == b" BDV"  # the OpenVDB magic number 0x56444220: the new file
     assert os.listdir(tmp_path) == ["g.vdb"]
+
+
+# ---- a region too small for float32 ray tracing
+
+
+def tiny_box_scene(size, unit="cm"):
+    v, t = ep.box_mesh((-1, -1, -1), (1, 1, 0))
+    s = ep.Scene(unit=unit)
+    s.add_mesh("tiny", (v * size).astype(np.float32), t, M)
+    return s
+
+
+@pytest.mark.parametrize("unit", ["cm", "m"])
+@pytest.mark.parametrize("size", [1e-16, 1e-20, 1e-30, 1e-40])
+def test_region_below_the_smallest_side_is_refused_by_name(size, unit):
+    """Boxes scaled by 1e-20 and less used to report missed = 1 with no warning."""
+    source = ep.PencilSource(position=(0, 0, size), direction=(0, 0, -1))
+    with pytest.raises(ValueError, match=r"region 'tiny': thinnest side .* scene units is below the limit 1e-15"):
+        ep.run(tiny_box_scene(size, unit), source, photons=100)
+
+
+def test_region_at_the_smallest_side_runs_like_a_large_one():
+    """Without scattering or absorption the result is the same at any scale: Fresnel at both faces."""
+    clear = ep.Medium(mua=0.0, mus=0.0, g=0.0, n=1.4)
+    results = []
+    for size in (1.0, 1e-15):
+        v, t = ep.box_mesh((-1, -1, -1), (1, 1, 0))
+        s = ep.Scene(unit="cm")
+        s.add_mesh("tiny", (v * size).astype(np.float32), t, clear)
+        r = ep.run(s, ep.PencilSource(position=(0, 0, size), direction=(0, 0, -1)), photons=1000).to_dict()
+        results.append(r)
+    rsp = ((1.4 - 1) / (1.4 + 1)) ** 2
+    for r in results:
+        assert r["missed"] == 0 and r["specular_reflectance"] == pytest.approx(rsp, rel=1e-6)
+        # Normal incidence: each pass through the far face transmits 1 - rsp, and reflects rsp back.
+        t = (1 - rsp) ** 2 / (1 - rsp**2)
+        assert abs(r["transmittance"] - t) < 4.5 * r["transmittance_stderr"] + 1e-12
+    # The same random numbers take the same decisions at both scales.
+    for k in ("specular_reflectance", "diffuse_reflectance", "transmittance", "missed"):
+        assert results[0][k] == results[1][k]
