@@ -2,6 +2,7 @@
 its value, and leaves nothing changed on disk."""
 
 import os
+import re
 import stat
 
 import numpy as np
@@ -111,3 +112,46 @@ def test_region_at_the_smallest_side_runs_like_a_large_one():
     # The same random numbers take the same decisions at both scales.
     for k in ("specular_reflectance", "diffuse_reflectance", "transmittance", "missed"):
         assert results[0][k] == results[1][k]
+
+
+# ---- wavelengths: a physical range, so that spectral tallies stay finite
+
+
+@pytest.mark.parametrize(
+    "ex, em, field, value",
+    [
+        ([300, 400], [1e-300, 2e-300], "emission_nm[0]", "1e-300"),
+        ([0.5, 400], [400, 500], "excitation_nm[0]", "0.5"),
+        ([300, 400], [400, 2e6], "emission_nm[1]", "2e+06"),
+    ],
+)
+def test_eem_wavelengths_outside_the_physical_range_are_refused(ex, em, field, value):
+    with pytest.raises(
+        ValueError, match=rf"eem 'eem': {re.escape(field)} = {re.escape(value)} is outside \[1, 1e\+06\] nm"
+    ):
+        ep.EEM(ex, em, np.ones((2, 2)))
+
+
+def test_spectrum_wavelength_outside_the_physical_range_is_refused():
+    with pytest.raises(ValueError, match=r"wavelength_nm\[0\] = 1e-05 is outside \[1, 1e\+06\] nm"):
+        ep.Spectrum([1e-5, 500], [1, 1])
+
+
+def test_eem_at_the_range_ends_gives_finite_spectral_results():
+    """The audit's EEM at 1e-300 nm made escaped_energy_stderr = inf; at the range's ends all stays finite."""
+    e = ep.EEM([300, 400], [ep.spectra.MIN_WAVELENGTH_NM, ep.spectra.MAX_WAVELENGTH_NM], np.ones((2, 2)))
+    s = ep.Scene(unit="cm")
+    s.add_box("box", (-1, -1, -1), (1, 1, 0), M, fluorophores=[ep.Fluorophore("z", 1, 1, eem=e)])
+    r = ep.run(s, DOWN, photons=2000, spectral=True).to_dict()
+    assert all(np.isfinite(v) for k, v in r.items() if isinstance(v, float))
+    assert r["fluorescence_events"] > 0
+
+
+def test_eem_from_csv_names_a_missing_or_binary_file(tmp_path):
+    missing = tmp_path / "nonexistent.csv"
+    with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(missing))}' cannot be read: No such file"):
+        ep.EEM.from_csv(missing)
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(binary))}' is not UTF-8 text"):
+        ep.EEM.from_csv(binary)
