@@ -155,3 +155,43 @@ def test_eem_from_csv_names_a_missing_or_binary_file(tmp_path):
     binary.write_bytes(bytes(range(256)) * 4)
     with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(binary))}' is not UTF-8 text"):
         ep.EEM.from_csv(binary)
+
+
+# ---- lengths and counts at the API have the limits of the JSON schema and of ep.run
+
+
+def test_camera_aperture_radius_beyond_the_schema_limit_is_refused():
+    with pytest.raises(ValueError, match=r"camera.aperture_radius = 1e\+300 must be a finite number in \[0, 1e\+12\]"):
+        ep.Camera.look_at(position=(0, 0, 3), look_at=(0, 0, 0), up=(0, 1, 0), fov_deg=60, aperture_radius=1e300)
+    with pytest.raises(ValueError, match=r"camera.focus_distance = 1e\+300 must be a finite number in \(0, 1e\+12\]"):
+        ep.Camera.look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0), aperture_radius=0.1, focus_distance=1e300)
+
+
+def test_rig_head_diameter_beyond_the_schema_limit_is_refused():
+    rig = {"type": "endoscope", "beta_deg": 20, "distance": 1, "head_diameter_mm": 1e300}
+    with pytest.raises(ValueError, match=r"rig.head_diameter_mm = 1e\+300 must be a finite number \[0, 1e\+12\]"):
+        ep.source_from_dict(rig)
+
+
+def records_result():
+    return ep.run(box_scene(), DOWN, photons=200, record_escapes=True)
+
+
+@pytest.mark.parametrize("threads, why", [(-1, r"must be in \[0, 4096\]"), (10**6, r"must be in \[0, 4096\]")])
+def test_render_view_threads_have_the_rule_of_run(threads, why):
+    cam = ep.Camera.look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0))
+    with pytest.raises(ValueError, match=f"threads = {threads} {why}"):
+        ep.render_view(records_result(), cam, 4, 4, threads=threads)
+    with pytest.raises(ValueError, match=f"threads = {threads} {why}"):
+        ep.run(box_scene(), DOWN, photons=100, threads=threads)
+
+
+def test_render_view_of_none_names_its_first_argument():
+    with pytest.raises(ValueError, match="result = None: render_view's first argument must be an ep.Result"):
+        ep.render_view(None)
+
+
+def test_huge_direction_is_normalised_and_zero_direction_named():
+    assert ep.PencilSource(position=(0, 0, 1), direction=(0, 0, -1e300)).direction.tolist() == [0, 0, -1]
+    with pytest.raises(ValueError, match=r"source.direction = \(0, 0, 0\) has zero length"):
+        ep.PencilSource(position=(0, 0, 1), direction=(0, 0, 0))
