@@ -195,3 +195,33 @@ def test_huge_direction_is_normalised_and_zero_direction_named():
     assert ep.PencilSource(position=(0, 0, 1), direction=(0, 0, -1e300)).direction.tolist() == [0, 0, -1]
     with pytest.raises(ValueError, match=r"source.direction = \(0, 0, 0\) has zero length"):
         ep.PencilSource(position=(0, 0, 1), direction=(0, 0, 0))
+
+
+# ---- fluorophores and PLY indices
+
+
+def test_fluorophores_none_means_none_and_a_string_is_named():
+    s = ep.Scene(unit="cm")
+    assert s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=None).fluorophores == ()
+    v, t = ep.box_mesh((2, 0, 0), (3, 1, 1))
+    assert s.add_mesh("b", v, t, M, fluorophores=None).fluorophores == ()
+    with pytest.raises(
+        ValueError, match="region 'c': fluorophores = 'collagen' must be a list of endophoton.Fluorophore"
+    ):
+        s.add_box("c", (4, 0, 0), (5, 1, 1), M, fluorophores="collagen")
+
+
+PLY_HEAD = (
+    "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+    "element face 4\nproperty list uchar float vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n"
+)
+
+
+def test_ply_float_indices_must_be_integers(tmp_path):
+    bad = tmp_path / "bad.ply"
+    bad.write_text(PLY_HEAD + "3 0 2.7 3\n3 0 1 3\n3 0 2 1\n3 1 2 3\n")
+    with pytest.raises(ValueError, match=r"bad.ply.*PLY face 0: vertex index 2.7 is not an integer"):
+        ep.mesh_io.load_mesh(str(bad))
+    good = tmp_path / "good.ply"
+    good.write_text(PLY_HEAD + "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n")
+    assert ep.mesh_io.load_mesh(str(good))[1].tolist() == [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
