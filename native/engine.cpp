@@ -104,7 +104,9 @@ StopReason StopRule::after_merge(const UnitTally& unit, size_t k, uint64_t recor
 
 namespace {
 
-void validate_config(const RunConfig& c, const Scene& scene) {
+// `grid_file`: whether this process writes the grid file (not a Dask worker,
+// whose file system need not hold the client's directory).
+void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
     auto bad = [](const std::string& field, double v, const char* rule) {
         std::ostringstream os;
         os.precision(17);
@@ -131,6 +133,7 @@ void validate_config(const RunConfig& c, const Scene& scene) {
     if (c.grid_voxel_size > 0 && c.grid_path.empty()) throw std::invalid_argument("grids.path is empty");
     // Checked before the run, which the file could not be written after.
     if (c.grid_voxel_size > 0) check_vdb_voxel_size(c.grid_voxel_size);
+    if (c.grid_voxel_size > 0 && grid_file) check_vdb_path(c.grid_path);
     if (c.target_tally >= kScalarTallies) bad("target.tally", c.target_tally, "is not a tally index");
     if (c.target_tally >= 0 && !(c.target_rel_error > 0 && std::isfinite(c.target_rel_error)))
         bad("target.rel_error", c.target_rel_error, "must be a finite number > 0");
@@ -466,9 +469,9 @@ uint64_t grid_memory_limit(const RunConfig& cfg) {
 }  // namespace
 
 RunConfig prepare_config(const Scene& scene, const Source& source, const RunConfig& cfg_in,
-                         std::vector<std::string>* warnings) {
+                         std::vector<std::string>* warnings, bool grid_file) {
     RunConfig cfg = cfg_in;
-    validate_config(cfg, scene);
+    validate_config(cfg, scene, grid_file);
     check_scale(scene, source, cfg);
     std::vector<std::string> ignored;
     if (cfg.max_steps == 0) cfg.max_steps = pathological_event_cap(scene, warnings ? *warnings : ignored);
@@ -499,7 +502,7 @@ bool grids_per_unit(const RunConfig& cfg) {
 
 UnitBatch trace_units(const Scene& scene, const Source& source, const RunConfig& cfg_in, uint64_t first_unit,
                       uint64_t count, std::atomic<bool>* cancel) {
-    const RunConfig cfg = prepare_config(scene, source, cfg_in, nullptr);
+    const RunConfig cfg = prepare_config(scene, source, cfg_in, nullptr, /*grid_file=*/false);
     const UnitPlan plan = plan_units(cfg);
     UnitBatch batch;
     batch.first_unit = first_unit;

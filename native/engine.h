@@ -105,9 +105,11 @@ struct UnitPlan {
 };
 // The configuration a run really uses: validated (std::invalid_argument naming
 // the field), scale-checked, with the event cap of pathological scenes applied
-// (its warning appended to `warnings` if not null).
+// (its warning appended to `warnings` if not null). `grid_file`: whether this
+// process writes the grid file, whose path is then checked (check_vdb_path);
+// trace_units passes false, as a worker's file system need not hold it.
 RunConfig prepare_config(const Scene& scene, const Source& source, const RunConfig& config,
-                         std::vector<std::string>* warnings);
+                         std::vector<std::string>* warnings, bool grid_file = true);
 // Cuts a prepared request into units.
 UnitPlan plan_units(const RunConfig& prepared);
 

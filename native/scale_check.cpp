@@ -47,6 +47,13 @@ void check_scale(const Scene& scene, const Source& source, const RunConfig& cfg)
             hi[k] = std::max(hi[k], m.bbox_max[k]);
             side = std::min(side, m.bbox_max[k] - m.bbox_min[k]);
         }
+        if (!(side >= kMinRegionSide)) {
+            std::ostringstream os;
+            os << owner << ": thinnest side " << side << " scene units is below the limit " << kMinRegionSide
+               << " scene units of float32 ray tracing (its triangle tests underflow near 1e-19): scale the mesh up "
+                  "or give the scene in a smaller unit";
+            throw std::invalid_argument(os.str());
+        }
         // A packet crossing the region's thinnest side is at most `mag` from the
         // origin and travels about `side` between the two crossings.
         const double tol = tolerance_bound(mag, side, scene.extent());

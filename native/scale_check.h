@@ -19,6 +19,16 @@ namespace ep {
 
 // Largest |coordinate| of a vertex or of a light's emission disk, scene units.
 constexpr double kMaxCoordinate = 1e12;
+// Smallest side of a region's bounding box, scene units. Embree's triangle
+// tests multiply two float32 coordinates (the triangle's normal, ~ side^2) and
+// take the reciprocal of its dot product with the ray: a 2-unit box scaled by
+// 1.7e-20 (sides 3.4e-20) overflows it and every packet is silently missed, one
+// scaled by 2e-20 still runs right. 1e-15 keeps side^2 >= 1e-30, eight orders of
+// magnitude above float32's smallest normal number (1.2e-38), and is far below
+// any physical size in the scene units offered (m, cm, mm). The thinness check
+// below is relative (its tolerance scales with the scene), so it cannot catch a
+// region that is small everywhere.
+constexpr double kMinRegionSide = 1e-15;
 // The crossing-grouping tolerance must stay below this fraction of the
 // thinnest region (smallest side of a region's bounding box).
 constexpr double kResolutionFraction = 0.25;

@@ -16,6 +16,7 @@
 #include <atomic>
 #include <cerrno>
 #include <cfloat>
+#include <climits>
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
@@ -497,6 +498,74 @@ bool vdb_voxel_size_supported(double voxel_size) {
     }
 }
 
+namespace {
+
+// What kind of file st describes, for an error message.
+const char* file_kind(const struct stat& st) {
+    if (S_ISLNK(st.st_mode)) return "a symbolic link (refused wherever it points: the write would replace the link)";
+    if (S_ISDIR(st.st_mode)) return "a directory";
+    if (S_ISFIFO(st.st_mode)) return "a FIFO";
+    if (S_ISSOCK(st.st_mode)) return "a socket";
+    if (S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode)) return "a device";
+    return "not a regular file";
+}
+
+// Throws std::invalid_argument "grids.path = '<path>' <what>".
+[[noreturn]] void bad_path(const std::string& path, const std::string& what) {
+    throw std::invalid_argument("grids.path = '" + path + "' " + what);
+}
+
+// Refuses a path that exists and is not a regular file (symbolic links included).
+void check_target_kind(const std::string& path) {
+    struct stat st;
+    if (::lstat(path.c_str(), &st) != 0) {
+        if (errno == ENOENT) return;
+        bad_path(path, std::string("cannot be inspected: ") + std::strerror(errno));
+    }
+    if (!S_ISREG(st.st_mode))
+        bad_path(path, std::string("exists and is ") + file_kind(st) +
+                           ": the grid file replaces only a regular file; give a new file name");
+}
+
+// Longest ".tmp-<pid>-<counter>" suffix create_temp_file appends.
+constexpr size_t kTempSuffixMax = 5 + 10 + 1 + 10;
+
+}  // namespace
+
+void check_vdb_path(const std::string& path) {
+    if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
+    if (path.find('\0') != std::string::npos) bad_path(path, "holds a NUL character");
+    if (path.size() + kTempSuffixMax >= PATH_MAX)
+        bad_path(path.substr(0, 80) + "...", "is " + std::to_string(path.size()) +
+                                                 " characters long, beyond the limit PATH_MAX = " +
+                                                 std::to_string(PATH_MAX) + " less the temporary file's suffix");
+    if (path.back() == '/') bad_path(path, "ends in '/': it must name a file, not a directory");
+    const size_t slash = path.rfind('/');
+    const std::string dir = slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+    const std::string base = slash == std::string::npos ? path : path.substr(slash + 1);
+    if (base == "." || base == "..") bad_path(path, "must name a file, not a directory");
+    struct stat st;
+    if (::stat(dir.c_str(), &st) != 0)
+        bad_path(path, "is in the directory '" + dir + "', which cannot be used: " + std::strerror(errno));
+    if (!S_ISDIR(st.st_mode)) bad_path(path, "is in '" + dir + "', which is not a directory");
+    long name_max = ::pathconf(dir.c_str(), _PC_NAME_MAX);
+    if (name_max <= 0) name_max = NAME_MAX;
+    if (base.size() + kTempSuffixMax > size_t(name_max))
+        bad_path(path, "has a file name of " + std::to_string(base.size()) + " characters; the directory allows " +
+                           std::to_string(name_max) + " and the temporary file's suffix needs " +
+                           std::to_string(kTempSuffixMax) + " of them: give a shorter name");
+    check_target_kind(path);
+    // Whether the write can make its temporary file there, tried (the
+    // permission bits do not tell root, or a read-only or virtual file system).
+    std::string probe;
+    try {
+        probe = create_temp_file(path);
+    } catch (const std::runtime_error&) {
+        bad_path(path, "is in the directory '" + dir + "', where no file can be created: " + std::strerror(errno));
+    }
+    std::remove(probe.c_str());
+}
+
 void check_vdb_voxel_size(double voxel_size) {
     if (vdb_voxel_size_supported(voxel_size)) return;
     std::ostringstream msg;
@@ -509,7 +578,7 @@ void check_vdb_voxel_size(double voxel_size) {
 std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
                               const std::map<std::string, std::string>& metadata, int threads,
                               uint64_t max_tree_bytes) {
-    if (path.empty()) throw std::invalid_argument("grids.path = '' must name a file");
+    check_vdb_path(path);
     validate(grids, metadata);
     ensure_openvdb_initialized();
     check_vdb_voxel_size(grids.front().data->voxel_size());
@@ -525,6 +594,12 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
     } catch (const openvdb::Exception& e) {
         std::remove(tmp.c_str());
         throw path_error(path, std::string("write failed: ") + e.what());
+    } catch (...) {
+        std::remove(tmp.c_str());
+        throw;
+    }
+    try {
+        check_target_kind(path);  // a special file or link may have appeared there during the write
     } catch (...) {
         std::remove(tmp.c_str());
         throw;

@@ -51,7 +51,9 @@ struct GridOutput {
 // The grids are built on up to `threads` threads (their parts in parallel),
 // and each is written as soon as it is built. Returns each grid's
 // "accumulator_sum", in `grids` order.
-// Throws std::invalid_argument for bad input (empty list, null data, empty or
+// Throws std::invalid_argument for a path check_vdb_path refuses (before
+// anything is built, and again just before the rename), and for bad input
+// (empty list, null data, empty or
 // duplicate name, reserved metadata key, voxel sizes that differ, a value
 // beyond float range), naming the grid or key; std::logic_error if the parts
 // of a grid overlap; std::runtime_error naming the path if the file cannot be
@@ -79,6 +81,18 @@ bool vdb_voxel_size_supported(double voxel_size);
 // Throws std::invalid_argument naming grids.voxel_size unless it is supported
 // (the engine checks it before a run, write_vdb before a write).
 void check_vdb_voxel_size(double voxel_size);
+
+// Throws std::invalid_argument naming grids.path and its value unless a grid
+// file can be written there: the path must not be empty or longer than
+// PATH_MAX, its file name must leave room for the temporary file's suffix
+// within NAME_MAX, its directory must exist and be writable, and the path
+// itself must be new or an existing regular file. Anything else that exists
+// there (a directory, a FIFO, a socket, a device, and any symbolic link,
+// wherever it points) is refused: the write replaces the file by a rename,
+// which would silently turn a special file into a regular one. The engine
+// checks it before a run (validate_config), write_vdb before it writes and
+// again just before its rename.
+void check_vdb_path(const std::string& path);
 
 // Names of the grids stored in a .vdb file, in file order. Throws
 // std::runtime_error naming the path if the file cannot be read.

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .io import real_or_none, shown
+from .scene_schema import MAX_COORDINATE
 from .sources import _vec3
 
 
@@ -42,13 +43,14 @@ class Camera:
             raise ValueError(f"camera.up = {self.up.tolist()} is parallel to the viewing direction")
         self.fov_deg = _positive("fov_deg", self.fov_deg, 179.0)
         a = real_or_none(self.aperture_radius)
-        if a is None or not 0 <= a < math.inf:
+        if a is None or not 0 <= a <= MAX_COORDINATE:
             raise ValueError(
-                f"camera.aperture_radius = {shown(self.aperture_radius)} must be a finite number >= 0 (scene units)"
+                f"camera.aperture_radius = {shown(self.aperture_radius)} must be a finite number in "
+                f"[0, {MAX_COORDINATE:g}] (scene units)"
             )
         self.aperture_radius = a
         if self.focus_distance is not None:
-            self.focus_distance = _positive("focus_distance", self.focus_distance)
+            self.focus_distance = _positive("focus_distance", self.focus_distance, MAX_COORDINATE)
 
     @classmethod
     def look_at(

@@ -6,6 +6,7 @@ counter-clockwise (outward) triangles.
 from __future__ import annotations
 
 import os
+import math
 import struct
 
 import numpy as np
@@ -243,6 +244,12 @@ def _load_ply(path):
                     if p[0] == "list":
                         idx = read_list(name, item, p)
                         if name == "face" and p[-1] in ("vertex_indices", "vertex_index"):
+                            for x in idx:  # a float item type would otherwise be truncated
+                                if not (math.isfinite(x) and x == int(x)):
+                                    raise ValueError(
+                                        f"mesh = {path!r}: PLY face {item}: vertex index {x!r} is not an integer"
+                                    )
+                            idx = [int(x) for x in idx]
                             if idx and min(idx) < 0:
                                 raise ValueError(
                                     f"mesh = {path!r}: PLY face {item}: vertex index {min(idx)} is negative"

@@ -44,6 +44,8 @@ import numpy as np
 from . import _core, colour
 from .analysis import batch_index
 from .camera import Camera
+from .io import check_int, shown
+from .run import MAX_THREADS
 from .sources import MAX_IMAGE_SIDE, is_image_side
 from .spectra import Spectrum
 
@@ -482,6 +484,12 @@ def render_view(
     threads : for the primary rays and the gather (0 = all cores)
     """
     _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
+    if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
+        raise ValueError(
+            f"result = {shown(result)}: render_view's first argument must be an ep.Result "
+            "(from ep.run(..., record_escapes=True))"
+        )
+    check_int("threads", threads, 0, MAX_THREADS)  # the rule of ep.run
     camera, W, H = _resolve_camera(result, camera, width, height)
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)

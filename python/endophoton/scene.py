@@ -13,6 +13,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from collections.abc import Iterable
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -135,7 +136,9 @@ class Scene:
         priority: int = 0,
         fluorophores: Sequence[Fluorophore] = (),
     ) -> Region:
-        """Add a region bounded by a closed triangle mesh (vertices in scene units)."""
+        """Add a region bounded by a closed triangle mesh (vertices in scene units).
+
+        ``fluorophores``: a list of endophoton.Fluorophore; None or () for none (a string is an error)."""
         if len(self.regions) >= MAX_REGIONS:  # cheapest check first
             raise ValueError(f"region {name!r}: a scene holds at most {MAX_REGIONS} regions")
         if not isinstance(name, str) or not name:
@@ -152,6 +155,13 @@ class Scene:
         medium.validate(owner + ": ")
         if isinstance(priority, bool) or not isinstance(priority, (int, np.integer)):
             raise ValueError(f"{owner}: priority = {priority!r} must be an integer")
+        if fluorophores is None:  # documented: None means no fluorophores, like ()
+            fluorophores = ()
+        if isinstance(fluorophores, (str, bytes, Fluorophore)) or not isinstance(fluorophores, Iterable):
+            raise ValueError(
+                f"{owner}: fluorophores = {shown(fluorophores)} must be a list of endophoton.Fluorophore "
+                "(or None for none)"
+            )
         fl = tuple(fluorophores)
         for f in fl:
             if not isinstance(f, Fluorophore):

@@ -13,6 +13,7 @@ import numpy as np
 
 from .spectra import Spectrum
 from .io import check_keys as _check_keys, float_array, real_or_none, shown
+from .scene_schema import MAX_COORDINATE
 from .units import unit_cm as _unit_cm
 
 
@@ -21,10 +22,12 @@ def _vec3(owner, field_name, v, unit_length=False):
     if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{owner}.{field_name} = {shown(v)} must be 3 finite numbers")
     if unit_length:
-        n = float(np.linalg.norm(a))
-        if n < 1e-12:
-            raise ValueError(f"{owner}.{field_name} = {v!r} has zero length")
-        a = a / n
+        m = float(np.max(np.abs(a)))
+        # Scaled by its largest component first: the norm of (0, 0, 1e300) would overflow to inf.
+        if not m > 0 or m * float(np.linalg.norm(a / m)) < 1e-12:
+            raise ValueError(f"{owner}.{field_name} = {shown(v)} has zero length (below 1e-12)")
+        a = a / m
+        a = a / float(np.linalg.norm(a))
     return a
 
 
@@ -33,7 +36,7 @@ def _nonneg(owner, field_name, v, hi=math.inf, positive=False):
     x = real_or_none(v)
     if x is None or not math.isfinite(x) or x < 0 or x > hi or (positive and x == 0):
         lo = "(0" if positive else "[0"
-        rng = f"{lo}, {hi}]" if math.isfinite(hi) else ("> 0" if positive else ">= 0")
+        rng = f"{lo}, {hi:g}]" if math.isfinite(hi) else ("> 0" if positive else ">= 0")
         raise ValueError(f"{owner}.{field_name} = {shown(v)} must be a finite number {rng}")
     return x
 
@@ -231,7 +234,7 @@ class EndoscopeRig(_Source):
             "head_length_mm",
             "camera_aperture_mm",
         ):
-            setattr(self, name, _nonneg("rig", name, getattr(self, name)))
+            setattr(self, name, _nonneg("rig", name, getattr(self, name), MAX_COORDINATE))
         self.cone_angle_deg = _nonneg("rig", "cone_angle_deg", self.cone_angle_deg, 180.0)
         self.camera_fov_deg = _nonneg("rig", "camera_fov_deg", self.camera_fov_deg, 179.0, positive=True)
         if not isinstance(self.body, (bool, np.bool_)):

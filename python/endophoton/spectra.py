@@ -41,10 +41,18 @@ def _g(v):
     return f"{float(v):g}"
 
 
-def _check_wavelengths(where, field, w, min_size):
-    """Validate a 1-D wavelength array (nm): size, finite, > 0, strictly increasing.
+#: Range of every wavelength a Spectrum or EEM may hold, nm: soft X-rays (1 nm) to the far infrared (1 mm).
+#: Far wider than any optical tissue data, and it keeps the spectral energy weight 500 nm / wavelength in
+#: [5e-4, 500], so that no tally or its variance overflows (1e-300 nm made escaped_energy_stderr = inf).
+MIN_WAVELENGTH_NM = 1.0
+MAX_WAVELENGTH_NM = 1e6
 
-    Messages equal those of check_wavelengths() in native/eem.cpp.
+
+def _check_wavelengths(where, field, w, min_size):
+    """Validate a 1-D wavelength array (nm): size, finite, in [MIN_WAVELENGTH_NM, MAX_WAVELENGTH_NM],
+    strictly increasing.
+
+    Messages equal those of check_wavelengths() in native/eem.cpp, which has no range check.
     """
     if w.ndim != 1:
         raise ValueError(f"{where}{field} must be 1-D, got shape {tuple(w.shape)}")
@@ -52,7 +60,7 @@ def _check_wavelengths(where, field, w, min_size):
         unit = "entry" if min_size == 1 else "entries"
         raise ValueError(f"{where}{field} needs at least {min_size} {unit}, got {w.size}")
     with np.errstate(invalid="ignore"):
-        bad = ~np.isfinite(w) | ~(w > 0)
+        bad = ~np.isfinite(w) | ~(w >= MIN_WAVELENGTH_NM) | ~(w <= MAX_WAVELENGTH_NM)
         bad[1:] |= ~(w[1:] > w[:-1])
     if bad.any():
         i = int(np.argmax(bad))
@@ -61,6 +69,11 @@ def _check_wavelengths(where, field, w, min_size):
             raise ValueError(f"{where}{at} must be finite")
         if not w[i] > 0:
             raise ValueError(f"{where}{at} must be > 0")
+        if not MIN_WAVELENGTH_NM <= w[i] <= MAX_WAVELENGTH_NM:
+            raise ValueError(
+                f"{where}{at} is outside [{_g(MIN_WAVELENGTH_NM)}, {_g(MAX_WAVELENGTH_NM)}] nm "
+                "(soft X-rays to the far infrared)"
+            )
         raise ValueError(
             f"{where}{at} must be greater than {field}[{i - 1}] = {_g(w[i - 1])} "
             "(wavelengths must be strictly increasing)"
@@ -84,7 +97,8 @@ class Spectrum:
 
     Parameters
     ----------
-    wavelength_nm : 1-D array, nm, finite, > 0, strictly increasing, >= 2 entries.
+    wavelength_nm : 1-D array, nm, in [1, 1e6] (MIN_WAVELENGTH_NM, MAX_WAVELENGTH_NM), strictly increasing,
+        >= 2 entries.
     values : 1-D array of the same length, finite, >= 0, in the caller's units
         (relative power for a light, cm^-1 for mua / mus).
     name : used in error messages.
@@ -159,7 +173,7 @@ class EEM:
 
     Parameters
     ----------
-    excitation_nm : (n_ex,) nm, finite, > 0, strictly increasing, n_ex >= 1.
+    excitation_nm : (n_ex,) nm, in [1, 1e6], strictly increasing, n_ex >= 1.
     emission_nm : (n_em,) nm, same rules, n_em >= 2.
     values : (n_ex, n_em) relative fluorescence (photon counts per nm of
         emission, any scale), finite, >= 0, at least one > 0.
@@ -257,16 +271,22 @@ class EEM:
         path = Path(path)
         name = path.stem if name is None else name
         where = f"eem file '{path}'"
+        try:
+            with open(path, encoding="utf-8") as f:
+                lines = list(f)
+        except OSError as e:
+            raise ValueError(f"{where} cannot be read: {e.strerror or e}") from None
+        except UnicodeDecodeError as e:
+            raise ValueError(f"{where} is not UTF-8 text ({e.reason}): give a CSV file") from None
         rows = []
-        with open(path, encoding="utf-8") as f:
-            for lineno, line in enumerate(f, start=1):
-                text = line.strip()
-                if not text or text.startswith("#"):
-                    continue
-                cells = [c.strip() for c in text.split(",")]
-                while cells and cells[-1] == "":  # trailing commas from spreadsheets
-                    cells.pop()
-                rows.append((lineno, cells))
+        for lineno, line in enumerate(lines, start=1):
+            text = line.strip()
+            if not text or text.startswith("#"):
+                continue
+            cells = [c.strip() for c in text.split(",")]
+            while cells and cells[-1] == "":  # trailing commas from spreadsheets
+                cells.pop()
+            rows.append((lineno, cells))
         if len(rows) < 2:
             raise ValueError(
                 f"{where}: needs a header row and at least 1 excitation row, " f"found {len(rows)} data row(s)"

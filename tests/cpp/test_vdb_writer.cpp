@@ -9,6 +9,7 @@
 
 #include <dirent.h>
 #include <stdlib.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <array>
@@ -190,10 +191,41 @@ TEST_F(VdbWriterTest, UnwritablePathErrorNamesPath) {
     try {
         ep::write_vdb(bad, {{"absorbed", "", &a}}, {});
         FAIL() << "write to " << bad << " succeeded";
-    } catch (const std::runtime_error& e) {
-        EXPECT_NE(std::string(e.what()).find(bad), std::string::npos) << e.what();
+    } catch (const std::invalid_argument& e) {  // refused before anything is built
+        EXPECT_NE(std::string(e.what()).find("grids.path = '" + bad + "'"), std::string::npos) << e.what();
     }
     EXPECT_TRUE(list_dir().empty());
+}
+
+// A FIFO, a symbolic link (even to a regular file) or a directory at the path
+// is refused, by name, and left as it was; no temporary file is left behind.
+TEST_F(VdbWriterTest, RefusesToReplaceWhatIsNotARegularFile) {
+    VoxelAccumulator a(1.0);
+    a.add(0, 0, 0, 1.0);
+    ASSERT_EQ(::mkfifo(path("fifo").c_str(), 0600), 0);
+    std::ofstream(path("target.vdb")) << "kept";
+    ASSERT_EQ(::symlink("target.vdb", path("link.vdb").c_str()), 0);
+    ASSERT_EQ(::mkdir(path("sub").c_str(), 0700), 0);
+    for (const auto& [name, kind] : std::vector<std::pair<std::string, std::string>>{
+             {"fifo", "a FIFO"}, {"link.vdb", "a symbolic link"}, {"sub", "a directory"}}) {
+        try {
+            ep::write_vdb(path(name), {{"absorbed", "", &a}}, {});
+            ADD_FAILURE() << "replaced " << name;
+        } catch (const std::invalid_argument& e) {
+            const std::string msg = e.what();
+            EXPECT_NE(msg.find("grids.path = '" + path(name) + "' exists and is " + kind), std::string::npos) << msg;
+        }
+    }
+    struct stat st;
+    ASSERT_EQ(::lstat(path("fifo").c_str(), &st), 0);
+    EXPECT_TRUE(S_ISFIFO(st.st_mode));
+    ASSERT_EQ(::lstat(path("link.vdb").c_str(), &st), 0);
+    EXPECT_TRUE(S_ISLNK(st.st_mode));
+    std::string kept;
+    std::ifstream(path("target.vdb")) >> kept;
+    EXPECT_EQ(kept, "kept");
+    ::rmdir(path("sub").c_str());
+    EXPECT_EQ(list_dir().size(), 3u);  // fifo, link.vdb, target.vdb: no temporary file
 }
 
 TEST_F(VdbWriterTest, UnreadableFileErrorNamesPath) {
