@@ -880,8 +880,19 @@ def points_objects(collection):
 
 
 def update_display(scene):
-    """Apply point radius, colour mapping, filters and volume density to the scene's results."""
+    """Apply point radius, colour mapping, filters and volume density to the scene's results.
+
+    A display setting that is not a finite number within its limits (guards.check_display)
+    changes no result: its message becomes the legend's header and is returned (else None)."""
+    from . import guards
+    from .export import InputError
+
     settings = scene.endophoton
+    try:
+        guards.check_display(settings, f"Scene '{scene.name}'")
+    except InputError as exc:
+        settings.legend_header = str(exc)
+        return str(exc)
     for collection in result_collections(scene):
         for obj in collection.all_objects:
             for modifier in obj.modifiers:

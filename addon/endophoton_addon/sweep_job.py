@@ -160,6 +160,7 @@ def collect_sweep_inputs(context, ep):
         )
     if settings.threads < 0:
         raise InputError(f"{who}: sweep.threads = {settings.threads} must be >= 0")
+    guards.check_display(scene.endophoton, who)
     out_dir = guards.resolve_folder(settings.output_dir, f"{who}: sweep.output_dir", DEFAULT_DIR_NAME)
 
     depsgraph = context.evaluated_depsgraph_get()

@@ -151,6 +151,22 @@ def test_nan_voxel_size():
     _assert_rejected(r"Scene 'Scene': simulation.voxel_size = nan must be a finite number > 0")
 
 
+@pytest.mark.parametrize(
+    "field, limits",
+    [
+        ("point_radius", ">= 0"),
+        ("camera_cone_deg", r"in \[0.1, 90\]"),
+        ("volume_decades", ">= 0.1"),
+        ("volume_density", ">= 0"),
+    ],
+)
+def test_nan_display_setting(field, limits):
+    """A FloatProperty's min/max let NaN through; the run names the display field."""
+    _valid_scene()
+    setattr(bpy.context.scene.endophoton, field, math.nan)
+    _assert_rejected(rf"Scene 'Scene': simulation.{field} = nan must be a finite number {limits}")
+
+
 def test_role_on_non_mesh():
     _valid_scene()
     curve = bpy.data.objects.new("Wire", bpy.data.curves.new("Wire", "CURVE"))
