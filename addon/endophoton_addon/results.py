@@ -721,7 +721,8 @@ def run_files(collection):
 
 
 def remove_run(collection):
-    """Delete a run's collection, every datablock tagged with its run id and its .vdb file."""
+    """Delete a run's collection, every datablock tagged with its run id and its .vdb file,
+    and the points node group (POINTS_GROUP) once no object uses it."""
     import os
 
     run_id = collection.get(RUN_KEY)
@@ -740,6 +741,10 @@ def remove_run(collection):
     for parent in parents:  # a sweep's parent collection goes with its last β
         if not parent.children and not parent.objects:
             bpy.data.collections.remove(parent)
+    # The shared points node group goes with the last point cloud that used it (never while used).
+    for group in list(bpy.data.node_groups):
+        if group.name.startswith(POINTS_GROUP) and "endophoton_version" in group and group.users == 0:
+            bpy.data.node_groups.remove(group)
 
 
 def remove_results(scene):
