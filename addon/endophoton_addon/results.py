@@ -323,7 +323,7 @@ def recolour(obj, settings):
 def show_legend(settings, legend):
     """Copy a legend into the scene's panel rows (colour swatch + label)."""
     settings.legend.clear()
-    settings.legend_header = f"{legend.header()} · {legend.shown:,}/{legend.total:,} shown"
+    settings.legend_header = legend.caption()
     for colour, label in legend.entries:
         entry = settings.legend.add()
         entry.name = label

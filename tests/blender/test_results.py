@@ -223,6 +223,24 @@ def test_filters_and_radius_update_results():
     assert obj.modifiers[0][ids["Radius"]] == pytest.approx(0.0007)
 
 
+@pytest.mark.parametrize("color_by, title", [("FLUORESCENT", "Fluorescent"), ("DEPTH", "Depth [mm]")])
+def test_legend_when_the_filters_show_nothing(color_by, title):
+    """A filter that hides every record gives 'none shown (0/N)', no range and no swatch;
+    showing records again gives the range and the count back."""
+    rec = _records(np.random.default_rng(5), k=300)
+    rec["fluorophore"][:] = -1  # no record has a fluorophore: filtering by one shows nothing
+    obj = _points_in_collection(rec)
+    settings = bpy.context.scene.endophoton
+    settings.color_by = color_by
+    settings.filter_fluorophore = "collagen"
+    assert not _attr(obj.data, results.SHOW_ATTR).any()
+    assert settings.legend_header == f"{title}: none shown (0/300)"
+    assert len(settings.legend) == 0 and results.legend_of(obj).entries == []
+    settings.filter_fluorophore = "ANY"
+    assert settings.legend_header.endswith(" · 300/300 shown") and "none" not in settings.legend_header
+    assert len(settings.legend) > 0
+
+
 @pytest.mark.parametrize("field", ["point_radius", "camera_cone_deg"])
 def test_nan_display_setting_changes_no_result(field):
     """NaN in a display setting (which a FloatProperty's min/max let through) leaves the
