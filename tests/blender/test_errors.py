@@ -93,6 +93,22 @@ def test_open_after_modifiers():
     _assert_rejected(r"Object 'Tissue': mesh is open \(.* after modifiers\)")
 
 
+@pytest.mark.parametrize("axis", [0, 2])
+def test_zero_scale_is_zero_volume_not_inward(axis):
+    """A closed box scaled to 0 along an axis is named as flat, not as inward normals."""
+    tissue, _root = _valid_scene()
+    scale = [1.0, 1.0, 1.0]
+    scale[axis] = 0.0
+    tissue.scale = scale
+    _assert_rejected(r"Object 'Tissue': mesh has zero volume \(signed volume .* m³ .*\): it is flat or scaled to 0")
+
+
+def test_inverted_normals_still_named_inward():
+    tissue, _root = _valid_scene()
+    tissue.data.flip_normals()
+    _assert_rejected(r"Object 'Tissue': normals point inward \(signed volume -.* m³\)")
+
+
 def test_no_rig():
     _tissue()
     _assert_rejected(r"Scene 'Scene': simulation.rig is not set and the scene has no endoscope rig")
