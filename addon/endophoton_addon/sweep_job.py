@@ -477,7 +477,9 @@ def load_plot_images(paths):
     An image of that name from an earlier sweep is pointed at the new file and
     reloaded; other images are loaded with ``check_existing=True`` (a file
     already open is reused and reloaded).  Plot images of an earlier sweep that
-    this one did not produce (other β values) are removed.
+    this one did not produce (other β values) are removed.  Each has a fake user
+    (the sweep's files stay external, in its output folder), so the plots are still
+    there when the .blend is saved and reopened.
     """
     import bpy
 
@@ -498,6 +500,7 @@ def load_plot_images(paths):
                 raise RuntimeError(f"Sweep plot '{path}' could not be loaded: {exc}") from exc
             img.name = name
             img[IMAGE_KEY] = True
+        img.use_fake_user = True  # nothing else uses a plot: kept when the .blend is saved and reopened
         img.reload()
         images.append(img)
     return images

@@ -174,6 +174,35 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     assert scene[sweep_job.SUMMARY_KEY]["n_betas"] == 1
 
 
+def test_plot_images_survive_save_and_reopen(ep, tmp_path):
+    """The plots are kept with the .blend (a fake user; the files stay in the output folder):
+    after save and reopen they are there, pointing at the sweep's files; the next sweep
+    replaces them in place, no copies pile up."""
+    from conftest import ensure_addon
+
+    _setup(tmp_path, betas="0", store=500)
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    names = sorted(img.name for img in sweep_job.sweep_images())
+    assert len(names) == 6
+    blend = str(tmp_path / "saved.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    bpy.ops.wm.open_mainfile(filepath=blend)
+    ensure_addon()
+    images = sweep_job.sweep_images()
+    assert sorted(img.name for img in images) == names
+    for img in images:
+        path = bpy.path.abspath(img.filepath)
+        assert os.path.dirname(path) == str(tmp_path / "sweep") and os.path.isfile(path)
+        assert img.use_fake_user and img.size[0] > 0
+    assert bpy.context.scene[sweep_job.SUMMARY_KEY]["images"] == 6
+
+    pointers = {img.name: img.as_pointer() for img in images}
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    again = sweep_job.sweep_images()
+    assert {img.name: img.as_pointer() for img in again} == pointers
+    assert len([img for img in bpy.data.images if img.name.startswith(sweep_job.IMAGE_PREFIX)]) == 6
+
+
 def test_cancel_adds_nothing(ep, tmp_path):
     scene = _setup(tmp_path, betas="0", store=500)
     # An earlier sweep's images and summary, made by the operator's blocking path.
