@@ -9,6 +9,7 @@ import csv
 import math
 import os
 import re
+import sys
 import threading
 import time
 
@@ -424,3 +425,18 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     assert merged == total > 0
     fractions = [p.fraction for p in seen]
     assert all(0.0 <= f <= 1.0 for f in fractions)
+
+
+@pytest.mark.parametrize("owner", ["run", "sweep"])
+def test_threads_bounded_within_the_packages_limit(ep, owner):
+    """Threads (Run and Sweep β) cannot exceed what ep.run accepts (endophoton.run.MAX_THREADS):
+    100000 is held at the property's maximum, 1024."""
+    settings = bpy.context.scene.endophoton
+    settings = settings if owner == "run" else settings.sweep
+    settings.threads = 100_000
+    assert (
+        settings.threads
+        == settings.bl_rna.properties["threads"].hard_max
+        == 1024
+        <= sys.modules["endophoton.run"].MAX_THREADS
+    )
