@@ -139,9 +139,17 @@ class Legend:
 
     def header(self):
         unit = f" [{self.unit}]" if self.unit else ""
+        if not self.shown:  # no range or category to show: the filters hide every record
+            return f"{self.title}{unit}: none shown"
         if self.entries and self.lo == self.hi == 0.0:
             return f"{self.title}{unit}"
         return f"{self.title}{unit}: {self.lo:.4g} – {self.hi:.4g}"
+
+    def caption(self):
+        """The header with how many records are shown (the panel's legend line)."""
+        if not self.shown:
+            return f"{self.header()} (0/{self.total:,})"
+        return f"{self.header()} · {self.shown:,}/{self.total:,} shown"
 
     def to_dict(self):
         return dict(
@@ -248,6 +256,8 @@ def colour_records(key, columns, filters=Filters(), names=None, count=None):
         legend.lo, legend.hi = lo, hi
         ticks = np.linspace(lo, hi, 5) if hi > lo else np.array([lo])
         legend.entries = [(tuple(c), f"{t:.3g}") for c, t in zip(ramp_colours(np.linspace(0, 1, len(ticks))), ticks)]
+    if not legend.shown:
+        legend.entries = []  # a swatch for a range of no record would mean nothing
     return np.ascontiguousarray(rgb, dtype=np.float32), show, legend
 
 

@@ -98,8 +98,14 @@ def mesh_arrays(obj, depsgraph, scale_length):
     return vertices.astype(np.float32), np.ascontiguousarray(tris, dtype=np.uint32)
 
 
+# A closed mesh whose |signed volume| is at most this fraction of its largest extent cubed
+# encloses nothing: flat, or scaled to 0 along an axis (float32 round-off is ~1e-7 per axis).
+ZERO_VOLUME = 1e-9
+
+
 def check_closed(name, vertices, triangles):
-    """Raise InputError unless the triangle mesh is closed, consistently oriented, outward."""
+    """Raise InputError unless the triangle mesh is closed, consistently oriented, outward
+    and encloses a volume (not flat)."""
     who = f"Object '{name}'"
     tris = triangles.astype(np.int64)
     degenerate = (tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 0] == tris[:, 2])
@@ -125,6 +131,13 @@ def check_closed(name, vertices, triangles):
     v = vertices.astype(np.float64)
     a, b, c = v[tris[:, 0]], v[tris[:, 1]], v[tris[:, 2]]
     volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0
+    extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    if abs(volume) <= ZERO_VOLUME * extent**3:  # round-off of a flat mesh, not a winding
+        raise InputError(
+            f"{who}: mesh has zero volume (signed volume {volume:.3g} m³ over an extent of {extent:.3g} m): "
+            "it is flat or scaled to 0 along an axis; tissue and polyps must enclose a volume "
+            "(check the object's scale and the mesh)"
+        )
     if not volume > 0.0:
         raise InputError(f"{who}: normals point inward (signed volume {volume:.3g} m³); " "recalculate normals outside")
 

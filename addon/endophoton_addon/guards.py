@@ -21,6 +21,9 @@ scene or object and the field; none creates a datablock or a file.
   threshold is refused unless the scene allows large runs (quality presets run
   to a target: their packet count is only a cap, so they are not refused).
 - :func:`check_voxels`: the grid's voxel count and a minimum voxel size.
+- :func:`check_display`: the display settings results are drawn with (point
+  radius, camera cone, volume decades and density) are finite and within their
+  property's limits: a FloatProperty's min/max clamp numbers but let NaN through.
 """
 
 import math
@@ -196,6 +199,21 @@ def check_voxels(regions, voxel_m, who):
             f"over the scene's {((hi - lo) * 1e3).round(3).tolist()} mm (limit {MAX_VOXELS:.3g}); "
             "choose a larger voxel size"
         )
+
+
+DISPLAY_FIELDS = ("point_radius", "camera_cone_deg", "volume_decades", "volume_density")
+
+
+def check_display(settings, who):
+    """Raise InputError naming the first display field of the scene's ``settings``
+    (scene.endophoton) that is not a finite number within its property's hard limits."""
+    for name in DISPLAY_FIELDS:
+        value = getattr(settings, name)
+        prop = settings.bl_rna.properties[name]
+        lo, hi = prop.hard_min, prop.hard_max
+        if not (math.isfinite(value) and lo <= value <= hi):
+            limits = f">= {lo:g}" if hi >= 3e38 else f"in [{lo:g}, {hi:g}]"
+            raise InputError(f"{who}: simulation.{name} = {value:g} must be a finite number {limits}")
 
 
 def resolve_folder(raw, field, default_name, value=None):

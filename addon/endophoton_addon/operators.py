@@ -199,7 +199,10 @@ class ENDOPHOTON_OT_result_activate(_NamedResult, bpy.types.Operator):
         if collection is None:
             return {"CANCELLED"}
         context.scene.endophoton.result_collection = collection
-        results.update_display(context.scene)
+        message = results.update_display(context.scene)
+        if message is not None:
+            self.report({"ERROR"}, message)
+            return {"CANCELLED"}
         return {"FINISHED"}
 
 

@@ -323,7 +323,7 @@ def recolour(obj, settings):
 def show_legend(settings, legend):
     """Copy a legend into the scene's panel rows (colour swatch + label)."""
     settings.legend.clear()
-    settings.legend_header = f"{legend.header()} · {legend.shown:,}/{legend.total:,} shown"
+    settings.legend_header = legend.caption()
     for colour, label in legend.entries:
         entry = settings.legend.add()
         entry.name = label
@@ -721,7 +721,8 @@ def run_files(collection):
 
 
 def remove_run(collection):
-    """Delete a run's collection, every datablock tagged with its run id and its .vdb file."""
+    """Delete a run's collection, every datablock tagged with its run id and its .vdb file,
+    and the points node group (POINTS_GROUP) once no object uses it."""
     import os
 
     run_id = collection.get(RUN_KEY)
@@ -740,6 +741,10 @@ def remove_run(collection):
     for parent in parents:  # a sweep's parent collection goes with its last β
         if not parent.children and not parent.objects:
             bpy.data.collections.remove(parent)
+    # The shared points node group goes with the last point cloud that used it (never while used).
+    for group in list(bpy.data.node_groups):
+        if group.name.startswith(POINTS_GROUP) and "endophoton_version" in group and group.users == 0:
+            bpy.data.node_groups.remove(group)
 
 
 def remove_results(scene):
@@ -880,8 +885,19 @@ def points_objects(collection):
 
 
 def update_display(scene):
-    """Apply point radius, colour mapping, filters and volume density to the scene's results."""
+    """Apply point radius, colour mapping, filters and volume density to the scene's results.
+
+    A display setting that is not a finite number within its limits (guards.check_display)
+    changes no result: its message becomes the legend's header and is returned (else None)."""
+    from . import guards
+    from .export import InputError
+
     settings = scene.endophoton
+    try:
+        guards.check_display(settings, f"Scene '{scene.name}'")
+    except InputError as exc:
+        settings.legend_header = str(exc)
+        return str(exc)
     for collection in result_collections(scene):
         for obj in collection.all_objects:
             for modifier in obj.modifiers:

@@ -141,6 +141,7 @@ def collect_inputs(context):
         raise InputError(f"{who}: simulation.{field_name} = {count} must be > 0")
     if settings.threads < 0:
         raise InputError(f"{who}: simulation.threads = {settings.threads} must be >= 0")
+    guards.check_display(settings, who)
 
     views = bool(settings.output_views) and rig.has_camera(rig_obj)
     if not settings.output_points and not settings.output_grids and not views:

@@ -160,6 +160,7 @@ def collect_sweep_inputs(context, ep):
         )
     if settings.threads < 0:
         raise InputError(f"{who}: sweep.threads = {settings.threads} must be >= 0")
+    guards.check_display(scene.endophoton, who)
     out_dir = guards.resolve_folder(settings.output_dir, f"{who}: sweep.output_dir", DEFAULT_DIR_NAME)
 
     depsgraph = context.evaluated_depsgraph_get()
@@ -476,7 +477,9 @@ def load_plot_images(paths):
     An image of that name from an earlier sweep is pointed at the new file and
     reloaded; other images are loaded with ``check_existing=True`` (a file
     already open is reused and reloaded).  Plot images of an earlier sweep that
-    this one did not produce (other β values) are removed.
+    this one did not produce (other β values) are removed.  Each has a fake user
+    (the sweep's files stay external, in its output folder), so the plots are still
+    there when the .blend is saved and reopened.
     """
     import bpy
 
@@ -497,6 +500,7 @@ def load_plot_images(paths):
                 raise RuntimeError(f"Sweep plot '{path}' could not be loaded: {exc}") from exc
             img.name = name
             img[IMAGE_KEY] = True
+        img.use_fake_user = True  # nothing else uses a plot: kept when the .blend is saved and reopened
         img.reload()
         images.append(img)
     return images

@@ -200,6 +200,28 @@ def test_two_runs_coexist_delete_removes_files_export_round_trips(ep, tmp_path):
     assert run_ids == {second[results.RUN_KEY]}
 
 
+def test_points_node_group_goes_with_its_last_user(ep, tmp_path):
+    """The shared 'EP Photon Points' node group stays while a point cloud uses it and is
+    removed with the last one (Delete Result or Clear Results), never left with 0 users."""
+    scene = open_blend("flat_tissue.blend", tmp_path)
+    settings = scene.endophoton
+    settings.quality, settings.photons, settings.output_grids, settings.output_views = "CUSTOM", 2_000, False, False
+    _job, first, _seen = _run_job(bpy.context)
+    _job, second, _seen = _run_job(bpy.context)
+    group = bpy.data.node_groups[results.POINTS_GROUP]
+    assert group.users == 2
+    assert bpy.ops.endophoton.result_delete(name=first.name) == {"FINISHED"}
+    assert bpy.data.node_groups[results.POINTS_GROUP].users == 1
+    assert bpy.ops.endophoton.result_delete(name=second.name) == {"FINISHED"}
+    assert results.POINTS_GROUP not in bpy.data.node_groups
+
+    _run_job(bpy.context)
+    assert bpy.data.node_groups[results.POINTS_GROUP].users == 1
+    assert bpy.ops.endophoton.clear_results() == {"FINISHED"}
+    assert not _result_collections()
+    assert results.POINTS_GROUP not in bpy.data.node_groups
+
+
 def test_operator_execute_store_mode(ep, tmp_path):
     """The operator (blocking execute path) in "store N" mode, fluorescent records only."""
     scene = open_blend("flat_tissue.blend", tmp_path)

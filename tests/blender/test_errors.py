@@ -93,6 +93,22 @@ def test_open_after_modifiers():
     _assert_rejected(r"Object 'Tissue': mesh is open \(.* after modifiers\)")
 
 
+@pytest.mark.parametrize("axis", [0, 2])
+def test_zero_scale_is_zero_volume_not_inward(axis):
+    """A closed box scaled to 0 along an axis is named as flat, not as inward normals."""
+    tissue, _root = _valid_scene()
+    scale = [1.0, 1.0, 1.0]
+    scale[axis] = 0.0
+    tissue.scale = scale
+    _assert_rejected(r"Object 'Tissue': mesh has zero volume \(signed volume .* m³ .*\): it is flat or scaled to 0")
+
+
+def test_inverted_normals_still_named_inward():
+    tissue, _root = _valid_scene()
+    tissue.data.flip_normals()
+    _assert_rejected(r"Object 'Tissue': normals point inward \(signed volume -.* m³\)")
+
+
 def test_no_rig():
     _tissue()
     _assert_rejected(r"Scene 'Scene': simulation.rig is not set and the scene has no endoscope rig")
@@ -149,6 +165,22 @@ def test_nan_voxel_size():
     _valid_scene()
     bpy.context.scene.endophoton.voxel_size = math.nan
     _assert_rejected(r"Scene 'Scene': simulation.voxel_size = nan must be a finite number > 0")
+
+
+@pytest.mark.parametrize(
+    "field, limits",
+    [
+        ("point_radius", ">= 0"),
+        ("camera_cone_deg", r"in \[0.1, 90\]"),
+        ("volume_decades", ">= 0.1"),
+        ("volume_density", ">= 0"),
+    ],
+)
+def test_nan_display_setting(field, limits):
+    """A FloatProperty's min/max let NaN through; the run names the display field."""
+    _valid_scene()
+    setattr(bpy.context.scene.endophoton, field, math.nan)
+    _assert_rejected(rf"Scene 'Scene': simulation.{field} = nan must be a finite number {limits}")
 
 
 def test_role_on_non_mesh():

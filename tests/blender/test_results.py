@@ -223,6 +223,44 @@ def test_filters_and_radius_update_results():
     assert obj.modifiers[0][ids["Radius"]] == pytest.approx(0.0007)
 
 
+@pytest.mark.parametrize("color_by, title", [("FLUORESCENT", "Fluorescent"), ("DEPTH", "Depth [mm]")])
+def test_legend_when_the_filters_show_nothing(color_by, title):
+    """A filter that hides every record gives 'none shown (0/N)', no range and no swatch;
+    showing records again gives the range and the count back."""
+    rec = _records(np.random.default_rng(5), k=300)
+    rec["fluorophore"][:] = -1  # no record has a fluorophore: filtering by one shows nothing
+    obj = _points_in_collection(rec)
+    settings = bpy.context.scene.endophoton
+    settings.color_by = color_by
+    settings.filter_fluorophore = "collagen"
+    assert not _attr(obj.data, results.SHOW_ATTR).any()
+    assert settings.legend_header == f"{title}: none shown (0/300)"
+    assert len(settings.legend) == 0 and results.legend_of(obj).entries == []
+    settings.filter_fluorophore = "ANY"
+    assert settings.legend_header.endswith(" · 300/300 shown") and "none" not in settings.legend_header
+    assert len(settings.legend) > 0
+
+
+@pytest.mark.parametrize("field", ["point_radius", "camera_cone_deg"])
+def test_nan_display_setting_changes_no_result(field):
+    """NaN in a display setting (which a FloatProperty's min/max let through) leaves the
+    shown result as it was and the legend's header names the field; Show Result reports it."""
+    rec = _records(np.random.default_rng(5), k=300)
+    obj = _points_in_collection(rec)
+    settings = bpy.context.scene.endophoton
+    settings.filter_toward_camera = True  # the camera cone is used
+    ids = results._group_input_identifiers(obj.modifiers[0].node_group)
+    radius = obj.modifiers[0][ids["Radius"]]
+    show = _attr(obj.data, results.SHOW_ATTR).copy()
+    setattr(settings, field, float("nan"))
+    message = f"Scene 'Scene': simulation.{field} = nan must be a finite number"
+    assert settings.legend_header.startswith(message)
+    assert obj.modifiers[0][ids["Radius"]] == radius
+    np.testing.assert_array_equal(_attr(obj.data, results.SHOW_ATTR), show)
+    with pytest.raises(RuntimeError, match=message.replace("(", r"\(")):
+        bpy.ops.endophoton.result_activate()
+
+
 def _write_vdb(path, name, voxel_size):
     import pyopenvdb as vdb
 

@@ -9,6 +9,7 @@ import csv
 import math
 import os
 import re
+import sys
 import threading
 import time
 
@@ -172,6 +173,35 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     assert sorted(img.name for img in sweep_job.sweep_images()) == names2
     assert all(img.as_pointer() == pointers[img.name] and img.size[0] > 0 for img in images2)
     assert scene[sweep_job.SUMMARY_KEY]["n_betas"] == 1
+
+
+def test_plot_images_survive_save_and_reopen(ep, tmp_path):
+    """The plots are kept with the .blend (a fake user; the files stay in the output folder):
+    after save and reopen they are there, pointing at the sweep's files; the next sweep
+    replaces them in place, no copies pile up."""
+    from conftest import ensure_addon
+
+    _setup(tmp_path, betas="0", store=500)
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    names = sorted(img.name for img in sweep_job.sweep_images())
+    assert len(names) == 6
+    blend = str(tmp_path / "saved.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    bpy.ops.wm.open_mainfile(filepath=blend)
+    ensure_addon()
+    images = sweep_job.sweep_images()
+    assert sorted(img.name for img in images) == names
+    for img in images:
+        path = bpy.path.abspath(img.filepath)
+        assert os.path.dirname(path) == str(tmp_path / "sweep") and os.path.isfile(path)
+        assert img.use_fake_user and img.size[0] > 0
+    assert bpy.context.scene[sweep_job.SUMMARY_KEY]["images"] == 6
+
+    pointers = {img.name: img.as_pointer() for img in images}
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    again = sweep_job.sweep_images()
+    assert {img.name: img.as_pointer() for img in again} == pointers
+    assert len([img for img in bpy.data.images if img.name.startswith(sweep_job.IMAGE_PREFIX)]) == 6
 
 
 def test_cancel_adds_nothing(ep, tmp_path):
@@ -395,3 +425,18 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     assert merged == total > 0
     fractions = [p.fraction for p in seen]
     assert all(0.0 <= f <= 1.0 for f in fractions)
+
+
+@pytest.mark.parametrize("owner", ["run", "sweep"])
+def test_threads_bounded_within_the_packages_limit(ep, owner):
+    """Threads (Run and Sweep β) cannot exceed what ep.run accepts (endophoton.run.MAX_THREADS):
+    100000 is held at the property's maximum, 1024."""
+    settings = bpy.context.scene.endophoton
+    settings = settings if owner == "run" else settings.sweep
+    settings.threads = 100_000
+    assert (
+        settings.threads
+        == settings.bl_rna.properties["threads"].hard_max
+        == 1024
+        <= sys.modules["endophoton.run"].MAX_THREADS
+    )
