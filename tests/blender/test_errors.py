@@ -252,7 +252,7 @@ def test_failed_run_removes_only_the_folders_it_made(tmp_path, monkeypatch):
     s.grid_dir = str(tmp_path / "kept" / "new" / "deeper")
 
     def broken_run(self):
-        assert os.path.isdir(os.path.dirname(self.inputs.grid_path))  # made after the checks
+        assert os.path.isdir(os.path.dirname(self.inputs.grid_path))  # made for the run
         raise RuntimeError("disk on fire")
 
     monkeypatch.setattr(simulation.SimulationJob, "_run", broken_run)
