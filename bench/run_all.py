@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import glob
+import inspect
 import json
 import math
 import os
@@ -145,11 +146,16 @@ def child_main(cfg):
         record_escapes=cfg.get("records", False),
         safe_distance=cfg.get("safe_distance", True),
     )
+    if cfg.get("lumen") is False and "lumen" in inspect.signature(ep.run).parameters:
+        # An engine from before issue 9 has no such keyword: it ends every packet at its first exit,
+        # which is what lumen=False does, so both run the same physics.
+        kw["lumen"] = False
     grids = None
     if cfg.get("voxel"):
         grids = ep.GridRequest(voxel_size=cfg["voxel"], path=cfg["grid_path"])
     if cfg.get("warmup", 0):
-        ep.run(scene, src, photons=cfg["warmup"], threads=cfg["threads"], record_escapes=False)
+        ep.run(scene, src, photons=cfg["warmup"], threads=cfg["threads"], record_escapes=False,
+               **{k: v for k, v in kw.items() if k == "lumen"})
     base = vm_hwm_kb()
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     steal0 = steal_seconds()
@@ -175,6 +181,9 @@ def child_main(cfg):
         rd=r.diffuse_reflectance,
         rd_se=r.diffuse_reflectance_stderr,
         absorbed=r.absorbed,
+        absorbed_se=r.absorbed_stderr,
+        fluorescent=getattr(r, "fluorescent_escaped", float("nan")),
+        fluorescent_se=getattr(r, "fluorescent_escaped_stderr", float("nan")),
         record_bytes=getattr(r, "record_bytes", 0),
         records_n=0 if r.escapes is None else int(len(r.escapes["weight"])),
     )
@@ -281,6 +290,8 @@ def bench_throughput(q):
                 grid_path=os.path.join(tmp, "g.vdb"),
             ),
             dict(key="colon+records", scene="colon", photons=n["colon"], threads=threads, records=True),
+            # The issue-11 baseline's physics (no lumen rule then): its like-for-like "after".
+            dict(key="colon_lumen_off", scene="colon", photons=n["colon"], threads=threads, lumen=False),
         ]
     # Best of THROUGHPUT_REPEATS, interleaved over time, because the machine is shared and its speed drifts. The
     # 1- and 2-thread runs of a config are adjacent in time (in alternating order), so each repeat

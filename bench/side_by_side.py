@@ -39,8 +39,15 @@ PLAN = [
     ("seed_tissue", dict(scene="seed_tissue"), 200_000),
     ("mcml_slab", dict(scene="mcml_slab"), 1_000_000),
     ("colon", dict(scene="colon"), 60_000),
+    # Like for like: the baseline had no lumen rule (every packet ended at its first exit); run_all's
+    # child passes lumen=False to an engine that has the rule, so both trace the same physics.
+    ("colon_lumen_off", dict(scene="colon", lumen=False), 60_000),
     ("colon+grids", dict(scene="colon", voxel=2e-4, grid_path="/tmp/ep-sbs-grid.vdb"), 60_000),
 ]
+
+
+#: The fractions (and their standard-error keys) of run_all's child that compare() keeps per engine.
+PHYSICS = ("rd", "rd_se", "absorbed", "absorbed_se", "fluorescent", "fluorescent_se")
 
 
 def build_package(commit: str, dest: str | None = None) -> str:
@@ -71,6 +78,9 @@ def compare(before: str, after: str, repeats: int = 2, plan=PLAN, report=print) 
                     )
                     row[tag] = max(row.get(tag, 0), r["pps"])
                     row[tag + "_cpu"] = max(row.get(tag + "_cpu", 0), r["pp_cpu_s"])
+                    # The answers (seed 1; the same at every repeat and thread count), for the page's
+                    # check that both engines compute the same physics within their standard errors.
+                    row[tag + "_physics"] = {k: r.get(k) for k in PHYSICS}
             rows.append(row)
             report(
                 f"{key:12s} {threads} thr: before {row['before']:9.0f}/s ({row['before_cpu']:9.0f}/CPU-s)  "

@@ -160,3 +160,52 @@ def test_steal_free_scaling_is_shown_beside_the_wall_clock_verdict(pd, stored):
     goals = "\n".join(pd.sec_issue11(R, figs, B))
     assert "lowest 1.70×" in goals and "**not reached**" in goals.split("3. Scaling")[1].split("\n")[0]
     assert "the lowest is 1.95×" in goals
+
+
+def add_lumen_off(R, pps_1thread):
+    """Throughput rows of colon_lumen_off (copies of the colon rows), ``pps_1thread`` per thread."""
+    for th in (1, 2):
+        r = dict(next(r for r in R["throughput"] if r["key"] == "colon" and r["threads"] == th))
+        r.update(key="colon_lumen_off", lumen=False, pps=pps_1thread * th)
+        R["throughput"].append(r)
+
+
+def test_goal2_is_judged_like_for_like(pd, stored):
+    """The baseline (37f845d) had no lumen rule: goal 2 compares its colon with today's colon run with
+    lumen=False, in the before / after table and in the verdict; the lumen-on figure is shown beside it."""
+    R, figs, B = copy.deepcopy(stored)
+    before = B["throughput"]["colon"]["1"]["pps"]
+    on1 = next(r for r in R["throughput"] if r["key"] == "colon" and r["threads"] == 1)
+    add_lumen_off(R, 3.05 * before)
+    text = "\n".join(pd.sec_issue11(R, figs, B))
+    rows = {(r[0], r[1]): r for r in tables(text)[0][2:]}
+    cells = rows[("colon_lumen_off (before: colon)", "1")]
+    assert cells[2] == pd.fmt_int(before) and cells[4] == "3.05×"
+    goal = text.split("\n2. ")[1].split("\n3. ")[0]
+    assert "lumen rule off" in goal and "= 3.05×; goal 3×: **reached**" in goal
+    assert f"{pd.fmt_int(on1['pps'])} packets/s = {on1['pps'] / before:.2f}× the baseline's figure" in goal
+    for r in R["throughput"]:
+        if r["key"] == "colon_lumen_off":
+            r["pps"] = 2.95 * before * r["threads"]
+    goal = "\n".join(pd.sec_issue11(R, figs, B)).split("\n2. ")[1].split("\n3. ")[0]
+    assert "= 2.95×; goal 3×: **not reached**" in goal
+
+
+def test_side_by_side_shows_the_like_for_like_answers_in_standard_errors(pd, stored):
+    R, figs, B = copy.deepcopy(stored)
+    phys = lambda rd, se: dict(rd=rd, rd_se=se, absorbed=0.92, absorbed_se=4e-4, fluorescent=0.039, fluorescent_se=3e-4)  # noqa: E731
+    row = dict(config="colon_lumen_off", threads=1, packets=60000, before=7e4, before_cpu=7e4, after=2.2e5, after_cpu=2.1e5)
+    row.update(before_physics=phys(0.0747, 4e-4), after_physics=phys(0.0740, 3e-4))
+    R["side_by_side"] = dict(before_py="/tmp/before", rows=[row, dict(row, threads=2)])
+    add_lumen_off(R, 2.2e5)
+    text = "\n".join(pd.sec_issue11(R, figs, B))
+    assert text.count("Same answer: `colon_lumen_off`") == 1  # the 1-thread row only
+    # (0.0740 - 0.0747) / hypot(4e-4, 3e-4) = -1.40
+    assert "| Rd | 0.07470 ± 0.00040 | 0.07400 ± 0.00030 | -1.40 |" in text
+    assert "| absorbed | 0.92000 ± 0.00040 | 0.92000 ± 0.00040 | +0.00 |" in text
+    assert f"Side by side with the baseline engine built and run by this run (table above): {2.2e5 / 7e4:.2f}×" in text
+    assert "| fluorescent escaped | 0.03900 ± 0.00030 | 0.03900 ± 0.00030 | +0.00 |" in text
+    # An engine that does not report a fraction (NaN) leaves its row out rather than print nan.
+    row["before_physics"]["fluorescent"] = float("nan")
+    text = "\n".join(pd.sec_issue11(R, figs, B))
+    assert "| Rd | 0.07470" in text and "fluorescent escaped" not in text and "nan" not in text.lower()
