@@ -1,6 +1,7 @@
 """Hostile input to the API: each is refused before any tracing with a ValueError that names the field and
 its value, and leaves nothing changed on disk."""
 
+import itertools
 import os
 import re
 import stat
@@ -209,6 +210,44 @@ def test_fluorophores_none_means_none_and_a_string_is_named():
         ValueError, match="region 'c': fluorophores = 'collagen' must be a list of endophoton.Fluorophore"
     ):
         s.add_box("c", (4, 0, 0), (5, 1, 1), M, fluorophores="collagen")
+
+
+class _Guarded:
+    """Iterates ``source``, counting the entries read; fails the test (instead of hanging it) past ``stop``."""
+
+    def __init__(self, source, stop=10_000):
+        self.source, self.stop, self.read = iter(source), stop, 0
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        assert self.read < self.stop, f"read {self.read} entries of an endless iterator"
+        self.read += 1
+        return next(self.source)
+
+
+def test_endless_fluorophores_are_refused_not_read_forever():
+    """At most MAX_FLUOROPHORES + 1 entries are read: an endless iterator is refused by its first wrong
+    entry or by its length, and the scene is left without the region."""
+    s = ep.Scene(unit="cm")
+    collagen = ep.Fluorophore("collagen", 0.2, 0.4)
+    assert ep.scene_schema.MAX_FLUOROPHORES == 64
+    repeat, count = _Guarded(itertools.repeat(collagen)), _Guarded(itertools.count())
+    with pytest.raises(ValueError, match=r"^region 'a': fluorophores has more than 64 entries"):
+        s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=repeat)
+    with pytest.raises(ValueError, match=r"^region 'a': fluorophores entry 0 must be an endophoton.Fluorophore"):
+        s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=count)
+    assert (repeat.read, count.read) == (65, 1)
+    assert s.regions == []
+    most = itertools.islice(itertools.repeat(collagen), 64)
+    assert s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=most).fluorophores == (collagen,) * 64
+
+
+def test_schema_limits_fluorophores_as_the_api_does():
+    """The schema's regions[].fluorophores maxItems is the API's MAX_FLUOROPHORES (one rule)."""
+    region = ep.scene_schema.schema()["definitions"]["region"]
+    assert region["properties"]["fluorophores"]["maxItems"] == ep.scene_schema.MAX_FLUOROPHORES
 
 
 PLY_HEAD = (
