@@ -25,6 +25,9 @@ void check_wavelengths(const std::string& where, const char* field, const std::v
         const std::string at = std::string(field) + "[" + std::to_string(i) + "] = " + fmt(w[i]);
         if (!std::isfinite(w[i])) throw std::invalid_argument(where + at + " must be finite");
         if (!(w[i] > 0.0)) throw std::invalid_argument(where + at + " must be > 0");
+        if (!(w[i] >= kMinWavelengthNm && w[i] <= kMaxWavelengthNm))
+            throw std::invalid_argument(where + at + " is outside [" + fmt(kMinWavelengthNm) + ", " +
+                                        fmt(kMaxWavelengthNm) + "] nm (soft X-rays to the far infrared)");
         if (i > 0 && !(w[i] > w[i - 1]))
             throw std::invalid_argument(where + at + " must be greater than " + field + "[" + std::to_string(i - 1) +
                                         "] = " + fmt(w[i - 1]) + " (wavelengths must be strictly increasing)");

@@ -47,8 +47,9 @@ namespace ep {
 
 class EEM {
   public:
-    // excitation_nm: n_ex >= 1 wavelengths (nm, finite, > 0, strictly
-    // increasing); emission_nm: n_em >= 2 such wavelengths; values: row-major
+    // excitation_nm: n_ex >= 1 wavelengths (nm, finite, in [kMinWavelengthNm,
+    // kMaxWavelengthNm] = [1, 1e6] (spectrum.h), strictly increasing);
+    // emission_nm: n_em >= 2 such wavelengths; values: row-major
     // n_ex x n_em relative fluorescence (finite, >= 0, at least one > 0).
     // Throws std::invalid_argument naming the EEM, the field and the value,
     // e.g. "eem 'collagen': values has 12 entries, expected 3 x 5 = 15".

@@ -25,6 +25,16 @@
 
 namespace ep {
 
+// Range of every wavelength an EEM (eem.h) may tabulate, nm: soft X-rays (1 nm) to the far infrared
+// (1 mm). Far wider than any optical tissue data, it keeps the spectral energy weight 500 nm / wavelength
+// in [5e-4, 500], so that no tally or its variance overflows (1e-300 nm made escaped_energy_stderr = inf).
+// The one owner of the rule: the binding exposes them as endophoton._core.MIN_WAVELENGTH_NM and
+// MAX_WAVELENGTH_NM, which endophoton.spectra (Spectrum, EEM) checks with, and docs/scene.schema.json's
+// spectrum.wavelength_nm carries as its minimum and maximum (tests/python/test_hostile_input.py keeps
+// the schema in step).
+constexpr double kMinWavelengthNm = 1.0;
+constexpr double kMaxWavelengthNm = 1e6;
+
 class Tabulated1D {
   public:
     // Nodes x (nm, strictly increasing, finite) and values y (finite, >= 0;

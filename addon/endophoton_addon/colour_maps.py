@@ -31,12 +31,17 @@ import numpy as np
 
 
 # --- wavelength -> colour (endophoton.colour owns the conversion) -------------
-def _colour():
-    """``endophoton.colour``, imported through package_finder (EngineMissing names the fix)."""
+def _package(module):
+    """``endophoton.<module>``, imported through package_finder (EngineMissing names the fix)."""
     from . import package_finder
 
     package_finder.require()
-    return importlib.import_module("endophoton.colour")
+    return importlib.import_module(f"endophoton.{module}")
+
+
+def _colour():
+    """``endophoton.colour``, the wavelength conversion's owner."""
+    return _package("colour")
 
 
 def wavelength_rgb(nm):
@@ -268,9 +273,33 @@ def _range(values):
     return float(values.min()), float(values.max())
 
 
+#: The first bytes of every PNG file.
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
 def legend_figure(legend, path, image=None, title=None):
     """Write a PNG with the colour bar (and ``image``, an (H, W, 3) display-encoded
-    sRGB render in [0, 1], to its left when given) via matplotlib.  Returns ``path``."""
+    sRGB render in [0, 1], to its left when given) via matplotlib.  Returns ``path``.
+
+    The PNG is rendered in memory, checked (non-empty, PNG signature) and written
+    atomically by the package's ``endophoton.io.atomic_write_bytes`` (a temporary
+    file in the same folder, then ``os.replace``; the temporary file is removed on
+    failure): a failed write leaves the old file, or none, and raises a
+    RuntimeError naming ``path``.  The folder must exist."""
+    package_io = _package("io")
+    data = _legend_png(legend, image, title, path)
+    if not data.startswith(PNG_SIGNATURE):
+        raise RuntimeError(f"legend: matplotlib made no PNG for '{path}' ({len(data)} bytes); nothing written")
+    try:
+        return package_io.atomic_write_bytes(path, data, make_dirs=False)
+    except OSError as exc:
+        raise RuntimeError(f"legend: could not write '{path}': {exc.strerror or exc}") from None
+
+
+def _legend_png(legend, image, title, path):
+    """The legend figure of :func:`legend_figure` as PNG bytes (``path`` only names it in errors)."""
+    import io
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -293,6 +322,11 @@ def legend_figure(legend, path, image=None, title=None):
     for i, (colour, label) in enumerate(reversed(legend.entries)):
         ax.add_patch(Rectangle((0.0, i + 0.1), 0.25, 0.8, color=_colour().srgb_encode(colour)))
         ax.text(0.32, i + 0.5, label, va="center", fontsize=8)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png")
+    except Exception as exc:  # matplotlib's own failure, for the operator to report
+        raise RuntimeError(f"legend: matplotlib could not make the PNG for '{path}': {exc}") from exc
+    finally:
+        plt.close(fig)
+    return buf.getvalue()

@@ -8,6 +8,7 @@
 
 #include "common.h"
 #include "engine.h"
+#include "spectrum.h"
 #include "tally.h"
 
 namespace ep::bind {
@@ -33,6 +34,9 @@ PYBIND11_MODULE(_core, m) {
     m.attr("MAX_REGIONS") = int(ep::Scene::kMaxRegions);
     m.attr("MAX_PACKET_REQUEST") = ep::kMaxPacketRequest;
     m.attr("DEFAULT_CACHE_STORE_BYTES") = ep::Scene::kDefaultStoreCapBytes;
+    // The wavelength range (nm) of native/spectrum.h, which endophoton.spectra checks with.
+    m.attr("MIN_WAVELENGTH_NM") = ep::kMinWavelengthNm;
+    m.attr("MAX_WAVELENGTH_NM") = ep::kMaxWavelengthNm;
     // Read-only: the names of the balance tallies (native/tally.h), for the package's tests.
     py::tuple balance(ep::kBalanceTallies);
     for (int i = 0; i < ep::kBalanceTallies; ++i) balance[i] = ep::tally_name(i);

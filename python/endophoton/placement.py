@@ -30,6 +30,7 @@ from . import _core
 from .scene import Scene
 from .scene_schema import MAX_COORDINATE
 from .sources import EndoscopeRig
+from .sweep_schema import beta_text
 
 __all__ = ["check_rig", "face_contact", "FACE_TOLERANCE"]
 
@@ -88,7 +89,8 @@ def face_contact(vertices, triangles, centre, normal, radius, tol) -> bool:
 
 
 def _placement(rig: EndoscopeRig) -> str:
-    where = f"rig.beta_deg = {rig.beta_deg:g}, " if rig.beta_deg is not None else ""
+    """The rig's placement for a message: β (degrees) as given (89.99999 is not 90) and the head's front."""
+    where = f"rig.beta_deg = {beta_text(rig.beta_deg)}, " if rig.beta_deg is not None else ""
     return f"{where}head front at {np.round(rig.position, 6).tolist()}"
 
 
@@ -131,7 +133,7 @@ def check_rig(scene, source) -> list[str]:
         if face_contact(r.vertices, r.triangles, source.position, source.forward, radius, tol):
             raise ValueError(
                 f"source: the endoscope head's front face (lights and camera, head_diameter_mm = "
-                f"{source.head_diameter_mm:g}) crosses or touches region '{r.name}' ({_placement(source)}, "
+                f"{beta_text(source.head_diameter_mm)}) crosses or touches region '{r.name}' ({_placement(source)}, "
                 "scene units): put the head in the ambient, e.g. a larger rig.distance or a smaller rig.beta_deg"
             )
     body = source.native_body(scene.unit_cm)
@@ -147,6 +149,6 @@ def check_rig(scene, source) -> list[str]:
         return []
     which = f"region '{name}'" if name else "a region"
     return [
-        f"source: the endoscope head's body (head_length_mm = {source.head_length_mm:g} behind its front face) "
+        f"source: the endoscope head's body (head_length_mm = {beta_text(source.head_length_mm)} behind its front face) "
         f"passes through {which}; light is stopped by the body only where it lies in the ambient"
     ]

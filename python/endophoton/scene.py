@@ -9,6 +9,7 @@ priority is the medium (ties: the region added later).
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -22,7 +23,7 @@ from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
 from .spectra import EEM, Fluorophore, Spectrum
 from .io import check_keys as _check_keys, check_real, real_or_none, shown
-from .scene_schema import MAX_REGIONS, validate_document
+from .scene_schema import MAX_FLUOROPHORES, MAX_REGIONS, validate_document
 from .units import unit_cm
 
 #: Largest refractive index (ambient or medium): beyond, Fresnel terms overflow to NaN.
@@ -37,6 +38,29 @@ class Region:
     medium: Medium
     priority: int = 0
     fluorophores: tuple = field(default_factory=tuple)
+
+
+def _fluorophores_of(owner: str, fluorophores) -> tuple:
+    """A region's ``fluorophores`` (an iterable of endophoton.Fluorophore; None for none) as a tuple.
+    Reads at most MAX_FLUOROPHORES + 1 entries, checking each as it comes, so an endless iterator is
+    refused by its first wrong entry or by its length, never read forever."""
+    if fluorophores is None:  # documented: None means no fluorophores, like ()
+        return ()
+    if isinstance(fluorophores, (str, bytes, Fluorophore)) or not isinstance(fluorophores, Iterable):
+        raise ValueError(
+            f"{owner}: fluorophores = {shown(fluorophores)} must be a list of endophoton.Fluorophore "
+            "(or None for none)"
+        )
+    fl = []
+    for f in itertools.islice(fluorophores, MAX_FLUOROPHORES + 1):
+        if not isinstance(f, Fluorophore):
+            raise ValueError(f"{owner}: fluorophores entry {shown(f)} must be an endophoton.Fluorophore")
+        fl.append(f)
+    if len(fl) > MAX_FLUOROPHORES:
+        raise ValueError(
+            f"{owner}: fluorophores has more than {MAX_FLUOROPHORES} entries (a region holds at most that)"
+        )
+    return tuple(fl)
 
 
 def _as_mesh_arrays(owner, vertices, triangles):
@@ -138,7 +162,8 @@ class Scene:
     ) -> Region:
         """Add a region bounded by a closed triangle mesh (vertices in scene units).
 
-        ``fluorophores``: a list of endophoton.Fluorophore; None or () for none (a string is an error)."""
+        ``fluorophores``: a list of endophoton.Fluorophore, at most MAX_FLUOROPHORES (64); None or () for
+        none (a string is an error)."""
         if len(self.regions) >= MAX_REGIONS:  # cheapest check first
             raise ValueError(f"region {name!r}: a scene holds at most {MAX_REGIONS} regions")
         if not isinstance(name, str) or not name:
@@ -155,17 +180,7 @@ class Scene:
         medium.validate(owner + ": ")
         if isinstance(priority, bool) or not isinstance(priority, (int, np.integer)):
             raise ValueError(f"{owner}: priority = {priority!r} must be an integer")
-        if fluorophores is None:  # documented: None means no fluorophores, like ()
-            fluorophores = ()
-        if isinstance(fluorophores, (str, bytes, Fluorophore)) or not isinstance(fluorophores, Iterable):
-            raise ValueError(
-                f"{owner}: fluorophores = {shown(fluorophores)} must be a list of endophoton.Fluorophore "
-                "(or None for none)"
-            )
-        fl = tuple(fluorophores)
-        for f in fl:
-            if not isinstance(f, Fluorophore):
-                raise ValueError(f"{owner}: fluorophores entry {f!r} must be an endophoton.Fluorophore")
+        fl = _fluorophores_of(owner, fluorophores)
         v, t = _as_mesh_arrays(owner, vertices, triangles)
         if not -(2**31) <= int(priority) < 2**31:
             raise ValueError(f"{owner}: priority = {priority!r} must be a 32-bit integer")

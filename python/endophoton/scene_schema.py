@@ -15,6 +15,9 @@ from pathlib import Path
 
 #: Most regions a scene holds (the engine keeps region sets as 64-bit masks).
 MAX_REGIONS = 64
+#: Most fluorophores a region holds (the schema's regions[].fluorophores maxItems; far above any real
+#: tissue, which has a handful). Scene.add_mesh reads at most one more, so an endless iterator is refused.
+MAX_FLUOROPHORES = 64
 #: Largest |coordinate| in scene units (float32 ray tracing; docs/numerics.md).
 MAX_COORDINATE = 1e12
 #: Largest vertex index (uint32).

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import _core
 from .io import atomic_write_text, shown
 from .paper import FLUOROPHORES
 
@@ -44,15 +45,16 @@ def _g(v):
 #: Range of every wavelength a Spectrum or EEM may hold, nm: soft X-rays (1 nm) to the far infrared (1 mm).
 #: Far wider than any optical tissue data, and it keeps the spectral energy weight 500 nm / wavelength in
 #: [5e-4, 500], so that no tally or its variance overflows (1e-300 nm made escaped_energy_stderr = inf).
-MIN_WAVELENGTH_NM = 1.0
-MAX_WAVELENGTH_NM = 1e6
+#: The engine owns the rule (kMinWavelengthNm, kMaxWavelengthNm in native/spectrum.h; its EEM checks it too).
+MIN_WAVELENGTH_NM = float(_core.MIN_WAVELENGTH_NM)
+MAX_WAVELENGTH_NM = float(_core.MAX_WAVELENGTH_NM)
 
 
 def _check_wavelengths(where, field, w, min_size):
     """Validate a 1-D wavelength array (nm): size, finite, in [MIN_WAVELENGTH_NM, MAX_WAVELENGTH_NM],
     strictly increasing.
 
-    Messages equal those of check_wavelengths() in native/eem.cpp, which has no range check.
+    Messages equal those of check_wavelengths() in native/eem.cpp.
     """
     if w.ndim != 1:
         raise ValueError(f"{where}{field} must be 1-D, got shape {tuple(w.shape)}")

@@ -299,3 +299,27 @@ def test_render_legend_writes_only_the_png(tmp_path):
     assert bpy.ops.endophoton.render_legend(filepath=str(path)) == {"FINISHED"}
     assert os.listdir(tmp_path) == ["l.png"]
     assert bpy.data.images.load(str(path), check_existing=True).size[0] > 32
+
+
+def test_render_legend_failing_write_leaves_no_file_and_no_image(tmp_path, monkeypatch):
+    """D5: when the legend PNG cannot be made (savefig fails after writing part of it), the operator
+    reports it by path, the old PNG stays whole, no temporary file is left and no image of ours
+    stays in the .blend."""
+    from matplotlib.figure import Figure
+
+    _result_with_camera()
+    path = tmp_path / "l.png"
+    path.write_bytes(b"old")
+    before = data_snapshot()
+
+    def torn(fig, fname, **kwargs):
+        fname.write(b"\x89PNG\r\n\x1a\nhalf")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", torn)
+    with pytest.raises(RuntimeError, match=r"legend: matplotlib could not make the PNG for '.*l\.png'.*No space left"):
+        bpy.ops.endophoton.render_legend(filepath=str(path))
+    assert path.read_bytes() == b"old" and os.listdir(tmp_path) == ["l.png"]
+    after = data_snapshot()
+    after["images"] = [name for name in after["images"] if name != "Render Result"]
+    assert after == before

@@ -4,6 +4,9 @@ point-cloud builder (arrays shaped like the engine's escape records) and the
 Volume object (a .vdb written here with pyopenvdb).  The end-to-end tests with
 the real engine are in test_end_to_end.py."""
 
+import os
+import re
+
 import bpy
 import numpy as np
 import pytest
@@ -221,6 +224,43 @@ def test_filters_and_radius_update_results():
     settings.point_radius = 0.0007
     ids = results._group_input_identifiers(obj.modifiers[0].node_group)
     assert obj.modifiers[0][ids["Radius"]] == pytest.approx(0.0007)
+
+
+def test_legend_png_is_written_whole_or_not_at_all(ep, tmp_path, monkeypatch):
+    """The legend PNG goes through the package's atomic write: a complete PNG replaces the file; a
+    failing savefig, a figure that is no PNG, a missing folder or a path that is a folder raise a
+    RuntimeError naming the path and leave the old file (or none) and no temporary file."""
+    from matplotlib.figure import Figure
+
+    from endophoton_addon import colour_maps
+
+    legend = results.legend_of(_points_in_collection(_records(np.random.default_rng(3), k=50)))
+    path = tmp_path / "l.png"
+    assert colour_maps.legend_figure(legend, str(path)) == str(path)
+    png = path.read_bytes()
+    assert png.startswith(colour_maps.PNG_SIGNATURE) and len(png) > 1000
+    assert os.listdir(tmp_path) == ["l.png"]
+
+    def torn(fig, fname, **kwargs):
+        fname.write(colour_maps.PNG_SIGNATURE + b"half")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", torn)
+    with pytest.raises(RuntimeError, match=rf"^legend: matplotlib could not make the PNG for '{re.escape(str(path))}'"):
+        colour_maps.legend_figure(legend, str(path))
+    monkeypatch.setattr(Figure, "savefig", lambda fig, fname, **kwargs: fname.write(b""))
+    with pytest.raises(RuntimeError, match=r"matplotlib made no PNG for .*l\.png' \(0 bytes\); nothing written"):
+        colour_maps.legend_figure(legend, str(path))
+    assert path.read_bytes() == png and os.listdir(tmp_path) == ["l.png"]
+    monkeypatch.undo()
+
+    missing = tmp_path / "missing" / "l.png"
+    with pytest.raises(RuntimeError, match=rf"^legend: could not write '{re.escape(str(missing))}': No such file"):
+        colour_maps.legend_figure(legend, str(missing))
+    (tmp_path / "d.png").mkdir()
+    with pytest.raises(RuntimeError, match=r"^legend: could not write '.*d\.png': Is a directory"):
+        colour_maps.legend_figure(legend, str(tmp_path / "d.png"))
+    assert sorted(os.listdir(tmp_path)) == ["d.png", "l.png"] and os.listdir(tmp_path / "d.png") == []
 
 
 @pytest.mark.parametrize("color_by, title", [("FLUORESCENT", "Fluorescent"), ("DEPTH", "Depth [mm]")])

@@ -167,6 +167,12 @@ TEST(EEM, EmissionPdfIsNormalisedAndMatchesTheRowIncludingFallback) {
     EXPECT_DOUBLE_EQ(e.emission_pdf(200, 370), 1.0 / 25.0);
 }
 
+TEST(EEM, WavelengthsAtTheRangeEndsAreAccepted) {
+    const EEM e("ends", {ep::kMinWavelengthNm}, {ep::kMinWavelengthNm, ep::kMaxWavelengthNm}, {1, 1});
+    EXPECT_EQ(e.emission_nm().front(), 1.0);
+    EXPECT_EQ(e.emission_nm().back(), 1e6);
+}
+
 TEST(EEM, SingleExcitationRow) {
     const EEM e("laser", {405}, {600, 650, 700}, {0, 2, 1});
     EXPECT_EQ(e.efficiency(405), 1.0);
@@ -196,6 +202,17 @@ TEST(EEM, ValidationErrorsNameTheEemFieldAndValue) {
         },
         {"eem 'photofrin'", "emission_nm[1] = nan", "finite"});
     expect_invalid([] { EEM("x", {0, 310}, {350, 360}, {1, 1, 1, 1}); }, {"eem 'x'", "excitation_nm[0] = 0", "> 0"});
+    // The range [1, 1e6] nm (spectrum.h), the messages of endophoton.spectra.
+    expect_invalid(
+        [] {
+            EEM("x", {300, 310}, {1e-300, 360}, {1, 1, 1, 1});
+        },
+        {"eem 'x'", "emission_nm[0] = 1e-300", "is outside [1, 1e+06] nm"});
+    expect_invalid(
+        [] {
+            EEM("x", {300, 2e6}, {350, 360}, {1, 1, 1, 1});
+        },
+        {"eem 'x'", "excitation_nm[1] = 2e+06", "is outside [1, 1e+06] nm"});
     expect_invalid(
         [] {
             EEM("x", {300, 310}, {360, 360}, {1, 1, 1, 1});

@@ -255,6 +255,23 @@ def test_rig_face_touching_the_wall_is_refused_and_a_hair_above_it_runs():
                 ep.run(scene, rig, photons=10)
 
 
+def test_placement_messages_quote_the_numbers_as_given():
+    """β = 89.99999 deg is not 90 and a 12.000001 mm head is not 12 mm: the front-face error and the
+    body warning quote β, head_diameter_mm and head_length_mm as given (shortest round-trip text), never
+    rounded as ``:g`` would."""
+    rig = ep.EndoscopeRig.from_beta(89.99999, 1.0, head_diameter_mm=12.000001)
+    with pytest.raises(ValueError) as err:
+        placement.check_rig(_flat_wall(), rig)
+    assert "rig.beta_deg = 89.99999," in str(err.value)
+    assert "head_diameter_mm = 12.000001)" in str(err.value)
+    scene = ep.Scene(unit="cm")
+    scene.add_box("floor", (-5.0, -1.6, -1.6), (5.0, 1.6, -1.5), ep.Medium(mua=5.0, mus=100.0, g=0.9, n=1.4))
+    scene.add_box("ceiling", (-5.0, -1.6, 1.5), (5.0, 1.6, 1.6), ep.Medium(mua=5.0, mus=100.0, g=0.9, n=1.4))
+    rig = ep.EndoscopeRig.from_beta(20.0, 1.0, point=(0.0, 0.0, -1.5), head_length_mm=49.9999999)
+    (warning,) = placement.check_rig(scene, rig)
+    assert "head_length_mm = 49.9999999 behind" in warning and "region 'ceiling'" in warning
+
+
 def test_rig_body_through_the_opposite_wall_is_a_warning():
     """A head 1 cm over a floor, tilted 20 deg, under a ceiling 3 cm above the floor: a 50 mm body's back
     reaches z = -1.5 + (1 + 5) cos 20 = 4.1 cm, through the ceiling (1.5-1.6 cm): the run goes on (the engine stops

@@ -1,6 +1,7 @@
 """Hostile input to the API: each is refused before any tracing with a ValueError that names the field and
 its value, and leaves nothing changed on disk."""
 
+import itertools
 import os
 import re
 import stat
@@ -137,6 +138,45 @@ def test_spectrum_wavelength_outside_the_physical_range_is_refused():
         ep.Spectrum([1e-5, 500], [1, 1])
 
 
+@pytest.mark.parametrize(
+    "em, field, value", [([1e-300, 400], "emission_nm[0]", "1e-300"), ([400, 2e6], "emission_nm[1]", "2e+06")]
+)
+def test_engine_eem_refuses_wavelengths_outside_the_range(em, field, value):
+    """The engine's own check (native/eem.cpp), reached through the binding without the package's."""
+    with pytest.raises(
+        ValueError, match=rf"^eem 'z': {re.escape(field)} = {re.escape(value)} is outside \[1, 1e\+06\] nm"
+    ):
+        ep._core.Scene(1.0, 1.0).add_fluorophore("z", [300.0], em, [1.0, 1.0])
+
+
+def test_wavelength_range_has_one_owner_and_the_schema_carries_it():
+    """endophoton.spectra reads the range from the engine; the schema's spectrum.wavelength_nm has it too."""
+    assert (ep.spectra.MIN_WAVELENGTH_NM, ep.spectra.MAX_WAVELENGTH_NM) == (1.0, 1e6)
+    assert (ep._core.MIN_WAVELENGTH_NM, ep._core.MAX_WAVELENGTH_NM) == (1.0, 1e6)
+    items = ep.scene_schema.schema()["definitions"]["spectrum"]["properties"]["wavelength_nm"]["items"]
+    assert (items["minimum"], items["maximum"]) == (ep.spectra.MIN_WAVELENGTH_NM, ep.spectra.MAX_WAVELENGTH_NM)
+
+
+@pytest.mark.parametrize(
+    "wl, value, rule",
+    [(1e-300, "1e-300", "less than the minimum of 1"), (2e6, "2000000.0", "greater than the maximum of 1000000.0")],
+)
+def test_scene_json_spectrum_wavelength_outside_the_range_is_named(wl, value, rule):
+    doc = {
+        "regions": [
+            {
+                "name": "box",
+                "medium": {"mua": {"wavelength_nm": [wl, 1e6 if wl < 1 else 500], "values": [1, 1]}, "mus": 10},
+                "box": {"min": [-1, -1, -1], "max": [1, 1, 0]},
+            }
+        ]
+    }
+    with pytest.raises(
+        ValueError, match=rf"^region 'box': medium.mua.wavelength_nm\[0\] = {re.escape(value)} is {rule}$"
+    ):
+        ep.Scene.from_dict(doc)
+
+
 def test_eem_at_the_range_ends_gives_finite_spectral_results():
     """The audit's EEM at 1e-300 nm made escaped_energy_stderr = inf; at the range's ends all stays finite."""
     e = ep.EEM([300, 400], [ep.spectra.MIN_WAVELENGTH_NM, ep.spectra.MAX_WAVELENGTH_NM], np.ones((2, 2)))
@@ -209,6 +249,44 @@ def test_fluorophores_none_means_none_and_a_string_is_named():
         ValueError, match="region 'c': fluorophores = 'collagen' must be a list of endophoton.Fluorophore"
     ):
         s.add_box("c", (4, 0, 0), (5, 1, 1), M, fluorophores="collagen")
+
+
+class _Guarded:
+    """Iterates ``source``, counting the entries read; fails the test (instead of hanging it) past ``stop``."""
+
+    def __init__(self, source, stop=10_000):
+        self.source, self.stop, self.read = iter(source), stop, 0
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        assert self.read < self.stop, f"read {self.read} entries of an endless iterator"
+        self.read += 1
+        return next(self.source)
+
+
+def test_endless_fluorophores_are_refused_not_read_forever():
+    """At most MAX_FLUOROPHORES + 1 entries are read: an endless iterator is refused by its first wrong
+    entry or by its length, and the scene is left without the region."""
+    s = ep.Scene(unit="cm")
+    collagen = ep.Fluorophore("collagen", 0.2, 0.4)
+    assert ep.scene_schema.MAX_FLUOROPHORES == 64
+    repeat, count = _Guarded(itertools.repeat(collagen)), _Guarded(itertools.count())
+    with pytest.raises(ValueError, match=r"^region 'a': fluorophores has more than 64 entries"):
+        s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=repeat)
+    with pytest.raises(ValueError, match=r"^region 'a': fluorophores entry 0 must be an endophoton.Fluorophore"):
+        s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=count)
+    assert (repeat.read, count.read) == (65, 1)
+    assert s.regions == []
+    most = itertools.islice(itertools.repeat(collagen), 64)
+    assert s.add_box("a", (0, 0, 0), (1, 1, 1), M, fluorophores=most).fluorophores == (collagen,) * 64
+
+
+def test_schema_limits_fluorophores_as_the_api_does():
+    """The schema's regions[].fluorophores maxItems is the API's MAX_FLUOROPHORES (one rule)."""
+    region = ep.scene_schema.schema()["definitions"]["region"]
+    assert region["properties"]["fluorophores"]["maxItems"] == ep.scene_schema.MAX_FLUOROPHORES
 
 
 PLY_HEAD = (
