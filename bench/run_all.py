@@ -650,14 +650,15 @@ def bench_presets(q):
 def bench_target_overhead(q):
     """Cost of the target-mode stop rule, checked after each of the K merged units: O(1) per unit
     (prefix sums of the merged units) or, were it to re-read every unit, O(K) per unit and O(K^2) per
-    run. Down to 2 packets a unit (K = 100 000), where a K^2 cost would be seconds and a per-unit one
-    is well above the timing noise; best of three."""
+    run. Down to 1 packet a unit (K = 200 000), where a K^2 cost would be seconds and a per-unit one
+    is above the timing noise; K doubles over the last three sizes, so that perf_doc.stop_rule_verdict
+    can read the growth from more than one run above the noise; best of three."""
     import endophoton as ep
 
     scene, src = scene_by_name("mcml_slab")
     N = 200_000 if not q else 50_000
     out = []
-    for us in (1024, 64, 8, 2):
+    for us in (1024, 64, 8, 4, 2, 1):
         tf = min(
             ep.run(scene, src, photons=N, seed=1, threads=2, record_escapes=False, unit_size=us).seconds
             for _ in range(3)

@@ -70,11 +70,25 @@ def test_stop_rule_verdict_tells_quadratic_from_flat(pd):
         for r in rows:
             r.update(default_target_unit=256, largest_preset_cap=200_000_000)
     v = pd.stop_rule_verdict(quad)
-    assert "grows as K²" in v and "c = 3.0e-09 s" in v and "**Engine issue**" in v
+    assert "grows as K²" in v and "K^2.00" in v and "c = 3.0e-09 s" in v and "**Engine issue**" in v
     # 1 µs per unit at 781 250 units of 256 packets: 0.8 s
-    assert "No K² growth" in pd.stop_rule_verdict(flat) and "≈ 0.8 s" in pd.stop_rule_verdict(flat)
+    assert "No K² growth" in pd.stop_rule_verdict(flat) and "≲ 0.8 s" in pd.stop_rule_verdict(flat)
     v = pd.stop_rule_verdict(noisy)
     assert "No K² growth" in v and "Engine issue" not in v, v
+    # The page of 2026-12-04 15:07: one run above the noise (+0.08 s at K = 100 000) read by a fit of
+    # a·K + c·K² as K² growth; runs at K = 50 000 and 200 000 (measured then: +0.15 s at both) say not.
+    page = [dict(quad[0], units=k, overhead_s=o) for k, o in zip(K, [-0.001, -0.002, -0.01, 0.08])]
+    v = pd.stop_rule_verdict(page)
+    assert "No K² growth" in v and "1 of the 4 runs" in v and "at most 0.80 µs per unit" in v, v
+    more = [dict(quad[0], units=k, overhead_s=o) for k, o in zip([25000, 50000, 100000, 200000], [0.052, 0.145, 0.16, 0.146])]
+    v = pd.stop_rule_verdict(more)
+    assert "No K² growth" in v and "between K = 25 000 and 200 000" in v and "Engine issue" not in v, v
+    assert "at most 2.90 µs per unit" in v, v  # 0.145 s / 50 000, the largest per unit above the noise
+    quiet = [dict(quad[0], units=k, overhead_s=o) for k, o in zip([25000, 100000], [0.01, -0.02])]
+    assert "below 0.50 µs per unit (the noise at the largest K, 100 000)" in pd.stop_rule_verdict(quiet)
+    # Linear growth above the noise: 2 µs per unit, slope 1.
+    lin = [dict(quad[0], units=k, overhead_s=2e-6 * k) for k in (50000, 100000, 200000)]
+    assert "K^1.00" in pd.stop_rule_verdict(lin) and "No K² growth" in pd.stop_rule_verdict(lin)
 
 
 def test_whole_page_from_stored_results(pd, stored):
