@@ -671,8 +671,9 @@ def stop_rule_verdict(to):
     is read where it can be told from noise: from the runs whose overhead exceeds the timing noise, as the
     slope p of log(overhead) against log(K) (overhead ∝ K^p: p = 1 for a cost per unit, as reading prefix
     sums gives; p = 2 if every check re-read the merged units). p ≥ 1.5 is reported as K² growth. With
-    fewer than two such runs (or K spanning less than ×2) no growth can be read, and the largest K's
-    overhead bounds the cost per unit. (A least-squares fit of a·K + c·K² to one run above the noise and
+    fewer than two such runs (or K spanning less than ×2) no growth can be read. Without K² growth the
+    cost per unit is bounded by the largest overhead per unit of the runs above the noise (with none, by
+    the noise over the largest K). (A least-squares fit of a·K + c·K² to one run above the noise and
     three within it read a +0.08 s overhead at K = 100 000 as K² growth, which runs at K = 50 000 and
     200 000 then contradicted: 0.15 s at both.)"""
     import numpy as np

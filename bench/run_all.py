@@ -146,16 +146,15 @@ def child_main(cfg):
         record_escapes=cfg.get("records", False),
         safe_distance=cfg.get("safe_distance", True),
     )
-    if cfg.get("lumen") is False and "lumen" in inspect.signature(ep.run).parameters:
-        # An engine from before issue 9 has no such keyword: it ends every packet at its first exit,
-        # which is what lumen=False does, so both run the same physics.
-        kw["lumen"] = False
+    # An engine from before issue 9 has no lumen keyword: it ends every packet at its first exit,
+    # which is what lumen=False does, so both run the same physics.
+    rule = {"lumen": False} if cfg.get("lumen") is False and "lumen" in inspect.signature(ep.run).parameters else {}
+    kw.update(rule)
     grids = None
     if cfg.get("voxel"):
         grids = ep.GridRequest(voxel_size=cfg["voxel"], path=cfg["grid_path"])
     if cfg.get("warmup", 0):
-        ep.run(scene, src, photons=cfg["warmup"], threads=cfg["threads"], record_escapes=False,
-               **{k: v for k, v in kw.items() if k == "lumen"})
+        ep.run(scene, src, photons=cfg["warmup"], threads=cfg["threads"], record_escapes=False, **rule)
     base = vm_hwm_kb()
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     steal0 = steal_seconds()
@@ -651,7 +650,7 @@ def bench_target_overhead(q):
     """Cost of the target-mode stop rule, checked after each of the K merged units: O(1) per unit
     (prefix sums of the merged units) or, were it to re-read every unit, O(K) per unit and O(K^2) per
     run. Down to 1 packet a unit (K = 200 000), where a K^2 cost would be seconds and a per-unit one
-    is above the timing noise; K doubles over the last three sizes, so that perf_doc.stop_rule_verdict
+    is above the timing noise; K doubles over the last four sizes, so that perf_doc.stop_rule_verdict
     can read the growth from more than one run above the noise; best of three."""
     import endophoton as ep
 

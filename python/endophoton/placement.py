@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from . import _core
+from .io import shown
 from .scene import Scene
 from .scene_schema import MAX_COORDINATE
 from .sources import EndoscopeRig
@@ -133,7 +134,7 @@ def check_rig(scene, source) -> list[str]:
         if face_contact(r.vertices, r.triangles, source.position, source.forward, radius, tol):
             raise ValueError(
                 f"source: the endoscope head's front face (lights and camera, head_diameter_mm = "
-                f"{beta_text(source.head_diameter_mm)}) crosses or touches region '{r.name}' ({_placement(source)}, "
+                f"{shown(float(source.head_diameter_mm))}) crosses or touches region '{r.name}' ({_placement(source)}, "
                 "scene units): put the head in the ambient, e.g. a larger rig.distance or a smaller rig.beta_deg"
             )
     body = source.native_body(scene.unit_cm)
@@ -149,6 +150,6 @@ def check_rig(scene, source) -> list[str]:
         return []
     which = f"region '{name}'" if name else "a region"
     return [
-        f"source: the endoscope head's body (head_length_mm = {beta_text(source.head_length_mm)} behind its front face) "
+        f"source: the endoscope head's body (head_length_mm = {shown(float(source.head_length_mm))} behind its front face) "
         f"passes through {which}; light is stopped by the body only where it lies in the ambient"
     ]

@@ -221,8 +221,7 @@ BETA_RESOLUTION_DEG = 1e-6
 
 def beta_text(beta: float) -> str:
     """``beta`` (degrees) for a message, as given: the shortest text that reads back as the same
-    float ("80", "89.99999", "1e-200"), never rounded as ``:g`` would (89.9999999 is not 90). Placement
-    messages quote the head's sizes (mm) with it too."""
+    float ("80", "89.99999", "1e-200"), never rounded as ``:g`` would (89.9999999 is not 90)."""
     text = repr(float(beta))
     return text[:-2] if text.endswith(".0") else text
 
