@@ -37,7 +37,7 @@ sys.path.insert(0, os.path.join(ROOT, "python"))
 
 import endophoton as ep  # noqa: E402
 from endophoton import _core, distributed  # noqa: E402
-from endophoton.beta_sweep import default_flat_scene  # noqa: E402
+from endophoton.sweep.driver import default_flat_scene  # noqa: E402
 
 OVERHEAD_UNIT = 250  # packets per unit in the per-chunk overhead and chunk-size runs
 

@@ -695,7 +695,9 @@ def stop_rule_verdict(to):
                 f"{span}; with overhead = c·K², c = {c:.1e} s, so {at_cap} would spend ≈ {c * Kc**2:.0f} s on stop "
                 "checks (extrapolated, not measured). **Engine issue**: the check should cost O(1) per unit.\n"
             )
-        growth = f"above the timing noise ({STOP_RULE_NOISE_S} s) the overhead grows as K^{p:.2f} {span} (K² would give 2)"
+        growth = (
+            f"above the timing noise ({STOP_RULE_NOISE_S} s) the overhead grows as K^{p:.2f} {span} (K² would give 2)"
+        )
     else:
         growth = (
             f"{int(big.sum())} of the {len(to)} runs have an overhead above the timing noise ({STOP_RULE_NOISE_S} s), "

@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 import endophoton as ep  # noqa: E402
 from colon_scene import colon_scene  # noqa: E402
-from endophoton.render import render_view  # noqa: E402
+from endophoton.view.render import render_view  # noqa: E402
 
 
 def measure(photons: int, sizes=(64, 128, 256)) -> tuple[list[dict], dict]:

@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(ROOT, "python"))
 
 import endophoton as ep  # noqa: E402
 from endophoton.report import ALPHA  # noqa: E402
-from endophoton.visibility import fit_peak  # noqa: E402
+from endophoton.view.visibility import fit_peak  # noqa: E402
 
 BETAS = [5.0 * k for k in range(12)]
 KEYS = ("red_green_contrast", "fluorescence_contrast")

@@ -12,7 +12,7 @@ Molecular Nodes colours atoms.  Nothing here depends on Blender, so the tests
 recompute every colour independently.
 
 Wavelength colour (:func:`wavelength_rgb`): the package's own rules
-(``endophoton.colour``, the endoscope-view images' conversion, one owner):
+(``endophoton.view.colour``, the endoscope-view images' conversion, one owner):
 CIE 1931 colour-matching functions -> XYZ -> linear sRGB, white balanced as
 ``ep.render_view`` does by default (the flat 400-700 nm white light maps to
 D65).  A record's colour is its light per unit energy, with the negative
@@ -20,7 +20,7 @@ channels of out-of-gamut lines clipped per record (render_view's camera-like
 R/G sensitivities); the points glow with strength proportional to their
 energy and add up (results.py), so a pixel's colour is that of the energy
 summed over the records it shows.  The legend's swatches show each
-wavelength's hue (largest channel 1).  ``endophoton.colour`` is imported when
+wavelength's hue (largest channel 1).  ``endophoton.view.colour`` is imported when
 first needed: the add-on registers before package_finder has found the package.
 """
 
@@ -30,23 +30,23 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-# --- wavelength -> colour (endophoton.colour owns the conversion) -------------
+# --- wavelength -> colour (endophoton.view.colour owns the conversion) -------------
 def _package(module):
     """``endophoton.<module>``, imported through package_finder (EngineMissing names the fix)."""
     from . import package_finder
 
     package_finder.require()
-    return importlib.import_module(f"endophoton.{module}")
+    return package_finder.part(module)
 
 
 def _colour():
-    """``endophoton.colour``, the wavelength conversion's owner."""
-    return _package("colour")
+    """``endophoton.view.colour``, the wavelength conversion's owner."""
+    return _package("view.colour")
 
 
 def wavelength_rgb(nm):
     """Linear sRGB per unit energy of monochromatic light at ``nm`` (N, 3), negatives clipped:
-    CMF -> XYZ -> white-balanced linear sRGB by ``endophoton.colour``."""
+    CMF -> XYZ -> white-balanced linear sRGB by ``endophoton.view.colour``."""
     colour = _colour()
     nm = np.asarray(nm, dtype=np.float64).reshape(-1)
     rgb = colour.xyz_to_linear_srgb(colour.cmf_xyz(nm), colour.white_balance_gains(None))
@@ -64,7 +64,7 @@ def wavelength_swatches(nm):
 
 def exposed_srgb(linear_rgb):
     """Display-encoded sRGB in [0, 1] of a linear render (..., 3) and the exposure used: the
-    endoscope-view images' rule (``endophoton.colour.auto_exposure`` over the lit pixels: 99th
+    endoscope-view images' rule (``endophoton.view.colour.auto_exposure`` over the lit pixels: 99th
     percentile of the largest channel -> 0.5), each channel clipped, sRGB-encoded."""
     colour = _colour()
     linear = np.asarray(linear_rgb, dtype=np.float64)

@@ -140,3 +140,11 @@ def require():
     if module is None:
         raise EngineMissing(message)
     return module
+
+
+def part(name):
+    """The engine package's module ``endophoton.<name>`` (e.g. ``"sweep.driver"``, ``"view.colour"``),
+    imported through :func:`require` so a missing engine raises :class:`EngineMissing` naming the fix."""
+    import importlib
+
+    return importlib.import_module(f"{require().__name__}.{name}")

@@ -303,7 +303,7 @@ def recolour(obj, settings):
         rgb, show, legend = colour_maps.colour_records(
             key, columns, display_filters(settings, names), names, count=len(mesh.vertices)
         )
-    except package_finder.EngineMissing as exc:  # wavelength colour needs endophoton.colour
+    except package_finder.EngineMissing as exc:  # wavelength colour needs endophoton.view.colour
         settings.legend.clear()
         settings.legend_header = f"Cannot colour the points: {exc}"
         return None
@@ -386,13 +386,10 @@ def _plain(value):
 
 
 def _atomic_writer(ep):
-    """The package's atomic writes: endophoton.io (issue 12), else where they lived before."""
+    """The package's atomic writes: endophoton.io."""
     import importlib
 
-    try:
-        return importlib.import_module(f"{ep.__name__}.io")
-    except ImportError:
-        return ep.beta_sweep
+    return importlib.import_module(f"{ep.__name__}.io")
 
 
 def export_result(ep, collection, path, fmt):

@@ -153,7 +153,8 @@ def main(argv):
     register the add-on, sweep the open scene and write the outputs.  Returns the exit code."""
     enable_addon()
     package_finder.require()
-    from endophoton import cli, sweep_cli
+    from endophoton import cli
+    from endophoton.sweep import cli as sweep_cli
 
     parser = argparse.ArgumentParser(prog="endophoton sweep (blender)")
     sweep_cli.add_sweep_arguments(parser)
@@ -163,7 +164,8 @@ def main(argv):
 
 def _sweep_and_write(args) -> int:
     """Sweep the open scene with the parsed ``sweep`` arguments and write the outputs; the exit code."""
-    from endophoton import beta_sweep, sweep_cli
+    from endophoton.sweep import cli as sweep_cli
+    from endophoton.sweep import driver as beta_sweep
 
     with sweep_cli.scheduler_client(args) as client:  # --scheduler: the angles run on that cluster
         res = sweep_blend(None, client=client, **sweep_cli.sweep_kwargs(args))

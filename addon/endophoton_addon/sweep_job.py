@@ -60,7 +60,7 @@ class SweepInputs:
     rig_params: dict  # head_diameter_mm, ... (EndoscopeRig keywords)
     out_dir: str
     scale_length: float
-    seed_per_beta: bool = False  # β k runs with its own seed (ep.sweep_schema.beta_seed)
+    seed_per_beta: bool = False  # β k runs with its own seed (endophoton.sweep.schema.beta_seed)
     keep_runs: bool = False  # every β becomes a results collection (its records kept until the end)
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
     timestamp: str = ""
@@ -88,12 +88,14 @@ class SweepInputs:
 # --- validation (main thread) ---------------------------------------------------
 def parse_betas(ep, text, who):
     """The β list of the ``betas`` field, with the command line's grammar
-    (``endophoton.beta_sweep.parse_betas``); raises InputError naming the field."""
+    (``endophoton.sweep.driver.parse_betas``); raises InputError naming the field."""
     field = f"{who}: sweep.betas = '{text}'"
     if not text.strip():
         raise InputError(f"{field} is empty; give angles in degrees, e.g. '0,10,20' or '0:60:5'")
     try:
-        values = ep.beta_sweep.parse_betas(text, spacing=False)  # spacing: below, worded for this field
+        values = package_finder.part("sweep.driver").parse_betas(
+            text, spacing=False
+        )  # spacing: below, worded for this field
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise InputError(
             f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
@@ -102,10 +104,10 @@ def parse_betas(ep, text, who):
     for beta in values:
         if not math.isfinite(beta) or not -90.0 < beta < 90.0:
             raise InputError(
-                f"{field}: β = {ep.sweep_schema.beta_text(beta)}° must be a finite angle in (-90, 90) degrees"
+                f"{field}: β = {package_finder.part('sweep.schema').beta_text(beta)}° must be a finite angle in (-90, 90) degrees"
             )
     try:  # the package's own rule: no two β closer than its resolution (sweep_schema.BETA_RESOLUTION_DEG)
-        ep.sweep_schema.check_beta_spacing(values, field)
+        package_finder.part("sweep.schema").check_beta_spacing(values, field)
     except ValueError as e:
         raise InputError(str(e)) from None
     return [float(b) for b in values]
@@ -198,7 +200,7 @@ def collect_sweep_inputs(context, ep):
     # The head for every β, as the sweep will build it, and its placement in the
     # scene: the package's own check (ep.sweep makes it too), before anything starts.
     try:
-        ep.beta_sweep.check_placements(
+        package_finder.part("sweep.driver").check_placements(
             engine_scene,
             betas,
             distance=inputs.distance_m,
@@ -317,7 +319,7 @@ class SweepJob(simulation.BackgroundJob):
             self.runs[index] = result
 
     def _body(self):
-        bs = self.ep.beta_sweep
+        bs = package_finder.part("sweep.driver")
         if self.inputs.keep_runs:
             extra_keep = {"on_run": self._on_run}
         else:
@@ -358,7 +360,7 @@ class SweepJob(simulation.BackgroundJob):
 
 def beta_run_inputs(inputs, index, result, ep):
     """simulation.RunInputs of the sweep ``inputs``' β number ``index`` (plain values, no bpy):
-    a store-N run of that β with its seed (``ep.sweep_schema.beta_seed``), no grids (the sweep
+    a store-N run of that β with its seed (``endophoton.sweep.schema.beta_seed``), no grids (the sweep
     asks for none)."""
     beta = inputs.betas[index]
     source = getattr(result, "source", None)
@@ -372,7 +374,7 @@ def beta_run_inputs(inputs, index, result, ep):
         beta_deg=float(beta),
         kind="store",
         count=int(inputs.store),
-        seed=ep.sweep_schema.beta_seed(inputs.seed, index, inputs.seed_per_beta),
+        seed=package_finder.part("sweep.schema").beta_seed(inputs.seed, index, inputs.seed_per_beta),
         threads=int(inputs.threads),
         fluorescent_only=inputs.fluorescent_only,
         fluorescence_rule=inputs.fluorescence_rule,
@@ -449,10 +451,10 @@ def prepare_job(context, interactive=False):
     to the UI (simulation.interactive_threads; the numbers do not depend on it).
     """
     ep = package_finder.require()
-    if not hasattr(ep, "beta_sweep"):
+    if not hasattr(ep, "sweep"):
         raise package_finder.EngineMissing(
             f"EndoPhoton package at '{getattr(ep, '__file__', '?')}' is too old: "
-            "it has no β sweep (endophoton.beta_sweep)"
+            "it has no β sweep (endophoton.sweep.driver)"
         )
     inputs, engine_scene = collect_sweep_inputs(context, ep)
     if interactive:

@@ -12,11 +12,11 @@ from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
 from .units import UNIT_CM, unit_cm
 from . import _core
 from . import analysis, media, meshes, paper
-from .beta_sweep import SweepResult, default_flat_scene, sweep
+from .sweep.driver import SweepResult, default_flat_scene, sweep
 from .report import write_report
 from .quality import QUALITY_PRESETS, Quality, quality_preset
-from .camera import Camera
-from .render import View, excitation_spectrum, render_view
+from .view.camera import Camera
+from .view.render import View, excitation_spectrum, render_view
 
 __version__ = _core.__version__
 

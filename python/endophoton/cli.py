@@ -15,7 +15,7 @@ import signal
 import sys
 
 from .cli_files import load_scene_file as _load_scene_file
-from .sweep_cli import add_sweep_arguments, sweep_main
+from .sweep.cli import add_sweep_arguments, sweep_main
 
 #: Errors of the input: exit 2 with the message (which names the field and value).
 INPUT_ERRORS = (ValueError, OSError, RecursionError, UnicodeError, OverflowError)
@@ -84,7 +84,7 @@ def _run_main(args) -> int:
         raise ValueError("scene: missing key 'source'")
     source = source_from_dict(data["source"])
     if "camera" in data:  # render's camera: run does not use it, but checks it as render does
-        from .camera import Camera
+        from .view.camera import Camera
 
         Camera.from_dict(data["camera"])
     defaults = dict(data.get("run", {}))
@@ -217,7 +217,7 @@ def _main(argv) -> int:
     p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")
     add_sweep_arguments(p_sweep)
     p_sweep.set_defaults(func=sweep_main)
-    from .render_cli import add_render_arguments, render_main
+    from .view.render_cli import add_render_arguments, render_main
 
     p_render = sub.add_parser("render", help="run a scene and render the endoscope's view (PNG + arrays + JSON)")
     add_render_arguments(p_render)

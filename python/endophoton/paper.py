@@ -1,7 +1,7 @@
 """The seed paper's constants (Zacher 2009, §3 and §5): the one place they are written.
 
 The tissue optics, the fluorophores and the sweep's geometry defaults are used
-by the sweep's default scene (:func:`endophoton.beta_sweep.default_flat_scene`),
+by the sweep's default scene (:func:`endophoton.sweep.driver.default_flat_scene`),
 the default fluorophores of a region (:data:`endophoton.FLUOROPHORE_DEFAULTS`),
 the Blender add-on's presets and the tests.  Plain values only: this module
 imports nothing, so anything may import it.

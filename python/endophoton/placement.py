@@ -31,7 +31,7 @@ from .io import shown
 from .scene import Scene
 from .scene_schema import MAX_COORDINATE
 from .sources import EndoscopeRig
-from .sweep_schema import beta_text
+from .sweep.schema import beta_text
 
 __all__ = ["check_rig", "face_contact", "FACE_TOLERANCE"]
 

@@ -2,7 +2,7 @@
 
 Every figure is written atomically (rendered to memory, then temp file +
 os.replace).  Error bars are the batch-means standard errors carried by the
-:class:`~endophoton.sweep_schema.SweepResult` (for the maximum depth: the sd of the
+:class:`~endophoton.sweep.schema.SweepResult` (for the maximum depth: the sd of the
 per-batch maxima, a spread measure, see :mod:`endophoton.analysis`).
 """
 
@@ -21,7 +21,7 @@ from matplotlib.figure import Figure  # noqa: E402  (object API: no pyplot state
 
 from . import analysis as an  # noqa: E402
 from .io import atomic_write_bytes  # noqa: E402
-from .sweep_schema import PLOT_FILES, polar_plots  # noqa: E402
+from .sweep.schema import PLOT_FILES, polar_plots  # noqa: E402
 
 __all__ = ["plot_packets", "plot_energy", "plot_important", "plot_depth", "plot_polar", "plot_all", "PLOT_FILES"]
 

@@ -1,7 +1,7 @@
 """Markdown report of a beta sweep, set beside the seed paper's reported trends.
 
 :func:`write_report` writes ``report.md``.  Every number in it is computed from
-the :class:`~endophoton.sweep_schema.SweepResult`; the only constants are the paper's
+the :class:`~endophoton.sweep.schema.SweepResult`; the only constants are the paper's
 reported trend values in :data:`endophoton.paper.PAPER_TRENDS`, labelled as the paper's.
 
 Uncertainties of derived trends (slopes, fitted peaks, differences between
@@ -36,7 +36,7 @@ import numpy as np
 from . import analysis as an
 from .io import atomic_write_text, no_nan, unjson
 from .paper import PAPER_TRENDS
-from .sweep_schema import PLOT_FILES, SEED_STEP, polar_filename
+from .sweep.schema import PLOT_FILES, SEED_STEP, polar_filename
 
 __all__ = ["PAPER_TRENDS", "write_report", "compute_trends"]
 

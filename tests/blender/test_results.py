@@ -4,6 +4,7 @@ point-cloud builder (arrays shaped like the engine's escape records) and the
 Volume object (a .vdb written here with pyopenvdb).  The end-to-end tests with
 the real engine are in test_end_to_end.py."""
 
+import importlib
 import os
 import re
 
@@ -108,14 +109,14 @@ CIE_TABLE = {450: (0.3362, 0.0380, 1.7721), 530: (0.1655, 0.8620, 0.0422), 630: 
 
 
 def test_wavelength_colour_is_the_packages_conversion(ep):
-    """One owner: the add-on's wavelength colour is endophoton.colour's CIE 1931 -> white-balanced
+    """One owner: the add-on's wavelength colour is endophoton.view.colour's CIE 1931 -> white-balanced
     linear sRGB (negatives clipped); the hue of each spectral line is that of the CIE table's XYZ
     through the IEC matrix (recomputed here): red at photofrin's 630 nm, green at 530 nm, blue at
     collagen's 450 nm; the legend swatches keep the hue with largest channel 1."""
     from endophoton_addon import colour_maps
 
     nm = np.array(sorted(CIE_TABLE), dtype=float)
-    gains = ep.colour.white_balance_gains(None)
+    gains = importlib.import_module('endophoton.view.colour').white_balance_gains(None)
     rgb = colour_maps.wavelength_rgb(nm)
     table = np.maximum((np.array([CIE_TABLE[k] for k in sorted(CIE_TABLE)]) * gains) @ SRGB.T, 0.0)
     np.testing.assert_allclose(rgb, table, atol=0.1)
@@ -385,7 +386,7 @@ def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
 
 def test_wavelength_colour_without_package_says_so_in_panel(tmp_path):
     """The add-on registers and draws without the package; colouring points by wavelength then
-    needs endophoton.colour and leaves a plain message in the legend instead of a traceback."""
+    needs endophoton.view.colour and leaves a plain message in the legend instead of a traceback."""
     import sys
 
     from endophoton_addon import colour_maps, package_finder

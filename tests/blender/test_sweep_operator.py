@@ -7,6 +7,7 @@ scene and of ``endophoton_addon.sweep_blend`` for the same seed."""
 
 import csv
 import math
+import importlib
 import os
 import re
 import sys
@@ -100,7 +101,7 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     with open(out / "sweep.csv", newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         header, rows = reader.fieldnames, list(reader)
-    assert header == _documented_columns() == list(ep.beta_sweep.CSV_COLUMNS)
+    assert header == _documented_columns() == list(importlib.import_module('endophoton.sweep.schema').CSV_COLUMNS)
     assert [float(r["beta_deg"]) for r in rows] == [0.0, 30.0]
     assert all(int(r["records"]) == STORE and int(r["packets_traced"]) > STORE for r in rows)
     assert all(int(r["seed"]) == SEED and r["cancelled"] == "0" for r in rows)
@@ -294,7 +295,7 @@ def test_bad_settings_rejected(ep, tmp_path, field, value, pattern):
 )
 def test_head_entering_the_tissue_rejected_before_the_sweep_starts(ep, tmp_path, capfd, monkeypatch, betas, refused):
     """A β inside (-90, 90) whose head enters the tissue (flat_tissue.blend: from about 59°) is the
-    package's placement check (ep.beta_sweep.check_placements), made on the main thread before the
+    package's placement check (endophoton.sweep.driver.check_placements), made on the main thread before the
     worker starts: the operator's error names the field and the β as typed (89.99999, not 90),
     no traceback is printed, no folder is made and the scene is untouched."""
     _setup(tmp_path, betas=betas)

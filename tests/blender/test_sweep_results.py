@@ -5,6 +5,7 @@ sweep and its β, its point cloud holding exactly that β's stored records, its
 endoscope-view Images when the rig has a camera, no grids (the sweep asks for none).
 Deleting one β removes only its own datablocks."""
 
+import importlib
 import os
 
 import bpy
@@ -49,12 +50,14 @@ def _reference_records(ep, job):
 
 
 def test_seed_per_beta_gives_every_beta_and_its_collection_its_own_seed(ep, tmp_path):
-    """With "Seed per β" every β runs with ep.sweep_schema.beta_seed (seed + k x 0x9E3779B97F4A7C15
+    """With "Seed per β" every β runs with endophoton.sweep.schema.beta_seed (seed + k x 0x9E3779B97F4A7C15
     mod 2^64): the CSV rows and each β's collection record that seed (as text where it exceeds an
     ID property's 32-bit int), and the records are ep.sweep(seed_per_beta=True)'s."""
     scene, job, _ = _sweep(tmp_path, seed_per_beta=True)
     seeds = [(SEED + k * 0x9E3779B97F4A7C15) % 2**64 for k in range(len(BETAS))]
-    assert [ep.sweep_schema.beta_seed(SEED, k, True) for k in range(len(BETAS))] == seeds
+    assert [
+        importlib.import_module('endophoton.sweep.schema').beta_seed(SEED, k, True) for k in range(len(BETAS))
+    ] == seeds
     assert len(set(seeds)) == len(BETAS) and seeds[0] == SEED
     assert [row["seed"] for row in job.result.rows] == seeds and job.result.meta["seed_per_beta"] is True
     ref, kept = _reference_records(ep, job)

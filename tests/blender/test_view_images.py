@@ -33,7 +33,7 @@ def _pixels(image):
 
 
 def _srgb8(linear):
-    """IEC 61966-2-1 encoding, written out here independently of endophoton.colour."""
+    """IEC 61966-2-1 encoding, written out here independently of endophoton.view.colour."""
     c = np.clip(linear, 0.0, 1.0)
     return np.round(255 * np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)).astype(int)
 

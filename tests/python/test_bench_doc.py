@@ -80,7 +80,10 @@ def test_stop_rule_verdict_tells_quadratic_from_flat(pd):
     page = [dict(quad[0], units=k, overhead_s=o) for k, o in zip(K, [-0.001, -0.002, -0.01, 0.08])]
     v = pd.stop_rule_verdict(page)
     assert "No K² growth" in v and "1 of the 4 runs" in v and "at most 0.80 µs per unit" in v, v
-    more = [dict(quad[0], units=k, overhead_s=o) for k, o in zip([25000, 50000, 100000, 200000], [0.052, 0.145, 0.16, 0.146])]
+    more = [
+        dict(quad[0], units=k, overhead_s=o)
+        for k, o in zip([25000, 50000, 100000, 200000], [0.052, 0.145, 0.16, 0.146])
+    ]
     v = pd.stop_rule_verdict(more)
     assert "No K² growth" in v and "between K = 25 000 and 200 000" in v and "Engine issue" not in v, v
     assert "at most 2.90 µs per unit" in v, v  # 0.145 s / 50 000, the largest per unit above the noise
@@ -207,8 +210,12 @@ def test_goal2_is_judged_like_for_like(pd, stored):
 
 def test_side_by_side_shows_the_like_for_like_answers_in_standard_errors(pd, stored):
     R, figs, B = copy.deepcopy(stored)
-    phys = lambda rd, se: dict(rd=rd, rd_se=se, absorbed=0.92, absorbed_se=4e-4, fluorescent=0.039, fluorescent_se=3e-4)  # noqa: E731
-    row = dict(config="colon_lumen_off", threads=1, packets=60000, before=7e4, before_cpu=7e4, after=2.2e5, after_cpu=2.1e5)
+    phys = lambda rd, se: dict(
+        rd=rd, rd_se=se, absorbed=0.92, absorbed_se=4e-4, fluorescent=0.039, fluorescent_se=3e-4
+    )  # noqa: E731
+    row = dict(
+        config="colon_lumen_off", threads=1, packets=60000, before=7e4, before_cpu=7e4, after=2.2e5, after_cpu=2.1e5
+    )
     row.update(before_physics=phys(0.0747, 4e-4), after_physics=phys(0.0740, 3e-4))
     R["side_by_side"] = dict(before_py="/tmp/before", rows=[row, dict(row, threads=2)])
     add_lumen_off(R, 2.2e5)

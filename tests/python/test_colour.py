@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from endophoton import colour
+from endophoton.view import colour
 
 # CIE 1931 2-degree table (CIE 15), values at 5 nm nodes: (lambda, x, y, z).
 CIE_TABLE = [

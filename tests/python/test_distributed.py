@@ -7,6 +7,7 @@ verdict depends on timing: the worker is killed from the progress callback,
 which runs on the client right after a chunk is merged.
 """
 import json
+import importlib
 import os
 import signal
 import subprocess
@@ -17,7 +18,7 @@ import pytest
 
 import endophoton as ep
 from endophoton import _core, distributed
-from endophoton.beta_sweep import default_flat_scene
+from endophoton.sweep.driver import default_flat_scene
 from endophoton.run import run_request
 from endophoton.vdb import grid_to_numpy
 from physics_helpers import assert_energy_conserved
@@ -317,7 +318,10 @@ def test_cluster_sweep_with_a_seed_per_beta_gives_the_local_sweep(client, tmp_pa
     kw = dict(betas=[0, 30], store=300, seed=6, seed_per_beta=True, plots=False, report=False, progress=False)
     dist = ep.sweep(scene, out_dir=tmp_path / "dist", client=client, chunk_units=2, **kw)
     ep.sweep(scene, out_dir=tmp_path / "local", threads=1, **kw)
-    assert [r["seed"] for r in dist.rows] == [6, ep.sweep_schema.beta_seed(6, 1, True)]
+    assert [r["seed"] for r in dist.rows] == [
+        6,
+        importlib.import_module('endophoton.sweep.schema').beta_seed(6, 1, True),
+    ]
     assert _csv_rows(tmp_path / "dist" / "sweep.csv") == _csv_rows(tmp_path / "local" / "sweep.csv")
 
 

@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from endophoton import analysis, colour, placement
-from endophoton.camera import Camera
+from endophoton import analysis, placement
+from endophoton.view import colour
+from endophoton.view.camera import Camera
 from endophoton.mesh_io import box_mesh
 from endophoton.units import unit_cm
-from endophoton.view_sweep import add_visibility, plot_visibility, visibility_columns, visibility_report
-from endophoton.visibility import fit_peak
+from endophoton.sweep.view_sweep import add_visibility, plot_visibility, visibility_columns, visibility_report
+from endophoton.view.visibility import fit_peak
 from physics_helpers import (
     K_SIGMA,
     assert_energy_conserved,

@@ -20,14 +20,26 @@ PKG = "endophoton"
 FORBIDDEN = ("bpy", "bmesh", "mathutils", "addon_utils", "endophoton_addon")
 
 
+SUBPACKAGES = ("view", "sweep")
+
+
+def _module_files():
+    """{module name: path} for every .py file of the package and of its subpackages."""
+    out = {}
+    for sub in ("",) + SUBPACKAGES:
+        prefix = f"{PKG}.{sub}" if sub else PKG
+        for name in sorted(os.listdir(os.path.join(PKG_DIR, sub))):
+            if name.endswith(".py"):
+                out[prefix if name == "__init__.py" else f"{prefix}.{name[:-3]}"] = os.path.join(PKG_DIR, sub, name)
+    return out
+
+
 def _modules():
     """{module name: parsed AST} for every .py file of the package."""
     out = {}
-    for name in sorted(os.listdir(PKG_DIR)):
-        if name.endswith(".py"):
-            mod = PKG if name == "__init__.py" else f"{PKG}.{name[:-3]}"
-            with open(os.path.join(PKG_DIR, name), encoding="utf-8") as fh:
-                out[mod] = ast.parse(fh.read(), filename=name)
+    for mod, path in _module_files().items():
+        with open(path, encoding="utf-8") as fh:
+            out[mod] = ast.parse(fh.read(), filename=path)
     return out
 
 
@@ -35,7 +47,8 @@ def _imported(mod, tree, known):
     """Every module of the package that ``mod`` imports (anywhere in its body), and every
     top-level name of a module it imports from outside the package."""
     inside, outside = set(), set()
-    base = PKG  # all modules are direct children of the package
+    is_package = mod == PKG or mod.split(".")[-1] in SUBPACKAGES
+    here = mod if is_package else mod.rpartition(".")[0]  # the package a relative import starts from
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for a in node.names:
@@ -50,11 +63,12 @@ def _imported(mod, tree, known):
                     continue
                 target = node.module
             else:
+                base = here.rsplit(".", node.level - 1)[0] if node.level > 1 else here
                 target = base + ("." + node.module if node.module else "")
-            if target == PKG:  # "from . import x": x is a submodule or a name of the root
+            if target in (PKG,) + tuple(f"{PKG}.{s}" for s in SUBPACKAGES):  # "from . import x": a module or a name
                 for a in node.names:
-                    sub = f"{PKG}.{a.name}"
-                    inside.add(sub if sub in known else PKG)
+                    sub = f"{target}.{a.name}"
+                    inside.add(sub if sub in known else target)
             else:
                 inside.add(target)
     inside = {m if m in known else PKG for m in inside}  # e.g. endophoton._core (native) -> root
@@ -107,7 +121,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 
 def test_package_has_no_import_cycles():
     graph = _graph()
-    assert len(graph) >= 15 and "endophoton.beta_sweep" in graph
+    assert len(graph) >= 15 and "endophoton.sweep.driver" in graph
     # the root imports the public modules; no module may import the root back
     importers_of_root = sorted(m for m, deps in graph.items() if PKG in deps and m != PKG)
     assert importers_of_root == [], importers_of_root
@@ -141,7 +155,7 @@ BLOCKER = textwrap.dedent(
     sys.path.insert(0, {pkg!r})
     import pkgutil, importlib
     import endophoton
-    names = [m.name for m in pkgutil.iter_modules(endophoton.__path__, "endophoton.")
+    names = [m.name for m in pkgutil.walk_packages(endophoton.__path__, "endophoton.")
              if m.name != "endophoton.__main__"]   # __main__ runs the CLI
     for name in names:
         importlib.import_module(name)
@@ -169,5 +183,6 @@ def test_package_imports_with_bpy_and_addon_unimportable():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     n = int(proc.stdout.split("IMPORTED")[-1].split()[0])
-    # every .py module but __init__ and __main__, plus the native _core
-    assert n == len([f for f in os.listdir(PKG_DIR) if f.endswith(".py")]) - 2 + 1
+    # every .py module (the subpackages' __init__ count as their package) but __init__ and __main__,
+    # plus the native _core
+    assert n == len(_module_files()) - 2 + 1

@@ -1,4 +1,4 @@
-"""The endoscope's view (endophoton.render): radiance estimators against analytic Lambertian records,
+"""The endoscope's view (endophoton.view.render): radiance estimators against analytic Lambertian records,
 the physical (aperture) camera against the kernel estimate, flat fields, colour and the photofrin contrast.
 
 Synthetic surface photon maps with a known radiance check the estimators' normalisation; engine runs
@@ -12,8 +12,8 @@ import pytest
 
 import endophoton as ep
 from endophoton import analysis
-from endophoton.camera import Camera
-from endophoton.render import emission_filter_function, excitation_spectrum, render_view
+from endophoton.view.camera import Camera
+from endophoton.view.render import emission_filter_function, excitation_spectrum, render_view
 from physics_helpers import K_SIGMA
 
 from _synth import RecordsResult, lambertian_records, polyp_box_scene
@@ -86,7 +86,7 @@ def test_flat_spectrum_records_render_neutral():
         kernel_radius=0.3,
         kernel_angle_deg=30,
     )
-    from endophoton.visibility import jackknife
+    from endophoton.view.visibility import jackknife
 
     rgb = view.region_batches["white_rgb"][0]  # (3, B)
     for ch in (0, 2):  # K_SIGMA sigma (jackknife over packet batches) + the stated 2 % tolerance
@@ -231,7 +231,7 @@ def test_white_non_absorbing_scene_renders_neutral():
     R/G and B/G = 1 within K_SIGMA sigma + 2 % (the stated tolerance). sigma (~3 % here) is the jackknife error of
     the ratio: R/G of N records with uniform wavelengths scatters by ~3.4/sqrt(N) (checked by resampling),
     so the kernel is large to gather ~10^4 records."""
-    from endophoton.visibility import jackknife
+    from endophoton.view.visibility import jackknife
 
     res = ep.run(
         _box_scene(mua=0.0, mus=20.0, depth=0.3),

@@ -19,8 +19,8 @@ import pytest
 import endophoton as ep
 from endophoton import analysis as an
 from endophoton import meshes
-from endophoton import beta_sweep as sw
-from endophoton import sweep_cli
+from endophoton.sweep import driver as sw
+from endophoton.sweep import cli as sweep_cli
 from endophoton.sources import EndoscopeRig
 
 import _synth as sy
@@ -637,7 +637,7 @@ import json, sys
 import numpy as np
 import bpy
 sys.path[:0] = [PKG, ADDON]
-from endophoton import beta_sweep as sw
+from endophoton.sweep import driver as sw
 from endophoton_addon import sweep_blend as sb
 sb.enable_addon()
 for obj in list(bpy.data.objects):

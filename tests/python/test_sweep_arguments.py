@@ -3,7 +3,7 @@ a ValueError naming the argument and its value, never a TypeError or AttributeEr
 import pytest
 
 import endophoton as ep
-from endophoton import beta_sweep as sw
+from endophoton.sweep import driver as sw
 
 BAD_SWEEP_ARGUMENTS = {
     "betas=None": (dict(betas=None), r"betas = None must be a list of angles"),

@@ -14,9 +14,11 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from endophoton import beta_sweep as sw
-from endophoton import analysis, sweep_cli, visibility
-from endophoton.sweep_schema import BETA_RESOLUTION_DEG, SweepResult, beta_text, check_beta_spacing, parse_betas
+from endophoton.sweep import driver as sw
+from endophoton import analysis
+from endophoton.sweep import cli as sweep_cli
+from endophoton.view import visibility
+from endophoton.sweep.schema import BETA_RESOLUTION_DEG, SweepResult, beta_text, check_beta_spacing, parse_betas
 
 CLOSE = [[0.0, 1e-200], [0.0, 1e-280], [0.0, 1e-300], [10.0, 10.0 + 5e-7]]
 

@@ -11,10 +11,10 @@ import pytest
 import endophoton as ep
 from endophoton import analysis as an
 from endophoton import report as rp
-from endophoton import sweep_reduce
-from endophoton import view_sweep
+from endophoton.sweep import reduce as sweep_reduce
+from endophoton.sweep import view_sweep
 from endophoton.io import finite_or_none, jsonable, no_nan
-from endophoton.sweep_schema import CSV_COLUMNS, VISIBILITY_COLUMNS, SweepResult
+from endophoton.sweep.schema import CSV_COLUMNS, VISIBILITY_COLUMNS, SweepResult
 
 from physics_helpers import assert_nan_free
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import endophoton as ep
-from endophoton.visibility import fit_peak, jackknife
-from endophoton.view_sweep import (
+from endophoton.view.visibility import fit_peak, jackknife
+from endophoton.sweep.view_sweep import (
     VISIBILITY_COLUMNS,
     add_visibility,
     visibility_columns,
@@ -161,14 +161,23 @@ def test_answer_against_34_deg_uses_the_reports_value_rule():
     (consistent within report.SIGMAS = 3 standard errors), not a rule of its own: 2.5 σ is
     consistent, 3.5 σ is not, and a zero spread gives no σ distance."""
     from endophoton import report
-    from endophoton.view_sweep import PAPER_BETA_DEG, _peak_sentence
+    from endophoton.sweep.view_sweep import PAPER_BETA_DEG, _peak_sentence
 
     assert report.SIGMAS == 3.0 and PAPER_BETA_DEG == 34.0
 
     def fit(z, se=4.0):
         x = PAPER_BETA_DEG - z * se
-        return dict(vertex=True, interior=True, x_peak=x, x_peak_stderr=se, x_peak_lo=x - se, x_peak_hi=x + se,
-                    flat_chi2=80.0, flat_dof=11, flat_p=1e-12)
+        return dict(
+            vertex=True,
+            interior=True,
+            x_peak=x,
+            x_peak_stderr=se,
+            x_peak_lo=x - se,
+            x_peak_hi=x + se,
+            flat_chi2=80.0,
+            flat_dof=11,
+            flat_p=1e-12,
+        )
 
     assert "The paper's 34° is 2.5 σ away: consistent with it" in _peak_sentence(fit(2.5), "contrast")
     assert "The paper's 34° is 3.5 σ away: different from it" in _peak_sentence(fit(3.5), "contrast")

@@ -1,0 +1,242 @@
+"""``python3 -m endophoton sweep``: the β sweep from the command line.
+
+Without ``--blend`` the sweep runs here on the paper's scene
+(:func:`endophoton.sweep.driver.default_flat_scene`).  With ``--blend FILE`` it
+starts ``blender -b FILE`` and runs the add-on's module
+``endophoton_addon.sweep_blend`` inside it, which exports the Blender scene and
+calls :func:`endophoton.sweep`; the package itself never imports ``bpy`` or the
+add-on.  Outputs (sweep.csv, sweep.json, the plots, report.md) go to ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import shutil
+import subprocess
+
+from ..analysis import DEFAULT_BATCHES
+from .driver import default_flat_scene, sweep, write_outputs
+from ..io import check_output_files
+from .schema import beta_text, output_file_names, parse_betas
+
+__all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", "scheduler_client"]
+
+#: Environment variable naming the folder that holds the ``endophoton_addon`` package.
+ADDON_PATH_VAR = "ENDOPHOTON_ADDON_PATH"
+
+
+def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``sweep`` subcommand's arguments to ``parser``."""
+    parser.add_argument(
+        "--betas",
+        type=parse_betas,
+        default=parse_betas("0:60:5"),
+        help="tilt angles in degrees: '0,5,10' or 'start:stop:step' (default 0:60:5)",
+    )
+    parser.add_argument("--store", type=int, default=500_000, help="records stored per beta (default 500000)")
+    parser.add_argument("--seed", type=int, default=1, help="engine seed, same for every beta (default 1)")
+    parser.add_argument(
+        "--seed-per-beta",
+        action="store_true",
+        help="beta k runs with seed + k * 0x9E3779B97F4A7C15 (mod 2^64) instead: independent runs, so the "
+        "report's test of whether a contrast depends on beta holds its level (docs/render.md)",
+    )
+    parser.add_argument("--threads", type=int, default=0, help="engine threads, 0 = all cores")
+    parser.add_argument("--out", default="sweep_out", help="output folder (default ./sweep_out)")
+    parser.add_argument(
+        "--blend",
+        default=None,
+        help=".blend file: run the sweep on it inside 'blender -b' (default: the paper's scene)",
+    )
+    parser.add_argument(
+        "--distance", type=float, default=None, help="head distance from the target point, scene units (default 1 cm)"
+    )
+    parser.add_argument(
+        "--batches", type=int, default=DEFAULT_BATCHES, help="batches for batch-means standard errors (default 20)"
+    )
+    parser.add_argument("--fluorescence-rule", choices=("paper", "eem"), default="paper")
+    parser.add_argument(
+        "--all-photons", action="store_true", help="store every escaping packet, not only fluorescent ones"
+    )
+    parser.add_argument(
+        "--polyp",
+        choices=("dome", "embedded", "none"),
+        default="dome",
+        help="polyp of the default scene (default dome)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--target",
+        default=None,
+        help="render the endoscope's view per beta and add the visibility of this region "
+        "(e.g. polyp) against --background (docs/render.md)",
+    )
+    parser.add_argument("--background", default=None, help="background region for --target (e.g. tissue)")
+    parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="trace every angle's run on a Dask cluster, all at once: tcp://host:port, or local:N for N local "
+        "worker processes (docs/distributed.md); the CSV is bit-identical to a local sweep's",
+    )
+    return parser
+
+
+def sweep_kwargs(args: argparse.Namespace) -> dict:
+    """Keyword arguments of :func:`endophoton.sweep` from the parsed ``sweep`` arguments."""
+    kw = dict(
+        betas=args.betas,
+        store=args.store,
+        seed=args.seed,
+        threads=args.threads,
+        fluorescent_only=not args.all_photons,
+        fluorescence_rule=args.fluorescence_rule,
+        distance=args.distance,
+        progress=not args.no_progress,
+        n_batches=args.batches,
+        seed_per_beta=bool(getattr(args, "seed_per_beta", False)),
+    )
+    target, background = getattr(args, "target", None), getattr(args, "background", None)
+    if (target is None) != (background is None):
+        raise ValueError(f"--target = {target!r}, --background = {background!r}: give both or neither")
+    if target is not None:
+        if args.view_size < 1:
+            raise ValueError(f"--view-size = {args.view_size} must be >= 1")
+        kw["visibility"] = {
+            "target": target,
+            "background": background,
+            "width": args.view_size,
+            "height": args.view_size,
+            "images_dir": os.path.join(os.path.abspath(args.out), "views"),
+        }
+    return kw
+
+
+def forward_argv(args: argparse.Namespace) -> list:
+    """The ``sweep`` arguments, as a list the add-on's ``sweep_blend.main`` parses again inside Blender."""
+    argv = [
+        "--betas",
+        ",".join(beta_text(b) for b in args.betas),  # as given: :g would turn 89.9999999 into 90
+        "--store",
+        str(args.store),
+        "--seed",
+        str(args.seed),
+        "--threads",
+        str(args.threads),
+        "--out",
+        os.path.abspath(args.out),
+        "--batches",
+        str(args.batches),
+        "--fluorescence-rule",
+        args.fluorescence_rule,
+    ]
+    if args.distance is not None:
+        argv += ["--distance", str(args.distance)]
+    if getattr(args, "seed_per_beta", False):
+        argv.append("--seed-per-beta")
+    if args.all_photons:
+        argv.append("--all-photons")
+    if args.no_progress:
+        argv.append("--no-progress")
+    if getattr(args, "target", None) is not None:
+        argv += ["--target", args.target, "--background", args.background, "--view-size", str(args.view_size)]
+    if getattr(args, "scheduler", None) is not None:
+        argv += ["--scheduler", args.scheduler]
+    return argv
+
+
+@contextlib.contextmanager
+def scheduler_client(args: argparse.Namespace):
+    """A Dask client for ``--scheduler`` (endophoton.distributed.connect: an unreachable
+    scheduler is a ValueError naming the address), or None without it."""
+    address = getattr(args, "scheduler", None)
+    if address is None:
+        yield None
+        return
+    from ..distributed import connect
+
+    with connect(address) as client:
+        yield client
+
+
+def _package_parent() -> str:
+    """The folder that holds the ``endophoton`` package (python/ in the source tree): this file is
+    <parent>/endophoton/sweep/cli.py."""
+    return os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def addon_folder() -> str | None:
+    """The folder holding ``endophoton_addon``: ``$ENDOPHOTON_ADDON_PATH``, else the source tree's
+    ``addon/`` beside ``python/``, else None (Blender then uses its installed add-on)."""
+    folder = os.environ.get(ADDON_PATH_VAR)
+    if not folder:
+        folder = os.path.join(os.path.dirname(_package_parent()), "addon")
+    return folder if os.path.isdir(os.path.join(folder, "endophoton_addon")) else None
+
+
+def _blender() -> str:
+    """The Blender executable (``$BLENDER``, else ``blender`` on PATH); ValueError if there is none."""
+    blender = shutil.which(os.environ.get("BLENDER", "blender"))
+    if blender is None:
+        raise ValueError(f"blender not found (set $BLENDER; BLENDER = {os.environ.get('BLENDER', 'blender')!r})")
+    return blender
+
+
+def _check_blend(path) -> None:
+    """``--blend FILE`` names an existing regular file (checked before Blender or a cluster starts)."""
+    try:
+        ok = os.path.isfile(path)
+    except (TypeError, ValueError):  # an embedded NUL
+        ok = False
+    if not ok:
+        why = "not a regular file" if os.path.lexists(path) else "no such file"
+        raise ValueError(f"--blend {path!r}: {why}")
+
+
+def run_in_blender(args: argparse.Namespace) -> int:
+    """Start ``blender -b FILE`` and run ``endophoton_addon.sweep_blend.main`` inside it."""
+    blender = _blender()
+    paths = [_package_parent()] + [p for p in (addon_folder(),) if p]
+    expr = (
+        "import sys; sys.path[:0] = %r; from endophoton_addon import sweep_blend; "
+        "sys.exit(sweep_blend.main(%r))" % (paths, forward_argv(args))
+    )
+    # blender opens the .blend itself; sweep_blend.main registers the add-on first
+    cmd = [blender, "-b", os.fspath(args.blend), "--python-exit-code", "1", "--python-expr", expr]
+    env = dict(os.environ)
+    env.setdefault("ENDOPHOTON_PYTHONPATH", paths[0])
+    return subprocess.call(cmd, env=env)
+
+
+def sweep_main(args: argparse.Namespace) -> int:
+    """Entry point of ``python -m endophoton sweep``; returns the exit code.
+
+    Writes sweep.csv, sweep.json, the PNG plots and report.md into ``--out``.
+    """
+    from ..cli_files import check_out_dir, out_dir_errors
+
+    if getattr(args, "blend", None):
+        _check_blend(args.blend)
+        _blender()
+        check_out_dir(args.out)
+        with scheduler_client(args) as client:
+            if client is not None:  # Blender connects to it: a local:N cluster lives in this process
+                args.scheduler = client.scheduler.address
+            return run_in_blender(args)
+    polyp = None if args.polyp == "none" else args.polyp
+    scene = default_flat_scene(polyp=polyp)
+    kwargs = sweep_kwargs(args)
+    check_out_dir(args.out)
+    check_output_files(args.out, output_file_names(args.betas, visibility=bool(kwargs.get("visibility"))))
+    with scheduler_client(args) as client:
+        res = sweep(scene, client=client, **kwargs)
+    res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
+    with out_dir_errors(args.out):
+        paths = write_outputs(res, args.out)
+    print(
+        f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
+        f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}"
+    )
+    return 130 if res.meta.get("cancelled") or any(r["cancelled"] for r in res.rows) else 0

@@ -1,0 +1,682 @@
+"""The endoscope's view: camera images from a run's surface photon map.
+
+``render_view(result, camera=None, width=None, height=None, ...)`` returns a
+:class:`View`. Two estimators of the radiance each pixel records:
+
+**Kernel estimate (default).** A primary ray per pixel centre (Embree, through
+``_core.first_surfaces``) finds the surface point x_p the pixel sees, its
+region and outward normal n_p; w_p is the unit direction from x_p to the
+camera. The escape records r that left within ``kernel_radius`` of x_p
+(3-D distance) in a direction within ``kernel_angle_deg`` of w_p (the paper's
+"important" photons, generalised) estimate the exitant radiance
+
+    L_p = sum_r e_r / (P * A * Omega * cos theta_p),
+    A = pi r_k^2 (cm^2),  Omega = 2 pi (1 - cos theta_k),  cos theta_p = w_p . n_p,
+
+per launched packet (P packets traced), with e_r the record's energy
+(weight x 500/lambda) times the image's spectral weight (1 for the white
+image; fluorescent flag x emission-filter transmission for the fluorescence
+image). Units: energy of a 500 nm photon per launched packet per cm^2 per sr.
+The gather uses scipy's cKDTree (6-D points (x / r_k, w / chord(theta_k)), a
+ball of radius sqrt 2 holds the product kernel; the exact kernel is then
+applied). The kernel is the speed/accuracy knob: its bias is reported by
+halving both sizes in the same pass (bias ~ c r^2 + c' theta^2 for a smooth
+radiance, so bias(h) ~ 4/3 (L_h - L_{h/2})).
+
+**Aperture image (unbiased).** With ``camera.aperture_radius`` > 0, records
+whose exit ray passes, unoccluded, through the lens disk are imaged through a
+thin lens focused at ``focus_distance``: the ray meets the plane of focus at
+F, and F projects through the lens centre onto the sensor. The pixel's
+radiance is sum e_r / (P * A_lens * cos theta_r * Omega_pixel).
+
+Noise: every per-pixel and per-region figure has a batch-means standard
+error over ``n_batches`` contiguous packet-index blocks (records carry
+``packet``). Colour: ``endophoton.view.colour``.
+"""
+from __future__ import annotations
+
+import io
+import math
+import os
+
+import numpy as np
+
+from .. import _core
+
+from . import colour
+from ..analysis import batch_index
+from .camera import Camera
+from ..io import check_int, shown
+from ..run import MAX_THREADS
+from ..sources import MAX_IMAGE_SIDE, is_image_side
+from ..spectra import Spectrum
+
+__all__ = ["render_view", "View", "excitation_spectrum", "emission_filter_function"]
+
+_CHUNK_PIXELS = 4096
+
+
+# --------------------------------------------------------------------------
+# light and filter
+# --------------------------------------------------------------------------
+
+
+def excitation_spectrum(kind) -> Spectrum | None:
+    """The excitation light as a source spectrum (photon counts per nm, relative).
+
+    ``"white"`` (or None): flat 400-700 nm, the paper's light (returned as None, the sources' default);
+    ``"blue"``/``"405"``/405: narrow-band blue, Gaussian centred at 405 nm with 10 nm FWHM (photofrin's
+    Soret band, as in photodynamic diagnosis); an ``ep.Spectrum`` or (wavelength_nm, values): a table.
+    """
+    if kind is None or (isinstance(kind, str) and kind.lower() == "white"):
+        return None
+    if isinstance(kind, Spectrum):
+        return kind
+    if (isinstance(kind, str) and kind.lower() in ("blue", "405", "blue405")) or (
+        isinstance(kind, (int, float)) and not isinstance(kind, bool) and float(kind) == 405.0
+    ):
+        lam = np.arange(385.0, 425.5, 1.0)
+        sigma = 10.0 / (2 * math.sqrt(2 * math.log(2)))
+        return Spectrum(lam, np.exp(-0.5 * ((lam - 405.0) / sigma) ** 2), name="blue405")
+    if isinstance(kind, (tuple, list)) and len(kind) == 2:
+        return Spectrum(kind[0], kind[1], name="excitation")
+    raise ValueError(
+        f"excitation = {kind!r} must be 'white', 'blue' (405 nm), an ep.Spectrum or " "(wavelength_nm, values)"
+    )
+
+
+def emission_filter_function(emission_filter, excitation: Spectrum | None):
+    """Transmission T(lambda) in [0, 1] of the fluorescence image's emission filter, and its description.
+
+    ``"auto"``: a long-pass filter whose cut-on is 10 nm above the upper edge of the excitation band
+    (where the light falls below 1 % of its peak) if that band is narrower than 100 nm, so it blocks the
+    excitation; for a broad (white) light, which no long-pass filter can block without blocking the
+    visible fluorescence, all-pass (the image then holds the fluorescent records only, which a real
+    camera could not separate). None: all-pass. A number: long-pass cut-on in nm. An ``ep.Spectrum``:
+    the transmission table (values in [0, 1], 0 outside it).
+    """
+    if isinstance(emission_filter, str) and emission_filter == "auto":
+        if excitation is not None:
+            lam = np.arange(250.0, 900.0, 0.5)
+            s = excitation(lam)
+            band = lam[s >= 0.01 * s.max()]
+            if band.size and band[-1] - band[0] < 100.0:
+                return emission_filter_function(float(band[-1]) + 10.0, excitation)
+        emission_filter = None
+    if emission_filter is None:
+        return (lambda lam: np.ones_like(np.asarray(lam, dtype=np.float64))), "all-pass"
+    if isinstance(emission_filter, (int, float)) and not isinstance(emission_filter, bool):
+        cut = float(emission_filter)
+        if not (math.isfinite(cut) and 200.0 <= cut <= 1000.0):
+            raise ValueError(f"emission_filter = {emission_filter!r} must be a cut-on wavelength in [200, 1000] nm")
+        return (lambda lam: (np.asarray(lam, dtype=np.float64) >= cut).astype(np.float64)), f"long-pass {cut:g} nm"
+    if isinstance(emission_filter, Spectrum):
+        if emission_filter.values.max() > 1.0:
+            raise ValueError(f"emission_filter: transmission max {emission_filter.values.max():g} must be <= 1")
+        return emission_filter, f"table '{emission_filter.name}'"
+    raise ValueError(
+        f"emission_filter = {emission_filter!r} must be 'auto', None, a cut-on wavelength (nm) "
+        "or an ep.Spectrum of transmission"
+    )
+
+
+# --------------------------------------------------------------------------
+# the view
+# --------------------------------------------------------------------------
+
+
+class View:
+    """A rendered endoscope view. Images are (height, width[, 3]) arrays, row 0 at the top.
+
+    Attributes: ``width``, ``height``, ``camera`` (:class:`Camera`), ``region_names``, ``region_map``
+    (int32, region index each pixel sees, -1 none), ``depth`` (distance to the surface, scene units,
+    0 where none), ``packets``, ``packets_per_batch``, ``kernel`` (radius, angle_deg),
+    ``images[name]`` for name in ("white", "fluorescence") with keys ``radiance``, ``radiance_stderr``,
+    ``bias``, ``bias_stderr``, ``xyz``, ``rgb`` (linear sRGB, white balanced, unclipped), ``srgb8``,
+    ``exposure``, ``spectrum`` (H, W, bins); ``aperture`` (same radiance/rgb keys, or None without an
+    aperture); ``region_pixels``; ``region_batches`` (per-region, per-batch pixel-mean sums);
+    ``pixel_batches[name]`` (H, W, B) per-batch radiance estimates (not saved).
+    """
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+    def pixels_of(self, name: str, field: str = "region") -> int:
+        """How many pixels see region ``name`` (0 if none); ValueError naming ``field`` if the scene has no such region."""
+        if name not in self.region_names:
+            raise ValueError(
+                f"{field} = {name!r} is not a region of the scene " f"(regions: {', '.join(self.region_names)})"
+            )
+        return int(self.region_pixels[self.region_names.index(name)])
+
+    def region_index(self, name: str, field: str = "region") -> int:
+        """Index of region ``name``; ValueError naming ``field`` if the scene has no such region or the camera
+        sees none of it."""
+        if self.pixels_of(name, field) == 0:
+            raise ValueError(f"{field} = {name!r}: the camera sees no pixel of this region")
+        return self.region_names.index(name)
+
+    def regions(self) -> dict:
+        """Mean radiance of each region's pixels: {name: {pixels, white_radiance, white_radiance_stderr,
+        fluorescence_radiance, fluorescence_radiance_stderr}} (regions the camera sees)."""
+        Pb = self.packets_per_batch
+        out = {}
+        for i, name in enumerate(self.region_names):
+            if self.region_pixels[i] == 0:
+                continue
+            d = {"pixels": int(self.region_pixels[i])}
+            for key in ("white", "fluorescence"):
+                per_batch = self.region_batches[key + "_radiance"][i] / Pb
+                d[key + "_radiance"] = float(self.region_batches[key + "_radiance"][i].sum() / Pb.sum())
+                d[key + "_radiance_stderr"] = float(np.std(per_batch, ddof=1) / math.sqrt(Pb.size))
+            out[name] = d
+        return out
+
+    def kernel_summary(self) -> dict:
+        """The kernel (radius in scene units, angle_deg) and its estimated bias in each region's mean radiance:
+        bias = 4/3 (L(r, theta) - L(r/2, theta/2)), with its batch-means stderr, per image."""
+        Pb = self.packets_per_batch
+        bias = {}
+        for i, name in enumerate(self.region_names):
+            if self.region_pixels[i] == 0:
+                continue
+            d = {}
+            for key in ("white", "fluorescence"):
+                rb = self.region_batches
+                b = 4.0 / 3.0 * (rb[key + "_radiance"][i] - rb[key + "_half_radiance"][i])
+                d[key + "_bias"] = float(b.sum() / Pb.sum())
+                d[key + "_bias_stderr"] = float(np.std(b / Pb, ddof=1) / math.sqrt(Pb.size))
+            bias[name] = d
+        return {"radius": self.kernel["radius"], "angle_deg": self.kernel["angle_deg"], "bias": bias}
+
+    def contrast(self, target: str, background: str, channels: str = "srgb") -> dict:
+        from .visibility import contrast
+
+        return contrast(self, target, background, channels)
+
+    def save(self, out_dir, prefix: str = "") -> dict:
+        """Write ``white.png``, ``fluorescence.png`` (and ``aperture_*.png``) and ``view.npz`` (float arrays)
+        atomically into ``out_dir``; returns {name: path}. Every path is checked before any file is written
+        (:func:`endophoton.io.check_output_files`: ValueError naming a path that is a directory)."""
+        from ..io import atomic_write_bytes, check_output_files
+
+        files = view_file_names(prefix, self.aperture is not None)
+        targets = dict(zip(files, check_output_files(out_dir, files.values())))
+        os.makedirs(out_dir, exist_ok=True)
+        paths = {}
+        for key in (k for k in files if k != "arrays"):  # the PNGs (the .npz follows)
+            images = self.aperture if key.startswith("aperture_") else self.images
+            paths[key] = atomic_write_bytes(targets[key], _png_bytes(images[key.removeprefix("aperture_")]["srgb8"]))
+        arrays = {
+            "region_map": self.region_map,
+            "depth": self.depth,
+            "region_names": np.array(self.region_names),
+            "spectrum_bin_edges_nm": self.spectrum_bin_edges_nm,
+            "kernel_radius": self.kernel["radius"],
+            "kernel_angle_deg": self.kernel["angle_deg"],
+        }
+        for key, img in self.images.items():
+            for k, v in img.items():
+                arrays[f"{key}_{k}"] = v
+        if self.aperture is not None:
+            for key, img in self.aperture.items():
+                for k, v in img.items():
+                    arrays[f"aperture_{key}_{k}"] = v
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        paths["arrays"] = atomic_write_bytes(targets["arrays"], buf.getvalue())
+        return paths
+
+
+def view_file_names(prefix: str = "", aperture: bool = False) -> dict:
+    """The files :meth:`View.save` writes, {key: file name}: ``white``, ``fluorescence`` (PNG), with an
+    aperture image also ``aperture_white``, ``aperture_fluorescence``, and ``arrays`` (``view.npz``)."""
+    keys = ["white", "fluorescence"] + (["aperture_white", "aperture_fluorescence"] if aperture else [])
+    names = {k: f"{prefix}{k}.png" for k in keys}
+    names["arrays"] = f"{prefix}view.npz"
+    return names
+
+
+def _png_bytes(srgb8: np.ndarray) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.image as mpimg
+
+    buf = io.BytesIO()
+    mpimg.imsave(buf, srgb8, format="png")
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------------------
+# rendering
+# --------------------------------------------------------------------------
+
+
+def _resolve_camera(result, camera, width, height):
+    if camera is None:
+        src = getattr(result, "source", None)
+        if src is None or not hasattr(src, "camera"):
+            raise ValueError(
+                "camera = None: the run's source has no camera (only an EndoscopeRig has one); "
+                "give camera=ep.Camera.look_at(...)"
+            )
+        camera = Camera.from_rig(src)
+        res = tuple(src.camera_resolution)
+    elif isinstance(camera, dict):
+        camera = Camera.from_dict(camera)
+        res = (128, 128)
+    elif isinstance(camera, Camera):
+        res = (128, 128)
+    else:
+        raise ValueError(f"camera = {camera!r} must be None (the rig's camera), an ep.Camera or a dict")
+    w = res[0] if width is None else width
+    h = res[1] if height is None else height
+    for name, v in (("width", w), ("height", h)):
+        if not is_image_side(v):
+            raise ValueError(f"{name} = {v!r} must be an integer in [1, {MAX_IMAGE_SIDE}] (pixels)")
+    return camera, int(w), int(h)
+
+
+def check_kernel(kernel_radius, kernel_angle_deg, unit_cm=None, names=("kernel_radius", "kernel_angle_deg")):
+    """Check the kernel's size: radius None (the default, resolved later) or a positive finite number
+    (scene units), angle in (0, 90] degrees, and, with ``unit_cm``, both such that the kernel's
+    normalisations 1 / (A Omega) at full and half size are finite and nonzero in double precision.
+    ValueError naming the knob (``names``: the API's or the command line's spelling) and its value."""
+    rn, an = names
+    r, a = kernel_radius, kernel_angle_deg
+    if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r <= 0):
+        raise ValueError(f"{rn} = {r!r} must be a positive number (scene units) or None")
+    if isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) or not 0 < a <= 90:
+        raise ValueError(f"{an} = {a!r} must be in (0, 90] degrees")
+    theta = math.radians(a)
+    omega, omega_h = (2.0 * math.pi * (1.0 - math.cos(t)) for t in (theta, theta / 2))
+    if not omega_h > 0 or not math.isfinite(1.0 / (2.0 * math.sin(theta / 2))):
+        raise ValueError(f"{an} = {a!r} is too small: the kernel's solid angle 2 pi (1 - cos) is 0 in double precision")
+    if r is None or unit_cm is None:
+        return
+    rc = float(r) * float(unit_cm)
+    area, area_h = math.pi * rc * rc, math.pi * (0.5 * rc) * (0.5 * rc)  # x * x: inf, never OverflowError
+    if not area_h > 0 or not math.isfinite(1.0 / r):
+        raise ValueError(f"{rn} = {r!r} is too small: the kernel's area pi r^2 is 0 in double precision")
+    if not math.isfinite(area):
+        raise ValueError(f"{rn} = {r!r} is too large: the kernel's area pi r^2 overflows double precision")
+    for x in (area * omega, area_h * omega_h):
+        if not (x > 0 and math.isfinite(x) and math.isfinite(1.0 / x)):
+            raise ValueError(
+                f"{rn} = {r!r} with {an} = {a!r}: the kernel's normalisation 1 / (pi r^2 x 2 pi (1 - cos)) "
+                "is not a finite nonzero number in double precision"
+            )
+
+
+def _check_knobs(kernel_radius, kernel_angle_deg, n_batches):
+    check_kernel(kernel_radius, kernel_angle_deg)
+    if isinstance(n_batches, bool) or not isinstance(n_batches, int) or not 2 <= n_batches <= 1000:
+        raise ValueError(f"n_batches = {n_batches!r} must be an integer in [2, 1000]")
+
+
+def _packets(result) -> int:
+    p = int(getattr(result, "packets_traced", 0) or 0)
+    return p if p > 0 else int(result.photons)
+
+
+def _records(result, n_batches, P, T):
+    esc = result.escapes
+    if esc is None:
+        raise ValueError("result.escapes = None: render a run made with record_escapes=True")
+    n = len(esc["weight"])
+    if n == 0:
+        raise ValueError("result.escapes holds no records: nothing left the tissue")
+    batch, Pb = batch_index(esc["packet"], n_batches, P)
+    wl = np.asarray(esc["wavelength"], dtype=np.float64)
+    e = np.asarray(esc["energy"], dtype=np.float64)
+    ef = e * (np.asarray(esc["fluorescent"]) > 0) * np.clip(T(wl), 0.0, 1.0)
+    edges = colour.spectrum_bins()
+    sbin = np.searchsorted(edges, wl, side="right") - 1
+    sbin = np.where((sbin >= 0) & (sbin < edges.size - 1), sbin, -1)
+    return dict(
+        pos=np.asarray(esc["position"], dtype=np.float64),
+        dir=np.asarray(esc["direction"], dtype=np.float64),
+        batch=batch,
+        Pb=Pb,
+        wl=wl,
+        cmf=colour.cmf_xyz(wl),
+        energy={"white": e, "fluorescence": ef},
+        sbin=sbin,
+        nbins=edges.size - 1,
+    )
+
+
+def _accumulate(acc, key, index, weights, size):
+    acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
+
+
+def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm):
+    """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays."""
+    from scipy.spatial import cKDTree
+
+    B = rec["Pb"].size
+    theta = math.radians(theta_deg)
+    chord = 2.0 * math.sin(theta / 2.0)
+    cam_margin = 2.0 * r
+    # Only records heading (roughly) to the camera can enter any kernel: cheap pre-filter.
+    to_cam = rec["cam"] - rec["pos"]
+    dist = np.linalg.norm(to_cam, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cosc = np.einsum("ij,ij->i", rec["dir"], to_cam) / dist
+        slack = np.arcsin(np.minimum(1.0, cam_margin / np.maximum(dist, 1e-300)))
+    keep = np.flatnonzero((dist > 0) & (cosc >= np.cos(np.minimum(math.pi, theta + slack))))
+    n_pix = px.shape[0]
+    acc = {}
+    if keep.size == 0 or n_pix == 0:
+        return acc, keep.size
+    tree = cKDTree(np.hstack([rec["pos"][keep] / r, rec["dir"][keep] / chord]))
+    query = np.hstack([px / r, pw / chord])
+    cos_t, cos_h = math.cos(theta), math.cos(theta / 2)
+    norm = 1.0 / (math.pi * (r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_t))
+    norm_h = 1.0 / (math.pi * (0.5 * r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_h))
+    for p0 in range(0, n_pix, _CHUNK_PIXELS):
+        p1 = min(n_pix, p0 + _CHUNK_PIXELS)
+        lists = tree.query_ball_point(
+            query[p0:p1], math.sqrt(2.0) * (1 + 1e-9), workers=threads or -1, return_sorted=False
+        )
+        counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
+        if counts.sum() == 0:
+            continue
+        j = keep[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
+        p = np.repeat(np.arange(p0, p1), counts)
+        d2 = np.sum((rec["pos"][j] - px[p]) ** 2, axis=1)
+        cw = np.einsum("ij,ij->i", rec["dir"][j], pw[p])
+        inside = (d2 <= r * r) & (cw >= cos_t)
+        half = inside & (d2 <= 0.25 * r * r) & (cw >= cos_h)
+        p, j, half = p[inside], j[inside], half[inside]
+        k = pk[p] * norm
+        pb = p * B + rec["batch"][j]
+        rb = preg[p] * B + rec["batch"][j]
+        for name, e in rec["energy"].items():
+            w = e[j] * k
+            _accumulate(acc, name + "_pix_batch", pb, w, n_pix * B)
+            _accumulate(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, n_pix * B)
+            for c in range(3):
+                wc = w * rec["cmf"][j, c]
+                _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix)
+                _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
+            for c in range(2):
+                _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, w * rec["cam_rg"][j, c], n_regions * B)
+            sb = rec["sbin"][j]
+            ok = sb >= 0
+            _accumulate(acc, name + "_spec_pix", p[ok] * rec["nbins"] + sb[ok], w[ok], n_pix * rec["nbins"])
+    return acc, keep.size
+
+
+def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefix=""):
+    """Per-pixel radiance (+ batch-means stderr), XYZ, linear sRGB, 8-bit sRGB and spectrum of one image."""
+    H, W = shape
+    B = Pb.size
+    n_hit = int(hit.sum())
+    zero_pb = np.zeros(n_hit * B)
+    sums = acc.get(f"{prefix}{name}_pix_batch", zero_pb).reshape(n_hit, B)
+    per_batch = sums / Pb
+    img = {}
+
+    def full(a, extra=()):
+        out = np.zeros((H * W,) + tuple(extra))
+        out[hit] = a
+        return out.reshape((H, W) + tuple(extra))
+
+    img["radiance"] = full(sums.sum(axis=1) / P)
+    img["radiance_stderr"] = full(np.std(per_batch, axis=1, ddof=1) / math.sqrt(B))
+    if prefix == "":
+        half = acc.get(f"{name}_half_pix_batch", zero_pb).reshape(n_hit, B) / Pb
+        bias_b = 4.0 / 3.0 * (per_batch - half)
+        img["bias"] = full(4.0 / 3.0 * (sums.sum(axis=1) / P - half @ Pb / P))
+        img["bias_stderr"] = full(np.std(bias_b, axis=1, ddof=1) / math.sqrt(B))
+    xyz = np.stack([acc.get(f"{prefix}{name}_xyz{c}_pix", np.zeros(n_hit)) for c in range(3)], axis=1) / P
+    img["xyz"] = full(xyz, (3,))
+    rgb = colour.xyz_to_linear_srgb(img["xyz"], gains)
+    img["rgb"] = rgb
+    k = colour.auto_exposure(rgb.max(axis=-1), hit.reshape(H, W)) if exposure == "auto" else float(exposure)
+    img["exposure"] = np.float64(k)
+    img["srgb8"] = colour.to_srgb8(rgb, k)
+    spec = acc.get(f"{prefix}{name}_spec_pix", np.zeros(n_hit * nbins)).reshape(n_hit, nbins) / P
+    img["spectrum"] = full(spec, (nbins,)).astype(np.float32)
+    return img
+
+
+def _gains(white_balance, light):
+    if white_balance is None:
+        return None
+    if white_balance == "white":
+        return colour.white_balance_gains(None)
+    if white_balance == "excitation":
+        return colour.white_balance_gains(light)
+    raise ValueError(f"white_balance = {white_balance!r} must be 'white', 'excitation' or None")
+
+
+def render_view(
+    result,
+    camera=None,
+    width: int | None = None,
+    height: int | None = None,
+    *,
+    kernel_radius: float | None = None,
+    kernel_angle_deg: float = 15.0,
+    excitation=None,
+    emission_filter="auto",
+    white_balance="white",
+    exposure="auto",
+    n_batches: int = 20,
+    threads: int = 0,
+) -> View:
+    """Render the image the camera records from ``result``'s escape records (surface photon map).
+
+    result : an ``ep.Result`` with escape records (``record_escapes=True``); a spectral run gives colour
+    camera : None = the run's EndoscopeRig camera; an :class:`ep.Camera`; or a dict with position,
+        look_at, up, fov_deg and optional aperture_radius (scene units), as in SCENE.json
+    width, height : pixels (default: the rig camera's resolution, else 128 x 128)
+    kernel_radius : kernel radius on the surface, scene units (default: 2 pixel footprints at the median
+        depth); kernel_angle_deg : half angle of the direction cone (default 15, the paper's)
+    excitation : the light the run used, for white balance and the auto emission filter
+        (default: the run source's spectrum; see :func:`excitation_spectrum`)
+    emission_filter : the fluorescence image's filter (:func:`emission_filter_function`)
+    white_balance : "white" (von Kries for the flat 400-700 nm white light), "excitation" (for the run's
+        light) or None (no balance, D65 assumed)
+    exposure : "auto" (99th percentile of the largest linear channel -> 0.5, per image) or a fixed factor
+    n_batches : packet-index blocks for the batch-means standard errors
+    threads : for the primary rays and the gather (0 = all cores)
+    """
+    _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
+    if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
+        raise ValueError(
+            f"result = {shown(result)}: render_view's first argument must be an ep.Result "
+            "(from ep.run(..., record_escapes=True))"
+        )
+    check_int("threads", threads, 0, MAX_THREADS)  # the rule of ep.run
+    camera, W, H = _resolve_camera(result, camera, width, height)
+    light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
+    T, filter_desc = emission_filter_function(emission_filter, light)
+    gains = _gains(white_balance, light)
+    if not (
+        exposure == "auto"
+        or (
+            isinstance(exposure, (int, float))
+            and not isinstance(exposure, bool)
+            and math.isfinite(exposure)
+            and exposure > 0
+        )
+    ):
+        raise ValueError(f"exposure = {exposure!r} must be 'auto' or a positive number")
+    scene = result.scene
+    native = scene.to_native()
+    dirs = camera.primary_rays(W, H)
+    origins = np.broadcast_to(camera.position, dirs.shape)
+    t, region, _, normal = _core.first_surfaces(native, origins, dirs, None, 0.0, int(threads))
+    if np.any(region == -2):
+        raise ValueError(
+            f"camera.position = {camera.position.tolist()} lies inside a region: put the camera in "
+            "the ambient medium"
+        )
+    hit = region >= 0
+    px = camera.position + t[hit, None] * dirs[hit]
+    pw = -dirs[hit]
+    pk = 1.0 / np.clip(np.einsum("ij,ij->i", pw, normal[hit]), 1e-3, 1.0)
+    fr = camera.frame(W, H)
+    depth = np.zeros(H * W)
+    depth[hit] = t[hit] * (dirs[hit] @ fr["forward"])
+    if kernel_radius is None:
+        med = float(np.median(depth[hit])) if hit.any() else 1.0
+        default = 2.0 * (2.0 * fr["tan_x"] / W) * med
+        try:
+            check_kernel(default, kernel_angle_deg, scene.unit_cm)
+        except ValueError as e:  # name what the user gave: the field of view and the width
+            raise ValueError(
+                f"camera.fov_deg = {camera.fov_deg!r} with width = {W}: the default kernel_radius (2 pixel "
+                f"footprints, {default:.3g} scene units) is unusable ({e}); give kernel_radius"
+            ) from None
+        kernel_radius = default
+    check_kernel(kernel_radius, kernel_angle_deg, scene.unit_cm)
+    P = _packets(result)
+    rec = _records(result, n_batches, P, T)
+    rec["cam"] = camera.position
+    # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
+    rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
+    n_regions = len(scene.regions)
+    preg = region[hit].astype(np.int64)
+    acc, n_candidates = _kernel_gather(
+        px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads), scene.unit_cm
+    )
+    Pb = rec["Pb"]
+    images = {
+        name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
+        for name in ("white", "fluorescence")
+    }
+    region_pixels = np.bincount(preg, minlength=n_regions)[:n_regions]
+    region_batches = _region_batches(acc, preg, region_pixels, Pb.size, gains)
+    aperture = None
+    if camera.aperture_radius > 0:
+        focus = camera.focus_distance or _autofocus(depth, hit, W, H)
+        aperture = _aperture_images(
+            native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm, int(threads)
+        )
+    return View(
+        width=W,
+        height=H,
+        camera=camera,
+        region_names=[r.name for r in scene.regions],
+        region_map=np.where(hit, region, -1).reshape(H, W).astype(np.int32),
+        depth=depth.reshape(H, W),
+        packets=P,
+        packets_per_batch=Pb,
+        kernel=dict(radius=float(kernel_radius), angle_deg=float(kernel_angle_deg)),
+        candidates=int(n_candidates),
+        emission_filter=filter_desc,
+        white_balance=white_balance,
+        images=images,
+        aperture=aperture,
+        region_pixels=region_pixels,
+        region_batches=region_batches,
+        pixel_batches={name: _pixel_batches(acc, name, hit, (H, W), Pb) for name in ("white", "fluorescence")},
+        spectrum_bin_edges_nm=colour.spectrum_bins(),
+    )
+
+
+def _pixel_batches(acc, name, hit, shape, Pb):
+    """Per-pixel, per-batch radiance estimates (H, W, B): batch sums / packets in the batch."""
+    B = Pb.size
+    out = np.zeros((hit.size, B))
+    out[hit] = acc.get(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
+    return out.reshape(shape + (B,))
+
+
+def _region_batches(acc, preg, region_pixels, B, gains):
+    """Per-region, per-batch sums of pixel values divided by the region's pixel count."""
+    n_regions = region_pixels.size
+    n_hit = preg.size
+    inv = np.where(region_pixels > 0, 1.0 / np.maximum(region_pixels, 1), 0.0)
+    out = {}
+    for name in ("white", "fluorescence"):
+        pb = acc.get(name + "_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)
+        reg = np.zeros((n_regions, B))
+        np.add.at(reg, preg, pb)
+        out[name + "_radiance"] = reg * inv[:, None]
+        half = np.zeros((n_regions, B))
+        np.add.at(half, preg, acc.get(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B))
+        out[name + "_half_radiance"] = half * inv[:, None]
+        xyz = (
+            np.stack(
+                [acc.get(f"{name}_xyz{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(3)],
+                axis=1,
+            )
+            * inv[:, None, None]
+        )
+        out[name + "_xyz"] = xyz
+        g = np.ones(3) if gains is None else np.asarray(gains)
+        out[name + "_rgb"] = np.einsum("ck,rkb->rcb", colour.XYZ_TO_SRGB, xyz * g[None, :, None])
+        out[name + "_camera_rg"] = (
+            np.stack(
+                [acc.get(f"{name}_cam{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(2)],
+                axis=1,
+            )
+            * inv[:, None, None]
+        )
+    return out
+
+
+def _autofocus(depth, hit, W, H):
+    """Focus on the surface at the image centre; else on the median surface depth."""
+    d = depth.reshape(H, W)
+    c = d[H // 2, W // 2]
+    if c > 0:
+        return float(c)
+    return float(np.median(depth[hit])) if hit.any() else 1.0
+
+
+def _aperture_images(native, camera, focus, rec, P, hit, shape, gains, exposure, unit_cm, threads):
+    """The physical camera: records through the lens disk, imaged by a thin lens focused at ``focus``."""
+    H, W = shape
+    fr = camera.frame(W, H)
+    c, f = camera.position, fr["forward"]
+    pos, d = rec["pos"], rec["dir"]
+    depth = (pos - c) @ f
+    df = d @ f
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(df < 0, depth / -df, -1.0)
+    cand = np.flatnonzero((depth > 0) & (df < 0) & (t > 0))
+    q = pos[cand] + t[cand, None] * d[cand]
+    through = np.sum((q - c) ** 2, axis=1) <= camera.aperture_radius**2
+    cand, q = cand[through], q[through]
+    # Occlusion: the exit ray must reach the lens without entering tissue again.
+    scale = np.max(np.abs(pos[cand]), axis=1) + 1.0 if cand.size else np.zeros(0)
+    eps = 1e-6 * scale
+    _, reg, _, _ = _core.first_surfaces(
+        native, pos[cand] + eps[:, None] * d[cand], d[cand], t[cand] - eps, 0.0, threads
+    )
+    cand, q = cand[reg < 0], q[reg < 0]
+    # Thin lens: the ray meets the plane of focus at F; F's image is its projection through the lens centre.
+    s = focus / (d[cand] @ f)
+    F = q + s[:, None] * d[cand]
+    pix = camera.project(F, W, H)
+    ok = pix >= 0
+    cand, pix = cand[ok], pix[ok]
+    omega = camera.pixel_solid_angles(W, H)
+    k = 1.0 / (math.pi * (camera.aperture_radius * unit_cm) ** 2 * (-(d[cand] @ f)) * omega[pix])
+    B = rec["Pb"].size
+    n = H * W
+    acc = {}
+    allpix = np.ones(n, dtype=bool)
+    for name, e in rec["energy"].items():
+        w = e[cand] * k
+        _accumulate(acc, "ap_" + name + "_pix_batch", pix * B + rec["batch"][cand], w, n * B)
+        for ch in range(3):
+            _accumulate(acc, f"ap_{name}_xyz{ch}_pix", pix, w * rec["cmf"][cand, ch], n)
+        sb = rec["sbin"][cand]
+        okb = sb >= 0
+        _accumulate(acc, f"ap_{name}_spec_pix", pix[okb] * rec["nbins"] + sb[okb], w[okb], n * rec["nbins"])
+    out = {
+        name: _image_from_sums(acc, name, P, rec["Pb"], allpix, shape, rec["nbins"], gains, exposure, prefix="ap_")
+        for name in ("white", "fluorescence")
+    }
+    for img in out.values():
+        img["focus_distance"] = np.float64(focus)
+        img["records"] = np.int64(cand.size)
+    return out

@@ -1,0 +1,120 @@
+"""``python3 -m endophoton render SCENE.json ... --out DIR``: run a scene and render the endoscope's view.
+
+Writes DIR/white.png, DIR/fluorescence.png (W x H) and DIR/view.npz (float arrays), and prints one JSON
+object: width, height, regions, kernel, photons and, with --target/--background, contrast.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+
+def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    p.add_argument(
+        "scene",
+        help="SCENE.json (an optional top-level 'camera' object: position, look_at, up, "
+        "fov_deg, aperture_radius; default: the endoscope source's camera)",
+    )
+    p.add_argument("--photons", type=int, default=None, help="packets to launch (default: run.photons or 1e6)")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--threads", type=int, default=None, help="0 = all cores")
+    p.add_argument("--width", type=int, default=None, help="pixels (default: the camera's, else 128)")
+    p.add_argument("--height", type=int, default=None, help="pixels (default: the camera's, else 128)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--target", default=None, help="target region (e.g. the polyp); needs --background")
+    p.add_argument("--background", default=None, help="background region (e.g. the wall)")
+    p.add_argument("--excitation", default="white", help="white (default, flat 400-700 nm) or blue (405 nm)")
+    p.add_argument(
+        "--emission-filter",
+        type=float,
+        default=None,
+        help="long-pass cut-on of the fluorescence image's filter, nm (default: auto)",
+    )
+    p.add_argument("--kernel-radius", type=float, default=None, help="scene units (default: 2 pixel footprints)")
+    p.add_argument("--kernel-angle", type=float, default=15.0, help="degrees (default 15)")
+    return p
+
+
+def _load(path: str):
+    from .camera import Camera
+    from ..scene import Scene
+    from ..sources import source_from_dict
+
+    from ..cli_files import load_scene_file
+
+    data = load_scene_file(path)  # errors name the file
+    if not isinstance(data, dict):
+        raise ValueError(f"scene = {type(data).__name__} must be a JSON object")
+    scene = Scene.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)))
+    if "source" not in data:
+        raise ValueError("scene: missing key 'source'")
+    source = source_from_dict(data["source"])
+    camera = Camera.from_dict(data["camera"]) if "camera" in data else None
+    defaults = data.get("run", {})
+    if not isinstance(defaults, dict):
+        raise ValueError(f"scene.run = {defaults!r} must be an object")
+    allowed = {"photons", "seed", "threads", "roulette_threshold", "roulette_chance", "max_steps", "max_path_cm"}
+    for k in defaults:
+        if k not in allowed:
+            raise ValueError(f"scene.run: unknown key {k!r} (allowed: {', '.join(sorted(allowed))})")
+    return scene, source, camera, defaults
+
+
+def _check_int(name, v, lo):
+    if v is not None and v < lo:
+        raise ValueError(f"--{name} = {v} must be >= {lo}")
+
+
+def render_main(args) -> int:
+    from ..cli_files import check_out_dir, out_dir_errors
+    from ..io import check_output_files
+    from .render import check_kernel, excitation_spectrum, render_view, view_file_names
+    from ..run import run
+
+    for name, lo in (("photons", 1), ("seed", 0), ("threads", 0), ("width", 1), ("height", 1)):
+        _check_int(name, getattr(args, name), lo)
+    if (args.target is None) != (args.background is None):
+        raise ValueError(f"--target = {args.target!r}, --background = {args.background!r}: give both or neither")
+    scene, source, camera, defaults = _load(args.scene)
+    if camera is None and not hasattr(source, "camera"):
+        raise ValueError(
+            f"camera: SCENE.json has no 'camera' object and source.type = "
+            f"{type(source).__name__} has no camera of its own"
+        )
+    # before the run: the kernel's size against the scene's unit, the output folder and every output file
+    check_kernel(args.kernel_radius, args.kernel_angle, scene.unit_cm, names=("--kernel-radius", "--kernel-angle"))
+    check_out_dir(args.out)
+    aperture = camera is not None and camera.aperture_radius > 0  # the rig's own camera is a pinhole
+    check_output_files(args.out, view_file_names("", aperture).values())
+    source.spectrum = excitation_spectrum(args.excitation)
+    kwargs = {k: v for k, v in defaults.items() if k != "photons"}
+    photons = args.photons if args.photons is not None else int(defaults.get("photons", 1_000_000))
+    if args.seed is not None:
+        kwargs["seed"] = args.seed
+    if args.threads is not None:
+        kwargs["threads"] = args.threads
+    res = run(scene, source, photons=photons, record_escapes=True, spectral=True, **kwargs)
+    view = render_view(
+        res,
+        camera,
+        args.width,
+        args.height,
+        kernel_radius=args.kernel_radius,
+        kernel_angle_deg=args.kernel_angle,
+        threads=kwargs.get("threads", 0),
+        emission_filter="auto" if args.emission_filter is None else args.emission_filter,
+    )
+    out = {
+        "width": view.width,
+        "height": view.height,
+        "regions": view.regions(),
+        "photons": view.packets,
+        "kernel": view.kernel_summary(),
+    }
+    if args.target is not None:
+        out["contrast"] = view.contrast(args.target, args.background)
+    with out_dir_errors(args.out):
+        view.save(args.out)
+    print(json.dumps(out, sort_keys=True, allow_nan=False))
+    return 0
