@@ -4,6 +4,7 @@ presets (schema and loader agree), the add-on's preset menu, and the two renders
 pink under white light, the adenomatous polyp darker and redder than the mucosa around it."""
 import csv
 import importlib.util
+import json
 import math
 import os
 
@@ -12,8 +13,8 @@ import pytest
 
 import endophoton as ep
 from endophoton import paper
-from endophoton.camera import Camera
-from endophoton.visibility import jackknife, weber
+from endophoton.view.camera import Camera
+from endophoton.view.visibility import jackknife, weber
 from physics_helpers import K_SIGMA
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -271,3 +272,19 @@ def test_adenomatous_polyp_is_darker_and_redder_than_the_mucosa_around_it():
     assert white < -3 * white_se and red > 3 * red_se, (white, white_se, red, red_se)
     (white0, white0_se), (red0, red0_se) = _darker_redder(_polyp_view("colon_mucosa"))
     assert abs(white0) < K_SIGMA * white0_se and abs(red0) < K_SIGMA * red0_se, (white0, white0_se, red0, red0_se)
+
+
+def test_example_scene_takes_its_media_by_name_and_runs():
+    """examples/spectral_colon.json (docs/media.md's render command) loads its three presets and runs."""
+    path = os.path.join(ROOT, "examples", "spectral_colon.json")
+    scene = ep.Scene.from_json(path)
+    media = {r.name: r.medium for r in scene.regions}
+    assert media == {
+        "mucosa": ep.media.preset("colon_mucosa"),
+        "submucosa": ep.media.preset("colon_submucosa"),
+        "polyp": ep.media.preset("adenomatous_polyp"),
+    }
+    with open(path, encoding="utf-8") as fh:
+        source = ep.source_from_dict(json.load(fh)["source"])
+    res = ep.run(scene, source, photons=2_000, seed=3, spectral=True, threads=1)
+    assert 0 < res.diffuse_reflectance < 1
