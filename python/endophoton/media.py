@@ -118,12 +118,15 @@ def haemoglobin_table() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(wavelength_nm, eps_HbO2, eps_Hb): Prahl's molar extinction coefficients, cm^-1/M (decadic),
     250-1000 nm every 2 nm (read-only arrays). Searched in the installed package's data/media, then the
     repository's data/media."""
-    for path in _table_paths():
-        if path.is_file():
-            a = np.loadtxt(path, delimiter=",", comments="#", skiprows=7, dtype=np.float64)
-            break
-    else:
+    path = next((p for p in _table_paths() if p.is_file()), None)
+    if path is None:
         raise RuntimeError(f"{_TABLE_NAME} not found in {[str(p.parent) for p in _table_paths()]} (reinstall)")
+    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
+    if not lines or lines[0].split(",")[0] != "wavelength_nm":
+        raise RuntimeError(f"{path}: the first line after the comments must be the header 'wavelength_nm,...'")
+    a = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]], dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3 or not np.all(np.diff(a[:, 0]) > 0) or not np.all(a >= 0):
+        raise RuntimeError(f"{path}: rows must be 'wavelength_nm,hbo2,hb' with increasing wavelengths, values >= 0")
     cols = tuple(np.ascontiguousarray(a[:, i]) for i in range(3))
     for c in cols:
         c.flags.writeable = False
@@ -134,13 +137,24 @@ def _check_fraction(name: str, v) -> float:
     return check_real(name, v, 0.0, 1.0)
 
 
+def _wavelengths(v) -> np.ndarray:
+    """``v`` (nm, a number or an array) as a float array; ValueError naming wavelength_nm otherwise."""
+    try:
+        x = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"wavelength_nm = {shown(v)} must be a number or an array of numbers (nm)") from None
+    if x.size and not np.all(np.isfinite(x) & (x > 0)):
+        raise ValueError(f"wavelength_nm = {shown(v)} must hold finite wavelengths > 0 (nm)")
+    return x
+
+
 def blood_mua(wavelength_nm, saturation) -> np.ndarray:
     """Absorption coefficient of whole blood (150 g/L haemoglobin), cm^-1, at ``wavelength_nm`` (nm, within
     250-1000; linear interpolation of the table) for oxygen ``saturation`` in [0, 1]."""
     s = _check_fraction("saturation", saturation)
     wl, hbo2, hb = haemoglobin_table()
-    x = np.asarray(wavelength_nm, dtype=np.float64)
-    if x.size and (not np.all(np.isfinite(x)) or x.min() < wl[0] or x.max() > wl[-1]):
+    x = _wavelengths(wavelength_nm)
+    if x.size and (x.min() < wl[0] or x.max() > wl[-1]):
         raise ValueError(
             f"wavelength_nm = {shown(wavelength_nm)} must lie in [{wl[0]:g}, {wl[-1]:g}] nm (the haemoglobin table)"
         )
@@ -152,7 +166,7 @@ def reduced_scattering(wavelength_nm, a_cm, b) -> np.ndarray:
     """mus'(lambda) = a_cm * (lambda / 500 nm)^(-b), cm^-1 (Jacques 2013, Eq. 1); wavelength_nm in nm."""
     a = check_real("a_cm", a_cm, 0.0, 1e4, lo_open=True)
     p = check_real("b", b, 0.0, 4.0)
-    return a * (np.asarray(wavelength_nm, dtype=np.float64) / REFERENCE_WAVELENGTH_NM) ** (-p)
+    return a * (_wavelengths(wavelength_nm) / REFERENCE_WAVELENGTH_NM) ** (-p)
 
 
 def tissue(

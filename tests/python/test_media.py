@@ -141,9 +141,13 @@ def test_bad_tissue_values_are_refused_naming_the_field(field, value):
         ep.media.tissue(**args)
 
 
-def test_wavelengths_outside_the_table_are_refused():
+def test_wavelengths_outside_the_table_or_not_numbers_are_refused():
     with pytest.raises(ValueError, match=r"wavelength_nm = .* must lie in \[250, 1000\] nm"):
         ep.media.blood_mua([500.0, 1200.0], 0.5)
+    with pytest.raises(ValueError, match=r"wavelength_nm = 'red' must be a number"):
+        ep.media.blood_mua("red", 0.5)
+    with pytest.raises(ValueError, match=r"wavelength_nm = .* must hold finite wavelengths > 0"):
+        ep.media.reduced_scattering([500.0, float("nan")], 18.9, 1.3)
 
 
 # ---- SCENE.json ---------------------------------------------------------------------------------------------
