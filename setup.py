@@ -38,12 +38,14 @@ class CMakeBuild(build_ext):
 class BuildPyWithData(build_py):
     def run(self):
         super().run()
-        src = os.path.join(ROOT, "data", "eem")
-        dst = os.path.join(self.build_lib, "endophoton", "data", "eem")
-        os.makedirs(dst, exist_ok=True)
-        for name in os.listdir(src):
-            if name.endswith(".csv"):
-                shutil.copy2(os.path.join(src, name), dst)
+        # Default EEMs (endophoton.spectra) and chromophore tables (endophoton.media).
+        for folder in ("eem", "media"):
+            src = os.path.join(ROOT, "data", folder)
+            dst = os.path.join(self.build_lib, "endophoton", "data", folder)
+            os.makedirs(dst, exist_ok=True)
+            for name in os.listdir(src):
+                if name.endswith(".csv"):
+                    shutil.copy2(os.path.join(src, name), dst)
         # The SCENE.json schema the loader enforces (endophoton.scene_schema).
         shutil.copy2(os.path.join(ROOT, "docs", "scene.schema.json"),
                      os.path.join(self.build_lib, "endophoton", "data", "scene.schema.json"))

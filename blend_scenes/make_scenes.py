@@ -3,7 +3,8 @@
 
     blender -b --factory-startup --python blend_scenes/make_scenes.py
 
-writes blend_scenes/flat_tissue.blend and blend_scenes/colon_polyp.blend
+writes blend_scenes/flat_tissue.blend, blend_scenes/colon_polyp.blend and
+blend_scenes/colon_polyp_spectral.blend
 (metres, unit scale 1; no packed data).  Meshes are built from numpy arrays.
 ``-- --out DIR`` writes them to DIR instead (the tests compare the two).
 
@@ -17,6 +18,10 @@ haustral folds (sinusoidal radius modulation) and a 3 mm wall: one closed,
 watertight thick-walled tube whose ends are annulus rings.  A polyp sits on the
 inner wall (bottom, between two folds) and the rig is inside the lumen 1 cm
 from the polyp, tilting along the colon axis.
+
+colon_polyp_spectral.blend — colon_polyp.blend with spectral media: the wall is
+the "Colon mucosa (spectral)" tissue preset, the polyp "Adenomatous polyp
+(spectral)" (docs/media.md).
 """
 
 import math
@@ -213,7 +218,9 @@ def make_flat_tissue():
     return _save("flat_tissue.blend")
 
 
-def make_colon_polyp():
+def make_colon_polyp(spectral=False):
+    """colon_polyp.blend (the paper's constant media), or with ``spectral`` colon_polyp_spectral.blend: the same
+    scene with the spectral presets colon mucosa (wall) and adenomatous polyp (docs/media.md)."""
     scene, export, meshutil, rig = _fresh_scene()
     coll = scene.collection
     length, radius, fold_depth, period, wall = 0.08, 0.025, 3 * MM, 0.02, 3 * MM
@@ -238,17 +245,21 @@ def make_colon_polyp():
     )
     for obj in (colon, polyp):
         _check_closed(export, obj)
+    if spectral:
+        colon.endophoton.tissue_preset = "COLON_MUCOSA"
+        polyp.endophoton.tissue_preset = "ADENOMATOUS_POLYP"
     top = (x_polyp, 0.0, -radius + 2.5 * MM)
     rig.create_rig(
         bpy.context, target=top, normal=(0, 0, 1), tilt_axis=(0, 1, 0), beta=math.radians(20.0), distance=10 * MM
     )
     _frame_views((colon, polyp))
-    return _save("colon_polyp.blend")
+    return _save("colon_polyp_spectral.blend" if spectral else "colon_polyp.blend")
 
 
 def main():
     make_flat_tissue()
     make_colon_polyp()
+    make_colon_polyp(spectral=True)
 
 
 if __name__ == "__main__":

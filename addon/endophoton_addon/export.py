@@ -28,7 +28,7 @@ class RegionExport:
     name: str
     vertices: np.ndarray  # float32 (N,3), metres, world space
     triangles: np.ndarray  # uint32 (M,3), outward CCW
-    medium: dict  # mua, mus (cm^-1), g, n
+    medium: dict  # mua, mus (cm^-1), g, n; "preset": an endophoton.media name for a spectral preset
     priority: int
     fluorophores: list = field(default_factory=list)  # [(species, d, c)]
     role: str = "TISSUE"
@@ -54,6 +54,9 @@ def validate_object_settings(obj):
         if not _finite(value) or not ok(value):
             raise InputError(f"{who}: medium.{name} = {value:g} must be {what}")
         medium[name] = float(value)
+    chosen = presets.TISSUE_PRESETS.get(s.tissue_preset)
+    if chosen is not None and chosen.spectral:
+        medium["preset"] = chosen.spectral  # the engine takes the spectra (sweep_blend.blender_regions_to_scene)
     fluorophores = []
     for i, f in enumerate(s.fluorophores):
         for name in ("d", "c"):

@@ -33,6 +33,17 @@ class TissuePreset:
     label: str
     medium: dict  # mua, mus in cm^-1, g, n
     source: str  # where the numbers come from, and what is assumed
+    spectral: str = ""  # name of an endophoton.media preset: the engine gets its mua(λ), mus(λ)
+
+
+# A spectral preset's medium fields show its values at this wavelength (nm), for the panel and the size
+# guard; the engine takes the spectra (endophoton.media.preset). tests/python/test_media.py holds these
+# copies to the package's values.
+SPECTRAL_SHOWN_NM = 550.0
+_SPECTRAL_NOTE = (
+    "Spectral: the engine takes μa(λ) = blood × haemoglobin (Prahl's table) and μs'(λ) = a(λ/500 nm)^−b; "
+    "the fields show the values at 550 nm (editing one makes the medium constant again). Sources: docs/media.md"
+)
 
 
 TISSUE_PRESETS = {
@@ -54,6 +65,28 @@ TISSUE_PRESETS = {
         {"mua": 47.7, "mus": 142.0, "g": 0.9, "n": 1.4},
         "Marchesini et al., Lasers Surg. Med. 15(4):351–357 (1994), ex vivo human colon: μa = 47.7 cm⁻¹ "
         "and μs' = 14.2 cm⁻¹ at 300 nm; g = 0.9 and n = 1.4 assumed, μs = μs'/(1 − g) = 142 cm⁻¹",
+    ),
+    "COLON_MUCOSA": TissuePreset(
+        "Colon mucosa (spectral)",
+        {"mua": 9.984, "mus": 167.2, "g": 0.9, "n": 1.1},
+        "Normal colon mucosa: blood 4.0 % (93.4 µmol/L haemoglobin) at 67 % saturation, Wang et al., Opt. "
+        "Express 17:2805 (2009); scattering of soft tissue, a = 18.9 cm⁻¹, b = 1.286, Jacques, Phys. Med. "
+        "Biol. 58:R37 (2013); g, n the paper's. " + _SPECTRAL_NOTE,
+        spectral="colon_mucosa",
+    ),
+    "COLON_SUBMUCOSA": TissuePreset(
+        "Colon submucosa (spectral)",
+        {"mua": 9.984, "mus": 85.09, "g": 0.9, "n": 1.1},
+        "Colon submucosa: blood as the mucosa (Wang 2009); scattering of the ex vivo colon wall, μs' = 14.2 "
+        "cm⁻¹ at 300 nm and 6.2 cm⁻¹ at 800 nm, Marchesini et al. (1994); g, n the paper's. " + _SPECTRAL_NOTE,
+        spectral="colon_submucosa",
+    ),
+    "ADENOMATOUS_POLYP": TissuePreset(
+        "Adenomatous polyp (spectral)",
+        {"mua": 15.16, "mus": 167.2, "g": 0.9, "n": 1.1},
+        "Adenomatous polyp: blood 5.9 % (136.9 µmol/L haemoglobin) at 51 % saturation, premalignant sites of "
+        "Wang et al. (2009); soft-tissue scattering (Jacques 2013); g, n the paper's. " + _SPECTRAL_NOTE,
+        spectral="adenomatous_polyp",
     ),
 }
 

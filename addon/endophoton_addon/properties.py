@@ -52,6 +52,19 @@ class EndoPhotonFluorophore(bpy.types.PropertyGroup):
     )
 
 
+_loading_preset = False  # True while _tissue_preset_chosen writes the medium fields
+
+
+def _medium_edited(self, _context):
+    """A hand edit of a medium field ends a spectral preset: the engine then gets the constant medium shown."""
+    settings = getattr(self.id_data, "endophoton", None)
+    if _loading_preset or settings is None:
+        return
+    preset = presets.TISSUE_PRESETS.get(settings.tissue_preset)
+    if preset is not None and preset.spectral:
+        settings.tissue_preset = "CUSTOM"
+
+
 class EndoPhotonMedium(bpy.types.PropertyGroup):
     # Hard limits are left open on purpose: validation reports bad values
     # (naming object and field) instead of Blender silently clamping them.
@@ -62,6 +75,7 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
         soft_min=0.0,
         soft_max=1000.0,
         precision=3,
+        update=_medium_edited,
     )
     mus: FloatProperty(
         name="μs [cm⁻¹]",
@@ -70,6 +84,7 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
         soft_min=0.0,
         soft_max=10000.0,
         precision=3,
+        update=_medium_edited,
     )
     g: FloatProperty(
         name="g",
@@ -78,6 +93,7 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
         soft_min=-1.0,
         soft_max=1.0,
         precision=3,
+        update=_medium_edited,
     )
     n: FloatProperty(
         name="n",
@@ -86,6 +102,7 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
         soft_min=1.0,
         soft_max=3.0,
         precision=3,
+        update=_medium_edited,
     )
 
 
@@ -109,12 +126,18 @@ def apply_role_defaults(settings):
 
 
 def _tissue_preset_chosen(self, _context):
-    """Load the chosen published medium into the object's medium (then back to 'Choose')."""
+    """Load the chosen published medium into the object's medium. A spectral preset stays chosen (the export
+    sends its name, the engine its spectra) until a medium field is edited by hand."""
+    global _loading_preset
     preset = presets.TISSUE_PRESETS.get(self.tissue_preset)
     if preset is None:
         return
-    for key, value in preset.medium.items():
-        setattr(self.medium, key, value)
+    _loading_preset = True
+    try:
+        for key, value in preset.medium.items():
+            setattr(self.medium, key, value)
+    finally:
+        _loading_preset = False
 
 
 class EndoPhotonObjectSettings(bpy.types.PropertyGroup):

@@ -23,6 +23,13 @@ from . import export, package_finder, rig
 __all__ = ["blender_regions_to_scene", "rig_sweep_geometry", "enable_addon", "sweep_blend", "main"]
 
 
+def _medium(ep, medium):
+    """The engine medium of an exported medium dict: the named ep.media preset (spectral), else the numbers."""
+    if medium.get("preset"):
+        return ep.media.preset(medium["preset"])
+    return ep.Medium(**medium)
+
+
 def blender_regions_to_scene(ep, regions):
     """``ep.Scene(unit="m")`` holding the exported regions (a list of ``export.RegionExport``).
 
@@ -35,7 +42,7 @@ def blender_regions_to_scene(ep, regions):
             region.name,
             region.vertices,
             region.triangles,
-            ep.Medium(**region.medium),
+            _medium(ep, region.medium),
             priority=region.priority,
             fluorophores=fluorophores,
         )

@@ -11,7 +11,7 @@ from .sources import ConeSource, DiskSource, EndoscopeRig, PencilSource, source_
 from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
 from .units import UNIT_CM, unit_cm
 from . import _core
-from . import analysis, meshes, paper
+from . import analysis, media, meshes, paper
 from .sweep.driver import SweepResult, default_flat_scene, sweep
 from .report import write_report
 from .quality import QUALITY_PRESETS, Quality, quality_preset
@@ -48,6 +48,7 @@ __all__ = [
     "UNIT_CM",
     "unit_cm",
     "analysis",
+    "media",
     "meshes",
     "paper",
     "sweep",

@@ -19,6 +19,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from . import media
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
 from .spectra import EEM, Fluorophore, Spectrum
@@ -408,6 +409,13 @@ def _coefficient_from_json(owner, field, v):
 
 
 def _medium_from_dict(owner: str, md) -> Medium:
+    """A region's medium: ``{"preset": NAME}`` (endophoton.media) or mua, mus[, g, n]."""
+    if isinstance(md, dict) and "preset" in md:
+        _check_keys(f"{owner}: medium", md, {"preset"})
+        try:
+            return media.preset(md["preset"])
+        except ValueError as e:
+            raise ValueError(f"{owner}: {e}") from None
     _check_keys(f"{owner}: medium", md, {"mua", "mus"}, extra={"g", "n"})
     try:
         return Medium(

@@ -103,3 +103,28 @@ def test_export_regions_collects_role_objects_with_settings():
     assert by_name["Polyp"].priority > by_name["Tissue"].priority
     # The seed paper's tissue (oracles §5): n = 1.1, mua = 20, mus = 200 cm^-1, g = 0.9.
     assert by_name["Tissue"].medium == {"mua": 20.0, "mus": 200.0, "g": pytest.approx(0.9), "n": pytest.approx(1.1)}
+
+
+def test_spectral_preset_is_exported_by_name_until_a_field_is_edited(ep):
+    """Choosing a spectral tissue preset sends its ep.media name (the engine builds the spectra from it); editing
+    a medium field by hand turns the menu back to Custom and the constant medium shown is exported."""
+    from endophoton_addon import presets, sweep_blend
+
+    tissue = mesh_object("Tissue", CUBE_V, CUBE_F)
+    tissue.endophoton.role = "TISSUE"
+    tissue.endophoton.tissue_preset = "COLON_MUCOSA"
+    shown = presets.TISSUE_PRESETS["COLON_MUCOSA"].medium
+    medium, _priority, _fl = export.validate_object_settings(tissue)
+    assert medium["preset"] == "colon_mucosa"
+    assert {k: medium[k] for k in shown} == pytest.approx(shown)
+    (region,) = export.export_regions(bpy.context.scene, bpy.context.view_layer, bpy.context.evaluated_depsgraph_get())
+    scene = sweep_blend.blender_regions_to_scene(ep, [region])
+    assert scene.regions[0].medium == ep.media.preset("colon_mucosa") and scene.regions[0].medium.spectral
+    tissue.endophoton.medium.mua = 5.0  # a hand edit ends the spectral preset
+    assert tissue.endophoton.tissue_preset == "CUSTOM"
+    medium, _priority, _fl = export.validate_object_settings(tissue)
+    assert "preset" not in medium and medium["mua"] == 5.0
+    tissue.endophoton.tissue_preset = "ADENOMATOUS_POLYP"
+    tissue.endophoton.role = "POLYP"  # the role's defaults are a hand edit too: back to the paper's medium
+    assert tissue.endophoton.tissue_preset == "CUSTOM"
+    assert "preset" not in export.validate_object_settings(tissue)[0]

@@ -14,7 +14,7 @@ from endophoton_addon import export, rig
 from conftest import BLEND_DIR, ensure_addon
 
 MM = 1e-3
-SCENES = ("flat_tissue.blend", "colon_polyp.blend")
+SCENES = ("flat_tissue.blend", "colon_polyp.blend", "colon_polyp_spectral.blend")
 
 
 def _open(path):
@@ -48,6 +48,7 @@ def _describe(path):
             s = obj.endophoton
             entry.update(
                 role=s.role,
+                tissue_preset=s.tissue_preset,
                 priority=s.priority,
                 medium=[round(getattr(s.medium, k), 6) for k in ("mua", "mus", "g", "n")],
                 fluorophores=[(f.species, round(f.d, 6), round(f.c, 6)) for f in s.fluorophores],
@@ -158,6 +159,28 @@ def test_colon_polyp_scene():
     axis = -np.array(head.matrix_world)[:3, 2]
     angle = math.atan2(np.linalg.norm(np.cross(axis, (0, 0, -1))), axis @ (0, 0, -1))
     assert angle == pytest.approx(abs(head.endophoton_rig.beta), abs=1e-6)
+
+
+def test_colon_polyp_spectral_is_the_colon_with_spectral_presets(ep):
+    """colon_polyp_spectral.blend is colon_polyp.blend but for the media: the wall exports as the colon_mucosa
+    preset and the polyp as adenomatous_polyp, and the engine scene holds their spectra (docs/media.md)."""
+    from endophoton_addon import sweep_blend
+
+    plain = _describe(os.path.join(BLEND_DIR, "colon_polyp.blend"))
+    spectral = _describe(os.path.join(BLEND_DIR, "colon_polyp_spectral.blend"))
+    for entry in (*plain["objects"].values(), *spectral["objects"].values()):
+        for key in ("medium", "tissue_preset"):
+            entry.pop(key, None)
+    assert plain == spectral
+    _open(os.path.join(BLEND_DIR, "colon_polyp_spectral.blend"))
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    regions = export.export_regions(bpy.context.scene, bpy.context.view_layer, depsgraph)
+    assert {r.name: r.medium["preset"] for r in regions} == {"Colon": "colon_mucosa", "Polyp": "adenomatous_polyp"}
+    scene = sweep_blend.blender_regions_to_scene(ep, regions)
+    assert {r.name: r.medium for r in scene.regions} == {
+        "Colon": ep.media.preset("colon_mucosa"),
+        "Polyp": ep.media.preset("adenomatous_polyp"),
+    }
 
 
 @pytest.mark.parametrize("name", SCENES)
