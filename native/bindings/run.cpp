@@ -1,6 +1,7 @@
 // Binding of a run: CancelToken, RunConfig (native/run_config.h, one attribute
-// per field; keyword construction RunConfig(photons=..., seed=...)) and run(),
-// which releases the GIL and returns the estimates and records as a dict.
+// per field; keyword construction RunConfig(photons=..., seed=...)), run(),
+// which releases the GIL and returns the estimates and records as a dict, and
+// check_run(), run()'s validation alone.
 #include <stdexcept>
 
 #include "common.h"
@@ -174,6 +175,16 @@ void bind_run(py::module_& m) {
         },
         py::arg("scene"), py::arg("source"), py::arg("config"), py::arg("progress") = py::none(),
         py::arg("cancel") = nullptr);
+    m.def(
+        "check_run",
+        [](std::shared_ptr<Scene> scene, std::shared_ptr<Source> source, const RunConfig& config) {
+            std::vector<std::string> warnings;
+            prepare_config(*scene, *source, config, &warnings);
+            return warnings;
+        },
+        py::arg("scene"), py::arg("source"), py::arg("config"),
+        "Validates a request as run() does before it traces a packet (ValueError naming the field), without "
+        "tracing; returns the warnings the run would start with.");
 }
 
 }  // namespace ep::bind
