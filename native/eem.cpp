@@ -9,30 +9,13 @@
 #include <utility>
 
 #include "format.h"
+#include "spectrum_check.h"
 
 namespace ep {
 
 namespace {
 
 std::string fmt(double v) { return format_g(v); }
-
-void check_wavelengths(const std::string& where, const char* field, const std::vector<double>& w,
-                       std::size_t min_size) {
-    if (w.size() < min_size)
-        throw std::invalid_argument(where + field + " needs at least " + std::to_string(min_size) +
-                                    (min_size == 1 ? " entry" : " entries") + ", got " + std::to_string(w.size()));
-    for (std::size_t i = 0; i < w.size(); ++i) {
-        const std::string at = std::string(field) + "[" + std::to_string(i) + "] = " + fmt(w[i]);
-        if (!std::isfinite(w[i])) throw std::invalid_argument(where + at + " must be finite");
-        if (!(w[i] > 0.0)) throw std::invalid_argument(where + at + " must be > 0");
-        if (!(w[i] >= kMinWavelengthNm && w[i] <= kMaxWavelengthNm))
-            throw std::invalid_argument(where + at + " is outside [" + fmt(kMinWavelengthNm) + ", " +
-                                        fmt(kMaxWavelengthNm) + "] nm (soft X-rays to the far infrared)");
-        if (i > 0 && !(w[i] > w[i - 1]))
-            throw std::invalid_argument(where + at + " must be greater than " + field + "[" + std::to_string(i - 1) +
-                                        "] = " + fmt(w[i - 1]) + " (wavelengths must be strictly increasing)");
-    }
-}
 
 }  // namespace
 
@@ -42,27 +25,12 @@ EEM::EEM(std::string name, std::vector<double> excitation_nm, std::vector<double
       excitation_(std::move(excitation_nm)),
       emission_(std::move(emission_nm)),
       values_(std::move(values)) {
-    if (name_.empty()) throw std::invalid_argument("eem: name must not be empty");
-    const std::string where = "eem '" + name_ + "': ";
-    check_wavelengths(where, "excitation_nm", excitation_, 1);
-    check_wavelengths(where, "emission_nm", emission_, 2);
-
     const std::size_t n_ex = excitation_.size(), n_em = emission_.size();
-    if (values_.size() != n_ex * n_em)
-        throw std::invalid_argument(where + "values has " + std::to_string(values_.size()) + " entries, expected " +
-                                    std::to_string(n_ex) + " x " + std::to_string(n_em) + " = " +
-                                    std::to_string(n_ex * n_em));
-    bool any_positive = false;
-    for (std::size_t i = 0; i < n_ex; ++i)
-        for (std::size_t j = 0; j < n_em; ++j) {
-            const double v = values_[i * n_em + j];
-            const std::string at = "values[" + std::to_string(i) + "][" + std::to_string(j) + "] (ex " +
-                                   fmt(excitation_[i]) + " nm, em " + fmt(emission_[j]) + " nm) = " + fmt(v);
-            if (!std::isfinite(v)) throw std::invalid_argument(where + at + " must be finite");
-            if (v < 0.0) throw std::invalid_argument(where + at + " must be >= 0");
-            any_positive = any_positive || v > 0.0;
-        }
-    if (!any_positive) throw std::invalid_argument(where + "values are all 0; at least one must be positive");
+    // Row-major n_ex x n_em when the count fits (check_eem names a wrong count).
+    const std::vector<size_t> shape =
+        values_.size() == n_ex * n_em ? std::vector<size_t>{n_ex, n_em} : std::vector<size_t>{values_.size()};
+    check_eem(name_, {excitation_.data(), {n_ex}}, {emission_.data(), {n_em}}, {values_.data(), shape});
+    const std::string where = "eem '" + name_ + "': ";
 
     rows_.reserve(n_ex);
     row_integral_.reserve(n_ex);

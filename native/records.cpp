@@ -5,10 +5,16 @@
 namespace ep {
 
 namespace {
-void push3(std::vector<float>& v, const Vec3& p) {
-    v.push_back(float(p.x));
-    v.push_back(float(p.y));
-    v.push_back(float(p.z));
+// One value of an EscapeRecord onto its column: a vector as its three components.
+template <class T>
+void push_value(std::vector<T>& column, const Vec3& p) {
+    column.push_back(T(p.x));
+    column.push_back(T(p.y));
+    column.push_back(T(p.z));
+}
+template <class T, class V>
+void push_value(std::vector<T>& column, const V& v) {
+    column.push_back(T(v));
 }
 template <class T>
 void append_n(std::vector<T>& dst, const std::vector<T>& src, size_t n) {
@@ -17,37 +23,26 @@ void append_n(std::vector<T>& dst, const std::vector<T>& src, size_t n) {
 }  // namespace
 
 void EscapeRecords::push(const EscapeRecord& r) {
-    push3(position, r.position);
-    push3(direction, r.direction);
-    push3(normal, r.normal);
-    push3(entry, r.entry);
-    weight.push_back(r.weight);
-    energy.push_back(r.energy);
-    wavelength.push_back(float(r.wavelength));
-    max_depth.push_back(float(r.max_depth_cm));
-    fluorescent.push_back(r.fluorescent);
-    light.push_back(r.light);
-    kind.push_back(r.kind);
-    fluorophore.push_back(r.fluorophore);
-    region.push_back(r.region);
-    scatterings.push_back(r.scatterings);
-    packet.push_back(r.packet);
-    exit_order.push_back(r.exit_order);
-    next_hit.push_back(r.next_hit);
+#define EP_PUSH_COLUMN(column, member, type, width) push_value(column, r.member);
+    EP_RECORD_COLUMNS(EP_PUSH_COLUMN)
+#undef EP_PUSH_COLUMN
 }
 
 void EscapeRecords::append(const EscapeRecords& o, size_t count) {
     const size_t n = std::min(count, o.size());
     if (n == 0) return;
-    // Each column holds size() * width values (width 3 for vectors, else 1).
     zip_columns(*this, o, [&](auto& dst, const auto& src) { append_n(dst, src, src.size() / o.size() * n); });
 }
 
 void EscapeRecords::clear() { *this = EscapeRecords(); }
 
 size_t EscapeRecords::memory_bytes() const {
-    return size() * (12 * sizeof(float) + 2 * sizeof(double) + 2 * sizeof(float) + 3 + 2 * sizeof(int32_t) +
-                     2 * sizeof(uint32_t) + sizeof(uint64_t) + 1);
+    constexpr size_t kBytesPerRecord = 0
+#define EP_COLUMN_BYTES(column, member, type, width) +width * sizeof(type)
+        EP_RECORD_COLUMNS(EP_COLUMN_BYTES)
+#undef EP_COLUMN_BYTES
+        ;
+    return size() * kBytesPerRecord;
 }
 
 }  // namespace ep

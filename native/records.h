@@ -25,32 +25,55 @@ struct EscapeRecord {
 // Where the straight ray of an exit into the ambient goes next.
 enum NextHit : uint8_t { kNextAway = 0, kNextTissue = 1, kNextHead = 2, kNextCamera = 3 };
 
+// The one list of record columns, in their fixed order:
+// X(column, member of EscapeRecord, value type, values per record).
+// EscapeRecords declares, pushes, appends and sizes its columns from it,
+// unit_io serialises them in this order and the binding's records_dict names
+// them with `column`; a new column is one line here (and a new unit_io magic).
+#define EP_RECORD_COLUMNS(X)                 \
+    X(position, position, float, 3)          \
+    X(direction, direction, float, 3)        \
+    X(normal, normal, float, 3)              \
+    X(entry, entry, float, 3)                \
+    X(weight, weight, double, 1)             \
+    X(energy, energy, double, 1)             \
+    X(wavelength, wavelength, float, 1)      \
+    X(max_depth, max_depth_cm, float, 1)     \
+    X(fluorescent, fluorescent, uint8_t, 1)  \
+    X(light, light, uint8_t, 1)              \
+    X(kind, kind, uint8_t, 1)                \
+    X(fluorophore, fluorophore, int32_t, 1)  \
+    X(region, region, int32_t, 1)            \
+    X(scatterings, scatterings, uint32_t, 1) \
+    X(packet, packet, uint64_t, 1)           \
+    X(exit_order, exit_order, uint32_t, 1)   \
+    X(next_hit, next_hit, uint8_t, 1)
+
+// A column's name (the key of the binding's records dict) and its values per record.
+struct RecordColumn {
+    const char* name;
+    int width;
+};
+
 struct EscapeRecords {
-    std::vector<float> position, direction, normal, entry;  // 3 per record
-    std::vector<double> weight, energy;
-    std::vector<float> wavelength, max_depth;
-    std::vector<uint8_t> fluorescent, light, kind;
-    std::vector<int32_t> fluorophore, region;
-    std::vector<uint32_t> scatterings;
-    std::vector<uint64_t> packet;
-    std::vector<uint32_t> exit_order;
-    std::vector<uint8_t> next_hit;
+#define EP_DECLARE_COLUMN(column, member, type, width) std::vector<type> column;
+    EP_RECORD_COLUMNS(EP_DECLARE_COLUMN)
+#undef EP_DECLARE_COLUMN
 
     size_t size() const { return weight.size(); }
-    // Calls f(a.column, b.column) for every column, in one fixed order: the one
-    // list of columns that appending, serialising (unit_io) and any other
-    // column-wise operation share, so a new column cannot be forgotten.
+    // Calls f(a.column, b.column) for every column of EP_RECORD_COLUMNS, in its order.
     template <class A, class B, class F>
     static void zip_columns(A& a, B& b, F&& f) {
-        f(a.position, b.position), f(a.direction, b.direction), f(a.normal, b.normal), f(a.entry, b.entry);
-        f(a.weight, b.weight), f(a.energy, b.energy), f(a.wavelength, b.wavelength), f(a.max_depth, b.max_depth);
-        f(a.fluorescent, b.fluorescent), f(a.light, b.light), f(a.kind, b.kind), f(a.fluorophore, b.fluorophore);
-        f(a.region, b.region), f(a.scatterings, b.scatterings), f(a.packet, b.packet);
-        f(a.exit_order, b.exit_order), f(a.next_hit, b.next_hit);
+#define EP_ZIP_COLUMN(column, member, type, width) f(a.column, b.column);
+        EP_RECORD_COLUMNS(EP_ZIP_COLUMN)
+#undef EP_ZIP_COLUMN
     }
+    // Calls f(column, RecordColumn{name, width}) for every column, in the same order.
     template <class R, class F>
     static void for_each_column(R& r, F&& f) {
-        zip_columns(r, r, [&](auto& col, auto&) { f(col); });
+#define EP_VISIT_COLUMN(column, member, type, width) f(r.column, RecordColumn{#column, width});
+        EP_RECORD_COLUMNS(EP_VISIT_COLUMN)
+#undef EP_VISIT_COLUMN
     }
     void push(const EscapeRecord& r);
     // Appends the first `count` records of `other` (all if count exceeds its size).

@@ -1,7 +1,5 @@
 #include "scene.h"
 
-#include <sys/mman.h>
-
 #include <algorithm>
 #include <cstdlib>
 #include <memory>
@@ -288,7 +286,6 @@ Scene::Scene(Float unit_cm, Float ambient_n) : unit_cm_(unit_cm), ambient_n_(amb
 }
 
 Scene::~Scene() {
-    release_cell_caches();
     if (scene_) rtcReleaseScene(scene_);
     if (device_) rtcReleaseDevice(device_);
 }
@@ -410,9 +407,7 @@ void Scene::commit() {
     compute_edge_planes();
     compute_isolation();
     no_cache_ = std::make_unique<TriangleCache>();
-    cell_block_bytes_.reset(store_block(grid_.cell_count() * sizeof(std::atomic<CellBlock*>)));
-    cell_blocks_ = reinterpret_cast<std::atomic<CellBlock*>*>(cell_block_bytes_.get());
-    for (size_t i = 0; i < grid_.cell_count(); ++i) new (&cell_blocks_[i]) std::atomic<CellBlock*>(nullptr);
+    cells_.reset(grid_.cell_count());
     committed_ = true;
 }
 
@@ -675,25 +670,18 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     // cost ~400 of a build's ~2.8k instructions on colon_polyp; callgrind.)
     struct Builder {
         TriangleCache scratch;
-        StoreCursor cursor;
+        CellCacheStore::Cursor cursor;
     };
     thread_local Builder builder;
-    CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
-    if (!block) {
-        if (store_full()) return *no_cache_;
-        // In the store too, beside the caches (huge pages: store_block).
-        CellBlock* made = new (store_allocate(sizeof(CellBlock), builder.cursor)) CellBlock();
-        block = nullptr;
-        if (cell_blocks_[cell].compare_exchange_strong(block, made, std::memory_order_acq_rel))
-            block = made;  // else another thread was first; `made` stays unused in the store
-    }
-    std::atomic<TriangleCache*>& slot = block->cube[cube];
+    std::atomic<TriangleCache*>* slot_ptr = cells_.slot(cell, cube, builder.cursor);
+    if (!slot_ptr) return *no_cache_;  // the store is full
+    std::atomic<TriangleCache*>& slot = *slot_ptr;
     if (const TriangleCache* built = slot.load(std::memory_order_acquire)) return *built;
-    if (store_full()) return *no_cache_;  // the same answers through the full query
+    if (cells_.full()) return *no_cache_;  // the same answers through the full query
     const Float side = grid_.cell_size() / kCellSplit;
     TriangleCache& scratch = builder.scratch;
     if (gather_triangles(c, side, kCellMaxTriangles, scratch) && scratch.size() == 0) widen_empty(c, side, scratch);
-    void* bytes = store_allocate(TriangleCache::frozen_size(scratch), builder.cursor);
+    void* bytes = cells_.allocate(TriangleCache::frozen_size(scratch), builder.cursor);
     TriangleCache* built = TriangleCache::freeze(scratch, bytes);
     TriangleCache* expected = nullptr;
     if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
@@ -717,60 +705,6 @@ void Scene::widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const
     for (const Float k : kEmptyWiden)
         if (gather_triangles(c, k * side, 0, scratch)) return;
     scratch.reset(c, side);  // known empty at one side
-}
-
-uint64_t Scene::new_store_id() {
-    static std::atomic<uint64_t> last{0};
-    return ++last;
-}
-
-unsigned char* Scene::store_block(size_t bytes) {
-    // Aligned to a cache line (TriangleCache::kFrozenAlign) at least; a block
-    // of a huge page or more to one, and advised onto huge pages (THP in its
-    // "madvise" mode, Debian's default; elsewhere the advice changes nothing).
-    const size_t align = bytes >= kHugePage ? kHugePage : TriangleCache::kFrozenAlign;
-    bytes = std::max(align, (bytes + align - 1) / align * align);  // never 0 (an empty grid's slots)
-    void* p = std::aligned_alloc(align, bytes);
-    if (!p) throw std::bad_alloc();
-    if (align == kHugePage) madvise(p, bytes, MADV_HUGEPAGE);
-    return static_cast<unsigned char*>(p);
-}
-
-void* Scene::store_allocate(size_t bytes, StoreCursor& cursor) const {
-    // Blocks start on a cache line (TriangleCache::kFrozenAlign): a frozen
-    // cache's members that a hop reads are then one line, its planes next.
-    constexpr size_t kAlign = TriangleCache::kFrozenAlign;
-    static_assert(alignof(TriangleCache) <= kAlign, "frozen caches need a finer store");
-    bytes = (bytes + kAlign - 1) / kAlign * kAlign;
-    if (cursor.store != store_id_ || cursor.left < bytes) {
-        // The rest of the thread's last chunk (of this scene or another) stays
-        // unused. Small chunks while the store is small (a small scene's store
-        // stays small), huge pages once it holds one.
-        const size_t chunk = cache_store_bytes() >= kHugePage ? kHugePage : kStoreSmallChunk;
-        const size_t size = std::max(chunk, bytes);
-        std::lock_guard<std::mutex> lock(store_mutex_);
-        store_chunks_.emplace_back(store_block(size));
-        store_bytes_.fetch_add(size, std::memory_order_relaxed);
-        cursor = StoreCursor{store_id_, store_chunks_.back().get(), size};
-    }
-    void* p = cursor.next;
-    cursor.next += bytes;
-    cursor.left -= bytes;
-    return p;
-}
-
-void Scene::release_cell_caches() {
-    if (!cell_blocks_) return;
-    for (size_t i = 0; i < grid_.cell_count(); ++i)
-        if (CellBlock* b = cell_blocks_[i].load()) {
-            for (auto& c : b->cube)
-                if (TriangleCache* t = c.load()) t->~TriangleCache();  // its block is the store's
-            b->~CellBlock();                                           // so is the cell's
-        }
-    cell_blocks_ = nullptr;
-    cell_block_bytes_.reset();
-    store_chunks_.clear();  // no thread bumps through them again: store_id_ names this scene only
-    store_bytes_.store(0, std::memory_order_relaxed);
 }
 
 bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {

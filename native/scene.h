@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "cell_cache_store.h"
 #include "medium.h"
 #include "mesh_check.h"
 #include "triangle_grid.h"
@@ -153,14 +154,12 @@ class Scene {
     // answers more slowly. So a long run in a finely meshed scene, whose
     // light reaches millions of cubes, keeps its memory bounded; the cubes
     // built by then, where the light came first, keep their caches.
-    static constexpr size_t kDefaultStoreCapBytes = size_t(1) << 29;  // 512 MiB
-    // The store grows by chunks of 64 KiB until it holds a huge page, then by
-    // huge pages (store_block).
-    static constexpr size_t kStoreSmallChunk = size_t(1) << 16, kHugePage = size_t(1) << 21;
-    size_t cache_store_bytes() const { return store_bytes_.load(std::memory_order_relaxed); }
-    size_t cache_store_cap_bytes() const { return store_cap_.load(std::memory_order_relaxed); }
+    // (The store: cell_cache_store.h.)
+    static constexpr size_t kDefaultStoreCapBytes = CellCacheStore::kDefaultCapBytes;
+    size_t cache_store_bytes() const { return cells_.bytes(); }
+    size_t cache_store_cap_bytes() const { return cells_.cap_bytes(); }
     // For the scene's next builds (also mid-run: a thread reads it per build).
-    void set_cache_store_cap_bytes(size_t bytes) { store_cap_.store(bytes, std::memory_order_relaxed); }
+    void set_cache_store_cap_bytes(size_t bytes) { cells_.set_cap_bytes(bytes); }
     // The cache of the cube around p if it is built, else null (also outside
     // the grid): cell_cache's lookup alone, inline and without a call, for
     // the interior steps' loop (transport.cpp), which hops to a built cube
@@ -170,8 +169,7 @@ class Scene {
         int cube;
         Vec3 centre;
         if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &centre)) return nullptr;
-        const CellBlock* block = cell_blocks_[cell].load(std::memory_order_acquire);
-        return block ? block->cube[cube].load(std::memory_order_acquire) : nullptr;
+        return cells_.built(cell, cube);
     }
     // Per scene-wide triangle, for the gathers' ball test (GatherData::offer):
     // its outward normal (Region::normals, copied) and the three planes
@@ -194,9 +192,7 @@ class Scene {
         Vec3 v1() const { return Vec3(p1[0], p1[1], p1[2]); }
         Vec3 v2() const { return Vec3(p2[0], p2[1], p2[2]); }
     };
-    // Measured best on colon_polyp (docs/numerics.md): 2 gives cubes too
-    // crowded with triangles, 4 more hops and builds.
-    static constexpr int kCellSplit = 3;
+    static constexpr int kCellSplit = CellCacheStore::kCellSplit;
     // The radii (in cube sides, widest first) an empty cube's ball tries
     // (cell_cache): the widest that no triangle meets is its ball.
     static constexpr Float kEmptyWiden[] = {2};
@@ -216,46 +212,11 @@ class Scene {
     std::vector<std::string> fluor_names_;
     Float bbox_min_[3] = {0, 0, 0}, bbox_max_[3] = {0, 0, 0};
     TriangleGrid grid_;
-    std::vector<uint32_t> region_base_;  // scene-wide index of each region's first triangle
-    // cell_cache's store: per grid cell a block of kCellSplit^3 caches, both
-    // levels allocated on first use (the grid of a large scene has up to
-    // 128^3 cells, few of them ever visited).
-    // The level-1 slots and the store's chunks are on huge pages once they
-    // are that large (store_block): a hop reads a cell's slot and the cube's
-    // cache, spread over the store, and with 4 KiB pages it missed the TLB
-    // too (AMD EPYC: colon_polyp ~1.16x packets/s; Intel Xeon: no change).
-    struct FreeBlock {
-        void operator()(unsigned char* p) const { std::free(p); }
-    };
-    static unsigned char* store_block(size_t bytes);
-    std::unique_ptr<unsigned char, FreeBlock> cell_block_bytes_;
-    struct CellBlock {
-        std::atomic<TriangleCache*> cube[kCellSplit * kCellSplit * kCellSplit] = {};
-    };
-    std::atomic<CellBlock*>* cell_blocks_ = nullptr;  // cell_count() slots in cell_block_bytes_
-    std::unique_ptr<TriangleCache> no_cache_;         // covers nothing
-    void release_cell_caches();
+    std::vector<uint32_t> region_base_;        // scene-wide index of each region's first triangle
+    CellCacheStore cells_;                     // cell_cache's caches
+    std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     // Widens the ball of the empty cache `scratch` (centre c, radius side).
     void widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const;
-    // The store the frozen caches live in (TriangleCache::freeze): chunks the
-    // scene owns, each thread bumping through one of its own, so a build
-    // takes the lock only for a new chunk (a malloc per cube cost ~450
-    // instructions of its ~4k, a lock on every build ~70; callgrind).
-    mutable std::mutex store_mutex_;
-    mutable std::vector<std::unique_ptr<unsigned char, FreeBlock>> store_chunks_;
-    mutable std::atomic<size_t> store_bytes_{0};  // the chunks allocated (cell blocks and caches)
-    std::atomic<size_t> store_cap_{kDefaultStoreCapBytes};
-    bool store_full() const { return cache_store_bytes() >= cache_store_cap_bytes(); }
-    // A thread's place in its chunk: plain data in a thread_local, valid for
-    // the scene whose store_id_ it names (0: none).
-    struct StoreCursor {
-        uint64_t store = 0;
-        unsigned char* next = nullptr;
-        size_t left = 0;
-    };
-    static uint64_t new_store_id();
-    const uint64_t store_id_ = new_store_id();  // unique per Scene object
-    void* store_allocate(size_t bytes, StoreCursor& cursor) const;
     std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double
     std::vector<EdgePlanes> edge_planes_;
     void compute_edge_planes();

@@ -42,14 +42,13 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records);
 // Throws std::invalid_argument unless `a` has shape (N, 3); `what` names the field.
 void require_rows_of_3(const py::array& a, const std::string& what);
 
-void bind_scene(py::module_& m);       // scene.cpp: Scene
-void bind_source(py::module_& m);      // source.cpp: Source
-void bind_run(py::module_& m);         // run.cpp: CancelToken, RunConfig, run
-void bind_mesh_check(py::module_& m);  // mesh_check.cpp: check_mesh
-void bind_testing(py::module_& m);
-void bind_surface_hits(py::module_& m);
-void bind_distributed(
-    py::module_& m);  // distributed.cpp: unit_plan, trace_units, UnitReducer  // surface_hits.cpp: first_surfaces
-                      // (endoscope view rays)     // testing.cpp: the _testing submodule (test-only hooks)
+void bind_scene(py::module_& m);           // scene.cpp: Scene
+void bind_source(py::module_& m);          // source.cpp: Source
+void bind_run(py::module_& m);             // run.cpp: CancelToken, RunConfig, run, check_run
+void bind_mesh_check(py::module_& m);      // mesh_check.cpp: check_mesh
+void bind_spectrum_check(py::module_& m);  // spectrum_check.cpp: check_spectrum, check_eem
+void bind_surface_hits(py::module_& m);    // surface_hits.cpp: first_surfaces (endoscope view rays)
+void bind_distributed(py::module_& m);     // distributed.cpp: unit_plan, trace_units, UnitReducer
+void bind_testing(py::module_& m);         // testing.cpp: the _testing submodule (test-only hooks)
 
 }  // namespace ep::bind

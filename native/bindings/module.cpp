@@ -2,7 +2,8 @@
 // arrays and keyword arguments, releases the GIL for the run, and hands result
 // columns back as numpy arrays that own their memory through capsules.
 // No physics lives here. One file per bound interface (Mitsuba 3 style):
-// scene.cpp, source.cpp, run.cpp, mesh_check.cpp; hooks that only tests use
+// scene.cpp, source.cpp, run.cpp, mesh_check.cpp, spectrum_check.cpp,
+// surface_hits.cpp, distributed.cpp; hooks that only tests use
 // live in the submodule endophoton._core._testing (testing.cpp).
 #include <stdexcept>
 
@@ -45,6 +46,7 @@ PYBIND11_MODULE(_core, m) {
     ep::bind::bind_source(m);
     ep::bind::bind_run(m);
     ep::bind::bind_mesh_check(m);
+    ep::bind::bind_spectrum_check(m);
     ep::bind::bind_surface_hits(m);
     ep::bind::bind_distributed(m);
     py::module_ testing = m.def_submodule("_testing", "Test-only hooks into the engine's samplers and scene queries");

@@ -1,6 +1,7 @@
 // Binding of a run: CancelToken, RunConfig (native/run_config.h, one attribute
-// per field; keyword construction RunConfig(photons=..., seed=...)) and run(),
-// which releases the GIL and returns the estimates and records as a dict.
+// per field; keyword construction RunConfig(photons=..., seed=...)), run(),
+// which releases the GIL and returns the estimates and records as a dict, and
+// check_run(), run()'s validation alone.
 #include <stdexcept>
 
 #include "common.h"
@@ -32,26 +33,15 @@ py::dict estimates_dict(const RunResult& r, const Scene& scene) {
     return d;
 }
 
+// One numpy array per column of EP_RECORD_COLUMNS (native/records.h), named
+// as there: shape (N, 3) for vectors, (N,) otherwise; the columns move, uncopied.
 py::dict records_dict(EscapeRecords&& rec) {
     const py::ssize_t n = py::ssize_t(rec.size());
     py::dict d;
-    d["position"] = take(std::move(rec.position), {n, 3});
-    d["direction"] = take(std::move(rec.direction), {n, 3});
-    d["normal"] = take(std::move(rec.normal), {n, 3});
-    d["entry"] = take(std::move(rec.entry), {n, 3});
-    d["weight"] = take(std::move(rec.weight), {n});
-    d["energy"] = take(std::move(rec.energy), {n});
-    d["wavelength"] = take(std::move(rec.wavelength), {n});
-    d["max_depth"] = take(std::move(rec.max_depth), {n});
-    d["fluorescent"] = take(std::move(rec.fluorescent), {n});
-    d["light"] = take(std::move(rec.light), {n});
-    d["kind"] = take(std::move(rec.kind), {n});
-    d["fluorophore"] = take(std::move(rec.fluorophore), {n});
-    d["region"] = take(std::move(rec.region), {n});
-    d["scatterings"] = take(std::move(rec.scatterings), {n});
-    d["packet"] = take(std::move(rec.packet), {n});
-    d["exit_order"] = take(std::move(rec.exit_order), {n});
-    d["next_hit"] = take(std::move(rec.next_hit), {n});
+    EscapeRecords::for_each_column(rec, [&](auto& column, RecordColumn c) {
+        d[c.name] = take(std::move(column), c.width == 1 ? std::vector<py::ssize_t>{n}
+                                                         : std::vector<py::ssize_t>{n, py::ssize_t(c.width)});
+    });
     return d;
 }
 
@@ -185,6 +175,16 @@ void bind_run(py::module_& m) {
         },
         py::arg("scene"), py::arg("source"), py::arg("config"), py::arg("progress") = py::none(),
         py::arg("cancel") = nullptr);
+    m.def(
+        "check_run",
+        [](std::shared_ptr<Scene> scene, std::shared_ptr<Source> source, const RunConfig& config) {
+            std::vector<std::string> warnings;
+            prepare_config(*scene, *source, config, &warnings);
+            return warnings;
+        },
+        py::arg("scene"), py::arg("source"), py::arg("config"),
+        "Validates a request as run() does before it traces a packet (ValueError naming the field), without "
+        "tracing; returns the warnings the run would start with.");
 }
 
 }  // namespace ep::bind

@@ -236,17 +236,20 @@ def check_run(scene: Scene, source, **kwargs) -> list[str]:
     validation of the request. Raises ValueError naming the field or region (the engine's own
     errors are ``_core.InvalidArgument``, a ValueError); returns the notes the run would add to
     its warnings. Writes no file."""
-    return _prepare(_arguments(scene, source, kwargs))[1]
+    return _prepare(_arguments(scene, source, kwargs), engine_check=True)[1]
 
 
-def _prepare(a: SimpleNamespace) -> tuple[dict, list[str], object, object]:
+def _prepare(a: SimpleNamespace, engine_check: bool) -> tuple[dict, list[str], object, object]:
     """:func:`check_run` of :func:`run`'s arguments ``a``: (engine options, notes, native scene,
-    native source)."""
+    native source). ``engine_check``: also the engine's validation of the request (``_core.check_run``);
+    a run leaves it to the engine call that traces (``_core.run``, or ``_core.unit_plan`` on a cluster),
+    which validates first, so that a run crosses into the engine once."""
     opts = _request(a)
     notes = placement.check_rig(a.scene, a.source)  # the endoscope head in the ambient (ValueError), its body
     native_scene = a.scene.to_native()
     native_source = _core.Source(a.source.native_lights(a.scene.unit_cm), body=a.source.native_body(a.scene.unit_cm))
-    _core.unit_plan(native_scene, native_source, _core.RunConfig(**opts))  # the engine's validation, no tracing
+    if engine_check:
+        _core.check_run(native_scene, native_source, _core.RunConfig(**opts))  # the engine's validation, no tracing
     return opts, notes, native_scene, native_source
 
 
@@ -347,7 +350,7 @@ def run(
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
     # every argument of this call, captured once by name, checked as check_run() checks them
-    opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**locals()))
+    opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**locals()), engine_check=False)
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 

@@ -1,10 +1,10 @@
 """Spectra, excitation-emission matrices (EEMs) and fluorophores.
 
-Pure numpy; no dependency on the native module.  The classes here validate
-user input and carry arrays to the engine, which uses the C++ counterparts
-``ep::Tabulated1D`` (native/spectrum.h) and ``ep::EEM`` (native/eem.h).  Error
-messages match the C++ ones word for word, and numbers are printed with
-``%g`` on both sides.
+The classes here carry user arrays to the engine, which uses the C++
+counterparts ``ep::Tabulated1D`` (native/spectrum.h) and ``ep::EEM``
+(native/eem.h).  The engine owns their rules: a Spectrum and an EEM are checked
+by ``_core.check_spectrum`` and ``_core.check_eem`` (native/spectrum_check.h),
+the checks ``ep::EEM`` itself makes, before the arrays are kept.
 
 Units: wavelengths in nm throughout.  Spectrum values are in the caller's
 units (relative power for a light, cm^-1 for a coefficient).  EEM values are
@@ -13,7 +13,6 @@ relative photon counts per nm of emission; only ratios matter.
 See docs/fluorescence.md for the fluorescence model and the CSV format.
 """
 
-import math
 import reprlib
 from pathlib import Path
 
@@ -38,7 +37,7 @@ FLUOROPHORE_DEFAULTS = {kind: list(fluorophores) for kind, fluorophores in FLUOR
 
 
 def _g(v):
-    """Format a number as C's %g does (what native/*.cpp use in messages)."""
+    """Format a number as %g does (for the reprs and the fluorophore's messages)."""
     return f"{float(v):g}"
 
 
@@ -48,38 +47,6 @@ def _g(v):
 #: The engine owns the rule (kMinWavelengthNm, kMaxWavelengthNm in native/spectrum.h; its EEM checks it too).
 MIN_WAVELENGTH_NM = float(_core.MIN_WAVELENGTH_NM)
 MAX_WAVELENGTH_NM = float(_core.MAX_WAVELENGTH_NM)
-
-
-def _check_wavelengths(where, field, w, min_size):
-    """Validate a 1-D wavelength array (nm): size, finite, in [MIN_WAVELENGTH_NM, MAX_WAVELENGTH_NM],
-    strictly increasing.
-
-    Messages equal those of check_wavelengths() in native/eem.cpp.
-    """
-    if w.ndim != 1:
-        raise ValueError(f"{where}{field} must be 1-D, got shape {tuple(w.shape)}")
-    if w.size < min_size:
-        unit = "entry" if min_size == 1 else "entries"
-        raise ValueError(f"{where}{field} needs at least {min_size} {unit}, got {w.size}")
-    with np.errstate(invalid="ignore"):
-        bad = ~np.isfinite(w) | ~(w >= MIN_WAVELENGTH_NM) | ~(w <= MAX_WAVELENGTH_NM)
-        bad[1:] |= ~(w[1:] > w[:-1])
-    if bad.any():
-        i = int(np.argmax(bad))
-        at = f"{field}[{i}] = {_g(w[i])}"
-        if not math.isfinite(w[i]):
-            raise ValueError(f"{where}{at} must be finite")
-        if not w[i] > 0:
-            raise ValueError(f"{where}{at} must be > 0")
-        if not MIN_WAVELENGTH_NM <= w[i] <= MAX_WAVELENGTH_NM:
-            raise ValueError(
-                f"{where}{at} is outside [{_g(MIN_WAVELENGTH_NM)}, {_g(MAX_WAVELENGTH_NM)}] nm "
-                "(soft X-rays to the far infrared)"
-            )
-        raise ValueError(
-            f"{where}{at} must be greater than {field}[{i - 1}] = {_g(w[i - 1])} "
-            "(wavelengths must be strictly increasing)"
-        )
 
 
 def _as_float_array(value, where, field):
@@ -116,19 +83,7 @@ class Spectrum:
         where = f"spectrum '{self._name}': "
         wl = _as_float_array(wavelength_nm, where, "wavelength_nm")
         v = _as_float_array(values, where, "values")
-        _check_wavelengths(where, "wavelength_nm", wl, 2)
-        if v.ndim != 1:
-            raise ValueError(f"{where}values must be 1-D, got shape {tuple(v.shape)}")
-        if v.size != wl.size:
-            raise ValueError(
-                f"{where}wavelength_nm has {wl.size} entries but values has {v.size}; " "they must have the same length"
-            )
-        with np.errstate(invalid="ignore"):
-            bad = ~np.isfinite(v) | (v < 0)
-        if bad.any():
-            i = int(np.argmax(bad))
-            rule = "must be finite" if not math.isfinite(v[i]) else "must be >= 0"
-            raise ValueError(f"{where}values[{i}] = {_g(v[i])} {rule}")
+        _core.check_spectrum(self._name, wl, v)
         wl.flags.writeable = False
         v.flags.writeable = False
         self._wl, self._values = wl, v
@@ -181,7 +136,7 @@ class EEM:
         emission, any scale), finite, >= 0, at least one > 0.
     name : identifies the EEM in error messages.
 
-    Raises ValueError with the same messages as ``ep::EEM`` in C++.
+    Raises ValueError naming the field and value: the engine's rules (``_core.check_eem``), as ``ep::EEM`` checks.
     """
 
     __slots__ = ("_name", "_ex", "_em", "_values", "_row_integral")
@@ -194,22 +149,7 @@ class EEM:
         ex = _as_float_array(excitation_nm, where, "excitation_nm")
         em = _as_float_array(emission_nm, where, "emission_nm")
         v = _as_float_array(values, where, "values")
-        _check_wavelengths(where, "excitation_nm", ex, 1)
-        _check_wavelengths(where, "emission_nm", em, 2)
-        n_ex, n_em = ex.size, em.size
-        if v.size != n_ex * n_em:
-            raise ValueError(f"{where}values has {v.size} entries, expected " f"{n_ex} x {n_em} = {n_ex * n_em}")
-        if v.shape != (n_ex, n_em):
-            raise ValueError(f"{where}values has shape {tuple(v.shape)}, expected " f"{n_ex} x {n_em} (n_ex x n_em)")
-        with np.errstate(invalid="ignore"):
-            bad = ~np.isfinite(v) | (v < 0)
-        if bad.any():
-            i, j = np.unravel_index(int(np.argmax(bad)), v.shape)
-            x = v[i, j]
-            rule = "must be finite" if not math.isfinite(x) else "must be >= 0"
-            raise ValueError(f"{where}values[{i}][{j}] (ex {_g(ex[i])} nm, em {_g(em[j])} nm) " f"= {_g(x)} {rule}")
-        if not (v > 0).any():
-            raise ValueError(f"{where}values are all 0; at least one must be positive")
+        _core.check_eem(self._name, ex, em, v)
         for a in (ex, em, v):
             a.flags.writeable = False
         self._ex, self._em, self._values = ex, em, v

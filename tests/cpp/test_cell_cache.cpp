@@ -235,7 +235,7 @@ TEST(CellCache, StoreStopsGrowingAtItsBudget) {
 }
 
 // The store grows by small chunks while it is small (a small scene's store
-// stays small) and by huge pages once it holds one (Scene::store_block).
+// stays small) and by huge pages once it holds one (CellCacheStore::block).
 TEST(CellCache, StoreGrowsBySmallChunksThenByHugePages) {
     Scenery sc;
     const double side = sc.s.grid().cell_size() / Scene::kCellSplit;
@@ -247,15 +247,15 @@ TEST(CellCache, StoreGrowsBySmallChunksThenByHugePages) {
                 sc.s.cell_cache(Vec3(x, y, z));
                 const size_t now = sc.s.cache_store_bytes();
                 if (now == last) continue;
-                if (last < Scene::kHugePage) {
-                    EXPECT_EQ(now - last, Scene::kStoreSmallChunk) << "at " << last << " bytes";
+                if (last < CellCacheStore::kHugePage) {
+                    EXPECT_EQ(now - last, CellCacheStore::kSmallChunk) << "at " << last << " bytes";
                     ++small_steps;
                 } else {
-                    EXPECT_EQ(now - last, Scene::kHugePage) << "at " << last << " bytes";
+                    EXPECT_EQ(now - last, CellCacheStore::kHugePage) << "at " << last << " bytes";
                     ++huge_steps;
                 }
                 last = now;
             }
-    EXPECT_EQ(small_steps, Scene::kHugePage / Scene::kStoreSmallChunk);
+    EXPECT_EQ(small_steps, CellCacheStore::kHugePage / CellCacheStore::kSmallChunk);
     EXPECT_GE(huge_steps, 1u);  // the test has teeth: the store grew past a huge page
 }

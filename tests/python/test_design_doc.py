@@ -50,7 +50,7 @@ def test_listed_package_modules_exist():
     assert sorted(m for m in modules if not os.path.isfile(os.path.join(pkg, m + ".py"))) == []
     # ... and every module of the package is listed, but for the deprecated shims of moved modules
     on_disk = set()
-    for sub in ("", "view", "sweep"):
+    for sub in ("", "view", "sweep", "analysis"):
         for f in os.listdir(os.path.join(pkg, sub)):
             text = open(os.path.join(pkg, sub, f)).read() if f.endswith(".py") else ""
             if f.endswith(".py") and f != "__init__.py" and "from ._moved import alias" not in text:

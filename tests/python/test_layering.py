@@ -20,7 +20,7 @@ PKG = "endophoton"
 FORBIDDEN = ("bpy", "bmesh", "mathutils", "addon_utils", "endophoton_addon")
 
 
-SUBPACKAGES = ("view", "sweep")
+SUBPACKAGES = ("view", "sweep", "analysis")
 
 
 def _module_files():

@@ -85,3 +85,27 @@ def test_run_after_check_gives_identical_results():
     }
     for k in kept.escapes:
         np.testing.assert_array_equal(kept.escapes[k], fresh.escapes[k])
+
+
+def test_a_local_run_crosses_into_the_engine_once(monkeypatch):
+    """ep.run leaves the engine's validation to _core.run, which validates before it traces:
+    neither the validate-only call nor the Dask planning call is made, and a bad request still
+    gets the engine's named error (from _core.run)."""
+    from endophoton import _core
+
+    calls = []
+
+    def refuse(name):
+        def call(*args, **kwargs):
+            calls.append(name)
+            raise AssertionError(f"_core.{name} called by a local run")
+
+        return call
+
+    monkeypatch.setattr(_core, "check_run", refuse("check_run"))
+    monkeypatch.setattr(_core, "unit_plan", refuse("unit_plan"))
+    res = ep.run(_slab(), DOWN, photons=200, seed=1, threads=1)
+    assert res.photons == 200 and calls == []
+    with pytest.raises(ep._core.InvalidArgument, match=r"store = 10 with fluorescent_only = True needs a fluorophore"):
+        ep.run(_slab(), DOWN, store=10, fluorescent_only=True)
+    assert calls == []

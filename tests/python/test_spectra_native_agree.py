@@ -1,8 +1,8 @@
-"""spectra.py validates EEMs and spectra in Python (so errors surface before
-anything reaches the engine) and the engine validates them again in C++
-(native/eem.cpp, native/spectrum.cpp).  Two copies of one rule drift apart
-unless something holds them together: these tests feed the same inputs to both
-sides and require the same verdict — and, for EEMs, the same message word for word.
+"""spectra.py's EEM and Spectrum are checked by the engine's rules (native/spectrum_check.h, through
+_core.check_eem and _core.check_spectrum), the same check_eem that ep::EEM's constructor makes
+(native/eem.cpp), and the engine validates light spectra again as Tabulated1D (native/spectrum.cpp).
+These tests feed the same inputs to the package and to the engine's own paths and require the
+same verdict — and, for EEMs, the same message word for word.
 """
 import math
 import re

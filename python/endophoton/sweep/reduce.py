@@ -13,6 +13,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .. import analysis as an
+from ..analysis.batches import _ratio_with_se
 from ..io import finite_or_none, no_nan
 from ..paper import IMPORTANT_ANGLE_DEG
 from ..units import unit_cm
@@ -164,7 +165,7 @@ def analyse_run(
     vals, hist, fb, hb = frame(None)
     tot_b = hb.sum(axis=(1, 2))
     high_b = hb[:, high, :].sum(axis=(1, 2))
-    hf, hf_se, hf_b = an._ratio_with_se(high_b, tot_b)
+    hf, hf_se, hf_b = _ratio_with_se(high_b, tot_b)
     row = {
         "records": K,
         "packets_traced": P,

@@ -1,6 +1,6 @@
 """The camera that looks at a scene: a pinhole with an optional thin-lens aperture.
 
-Conventions (the same as ``analysis.important_mask`` and Blender's camera):
+Conventions (:meth:`Camera.frame`, which ``analysis.important_mask`` uses too; Blender's camera's):
 ``fov_deg`` is the full field of view across the larger image dimension;
 image x points along ``right = forward x up``, image y along the true up;
 pixel row 0 is the top row. Lengths are in scene units.
@@ -80,18 +80,21 @@ class Camera:
         return cls(c["position"], c["forward"], c["up"], c["fov_deg"], aperture_radius)
 
     def frame(self, width: int, height: int) -> dict:
-        """Orthonormal frame and image half-extents: position, forward, right, up, tan_x, tan_y."""
-        from ..analysis import _camera  # one owner of the pinhole convention
-
-        return _camera(
-            dict(
-                position=self.position,
-                forward=self.forward,
-                up=self.up,
-                fov_deg=self.fov_deg,
-                resolution=(int(width), int(height)),
-            )
-        )
+        """The pinhole frame of a ``width`` x ``height`` pixel image: ``position``; the orthonormal
+        ``forward``, ``right`` = forward x up and true ``up`` = right x forward; and the image's
+        half-extents on the plane at depth 1, ``tan_x``, ``tan_y``: ``fov_deg`` spans the larger image
+        side (Blender's AUTO sensor fit), the other gets tan(fov/2) * smaller/larger. The one owner of
+        the convention (``analysis.important_mask`` and the render use it)."""
+        if isinstance(width, bool) or isinstance(height, bool) or int(width) <= 0 or int(height) <= 0:
+            raise ValueError(f"camera.resolution = {(width, height)} must be (width, height) > 0")
+        w, h = int(width), int(height)
+        f = self.forward / np.linalg.norm(self.forward)
+        r = np.cross(f, self.up)
+        r /= np.linalg.norm(r)
+        u = np.cross(r, f)
+        t = math.tan(math.radians(self.fov_deg) / 2.0)
+        tx, ty = (t, t * h / w) if w >= h else (t * w / h, t)
+        return dict(position=np.asarray(self.position, dtype=np.float64), forward=f, right=r, up=u, tan_x=tx, tan_y=ty)
 
     def primary_rays(self, width: int, height: int) -> np.ndarray:
         """Unit directions (H*W, 3) through the pixel centres, row-major from the top-left pixel."""
