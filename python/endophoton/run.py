@@ -13,6 +13,7 @@ from types import SimpleNamespace
 from . import _core, placement
 from .quality import quality_preset
 from .scene import Scene
+from .callbacks import checked_progress
 from .io import check_bool, check_int, check_path, check_real
 from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
 
@@ -328,7 +329,8 @@ def run(
     ``target`` (until the relative standard error of a tally reaches the target)
     chooses when to stop. The run releases the GIL; ``progress(done, total)`` is
     called about 10 times a second from the calling thread and may return False
-    to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
+    to stop (None or True go on; any other value is a TypeError naming ``progress``,
+    endophoton.callbacks); ``cancel`` (a CancelToken) can stop it from any thread, and the
     partial result then has ``cancelled=True``.
 
     ``client`` (a dask.distributed.Client) traces the packets on its workers in
@@ -348,6 +350,7 @@ def run(
     """
     # every argument of this call, captured once by name, checked as check_run() checks them
     opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**locals()))
+    progress = checked_progress("progress", progress)  # a value other than None/True/False: TypeError naming it
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 
