@@ -9,7 +9,6 @@ standard error.  It is written as CSV (the rows) and as strict JSON (format
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -18,7 +17,7 @@ from typing import Iterable
 
 import numpy as np
 
-from ..io import atomic_write_text, jsonable, unjson, write_json
+from ..io import atomic_write_text, jsonable, read_json_file, unjson, write_json
 
 __all__ = [
     "CSV_COLUMNS",
@@ -181,8 +180,7 @@ class SweepResult:
     def from_json(cls, path: str | os.PathLike) -> "SweepResult":
         """Read a file written by :meth:`to_json`: a ``null`` cell of a row comes back as None, arrays as
         numpy float arrays (``null`` -> nan)."""
-        with open(path, "r", encoding="utf-8") as f:
-            d = json.load(f)
+        d = read_json_file(path, "sweep file")
         if d.get("format") != "endophoton-sweep/1":
             raise ValueError(f"{path}: format = {d.get('format')!r} is not endophoton-sweep/1")
         rows = [dict(r) for r in d["rows"]]
