@@ -20,6 +20,10 @@ from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-export
 CancelToken = _core.CancelToken
 #: Largest packet count a request may name (photons, store, max_photons): 2^62.
 MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
+#: Packet cap of a target run without max_photons (2^30; the engine's kDefaultTargetMaxPackets). Such a
+#: run also stops early, as "target_unreachable" with a warning, once the packets its error so far
+#: projects exceed ten times this cap (docs/numerics.md, "Unreachable targets").
+DEFAULT_TARGET_MAX_PHOTONS = int(_core.DEFAULT_TARGET_MAX_PACKETS)
 #: Largest thread count a run accepts (a count the system cannot start is a named error too).
 MAX_THREADS = 4096
 
@@ -327,7 +331,10 @@ def run(
     Exactly one of ``photons`` (launch that many packets), ``store`` (launch
     until that many escape records are stored; the seed's "store N") or
     ``target`` (until the relative standard error of a tally reaches the target)
-    chooses when to stop. The run releases the GIL; ``progress(done, total)`` is
+    chooses when to stop. A target run without ``max_photons`` is capped at
+    :data:`DEFAULT_TARGET_MAX_PHOTONS` and stops early (``stop_reason``
+    "target_unreachable", a warning naming the packets it would need) once its
+    error so far projects more than ten times that cap. The run releases the GIL; ``progress(done, total)`` is
     called about 10 times a second from the calling thread and may return False
     to stop (None or True go on; any other value is a TypeError naming ``progress``,
     endophoton.callbacks); ``cancel`` (a CancelToken) can stop it from any thread, and the
