@@ -7,8 +7,9 @@ Two kinds of callback reach the package:
   counts as a bool). Anything else, e.g. the string ``"continue"``, is a TypeError naming the
   callback and the value's type: a truthy string must not pass as "go on" nor abort the process.
 - a *notification* (``on_run``, ``on_beta``, ``on_chunks``, ``on_chunk``, ``on_finished``) is told
-  something and answers nothing: it must return ``None``. A value there would be ignored, and a
-  caller returning ``False`` in the belief that it stops the sweep would be misled.
+  something and answers nothing: its value is ignored (``kept.setdefault(i, result)`` is a fine
+  on_run), but a bool is refused by name, TypeError: ``False`` would read as "stop", which a
+  notification cannot do (cancel= or a progress callback stops a run).
 
 The engine's binding (native/bindings/run.cpp) applies the progress rule once more to whatever
 callable reaches it directly, so no return value can end the process (it used to abort it).
@@ -53,16 +54,17 @@ def checked_progress(name: str, fn: Callable | None) -> Callable | None:
 
 
 def notification_done(name: str, value: Any) -> None:
-    """A notification callback ``name`` returned ``value``: None, else a TypeError naming it."""
-    if value is not None:
+    """A notification callback ``name`` returned ``value``: ignored, but a bool (numpy's too) is a
+    TypeError naming it (a notification cannot answer go on or stop)."""
+    if isinstance(value, (bool, np.bool_)):
         raise TypeError(
-            f"{name} returned {_kind(value)} {_short(value)}: it must return None (its value would be ignored; "
-            "to stop, use cancel= or a progress callback returning False)"
+            f"{name} returned {_kind(value)} {_short(value)}: a notification cannot stop or continue anything "
+            "(its value is ignored): to stop, use cancel= or a progress callback returning False"
         )
 
 
 def checked_notification(name: str, fn: Callable | None) -> Callable | None:
-    """``fn`` (a notification callback, or None) wrapped so that a returned value is refused."""
+    """``fn`` (a notification callback, or None) wrapped so that a returned bool is refused."""
     if fn is None:
         return None
 

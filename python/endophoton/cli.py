@@ -8,6 +8,7 @@ Every subcommand runs through :func:`run_guarded`, which maps errors to these co
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import math
@@ -143,17 +144,26 @@ def _check_one_budget(args) -> None:
 _early_interrupts: list = []
 
 
-def _run_interruptible(run, *a, **kw):
-    """Ctrl-C cancels the run (within ~0.1 s: the engine runs signal handlers at every
-    progress tick); the partial result, marked cancelled, is returned."""
+@contextlib.contextmanager
+def sigint_cancels():
+    """While open, Ctrl-C (SIGINT) cancels the CancelToken it yields instead of raising
+    KeyboardInterrupt (the engine runs signal handlers at every progress tick, so a run stops
+    within ~0.1 s). Kept open while the outputs are written, so that a second Ctrl-C cannot cut
+    the writing of what the first one kept."""
     from .run import CancelToken
 
     token = CancelToken()
     previous = signal.signal(signal.SIGINT, lambda signum, frame: token.cancel())
     try:
-        return run(*a, cancel=token, **kw)
+        yield token
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def _run_interruptible(run, *a, **kw):
+    """Ctrl-C cancels the run (:func:`sigint_cancels`); the partial result, marked cancelled, is returned."""
+    with sigint_cancels() as token:
+        return run(*a, cancel=token, **kw)
 
 
 def main(argv=None) -> int:
@@ -194,7 +204,11 @@ def _main(argv) -> int:
         help="tally for --target-rel-error (default diffuse_reflectance)",
     )
     p_run.add_argument(
-        "--max-photons", type=int_arg(0, MAX_PACKETS), default=0, help="upper bound in target mode (0 = none)"
+        "--max-photons",
+        type=int_arg(0, MAX_PACKETS),
+        default=0,
+        help="upper bound in target mode (0 = the default cap, 2^30; an unreachable target then stops early "
+        "with a warning)",
     )
     p_run.add_argument(
         "--quality",

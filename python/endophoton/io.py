@@ -214,12 +214,28 @@ def check_path(name: str, v) -> str:
 
 def check_output_files(folder: str | os.PathLike, names) -> list[str]:
     """The paths ``folder/name`` of the files a writer is about to write, checked before it writes
-    any: a path that exists must not be a directory (``os.replace`` cannot put a file there, so the
-    writer would stop half way, leaving its new files beside old ones). ValueError naming the path."""
+    any: a path that exists must be a regular file, the rule of the grid writer
+    (``vdb_writer.cpp`` ``check_vdb_path``). A directory (``os.replace`` cannot put a file there, so
+    the writer would stop half way, leaving its new files beside old ones), a FIFO, socket or device
+    (the rename would silently replace it) and any symbolic link (replacing it breaks the link;
+    writing through it puts the file where the path does not say) are refused: ValueError naming
+    the path, before anything is written."""
     paths = [os.path.join(os.fspath(folder), n) for n in names]
     for p in paths:
-        if os.path.isdir(p) and not os.path.islink(p):
+        try:
+            mode = os.lstat(p).st_mode
+        except FileNotFoundError:
+            continue
+        except OSError as e:
+            raise ValueError(f"output file {p!r}: cannot check it: {e.strerror or e} (nothing was written)") from None
+        if stat.S_ISDIR(mode):
             raise ValueError(f"output file {p!r} is a directory: remove or rename it (nothing was written)")
+        if stat.S_ISLNK(mode):
+            raise ValueError(f"output file {p!r} is a symbolic link: remove it (nothing was written)")
+        if not stat.S_ISREG(mode):
+            raise ValueError(
+                f"output file {p!r} is not a regular file (a FIFO, socket or device): remove it (nothing was written)"
+            )
     return paths
 
 

@@ -69,12 +69,15 @@ def test_progress_returning_false_still_stops_the_run():
 @pytest.mark.slow
 def test_sweep_callbacks_are_checked_by_name(tmp_path):
     """The sweep's progress(i, n, done, total) answers like ep.run's; on_run/on_beta are told and
-    answer nothing (a value is a TypeError naming them, not silently ignored)."""
+    answer nothing: their value is ignored, but False (read as "stop") is a TypeError naming them."""
     kw = dict(betas=[0.0], store=200, n_batches=10, threads=1, plots=False, report=False)
-    with pytest.raises(TypeError, match=r"^on_run returned int 1"):
-        ep.sweep(progress=False, on_run=lambda i, b, r: 1, **kw)
-    with pytest.raises(TypeError, match=r"^on_beta returned str"):
-        ep.sweep(progress=False, on_beta=lambda i, n, row: "done", **kw)
+    with pytest.raises(TypeError, match=r"^on_run returned bool False"):
+        ep.sweep(progress=False, on_run=lambda i, b, r: False, **kw)
+    with pytest.raises(TypeError, match=r"^on_beta returned bool_ True"):
+        ep.sweep(progress=False, on_beta=lambda i, n, row: np.bool_(True), **kw)
+    kept = {}
+    ep.sweep(progress=False, on_run=lambda i, b, r: kept.setdefault(i, r), **kw)  # a value: ignored
+    assert list(kept) == [0]
     with pytest.raises(TypeError, match=r"^progress returned str"):
         ep.sweep(progress=lambda i, n, d, t: "go", **dict(kw, store=2**40))
 
@@ -279,3 +282,150 @@ def test_local_workers_are_checked_against_the_memory_before_starting():
     distributed.check_local_memory("local:4", 4, available=8 * each)  # fits in 3/4 of it
     with pytest.raises(ValueError, match=r"scheduler = 'local:7': 7 local worker processes need about .* give local:6"):
         distributed.check_local_memory("local:7", 7, available=8 * each)
+
+
+# ---------------------------------------------------------------- Ctrl-C in a sweep keeps the finished work
+def _interrupt_after_first_angle(monkeypatch):
+    """SIGINT raised in this process as soon as the first angle's row is accepted (deterministic: the
+    handler runs before the next bytecode of the main thread)."""
+    import signal
+
+    from endophoton.sweep import driver
+
+    accept = driver._Rows.accept
+
+    def accept_then_interrupt(self, i, one):
+        ok = accept(self, i, one)
+        if i == 0:
+            signal.raise_signal(signal.SIGINT)
+        return ok
+
+    monkeypatch.setattr(driver._Rows, "accept", accept_then_interrupt)
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_a_sweep_writes_the_finished_angles_then_exits_130(tmp_path, monkeypatch):
+    """Before: Ctrl-C in ``sweep`` wrote nothing, not even the angles that had finished. (With
+    --scheduler the same CancelToken reaches distributed.run_many, whose cancel test_distributed
+    covers; which angles have finished there when Ctrl-C lands is not deterministic.)"""
+    import json
+
+    _interrupt_after_first_angle(monkeypatch)
+    out = tmp_path / "out"
+    argv = ["sweep", "--betas", "0,10,20", "--store", "300", "--all-photons", "--threads", "1", "--no-progress"]
+    argv += ["--out", str(out)]
+    assert _cli(argv) == 130
+    data = json.loads((out / "sweep.json").read_text())
+    assert data["meta"]["cancelled"] is True
+    rows = data["rows"]
+    assert rows and rows[0]["beta_deg"] == 0.0 and rows[0]["cancelled"] == 0  # the finished angle, whole
+    assert len(rows) < 3 or any(r["cancelled"] for r in rows)
+    csv = (out / "sweep.csv").read_text().splitlines()
+    assert len(csv) == 1 + len(rows)
+    assert "cancelled" in (out / "report.md").read_text()
+    assert (out / "polar_beta_00.png").stat().st_size > 0  # the finished angle's images
+    assert not list(out.glob(".*.tmp"))  # every file written atomically: no temporary left
+
+
+# ---------------------------------------------------------------- unreachable targets
+def test_unreachable_target_stops_early_with_a_named_warning():
+    """Before: a target of 1e-12 without max_photons ran toward 2^62 packets without a word (the time
+    budget here only bounds the test on the old code). Now the packets it needs are projected after
+    the first units and the run stops as "target_unreachable", naming them and the default cap."""
+    from endophoton.run import DEFAULT_TARGET_MAX_PHOTONS
+
+    r = ep.run(slab(), DOWN, target=ep.Target("diffuse_reflectance", 1e-12), threads=1, time_budget_s=120.0)
+    assert r.stop_reason == "target_unreachable" and not r.target_reached
+    assert 0 < r.photons < DEFAULT_TARGET_MAX_PHOTONS
+    (w,) = [w for w in r.warnings if w.startswith("target not reached")]
+    assert "would need about" in w and f"the default cap of {DEFAULT_TARGET_MAX_PHOTONS}" in w, w
+
+
+def test_a_cap_the_user_gives_is_run_to_and_named():
+    r = ep.run(slab(), DOWN, target=ep.Target("diffuse_reflectance", 1e-12), max_photons=30_000, threads=1)
+    assert r.stop_reason == "max_photons" and r.photons == 30_000
+    assert any(w.startswith("target not reached") and "max_photons = 30000" in w for w in r.warnings)
+
+
+# ---------------------------------------------------------------- per-region tallies carry standard errors
+def two_layers():
+    s = ep.Scene("cm")
+    s.add_box("top", (-1, -1, -0.05), (1, 1, 0), TISSUE)
+    s.add_box("deep", (-1, -1, -0.3), (1, 1, -0.05), ep.Medium(mua=2.0, mus=20.0, g=0.8, n=1.4))
+    return s
+
+
+@pytest.mark.slow
+def test_absorbed_by_region_stderr_matches_the_spread_of_independent_seeds():
+    """The reported batch-means stderr of each region's absorbed fraction against the spread of K
+    independent seeds' estimates (numpy, no engine error bar involved): (K-1) s^2 / mean(se^2) is
+    chi-square with K-1 degrees of freedom; two-sided at the family-wise 1e-4 level."""
+    from scipy import stats
+
+    K = 16
+    runs = [ep.run(two_layers(), DOWN, photons=20_000, seed=s, threads=1, record_escapes=False) for s in range(K)]
+    for name in ("top", "deep"):
+        v = np.array([r.absorbed_by_region[name] for r in runs])
+        se = np.array([r.absorbed_by_region_stderr[name] for r in runs])
+        assert np.all(se > 0)
+        chi2 = (K - 1) * v.var(ddof=1) / np.mean(se**2)
+        lo, hi = stats.chi2.ppf([0.5e-4 / 2, 1 - 0.5e-4 / 2], K - 1)
+        assert lo < chi2 < hi, (name, chi2, lo, hi)
+
+
+@pytest.mark.slow
+def test_sweep_rows_and_csv_carry_the_per_region_tallies_with_stderr(tmp_path):
+    """Before: the sweep CSV had no per-region tally at all (eight runs for an error bar)."""
+    import csv
+
+    from endophoton.sweep.schema import REGION_COLUMN
+
+    seen = []
+    res = ep.sweep(
+        betas=[0.0], store=300, n_batches=10, threads=1, plots=False, report=False, progress=False,
+        fluorescent_only=False, out_dir=str(tmp_path), on_run=lambda i, b, r: seen.append(r) and None,
+    )  # fmt: skip
+    (run,) = seen
+    with open(tmp_path / "sweep.csv", newline="", encoding="utf-8") as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert run.absorbed_by_region
+    for name, value in run.absorbed_by_region.items():
+        assert float(row[REGION_COLUMN + name]) == value == res.rows[0][REGION_COLUMN + name]
+        assert float(row[REGION_COLUMN + name + "_stderr"]) == run.absorbed_by_region_stderr[name] > 0
+
+
+# ---------------------------------------------------------------- small ones
+CAMERA = {"position": [0, 0, 1], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 40}
+
+
+@pytest.mark.parametrize("kind", ["fifo", "symlink"])
+@pytest.mark.parametrize("name", ["view.npz", "white.png"])
+def test_render_refuses_a_fifo_or_symlink_at_an_output_before_the_run(tmp_path, capsys, kind, name):
+    """Before: ``render`` replaced a FIFO or a symlink at view.npz/white.png (the grid writer refuses
+    them); now io.check_output_files, the one check of every writer, has the grid writer's rule."""
+    import json
+
+    out = tmp_path / "out"
+    out.mkdir()
+    elsewhere = tmp_path / "elsewhere.txt"
+    elsewhere.write_text("keep me")
+    os.mkfifo(out / name) if kind == "fifo" else os.symlink(elsewhere, out / name)
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(dict(FLAT_SCENE, camera=CAMERA)))
+    assert _cli(["render", str(scene), "--out", str(out), "--photons", "100"]) == 2
+    err = capsys.readouterr().err
+    assert repr(str(out / name)) in err and ("symbolic link" if kind == "symlink" else "not a regular file") in err
+    assert elsewhere.read_text() == "keep me" and os.path.lexists(out / name)
+    assert sorted(os.listdir(out)) == [name]  # nothing written
+
+
+def test_a_contrast_is_defined_only_with_its_stderr():
+    """Before: red_green could be defined while its stderr was None (a batch held all of the
+    background's green). The jackknife now gives a value only with its error."""
+    from endophoton.view.visibility import jackknife
+
+    sums = np.array([[1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 2.0, 0.0]])  # the second row: one batch only
+    value, se = jackknife(sums, np.full(4, 10.0), lambda m: m[0] / m[1] if m[1] > 0 else None)
+    assert value is None and se is None
+    value, se = jackknife(sums + 1.0, np.full(4, 10.0), lambda m: m[0] / m[1])
+    assert value is not None and se is not None and se > 0

@@ -51,6 +51,7 @@ from ..sources import EndoscopeRig
 from ..spectra import Fluorophore
 from .reduce import analyse_run, finish_relative, rig_geometry
 from .schema import (
+    region_cells,
     CSV_COLUMNS,
     MAX_BETAS,
     VISIBILITY_COLUMNS,
@@ -515,6 +516,7 @@ def _beta_outcome(
         "seconds": seconds,
         "seed": int(seed),
         "cancelled": int(cancelled),
+        **region_cells(res),
     }
     if visibility is not None:  # the endoscope's view of this run (docs/render.md)
         from .view_sweep import add_visibility
