@@ -4,7 +4,8 @@ no scattering, no absorption).
 
 Lengths are in the scene unit (``"m"``, ``"cm"`` or ``"mm"``); ``mua`` and
 ``mus`` are always in cm^-1. Where regions overlap, the one with the higher
-priority is the medium (ties: the region added later).
+priority is the medium; regions of equal priority may touch but not share volume (refused when
+the engine scene is built: endophoton.overlaps).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ import numpy as np
 
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
+from .overlaps import check_overlaps
 from .spectra import EEM, Fluorophore, Spectrum
 from .io import check_keys as _check_keys, check_real, read_json_file, real_or_none, shown
 from . import scene_schema
@@ -276,6 +278,7 @@ class Scene:
 
         if not self.regions:
             raise ValueError("scene.regions is empty: add at least one region")
+        check_overlaps(self.regions)  # equal priorities that share volume: refused (endophoton.overlaps)
         s = _core.Scene(self.unit_cm, self.ambient_n)
         ids: dict[str, int] = {}
         eems: dict[str, EEM] = {}

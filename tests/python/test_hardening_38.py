@@ -429,3 +429,53 @@ def test_a_contrast_is_defined_only_with_its_stderr():
     assert value is None and se is None
     value, se = jackknife(sums + 1.0, np.full(4, 10.0), lambda m: m[0] / m[1])
     assert value is not None and se is not None and se > 0
+
+
+# ---------------------------------------------------------------- equal-priority overlaps: one rule, every path
+def test_equal_priority_overlaps_are_refused_on_the_json_and_python_paths(tmp_path, capsys):
+    """Before: two overlapping regions of one priority passed through JSON and the API (the later one
+    won); the add-on refused them. Now endophoton.overlaps refuses them on every path (the add-on
+    asks the same function)."""
+    import json
+
+    doc = dict(FLAT_SCENE)
+    doc["regions"] = [
+        FLAT_SCENE["regions"][0],
+        {"name": "polyp", "box": {"min": [-0.2, -0.2, -0.05], "max": [0.2, 0.2, 0.05]}, "medium": {"mua": 2, "mus": 5}},
+    ]
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(doc))
+    assert _cli(["run", str(path), "--photons", "10"]) == 2
+    assert "regions 'slab' and 'polyp' overlap with the same priority = 0" in capsys.readouterr().err
+    scene = ep.Scene.from_dict(doc)
+    with pytest.raises(ValueError, match="regions 'slab' and 'polyp' overlap with the same priority = 0"):
+        ep.run(scene, DOWN, photons=10)
+    doc["regions"][1]["priority"] = 1  # the polyp owns the overlap: accepted
+    assert ep.run(ep.Scene.from_dict(doc), DOWN, photons=10, threads=1).photons == 10
+
+
+def test_touching_layers_and_nested_meshes_of_distinct_priority_are_accepted():
+    from endophoton.overlaps import equal_priority_overlaps
+
+    s = ep.Scene("cm")
+    s.add_box("top", (-1, -1, -0.1), (1, 1, 0), TISSUE)
+    s.add_box("middle", (-1, -1, -0.2), (1, 1, -0.1), TISSUE)
+    s.add_box("side", (1, -1, -0.2), (2, 1, 0), TISSUE)
+    assert equal_priority_overlaps(s.regions) == []
+    s.add_box("inside", (-0.5, -0.5, -0.15), (0.5, 0.5, -0.05), TISSUE)  # inside top and middle, priority 0
+    assert equal_priority_overlaps(s.regions) == [("top", "inside", 0), ("middle", "inside", 0)]
+
+
+def test_render_refuses_an_unknown_target_or_size_before_the_run(tmp_path, capsys):
+    """Before: an unknown --target was refused after the whole run (9 s). Checked first now (the
+    render CLI's own options; the render's scaling is the view branch's)."""
+    import json
+
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(dict(FLAT_SCENE, camera=CAMERA)))
+    base = ["render", str(scene), "--out", str(tmp_path / "o"), "--photons", str(NEVER_ENDS)]
+    assert _cli(base + ["--target", "nope", "--background", "slab"]) == 2
+    assert "--target = 'nope' is not a region of the scene (regions: slab)" in capsys.readouterr().err
+    assert _cli(base + ["--width", "8193"]) == 2
+    assert "--width = 8193 must be an integer in [1, 8192] (pixels)" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
