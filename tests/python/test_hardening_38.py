@@ -479,3 +479,37 @@ def test_render_refuses_an_unknown_target_or_size_before_the_run(tmp_path, capsy
     assert _cli(base + ["--width", "8193"]) == 2
     assert "--width = 8193 must be an integer in [1, 8192] (pixels)" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_an_angles_run_keeps_its_partial_row_marked_cancelled(tmp_path, monkeypatch):
+    """SIGINT while the second angle's run is tracing (its store made unreachable, so only the cancel
+    ends it): the first angle's whole row and the second's partial row, marked cancelled, exit 130."""
+    import json
+    import signal
+
+    from endophoton.sweep import driver
+
+    run, calls = driver.run, []
+
+    def second_run_interrupted(scene, rig, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            engine_progress = kw["progress"]
+            kw["store"] = NEVER_ENDS
+
+            def progress(done, total):
+                signal.raise_signal(signal.SIGINT)  # the CLI's handler cancels the run's token
+                return engine_progress(done, total)
+
+            kw["progress"] = progress
+        return run(scene, rig, **kw)
+
+    monkeypatch.setattr(driver, "run", second_run_interrupted)
+    out = tmp_path / "out"
+    argv = ["sweep", "--betas", "0,10,20", "--store", "300", "--all-photons", "--threads", "1", "--no-progress"]
+    assert _cli(argv + ["--out", str(out)]) == 130
+    data = json.loads((out / "sweep.json").read_text())
+    assert data["meta"]["cancelled"] is True and len(calls) == 2
+    assert [(r["beta_deg"], r["cancelled"]) for r in data["rows"]] in ([(0.0, 0), (10.0, 1)], [(0.0, 0)])
+    assert "cancelled" in (out / "report.md").read_text()
