@@ -8,7 +8,6 @@ Every subcommand runs through :func:`run_guarded`, which maps errors to these co
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 import json
 import math
@@ -16,6 +15,7 @@ import signal
 import sys
 
 from .cli_files import load_scene_file as _load_scene_file
+from .interrupts import sigint_cancels
 from .sweep.cli import add_sweep_arguments, sweep_main
 
 #: Errors of the input: exit 2 with the message (which names the field and value).
@@ -142,22 +142,6 @@ def _check_one_budget(args) -> None:
 
 #: SIGINTs received while the CLI was still loading modules or reading the scene.
 _early_interrupts: list = []
-
-
-@contextlib.contextmanager
-def sigint_cancels():
-    """While open, Ctrl-C (SIGINT) cancels the CancelToken it yields instead of raising
-    KeyboardInterrupt (the engine runs signal handlers at every progress tick, so a run stops
-    within ~0.1 s). Kept open while the outputs are written, so that a second Ctrl-C cannot cut
-    the writing of what the first one kept."""
-    from .run import CancelToken
-
-    token = CancelToken()
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: token.cancel())
-    try:
-        yield token
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def _run_interruptible(run, *a, **kw):

@@ -232,7 +232,7 @@ def sweep_main(args: argparse.Namespace) -> int:
     check_output_files(args.out, output_file_names(args.betas, visibility=bool(kwargs.get("visibility"))))
     # Ctrl-C cancels the sweep (local or on a cluster): the finished angles' rows, the cancelled
     # one's partial row, their images and the report are written, marked cancelled; exit 130.
-    from ..cli import sigint_cancels
+    from ..interrupts import sigint_cancels
 
     with sigint_cancels() as token:
         with scheduler_client(args) as client:

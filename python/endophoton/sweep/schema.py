@@ -172,10 +172,14 @@ class SweepResult:
                 return h
         raise ValueError(f"beta = {beta} not in the sweep")
 
+    def columns(self) -> list:
+        """The CSV's columns: :data:`CSV_COLUMNS`, then the rows' per-region ones (:data:`REGION_COLUMN`)."""
+        return list(CSV_COLUMNS) + region_columns(self.rows)
+
     def to_csv(self, path: str | os.PathLike) -> str:
         """Write the rows as CSV (header = CSV_COLUMNS keys, then the per-region columns
         :data:`REGION_COLUMN`; None, or a non-finite float, as an empty cell), atomically."""
-        columns = list(CSV_COLUMNS) + region_columns(self.rows)
+        columns = self.columns()
         lines = [",".join(_csv_cell(c) for c in columns)]
         for r in self.rows:
             cells = []
