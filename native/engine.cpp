@@ -46,6 +46,8 @@ const char* stop_reason_name(StopReason r) {
             return "time";
         case StopReason::kMaxPhotons:
             return "max_photons";
+        case StopReason::kTargetUnreachable:
+            return "target_unreachable";
         case StopReason::kCancelled:
             return "cancelled";
     }
@@ -96,6 +98,12 @@ StopReason StopRule::after_merge(const UnitTally& unit, size_t k, uint64_t recor
             if (e.mean != 0 && e.stderr_ / std::fabs(e.mean) <= cfg_.target_rel_error) return StopReason::kTarget;
             // The relative error of a tally that stays exactly zero is undefined.
             if (e.mean == 0 && k >= kZeroUnits) return StopReason::kTargetZero;
+            // Without max_photons (the default cap): a cap the user chose is run to.
+            if (e.mean != 0 && k >= kProjectionUnits && cfg_.max_photons == 0) {
+                const double ratio = e.stderr_ / (std::fabs(e.mean) * cfg_.target_rel_error);
+                projected_units_ = double(k) * ratio * ratio;
+                if (projected_units_ > kUnreachableFactor * double(n_units_max_)) return StopReason::kTargetUnreachable;
+            }
         }
     }
     if (k >= n_units_max_) return StopReason::kMaxPhotons;
@@ -204,6 +212,9 @@ class UnitMerger {
     UnitMerger(const RunConfig& cfg, uint64_t n_units_max, RunResult& result,
                std::chrono::steady_clock::time_point t_start)
         : cfg_(cfg), rule_(cfg, n_units_max), result_(result), t_start_(t_start) {}
+
+    // The units the stop rule last projected a target run to need (0: none yet).
+    double projected_units() const { return rule_.projected_units(); }
 
     // Takes a finished unit; returns true once the run must stop.
     bool add(uint64_t index, std::unique_ptr<UnitOutput> unit) {
@@ -491,7 +502,10 @@ UnitPlan plan_units(const RunConfig& cfg) {
         p.unit_size =
             fixed ? std::clamp<uint64_t>((cfg.photons + 999) / 1000, 64, 65536) : (cfg.target_tally >= 0 ? 256 : 1024);
     }
-    p.limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : kMaxPacketRequest);
+    // A target run without max_photons has a default cap (kDefaultTargetMaxPackets): a target
+    // that cannot be reached stops there, or as soon as its projection exceeds it (StopRule).
+    const uint64_t open_cap = cfg.target_tally >= 0 ? kDefaultTargetMaxPackets : kMaxPacketRequest;
+    p.limit = fixed ? cfg.photons : (cfg.max_photons > 0 ? cfg.max_photons : open_cap);
     p.n_units_max = (p.limit + p.unit_size - 1) / p.unit_size;
     return p;
 }
@@ -588,6 +602,36 @@ uint64_t UnitReducer::records() const { return impl_->merger.records(); }
 const UnitPlan& UnitReducer::plan() const { return impl_->plan; }
 const RunConfig& UnitReducer::config() const { return impl_->cfg; }
 
+namespace {
+
+// The warning of a target run that ended without reaching its target: the relative error it
+// reached, the cap, and (stopped early) the packets its projection needed.
+std::string target_warning(const RunResult& r, const RunConfig& cfg, const UnitPlan& plan, double projected_units) {
+    const Estimate& e = r.scalar[cfg.target_tally];
+    std::ostringstream os;
+    os.precision(3);
+    os << "target not reached: " << tally_name(cfg.target_tally) << " to a relative error of " << cfg.target_rel_error
+       << " (reached ";
+    if (e.mean != 0)
+        os << e.stderr_ / std::fabs(e.mean);
+    else
+        os << "undefined: the tally is 0";
+    os << " after " << r.packets << " packets); ";
+    const std::string cap = cfg.max_photons > 0
+                                ? "max_photons = " + std::to_string(plan.limit)
+                                : "the default cap of " + std::to_string(plan.limit) + " packets (max_photons = 0)";
+    if (r.stop == StopReason::kTargetUnreachable)
+        os << "it would need about " << projected_units * double(plan.unit_size)
+           << " packets (1/sqrt(N) from the error so far), more than " << StopRule::kUnreachableFactor << " times "
+           << cap << ": stopped early";
+    else
+        os << "stopped at " << cap;
+    os << "; raise max_photons or loosen the target";
+    return os.str();
+}
+
+}  // namespace
+
 RunResult UnitReducer::finish(int threads) {
     RunResult& result = impl_->result;
     const RunConfig& cfg = impl_->cfg;
@@ -605,6 +649,9 @@ RunResult UnitReducer::finish(int threads) {
         result.warnings.push_back(
             "no work unit finished before the run stopped: the result holds no estimate "
             "(every fraction and its stderr is 0, photons = 0)");
+    if (cfg.target_tally >= 0 &&
+        (result.stop == StopReason::kMaxPhotons || result.stop == StopReason::kTargetUnreachable))
+        result.warnings.push_back(target_warning(result, cfg, impl_->plan, impl_->merger.projected_units()));
     if (result.capped_packets > 0)
         result.warnings.push_back(std::to_string(result.capped_packets) +
                                   " packets reached the step or path cap; their remaining weight is tallied as cut");

@@ -23,17 +23,22 @@ namespace ep {
 // Why a run stopped. Every mode ends with one of these; the name is what the
 // Python result's `stop_reason` says.
 enum class StopReason {
-    kNone,        // still running
-    kPhotons,     // fixed count reached
-    kStore,       // "store N": N escape records stored
-    kStoreZero,   // "store N": no record at all after kZeroUnits units (the request is impossible)
-    kTarget,      // target accuracy reached
-    kTargetZero,  // target tally still exactly 0 after kZeroUnits units (relative error undefined)
-    kTime,        // time budget used up
-    kMaxPhotons,  // packet cap of a store/target run reached
-    kCancelled,   // cancel token, progress callback or signal
+    kNone,               // still running
+    kPhotons,            // fixed count reached
+    kStore,              // "store N": N escape records stored
+    kStoreZero,          // "store N": no record at all after kZeroUnits units (the request is impossible)
+    kTarget,             // target accuracy reached
+    kTargetZero,         // target tally still exactly 0 after kZeroUnits units (relative error undefined)
+    kTime,               // time budget used up
+    kMaxPhotons,         // packet cap of a store/target run reached
+    kTargetUnreachable,  // target run: the packets it needs, projected from its error so far, exceed the cap
+    kCancelled,          // cancel token, progress callback or signal
 };
 const char* stop_reason_name(StopReason r);
+
+// The packet cap of a target run without max_photons (2^30, ~1.1e9 packets: about an hour at
+// the measured 250,000 packets/s of docs/performance.md). Its stop is a named warning.
+constexpr uint64_t kDefaultTargetMaxPackets = uint64_t(1) << 30;
 
 // The stop rule of every run, checked after every merged unit (fixed runs:
 // the count and the time budget; store and target runs: their goal, the
@@ -43,14 +48,23 @@ class StopRule {
   public:
     static constexpr size_t kMinTargetUnits = 20;  // units before a target can be met
     static constexpr size_t kZeroUnits = 1000;     // units before "store_zero" / "target_zero"
+    // A target run without max_photons projects the units it needs, k (rel/target)^2 by the 1/sqrt(N) law, once it
+    // has merged kProjectionUnits units, and stops as "target_unreachable" when they exceed
+    // kUnreachableFactor times its cap (the factor absorbs the early error estimate's noise:
+    // a factor 2 in the relative error is 4 in the packets).
+    static constexpr size_t kProjectionUnits = 100;
+    static constexpr double kUnreachableFactor = 10.0;
     StopRule(const RunConfig& cfg, uint64_t n_units_max);
     // `unit` was just merged, making `units_merged` units; `records` are
     // stored so far. Returns kNone to go on.
     StopReason after_merge(const UnitTally& unit, size_t units_merged, uint64_t records, double elapsed_s);
+    // The units a target run was projected to need at its last check (0 before the first).
+    double projected_units() const { return projected_units_; }
 
   private:
     const RunConfig& cfg_;
     uint64_t n_units_max_;
+    double projected_units_ = 0;
     // Prefix sums of the target tally over merged units: the target test is
     // then O(batches) per unit instead of O(units).
     std::vector<uint64_t> prefix_n_{0};

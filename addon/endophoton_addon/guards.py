@@ -11,11 +11,9 @@ scene or object and the field; none creates a datablock or a file.
 - :func:`check_unit_scale`: the thinnest region against the transport mean
   free path 1/(μa + μs(1 − g)) — a colon modelled in metres but with the unit
   scale of millimetres is 1000 times too thin, and light goes straight through.
-- :func:`check_overlaps`: regions of equal priority that overlap (a vertex of
-  or face centre of one strictly inside the other) are ambiguous: the engine could not say which
-  medium owns the overlap.  Vertices and face centres of each are tested
-  against the other by ray parity (points on the other's surface are allowed,
-  so touching layers pass).
+- :func:`check_overlaps`: regions of equal priority that share volume are ambiguous: the engine
+  could not say which medium owns the overlap. The test is the package's (endophoton.overlaps:
+  grid points inside both closed meshes, by ray parity; touching layers pass).
 - :func:`estimate` / :func:`check_budget`: packets, records, memory and (from
   the last run's measured rate) time; a fixed packet or store-N run above a
   threshold is refused unless the scene allows large runs (quality presets run
@@ -96,62 +94,20 @@ def check_unit_scale(regions, scale_length, who):
             )
 
 
-def _inside(bvh, points, eps):
-    """Ray-parity test against a closed BVHTree: True where a point is strictly inside."""
-    from mathutils import Vector
+def check_overlaps(regions):
+    """Raise InputError naming two regions of equal priority that overlap. The test is the engine
+    package's (endophoton.overlaps, the one rule of every path), asked here before the run so the
+    message names the Blender objects."""
+    from . import package_finder
 
-    inside = np.zeros(len(points), dtype=bool)
-    direction = Vector((0.5773, 0.5774, 0.5773))  # off-axis: avoids grazing axis-aligned faces
-    for i, p in enumerate(points):
-        origin = Vector(p)
-        near = bvh.find_nearest(origin)
-        if near[0] is not None and near[3] <= eps:
-            continue  # on the surface: touching is allowed
-        hits, start = 0, origin
-        while True:
-            location, _normal, _index, _dist = bvh.ray_cast(start, direction)
-            if location is None:
-                break
-            hits += 1
-            start = location + direction * eps
-        inside[i] = hits % 2 == 1
-    return inside
-
-
-def check_overlaps(regions, max_points=400):
-    """Raise InputError naming two regions of equal priority that overlap."""
-    from mathutils.bvhtree import BVHTree
-
-    by_priority = {}
-    for r in regions:
-        by_priority.setdefault(r.priority, []).append(r)
-    for priority, group in by_priority.items():
-        for i, a in enumerate(group):
-            for b in group[i + 1 :]:
-                lo = np.maximum(a.vertices.min(axis=0), b.vertices.min(axis=0))
-                hi = np.minimum(a.vertices.max(axis=0), b.vertices.max(axis=0))
-                if np.any(lo >= hi):
-                    continue  # bounding boxes apart (or only touching)
-                size = float(
-                    np.max(
-                        np.maximum(a.vertices.max(axis=0), b.vertices.max(axis=0))
-                        - np.minimum(a.vertices.min(axis=0), b.vertices.min(axis=0))
-                    )
-                )
-                eps = 1e-6 * size
-                for inner, outer in ((a, b), (b, a)):
-                    bvh = BVHTree.FromPolygons(outer.vertices.tolist(), outer.triangles.tolist())
-                    v = inner.vertices.astype(np.float64)
-                    samples = np.concatenate([v, v[inner.triangles.astype(np.int64)].mean(axis=1)])
-                    pts = samples[np.all((samples >= lo) & (samples <= hi), axis=1)]
-                    if len(pts) > max_points:
-                        pts = pts[np.linspace(0, len(pts) - 1, max_points).astype(int)]
-                    if len(pts) and _inside(bvh, pts, eps).any():
-                        raise InputError(
-                            f"Objects '{a.name}' and '{b.name}' overlap with the same priority = {priority}; "
-                            "the engine could not tell which medium owns the overlap. Give the one that "
-                            "should win a higher priority (e.g. the polyp above the wall)"
-                        )
+    found = package_finder.part("overlaps").equal_priority_overlaps(regions)
+    if found:
+        a, b, priority = found[0]
+        raise InputError(
+            f"Objects '{a}' and '{b}' overlap with the same priority = {priority}; "
+            "the engine could not tell which medium owns the overlap. Give the one that "
+            "should win a higher priority (e.g. the polyp above the wall)"
+        )
 
 
 def estimate(inputs, last_rate=None):

@@ -34,6 +34,7 @@ PYBIND11_MODULE(_core, m) {
     py::register_exception<std::invalid_argument>(m, "InvalidArgument", PyExc_ValueError);
     m.attr("MAX_REGIONS") = int(ep::Scene::kMaxRegions);
     m.attr("MAX_PACKET_REQUEST") = ep::kMaxPacketRequest;
+    m.attr("DEFAULT_TARGET_MAX_PACKETS") = ep::kDefaultTargetMaxPackets;
     m.attr("DEFAULT_CACHE_STORE_BYTES") = ep::Scene::kDefaultStoreCapBytes;
     // The wavelength range (nm) of native/spectrum.h, which endophoton.spectra checks with.
     m.attr("MIN_WAVELENGTH_NM") = ep::kMinWavelengthNm;

@@ -60,6 +60,19 @@ int tally_from_name(const std::string& name) {
     throw std::invalid_argument("target tally '" + name + "' is not a tally name");
 }
 
+// The progress callback's answer (the rule of python/endophoton/callbacks.py): None or True go
+// on, False stops; any other value raises TypeError here, in Python, instead of a cast error
+// thrown on a worker's watcher (which ended the process with std::terminate).
+bool progress_goes_on(const py::object& r) {
+    if (r.is_none()) return true;
+    if (PyBool_Check(r.ptr())) return r.ptr() == Py_True;
+    const std::string kind = py::str(py::type::of(r).attr("__name__"));
+    PyErr_SetString(PyExc_TypeError, ("progress returned " + kind +
+                                      ": a progress callback must return None or True (go on) or False (stop)")
+                                         .c_str());
+    throw py::error_already_set();
+}
+
 void bind_config(py::module_& m) {
     py::class_<RunConfig> cls(m, "RunConfig", "Options of one run (native/run_config.h); lengths in scene units.");
     cls.def(py::init<>())
@@ -156,10 +169,13 @@ void bind_run(py::module_& m) {
                 try {
                     if (PyErr_CheckSignals() != 0) throw py::error_already_set();
                     if (progress.is_none()) return true;
-                    py::object r = progress(done, total);
-                    return r.is_none() || r.cast<bool>();
+                    return progress_goes_on(progress(done, total));
                 } catch (py::error_already_set& e) {
                     py_error = std::make_unique<py::error_already_set>(std::move(e));
+                    return false;
+                } catch (const std::exception& e) {  // nothing may leave the watcher (std::terminate)
+                    PyErr_SetString(PyExc_RuntimeError, (std::string("progress: ") + e.what()).c_str());
+                    py_error = std::make_unique<py::error_already_set>();
                     return false;
                 }
             };

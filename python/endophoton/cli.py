@@ -15,6 +15,7 @@ import signal
 import sys
 
 from .cli_files import load_scene_file as _load_scene_file
+from .interrupts import sigint_cancels
 from .sweep.cli import add_sweep_arguments, sweep_main
 
 #: Errors of the input: exit 2 with the message (which names the field and value).
@@ -144,16 +145,9 @@ _early_interrupts: list = []
 
 
 def _run_interruptible(run, *a, **kw):
-    """Ctrl-C cancels the run (within ~0.1 s: the engine runs signal handlers at every
-    progress tick); the partial result, marked cancelled, is returned."""
-    from .run import CancelToken
-
-    token = CancelToken()
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: token.cancel())
-    try:
+    """Ctrl-C cancels the run (:func:`sigint_cancels`); the partial result, marked cancelled, is returned."""
+    with sigint_cancels() as token:
         return run(*a, cancel=token, **kw)
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def main(argv=None) -> int:
@@ -194,7 +188,11 @@ def _main(argv) -> int:
         help="tally for --target-rel-error (default diffuse_reflectance)",
     )
     p_run.add_argument(
-        "--max-photons", type=int_arg(0, MAX_PACKETS), default=0, help="upper bound in target mode (0 = none)"
+        "--max-photons",
+        type=int_arg(0, MAX_PACKETS),
+        default=0,
+        help="upper bound in target mode (0 = the default cap, 2^30; an unreachable target then stops early "
+        "with a warning)",
     )
     p_run.add_argument(
         "--quality",

@@ -4,38 +4,17 @@ any work, so that a bad path is exit status 2 naming the option, not an OSError 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
-import stat
+
+from .io import read_json_file
 
 __all__ = ["load_scene_file", "check_out_dir", "out_dir_errors"]
 
 
 def load_scene_file(path: str) -> dict:
-    """SCENE.json as parsed JSON; every failure is a ValueError naming the file."""
-    try:
-        mode = os.stat(path).st_mode
-    except (OSError, ValueError) as e:  # ValueError: an embedded NUL
-        raise ValueError(f"scene file {path!r}: cannot read: {getattr(e, 'strerror', None) or e}") from None
-    if stat.S_ISDIR(mode) or stat.S_ISCHR(mode) or stat.S_ISBLK(mode):  # /dev/zero would never end
-        raise ValueError(f"scene file {path!r} is not a regular file")
-    try:
-        fh = open(path, "r", encoding="utf-8")
-    except OSError as e:
-        raise ValueError(f"scene file {path!r}: cannot read: {e.strerror or e}") from None
-    with fh:
-        try:
-            return json.load(fh)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"scene file {path!r}: not JSON: {e}") from None
-        except UnicodeDecodeError as e:
-            raise ValueError(
-                f"scene file {path!r}: not UTF-8 text (byte 0x{e.object[e.start]:02x}: {e.reason})"
-            ) from None
-        except RecursionError:
-            raise ValueError(f"scene file {path!r}: nested too deeply to be a SCENE.json") from None
-        except OSError as e:
-            raise ValueError(f"scene file {path!r}: cannot read: {e.strerror or e}") from None
+    """SCENE.json as parsed JSON; every failure is a ValueError naming the file (endophoton.io's checked
+    read: a regular file within its size limit, unique keys, integers Python converts)."""
+    return read_json_file(path, "scene file")
 
 
 def check_out_dir(path: str, option: str = "--out") -> None:

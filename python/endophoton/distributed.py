@@ -34,6 +34,7 @@ import sys
 import uuid
 
 from . import _core
+from .callbacks import checked_notification, progress_verdict
 
 #: Chunks of a store/target run kept in flight per worker thread.
 WINDOW_PER_THREAD = 2
@@ -45,6 +46,13 @@ OPEN_CHUNK_PACKETS = 16384
 #: Most worker processes ``local:N`` starts: each is a Python process with the engine loaded, far
 #: dearer than a thread (endophoton.run.MAX_THREADS = 4096); more is refused before any starts.
 MAX_LOCAL_WORKERS = 256
+#: Memory one ``local:N`` worker process takes, for the check before any starts: ~100 MB measured
+#: idle with the engine loaded (issue 38), and room for its copy of the scene and its chunk's units.
+LOCAL_WORKER_BYTES = 160 * 2**20
+#: Share of the memory available when the cluster starts that its workers may take together.
+LOCAL_MEMORY_SHARE = 0.75
+#: Address schemes ``--scheduler`` / :func:`connect` accept, besides ``local:N``.
+REMOTE_SCHEMES = ("tcp://",)
 
 
 def trace_chunk(scene, lights: list, body, options: dict, first_unit: int, count: int):
@@ -190,7 +198,7 @@ class _ChunkedRun:
             merged += 1
             done = self.reducer.merged_units * self.unit_size
             done = min(done, self.total) if self.fixed else done
-            if self.progress is not None and self.progress(done, self.total) is False:
+            if self.progress is not None and not progress_verdict("progress", self.progress(done, self.total)):
                 self.halted = True
             self.submit()  # refill the window: the next chunk to merge is then in flight too
         if self.done:
@@ -232,6 +240,7 @@ def run_many(client, requests, *, chunk_units: int = 0, cancel=None, on_chunk=No
     after a cancel the unfinished runs give their merged prefixes, marked
     cancelled."""
     _check_chunk_units(chunk_units)
+    on_chunk, on_finished = checked_notification("on_chunk", on_chunk), checked_notification("on_finished", on_finished)
     threads = _worker_threads(client)
     scattered: dict[int, tuple] = {}  # id(scene) -> (native scene, its future)
     runs, raws = [], [None] * len(requests)
@@ -298,6 +307,67 @@ def local_workers(address: str) -> int | None:
     return int(digits)
 
 
+def available_memory_bytes() -> int | None:
+    """Memory available to new processes now (Linux: MemAvailable of /proc/meminfo; elsewhere the
+    free physical pages), or None where it cannot be read."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_local_memory(address: str, n_workers: int, available: int | None = None) -> None:
+    """``local:N``'s N workers fit in :data:`LOCAL_MEMORY_SHARE` of the memory available (each
+    :data:`LOCAL_WORKER_BYTES`), else ValueError naming the address, the need and the memory: checked
+    before any worker starts (256 workers took ~25 GB)."""
+    available = available_memory_bytes() if available is None else available
+    need = n_workers * LOCAL_WORKER_BYTES
+    if available is not None and need > LOCAL_MEMORY_SHARE * available:
+        fit = max(1, int(LOCAL_MEMORY_SHARE * available // LOCAL_WORKER_BYTES))
+        raise ValueError(
+            f"scheduler = {address!r}: {n_workers} local worker processes need about {need / 2**30:.1f} GiB "
+            f"({LOCAL_WORKER_BYTES // 2**20} MiB each), more than {LOCAL_MEMORY_SHARE:.0%} of the "
+            f"{available / 2**30:.1f} GiB available: give local:{fit} or fewer"
+        )
+
+
+def check_address(address) -> int | None:
+    """A scheduler address, accepted or refused by name before anything is imported or started:
+    ``local:N`` (N workers that fit in memory: returns N) or ``tcp://host[:port]`` (returns None).
+    ``tls://`` (it needs certificates, a distributed.Security the command line does not take),
+    ``inproc://`` (a scheduler inside this very process, which the command line has not) and any
+    other text are ValueErrors naming the address."""
+    if not isinstance(address, str) or not address:
+        raise ValueError(f"scheduler = {address!r} must be tcp://host:port or local:N")
+    n_workers = local_workers(address)
+    if n_workers is not None:
+        check_local_memory(address, n_workers)
+        return n_workers
+    shown = repr(address) if len(address) <= 80 else repr(address[:77] + "...")
+    if address.startswith("tls://"):
+        raise ValueError(
+            f"scheduler = {shown}: tls:// needs TLS certificates (a distributed.Security), which are not "
+            "taken here: connect a dask.distributed.Client yourself and pass it as client= (docs/distributed.md)"
+        )
+    if address.startswith("inproc://"):
+        raise ValueError(
+            f"scheduler = {shown}: inproc:// names a scheduler inside this process: pass its "
+            "dask.distributed.Client as client= instead, or give tcp://host:port or local:N"
+        )
+    scheme = next((s for s in REMOTE_SCHEMES if address.startswith(s)), None)
+    host = address[len(scheme) :] if scheme else ""
+    if not host or any(c.isspace() for c in host) or "/" in host.rstrip("/"):
+        raise ValueError(f"scheduler = {shown} must be tcp://host:port or local:N")
+    return None
+
+
 @contextlib.contextmanager
 def connect(address: str, timeout_s: float = 10.0):
     """A Dask client for ``address``: ``tcp://host:port`` of a running
@@ -305,9 +375,7 @@ def connect(address: str, timeout_s: float = 10.0):
     processes that import this very package. Closes what it opened.
 
     An unreachable scheduler raises ValueError naming the address."""
-    if not isinstance(address, str) or not address:
-        raise ValueError(f"scheduler = {address!r} must be tcp://host:port or local:N")
-    n_workers = local_workers(address)  # checked before anything is imported or started
+    n_workers = check_address(address)  # checked before anything is imported or started
     from distributed import Client, LocalCluster
 
     if n_workers is not None:
@@ -324,7 +392,7 @@ def connect(address: str, timeout_s: float = 10.0):
         return
     try:
         client = Client(address, timeout=timeout_s)
-    except (OSError, TimeoutError, ValueError) as e:
+    except (OSError, TimeoutError, ValueError, TypeError) as e:
         raise ValueError(f"scheduler = {address!r}: cannot connect ({type(e).__name__}: {e})") from None
     try:
         yield client

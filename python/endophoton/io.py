@@ -1,4 +1,4 @@
-"""File output of the package: atomic writes and strict JSON.
+"""File output and input of the package: atomic writes, checked reads and strict JSON.
 
 Every file the package writes (sweep CSV/JSON, plots, reports, EEM CSVs) goes
 through :func:`atomic_write_bytes`: the data are written to a temporary file in
@@ -14,6 +14,12 @@ an empty cell in CSV).  numpy float arrays (histograms, per-batch values and
 plotting columns) keep NaN as their mark of an undefined entry (:func:`unjson`
 turns a JSON ``null`` back into it).
 
+Every file the package reads (SCENE.json, meshes, EEM tables, sweep.json) is opened by
+:func:`open_input`: a regular file (a FIFO, device or folder is refused without blocking) no larger
+than the limit of its kind (:data:`MAX_INPUT_BYTES`, docs/numerics.md), read to that limit at most.
+JSON is read by :func:`read_json_file`/:func:`parse_json`: a key twice in one object and an
+integer literal of more digits than Python converts are errors naming the file and the field.
+
 This module imports nothing from the package (it is a leaf of the import graph).
 """
 from __future__ import annotations
@@ -23,6 +29,8 @@ import json
 import math
 import numbers
 import os
+import stat
+import sys
 import tempfile
 from typing import Any, Mapping
 
@@ -45,7 +53,22 @@ __all__ = [
     "shown",
     "check_path",
     "check_output_files",
+    "MAX_INPUT_BYTES",
+    "open_input",
+    "read_input_text",
+    "read_json_file",
+    "parse_json",
 ]
+
+#: The largest input file of each kind, in bytes (docs/numerics.md, "Input files"). A file above
+#: its limit is refused by name before it is read: the readers build Python objects several times
+#: the file's size (a 2 GB file would end in a MemoryError). Owner: :func:`open_input`.
+MAX_INPUT_BYTES = {
+    "scene file": 64 * 2**20,  # SCENE.json, inline meshes included
+    "mesh": 128 * 2**20,  # .obj / .ply (a 1M-triangle binary PLY is ~20 MB, its OBJ ~60 MB)
+    "eem file": 8 * 2**20,  # EEM / spectrum tables (data/eem: a few kB)
+    "sweep file": 256 * 2**20,  # sweep.json written by SweepResult.to_json
+}
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, make_dirs: bool = True) -> str:
@@ -191,12 +214,28 @@ def check_path(name: str, v) -> str:
 
 def check_output_files(folder: str | os.PathLike, names) -> list[str]:
     """The paths ``folder/name`` of the files a writer is about to write, checked before it writes
-    any: a path that exists must not be a directory (``os.replace`` cannot put a file there, so the
-    writer would stop half way, leaving its new files beside old ones). ValueError naming the path."""
+    any: a path that exists must be a regular file, the rule of the grid writer
+    (``vdb_writer.cpp`` ``check_vdb_path``). A directory (``os.replace`` cannot put a file there, so
+    the writer would stop half way, leaving its new files beside old ones), a FIFO, socket or device
+    (the rename would silently replace it) and any symbolic link (replacing it breaks the link;
+    writing through it puts the file where the path does not say) are refused: ValueError naming
+    the path, before anything is written."""
     paths = [os.path.join(os.fspath(folder), n) for n in names]
     for p in paths:
-        if os.path.isdir(p) and not os.path.islink(p):
+        try:
+            mode = os.lstat(p).st_mode
+        except FileNotFoundError:
+            continue
+        except OSError as e:
+            raise ValueError(f"output file {p!r}: cannot check it: {e.strerror or e} (nothing was written)") from None
+        if stat.S_ISDIR(mode):
             raise ValueError(f"output file {p!r} is a directory: remove or rename it (nothing was written)")
+        if stat.S_ISLNK(mode):
+            raise ValueError(f"output file {p!r} is a symbolic link: remove it (nothing was written)")
+        if not stat.S_ISREG(mode):
+            raise ValueError(
+                f"output file {p!r} is not a regular file (a FIFO, socket or device): remove it (nothing was written)"
+            )
     return paths
 
 
@@ -224,3 +263,136 @@ def check_bool(name: str, v) -> bool:
     if not isinstance(v, (bool, np.bool_)):
         raise ValueError(f"{name} = {v!r} must be true or false")
     return bool(v)
+
+
+def open_input(path, kind: str, binary: bool = False, name: str | None = None):
+    """``path`` opened for reading as a file of ``kind`` (a key of :data:`MAX_INPUT_BYTES`): a file
+    object, text (UTF-8) or ``binary``. Refused by a ValueError naming ``name`` (default: the kind)
+    and the path: a path that cannot be opened, anything but a regular file (opened without
+    blocking, so a FIFO with no writer is refused at once rather than waited on) and a file larger
+    than the kind's limit. The caller reads it with :func:`read_input_text` (or keeps within the
+    limit itself)."""
+    name = name or kind
+    p = check_path(name, path)
+    limit = MAX_INPUT_BYTES[kind]
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError as e:
+        raise ValueError(f"{name} {p!r}: cannot read: {e.strerror or e}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{name} {p!r} is not a regular file (a FIFO, device or folder is not read)")
+        if st.st_size > limit:
+            raise ValueError(
+                f"{name} {p!r} is {st.st_size:,} bytes, more than the {limit:,} bytes a {kind} may have "
+                "(endophoton.io.MAX_INPUT_BYTES, docs/numerics.md)"
+            )
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb" if binary else "r", **({} if binary else {"encoding": "utf-8"}))
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_input_text(path, kind: str, name: str | None = None) -> str:
+    """The whole text of ``path`` (:func:`open_input`'s checks), read to the kind's limit at most (a
+    file that grows while read is refused, not followed). ValueError naming the file: not UTF-8,
+    too large, or a read error."""
+    name = name or kind
+    limit = MAX_INPUT_BYTES[kind]
+    with open_input(path, kind, binary=True, name=name) as fh:
+        try:
+            data = fh.read(limit + 1)
+        except OSError as e:
+            raise ValueError(f"{name} {os.fspath(path)!r}: cannot read: {e.strerror or e}") from None
+    if len(data) > limit:
+        raise ValueError(f"{name} {os.fspath(path)!r} grew beyond {limit:,} bytes while it was read")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(
+            f"{name} {os.fspath(path)!r}: not UTF-8 text (byte 0x{e.object[e.start]:02x}: {e.reason})"
+        ) from None
+
+
+class _LongInteger:
+    """An integer literal of more digits than Python converts (sys.get_int_max_str_digits): kept as
+    a mark while the document is parsed, then refused naming its field (:func:`parse_json`)."""
+
+    __slots__ = ("digits",)
+
+    def __init__(self, digits: int):
+        self.digits = digits
+
+
+def _int_limit() -> int:
+    get = getattr(sys, "get_int_max_str_digits", None)
+    limit = get() if get else 0
+    return limit if limit > 0 else 4300
+
+
+def _unique_keys(pairs):
+    d = {}
+    for k, v in pairs:
+        if k in d:
+            raise _DuplicateKey(k)
+        d[k] = v
+    return d
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _field_of(data, match) -> str:
+    """The path (``regions[2].medium.mua``) of the first value ``match(value)`` holds for, or ``""``."""
+    stack = [(data, "")]
+    while stack:
+        node, where = stack.pop()
+        if match(node):
+            return where or "(the document)"
+        if isinstance(node, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k)) for k, v in reversed(list(node.items())))
+        elif isinstance(node, list):
+            stack.extend((v, f"{where}[{i}]") for i, v in reversed(list(enumerate(node))))
+    return ""
+
+
+def parse_json(text: str, where: str):
+    """``text`` as strict JSON (RFC 8259 objects with unique keys). ValueError naming ``where`` (the file)
+    and the cause: not JSON (line and column), a key twice in one object (the key: the last one would
+    silently win), an integer of more digits than Python converts (its field), nesting too deep."""
+    limit = _int_limit()
+    long_ints = []
+
+    def parse_int(s: str):
+        if len(s.lstrip("-")) > limit:
+            long_ints.append(_LongInteger(len(s.lstrip("-"))))
+            return long_ints[-1]
+        return int(s)
+
+    try:
+        data = json.loads(text, object_pairs_hook=_unique_keys, parse_int=parse_int)
+    except _DuplicateKey as e:
+        raise ValueError(
+            f"{where}: key {e.args[0]!r} appears twice in one object (keys must be unique: the last would win)"
+        ) from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{where}: not JSON: {e}") from None
+    except RecursionError:
+        raise ValueError(f"{where}: nested too deeply") from None
+    if long_ints:
+        field = _field_of(data, lambda v: isinstance(v, _LongInteger))
+        raise ValueError(
+            f"{where}: {field} is an integer of {long_ints[0].digits:,} digits (at most {limit:,} are read)"
+        )
+    return data
+
+
+def read_json_file(path, kind: str, name: str | None = None):
+    """The JSON document in the file ``path`` of ``kind`` (:func:`read_input_text`, :func:`parse_json`);
+    every failure is a ValueError naming the file (``name`` or the kind, and the path)."""
+    name = name or kind
+    return parse_json(read_input_text(path, kind, name=name), f"{name} {os.fspath(path)!r}")

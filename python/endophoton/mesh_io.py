@@ -5,13 +5,14 @@ counter-clockwise (outward) triangles.
 """
 from __future__ import annotations
 
-import os
+import io
 import math
+import os
 import struct
 
 import numpy as np
 
-from .io import check_path, float_array, shown
+from .io import check_path, float_array, open_input, shown
 
 
 def box_mesh(lo, hi):
@@ -67,7 +68,11 @@ def load_mesh(path: str):
     if ext not in (".obj", ".ply"):
         raise ValueError(f"mesh = {path!r}: unsupported format {ext!r} (use .ply or .obj)")
     try:
-        v, t = _load_obj(path) if ext == ".obj" else _load_ply(path)
+        # a regular file within MAX_INPUT_BYTES["mesh"] (a FIFO is refused without blocking)
+        with open_input(path, "mesh", binary=True, name="mesh =") as fh:
+            v, t = _load_obj(path, fh) if ext == ".obj" else _load_ply(path, fh)
+    except MemoryError:
+        raise ValueError(f"mesh = {path!r}: not enough memory to read it: simplify the mesh") from None
     except ValueError as e:
         msg = str(e)
         raise ValueError(msg if msg.startswith("mesh = ") else f"mesh = {path!r}: {msg}") from None
@@ -88,9 +93,9 @@ def _fan(poly):
     return [(poly[0], poly[i], poly[i + 1]) for i in range(1, len(poly) - 1)]
 
 
-def _load_obj(path):
+def _load_obj(path, raw):
     verts, tris = [], []
-    with open(path, "r", encoding="utf-8", errors="replace") as fh:
+    with io.TextIOWrapper(raw, encoding="utf-8", errors="replace") as fh:
         for lineno, line in enumerate(fh, 1):
             parts = line.split()
             if not parts:
@@ -143,48 +148,48 @@ _PLY_TYPES = {
 }
 
 
-def _load_ply(path):
-    with open(path, "rb") as fh:
-        if fh.readline().strip() != b"ply":
-            raise ValueError(f"mesh = {path!r}: not a PLY file")
-        fmt, elements = None, []
-        while True:
-            line = fh.readline()
-            if not line:
-                raise ValueError(f"mesh = {path!r}: PLY header has no end_header")
-            words = line.decode("ascii", "replace").split()
-            if not words:
-                continue
-            if words[0] == "format":
-                if len(words) < 2:
-                    raise ValueError("PLY 'format' line has no format")
-                fmt = words[1]
-            elif words[0] == "element":
-                if len(words) < 3 or not words[2].isdigit():
-                    raise ValueError(f"PLY element line {line!r} must be 'element NAME COUNT'")
-                try:
-                    count = int(words[2])
-                except ValueError:  # more digits than Python converts
-                    raise ValueError(f"PLY element {words[1]!r} count {words[2][:20]}... is too large") from None
-                elements.append([words[1], count, []])
-            elif words[0] == "property":
-                if not elements:
-                    raise ValueError("PLY property before any element")
-                types = [w for w in words[1:-1] if w != "list"]
-                if not types or any(w not in _PLY_TYPES for w in types):
-                    raise ValueError(f"PLY property {' '.join(words[1:])!r} has an unknown type")
-                if words[1] == "list" and (len(words) != 5 or _PLY_TYPES[words[2]] in "fd"):
-                    raise ValueError(
-                        f"PLY property {' '.join(words[1:])!r} must be 'property list COUNT_TYPE ITEM_TYPE NAME' "
-                        "with an integer COUNT_TYPE"
-                    )
-                elements[-1][2].append(words[1:])
-            elif words[0] == "end_header":
-                break
-        if fmt not in ("ascii", "binary_little_endian"):
-            raise ValueError(f"mesh = {path!r}: PLY format {fmt!r} is not supported")
-        verts, tris = None, []
-        text = fh.read()
+def _load_ply(path, fh):
+    """The vertices and triangles of the PLY file ``fh`` (open, binary) at ``path``."""
+    if fh.readline().strip() != b"ply":
+        raise ValueError(f"mesh = {path!r}: not a PLY file")
+    fmt, elements = None, []
+    while True:
+        line = fh.readline()
+        if not line:
+            raise ValueError(f"mesh = {path!r}: PLY header has no end_header")
+        words = line.decode("ascii", "replace").split()
+        if not words:
+            continue
+        if words[0] == "format":
+            if len(words) < 2:
+                raise ValueError("PLY 'format' line has no format")
+            fmt = words[1]
+        elif words[0] == "element":
+            if len(words) < 3 or not words[2].isdigit():
+                raise ValueError(f"PLY element line {line!r} must be 'element NAME COUNT'")
+            try:
+                count = int(words[2])
+            except ValueError:  # more digits than Python converts
+                raise ValueError(f"PLY element {words[1]!r} count {words[2][:20]}... is too large") from None
+            elements.append([words[1], count, []])
+        elif words[0] == "property":
+            if not elements:
+                raise ValueError("PLY property before any element")
+            types = [w for w in words[1:-1] if w != "list"]
+            if not types or any(w not in _PLY_TYPES for w in types):
+                raise ValueError(f"PLY property {' '.join(words[1:])!r} has an unknown type")
+            if words[1] == "list" and (len(words) != 5 or _PLY_TYPES[words[2]] in "fd"):
+                raise ValueError(
+                    f"PLY property {' '.join(words[1:])!r} must be 'property list COUNT_TYPE ITEM_TYPE NAME' "
+                    "with an integer COUNT_TYPE"
+                )
+            elements[-1][2].append(words[1:])
+        elif words[0] == "end_header":
+            break
+    if fmt not in ("ascii", "binary_little_endian"):
+        raise ValueError(f"mesh = {path!r}: PLY format {fmt!r} is not supported")
+    verts, tris = None, []
+    text = fh.read()
     pos = 0
     tokens = text.split() if fmt == "ascii" else None
     # Every read takes at least one value (ASCII) or its size in bytes (binary) of what is left, so

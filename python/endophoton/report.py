@@ -293,6 +293,10 @@ def _write_run(w: Callable, r: Any, t: Mapping[str, Any], pt: Mapping[str, Any])
     w(f"- total engine time: {_fmt(float(np.nansum(r.column('seconds'))), 4)} s\n")
     if any(row.get("cancelled") for row in r.rows):
         w("**The sweep was cancelled; the last row is partial.**\n")
+    elif m.get("cancelled"):  # cancelled between two runs: every row is whole, the later angles are missing
+        w(
+            f"**The sweep was cancelled at beta = {m.get('cancelled_at_beta')} deg; the angles from there on are missing.**\n"
+        )
 
     w("## Per-angle results\n")
     w(

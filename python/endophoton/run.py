@@ -13,12 +13,17 @@ from types import SimpleNamespace
 from . import _core, placement
 from .quality import quality_preset
 from .scene import Scene
+from .callbacks import checked_progress
 from .io import check_bool, check_int, check_path, check_real
 from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
 
 CancelToken = _core.CancelToken
 #: Largest packet count a request may name (photons, store, max_photons): 2^62.
 MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
+#: Packet cap of a target run without max_photons (2^30; the engine's kDefaultTargetMaxPackets). Such a
+#: run also stops early, as "target_unreachable" with a warning, once the packets its error so far
+#: projects exceed ten times this cap (docs/numerics.md, "Unreachable targets").
+DEFAULT_TARGET_MAX_PHOTONS = int(_core.DEFAULT_TARGET_MAX_PACKETS)
 #: Largest thread count a run accepts (a count the system cannot start is a named error too).
 MAX_THREADS = 4096
 
@@ -329,9 +334,13 @@ def run(
     Exactly one of ``photons`` (launch that many packets), ``store`` (launch
     until that many escape records are stored; the seed's "store N") or
     ``target`` (until the relative standard error of a tally reaches the target)
-    chooses when to stop. The run releases the GIL; ``progress(done, total)`` is
+    chooses when to stop. A target run without ``max_photons`` is capped at
+    :data:`DEFAULT_TARGET_MAX_PHOTONS` and stops early (``stop_reason``
+    "target_unreachable", a warning naming the packets it would need) once its
+    error so far projects more than ten times that cap. The run releases the GIL; ``progress(done, total)`` is
     called about 10 times a second from the calling thread and may return False
-    to stop; ``cancel`` (a CancelToken) can stop it from any thread, and the
+    to stop (None or True go on; any other value is a TypeError naming ``progress``,
+    endophoton.callbacks); ``cancel`` (a CancelToken) can stop it from any thread, and the
     partial result then has ``cancelled=True``.
 
     ``client`` (a dask.distributed.Client) traces the packets on its workers in
@@ -351,6 +360,7 @@ def run(
     """
     # every argument of this call, captured once by name, checked as check_run() checks them
     opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**locals()), engine_check=False)
+    progress = checked_progress("progress", progress)  # a value other than None/True/False: TypeError naming it
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 

@@ -4,13 +4,13 @@ no scattering, no absorption).
 
 Lengths are in the scene unit (``"m"``, ``"cm"`` or ``"mm"``); ``mua`` and
 ``mus`` are always in cm^-1. Where regions overlap, the one with the higher
-priority is the medium (ties: the region added later).
+priority is the medium; regions of equal priority may touch but not share volume (refused when
+the engine scene is built: endophoton.overlaps).
 """
 from __future__ import annotations
 
 import hashlib
 import itertools
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -22,8 +22,10 @@ import numpy as np
 from . import media
 from .medium import Medium
 from .mesh_io import box_mesh, load_mesh
+from .overlaps import check_overlaps
 from .spectra import EEM, Fluorophore, Spectrum
-from .io import check_keys as _check_keys, check_real, real_or_none, shown
+from .io import check_keys as _check_keys, check_real, read_json_file, real_or_none, shown
+from . import scene_schema
 from .scene_schema import MAX_FLUOROPHORES, MAX_REGIONS, validate_document
 from .units import unit_cm
 
@@ -277,6 +279,7 @@ class Scene:
 
         if not self.regions:
             raise ValueError("scene.regions is empty: add at least one region")
+        check_overlaps(self.regions)  # equal priorities that share volume: refused (endophoton.overlaps)
         s = _core.Scene(self.unit_cm, self.ambient_n)
         ids: dict[str, int] = {}
         eems: dict[str, EEM] = {}
@@ -336,9 +339,16 @@ class Scene:
         ValueError naming the region, field and value). Unknown keys are errors."""
         validate_document(data)
         _check_keys(
-            "scene", data, {"unit", "ambient_n", "regions"}, extra={"source", "run", "name", "description", "camera"}
+            "scene",
+            data,
+            scene_schema.required(),
+            extra={"unit", "ambient_n", "source", "run", "name", "description", "camera"},
         )
-        scene = cls(unit=data.get("unit", "cm"), ambient_n=data.get("ambient_n", 1.0))
+        # an omitted unit or ambient_n takes the schema's default (one rule: scene_schema.default)
+        scene = cls(
+            unit=data.get("unit", scene_schema.default("scene", "unit")),
+            ambient_n=data.get("ambient_n", scene_schema.default("scene", "ambient_n")),
+        )
         regions = data.get("regions")
         if not isinstance(regions, list) or not regions:
             raise ValueError(f"scene.regions = {regions!r} must be a non-empty list")
@@ -365,7 +375,7 @@ class Scene:
                     fl.append(Fluorophore(fd["name"], fd["d"], fd["c"], eem=eem))
                 except ValueError as e:
                     raise ValueError(f"{owner}: {e}") from None
-            priority = rd.get("priority", 0)
+            priority = rd.get("priority", scene_schema.default("region", "priority"))
             has_box, has_mesh = "box" in rd, "mesh" in rd
             if has_box == has_mesh:
                 raise ValueError(f"{owner}: give exactly one of 'box' or 'mesh'")
@@ -388,8 +398,7 @@ class Scene:
 
     @classmethod
     def from_json(cls, path: str) -> "Scene":
-        with open(path, "r", encoding="utf-8") as fh:
-            data = json.load(fh)
+        data = read_json_file(path, "scene file")  # a regular file within its limit, unique keys
         return cls.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)))
 
 
@@ -421,8 +430,8 @@ def _medium_from_dict(owner: str, md) -> Medium:
         return Medium(
             mua=_coefficient_from_json(owner, "mua", md["mua"]),
             mus=_coefficient_from_json(owner, "mus", md["mus"]),
-            g=md.get("g", 0.0),
-            n=md.get("n", 1.0),
+            g=md.get("g", scene_schema.default("medium", "g")),
+            n=md.get("n", scene_schema.default("medium", "n")),
         )
     except ValueError as e:
         msg = str(e)

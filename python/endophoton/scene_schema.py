@@ -36,6 +36,20 @@ def schema() -> dict:
     raise RuntimeError("scene.schema.json not found (reinstall endophoton)")
 
 
+def default(definition: str, field: str):
+    """The schema's ``default`` of ``field`` of the object ``definition`` ("scene" for the top level,
+    else a name under ``definitions``, e.g. "medium", "region"): the loader's value for an omitted
+    field, so that the schema and the loader are one rule (test_hardening_38 holds them together)."""
+    node = schema() if definition == "scene" else schema()["definitions"][definition]
+    return node["properties"][field]["default"]
+
+
+def required(definition: str = "scene") -> set:
+    """The keys the schema requires of the object ``definition`` (see :func:`default`)."""
+    node = schema() if definition == "scene" else schema()["definitions"][definition]
+    return set(node.get("required", ()))
+
+
 def check_depth(data, limit: int = MAX_DEPTH) -> None:
     """Refuses documents nested deeper than ``limit`` (iteratively: no recursion error)."""
     stack = [(data, 1)]

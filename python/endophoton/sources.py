@@ -23,9 +23,11 @@ def _vec3(owner, field_name, v, unit_length=False):
         raise ValueError(f"{owner}.{field_name} = {shown(v)} must be 3 finite numbers")
     if unit_length:
         m = float(np.max(np.abs(a)))
-        # Scaled by its largest component first: the norm of (0, 0, 1e300) would overflow to inf.
-        if not m > 0 or m * float(np.linalg.norm(a / m)) < 1e-12:
-            raise ValueError(f"{owner}.{field_name} = {shown(v)} has zero length (below 1e-12)")
+        # Any non-zero length, as the schema says ("direction"): scaled by its largest component
+        # first, the normalisation is exact in range for any length (the norm of (0, 0, 1e300)
+        # would overflow to inf, that of (0, 0, 1e-300) underflow to 0).
+        if not m > 0:
+            raise ValueError(f"{owner}.{field_name} = {shown(v)} has zero length")
         a = a / m
         a = a / float(np.linalg.norm(a))
     return a

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
-from .io import atomic_write_text, shown
+from .io import atomic_write_text, read_input_text, shown
 from .paper import FLUOROPHORES
 
 __all__ = [
@@ -213,13 +213,8 @@ class EEM:
         path = Path(path)
         name = path.stem if name is None else name
         where = f"eem file '{path}'"
-        try:
-            with open(path, encoding="utf-8") as f:
-                lines = list(f)
-        except OSError as e:
-            raise ValueError(f"{where} cannot be read: {e.strerror or e}") from None
-        except UnicodeDecodeError as e:
-            raise ValueError(f"{where} is not UTF-8 text ({e.reason}): give a CSV file") from None
+        # a regular file within MAX_INPUT_BYTES["eem file"], UTF-8 (errors name the file)
+        lines = read_input_text(path, "eem file").splitlines()
         rows = []
         for lineno, line in enumerate(lines, start=1):
             text = line.strip()

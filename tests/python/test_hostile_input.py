@@ -189,11 +189,11 @@ def test_eem_at_the_range_ends_gives_finite_spectral_results():
 
 def test_eem_from_csv_names_a_missing_or_binary_file(tmp_path):
     missing = tmp_path / "nonexistent.csv"
-    with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(missing))}' cannot be read: No such file"):
+    with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(missing))}': cannot read: No such file"):
         ep.EEM.from_csv(missing)
     binary = tmp_path / "binary.csv"
     binary.write_bytes(bytes(range(256)) * 4)
-    with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(binary))}' is not UTF-8 text"):
+    with pytest.raises(ValueError, match=rf"eem file '{re.escape(str(binary))}': not UTF-8 text"):
         ep.EEM.from_csv(binary)
 
 

@@ -47,7 +47,7 @@ def _assert_files_as_before(res, tmp_path, undefined):
     rows = json.loads(new[1])["rows"]
     lines = new[0].decode().splitlines()
     header = lines[0].split(",")
-    assert header == list(CSV_COLUMNS)
+    assert header == res.columns() and header[: len(CSV_COLUMNS)] == list(CSV_COLUMNS)
     for row, line in zip(rows, lines[1:]):
         cells = dict(zip(header, line.split(",")))
         for k in undefined:

@@ -230,11 +230,16 @@ def sweep_main(args: argparse.Namespace) -> int:
     kwargs = sweep_kwargs(args)
     check_out_dir(args.out)
     check_output_files(args.out, output_file_names(args.betas, visibility=bool(kwargs.get("visibility"))))
-    with scheduler_client(args) as client:
-        res = sweep(scene, client=client, **kwargs)
-    res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
-    with out_dir_errors(args.out):
-        paths = write_outputs(res, args.out)
+    # Ctrl-C cancels the sweep (local or on a cluster): the finished angles' rows, the cancelled
+    # one's partial row, their images and the report are written, marked cancelled; exit 130.
+    from ..interrupts import sigint_cancels
+
+    with sigint_cancels() as token:
+        with scheduler_client(args) as client:
+            res = sweep(scene, client=client, cancel=token, **kwargs)
+        res.meta["scene"] = f"default_flat_scene(unit='cm', polyp={polyp!r})"
+        with out_dir_errors(args.out):
+            paths = write_outputs(res, args.out)
     print(
         f"sweep: {len(res.rows)} angle(s); wrote {paths['csv']}, {paths['json']}, "
         f"{len(paths.get('plots', []))} plot(s), {paths.get('report')}"

@@ -41,6 +41,7 @@ import numpy as np
 
 from .. import _core, meshes, placement
 from ..analysis import DEFAULT_BATCHES
+from ..callbacks import notification_done, progress_verdict
 from ..io import atomic_write_text, check_bool, check_int, check_output_files, check_path, check_real, jsonable
 from ..medium import Medium
 from ..paper import DISTANCE_CM, FLUOROPHORES, IMPORTANT_ANGLE_DEG, TISSUE
@@ -50,6 +51,7 @@ from ..sources import EndoscopeRig
 from ..spectra import Fluorophore
 from .reduce import analyse_run, finish_relative, rig_geometry
 from .schema import (
+    region_cells,
     CSV_COLUMNS,
     MAX_BETAS,
     VISIBILITY_COLUMNS,
@@ -192,8 +194,8 @@ class _Progress:
         if self.bar is not None and not self._chunks and now - self._last > 0.5:
             self._last = now
             self.bar.set_postfix_str(f"{done:,}/{total:,}" if total else f"{done:,} packets")
-        if self.user is not None:
-            return self.user(self._i, self._n, done, total)
+        if self.user is not None:  # its value by type (endophoton.callbacks): None/True go on, False stops
+            return progress_verdict("progress", self.user(self._i, self._n, done, total))
         return None
 
     def engine_of(self, i: int, done: int, total: int):
@@ -410,7 +412,7 @@ class _Rows:
         self.batches.append(bt)
         self.bar.step()
         if self.on_beta is not None:
-            self.on_beta(i, len(self.betas), row)
+            notification_done("on_beta", self.on_beta(i, len(self.betas), row))
         if cancelled:
             self.stop_at(i)
         return not cancelled
@@ -514,6 +516,7 @@ def _beta_outcome(
         "seconds": seconds,
         "seed": int(seed),
         "cancelled": int(cancelled),
+        **region_cells(res),
     }
     if visibility is not None:  # the endoscope's view of this run (docs/render.md)
         from .view_sweep import add_visibility
@@ -559,7 +562,7 @@ def _sweep_on_cluster(client, chunk_units, betas, seeds, setup, kw, outcome, row
     def chunks(done, total):
         bar.chunks(done, total)
         if on_chunks is not None:
-            on_chunks(done, total)
+            notification_done("on_chunks", on_chunks(done, total))
 
     distributed.run_many(
         client, requests, chunk_units=chunk_units, cancel=cancel, on_chunk=chunks, on_finished=finished
@@ -662,7 +665,7 @@ def sweep(
 
     def outcome(i, res, seconds, beta, rig, unit):
         if on_run is not None:
-            on_run(i, beta, res)
+            notification_done("on_run", on_run(i, beta, res))
         return analyse(res, seconds, beta, rig, unit, seeds[i])
 
     if static_scene is not None:

@@ -9,7 +9,6 @@ standard error.  It is written as CSV (the rows) and as strict JSON (format
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -18,7 +17,7 @@ from typing import Iterable
 
 import numpy as np
 
-from ..io import atomic_write_text, jsonable, unjson, write_json
+from ..io import atomic_write_text, jsonable, read_json_file, unjson, write_json
 
 __all__ = [
     "CSV_COLUMNS",
@@ -101,6 +100,36 @@ VISIBILITY_COLUMNS = {
 CSV_COLUMNS.update(VISIBILITY_COLUMNS)
 
 
+#: Prefix of the per-region columns: ``absorbed_by_region.<region>`` and ``..._stderr``, the engine's
+#: fraction of the launched weight absorbed in each region and its batch-means stderr (ep.run's
+#: ``absorbed_by_region`` / ``absorbed_by_region_stderr``). They follow :data:`CSV_COLUMNS` in the
+#: CSV, one pair per region of the sweep's scene, in the scene's order.
+REGION_COLUMN = "absorbed_by_region."
+
+
+def region_cells(res) -> dict:
+    """The per-region cells of one run's row (:data:`REGION_COLUMN`), from its ``Result``."""
+    values, errors = getattr(res, "absorbed_by_region", {}), getattr(res, "absorbed_by_region_stderr", {})
+    cells = {}
+    for name, v in values.items():
+        cells[REGION_COLUMN + name] = float(v)
+        cells[REGION_COLUMN + name + "_stderr"] = float(errors[name])
+    return cells
+
+
+def _csv_cell(text: str) -> str:
+    """A header cell: quoted (RFC 4180) if a region's name holds a comma, a quote or a line break."""
+    return '"' + text.replace('"', '""') + '"' if any(c in text for c in ',"\r\n') else text
+
+
+def region_columns(rows) -> list:
+    """The per-region column names the rows hold, in order of first appearance."""
+    seen = {}
+    for r in rows:
+        seen.update((k, None) for k in r if k.startswith(REGION_COLUMN))
+    return list(seen)
+
+
 @dataclass
 class SweepResult:
     """Result of :func:`sweep`.
@@ -132,7 +161,7 @@ class SweepResult:
     def column(self, name: str) -> np.ndarray:
         """One CSV column over beta as a float array, for arithmetic and plots: a missing or undefined
         (None) cell is nan there (the rows themselves hold None)."""
-        if name not in CSV_COLUMNS:
+        if name not in CSV_COLUMNS and not (name.startswith(REGION_COLUMN) and name in region_columns(self.rows)):
             raise ValueError(f"column '{name}' is not a sweep column")
         return np.array([unjson(r.get(name)) for r in self.rows], dtype=np.float64)
 
@@ -143,13 +172,18 @@ class SweepResult:
                 return h
         raise ValueError(f"beta = {beta} not in the sweep")
 
+    def columns(self) -> list:
+        """The CSV's columns: :data:`CSV_COLUMNS`, then the rows' per-region ones (:data:`REGION_COLUMN`)."""
+        return list(CSV_COLUMNS) + region_columns(self.rows)
+
     def to_csv(self, path: str | os.PathLike) -> str:
-        """Write the rows as CSV (header = CSV_COLUMNS keys; None, or a non-finite float, as an empty
-        cell), atomically."""
-        lines = [",".join(CSV_COLUMNS)]
+        """Write the rows as CSV (header = CSV_COLUMNS keys, then the per-region columns
+        :data:`REGION_COLUMN`; None, or a non-finite float, as an empty cell), atomically."""
+        columns = self.columns()
+        lines = [",".join(_csv_cell(c) for c in columns)]
         for r in self.rows:
             cells = []
-            for k in CSV_COLUMNS:
+            for k in columns:
                 v = r.get(k)
                 if v is None or (isinstance(v, float) and not math.isfinite(v)):
                     cells.append("")
@@ -181,8 +215,7 @@ class SweepResult:
     def from_json(cls, path: str | os.PathLike) -> "SweepResult":
         """Read a file written by :meth:`to_json`: a ``null`` cell of a row comes back as None, arrays as
         numpy float arrays (``null`` -> nan)."""
-        with open(path, "r", encoding="utf-8") as f:
-            d = json.load(f)
+        d = read_json_file(path, "sweep file")
         if d.get("format") != "endophoton-sweep/1":
             raise ValueError(f"{path}: format = {d.get('format')!r} is not endophoton-sweep/1")
         rows = [dict(r) for r in d["rows"]]

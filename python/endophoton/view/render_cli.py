@@ -66,6 +66,23 @@ def _check_int(name, v, lo):
         raise ValueError(f"--{name} = {v} must be >= {lo}")
 
 
+def _check_before_the_run(args, scene) -> None:
+    """The render inputs a run would only meet after tracing, checked first: --width/--height in
+    [1, MAX_IMAGE_SIDE] and --target/--background naming regions of the scene (ValueError naming
+    the option; an unknown --target used to be refused after the whole run)."""
+    from ..sources import MAX_IMAGE_SIDE, is_image_side
+
+    for name in ("width", "height"):
+        v = getattr(args, name)
+        if v is not None and not is_image_side(v):
+            raise ValueError(f"--{name} = {v} must be an integer in [1, {MAX_IMAGE_SIDE}] (pixels)")
+    names = [r.name for r in scene.regions]
+    for option in ("target", "background"):
+        v = getattr(args, option)
+        if v is not None and v not in names:
+            raise ValueError(f"--{option} = {v!r} is not a region of the scene (regions: {', '.join(names)})")
+
+
 def render_main(args) -> int:
     from ..cli_files import check_out_dir, out_dir_errors
     from ..io import check_output_files
@@ -77,6 +94,7 @@ def render_main(args) -> int:
     if (args.target is None) != (args.background is None):
         raise ValueError(f"--target = {args.target!r}, --background = {args.background!r}: give both or neither")
     scene, source, camera, defaults = _load(args.scene)
+    _check_before_the_run(args, scene)
     if camera is None and not hasattr(source, "camera"):
         raise ValueError(
             f"camera: SCENE.json has no 'camera' object and source.type = "

@@ -32,6 +32,10 @@ def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[fl
 
     sums : (..., B) per-batch sums; packets_per_batch : (B,); stat : function of an (...,) array -> float
     (may return None or a non-finite value when undefined; then (None, None)).
+
+    A value is defined only with its standard error (every result carries one): when ``stat`` is
+    undefined without some batch (say the background's green comes from that batch alone), the
+    estimate rests on too few batches to have an error, and both are None.
     """
     S = np.asarray(sums, dtype=np.float64)
     Pb = np.asarray(packets_per_batch, dtype=np.float64)
@@ -45,7 +49,7 @@ def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[fl
     for b in range(B):
         v = stat((total - S[..., b]) / (P - Pb[b]))
         if v is None or not math.isfinite(v):
-            return float(value), None
+            return None, None
         loo.append(v)
     loo = np.asarray(loo)
     return float(value), float(math.sqrt((B - 1) / B * np.sum((loo - loo.mean()) ** 2)))
