@@ -10,7 +10,6 @@ import json
 import importlib
 import os
 import signal
-import subprocess
 import sys
 
 import numpy as np
@@ -21,6 +20,7 @@ from endophoton import _core, distributed
 from endophoton.sweep.driver import default_flat_scene
 from endophoton.run import run_request
 from endophoton.vdb import grid_to_numpy
+from cli_helpers import run_cli as cli
 from physics_helpers import assert_energy_conserved
 
 pytest.importorskip("distributed")
@@ -57,13 +57,6 @@ def assert_same_result(a, b):
         for k in a.escapes:
             assert a.escapes[k].dtype == b.escapes[k].dtype, k
             assert np.array_equal(a.escapes[k], b.escapes[k]), k
-
-
-def cli(*args):
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    return subprocess.run(
-        [sys.executable, "-m", "endophoton", *args], capture_output=True, text=True, env=env, timeout=600
-    )
 
 
 def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
@@ -376,25 +369,6 @@ def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
     assert out.returncode == 2
     assert "tcp://127.0.0.1:9" in out.stderr and "cannot connect" in out.stderr
     assert "Traceback" not in out.stderr and not (tmp_path / "o").exists()
-
-
-def test_cli_sweep_blend_on_local2_runs_on_the_cluster(tmp_path):
-    """``sweep --blend FILE --scheduler local:2``: the cluster is started here and Blender's
-    sweep connects to it (the chunk bar shows on stderr); the angles' rows are complete."""
-    from test_sweep import _blender_available
-
-    if not _blender_available():
-        pytest.skip("blender with python 3.11 + numpy, or the engine, missing")
-    blend = os.path.join(ROOT, "blend_scenes", "flat_tissue.blend")
-    out = cli(
-        "sweep", "--blend", blend, "--betas", "0,20", "--store", "400", "--batches", "4", "--seed", "3",
-        "--scheduler", "local:2", "--out", str(tmp_path / "o"),
-    )  # fmt: skip
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    assert "chunk" in out.stderr
-    rows = _csv_rows(tmp_path / "o" / "sweep.csv")
-    assert [float(r["beta_deg"]) for r in rows] == [0.0, 20.0] and all(r["records"] == "400" for r in rows)
-    assert all(r["cancelled"] == "0" for r in rows)
 
 
 def test_run_many_fixed_store_and_target_at_once_each_match_their_local_run(client, tmp_path):

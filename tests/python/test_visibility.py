@@ -259,30 +259,9 @@ def test_sweep_without_visibility_leaves_the_columns_undefined():
 
 
 def test_sweep_cli_target_needs_background(tmp_path):
-    import subprocess
-    import sys
+    from cli_helpers import run_cli
 
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env = dict(os.environ, PYTHONPATH=os.path.join(root, "python"))
-    p = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "endophoton",
-            "sweep",
-            "--betas",
-            "0",
-            "--store",
-            "100",
-            "--out",
-            str(tmp_path),
-            "--target",
-            "polyp",
-            "--no-progress",
-        ],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    p = run_cli(
+        "sweep", "--betas", "0", "--store", "100", "--out", tmp_path, "--target", "polyp", "--no-progress", timeout=120
     )
     assert p.returncode == 2 and "--background = None" in p.stderr
