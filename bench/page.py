@@ -88,7 +88,7 @@ def throughput(R):
         "(`bench/scenes/colon.json`: a folded tube with a polyp, the rig at β 20°, fluorescence of collagen and "
         "photofrin), `colon+grids` (+ absorbed/fluorescence grids at 0.2 mm), `colon_lumen_off` (`lumen: false`: every "
         "packet ends at its first exit, the engine before issue 9). packets/s = packets / the run's `seconds` (engine "
-        "wall clock), best of the repeats; packets per CPU-s uses the run's CPU time (`stats.process.run_cpu_seconds`), "
+        "wall clock), best of the repeats; packets per CPU-s uses the CPU time of the `ep.run` call the CLI makes (`stats.process.run_cpu_seconds`, the engine scene's build included), "
         "which shows the parallel efficiency when the shared machine does not give a run two whole cores. No warm-up: "
         "each run builds the triangle caches its steps need, as a user's run does. The scaling is the median over the "
         "repeats of the ratio of a 2-thread run to the 1-thread run next to it in time. Peak RSS is the process's "

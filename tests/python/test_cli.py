@@ -32,6 +32,7 @@ def _run_json(path, photons, seed=1, threads=2):
     return data
 
 
+@pytest.mark.slow
 def test_cli_mcml_slab_matches_oracle():
     d = _run_json("examples/mcml_slab.json", 20_000)
     # oracles §1, van de Hulst (+-0.5e-5 rounding)

@@ -59,6 +59,7 @@ def assert_same_result(a, b):
             assert np.array_equal(a.escapes[k], b.escapes[k]), k
 
 
+@pytest.mark.slow
 def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
     dist = cli("run", MCML_SLAB, "--photons", "20000", "--seed", "7", "--scheduler", "local:2")
     assert dist.returncode == 0, dist.stderr
@@ -73,6 +74,7 @@ def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
     assert abs(d["transmittance"] - 0.66096) < 4 * d["transmittance_stderr"]
 
 
+@pytest.mark.slow
 def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     scene, rig = fluorescent_endoscope()
     grids = dict(voxel_size=0.05, per_fluorophore=True)
@@ -108,6 +110,7 @@ def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     assert_energy_conserved(dist, tol=1e-12)
 
 
+@pytest.mark.slow
 def test_store_n_is_bit_identical_and_stops_where_the_local_run_stops(client, tmp_path):
     """A store run keeps grids per unit: the units past its stop point are discarded with
     their deposits, on the cluster (chunks of 3 units: the stop falls inside a chunk) as on
@@ -142,6 +145,7 @@ def test_target_accuracy_is_bit_identical(client):
     assert dist.diffuse_reflectance_stderr <= 0.05 * dist.diffuse_reflectance
 
 
+@pytest.mark.slow
 def test_killed_worker_loses_nothing():
     scene, rig = fluorescent_endoscope()
     kw = dict(photons=4000, seed=9, record_escapes=True)
@@ -185,6 +189,7 @@ def test_bad_chunk_units_is_named(client):
         ep.run(scene, rig, photons=100, client=client, chunk_units=-1)
 
 
+@pytest.mark.slow
 def test_unreachable_scheduler_exits_2_naming_the_address():
     out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "tcp://127.0.0.1:9")
     assert out.returncode == 2
@@ -192,6 +197,7 @@ def test_unreachable_scheduler_exits_2_naming_the_address():
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.slow
 def test_bad_local_worker_count_exits_2():
     out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "local:zero")
     assert out.returncode == 2 and "local:zero" in out.stderr
@@ -351,6 +357,7 @@ def test_cancelling_a_cluster_sweep_cancels_its_tasks(client):
     assert client.run_on_scheduler(live_chunks) == []
 
 
+@pytest.mark.slow
 def test_cli_sweep_on_local2_matches_the_local_cli_sweep(tmp_path):
     common = ["sweep", "--betas", "0,30", "--store", "200", "--seed", "3", "--batches", "10"]
     dist = cli(*common, "--scheduler", "local:2", "--out", str(tmp_path / "dist"))
@@ -362,6 +369,7 @@ def test_cli_sweep_on_local2_matches_the_local_cli_sweep(tmp_path):
     assert len(rows) == 2 and rows == _csv_rows(tmp_path / "local" / "sweep.csv")
 
 
+@pytest.mark.slow
 def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
     out = cli(
         "sweep", "--betas", "0", "--store", "100", "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "o")
@@ -371,6 +379,7 @@ def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
     assert "Traceback" not in out.stderr and not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_run_many_fixed_store_and_target_at_once_each_match_their_local_run(client, tmp_path):
     """Three runs with different stop rules in flight together (two share one scene, the
     third has its own): each is merged in its own unit order and stops where it stops
@@ -414,6 +423,7 @@ def _scattered_chunk_request(max_memory_mb, tmp_path):
     return scene, source, opts
 
 
+@pytest.mark.slow
 def test_a_workers_chunk_grids_stop_at_the_memory_limit(tmp_path):
     # The worker's own task, in this process: its chunk's voxel tables (~500,000 voxels a grid
     # for 2,000 packets) pass 1 MiB, and the chunk stops by name instead of filling the worker.
@@ -430,6 +440,7 @@ def test_a_workers_chunk_grids_stop_at_the_memory_limit(tmp_path):
     assert version == _core.__version__ and len(data) > 0
 
 
+@pytest.mark.slow
 def test_a_cluster_run_past_the_memory_limit_raises_it_by_name(client, tmp_path):
     scene, source, _ = _scattered_chunk_request(1, tmp_path)
     grids = ep.GridRequest(voxel_size=1e-4, path=str(tmp_path / "scattered.vdb"), max_memory_mb=1)

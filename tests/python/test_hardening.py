@@ -71,6 +71,7 @@ def test_thread_creation_failure_is_a_named_error():
 
 
 # ---------------------------------------------------------------- corrupt output
+@pytest.mark.slow
 def test_grid_write_beyond_the_file_size_limit_fails_and_leaves_no_file(tmp_path):
     out = tmp_path / "g.vdb"
     p = _subprocess(

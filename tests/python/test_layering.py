@@ -176,6 +176,7 @@ BLOCKER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_package_imports_with_bpy_and_addon_unimportable():
     """Import the package and every module in it, and parse the sweep CLI, in a
     fresh interpreter where bpy and the add-on cannot be imported."""

@@ -29,6 +29,7 @@ def colon():
     return bench_scene("colon")
 
 
+@pytest.mark.slow
 def test_kept_scene_gives_the_bits_of_a_fresh_one(colon):
     scene, rig = colon
     first = run(scene, rig)

@@ -58,6 +58,7 @@ def _render(tmp_path, scene, *args):
     return run_cli("render", path, *args)
 
 
+@pytest.mark.slow
 def test_render_cli_writes_images_arrays_and_json(tmp_path):
     import matplotlib.image as mpimg
 
@@ -102,6 +103,7 @@ def test_render_cli_writes_images_arrays_and_json(tmp_path):
     assert d["regions"]["wall"]["white_radiance"] == pytest.approx(arr["white_radiance"][wall].mean(), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_render_cli_uses_the_endoscope_camera_by_default(tmp_path):
     scene = copy.deepcopy(SCENE)
     del scene["camera"]
@@ -112,6 +114,7 @@ def test_render_cli_uses_the_endoscope_camera_by_default(tmp_path):
     assert (d["width"], d["height"]) == (8, 8)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "change,args,needle",
     [

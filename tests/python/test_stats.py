@@ -67,6 +67,7 @@ def test_no_stats_unless_asked_and_not_on_a_client():
         _run(scene, source, photons=200, stats="yes")
 
 
+@pytest.mark.slow
 def test_cli_stats_block():
     out = run_json("run", f"{EXAMPLES}/seed_tissue.json", "--photons", 2000, "--threads", 2, "--stats")
     stats = out["stats"]

@@ -103,6 +103,7 @@ def fake_result(tmp_path_factory):
     return res, str(out)
 
 
+@pytest.mark.slow
 def test_fake_sweep_recovers_known_statistics(fake_result):
     res, _ = fake_result
     assert [r["beta_deg"] for r in res.rows] == [0.0, 20.0, 40.0]
@@ -129,6 +130,7 @@ def test_fake_sweep_recovers_known_statistics(fake_result):
     assert res.rows[2]["azimuth_chi2_p_min"] < 1e-6
 
 
+@pytest.mark.slow
 def test_outputs_written(fake_result):
     res, out = fake_result
     files = sorted(os.listdir(out))
@@ -280,6 +282,7 @@ def test_cancel_before_any_record_ends_without_row(fake_engine, tmp_path):
     assert len(res.rows) == 2 and res.meta["cancelled"] is False
 
 
+@pytest.mark.slow
 def test_cli_with_fake_engine(fake_engine, monkeypatch, tmp_path):
     monkeypatch.setattr(sweep_cli, "default_flat_scene", lambda **kw: fake_engine)
     p = argparse.ArgumentParser()
@@ -536,6 +539,7 @@ def test_default_flat_scene_builds():
     assert np.isclose(mm.region("polyp").vertices[:, 0].max(), 3.0, rtol=1e-3)
 
 
+@pytest.mark.slow
 @needs_engine
 def test_real_small_sweep_outputs(tmp_path):
     res = sw.sweep(None, betas=[0, 30, 50], store=4000, seed=2, progress=False, out_dir=str(tmp_path))
@@ -552,6 +556,7 @@ def test_real_small_sweep_outputs(tmp_path):
     assert again.rows[0]["energy_total"] == res.rows[1]["energy_total"]
 
 
+@pytest.mark.slow
 @needs_engine
 def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
     """seed_per_beta: beta k runs with (seed + k x 0x9E3779B97F4A7C15) mod 2^64, written out here,
@@ -596,6 +601,7 @@ def test_sweep_cli_seed_per_beta_reaches_the_sweep_and_blender():
     )
 
 
+@pytest.mark.slow
 @needs_engine
 @pytest.mark.parametrize("polyp", [None, "dome"])
 def test_real_beta0_azimuth_uniform(polyp):
@@ -710,6 +716,7 @@ def test_report_recovers_known_trends(tmp_path):
     assert "so the fit degree is" not in text  # 12 angles: full degree-6 fit, no reduced-degree note
 
 
+@pytest.mark.slow
 def test_a_tiny_store_writes_its_report_without_numpy_warnings(tmp_path):
     """store = 40 in 20 batches leaves batches without records: their numbers are undefined ("n/a" in
     report.md, None in compute_trends), and numpy's warnings about them no longer reach the user."""

@@ -236,11 +236,13 @@ def _check_cli_result(d, target):
     assert_within("CLI Rd", d["diffuse_reflectance"], d["diffuse_reflectance_stderr"], VDH_RD, VDH_UNC)
 
 
+@pytest.mark.slow
 def test_cli_target_rel_error(tmp_path):
     d = _cli(_slab_json(tmp_path / "mcml_slab.json"), "--target-rel-error", "0.02")
     _check_cli_result(d, 0.02)
 
 
+@pytest.mark.slow
 def test_cli_target_on_example_file():
     path = os.path.join(ROOT, "examples", "mcml_slab.json")
     if not os.path.exists(path):
