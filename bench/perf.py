@@ -283,13 +283,17 @@ def main(argv=None):
         with open(RESULTS, encoding="utf-8") as fh:
             results = json.load(fh)
         results = results if results.get("format") == 2 else {}  # the former bench's results: start anew
+    earlier = results.get("machine", {})
     results.update(format=2, machine=machine())
+    if a.only and earlier:  # a partial rerun: the page's load at start and wall time cover every section
+        results["machine"].update(load_start=earlier["load_start"], wall_s_before=earlier.get("wall_s", 0))
     results["preset"] = "quick" if a.quick else "full"
     t0 = time.time()
     for name in only:
         log(f"section {name}")
         results[name] = SECTIONS[name](a.quick)
-    results["machine"].update(load_end=os.getloadavg(), wall_s=round(time.time() - t0))
+    m = results["machine"]
+    m.update(load_end=os.getloadavg(), wall_s=m.pop("wall_s_before", 0) + round(time.time() - t0))
     os.makedirs(os.path.dirname(RESULTS), exist_ok=True)
     with open(RESULTS + ".tmp", "w", encoding="utf-8") as fh:
         json.dump(results, fh, indent=1, allow_nan=False)
