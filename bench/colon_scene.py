@@ -1,26 +1,36 @@
-"""A colon-like benchmark scene built with the package API only (no Blender).
+"""The colon benchmark scene: bench/scenes/colon.json (data: media, fluorophores, the rig) and its
+meshes, bench/scenes/colon_tube.ply and colon_polyp.ply, which this module generates.
 
-A thick-walled tube along +x with haustral folds (the inner radius dips by
-``fold_depth`` once per ``fold_period``), closed by annulus rings at both ends,
-a polyp (ellipsoid, higher priority) on the inner wall at the bottom, and the
-endoscope rig inside the lumen looking at the polyp. Tissue and fluorophores
-are the seed's (oracles §5): n = 1.1, mua = 20, mus = 200 cm^-1, g = 0.9,
-collagen d = 0.2, c = 0.4 in the wall; collagen and photofrin (d = 0.1,
-c = 0.33) in the polyp. Built in metres, like the Blender scenes.
+A thick-walled tube along +x with haustral folds (the inner radius dips by ``fold_depth`` once per
+``fold_period``), closed by annulus rings at both ends, a polyp (ellipsoid, higher priority) on the
+inner wall at the bottom, and the endoscope rig inside the lumen looking at the polyp. Tissue and
+fluorophores are the seed's (oracles §5): n = 1.1, mua = 20, mus = 200 cm^-1, g = 0.9, collagen
+d = 0.2, c = 0.4 in the wall; collagen and photofrin (d = 0.1, c = 0.33) in the polyp. Built in
+metres, like the Blender scenes.
 
-    from colon_scene import colon_scene
-    scene, rig = colon_scene()
+    /usr/bin/python3 bench/colon_scene.py          # writes the two PLY files and colon.json again
+    scene, rig = colon_scene()                     # the scene as the CLI reads it (n_x, n_theta: others)
 """
 from __future__ import annotations
 
+import json
 import math
+import os
+import sys
+import tempfile
 
 import numpy as np
 
-import endophoton as ep
-from endophoton import meshes
+HERE = os.path.dirname(os.path.abspath(__file__))
+SCENES = os.path.join(HERE, "scenes")
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "python"))
+
+import endophoton as ep  # noqa: E402
+from endophoton import meshes  # noqa: E402
 
 CM = 0.01  # metres per cm
+TISSUE = {"mua": 20.0, "mus": 200.0, "g": 0.9, "n": 1.1}
+COLLAGEN, PHOTOFRIN = {"name": "collagen", "d": 0.2, "c": 0.4}, {"name": "photofrin", "d": 0.1, "c": 0.33}
 
 
 def tube_mesh(length, radius, fold_depth, fold_period, wall, n_x=100, n_theta=64):
@@ -73,52 +83,75 @@ def tube_mesh(length, radius, fold_depth, fold_period, wall, n_x=100, n_theta=64
     return v32, t32
 
 
-def colon_scene(
-    beta_deg=20.0,
-    length_cm=8.0,
-    radius_cm=2.5,
-    fold_depth_cm=0.5,
-    fold_period_cm=2.0,
-    wall_cm=0.3,
-    polyp_radii_cm=(0.3, 0.3, 0.2),
-    distance_cm=1.0,
-    n_x=100,
-    n_theta=64,
-):
-    """(scene in metres, EndoscopeRig) of the colon-like tube with a polyp and the rig."""
-    tissue = ep.Medium(mua=20.0, mus=200.0, g=0.9, n=1.1)
-    collagen = ep.Fluorophore("collagen", 0.2, 0.4)
-    photofrin = ep.Fluorophore("photofrin", 0.1, 0.33)
-    v, t = tube_mesh(
-        length_cm * CM, radius_cm * CM, fold_depth_cm * CM, fold_period_cm * CM, wall_cm * CM, n_x=n_x, n_theta=n_theta
+def write_ply(path, v, t):
+    """Binary little-endian PLY of float32 vertices ``v`` and uint32 triangles ``t`` (mesh_io.load_mesh reads it)."""
+    head = (
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\nproperty float x\nproperty float y\n"
+        f"property float z\nelement face {len(t)}\nproperty list uchar uint vertex_indices\nend_header\n"
     )
-    scene = ep.Scene(unit="m", ambient_n=1.0)
-    scene.add_mesh("colon", v, t, tissue, priority=0, fluorophores=[collagen])
+    faces = np.zeros(len(t), dtype=[("n", "u1"), ("i", "<u4", 3)])
+    faces["n"], faces["i"] = 3, t
+    with open(path, "wb") as fh:
+        fh.write(head.encode("ascii") + np.asarray(v, "<f4").tobytes() + faces.tobytes())
+
+
+def write_scene(directory, beta_deg=20.0, length_cm=8.0, radius_cm=2.5, polyp_radii_cm=(0.3, 0.3, 0.2), n_x=100,
+                n_theta=64, distance_cm=1.0):  # fmt: skip
+    """Writes colon.json and its two meshes into ``directory``; returns the JSON's path."""
+    v, t = tube_mesh(length_cm * CM, radius_cm * CM, 0.5 * CM, 2.0 * CM, 0.3 * CM, n_x=n_x, n_theta=n_theta)
+    write_ply(os.path.join(directory, "colon_tube.ply"), v, t)
     # Polyp half inside the wall at the bottom, in the valley between two folds (r_in = radius).
-    x0 = (math.floor(length_cm / fold_period_cm / 2) + 0.5) * fold_period_cm
+    x0 = (math.floor(length_cm / 2.0 / 2) + 0.5) * 2.0
     base = np.array([x0, 0.0, -radius_cm]) * CM
     pv, pt = meshes.ellipsoid(tuple(base), tuple(r * CM for r in polyp_radii_cm), n_lat=24, n_lon=48)
-    scene.add_mesh("polyp", pv, pt, tissue, priority=1, fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), photofrin])
+    write_ply(os.path.join(directory, "colon_polyp.ply"), pv, pt)
     top = base + np.array([0.0, 0.0, polyp_radii_cm[2] * CM])
-    rig = ep.EndoscopeRig.from_beta(beta_deg, distance_cm * CM, point=tuple(top), normal=(0, 0, 1), tilt_axis=(0, 1, 0))
-    return scene, rig
+    doc = {
+        "name": "colon",
+        "description": "bench/colon_scene.py: a folded colon tube with a polyp (seed's tissue, collagen, "
+        "photofrin), the endoscope rig at beta 20 deg, 1 cm from the polyp; metres",
+        "unit": "m",
+        "ambient_n": 1.0,
+        "regions": [
+            {"name": "colon", "priority": 0, "medium": TISSUE, "mesh": "colon_tube.ply", "fluorophores": [COLLAGEN]},
+            {
+                "name": "polyp",
+                "priority": 1,
+                "medium": TISSUE,
+                "mesh": "colon_polyp.ply",
+                "fluorophores": [COLLAGEN, PHOTOFRIN],
+            },
+        ],
+        "source": {
+            "type": "endoscope",
+            "beta_deg": beta_deg,
+            "distance": distance_cm * CM,
+            "point": top.tolist(),
+            "normal": [0, 0, 1],
+            "tilt_axis": [0, 1, 0],
+        },
+        "run": {"photons": 150000, "seed": 1},
+    }
+    path = os.path.join(directory, "colon.json")
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(doc, fh, indent=1)
+    return path
 
 
-def seed_tissue_box():
-    """The seed's tissue as a deep box (semi-infinite for mut' = 40 cm^-1), cm; pencil beam."""
-    s = ep.Scene("cm", ambient_n=1.0)
-    s.add_box("tissue", (-5, -5, -10), (5, 5, 0), ep.Medium(mua=20, mus=200, g=0.9, n=1.1))
-    return s, ep.PencilSource((0, 0, 1), (0, 0, -1))
+def load(path):
+    """(scene, source) of a SCENE.json file, as the CLI reads it."""
+    with open(path, encoding="utf-8") as fh:
+        doc = json.load(fh)
+    return ep.Scene.from_dict(doc, base_dir=os.path.dirname(path)), ep.source_from_dict(doc["source"])
 
 
-def mcml_slab():
-    """Oracles §1: n = 1, mua = 10, mus = 90, g = 0.75, d = 0.02 cm; pencil beam."""
-    s = ep.layered_slab([(ep.Medium(mua=10, mus=90, g=0.75, n=1.0), 0.02)], unit="cm")
-    return s, ep.PencilSource((0, 0, 1), (0, 0, -1))
+def colon_scene(beta_deg=20.0, n_x=100, n_theta=64):
+    """(scene in metres, EndoscopeRig): bench/scenes/colon.json, or the tube tessellated n_x x n_theta."""
+    if (beta_deg, n_x, n_theta) == (20.0, 100, 64):
+        return load(os.path.join(SCENES, "colon.json"))
+    with tempfile.TemporaryDirectory() as tmp:
+        return load(write_scene(tmp, beta_deg=beta_deg, n_x=n_x, n_theta=n_theta))
 
 
-def semi_infinite_n15():
-    """Oracles §2: n = 1.5, mua = 10, mus = 90, g = 0, semi-infinite (box 10 cm deep); pencil beam."""
-    s = ep.Scene("cm", ambient_n=1.0)
-    s.add_box("tissue", (-5, -5, -10), (5, 5, 0), ep.Medium(mua=10, mus=90, g=0.0, n=1.5))
-    return s, ep.PencilSource((0, 0, 1), (0, 0, -1))
+if __name__ == "__main__":
+    print(write_scene(SCENES))

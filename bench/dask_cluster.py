@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Distributed-run benchmark (not a test): what a Dask cluster costs and gives.
 
-Prints Markdown tables (for docs/performance.md §7), each figure the mean +- sigma
+Prints Markdown tables (for docs/performance.md §8), each figure the mean +- sigma
 over --repeats, on the seed's tissue (n = 1.1, mua = 20, mus = 200 cm^-1, g = 0.9,
 semi-infinite box, pencil beam):
 

@@ -2,7 +2,7 @@
 
     /usr/bin/python3 bench/lumen_colon.py [--photons N] [--threads T]
 
-bench/run_all.py calls measure() for docs/performance.md §6.
+bench/perf.py runs it for docs/performance.md §6.
 
 Runs bench/colon_scene.py's tube with the rig inside (seed's tissue and
 fluorophores) with the rule on and off, same seed, and prints one JSON object:

@@ -2,7 +2,7 @@
 
     /usr/bin/python3 bench/mesh_size.py [--photons N] [--quick]
 
-bench/run_all.py calls measure() for docs/performance.md §10.
+bench/perf.py runs it for docs/performance.md §10.
 
 For each tessellation (rings along the tube x points around it) of bench/colon_scene.py's tube,
 with the same polyp and rig: the engine scene's build (``Scene.to_native()``: the mesh checks,

@@ -8,7 +8,7 @@ renders the rig camera's view with ep.render_view at 64^2, 128^2 and 256^2 pixel
 of 1, 2 (the default) and 4 pixel footprints (kernel angle 15 deg). For each it prints the wall
 seconds of render_view (best of 2), the median relative standard error of the white image over the
 pixels that see tissue, and the kernel's estimated bias in the polyp's mean white radiance
-(4/3 (L_h - L_h/2), in units of its stderr). bench/run_all.py calls measure() and table() for
+(4/3 (L_h - L_h/2), in units of its stderr). bench/perf.py runs it for
 docs/performance.md §7.
 """
 from __future__ import annotations

@@ -245,6 +245,7 @@ class UnitMerger {
         }
         if (u.own_grids) accepted_.push_back(std::move(u.own_grids));
         result_.units.push_back(std::move(u.tally));
+        if (cfg_.stats) result_.unit_stats.push_back(u.stats);
         const size_t k = result_.units.size();
         if (cfg_.test_cancel_after_units > 0 && k >= cfg_.test_cancel_after_units) {
             result_.stop = StopReason::kCancelled;
@@ -328,6 +329,7 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
                                        Flush&& flush) {
     auto out = new_unit(scene, cfg, plan.unit_size, u, staging);
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
+    const StatsScope counting(cfg.stats ? &out->stats : nullptr);
     tracer.begin_unit();
     for (uint64_t k = first; k < end; ++k) {
         if (!tick(k)) {

@@ -16,6 +16,7 @@
 #include "run_config.h"
 #include "scene.h"
 #include "source.h"
+#include "stats.h"
 #include "tally.h"
 
 namespace ep {
@@ -93,6 +94,7 @@ struct RunResult {
     uint64_t unit_size = 0;
     int threads = 0;
     size_t peak_record_bytes = 0;
+    std::vector<EngineStats> unit_stats;  // per merged unit, in order (RunConfig::stats; else empty)
 };
 
 // progress(done_packets, total_packets_or_0) is called on the calling thread

@@ -40,6 +40,8 @@ struct RunConfig {
     // Light crosses the lumen (issue 9): exits go on through the ambient and the
     // rig head is a body. false = every exit ends its packet, as before (benchmarks).
     bool lumen = true;
+    // Count the engine's events per unit (stats.h; the CLI's --stats): RunResult::unit_stats.
+    bool stats = false;
     // Test hook: cancel right after this many units are merged (0 = never), so
     // a cancelled partial result can be tested without depending on timing.
     uint64_t test_cancel_after_units = 0;

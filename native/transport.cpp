@@ -207,6 +207,7 @@ void PacketWalk<kSpectral, kGrids>::run(uint64_t index) {
     walk(index);
     flush_absorbed();
     out_.tally.scalar[kInteractions] += Float(st_.interactions);
+    EP_STAT_ADD(interactions, st_.interactions);
 }
 
 // The weight absorbed in st.med.region since the last flush goes to the tallies.
@@ -607,6 +608,7 @@ void PacketWalk<kSpectral, kGrids>::find_crossings(Float s) {
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::query(Float tnear, Float tfar, uint64_t set, int region) {
     const PacketState& st = st_;
+    EP_STAT(full_queries);
     Hit h;
     const Scene::FirstHit f = scene_.intersect_first(st.p, st.d, tnear, tfar, set, h);
     if (!f.found) {
@@ -636,9 +638,13 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
         // the ball of the cube of its midpoint (any cache that covers a step
         // lists its crossings).
         if (!cache->covers(a, b)) cache = &scene_.cell_cache((a + b) * Float(0.5));
-        if (!cache->covers(a, b)) return false;
+        if (!cache->covers(a, b)) {
+            EP_STAT(cache_misses);
+            return false;
+        }
         local_.cell = cache;
     }
+    EP_STAT(cache_hits);
     cache->intersect(st.p, st.d, -back, s, hits_);
     return true;
 }
@@ -738,6 +744,7 @@ Crossing PacketWalk<kSpectral, kGrids>::cross_interface(const Interface& f) {
     st.path_cm += f.t0 * unit_cm_;
     st.tau = std::max(Float(0), st.tau - f.t0 * unit_cm_ * st.med.mut);
     ++st.events;
+    EP_STAT(crossings);
     update_depth();
     // Normal of the surface that makes the interface: the entered top
     // region's face, or else the face of the region being left.

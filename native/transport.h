@@ -19,6 +19,7 @@
 #include "run_config.h"
 #include "scene.h"
 #include "source.h"
+#include "stats.h"
 #include "tally.h"
 #include "triangle_cache.h"
 #include "voxel_grid.h"
@@ -41,6 +42,7 @@ struct UnitOutput {
     std::vector<VoxelAccumulator*> per_fluorophore;
     std::unique_ptr<GridSet> own_grids;  // set when the unit keeps its own grids
     uint64_t first_packet = 0;
+    EngineStats stats;  // the unit's counters (runs with RunConfig::stats)
 
     // Sends the deposits to `g` (null: no grids).
     void deposit_into(GridSet* g) {

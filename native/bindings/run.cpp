@@ -110,6 +110,7 @@ void bind_config(py::module_& m) {
         .def_readwrite("batches", &RunConfig::batches)
         .def_readwrite("safe_distance", &RunConfig::safe_distance)
         .def_readwrite("lumen", &RunConfig::lumen)
+        .def_readwrite("stats", &RunConfig::stats)
         .def_readwrite("test_cancel_after_units", &RunConfig::test_cancel_after_units)
         .def_readwrite("test_fail_thread", &RunConfig::test_fail_thread)
         .def_property(
@@ -123,6 +124,29 @@ void bind_config(py::module_& m) {
 }
 
 }  // namespace
+
+// The engine counters of a run with RunConfig::stats: totals and per merged unit.
+static py::dict stats_dict(const std::vector<EngineStats>& units) {
+    using Field = uint64_t EngineStats::*;
+    const std::pair<const char*, Field> fields[] = {{"interactions", &EngineStats::interactions},
+                                                    {"crossings", &EngineStats::crossings},
+                                                    {"cache_hits", &EngineStats::cache_hits},
+                                                    {"cache_misses", &EngineStats::cache_misses},
+                                                    {"full_queries", &EngineStats::full_queries}};
+    py::dict d, per_unit;
+    d["units"] = units.size();
+    for (const auto& [name, field] : fields) {
+        std::vector<uint64_t> column;
+        column.reserve(units.size());
+        for (const EngineStats& u : units) column.push_back(u.*field);
+        uint64_t total = 0;
+        for (uint64_t v : column) total += v;
+        d[name] = total;
+        per_unit[name] = column;
+    }
+    d["per_unit"] = per_unit;
+    return d;
+}
 
 py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
     py::dict d = estimates_dict(r, scene);
@@ -138,6 +162,7 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
     d["spectral"] = r.spectral;
     d["unit_size"] = r.unit_size;
     d["threads"] = r.threads;
+    if (!r.unit_stats.empty()) d["stats"] = stats_dict(r.unit_stats);
     d["grid_path"] = r.grid_path.empty() ? py::object(py::none()) : py::object(py::str(r.grid_path));
     d["grid_names"] = r.grid_names;
     d["grid_absorbed_sum"] = r.grid_absorbed_sum;

@@ -13,6 +13,7 @@ import json
 import math
 import signal
 import sys
+import time
 
 from .cli_files import load_scene_file as _load_scene_file
 from .interrupts import sigint_cancels
@@ -108,13 +109,53 @@ def _run_main(args) -> int:
         kwargs["time_budget_s"] = args.time_budget
     if args.progress:
         kwargs["progress"] = lambda done, total: print(f"progress {done} {total}", file=sys.stderr, flush=True)
+    if args.stats:
+        kwargs["stats"] = True
     if args.scheduler is not None:  # the same result, traced on a Dask cluster
         from .distributed import run_on_scheduler
 
         run = functools.partial(run_on_scheduler, args.scheduler, run)
+    cpu_s = time.process_time()
     res = _run_interruptible(run, scene, source, photons=photons, record_escapes=False, **kwargs)
-    print(json.dumps(res.to_dict(), indent=None, sort_keys=True, allow_nan=False))
+    cpu_s = time.process_time() - cpu_s
+    out = res.to_dict()
+    if args.stats:
+        out["stats"] = stats_summary(out.get("stats"), res.photons)
+        out["stats"]["process"] = {"run_cpu_seconds": cpu_s, "peak_rss_mb": _peak_rss_mb()}
+    print(json.dumps(out, indent=None, sort_keys=True, allow_nan=False))
     return EXIT_INTERRUPTED if res.cancelled else 0
+
+
+#: The engine counters of a run with stats (native/stats.h), in the order --stats prints them.
+STAT_COUNTERS = ("interactions", "crossings", "cache_hits", "cache_misses", "full_queries")
+
+
+def stats_summary(stats: dict | None, photons: int) -> dict:
+    """``--stats``' block: each counter's total, its mean per packet, and its smallest, mean and
+    largest count per work unit (the engine's ``stats``; None when no unit was merged)."""
+    stats = stats or {"units": 0, "per_unit": {name: [] for name in STAT_COUNTERS}}
+    out = {"units": int(stats["units"]), "total": {}, "per_packet": {}, "per_unit": {}}
+    for name in STAT_COUNTERS:
+        column = stats["per_unit"][name]
+        total = int(sum(column))
+        out["total"][name] = total
+        out["per_packet"][name] = total / photons if photons else 0.0
+        out["per_unit"][name] = {
+            "min": int(min(column, default=0)),
+            "mean": total / len(column) if column else 0.0,
+            "max": int(max(column, default=0)),
+        }
+    return out
+
+
+def _peak_rss_mb() -> float:
+    """This process's peak resident set (VmHWM, MiB; 0 where /proc is missing). Not ru_maxrss: Linux
+    carries a parent's peak over fork + exec into the child's ru_maxrss."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            return next((int(line.split()[1]) / 1024 for line in fh if line.startswith("VmHWM:")), 0.0)
+    except OSError:
+        return 0.0
 
 
 def _check_one_budget(args) -> None:
@@ -210,6 +251,13 @@ def _main(argv) -> int:
         metavar="ADDRESS",
         help="trace on a Dask cluster: tcp://host:port, or local:N for N local worker processes "
         "(docs/distributed.md); the result is bit-identical to a local run",
+    )
+    p_run.add_argument(
+        "--stats",
+        action="store_true",
+        help="count the engine's events (interactions, boundary crossings, triangle-cache hits/misses, full ray "
+        "queries) and add their totals, means per packet and per-unit spread to the JSON as 'stats', with the "
+        "run's CPU seconds and the process's peak memory (stats.process)",
     )
     p_run.set_defaults(func=_run_main)
     p_sweep = sub.add_parser("sweep", help="sweep the endoscope angle beta (the seed's experiment)")

@@ -130,8 +130,10 @@ def _check_arguments(a: SimpleNamespace) -> None:
     check_real("roulette_chance", a.roulette_chance, 0.0, 1.0, lo_open=True)
     check_real("max_path_cm", a.max_path_cm, 0.0, math.inf)
     check_real("time_budget_s", a.time_budget_s, 0.0, math.inf)
-    for name in ("record_escapes", "fluorescent_only", "safe_distance"):
+    for name in ("record_escapes", "fluorescent_only", "safe_distance", "stats"):
         check_bool(name, getattr(a, name))
+    if a.stats and a.client is not None:
+        raise ValueError("stats = True counts the events of a local run; a run on a Dask client (client=) has none")
     if a.spectral is not None:
         check_bool("spectral", a.spectral)
     if a.fluorescence_rule not in ("paper", "eem"):
@@ -288,6 +290,8 @@ def _native_options(a: SimpleNamespace) -> dict:
         opts["time_budget_s"] = float(a.time_budget_s)
     if not a.lumen:
         opts["lumen"] = False
+    if a.stats:
+        opts["stats"] = True
     if a.spectral:
         opts["force_spectral"] = True
     if a.grids is not None:
@@ -328,6 +332,7 @@ def run(
     lumen: bool = True,
     client=None,
     chunk_units: int = 0,
+    stats: bool = False,
 ) -> Result:
     """Trace photon packets through ``scene`` from ``source``.
 
@@ -355,6 +360,11 @@ def run(
     ambient and land on the region or rig head they meet (docs/design.md,
     "Light crosses the lumen"); False ends every packet at its first exit, as
     the engine did before (for comparisons and benchmarks).
+
+    ``stats`` (default False): count the engine's events (interactions, boundary
+    crossings, triangle-cache hits and misses, full ray queries) per work unit;
+    the result's ``stats`` holds the totals and ``stats["per_unit"]`` the counts
+    of each merged unit (native/stats.h). Local runs only.
 
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """

@@ -5,7 +5,8 @@
 
 Runs pytest on tests/blender inside Blender's Python, prints a final line
 'N passed, M failed' and exits non-zero on any failure or error (or when no
-test ran).  Arguments after '--' go to pytest (e.g. '-- -k rig -x').
+test ran).  Arguments after '--' go to pytest (e.g. '-- -k rig -x'); a test file among them
+('-- tests/blender/test_smoke.py') runs instead of the whole folder.
 
 The engine package is taken from a normal ``import endophoton`` if that works,
 else from the repository's python/ folder (the in-tree build), passed to the
@@ -49,8 +50,10 @@ def main():
                 self.failed += 1
 
     tally = Tally()
+    # Test files or folders among the arguments replace the default (the whole folder).
+    targets = [] if any(os.path.exists(a.split("::")[0]) for a in argv) else [HERE]
     code = pytest.main(
-        ["-p", "no:cacheprovider", "-q", "-rfEs", "--rootdir", HERE, HERE, *argv],
+        ["-p", "no:cacheprovider", "-q", "-rfEs", "--rootdir", HERE, *targets, *argv],
         plugins=[tally],
     )
     line = f"{tally.passed} passed, {tally.failed} failed"

@@ -19,6 +19,8 @@ import builtins
 import glob
 import os
 import re
+import subprocess
+import sys
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 LANGS = {"python": "python", "bash": "bash", "sh": "bash"}
@@ -44,6 +46,11 @@ class Snippet:
         if self.marker is None:
             return None
         return next((k for k in KINDS if self.marker.startswith(k)), self.marker)
+
+    @property
+    def starts_blender(self):
+        """A bash snippet that runs ``blender`` (tests/blender_shell runs those)."""
+        return self.lang == "bash" and re.search(r"^\s*blender\b", self.code, re.M) is not None
 
     @property
     def needs_blender(self):
@@ -126,3 +133,31 @@ def python_names(blocks):
                 elif isinstance(node, (ast.Import, ast.ImportFrom)):
                     names.update((a.asname or a.name).split(".")[0] for a in node.names)
     return names
+
+
+def _addon_user_scripts(tmp_path):
+    """A Blender user-scripts folder holding the source tree's add-on (as an installed add-on)."""
+    addons = tmp_path / "scripts" / "addons"
+    addons.mkdir(parents=True)
+    os.symlink(os.path.join(REPO, "addon", "endophoton_addon"), addons / "endophoton_addon")
+    return str(tmp_path / "scripts")
+
+
+def run_bash(snippet, tmp_path):
+    """Runs a bash snippet as written from the repository root (the tree's package first; Blender, if it
+    starts, with the tree's add-on and no user preferences). A traceback on its output fails it as an exit
+    status would (Blender exits 0 after a failing --python script unless told otherwise)."""
+    env = dict(
+        os.environ,
+        PATH=os.pathsep.join([os.path.dirname(sys.executable), "/usr/bin", os.environ.get("PATH", "")]),
+        PYTHONPATH=os.path.join(REPO, "python"),
+        ENDOPHOTON_PYTHONPATH=os.path.join(REPO, "python"),
+        BLENDER_USER_SCRIPTS=_addon_user_scripts(tmp_path),
+        HOME=str(tmp_path),
+    )
+    proc = subprocess.run(
+        ["bash", "-e", "-c", snippet.code], cwd=REPO, env=env, capture_output=True, text=True, timeout=900
+    )
+    if proc.returncode == 0 and "Traceback" in proc.stdout + proc.stderr:
+        proc.returncode = 1
+    return proc

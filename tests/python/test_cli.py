@@ -8,12 +8,11 @@ import copy
 import json
 import math
 import os
-import subprocess
-import sys
 
 import pytest
 
 import endophoton as ep
+from cli_helpers import run_cli as _cli, run_json
 from physics_helpers import assert_energy_conserved, assert_within, mc_reference_sigma
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
@@ -21,20 +20,8 @@ EXAMPLES = os.path.join(ROOT, "examples")
 KEYS = ("photons", "specular_reflectance", "diffuse_reflectance", "transmittance", "absorbed")
 
 
-def _cli(*args, timeout=300):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.path.join(ROOT, "python") + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run(
-        [sys.executable, "-m", "endophoton", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout
-    )
-
-
 def _run_json(path, photons, seed=1, threads=2):
-    p = _cli("run", path, "--photons", str(photons), "--seed", str(seed), "--threads", str(threads))
-    assert p.returncode == 0, f"exit {p.returncode}\nstdout: {p.stdout}\nstderr: {p.stderr}"
-    out = p.stdout.strip()
-    assert out.count("\n") == 0, f"expected a single line of JSON, got:\n{out}"
-    data = json.loads(out)
+    data = run_json("run", path, "--photons", photons, "--seed", seed, "--threads", threads)
     assert isinstance(data, dict)
     for k in KEYS:
         assert k in data, k
@@ -45,6 +32,7 @@ def _run_json(path, photons, seed=1, threads=2):
     return data
 
 
+@pytest.mark.slow
 def test_cli_mcml_slab_matches_oracle():
     d = _run_json("examples/mcml_slab.json", 20_000)
     # oracles §1, van de Hulst (+-0.5e-5 rounding)

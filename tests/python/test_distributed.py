@@ -10,7 +10,6 @@ import json
 import importlib
 import os
 import signal
-import subprocess
 import sys
 
 import numpy as np
@@ -21,6 +20,7 @@ from endophoton import _core, distributed
 from endophoton.sweep.driver import default_flat_scene
 from endophoton.run import run_request
 from endophoton.vdb import grid_to_numpy
+from cli_helpers import run_cli as cli
 from physics_helpers import assert_energy_conserved
 
 pytest.importorskip("distributed")
@@ -59,13 +59,7 @@ def assert_same_result(a, b):
             assert np.array_equal(a.escapes[k], b.escapes[k]), k
 
 
-def cli(*args):
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    return subprocess.run(
-        [sys.executable, "-m", "endophoton", *args], capture_output=True, text=True, env=env, timeout=600
-    )
-
-
+@pytest.mark.slow
 def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
     dist = cli("run", MCML_SLAB, "--photons", "20000", "--seed", "7", "--scheduler", "local:2")
     assert dist.returncode == 0, dist.stderr
@@ -80,6 +74,7 @@ def test_cli_mcml_slab_local2_matches_threads1_and_van_de_hulst():
     assert abs(d["transmittance"] - 0.66096) < 4 * d["transmittance_stderr"]
 
 
+@pytest.mark.slow
 def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     scene, rig = fluorescent_endoscope()
     grids = dict(voxel_size=0.05, per_fluorophore=True)
@@ -115,6 +110,7 @@ def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     assert_energy_conserved(dist, tol=1e-12)
 
 
+@pytest.mark.slow
 def test_store_n_is_bit_identical_and_stops_where_the_local_run_stops(client, tmp_path):
     """A store run keeps grids per unit: the units past its stop point are discarded with
     their deposits, on the cluster (chunks of 3 units: the stop falls inside a chunk) as on
@@ -149,6 +145,7 @@ def test_target_accuracy_is_bit_identical(client):
     assert dist.diffuse_reflectance_stderr <= 0.05 * dist.diffuse_reflectance
 
 
+@pytest.mark.slow
 def test_killed_worker_loses_nothing():
     scene, rig = fluorescent_endoscope()
     kw = dict(photons=4000, seed=9, record_escapes=True)
@@ -192,6 +189,7 @@ def test_bad_chunk_units_is_named(client):
         ep.run(scene, rig, photons=100, client=client, chunk_units=-1)
 
 
+@pytest.mark.slow
 def test_unreachable_scheduler_exits_2_naming_the_address():
     out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "tcp://127.0.0.1:9")
     assert out.returncode == 2
@@ -199,6 +197,7 @@ def test_unreachable_scheduler_exits_2_naming_the_address():
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.slow
 def test_bad_local_worker_count_exits_2():
     out = cli("run", MCML_SLAB, "--photons", "100", "--scheduler", "local:zero")
     assert out.returncode == 2 and "local:zero" in out.stderr
@@ -358,6 +357,7 @@ def test_cancelling_a_cluster_sweep_cancels_its_tasks(client):
     assert client.run_on_scheduler(live_chunks) == []
 
 
+@pytest.mark.slow
 def test_cli_sweep_on_local2_matches_the_local_cli_sweep(tmp_path):
     common = ["sweep", "--betas", "0,30", "--store", "200", "--seed", "3", "--batches", "10"]
     dist = cli(*common, "--scheduler", "local:2", "--out", str(tmp_path / "dist"))
@@ -369,6 +369,7 @@ def test_cli_sweep_on_local2_matches_the_local_cli_sweep(tmp_path):
     assert len(rows) == 2 and rows == _csv_rows(tmp_path / "local" / "sweep.csv")
 
 
+@pytest.mark.slow
 def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
     out = cli(
         "sweep", "--betas", "0", "--store", "100", "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "o")
@@ -378,25 +379,7 @@ def test_cli_sweep_unreachable_scheduler_exits_2_naming_the_address(tmp_path):
     assert "Traceback" not in out.stderr and not (tmp_path / "o").exists()
 
 
-def test_cli_sweep_blend_on_local2_runs_on_the_cluster(tmp_path):
-    """``sweep --blend FILE --scheduler local:2``: the cluster is started here and Blender's
-    sweep connects to it (the chunk bar shows on stderr); the angles' rows are complete."""
-    from test_sweep import _blender_available
-
-    if not _blender_available():
-        pytest.skip("blender with python 3.11 + numpy, or the engine, missing")
-    blend = os.path.join(ROOT, "blend_scenes", "flat_tissue.blend")
-    out = cli(
-        "sweep", "--blend", blend, "--betas", "0,20", "--store", "400", "--batches", "4", "--seed", "3",
-        "--scheduler", "local:2", "--out", str(tmp_path / "o"),
-    )  # fmt: skip
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    assert "chunk" in out.stderr
-    rows = _csv_rows(tmp_path / "o" / "sweep.csv")
-    assert [float(r["beta_deg"]) for r in rows] == [0.0, 20.0] and all(r["records"] == "400" for r in rows)
-    assert all(r["cancelled"] == "0" for r in rows)
-
-
+@pytest.mark.slow
 def test_run_many_fixed_store_and_target_at_once_each_match_their_local_run(client, tmp_path):
     """Three runs with different stop rules in flight together (two share one scene, the
     third has its own): each is merged in its own unit order and stops where it stops
@@ -440,6 +423,7 @@ def _scattered_chunk_request(max_memory_mb, tmp_path):
     return scene, source, opts
 
 
+@pytest.mark.slow
 def test_a_workers_chunk_grids_stop_at_the_memory_limit(tmp_path):
     # The worker's own task, in this process: its chunk's voxel tables (~500,000 voxels a grid
     # for 2,000 packets) pass 1 MiB, and the chunk stops by name instead of filling the worker.
@@ -456,6 +440,7 @@ def test_a_workers_chunk_grids_stop_at_the_memory_limit(tmp_path):
     assert version == _core.__version__ and len(data) > 0
 
 
+@pytest.mark.slow
 def test_a_cluster_run_past_the_memory_limit_raises_it_by_name(client, tmp_path):
     scene, source, _ = _scattered_chunk_request(1, tmp_path)
     grids = ep.GridRequest(voxel_size=1e-4, path=str(tmp_path / "scattered.vdb"), max_memory_mb=1)

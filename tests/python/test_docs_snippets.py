@@ -14,8 +14,6 @@ $EP_DOCS_MAX_PACKETS (default 1,500) through the one place they all pass,
 """
 
 import os
-import subprocess
-import sys
 
 import pytest
 
@@ -90,7 +88,11 @@ PYTHON_DOCS = [
 ]
 
 
-@pytest.mark.parametrize("doc", PYTHON_DOCS)
+# Docs whose snippets run sweeps and renders take seconds (the fast tier leaves them out).
+SLOW_DOCS = {"docs/render.md", "docs/sweep.md"}
+
+
+@pytest.mark.parametrize("doc", [pytest.param(d, marks=pytest.mark.slow) if d in SLOW_DOCS else d for d in PYTHON_DOCS])
 def test_doc_python_snippets_run(doc, tmp_path, monkeypatch):
     _capped_run_config(monkeypatch)
     monkeypatch.chdir(tmp_path)
@@ -107,31 +109,13 @@ def test_doc_python_snippets_run(doc, tmp_path, monkeypatch):
     print(f"{doc}: {ran} python snippet(s) ran")
 
 
-BASH = [s for doc, blocks in _all() for s in blocks if s.lang == "bash" and s.marker is None]
+# Bash snippets that start Blender run in tests/blender_shell/test_docs_bash_blender.py (slow).
+BASH = [s for doc, blocks in _all() for s in blocks if s.lang == "bash" and s.marker is None and not s.starts_blender]
 
 
-def _addon_user_scripts(tmp_path):
-    """A Blender user-scripts folder holding the source tree's add-on (as an installed add-on)."""
-    addons = tmp_path / "scripts" / "addons"
-    addons.mkdir(parents=True)
-    os.symlink(os.path.join(ds.REPO, "addon", "endophoton_addon"), addons / "endophoton_addon")
-    return str(tmp_path / "scripts")
-
-
+@pytest.mark.slow
 @pytest.mark.parametrize("snippet", BASH, ids=[s.where for s in BASH])
 def test_doc_bash_snippets_run(snippet, tmp_path):
-    env = dict(
-        os.environ,
-        PATH=os.pathsep.join([os.path.dirname(sys.executable), "/usr/bin", os.environ.get("PATH", "")]),
-        PYTHONPATH=os.path.join(ds.REPO, "python"),
-        ENDOPHOTON_PYTHONPATH=os.path.join(ds.REPO, "python"),
-        BLENDER_USER_SCRIPTS=_addon_user_scripts(tmp_path),
-        HOME=str(tmp_path),  # Blender reads no user preferences from the real home
-    )
-    proc = subprocess.run(
-        ["bash", "-e", "-c", snippet.code], cwd=ds.REPO, env=env, capture_output=True, text=True, timeout=900
-    )
+    proc = ds.run_bash(snippet, tmp_path)
     assert proc.returncode == 0, f"{snippet.where}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    # Blender exits 0 after a failing --python script unless told otherwise: look for the traceback too.
-    assert "Traceback" not in proc.stdout + proc.stderr, f"{snippet.where}:\n{proc.stdout[-3000:]}"
     print(proc.stdout[-1500:])

@@ -91,6 +91,7 @@ def huge_mus_runs():
     return out
 
 
+@pytest.mark.slow
 def test_huge_mus_matches_chandrasekhar(huge_mus_runs):
     """mua = 10, mus = 1e5 (albedo 0.9999), g = 0, n = 1, semi-infinite: the exact result of
     transport theory is R = 1 - H(1) sqrt(1 - albedo) = 0.97142 (Chandrasekhar H-function,
@@ -109,6 +110,7 @@ def test_huge_mus_matches_chandrasekhar(huge_mus_runs):
     assert float(res.escapes["max_depth"].max()) < 1.0
 
 
+@pytest.mark.slow
 def test_huge_mus_scale_invariance(huge_mus_runs):
     """Similarity: in a semi-infinite, infinitely wide medium every length scales with 1/mu_t,
     so R depends only on the albedo and g: R(10, 1e5) = R(0.1, 1e3) within statistics
@@ -259,6 +261,7 @@ def test_launch_on_vertex_or_edge_never_leaks(builder, launch):
 # ----------------------------------------------------------------------------
 # Leak detector: no packet may be found deeper than its slab
 # ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_no_packet_ever_deeper_than_the_slab():
     """1e6 packets in the MCML slab geometry (0.02 cm thick, 200 cm wide, n = 1.4). Every escape
     record's max_depth (deepest point below the entry surface, in cm) must be <= 0.02 cm: a

@@ -181,6 +181,7 @@ def _sound(res):
     json.dumps(res.to_dict(), allow_nan=False)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(mutated_documents())
 def test_mutated_scene_documents_give_a_sound_result_or_a_named_error(doc):
@@ -233,6 +234,7 @@ CLI_VALUES = [
 ]
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.lists(st.tuples(st.sampled_from(CLI_OPTIONS), st.sampled_from(CLI_VALUES)), min_size=1, max_size=3))
 def test_cli_option_edges_give_json_or_exit_2(tmp_path_factory, capsys, options):

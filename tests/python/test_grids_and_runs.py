@@ -206,6 +206,7 @@ def test_progress_returning_false_stops_the_run():
     assert_no_nan(res)
 
 
+@pytest.mark.slow
 def test_clear_region_deposits_are_exact_per_voxel(tmp_path):
     """mus = 0: the absorbed weight of every voxel equals the Beer-Lambert loss along the part
     of the ray inside that voxel (reference: fine numerical integration along the ray,

@@ -19,6 +19,7 @@ import pytest
 import endophoton as ep
 from endophoton import _core
 from endophoton.cli import main as cli_main
+from cli_helpers import start_cli
 from physics_helpers import assert_energy_conserved, assert_no_nan, cube_mesh, run_physics
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
@@ -70,6 +71,7 @@ def test_thread_creation_failure_is_a_named_error():
 
 
 # ---------------------------------------------------------------- corrupt output
+@pytest.mark.slow
 def test_grid_write_beyond_the_file_size_limit_fails_and_leaves_no_file(tmp_path):
     out = tmp_path / "g.vdb"
     p = _subprocess(
@@ -398,15 +400,7 @@ def test_ctrl_c_on_the_cli_prints_a_cancelled_result_and_exits_130(tmp_path):
     does not depend on timing."""
     scene = tmp_path / "s.json"
     scene.write_text(json.dumps(_scene_doc()))
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "endophoton", "run", str(scene), "--photons", str(NEVER_ENDS), "--progress"],
-        env=env,
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = start_cli("run", scene, "--photons", NEVER_ENDS, "--progress")
     line = proc.stderr.readline()
     assert line.startswith("progress "), line
     proc.send_signal(signal.SIGINT)

@@ -176,6 +176,7 @@ BLOCKER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_package_imports_with_bpy_and_addon_unimportable():
     """Import the package and every module in it, and parse the sweep CLI, in a
     fresh interpreter where bpy and the add-on cannot be imported."""
@@ -186,3 +187,76 @@ def test_package_imports_with_bpy_and_addon_unimportable():
     # every .py module (the subpackages' __init__ count as their package) but __init__ and __main__,
     # plus the native _core
     assert n == len(_module_files()) - 2 + 1
+
+
+BENCH_DIR = os.path.join(ROOT, "bench")
+TEST_DIRS = [os.path.join(ROOT, "tests", d) for d in ("python", "blender", "blender_shell")]
+
+
+def _top_imports(tree):
+    """The top-level names of every module ``tree`` imports (absolute imports; anywhere in its body)."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def _parse(path):
+    with open(path, encoding="utf-8") as fh:
+        return ast.parse(fh.read(), filename=path)
+
+
+def _bench_graph():
+    """{bench script: the bench scripts it imports} (bench/ is a folder of scripts, each importing the
+    others by their bare names, as ``python3 bench/X.py`` puts bench/ first on sys.path)."""
+    files = {n[:-3]: os.path.join(BENCH_DIR, n) for n in os.listdir(BENCH_DIR) if n.endswith(".py")}
+    return {m: _top_imports(_parse(p)) & set(files) - {m} for m, p in files.items()}
+
+
+def test_bench_has_no_import_cycles():
+    graph = _bench_graph()
+    assert {"perf", "page", "colon_scene"} <= set(graph)
+    assert "perf" not in graph["page"], "page.py renders results; it must not import the bench driver"
+    assert _find_cycle(graph) is None, " -> ".join(_find_cycle(graph))
+
+
+def _test_files():
+    for d in TEST_DIRS:
+        for dirpath, _, names in os.walk(d):
+            yield from (os.path.join(dirpath, n) for n in sorted(names) if n.endswith(".py"))
+
+
+def _puts_bench_on_path(tree):
+    """Whether ``tree`` calls sys.path.insert/append with an argument that mentions bench."""
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr in ("insert", "append")
+        ):
+            if ast.unparse(node.func.value) == "sys.path" and "bench" in ast.unparse(node).lower():
+                return True
+    return False
+
+
+def test_no_test_imports_bench():
+    """Tests check the package, the CLI and the add-on; the benchmark's code is none of them (tests may read
+    bench/scenes/*.json, which is data)."""
+    bench_modules = set(_bench_graph())
+    offenders = {}
+    for path in _test_files():
+        tree = _parse(path)
+        bad = sorted(_top_imports(tree) & bench_modules) + (["sys.path + bench/"] if _puts_bench_on_path(tree) else [])
+        if bad:
+            offenders[os.path.relpath(path, ROOT)] = bad
+    assert offenders == {}
+
+
+def test_bench_checks_see_a_planted_offender():
+    """The two checks above on planted code: a test importing a bench script, and bench/ put on sys.path."""
+    planted = ast.parse("import sys, os\nsys.path.insert(0, os.path.join(ROOT, 'bench'))\nfrom perf import cli\n")
+    assert _puts_bench_on_path(planted) and "perf" in _top_imports(planted) & set(_bench_graph())
+    assert not _puts_bench_on_path(ast.parse("import sys\nsys.path.insert(0, PY)\n"))

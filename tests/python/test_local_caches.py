@@ -13,8 +13,6 @@ docs/numerics.md, "Vertices and edges"; none occurs in these runs.)
 """
 from __future__ import annotations
 
-import os
-import sys
 
 import numpy as np
 import pytest
@@ -22,16 +20,14 @@ import pytest
 import endophoton as ep
 from physics_helpers import run_physics
 
-BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "bench")
-sys.path.insert(0, BENCH)
-import colon_scene as cs  # noqa: E402  (bench/ module, not a package)
+from cli_helpers import bench_scene
 
 ENV_KEYS = {"seconds", "threads", "peak_record_bytes", "grid_path"}
 
 
 @pytest.fixture(scope="module")
 def colon():
-    return cs.colon_scene()
+    return bench_scene("colon")
 
 
 @pytest.mark.parametrize("rule", ["paper", "eem"])
@@ -97,13 +93,13 @@ def test_a_full_cache_store_changes_nothing_on_the_colon():
     and the capped store stays within its budget plus one chunk a thread."""
     kwargs = dict(photons=3000, seed=5, record_escapes=True)
     ep.forget_native_scenes()
-    scene, rig = cs.colon_scene()
+    scene, rig = bench_scene("colon")
     free = ep.run(scene, rig, threads=1, **kwargs)
     free_bytes = scene.to_native().cache_store_bytes
     assert scene.cache_store_mb is None  # the engine's default
     assert scene.to_native().cache_store_cap_bytes == ep._core.DEFAULT_CACHE_STORE_BYTES == 512 << 20
     ep.forget_native_scenes()
-    scene, rig = cs.colon_scene()  # the same content, a new engine scene and store
+    scene, rig = bench_scene("colon")  # the same content, a new engine scene and store
     scene.cache_store_mb = 0.25
     native = scene.to_native()
     cap = 256 * 1024

@@ -13,13 +13,12 @@ import hashlib
 import json
 import math
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 import endophoton as ep
+from cli_helpers import run_json
 from physics_helpers import assert_energy_conserved
 from _synth import hollow_box
 
@@ -216,12 +215,7 @@ def _write_cavity_json(path, wall):
 def test_closed_cavity_via_cli(tmp_path):
     path = tmp_path / "cavity.json"
     _write_cavity_json(path, 0.05)
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    p = subprocess.run(
-        [sys.executable, "-m", "endophoton", "run", str(path)], capture_output=True, text=True, env=env, timeout=600
-    )
-    assert p.returncode == 0, p.stderr
-    out = json.loads(p.stdout)
+    out = run_json("run", path)
     for k in ("occluded", "camera_collected", "occluded_stderr", "camera_collected_stderr"):
         assert k in out
     assert_energy_conserved(out)

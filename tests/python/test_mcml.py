@@ -45,6 +45,7 @@ def mcml_slab_result():
     return ep.run(scene, DOWN, photons=1_000_000, seed=20240601, threads=0, record_escapes=True)
 
 
+@pytest.mark.slow
 def test_mcml_table_6_1_slab_matches_van_de_hulst(mcml_slab_result):
     res = mcml_slab_result
     assert_energy_conserved(res)
@@ -64,6 +65,7 @@ def test_mcml_table_6_1_slab_matches_van_de_hulst(mcml_slab_result):
     assert res.absorbed_by_region["slab"] == pytest.approx(res.absorbed, abs=1e-12)
 
 
+@pytest.mark.slow
 def test_mcml_slab_unscattered_transmission_is_exp_minus_mut_d(mcml_slab_result):
     """The packets that cross the slab without any interaction carry weight 1 and
     occur with probability exp(-mu_t d) = exp(-2) = 0.13534 (oracles §1), a
@@ -220,6 +222,7 @@ def _check_mcml_compare(label, value, sigma, ref, rounding=0.0):
     assert_within(label, value, math.hypot(sigma, s_ref), ref, rounding)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "builder,seed", [(_three_layer_layered_slab, 3), (_three_layer_boxes, 4)], ids=["layered_slab", "three_add_box"]
 )

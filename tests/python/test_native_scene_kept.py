@@ -8,18 +8,14 @@ place or by replacement, must build anew, giving what a scene built with that co
 from __future__ import annotations
 
 import copy
-import os
 import pickle
-import sys
 
 import numpy as np
 import pytest
 
 import endophoton as ep
 
-BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "bench")
-sys.path.insert(0, BENCH)
-import colon_scene as cs  # noqa: E402  (bench/ module, not a package)
+from cli_helpers import bench_scene
 
 from physics_helpers import run_physics as physics  # noqa: E402
 
@@ -30,9 +26,10 @@ def run(scene, rig, **kw):
 
 @pytest.fixture(scope="module")
 def colon():
-    return cs.colon_scene()
+    return bench_scene("colon")
 
 
+@pytest.mark.slow
 def test_kept_scene_gives_the_bits_of_a_fresh_one(colon):
     scene, rig = colon
     first = run(scene, rig)
@@ -40,10 +37,10 @@ def test_kept_scene_gives_the_bits_of_a_fresh_one(colon):
     assert scene.to_native() is native  # kept
     again = run(scene, rig)  # on the kept engine scene, its cube caches warm
     assert scene.to_native() is native
-    same_scene, same_rig = cs.colon_scene()  # another Scene, the same content: takes the kept one
+    same_scene, same_rig = bench_scene("colon")  # another Scene, the same content: takes the kept one
     assert same_scene.to_native() is native
     ep.forget_native_scenes(same_scene)
-    fresh_scene, fresh_rig = cs.colon_scene()
+    fresh_scene, fresh_rig = bench_scene("colon")
     assert fresh_scene.to_native() is not native  # built anew
     fresh = run(fresh_scene, fresh_rig)
     assert first == again == fresh
@@ -64,7 +61,7 @@ def test_any_change_of_content_builds_anew(colon):
     polyp.vertices[:] = c + (polyp.vertices - c) * np.float32(1.01)
     assert scene.to_native() is not native
     moved = run(scene, rig)
-    other, other_rig = cs.colon_scene()
+    other, other_rig = bench_scene("colon")
     o = other.region("polyp")
     o.vertices[:] = c + (o.vertices - c) * np.float32(1.01)
     ep.forget_native_scenes()  # `other` must build its own engine scene

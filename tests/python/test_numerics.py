@@ -205,6 +205,7 @@ def test_total_internal_reflection_trap_is_cut_by_max_steps():
     assert_energy_conserved(r)
 
 
+@pytest.mark.slow
 def test_total_internal_reflection_trap_hits_the_safety_cap():
     """Without a user cap the engine's own ceiling (1e7 events per packet) ends the trap.
     One packet is one work unit, so no batch-means stderr exists: the stderr comes from the
@@ -233,6 +234,7 @@ def huge_mus_runs():
     return out
 
 
+@pytest.mark.slow
 def test_huge_mus_is_finite_and_conserves_energy(huge_mus_runs):
     for r in huge_mus_runs.values():
         assert_no_nan(r)
@@ -240,6 +242,7 @@ def test_huge_mus_is_finite_and_conserves_energy(huge_mus_runs):
         assert r.cut == 0 and r.missed == 0
 
 
+@pytest.mark.slow
 def test_huge_mus_matches_chandrasekhar(huge_mus_runs):
     ref = semi_infinite_isotropic_reflectance(1.0, 1e6)  # = 1 - H(1) sqrt(1e-6) = 0.99709
     for k, r in huge_mus_runs.items():

@@ -72,6 +72,7 @@ def test_spectral_records_render_their_hue(lam, channel):
     assert all(px[channel] > 2 * px[c] for c in range(3) if c != channel)
 
 
+@pytest.mark.slow
 def test_flat_spectrum_records_render_neutral():
     n = 1_000_000
     rng = np.random.default_rng(5)
@@ -208,6 +209,7 @@ def _chi2_agreement(L, se, La, sa, rel=0.25):
     return chi, int(ok.sum())
 
 
+@pytest.mark.slow
 def test_kernel_and_aperture_images_agree_within_noise():
     """Two independent runs (seeds 1, 2) of a 0.3 cm beam on a semi-infinite medium: the kernel image of one
     and the thin-lens aperture image of the other agree pixel by pixel (chi-square over the pixels where
@@ -255,6 +257,7 @@ def test_white_non_absorbing_scene_renders_neutral():
     assert se < 0.05
 
 
+@pytest.mark.slow
 def test_photofrin_shows_in_the_red_green_contrast():
     """Collagen wall, polyp with collagen + photofrin (the seed's d, c), white light, paper rule: the polyp's
     red/green contrast in the fluorescence image is > 0 beyond 3 sigma and falls by > 3 sigma at c = 0."""
@@ -309,6 +312,7 @@ def test_empty_kernels_give_zeros_and_undefined_contrast_is_none():
         view.contrast("wall", "wall")
 
 
+@pytest.mark.slow
 def test_blue_light_photofrin_red_green_with_camera_channels():
     """405 nm excitation (photodynamic diagnosis) with the auto long-pass filter: photofrin's red against
     collagen's blue-green. Linear-sRGB G is negative for such light, so the camera-channel ratio is used;

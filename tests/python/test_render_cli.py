@@ -2,11 +2,11 @@
 import copy
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+
+from cli_helpers import run_cli
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
@@ -55,18 +55,10 @@ CONTRAST_KEYS = {
 def _render(tmp_path, scene, *args):
     path = tmp_path / "scene.json"
     path.write_text(json.dumps(scene))
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.path.join(ROOT, "python") + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run(
-        [sys.executable, "-m", "endophoton", "render", str(path), *args],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    return run_cli("render", path, *args)
 
 
+@pytest.mark.slow
 def test_render_cli_writes_images_arrays_and_json(tmp_path):
     import matplotlib.image as mpimg
 
@@ -111,6 +103,7 @@ def test_render_cli_writes_images_arrays_and_json(tmp_path):
     assert d["regions"]["wall"]["white_radiance"] == pytest.approx(arr["white_radiance"][wall].mean(), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_render_cli_uses_the_endoscope_camera_by_default(tmp_path):
     scene = copy.deepcopy(SCENE)
     del scene["camera"]
@@ -121,6 +114,7 @@ def test_render_cli_uses_the_endoscope_camera_by_default(tmp_path):
     assert (d["width"], d["height"]) == (8, 8)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "change,args,needle",
     [

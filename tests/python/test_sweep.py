@@ -103,6 +103,7 @@ def fake_result(tmp_path_factory):
     return res, str(out)
 
 
+@pytest.mark.slow
 def test_fake_sweep_recovers_known_statistics(fake_result):
     res, _ = fake_result
     assert [r["beta_deg"] for r in res.rows] == [0.0, 20.0, 40.0]
@@ -129,6 +130,7 @@ def test_fake_sweep_recovers_known_statistics(fake_result):
     assert res.rows[2]["azimuth_chi2_p_min"] < 1e-6
 
 
+@pytest.mark.slow
 def test_outputs_written(fake_result):
     res, out = fake_result
     files = sorted(os.listdir(out))
@@ -280,6 +282,7 @@ def test_cancel_before_any_record_ends_without_row(fake_engine, tmp_path):
     assert len(res.rows) == 2 and res.meta["cancelled"] is False
 
 
+@pytest.mark.slow
 def test_cli_with_fake_engine(fake_engine, monkeypatch, tmp_path):
     monkeypatch.setattr(sweep_cli, "default_flat_scene", lambda **kw: fake_engine)
     p = argparse.ArgumentParser()
@@ -536,6 +539,7 @@ def test_default_flat_scene_builds():
     assert np.isclose(mm.region("polyp").vertices[:, 0].max(), 3.0, rtol=1e-3)
 
 
+@pytest.mark.slow
 @needs_engine
 def test_real_small_sweep_outputs(tmp_path):
     res = sw.sweep(None, betas=[0, 30, 50], store=4000, seed=2, progress=False, out_dir=str(tmp_path))
@@ -552,6 +556,7 @@ def test_real_small_sweep_outputs(tmp_path):
     assert again.rows[0]["energy_total"] == res.rows[1]["energy_total"]
 
 
+@pytest.mark.slow
 @needs_engine
 def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
     """seed_per_beta: beta k runs with (seed + k x 0x9E3779B97F4A7C15) mod 2^64, written out here,
@@ -596,6 +601,7 @@ def test_sweep_cli_seed_per_beta_reaches_the_sweep_and_blender():
     )
 
 
+@pytest.mark.slow
 @needs_engine
 @pytest.mark.parametrize("polyp", [None, "dome"])
 def test_real_beta0_azimuth_uniform(polyp):
@@ -628,164 +634,6 @@ def test_real_beta0_azimuth_uniform(polyp):
         se = math.sqrt(((counts[ring] * np.sin(phi) ** 2).sum() / n - mean_sin**2) / n)
         assert abs(mean_sin) < 4.5 * se, (ring, mean_sin, se)
     assert np.all(stderr >= 0)
-
-
-# ---------------------------------------------------------------- Blender path
-
-BLENDER_SCRIPT = r'''
-import json, sys
-import numpy as np
-import bpy
-sys.path[:0] = [PKG, ADDON]
-from endophoton.sweep import driver as sw
-from endophoton_addon import sweep_blend as sb
-sb.enable_addon()
-for obj in list(bpy.data.objects):
-    bpy.data.objects.remove(obj, do_unlink=True)
-bscene = bpy.context.scene
-bscene.unit_settings.scale_length = 1.0          # 1 Blender unit = 1 m, the engine's unit here
-src = sw.default_flat_scene(unit="m", polyp="dome")
-for region in src.regions:
-    mesh = bpy.data.meshes.new(region.name)
-    mesh.from_pydata(region.vertices.astype(float).tolist(), [], region.triangles.astype(int).tolist())
-    mesh.update()
-    obj = bpy.data.objects.new(region.name, mesh)
-    bscene.collection.objects.link(obj)
-    s = obj.endophoton
-    s.role = "TISSUE" if region.name == "tissue" else "POLYP"
-    m = region.medium
-    s.medium.mua, s.medium.mus, s.medium.g, s.medium.n = m.mua, m.mus, m.g, m.n
-    s.priority = region.priority
-    s.fluorophores.clear()
-    for f in region.fluorophores:
-        item = s.fluorophores.add()
-        item.species, item.d, item.c = f.name, f.d, f.c
-bpy.ops.wm.save_as_mainfile(filepath=BLEND)
-res = sb.sweep_blend(BLEND, betas=BETAS, store=STORE, seed=SEED, progress=False)
-with open(OUT, "w") as fh:
-    json.dump({"rows": res.rows, "counts": [np.asarray(h["counts"]).tolist() for h in res.histograms]}, fh)
-'''
-
-
-def _blender_available():
-    import shutil
-    import subprocess
-
-    exe = shutil.which("blender")
-    if exe is None or not _engine_ready():
-        return False
-    try:
-        out = subprocess.run(
-            [exe, "-b", "--factory-startup", "--python-expr", "import numpy, sys; print('PYOK', sys.version_info[:2])"],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    return "PYOK (3, 11)" in out.stdout
-
-
-@pytest.mark.skipif(not _blender_available(), reason="blender with python 3.11 + numpy, or the engine, missing")
-def test_blender_path_gives_identical_numbers(tmp_path):
-    """sweep_blend on a .blend holding the paper's scene == sweep() on the same arrays and values."""
-    import subprocess
-    import endophoton as ep_mod
-
-    betas, store, seed = [0.0, 30.0], 3000, 7
-    pkg = os.path.join(ROOT, "python")
-    script = tmp_path / "run_in_blender.py"
-    out = tmp_path / "blender.json"
-    blend = tmp_path / "paper.blend"
-    addon = os.path.join(ROOT, "addon")
-    script.write_text(
-        f"PKG={pkg!r}\nADDON={addon!r}\nBLEND={str(blend)!r}\nOUT={str(out)!r}\nBETAS={betas!r}\n"
-        f"STORE={store}\nSEED={seed}\n" + BLENDER_SCRIPT
-    )
-    proc = subprocess.run(
-        ["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    got = json.loads(out.read_text())
-    # the same scene in plain Python: Blender keeps vertex coordinates and the
-    # add-on's float properties in single precision, so round the same way
-    f32 = lambda x: float(np.float32(x))
-    src = sw.default_flat_scene(unit="m", polyp="dome")
-    scene = ep_mod.Scene(unit="m")
-    for r in src.regions:
-        m = r.medium
-        scene.add_mesh(
-            r.name,
-            r.vertices,
-            r.triangles,
-            ep_mod.Medium(mua=f32(m.mua), mus=f32(m.mus), g=f32(m.g), n=f32(m.n)),
-            priority=r.priority,
-            fluorophores=[ep_mod.Fluorophore(f.name, f32(f.d), f32(f.c)) for f in r.fluorophores],
-        )
-    ref = sw.sweep(scene, betas=betas, store=store, seed=seed, progress=False)
-    for a, b in zip(ref.rows, got["rows"]):
-        for k in (
-            "packets_traced",
-            "records",
-            "energy_total",
-            "energy_per_packet",
-            "important_fraction",
-            "max_depth_cm",
-            "azimuth_asym_low",
-        ):
-            assert a[k] == b[k], (k, a[k], b[k])
-    for h, c in zip(ref.histograms, got["counts"]):
-        assert np.array_equal(np.asarray(h["counts"]), np.asarray(c))
-
-
-@pytest.mark.skipif(not _blender_available(), reason="blender with python 3.11 + numpy, or the engine, missing")
-def test_cli_blend_runs_the_addon_module_in_blender(tmp_path):
-    """``python3 -m endophoton sweep --blend FILE`` starts Blender, which runs the add-on's
-    sweep_blend on the file's scene and rig (the package itself never imports bpy)."""
-    import subprocess
-    import sys
-
-    out = tmp_path / "out"
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "endophoton",
-            "sweep",
-            "--blend",
-            os.path.join(ROOT, "blend_scenes", "flat_tissue.blend"),
-            "--betas",
-            "0,20",
-            "--store",
-            "400",
-            "--batches",
-            "4",
-            "--threads",
-            "1",
-            "--seed",
-            "3",
-            "--no-progress",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env=env,
-        cwd=str(tmp_path),
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    res = sw.SweepResult.from_json(str(out / "sweep.json"))
-    assert res.meta["scene"].startswith("blender scene") and "flat_tissue.blend" in res.meta["scene"]
-    assert list(res.betas) == [0.0, 20.0] and all(r["records"] == 400 for r in res.rows)
-    assert res.meta["seed"] == 3 and res.meta["n_batches"] == 4 and res.meta["unit"] == "m"
-    # the rig of the .blend (its head dimensions reach from_beta), at its distance (10 mm) in metres
-    assert "head_diameter_mm" in res.meta["rig_kwargs"] and res.meta["distance"] == pytest.approx(0.01)
-    assert (out / "report.md").exists() and (out / "sweep.csv").exists()
 
 
 # ---------------------------------------------------------------- report logic on a known trend
@@ -868,6 +716,7 @@ def test_report_recovers_known_trends(tmp_path):
     assert "so the fit degree is" not in text  # 12 angles: full degree-6 fit, no reduced-degree note
 
 
+@pytest.mark.slow
 def test_a_tiny_store_writes_its_report_without_numpy_warnings(tmp_path):
     """store = 40 in 20 batches leaves batches without records: their numbers are undefined ("n/a" in
     report.md, None in compute_trends), and numpy's warnings about them no longer reach the user."""

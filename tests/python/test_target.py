@@ -24,13 +24,12 @@ What is checked:
 import json
 import math
 import os
-import subprocess
-import sys
 
 import pytest
 
 import endophoton as ep
 
+from cli_helpers import run_json
 from physics_helpers import assert_energy_conserved, assert_within
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -229,17 +228,7 @@ def _slab_json(path):
 
 
 def _cli(*args):
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    out = subprocess.run(
-        ["/usr/bin/python3", "-m", "endophoton", "run", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=ROOT,
-        timeout=300,
-    )
-    assert out.returncode == 0, out.stderr
-    return json.loads(out.stdout)
+    return run_json("run", *args)
 
 
 def _check_cli_result(d, target):
@@ -249,11 +238,13 @@ def _check_cli_result(d, target):
     assert_within("CLI Rd", d["diffuse_reflectance"], d["diffuse_reflectance_stderr"], VDH_RD, VDH_UNC)
 
 
+@pytest.mark.slow
 def test_cli_target_rel_error(tmp_path):
     d = _cli(_slab_json(tmp_path / "mcml_slab.json"), "--target-rel-error", "0.02")
     _check_cli_result(d, 0.02)
 
 
+@pytest.mark.slow
 def test_cli_target_on_example_file():
     path = os.path.join(ROOT, "examples", "mcml_slab.json")
     if not os.path.exists(path):

@@ -74,6 +74,7 @@ def test_fit_peak_spread_covers_a_rival_point_elsewhere_in_the_sweep():
     assert boots_far and f["x_peak_stderr"] > 7.0  # two modes 20 deg apart, near half and half: sd ~10
 
 
+@pytest.mark.slow
 def test_fit_peak_flatness_p_value_against_scipy_and_its_calibration():
     from scipy import stats
 
@@ -96,6 +97,7 @@ def test_fit_peak_flatness_p_value_against_scipy_and_its_calibration():
     assert fit_peak(x, 1.0 - (x - 31.0) ** 2 / 900.0 * 3.0, np.full(x.size, 0.1), n_boot=50)["flat_p"] < 1e-6
 
 
+@pytest.mark.slow
 def test_fit_peak_flatness_test_is_conservative_for_positively_correlated_errors():
     """As fit_peak's docstring says for a sweep run with one seed: errors correlated across beta
     (here 0.3 + 0.6 exp(-|i - j| / 3), the kind bench/visibility_seeds.py measures) shrink the
@@ -129,6 +131,7 @@ def _contrast_rows(x, series):
     return rows
 
 
+@pytest.mark.slow
 def test_visibility_report_answers_only_from_contrasts_that_vary_with_beta():
     x = np.arange(0.0, 60.0, 5.0)
     rng = np.random.default_rng(5)
@@ -195,6 +198,7 @@ def test_jackknife_of_a_mean_equals_batch_means():
     assert se == pytest.approx(np.std(sums / 100, ddof=1) / math.sqrt(20), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
     s = polyp_box_scene(0.33)
     rows, betas, images = [], [0.0, 20.0, 40.0], []
@@ -233,6 +237,7 @@ def test_visibility_columns_hook_plot_sheet_and_report(tmp_path):
         add_visibility({}, None, 0.0, {"target": "polyp"})
 
 
+@pytest.mark.slow
 def test_sweep_with_visibility_writes_columns_views_plot_sheet_and_answer(tmp_path):
     res = ep.sweep(
         ep.default_flat_scene(),
@@ -261,31 +266,11 @@ def test_sweep_without_visibility_leaves_the_columns_undefined():
     assert all(res.rows[0][k] is None for k in VISIBILITY_COLUMNS)  # undefined is None, never NaN
 
 
+@pytest.mark.slow
 def test_sweep_cli_target_needs_background(tmp_path):
-    import subprocess
-    import sys
+    from cli_helpers import run_cli
 
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env = dict(os.environ, PYTHONPATH=os.path.join(root, "python"))
-    p = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "endophoton",
-            "sweep",
-            "--betas",
-            "0",
-            "--store",
-            "100",
-            "--out",
-            str(tmp_path),
-            "--target",
-            "polyp",
-            "--no-progress",
-        ],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    p = run_cli(
+        "sweep", "--betas", "0", "--store", "100", "--out", tmp_path, "--target", "polyp", "--no-progress", timeout=120
     )
     assert p.returncode == 2 and "--background = None" in p.stderr
