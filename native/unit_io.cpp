@@ -13,7 +13,7 @@ namespace {
 
 // Bumped whenever the layout below changes; a worker with another build is
 // then refused by name instead of producing garbage.
-constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '3'};
+constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '4'};
 
 class Writer {
   public:
@@ -118,6 +118,8 @@ void put_grids(Writer& w, const GridSet* g) {
     put_grid(w, g->fluorescence);
     w.put(uint64_t(g->per_fluorophore.size()));
     for (const auto& a : g->per_fluorophore) put_grid(w, a);
+    w.put(uint64_t(g->emission.size()));
+    for (const auto& a : g->emission) put_grid(w, a);
 }
 
 // Reads a grid set if one follows; `expected` says whether the run needs one
@@ -139,6 +141,10 @@ std::unique_ptr<GridSet> get_grids(Reader& r, double voxel_size, bool expected, 
     if (nf > max_items) Reader::fail();
     g->per_fluorophore.assign(nf, VoxelAccumulator(voxel_size));
     for (auto& a : g->per_fluorophore) get_grid(r, a, max_items);
+    const uint64_t ne = r.get<uint64_t>();
+    if (ne > max_items) Reader::fail();
+    g->emission.assign(ne, VoxelAccumulator(voxel_size));
+    for (auto& a : g->emission) get_grid(r, a, max_items);
     return g;
 }
 
@@ -157,9 +163,11 @@ std::string pack_units(const UnitBatch& batch) {
         w.put(t.scalar);
         w.put(t.energy);
         w.put_vec(t.absorbed_by_region);
+        w.put_vec(t.emitted_by_fluorophore);
         w.put(t.scalar_m);
         w.put(t.energy_m);
         w.put_vec(t.absorbed_by_region_m);
+        w.put_vec(t.emitted_by_fluorophore_m);
         EscapeRecords::for_each_column(u->records, [&](const auto& col) { w.put_vec(col); });
         put_grids(w, u->own_grids.get());
     }
@@ -183,9 +191,11 @@ UnitBatch unpack_units(const std::string& bytes, double voxel_size, bool per_uni
         r.get_into(t.scalar);
         r.get_into(t.energy);
         r.get_vec(t.absorbed_by_region);
+        r.get_vec(t.emitted_by_fluorophore);
         r.get_into(t.scalar_m);
         r.get_into(t.energy_m);
         r.get_vec(t.absorbed_by_region_m);
+        r.get_vec(t.emitted_by_fluorophore_m);
         EscapeRecords::for_each_column(u->records, [&](auto& col) { r.get_vec(col); });
         const size_t nrec = u->records.weight.size();
         EscapeRecords::for_each_column(u->records, [&](const auto& col) {
