@@ -157,8 +157,9 @@ void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
 // grid sums to the `absorbed` fraction. The file is written atomically
 // (write_vdb). Throws std::logic_error if the grids do not hold the deposits
 // of exactly the merged packets (a unit counted twice or lost).
-// The grids are built on up to `threads` threads.
-void write_grids(const SharedGridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result, int threads) {
+// The grids are built on up to `threads` threads; each grid's voxel tables are
+// freed once its tree is built (the run needs them no more).
+void write_grids(SharedGridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result, int threads) {
     if (grids.packets() != result.packets)
         throw std::logic_error("grids: hold the deposits of " + std::to_string(grids.packets()) +
                                " packets, but the run merged " + std::to_string(result.packets) +
@@ -168,7 +169,12 @@ void write_grids(const SharedGridSet& grids, const Scene& scene, const RunConfig
     // Grid k of the set (GridSet::grid numbering) with its name and meaning.
     const auto output = [&](size_t k, std::string name, std::string meaning) {
         const std::vector<const VoxelAccumulator*> parts = grids.parts(k);
-        outs.push_back({std::move(name), std::move(meaning), parts.front(), s, {parts.begin() + 1, parts.end()}});
+        // Its voxel tables are freed once its tree is built (the write then
+        // holds the tables of the grids still to build and one or two trees).
+        outs.push_back(
+            {std::move(name), std::move(meaning), parts.front(), s, {parts.begin() + 1, parts.end()}, [&grids, k] {
+                 grids.release(k);
+             }});
     };
     // Names and meanings: docs/design.md, "Grids" (endophoton.vdb.GRID_QUANTITIES says the same to readers).
     output(0, "absorbed",

@@ -89,4 +89,8 @@ size_t SharedGridSet::voxel_count(size_t k) const {
     return n;
 }
 
+void SharedGridSet::release(size_t k) {
+    for (const auto& s : shards_) s->grids.grid(k).clear();
+}
+
 }  // namespace ep
