@@ -274,6 +274,7 @@ def sections(R):
         + "\n## 10. Mesh size: scene build and packets/s\n\n`bench/mesh_size.py` tessellates the colon's tube finer "
         "(rings along it × points around it) and measures the engine scene's build, then packets/s of a 1-thread run "
         "after a 2 000-packet warm-up, and the per-cube cache store that run built.\n\n" + mesh_t
+        + "\n## 11. Grids: speed and memory (frozen)\n\n" + frozen("grids")
     )  # fmt: skip
 
 

@@ -72,6 +72,11 @@ void finalize_estimates(RunResult& r, int batches) {
     for (size_t k = 0; k < nreg; ++k)
         r.absorbed_by_region[k] = batch_estimate(
             r.units, batches, [k](const UnitTally& u) -> const Moments& { return u.absorbed_by_region_m[k]; });
+    const size_t nfl = r.units.empty() ? 0 : r.units.front().emitted_by_fluorophore_m.size();
+    r.emitted_by_fluorophore.assign(nfl, Estimate{});
+    for (size_t k = 0; k < nfl; ++k)
+        r.emitted_by_fluorophore[k] = batch_estimate(
+            r.units, batches, [k](const UnitTally& u) -> const Moments& { return u.emitted_by_fluorophore_m[k]; });
 }
 
 // ---------------------------------------------------------------- stop rule
@@ -160,8 +165,9 @@ void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
 // grid sums to the `absorbed` fraction. The file is written atomically
 // (write_vdb). Throws std::logic_error if the grids do not hold the deposits
 // of exactly the merged packets (a unit counted twice or lost).
-// The grids are built on up to `threads` threads.
-void write_grids(const SharedGridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result, int threads) {
+// The grids are built on up to `threads` threads; each grid's voxel tables are
+// freed once its tree is built (the run needs them no more).
+void write_grids(SharedGridSet& grids, const Scene& scene, const RunConfig& cfg, RunResult& result, int threads) {
     if (grids.packets() != result.packets)
         throw std::logic_error("grids: hold the deposits of " + std::to_string(grids.packets()) +
                                " packets, but the run merged " + std::to_string(result.packets) +
@@ -171,16 +177,31 @@ void write_grids(const SharedGridSet& grids, const Scene& scene, const RunConfig
     // Grid k of the set (GridSet::grid numbering) with its name and meaning.
     const auto output = [&](size_t k, std::string name, std::string meaning) {
         const std::vector<const VoxelAccumulator*> parts = grids.parts(k);
-        outs.push_back({std::move(name), std::move(meaning), parts.front(), s, {parts.begin() + 1, parts.end()}});
+        // Its voxel tables are freed once its tree is built (the write then
+        // holds the tables of the grids still to build and one or two trees).
+        outs.push_back(
+            {std::move(name), std::move(meaning), parts.front(), s, {parts.begin() + 1, parts.end()}, [&grids, k] {
+                 grids.release(k);
+             }});
     };
+    // Names and meanings: docs/design.md, "Grids" (endophoton.vdb.GRID_QUANTITIES says the same to readers).
     output(0, "absorbed",
-           "absorbed energy per voxel (weight x 500 nm / wavelength; weight when not spectral), per launched packet");
-    output(1, "fluorescence",
-           "weight of fluorescent packets summed over their interaction sites (volume photon map density), per "
-           "launched packet");
-    for (size_t f = 0; f + 2 < grids.grid_count(); ++f)
-        output(f + 2, "fluorescence_" + scene.fluorophore_name(int(f)),
-               "volume photon map density of packets that fluoresced by " + scene.fluorophore_name(int(f)));
+           "energy absorbed in the voxel (packet weight x 500 nm / wavelength; weight when the run is not spectral), "
+           "per launched packet; dimensionless, per voxel");
+    output(1, "fluorescent_light",
+           "weight of fluorescent packets summed over their interaction sites in the voxel (collision density of "
+           "fluorescence light), per launched packet; dimensionless, per voxel");
+    const size_t per_fl = grids.grid_count() - 2 - scene.fluorophore_count();
+    for (size_t f = 0; f < per_fl; ++f)
+        output(f + 2, "fluorescent_light_" + scene.fluorophore_name(int(f)),
+               "weight of packets that fluoresced by " + scene.fluorophore_name(int(f)) +
+                   ", summed over their interaction sites in the voxel (where its light goes, not where it is), "
+                   "per launched packet; dimensionless, per voxel");
+    for (size_t f = 0; f < scene.fluorophore_count(); ++f)
+        output(2 + per_fl + f, "emission_" + scene.fluorophore_name(int(f)),
+               "packet weight " + scene.fluorophore_name(int(f)) +
+                   " converted into fluorescence at its conversion points in the voxel (fluorescence photons "
+                   "emitted per launched photon), per launched packet; dimensionless, per voxel");
     std::map<std::string, std::string> meta;
     meta["packets"] = std::to_string(result.packets);
     meta["seed"] = std::to_string(cfg.seed);
@@ -198,8 +219,9 @@ size_t per_fluorophore_grids(const Scene& scene, const RunConfig& cfg) {
     return cfg.grid_per_fluorophore ? scene.fluorophore_count() : 0;
 }
 
+// One emission grid per fluorophore of the scene (none without fluorophores).
 std::unique_ptr<GridSet> new_grids(const Scene& scene, const RunConfig& cfg) {
-    return std::make_unique<GridSet>(cfg.grid_voxel_size, per_fluorophore_grids(scene, cfg));
+    return std::make_unique<GridSet>(cfg.grid_voxel_size, per_fluorophore_grids(scene, cfg), scene.fluorophore_count());
 }
 
 // Merges finished units strictly in unit order (bit-identical totals for any
@@ -302,7 +324,7 @@ struct RunState {
 std::unique_ptr<UnitOutput> new_unit(const Scene& scene, const RunConfig& cfg, uint64_t unit_size, uint64_t u,
                                      GridSet* staging) {
     auto out = std::make_unique<UnitOutput>();
-    out->tally.reset(scene.region_count());
+    out->tally.reset(scene.region_count(), scene.fluorophore_count());
     out->first_packet = u * unit_size;
     if (grids_per_unit(cfg)) {
         out->own_grids = new_grids(scene, cfg);
@@ -566,7 +588,7 @@ struct UnitReducer::Impl {
         result.unit_size = plan.unit_size;
         if (cfg.grid_voxel_size > 0)
             grids = std::make_unique<SharedGridSet>(cfg.grid_voxel_size, per_fluorophore_grids(sc, cfg),
-                                                    grid_memory_limit(cfg));
+                                                    grid_memory_limit(cfg), sc.fluorophore_count());
     }
 };
 

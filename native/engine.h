@@ -79,6 +79,7 @@ struct RunResult {
     Estimate scalar[kScalarTallies];
     Estimate energy[kEnergyTallies];  // meaningful in spectral runs
     std::vector<Estimate> absorbed_by_region;
+    std::vector<Estimate> emitted_by_fluorophore;  // by fluorophore id (UnitTally::emitted_by_fluorophore)
     EscapeRecords records;
     bool cancelled = false;
     bool target_reached = false;

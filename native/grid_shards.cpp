@@ -16,11 +16,11 @@ namespace {
 constexpr size_t kKeptBucketEntries = 4096;
 }  // namespace
 
-SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t max_bytes)
+SharedGridSet::SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t max_bytes, size_t emission)
     : voxel_size_(voxel_size), max_bytes_(max_bytes) {
     shards_.reserve(kShards);
     for (size_t s = 0; s < kShards; ++s) {
-        shards_.push_back(std::make_unique<Shard>(voxel_size, per_fluorophore));
+        shards_.push_back(std::make_unique<Shard>(voxel_size, per_fluorophore, emission));
         shards_.back()->bytes = shards_.back()->grids.memory_bytes();
         bytes_ += shards_.back()->bytes;
     }
@@ -87,6 +87,10 @@ size_t SharedGridSet::voxel_count(size_t k) const {
     size_t n = 0;
     for (const auto& s : shards_) n += s->grids.grid(k).voxel_count();
     return n;
+}
+
+void SharedGridSet::release(size_t k) {
+    for (const auto& s : shards_) s->grids.grid(k).clear();
 }
 
 }  // namespace ep

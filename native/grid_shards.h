@@ -31,11 +31,11 @@ class SharedGridSet {
     static constexpr int kShardBits = 6;
     static constexpr size_t kShards = size_t(1) << kShardBits;
 
-    // The shape of GridSet(voxel_size, per_fluorophore). Its voxel tables may
+    // The shape of GridSet(voxel_size, per_fluorophore, emission). Its voxel tables may
     // take at most `max_bytes` (0: no limit): add() that grows them past it
     // throws std::runtime_error naming grids.voxel_size, so that deposits
     // scattered at a tiny voxel size stop the run instead of filling memory.
-    SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t max_bytes = 0);
+    SharedGridSet(double voxel_size, size_t per_fluorophore, uint64_t max_bytes = 0, size_t emission = 0);
 
     // Adds every voxel, dropped counter and the packet count of `g`, exactly.
     // Thread-safe. Throws std::invalid_argument if `g` differs in shape or
@@ -57,10 +57,15 @@ class SharedGridSet {
     std::vector<const VoxelAccumulator*> parts(size_t k) const;
     uint64_t packets() const { return shards_.front()->grids.packets; }
     size_t voxel_count(size_t k) const;
+    // Frees grid k's voxel tables in every shard (its voxels, dropped
+    // counters and memory): once the grid is written, the run needs them no
+    // more. Not safe while another thread adds or reads grid k.
+    void release(size_t k);
 
   private:
     struct Shard {
-        Shard(double voxel_size, size_t per_fluorophore) : grids(voxel_size, per_fluorophore) {}
+        Shard(double voxel_size, size_t per_fluorophore, size_t emission)
+            : grids(voxel_size, per_fluorophore, emission) {}
         std::mutex mu;
         GridSet grids;
         size_t bytes = 0;  // grids.memory_bytes() after the last add (guarded by mu)

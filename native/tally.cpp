@@ -59,6 +59,8 @@ void UnitTally::record_packet() {
     for (int k = 0; k < kScalarTallies; ++k) move_to(scalar[k], scalar_m[k]);
     for (int k = 0; k < kEnergyTallies; ++k) move_to(energy[k], energy_m[k]);
     for (size_t k = 0; k < absorbed_by_region.size(); ++k) move_to(absorbed_by_region[k], absorbed_by_region_m[k]);
+    for (size_t k = 0; k < emitted_by_fluorophore.size(); ++k)
+        move_to(emitted_by_fluorophore[k], emitted_by_fluorophore_m[k]);
 }
 
 double per_packet_stderr(uint64_t n, double sum, double sum_sq) {

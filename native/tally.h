@@ -71,13 +71,19 @@ struct UnitTally {
     double scalar[kScalarTallies] = {};
     double energy[kEnergyTallies] = {};
     std::vector<double> absorbed_by_region;
+    // Packet weight each fluorophore (by id) converted into fluorescence: the
+    // sum over its fluorescence events of the packet's weight there.
+    std::vector<double> emitted_by_fluorophore;
     Moments scalar_m[kScalarTallies];
     Moments energy_m[kEnergyTallies];
     std::vector<Moments> absorbed_by_region_m;
-    void reset(size_t regions) {
+    std::vector<Moments> emitted_by_fluorophore_m;
+    void reset(size_t regions, size_t fluorophores = 0) {
         *this = UnitTally{};
         absorbed_by_region.assign(regions, 0.0);
         absorbed_by_region_m.assign(regions, Moments{});
+        emitted_by_fluorophore.assign(fluorophores, 0.0);
+        emitted_by_fluorophore_m.assign(fluorophores, Moments{});
     }
     // Ends one packet: its contribution (the running sums) goes to the moments,
     // and the running sums are cleared for the next packet.

@@ -1011,6 +1011,9 @@ void PacketWalk<kSpectral, kGrids>::fluoresce() {
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::fluoresce_with(const FluorophoreRef& f) {
     PacketState& st = st_;
+    // The weight f converts, where it converts it (tally and emission grid).
+    out_.tally.emitted_by_fluorophore[size_t(f.id)] += st.W;
+    if constexpr (kGrids) out_.grids->emit(st.p.x, st.p.y, st.p.z, size_t(f.id), st.W);
     st.lambda = scene_.eem(f.id).sample_emission(st.lambda, rng_.uniform(), rng_.uniform());
     // Stokes loss: the weight (photon count) is kept, the energy per
     // photon drops from 500/lambda_ex to 500/lambda_em.

@@ -13,7 +13,7 @@ namespace {
 
 // Bumped whenever the layout below changes; a worker with another build is
 // then refused by name instead of producing garbage.
-constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '3'};
+constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '4'};
 
 enum class GridPlace { kUnit, kChunk };
 
@@ -31,9 +31,11 @@ void unit_fields(IO& io, Unit& u) {
     io.field(t.scalar);
     io.field(t.energy);
     io.field(t.absorbed_by_region);
+    io.field(t.emitted_by_fluorophore);
     io.field(t.scalar_m);
     io.field(t.energy_m);
     io.field(t.absorbed_by_region_m);
+    io.field(t.emitted_by_fluorophore_m);
     EscapeRecords::for_each_column(u.records, [&](auto& column, RecordColumn) { io.field(column); });
     io.grids(u.own_grids, GridPlace::kUnit);
 }
@@ -45,6 +47,7 @@ void grid_set_fields(IO& io, Grids& g) {
     io.grid(g.absorbed);
     io.grid(g.fluorescence);
     io.grid_list(g.per_fluorophore);
+    io.grid_list(g.emission);
 }
 
 // A batch: the magic, its first unit, its units, and the chunk's grids (its units' deposits summed).

@@ -134,24 +134,6 @@ class TreeBudget {
     std::atomic<uint64_t> used_{0};
 };
 
-// Runs task(i) for i in [0, n) on up to `threads` threads (the calling one
-// included), each task on one thread.
-template <class Task>
-void run_tasks(size_t n, int threads, const Task& task) {
-    std::atomic<size_t> next{0};
-    const auto work = [&] {
-        for (size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) task(i);
-    };
-    std::vector<std::thread> pool;
-    try {
-        for (size_t t = 1; t < std::min(n, size_t(std::max(threads, 1))); ++t) pool.emplace_back(work);
-    } catch (const std::system_error&) {
-        // No thread to spare: the threads started so far run the rest.
-    }
-    work();
-    for (auto& th : pool) th.join();
-}
-
 // Sets the voxels of `part` (times `scale`) in `tree`, through an accessor
 // that keeps the last leaf and internal nodes, in the accumulator's table
 // order (a part is a shard of a run's grids: a few thousand voxels in a few
@@ -331,7 +313,8 @@ class GridBuilder {
         if (remaining_[k].fetch_sub(1, std::memory_order_acq_rel) == 1) assemble(k);
         return true;
     }
-    // Joins grid k's trees, once its last part is filled.
+    // Joins grid k's trees, once its last part is filled, and hands its parts
+    // back (GridOutput::release_parts): no thread reads them any more.
     void assemble(size_t k) {
         openvdb::FloatGrid::Ptr grid;
         std::exception_ptr error;
@@ -342,6 +325,7 @@ class GridBuilder {
                 std::vector<FloatTree::Ptr> own;
                 for (auto& per_thread : trees_) own.push_back(std::move(per_thread[k]));
                 grid = assemble_grid(grids_[k], std::move(own), metadata_);
+                if (grids_[k].release_parts) grids_[k].release_parts();
             } catch (...) {
                 error = std::current_exception();
             }
@@ -429,13 +413,15 @@ class CheckedArchive : public openvdb::io::Archive {
     // larger (8.2 MB against 7.4 MB) and the write slower, and a reader built
     // without Blosc could not open the file.
     CheckedArchive() { setCompression(openvdb::io::COMPRESS_ACTIVE_MASK); }
-    // Writes the grids of `builder`, each as soon as it is built. The sequence
+    // Writes the grids of `builder`, each as soon as it is built, and frees
+    // each once written, keeping its "accumulator_sum" in `sums` (a run's
+    // grids then never hold all their trees at once). The sequence
     // is Archive::write's for grids of unique, non-empty names and their own
     // trees: stream flags, header, file metadata, the grid count, then each
     // grid under its own name (the bytes are the same but for the header's
     // random UUID; checked against Archive::write when this was written).
     void write_checked(const std::string& tmp, const std::string& path, GridBuilder& builder, size_t n,
-                       const openvdb::MetaMap& meta) const {
+                       const openvdb::MetaMap& meta, std::vector<double>& sums) const {
         std::ofstream os(tmp, std::ios_base::out | std::ios_base::binary | std::ios_base::trunc);
         if (!os) throw path_error(path, "cannot open the temporary file '" + tmp + "': " + std::strerror(errno));
         errno = 0;
@@ -447,11 +433,15 @@ class CheckedArchive : public openvdb::io::Archive {
         meta.writeMeta(os);
         const int32_t count = int32_t(n);
         os.write(reinterpret_cast<const char*>(&count), sizeof count);
+        sums.assign(n, 0.0);
         for (size_t k = 0; k < n; ++k) {
-            const openvdb::FloatGrid::ConstPtr grid = builder.get(k);
+            openvdb::FloatGrid::ConstPtr grid = builder.get(k);
             openvdb::io::GridDescriptor gd(grid->getName(), grid->type(), grid->saveFloatAsHalf());
             writeGrid(gd, grid, os, /*seekable=*/true);
             openvdb::io::setDataCompression(os, compression());  // a grid may change it
+            sums[k] = grid->metaValue<double>("accumulator_sum");
+            grid.reset();
+            builder.release(k);
         }
         os.flush();
         const int err = errno;
@@ -588,8 +578,9 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
 
     GridBuilder builder(grids, metadata, threads, max_tree_bytes ? max_tree_bytes : tree_memory_limit());
     const std::string tmp = create_temp_file(path);
+    std::vector<double> sums;
     try {
-        CheckedArchive().write_checked(tmp, path, builder, grids.size(), file_meta);
+        CheckedArchive().write_checked(tmp, path, builder, grids.size(), file_meta, sums);
         sync_file(tmp, path);
     } catch (const openvdb::Exception& e) {
         std::remove(tmp.c_str());
@@ -609,11 +600,6 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
         std::remove(tmp.c_str());
         throw path_error(path, "cannot rename the temporary file over it: " + why);
     }
-    std::vector<double> sums;
-    for (size_t k = 0; k < grids.size(); ++k) sums.push_back(builder.get(k)->metaValue<double>("accumulator_sum"));
-    // Each tree holds tens of thousands of leaves: free them on the run's
-    // threads too, one grid each.
-    run_tasks(grids.size(), threads, [&](size_t k) { builder.release(k); });
     return sums;
 }
 

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -27,6 +28,12 @@ struct GridOutput {
     // a run's grids (grid_shards.h). The grid is their union, its sum and
     // dropped counters the totals.
     std::vector<const VoxelAccumulator*> more_parts = {};
+    // Called (if set) once the grid's tree is built from its parts, on the
+    // thread that built it: the parts are not read again, and the caller may
+    // free them (a run frees its voxel tables grid by grid, so the write does
+    // not hold every table and every tree at once). Any grid's failure may
+    // leave others' parts released.
+    std::function<void()> release_parts = nullptr;
 
     std::vector<const VoxelAccumulator*> parts() const {
         std::vector<const VoxelAccumulator*> all{data};
@@ -49,7 +56,7 @@ struct GridOutput {
 // so readers never see a half-written file and a failed write leaves any
 // previous file untouched.
 // The grids are built on up to `threads` threads (their parts in parallel),
-// and each is written as soon as it is built. Returns each grid's
+// and each is written as soon as it is built and freed once written. Returns each grid's
 // "accumulator_sum", in `grids` order.
 // Throws std::invalid_argument for a path check_vdb_path refuses (before
 // anything is built, and again just before the rename), and for bad input

@@ -260,8 +260,10 @@ void GridSet::clear_keep_capacity() {
     packets = 0;
 }
 
-GridSet::GridSet(double voxel_size, size_t per_fl) : absorbed(voxel_size), fluorescence(voxel_size) {
+GridSet::GridSet(double voxel_size, size_t per_fl, size_t emission_grids)
+    : absorbed(voxel_size), fluorescence(voxel_size) {
     per_fluorophore.assign(per_fl, VoxelAccumulator(voxel_size));
+    emission.assign(emission_grids, VoxelAccumulator(voxel_size));
 }
 
 void GridSet::check_mergeable(const GridSet& other) const {
@@ -269,6 +271,10 @@ void GridSet::check_mergeable(const GridSet& other) const {
         throw std::invalid_argument("grids: a grid set with " + std::to_string(other.per_fluorophore.size()) +
                                     " per-fluorophore grids cannot be merged into one with " +
                                     std::to_string(per_fluorophore.size()));
+    if (other.emission.size() != emission.size())
+        throw std::invalid_argument("grids: a grid set with " + std::to_string(other.emission.size()) +
+                                    " emission grids cannot be merged into one with " +
+                                    std::to_string(emission.size()));
     absorbed.check_mergeable(other.absorbed);
 }
 

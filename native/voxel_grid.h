@@ -277,12 +277,15 @@ class VoxelAccumulator {
 // The volume grids of a run, or of a part of it whose deposits are summed
 // together: a worker thread, a Dask chunk, or one unit of a run whose stop
 // rule may discard units (engine.cpp). Absorbed energy, the weight of
-// fluorescent packets at their interaction sites, and optionally that weight
-// per fluorophore.
+// fluorescent packets at their interaction sites (optionally also per
+// fluorophore), and the weight each fluorophore converts into fluorescence
+// at its conversion points (emission, one grid per fluorophore of a scene
+// that has any). docs/design.md, "Grids", defines each quantity.
 struct GridSet {
-    GridSet(double voxel_size, size_t per_fluorophore_grids);
+    GridSet(double voxel_size, size_t per_fluorophore_grids, size_t emission_grids = 0);
     VoxelAccumulator absorbed, fluorescence;
     std::vector<VoxelAccumulator> per_fluorophore;
+    std::vector<VoxelAccumulator> emission;  // by fluorophore id; empty when the scene has no fluorophore
     // Packets of the finished units whose deposits these grids hold: the
     // engine checks that the run's grids hold exactly its merged packets.
     uint64_t packets = 0;
@@ -308,9 +311,21 @@ struct GridSet {
             per_fluorophore[fluorophore].add_resolved(x, y, z, c, in_range, weight, fast, low);
     }
 
-    // The grids by number: 0 absorbed, 1 fluorescence, 2 + f per fluorophore f.
-    size_t grid_count() const { return 2 + per_fluorophore.size(); }
-    VoxelAccumulator& grid(size_t k) { return k == 0 ? absorbed : k == 1 ? fluorescence : per_fluorophore[k - 2]; }
+    // A fluorescence event: fluorophore `fluorophore` converts a packet of
+    // weight `weight` into fluorescence at world position (x, y, z). Added to
+    // its emission grid (rare next to deposit(): once per event).
+    void emit(double x, double y, double z, size_t fluorophore, double weight) {
+        if (fluorophore < emission.size()) emission[fluorophore].add(x, y, z, weight);
+    }
+
+    // The grids by number: 0 absorbed, 1 fluorescence, 2 + f per fluorophore
+    // f, then 2 + per_fluorophore.size() + f the emission of fluorophore f.
+    size_t grid_count() const { return 2 + per_fluorophore.size() + emission.size(); }
+    VoxelAccumulator& grid(size_t k) {
+        if (k < 2) return k == 0 ? absorbed : fluorescence;
+        k -= 2;
+        return k < per_fluorophore.size() ? per_fluorophore[k] : emission[k - per_fluorophore.size()];
+    }
     const VoxelAccumulator& grid(size_t k) const { return const_cast<GridSet*>(this)->grid(k); }
 
     // Adds every grid of `other` (exact, any order); throws

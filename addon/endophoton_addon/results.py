@@ -464,9 +464,16 @@ def create_point_cloud(name, positions, attrs, radius, material, run_id, names=N
     return obj
 
 
-# Each grid's own colour ramp (dark -> bright, linear RGB); other names get the last one.
+# Each grid's own colour ramp (dark -> bright, linear RGB); other names get the last one. The grids'
+# names and quantities: endophoton.vdb.GRID_QUANTITIES (the fluorescence grids were renamed
+# fluorescent_light*; the old names stay for files written before).
 GRID_RAMPS = {
     "absorbed": ((0.5, 0.06, 0.0), (1.0, 0.4, 0.03), (1.0, 0.95, 0.6)),
+    "fluorescent_light": ((0.05, 0.5, 0.05), (0.2, 1.0, 0.3), (0.85, 1.0, 0.75)),
+    "fluorescent_light_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
+    "fluorescent_light_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
+    "emission_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
+    "emission_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
     "fluorescence": ((0.05, 0.5, 0.05), (0.2, 1.0, 0.3), (0.85, 1.0, 0.75)),
     "fluorescence_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
     "fluorescence_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),

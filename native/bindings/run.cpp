@@ -30,6 +30,13 @@ py::dict estimates_dict(const RunResult& r, const Scene& scene) {
     }
     d["absorbed_by_region"] = reg;
     d["absorbed_by_region_stderr"] = reg_se;
+    py::dict em, em_se;  // by fluorophore name (names are unique in a scene)
+    for (size_t f = 0; f < r.emitted_by_fluorophore.size(); ++f) {
+        em[scene.fluorophore_name(int(f)).c_str()] = r.emitted_by_fluorophore[f].mean;
+        em_se[scene.fluorophore_name(int(f)).c_str()] = r.emitted_by_fluorophore[f].stderr_;
+    }
+    d["emitted_by_fluorophore"] = em;
+    d["emitted_by_fluorophore_stderr"] = em_se;
     return d;
 }
 

@@ -34,7 +34,10 @@ class GridRequest:
 
     voxel_size : edge of a voxel in scene units
     path : the .vdb file to write (atomically)
-    per_fluorophore : also one fluorescence grid per fluorophore
+    per_fluorophore : also one ``fluorescent_light_<name>`` grid per fluorophore (where its light
+        goes). Every run with grids whose scene has fluorophores also writes one ``emission_<name>``
+        grid per fluorophore (where and how much it converts into fluorescence). What each grid
+        holds, with its unit: ``endophoton.vdb.GRID_QUANTITIES``.
     max_memory_mb : the most memory (MiB) the run's voxel tables may take, and
         again the most the file's OpenVDB trees may take while it is written; None:
         three quarters of the memory available when the run starts (the tables) and

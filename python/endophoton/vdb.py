@@ -18,7 +18,80 @@ from typing import Any, Dict, Tuple
 
 import numpy as np
 
-__all__ = ["read_grid_summary", "grid_to_numpy"]
+__all__ = [
+    "read_grid_summary",
+    "grid_to_numpy",
+    "GRID_QUANTITIES",
+    "LEGACY_GRID_NAMES",
+    "grid_quantity",
+    "current_grid_name",
+]
+
+#: What each grid of a run's .vdb file holds, with its unit (docs/design.md, "Grids"). ``<fluorophore>``
+#: stands for a fluorophore's name. Every value is a sum over the voxel (not a density: divide by
+#: voxel_size**3 for one) divided by the run's launched packets, so a grid's sum is a fraction of the
+#: launched packets' weight (or energy), dimensionless. The engine writes the same words into each
+#: grid's ``meaning`` metadata.
+GRID_QUANTITIES = {
+    "absorbed": (
+        "Energy absorbed in the voxel, per launched packet (energy = packet weight × 500 nm / wavelength; "
+        "the weight itself when the run is not spectral). Dimensionless; sums to the run's absorbed "
+        "energy fraction."
+    ),
+    "fluorescent_light": (
+        "Weight of fluorescent packets summed over their interaction sites in the voxel (collision "
+        "density of fluorescence light), per launched packet. Dimensionless; where the fluorescence "
+        "light travels, not where it is made."
+    ),
+    "fluorescent_light_<fluorophore>": (
+        "Weight of packets that <fluorophore> turned fluorescent, summed over their interaction sites in "
+        "the voxel, per launched packet. Dimensionless; where that fluorophore's light travels (the "
+        "whole lit wall), not where the fluorophore is."
+    ),
+    "emission_<fluorophore>": (
+        "Packet weight <fluorophore> converted into fluorescence in the voxel, at the conversion points, "
+        "per launched packet (fluorescence photons emitted per launched photon). Dimensionless; nonzero "
+        "only where the fluorophore is; sums to Result.emitted_by_fluorophore['<fluorophore>']."
+    ),
+}
+
+#: Grid names of files written before the grids were renamed (kept readable for one release):
+#: old name -> current name. ``grid_to_numpy`` and ``grid_quantity`` accept both.
+LEGACY_GRID_NAMES = {
+    "fluorescence": "fluorescent_light",
+    "fluorescence_<fluorophore>": "fluorescent_light_<fluorophore>",
+}
+
+
+def _pattern_of(name: str) -> tuple[str, str | None]:
+    """(GRID_QUANTITIES or LEGACY_GRID_NAMES key, fluorophore name or None) of a grid ``name``."""
+    for table in (GRID_QUANTITIES, LEGACY_GRID_NAMES):
+        if name in table:
+            return name, None
+    for table in (GRID_QUANTITIES, LEGACY_GRID_NAMES):
+        for key in table:
+            prefix = key.replace("<fluorophore>", "")
+            if key.endswith("<fluorophore>") and name.startswith(prefix) and len(name) > len(prefix):
+                return key, name[len(prefix) :]
+    raise KeyError(f"grid name '{name}' is not one the engine writes (known: {', '.join(GRID_QUANTITIES)})")
+
+
+def current_grid_name(name: str) -> str:
+    """The current name of grid ``name`` (itself, or the new name of a legacy one, e.g.
+    ``fluorescence_photofrin`` -> ``fluorescent_light_photofrin``). KeyError for a name the engine
+    never wrote."""
+    key, fluorophore = _pattern_of(name)
+    key = LEGACY_GRID_NAMES.get(key, key)
+    return key if fluorophore is None else key.replace("<fluorophore>", fluorophore)
+
+
+def grid_quantity(name: str) -> str:
+    """What grid ``name`` holds and its unit (GRID_QUANTITIES, the fluorophore's name filled in);
+    legacy names are read as their current ones. KeyError for a name the engine never wrote."""
+    key, fluorophore = _pattern_of(current_grid_name(name))
+    text = GRID_QUANTITIES[key]
+    return text if fluorophore is None else text.replace("<fluorophore>", fluorophore)
+
 
 # A dense copy larger than this (float32, 1 GiB) is almost always a mistake,
 # e.g. two stray deposits far apart spanning a huge bounding box.
@@ -137,6 +210,35 @@ def _uniform_axis_aligned_voxel_size(grid, path: str) -> float:
     return h
 
 
+def _read_grid(vdb, path: str, name: str):
+    """Grid ``name`` of the file, or the same grid under its other name (old file, new name or
+    the reverse; LEGACY_GRID_NAMES). KeyError naming the file and the grid if neither is there."""
+    names = [name]
+    try:
+        current = current_grid_name(name)
+        names.append(current)
+        names += [old for old in _legacy_names(current) if old != name]
+    except KeyError:
+        pass  # not an engine name: only the name itself
+    for candidate in dict.fromkeys(names):
+        try:
+            return vdb.read(path, candidate)
+        except KeyError:
+            continue
+    raise KeyError(f"vdb file '{path}' has no grid named '{name}'")
+
+
+def _legacy_names(current: str) -> list[str]:
+    """The legacy names (LEGACY_GRID_NAMES) whose current name is ``current``."""
+    out = []
+    for old, new in LEGACY_GRID_NAMES.items():
+        if new == current:
+            out.append(old)
+        elif new.endswith("<fluorophore>") and current.startswith(new[: -len("<fluorophore>")]):
+            out.append(old.replace("<fluorophore>", current[len(new) - len("<fluorophore>") :]))
+    return out
+
+
 def grid_to_numpy(path, name: str, max_voxels: int = DEFAULT_MAX_VOXELS):
     """Dense copy of one float grid over its active-voxel bounding box.
 
@@ -151,16 +253,15 @@ def grid_to_numpy(path, name: str, max_voxels: int = DEFAULT_MAX_VOXELS):
       centred at ``origin_world + (a, b, c) * voxel_size``.
 
     An empty grid gives an array of shape (0, 0, 0) and origin (0, 0, 0).
+    A legacy grid name (LEGACY_GRID_NAMES) reads the renamed grid of a new file, and a
+    current name the old grid of an old file.
     Raises KeyError if the file has no grid ``name``, TypeError for a
     non-float grid, ValueError for a rotated/sheared/non-uniform transform or
     a box of more than ``max_voxels`` voxels.
     """
     vdb = _openvdb()
     path = _check_file(path)
-    try:
-        grid = vdb.read(path, name)
-    except KeyError:
-        raise KeyError(f"vdb file '{path}' has no grid named '{name}'") from None
+    grid = _read_grid(vdb, path, name)
     if grid.valueTypeName != "float":
         raise TypeError(
             f"vdb file '{path}': grid '{name}' holds '{grid.valueTypeName}' values; " "grid_to_numpy reads float grids"

@@ -99,7 +99,7 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
     # Volumes: one per grid, loading the .vdb with the expected names and voxels.
     volumes = _volumes(collection)
     assert sorted(o["endophoton_grid"] for o in volumes) == sorted(res.grid_names)
-    assert {"absorbed", "fluorescence"} <= set(res.grid_names)
+    assert {"absorbed", "fluorescent_light"} <= set(res.grid_names)
     assert os.path.dirname(res.grid_path) == str(tmp_path)
     cycles_copy = results.render_grid_path(res.grid_path)
     for obj in volumes:

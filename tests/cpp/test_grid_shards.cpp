@@ -163,6 +163,26 @@ TEST(SharedGridSet, RejectsAnotherShapeOrVoxelSize) {
     }
 }
 
+// release(k) frees grid k's voxels in every shard and leaves the others.
+TEST(SharedGridSet, ReleaseFreesOneGridInEveryShard) {
+    GridSet g(0.5, 0, 1);
+    std::mt19937_64 rng(4);
+    for (int n = 0; n < 5000; ++n) {
+        const Coord c = random_voxel(rng);
+        g.absorbed.add_index(c, 1.0);
+        g.fluorescence.add_index(c, 2.0);
+        g.emission[0].add_index(c, 0.5);
+    }
+    SharedGridSet shared(0.5, 0, 0, 1);
+    shared.add(g);
+    const size_t voxels = shared.voxel_count(0);
+    shared.release(0);
+    EXPECT_EQ(shared.voxel_count(0), 0u);
+    EXPECT_EQ(shared.voxel_count(1), voxels);
+    EXPECT_EQ(shared.voxel_count(2), voxels);
+    for (const ep::VoxelAccumulator* p : shared.parts(0)) EXPECT_EQ(p->memory_bytes(), sizeof(*p));
+}
+
 // The run's voxel tables stop at their memory limit with an error naming
 // grids.voxel_size: 20,000 scattered voxels (~0.9 MB of slots and more with
 // the tables' doubling) under a 1 MiB limit; the same voxels under no limit

@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -342,6 +343,38 @@ TEST_F(VdbWriterTest, GridFromDisjointPartsHoldsTheirUnionOnAnyThreadCount) {
         auto second = read_float_grid(out, "other");
         ASSERT_TRUE(second);
         EXPECT_EQ(second->activeVoxelCount(), ref.size());
+    }
+}
+
+// A grid's parts are handed back (release_parts) once its tree is built,
+// once per grid on any thread count: a caller that frees them there (the
+// engine frees its voxel tables) still gets every voxel and the exact sums.
+TEST_F(VdbWriterTest, PartsAreReleasedOnceEachGridIsBuilt) {
+    const double h = 0.5;
+    for (int threads : {1, 2, 3}) {
+        std::vector<VoxelAccumulator> a(2, VoxelAccumulator(h)), b(2, VoxelAccumulator(h));
+        for (int i = 0; i < 300; ++i) {
+            a[size_t(i % 2)].add_index({i, 0, 0}, 0.25);
+            b[size_t(i % 2)].add_index({0, i, 1}, 0.5);
+        }
+        std::atomic<int> released_a{0}, released_b{0};
+        const auto free_parts = [](std::vector<VoxelAccumulator>& parts, std::atomic<int>& count) {
+            return [&parts, &count] {
+                for (auto& p : parts) p.clear();
+                ++count;
+            };
+        };
+        const std::string out = path("released" + std::to_string(threads) + ".vdb");
+        const std::vector<double> sums = ep::write_vdb(out,
+                                                       {{"a", "", &a[0], 1.0, {&a[1]}, free_parts(a, released_a)},
+                                                        {"b", "", &b[0], 2.0, {&b[1]}, free_parts(b, released_b)}},
+                                                       {}, threads);
+        EXPECT_EQ(released_a.load(), 1) << threads << " threads";
+        EXPECT_EQ(released_b.load(), 1) << threads << " threads";
+        EXPECT_EQ(a[0].voxel_count() + a[1].voxel_count() + b[0].voxel_count() + b[1].voxel_count(), 0u);
+        EXPECT_EQ(sums, (std::vector<double>{75.0, 300.0}));
+        EXPECT_EQ(read_float_grid(out, "a")->activeVoxelCount(), 300u);
+        EXPECT_EQ(read_float_grid(out, "b")->activeVoxelCount(), 300u);
     }
 }
 

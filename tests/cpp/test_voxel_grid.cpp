@@ -380,4 +380,27 @@ TEST(GridSet, DepositEqualsAddIntoEachGrid) {
     EXPECT_EQ(g.per_fluorophore[1].dropped_value(), 0.0);
 }
 
+// The emission grids (one per fluorophore) take emit()'s weight at the
+// conversion point only; deposit() never reaches them. They follow the
+// per-fluorophore grids in the numbering, and merge and clear with the set.
+TEST(GridSet, EmissionGridsTakeOnlyEmitAndMergeWithTheSet) {
+    ep::GridSet g(0.5, 1, 2);
+    ASSERT_EQ(g.grid_count(), 5u);
+    EXPECT_EQ(&g.grid(2), &g.per_fluorophore[0]);
+    EXPECT_EQ(&g.grid(3), &g.emission[0]);
+    EXPECT_EQ(&g.grid(4), &g.emission[1]);
+    g.deposit(0.2, 0.3, -0.2, 0.25, true, 0, 0.5);
+    g.emit(0.7, 0.3, -0.2, 1, 0.75);
+    g.emit(0.6, 0.3, -0.2, 1, 0.125);
+    EXPECT_EQ(g.emission[0].voxel_count(), 0u);
+    EXPECT_EQ(g.emission[1].sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 0.875}}));
+    ep::GridSet h(0.5, 1, 2);
+    h.emit(0.7, 0.3, -0.2, 1, 0.125);
+    h.merge_from(g);
+    EXPECT_EQ(h.emission[1].sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 1.0}}));
+    EXPECT_THROW(h.merge_from(ep::GridSet(0.5, 1, 1)), std::invalid_argument);
+    h.clear_keep_capacity();
+    EXPECT_EQ(h.emission[1].voxel_count(), 0u);
+}
+
 }  // namespace

@@ -96,7 +96,8 @@ def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
     assert (
         dist.grid_names
         == local.grid_names
-        == ["absorbed", "fluorescence", "fluorescence_collagen", "fluorescence_photofrin"]
+        == ["absorbed", "fluorescent_light"]
+        + [f"{kind}_{name}" for kind in ("fluorescent_light", "emission") for name in ("collagen", "photofrin")]
     )
     assert dist.grid_absorbed_sum == local.grid_absorbed_sum
     for name in dist.grid_names:

@@ -283,7 +283,7 @@ def test_grids_are_the_same_bits_on_any_thread_count_and_either_grid_path(tmp_pa
         assert res.photons == 4000 and res.stop_reason == "photons"
         runs[label] = (res, _all_grids(path))
     ref_res, ref = runs["t1"]
-    assert sorted(ref) == ["absorbed", "fluorescence", "fluorescence_collagen"]
+    assert sorted(ref) == ["absorbed", "emission_collagen", "fluorescent_light", "fluorescent_light_collagen"]
     assert ref_res.grid_absorbed_sum == pytest.approx(ref_res.absorbed_energy, rel=1e-12)
     for label, (res, grids) in runs.items():
         assert res.grid_absorbed_sum == ref_res.grid_absorbed_sum, label

@@ -1,0 +1,43 @@
+"""Colon scene (bench/colon_scene.py) with grids: packets/s (engine seconds and CPU seconds) and peak RSS
+(VmHWM) in a fresh process. argv: worktree threads voxel_m [photons]."""
+import json, os, resource, sys, time, tempfile
+
+sys.path.insert(0, sys.argv[1] + "/python")
+sys.path.insert(0, sys.argv[1] + "/bench")
+import endophoton as ep
+from colon_scene import colon_scene
+
+threads = int(sys.argv[2])
+voxel = float(sys.argv[3])
+n = int(sys.argv[4]) if len(sys.argv) > 4 else 150000
+scene, rig = colon_scene()
+
+
+def hwm():
+    for l in open("/proc/self/status"):
+        if l.startswith("VmHWM"):
+            return int(l.split()[1]) / 1024
+
+
+ep.run(scene, rig, photons=2000, threads=threads)
+base = hwm()
+path = os.path.join(tempfile.mkdtemp(), "g.vdb")
+grids = ep.GridRequest(voxel_size=voxel, path=path) if voxel > 0 else None
+ru0 = resource.getrusage(resource.RUSAGE_SELF)
+r = ep.run(scene, rig, photons=n, threads=threads, seed=1, grids=grids)
+ru1 = resource.getrusage(resource.RUSAGE_SELF)
+cpu = ru1.ru_utime - ru0.ru_utime + ru1.ru_stime - ru0.ru_stime
+print(
+    json.dumps(
+        dict(
+            threads=threads,
+            voxel=voxel,
+            pps=round(r.photons / r.seconds),
+            pp_cpu_s=round(r.photons / cpu),
+            sys_s=round(ru1.ru_stime - ru0.ru_stime, 2),
+            base_mb=round(base),
+            peak_mb=round(hwm()),
+            vdb_mb=round(os.path.getsize(path) / 1e6, 2) if grids else 0,
+        )
+    )
+)
