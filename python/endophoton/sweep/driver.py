@@ -685,6 +685,8 @@ def sweep(
         rig_kwargs,
     )
     meta["seed_per_beta"] = seed_per_beta
+    light = rig_kwargs.get("spectrum")  # the rig's light: None = flat white 400-700 nm
+    meta["light"] = "white" if light is None else str(getattr(light, "name", "") or "table")
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
     if contrast_target is not None:

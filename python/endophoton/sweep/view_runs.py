@@ -36,6 +36,7 @@ __all__ = [
     "ContrastTarget",
     "contrast_target",
     "next_packets",
+    "grow_to_target",
     "piece_seed",
     "view_of_beta",
 ]
@@ -129,6 +130,18 @@ def next_packets(packets: int, stderr: float | None, target_stderr: float, max_p
     want = max(want, math.ceil(0.01 * packets), 1)
     want = min(want, math.ceil((GROWTH - 1.0) * packets))
     return int(min(want, max_packets - packets))
+
+
+def grow_to_target(packets: Callable, stderr: Callable, grow: Callable, target: ContrastTarget) -> bool:
+    """The target loop: while :func:`next_packets` asks for more, ``grow(n)`` adds n packets (False: it was
+    cancelled, stop). ``packets()`` and ``stderr()`` read the image's packets and its contrast's standard
+    error (None: undefined). Returns whether the error reached ``target.stderr``."""
+    while True:
+        add = next_packets(packets(), stderr(), target.stderr, target.max_packets)
+        if add == 0 or not grow(add):
+            break
+    se = stderr()
+    return se is not None and se <= target.stderr
 
 
 def piece_seed(seed: int, image: str, piece: int) -> int:
@@ -281,19 +294,20 @@ def view_of_beta(
     cols.update(_columns(fl, wh, target, background, surround_px))
     if contrast_target is not None:
         img = wh if contrast_target.image == "white" else fl
-        while True:
-            add = next_packets(
-                img.records.packets_traced,
-                cols.get(contrast_target.column + "_stderr"),
-                contrast_target.stderr,
-                contrast_target.max_packets,
-            )
-            if add == 0 or img.records.cancelled:
-                break
-            img.grow(add, fluorescent_only and img is fl)
+
+        def grow(packets):
+            img.grow(packets, fluorescent_only and img is fl)
             cols.update(_columns(fl, wh, target, background, surround_px))
-        se = cols.get(contrast_target.column + "_stderr")
-        cols["target_reached"] = int(se is not None and se <= contrast_target.stderr)
+            return not img.records.cancelled
+
+        cols["target_reached"] = int(
+            grow_to_target(
+                lambda: img.records.packets_traced,
+                lambda: cols.get(contrast_target.column + "_stderr"),
+                grow,
+                contrast_target,
+            )
+        )
         cols["view_packets"], cols["white_packets"] = fl.records.packets_traced, wh.records.packets_traced
     cols["cancelled"] = int(fl.records.cancelled or wh.records.cancelled)
     return no_nan(cols), _saved_view(fl, wh)

@@ -19,6 +19,7 @@ from ..paper import PAPER_TRENDS
 from ..report import ALPHA, SIGMAS, value_verdict
 from .schema import VISIBILITY_COLUMNS, VISIBILITY_FILES
 from ..view.visibility import fit_peak
+from . import view_runs
 from .view_runs import view_of_beta
 
 __all__ = [
@@ -32,6 +33,10 @@ __all__ = [
     "plot_visibility",
     "contact_sheet",
     "visibility_report",
+    "lights_report",
+    "flat_band",
+    "criterion_answer",
+    "plot_surround",
 ]
 
 #: The seed paper's answer (its energy fit peaks near 34 deg): where pathological changes are best visible.
@@ -522,3 +527,67 @@ def write_visibility_outputs(
         betas, rows, target, background, seed_per_beta=seed_per_beta, surround_px=surround_px, meta=meta
     )
     return out
+
+
+def _light_criterion(meta) -> tuple[str, str]:
+    """The colour criterion of a sweep: the one a target sweep ran to; else camera channels under blue light
+    (linear-sRGB G of red fluorescence is negative there), sRGB under white light."""
+    t = (meta or {}).get("contrast_target")
+    if t:  # the criterion the sweep ran to
+        return next((k, name) for k, name in _CRITERIA if k == view_runs.CRITERIA[t["criterion"]][0])
+    blue = "blue" in str((meta or {}).get("light", "white"))
+    return (
+        ("red_green_camera_contrast", "red/green contrast, camera channels")
+        if blue
+        else (
+            "red_green_contrast",
+            "red/green contrast",
+        )
+    )
+
+
+def lights_report(sweeps) -> str:
+    """Markdown comparing the answers of sweeps of one scene under different lights: ``sweeps`` is a list
+    of ``(label, SweepResult)``. Per light: the colour contrast's answer (β at maximum ± error, 68 % range,
+    or flat within ±X), its mean level over β with the error of that mean, the largest per-β error, and the
+    paper's 34°; then the lights side by side."""
+    lines = ["## The answer on the colon, under each light", ""]
+    lines += [
+        "| light | criterion | answer | mean contrast over β | largest stderr at a β | against the paper's 34° |",
+        "|---|---|---|---|---|---|",
+    ]
+    levels = []
+    for label, res in sweeps:
+        key, name = _light_criterion(res.meta)
+        rows, betas = res.rows, res.betas
+        f = visibility_fits(betas, rows)[key]
+        y, se = _column(rows, key), _column(rows, key + "_stderr")
+        ok = np.isfinite(y) & np.isfinite(se) & (se > 0)
+        if ok.any():
+            w = 1.0 / se[ok] ** 2
+            mean, mean_se = float(np.sum(w * y[ok]) / np.sum(w)), float(1.0 / math.sqrt(np.sum(w)))
+            level = f"{mean:.3g} ± {mean_se:.2g}"
+            levels.append((label, mean, mean_se))
+        else:
+            level = "n/a"
+        worst = f"{np.nanmax(se):.3g}" if np.isfinite(se).any() else "n/a"
+        if f["x_peak"] is not None and _varies(f) and f["vertex"] and f["x_peak_stderr"]:
+            verdict, z = value_verdict(f["x_peak"], f["x_peak_stderr"], PAPER_BETA_DEG)
+            paper = f"{abs(z):.1f} σ away: {'consistent' if verdict == 'consistent' else 'different'}"
+        elif f["x_peak"] is not None and not _varies(f):
+            paper = "flat: neither confirmed nor ruled out"
+        else:
+            paper = "no maximum fitted"
+        lines.append(f"| {label} | {name} | {criterion_answer(f, rows, key, betas)} | {level} | {worst} | {paper} |")
+    if len(levels) >= 2:
+        (la, a, sa), (lb, b, sb) = levels[0], levels[1]
+        z = abs(a - b) / math.hypot(sa, sb)
+        lines += [
+            "",
+            f"Over the swept β the polyp's colour contrast averages {a:.3g} ± {sa:.2g} under {la} light and "
+            f"{b:.3g} ± {sb:.2g} under {lb} light ({z:.1f} σ apart): "
+            + (f"{la if a > b else lb} light shows the polyp more clearly." if z >= SIGMAS else "no difference shown.")
+            + " (Each light's criterion is in the table: under blue light the camera channels, since linear-sRGB "
+            "G of red fluorescence seen through the long-pass filter is negative.)",
+        ]
+    return "\n".join(lines) + "\n"
