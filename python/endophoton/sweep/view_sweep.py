@@ -100,10 +100,11 @@ def visibility_columns(
         white_packets=white_packets,
         **render_kwargs,
     )
-    out = {k: None for k in VISIBILITY_COLUMNS}
-    out.update(cols)
     if out_dir is not None:
         view.save(out_dir, prefix=prefix)
+    out = {k: cols.get(k) for k in VISIBILITY_COLUMNS}
+    if cols.get("cancelled"):  # a top-up was cancelled: add_visibility marks the row
+        out["cancelled"] = 1
     return out
 
 
