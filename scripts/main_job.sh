@@ -3,25 +3,55 @@
 # experiment (the endoscope tilt beta swept from 0 to 55 deg) on
 # blend_scenes/flat_tissue.blend inside Blender, and write out/main_job/:
 # sweep CSV + JSON, plots, report.md, and a .blend + Cycles render for one beta.
-# Both sweeps (flat_tissue.blend, and colon_polyp.blend into out/main_job/colon_polyp/) render the
-# endoscope's view per beta: views/, views_contact_sheet.png, visibility.png and the report's answer to
-# "at which beta is the polyp most visible" (docs/render.md).
-# STORE (default 250000 fluorescent photons per beta) sets the size.
+# The sweeps render the endoscope's view per beta (views/, views_contact_sheet.png, visibility.png and the
+# report's answer to "at which beta is the polyp most visible", docs/render.md). Every beta runs with a seed
+# of its own, so the report's test of "varies with beta" holds its level.
+# The colon (colon_polyp.blend) is swept twice, under white light (out/main_job/colon_polyp/) and under the
+# 405 nm blue light of photodynamic diagnosis with the long-pass fluorescence filter (colon_polyp_blue/).
+# Both measure the polyp against the wall in an 8-pixel ring around it (the whole Colon region beside it:
+# surround_vs_region.png) and run each beta until the colour contrast (red/green, camera channels) has a
+# standard error <= ERR (0.05), or until CAP packets are behind its image; report.md ends with the answer
+# on the colon under each light, its errors and the paper's 34 deg (scripts/main_job_answer.py).
+# STORE (default 250000 fluorescent photons per beta) sets the paper's store N; BETAS the angles;
+# ERR and CAP the colon's target; ESTIMATOR the view's camera estimator (empty: render_view's default).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 OUT="${OUT:-out/main_job}"
 STORE="${STORE:-250000}"
+BETAS="${BETAS:-0:60:5}"
+ERR="${ERR:-0.05}"
+CAP="${CAP:-1500000}"
+ESTIMATOR="${ESTIMATOR:-}"
 export ENDOPHOTON_ADDON_PATH="$PWD/addon"
 mkdir -p "$OUT"
 start=$(date +%s)
+VIEW=(--view-size 128)
+if [ -n "$ESTIMATOR" ]; then VIEW+=(--estimator "$ESTIMATOR"); fi
+COLON=(--betas "$BETAS" --store "$STORE" --target Polyp --background Colon --surround 8
+  --target-contrast "red_green_camera:$ERR" --max-packets "$CAP" "${VIEW[@]}")
 echo "== beta sweep on blend_scenes/flat_tissue.blend (store $STORE per beta)"
-/usr/bin/python3 -m endophoton sweep --blend blend_scenes/flat_tissue.blend --store "$STORE" --out "$OUT" \
-  --target Polyp --background Tissue
-echo "== beta sweep on blend_scenes/colon_polyp.blend: the endoscope's view per beta, polyp against the colon wall"
-/usr/bin/python3 -m endophoton sweep --blend blend_scenes/colon_polyp.blend --store "$STORE" --out "$OUT/colon_polyp" \
-  --target Polyp --background Colon
+/usr/bin/python3 -m endophoton sweep --blend blend_scenes/flat_tissue.blend --betas "$BETAS" --store "$STORE" \
+  --out "$OUT" --target Polyp --background Tissue "${VIEW[@]}"
+echo "== colon_polyp.blend, white light: the polyp against its surround, to a colour-contrast error of $ERR"
+/usr/bin/python3 -m endophoton sweep --blend blend_scenes/colon_polyp.blend --out "$OUT/colon_polyp" "${COLON[@]}"
+echo "== colon_polyp.blend, blue light (405 nm, photodynamic diagnosis), long-pass fluorescence filter"
+/usr/bin/python3 -m endophoton sweep --blend blend_scenes/colon_polyp.blend --out "$OUT/colon_polyp_blue" \
+  --light blue "${COLON[@]}"
+LIGHTS=("white=$OUT/colon_polyp" "blue=$OUT/colon_polyp_blue")
+# ---- LEAD: the spectral colon (issue 35, branch `media`). When `ep.media` lands with
+# blend_scenes/colon_polyp_spectral.blend (wall: colon mucosa, polyp: adenomatous polyp), the colon is swept
+# with the spectral tissue too, under white light; its answer joins the comparison. SPECTRAL=0 skips it.
+if [ "${SPECTRAL:-1}" = 1 ] && [ -f blend_scenes/colon_polyp_spectral.blend ]; then
+  echo "== colon_polyp_spectral.blend (spectral mucosa and polyp), white light"
+  /usr/bin/python3 -m endophoton sweep --blend blend_scenes/colon_polyp_spectral.blend \
+    --out "$OUT/colon_polyp_spectral" "${COLON[@]}"
+  LIGHTS+=("spectral tissue, white=$OUT/colon_polyp_spectral")
+fi
+# ---- end of the spectral colon
 test -f "$OUT/colon_polyp/views_contact_sheet.png" && test -f "$OUT/colon_polyp/visibility.png"
+test -f "$OUT/colon_polyp/surround_vs_region.png" && test -f "$OUT/colon_polyp_blue/visibility.png"
+/usr/bin/python3 scripts/main_job_answer.py "$OUT" "${LIGHTS[@]}" > /dev/null
 echo "== one beta as a Blender scene with point cloud, volume and a Cycles render"
 blender -b blend_scenes/flat_tissue.blend --python-exit-code 1 --python scripts/main_job_scene.py -- \
   --out "$OUT" --beta 30 --store 100000 2>&1 | grep -v "^Fra:" || true

@@ -467,9 +467,11 @@ def test_target_out_of_view_gives_undefined_visibility_not_an_error():
     cam = dict(camera=Camera.look_at((2.0, 2.0, 1.0), (2.0, 2.0, 0.0), up=(0, 1, 0), fov_deg=20), width=6, height=4)
     cols = visibility_columns(res, "polyp", "wall", **cam)
     assert cols["target_pixels"] == 0 and cols["background_pixels"] == 24
-    assert all(v is None for k, v in cols.items() if "pixels" not in k)
+    counts = ("target_pixels", "background_pixels", "view_packets", "white_packets")  # defined out of view too
+    assert cols["view_packets"] == cols["white_packets"] == 5000
+    assert all(v is None for k, v in cols.items() if k not in counts)
     row = add_visibility({}, res, 10.0, {"target": "polyp", "background": "wall", **cam})
-    assert all(v is None for k, v in row.items() if "pixels" not in k)
+    assert all(v is None for k, v in row.items() if k not in counts)
     with pytest.raises(ValueError, match="target = 'tumour' is not a region"):
         visibility_columns(res, "tumour", "wall", **cam)
     with pytest.raises(ValueError, match="target = 'polyp': the camera sees no pixel"):

@@ -551,7 +551,7 @@ def test_real_small_sweep_outputs(tmp_path):
     for name in ("sweep.csv", "sweep.json", "report.md", "energy.png", "polar_beta_30.png"):
         assert os.path.getsize(tmp_path / name) > 0
     # same seed, same numbers
-    again = sw.sweep(None, betas=[30], store=4000, seed=2, progress=False)
+    again = sw.sweep(None, betas=[30], store=4000, seed=res.rows[1]["seed"], progress=False)
     assert again.rows[0]["packets_traced"] == res.rows[1]["packets_traced"]
     assert again.rows[0]["energy_total"] == res.rows[1]["energy_total"]
 
@@ -570,7 +570,9 @@ def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
     seeds = [(seed + k * 11400714819323198485) % 18446744073709551616 for k in range(3)]
     assert [r["seed"] for r in res.rows] == seeds and seeds[1] < seed and res.meta["seed_per_beta"] is True
     for k in (1, 2):
-        one = sw.sweep(None, betas=[betas[k]], store=1000, seed=seeds[k], progress=False, visibility=vis).rows[0]
+        one = sw.sweep(
+            None, betas=[betas[k]], store=1000, seed=seeds[k], seed_per_beta=False, progress=False, visibility=vis
+        ).rows[0]
         skip = {"seconds"} | {c for c in one if "_rel" in c}
         assert {c: v for c, v in one.items() if c not in skip} == {
             c: v for c, v in res.rows[k].items() if c not in skip
@@ -579,7 +581,14 @@ def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
     assert f"seed {seed} (angle k: seed + k × 0x9e3779b97f4a7c15 mod 2^64)" in report
     assert "every β ran with a seed of its own, so the test holds its level" in report
     common = sw.sweep(
-        None, betas=betas[:2], store=1000, seed=3, progress=False, out_dir=tmp_path / "one", visibility=vis
+        None,
+        betas=betas[:2],
+        store=1000,
+        seed=3,
+        seed_per_beta=False,
+        progress=False,
+        out_dir=tmp_path / "one",
+        visibility=vis,
     )
     assert [r["seed"] for r in common.rows] == [3, 3] and common.meta["seed_per_beta"] is False
     text = (tmp_path / "one" / "report.md").read_text(encoding="utf-8")
@@ -589,16 +598,20 @@ def test_seed_per_beta_runs_each_beta_as_its_own_sweep_with_its_seed(tmp_path):
 
 
 def test_sweep_cli_seed_per_beta_reaches_the_sweep_and_blender():
+    """A seed per beta is the default (--seed-per-beta says so explicitly); --common-seed reaches the sweep
+    and Blender."""
     p = argparse.ArgumentParser()
     sweep_cli.add_sweep_arguments(p)
-    args = p.parse_args(["--betas", "0,10", "--seed-per-beta"])
-    assert sweep_cli.sweep_kwargs(args)["seed_per_beta"] is True
-    assert "--seed-per-beta" in sweep_cli.forward_argv(args)
-    assert p.parse_args(sweep_cli.forward_argv(args)).seed_per_beta is True
-    plain = p.parse_args(["--betas", "0,10"])
-    assert sweep_cli.sweep_kwargs(plain)["seed_per_beta"] is False and "--seed-per-beta" not in sweep_cli.forward_argv(
-        plain
-    )
+    for argv in (["--betas", "0,10", "--seed-per-beta"], ["--betas", "0,10"]):
+        args = p.parse_args(argv)
+        assert sweep_cli.sweep_kwargs(args)["seed_per_beta"] is True
+        assert p.parse_args(sweep_cli.forward_argv(args)).seed_per_beta is True
+    common = p.parse_args(["--betas", "0,10", "--common-seed"])
+    assert sweep_cli.sweep_kwargs(common)["seed_per_beta"] is False
+    assert "--common-seed" in sweep_cli.forward_argv(common)
+    assert p.parse_args(sweep_cli.forward_argv(common)).seed_per_beta is False
+    with pytest.raises(SystemExit):
+        p.parse_args(["--seed-per-beta", "--common-seed"])
 
 
 @pytest.mark.slow

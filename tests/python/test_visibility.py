@@ -145,7 +145,8 @@ def test_visibility_report_answers_only_from_contrasts_that_vary_with_beta():
     # The red/green contrast itself peaked: it answers, and alone.
     rows = _contrast_rows(x, {"red_green_contrast": peaked, "fluorescence_contrast": flat, "white_contrast": flat})
     text = visibility_report(x, rows)
-    assert "| red/green contrast | 20.0° |" in text and "| yes | yes | yes (p " in text
+    assert "| red/green contrast | most visible at β = 20.0° ± " in text and "| 20.0° | " in text
+    assert "| fluorescence Weber contrast | flat within ±" in text and " | yes (p " in text
     answer = text.split("**Answer.**")[1]
     assert (
         "By the red/green contrast (photofrin's red fluorescence against the wall), the polyp is most visible at β = 20.0°"
@@ -267,10 +268,11 @@ def test_sweep_without_visibility_leaves_the_columns_undefined():
 
 
 @pytest.mark.slow
-def test_sweep_cli_target_needs_background(tmp_path):
+def test_sweep_cli_background_needs_target(tmp_path):
     from cli_helpers import run_cli
 
     p = run_cli(
-        "sweep", "--betas", "0", "--store", "100", "--out", tmp_path, "--target", "polyp", "--no-progress", timeout=120
+        "sweep", "--betas", "0", "--store", "100", "--out", tmp_path, "--background", "tissue", "--no-progress",
+        timeout=120,
     )
-    assert p.returncode == 2 and "--background = None" in p.stderr
+    assert p.returncode == 2 and "--background needs --target" in p.stderr

@@ -19,6 +19,8 @@ from ..analysis import DEFAULT_BATCHES
 from .driver import default_flat_scene, sweep, write_outputs
 from ..io import check_output_files
 from .schema import beta_text, output_file_names, parse_betas
+from .view_runs import contrast_target
+from ..view.visibility import SURROUND_PX
 
 __all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", "scheduler_client"]
 
@@ -35,12 +37,21 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
         help="tilt angles in degrees: '0,5,10' or 'start:stop:step' (default 0:60:5)",
     )
     parser.add_argument("--store", type=int, default=500_000, help="records stored per beta (default 500000)")
-    parser.add_argument("--seed", type=int, default=1, help="engine seed, same for every beta (default 1)")
-    parser.add_argument(
+    parser.add_argument("--seed", type=int, default=1, help="engine seed of the first beta (default 1)")
+    seeds = parser.add_mutually_exclusive_group()
+    seeds.add_argument(
         "--seed-per-beta",
+        dest="seed_per_beta",
         action="store_true",
-        help="beta k runs with seed + k * 0x9E3779B97F4A7C15 (mod 2^64) instead: independent runs, so the "
-        "report's test of whether a contrast depends on beta holds its level (docs/render.md)",
+        default=True,
+        help="(the default) beta k runs with seed + k * 0x9E3779B97F4A7C15 (mod 2^64): independent runs, so "
+        "the report's test of whether a contrast depends on beta holds its level (docs/render.md)",
+    )
+    seeds.add_argument(
+        "--common-seed",
+        dest="seed_per_beta",
+        action="store_false",
+        help="every beta runs with --seed (common random numbers: correlated betas, a conservative flatness test)",
     )
     parser.add_argument("--threads", type=int, default=0, help="engine threads, 0 = all cores")
     parser.add_argument("--out", default="sweep_out", help="output folder (default ./sweep_out)")
@@ -72,7 +83,45 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
         help="render the endoscope's view per beta and add the visibility of this region "
         "(e.g. polyp) against --background (docs/render.md)",
     )
-    parser.add_argument("--background", default=None, help="background region for --target (e.g. tissue)")
+    parser.add_argument(
+        "--background",
+        default=None,
+        help="background region for --target (e.g. tissue): the contrast against the whole region; with "
+        "--surround, only its pixels in the ring",
+    )
+    parser.add_argument(
+        "--surround",
+        type=float,
+        default=None,
+        metavar="PIXELS",
+        help="the background is the wall seen in a ring of PIXELS pixels around --target (the default, 8 "
+        "pixels, when --target comes without --background; docs/render.md)",
+    )
+    parser.add_argument(
+        "--target-contrast",
+        default=None,
+        metavar="CRITERION:ERR",
+        help="run each beta until the contrast CRITERION (red_green, red_green_camera, fluorescence, white) has "
+        "a standard error <= ERR, or until --max-packets packets (docs/sweep.md); needs --target",
+    )
+    parser.add_argument(
+        "--max-packets",
+        type=int,
+        default=None,
+        help="cap of --target-contrast: packets behind one beta's image (default 20000000)",
+    )
+    parser.add_argument(
+        "--light",
+        choices=("white", "blue"),
+        default="white",
+        help="the endoscope's light: white (flat 400-700 nm, default) or blue (405 nm, photodynamic diagnosis; "
+        "the fluorescence image then has the long-pass filter 10 nm above the band)",
+    )
+    parser.add_argument(
+        "--estimator",
+        default=None,
+        help="the view's camera estimator, passed to ep.render_view (default: render_view's)",
+    )
     parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
     parser.add_argument(
         "--scheduler",
@@ -96,21 +145,42 @@ def sweep_kwargs(args: argparse.Namespace) -> dict:
         distance=args.distance,
         progress=not args.no_progress,
         n_batches=args.batches,
-        seed_per_beta=bool(getattr(args, "seed_per_beta", False)),
+        seed_per_beta=bool(getattr(args, "seed_per_beta", True)),
     )
     target, background = getattr(args, "target", None), getattr(args, "background", None)
-    if (target is None) != (background is None):
-        raise ValueError(f"--target = {target!r}, --background = {background!r}: give both or neither")
+    surround = getattr(args, "surround", None)
+    if target is None and (background is not None or surround is not None):
+        what = "--background" if background is not None else "--surround"
+        raise ValueError(f"{what} needs --target (the region whose visibility is measured)")
+    if getattr(args, "light", "white") == "blue":
+        from ..view.render import excitation_spectrum
+
+        kw["rig_kwargs"] = {"spectrum": excitation_spectrum("blue")}
     if target is not None:
         if args.view_size < 1:
             raise ValueError(f"--view-size = {args.view_size} must be >= 1")
+        if surround is not None and not surround >= 1:
+            raise ValueError(f"--surround = {surround!r} must be a number of pixels >= 1")
         kw["visibility"] = {
             "target": target,
             "background": background,
+            "surround_px": SURROUND_PX if background is None and surround is None else surround,
             "width": args.view_size,
             "height": args.view_size,
             "images_dir": os.path.join(os.path.abspath(args.out), "views"),
         }
+        if getattr(args, "estimator", None) is not None:
+            kw["visibility"]["estimator"] = args.estimator
+    tc = getattr(args, "target_contrast", None)
+    if tc is None and getattr(args, "max_packets", None) is not None:
+        raise ValueError("--max-packets is the cap of --target-contrast: give --target-contrast too")
+    if tc is not None:
+        if target is None:
+            raise ValueError(f"--target-contrast {tc!r} needs --target (the view whose contrast it reads)")
+        t = contrast_target(tc, "--target-contrast")
+        if args.max_packets is not None:
+            t = contrast_target((t.criterion, t.stderr, args.max_packets), "--target-contrast (--max-packets)")
+        kw["target"] = t
     return kw
 
 
@@ -134,14 +204,26 @@ def forward_argv(args: argparse.Namespace) -> list:
     ]
     if args.distance is not None:
         argv += ["--distance", str(args.distance)]
-    if getattr(args, "seed_per_beta", False):
-        argv.append("--seed-per-beta")
+    if not getattr(args, "seed_per_beta", True):
+        argv.append("--common-seed")
     if args.all_photons:
         argv.append("--all-photons")
     if args.no_progress:
         argv.append("--no-progress")
     if getattr(args, "target", None) is not None:
-        argv += ["--target", args.target, "--background", args.background, "--view-size", str(args.view_size)]
+        argv += ["--target", args.target, "--view-size", str(args.view_size)]
+        if args.background is not None:
+            argv += ["--background", args.background]
+        if args.surround is not None:
+            argv += ["--surround", repr(float(args.surround))]
+        if args.estimator is not None:
+            argv += ["--estimator", args.estimator]
+    if getattr(args, "target_contrast", None) is not None:
+        argv += ["--target-contrast", args.target_contrast]
+    if getattr(args, "max_packets", None) is not None:
+        argv += ["--max-packets", str(args.max_packets)]
+    if getattr(args, "light", "white") != "white":
+        argv += ["--light", args.light]
     if getattr(args, "scheduler", None) is not None:
         argv += ["--scheduler", args.scheduler]
     return argv

@@ -325,6 +325,16 @@ def _check_sweep_arguments(a: dict) -> None:
     check_client("run_kwargs['client']", run_kwargs.get("client"))
 
 
+def _contrast_target(target, visibility):
+    """:func:`sweep`'s ``target`` as a ``view_runs.ContrastTarget`` (None without one); a target needs a view."""
+    from .view_runs import contrast_target
+
+    checked = contrast_target(target, "target")
+    if checked is not None and visibility is None:
+        raise ValueError(f"target = {target!r} needs a view: give visibility={{'target': ..., 'background': ...}}")
+    return checked
+
+
 def _engine_kwargs(store, fluorescent_only, fluorescence_rule, seed, threads, progress, cancel, run_kwargs) -> dict:
     """The keyword arguments of every beta's ``ep.run`` (``run_kwargs`` last, so they win)."""
     kw = dict(
@@ -493,6 +503,7 @@ def _beta_outcome(
     max_angle_deg: float,
     visibility: Mapping[str, Any] | None,
     out_dir: str | os.PathLike | None,
+    contrast_target: Any = None,
 ):
     """Reduce one beta's run ``res`` (wherever it ran); returns ``(row, hist, batches, cancelled)``
     or ``None`` when a cancel landed before the first record (no row)."""
@@ -519,15 +530,35 @@ def _beta_outcome(
         **region_cells(res),
     }
     if visibility is not None:  # the endoscope's view of this run (docs/render.md)
-        from .view_sweep import add_visibility
+        from .view_sweep import add_visibility, rerun_of
 
-        add_visibility(full, res, beta, visibility, out_dir)
+        more = rerun_of(res, **{k: v for k, v in run_kwargs.items() if k not in _NOT_FOR_TOP_UPS})
+        add_visibility(full, res, beta, visibility, out_dir, run_more=more, contrast_target=contrast_target)
+        cancelled = cancelled or bool(full["cancelled"])
     else:
         full.update({k: None for k in VISIBILITY_COLUMNS})  # undefined without a view
     meta.setdefault("light_positions", {})[f"{beta:g}"] = geo["light_positions"].tolist()
     meta.setdefault("camera", {})[f"{beta:g}"] = jsonable(geo["camera"])
     meta.setdefault("azimuth_reference", {})[f"{beta:g}"] = jsonable(geo["reference"])
     return full, hist, bt, cancelled
+
+
+# ep.run keywords of a beta's store run that its view's extra runs (white pass, top-ups: a fixed packet
+# count, a seed of their own, sweep.view_runs) do not take: they choose these themselves, write no grids
+# over the store run's, and run on this machine.
+_NOT_FOR_TOP_UPS = (
+    "store",
+    "photons",
+    "target",
+    "quality",
+    "max_photons",
+    "time_budget_s",
+    "seed",
+    "fluorescent_only",
+    "grids",
+    "client",
+    "chunk_units",
+)
 
 
 def _sweep_on_cluster(client, chunk_units, betas, seeds, setup, kw, outcome, rows, bar, on_chunks, cancel) -> None:
@@ -597,7 +628,8 @@ def sweep(
     chunk_units: int = 0,
     on_chunks: Callable | None = None,
     on_run: Callable | None = None,
-    seed_per_beta: bool = False,
+    seed_per_beta: bool = True,
+    target: Any = None,
 ) -> SweepResult:
     """Run the seed's beta sweep and analyse every run; returns a :class:`SweepResult`
     (rows in the order of ``betas``).
@@ -614,8 +646,14 @@ def sweep(
         there (``plots``/``report`` switch the last two; :func:`write_outputs`).
     n_batches : B for the batch-means standard errors.
     max_angle_deg : angle criterion of the important fraction (seed: 15 deg).
-    seed_per_beta : False (default): ``seed`` at every beta (common random numbers); True: beta k
-        runs with its own seed, :func:`beta_seed` (independent runs, docs/sweep.md).
+    seed_per_beta : True (default): beta k runs with its own seed, :func:`beta_seed` (independent
+        runs: the report's test of "varies with beta" holds its level, docs/sweep.md); False: ``seed``
+        at every beta (common random numbers).
+    target : None, or an accuracy on the answer: ``(criterion, stderr[, max_packets])`` (criterion
+        "red_green", "red_green_camera", "fluorescence" or "white"; ``sweep.view_runs.ContrastTarget``):
+        after its store run, each beta's view is topped up until that contrast's standard error is at
+        most ``stderr``, or until ``max_packets`` (default 2e7) packets are behind the image
+        (docs/sweep.md, "Sweeps to a target accuracy"). Needs ``visibility``.
     on_run : ``on_run(i_beta, beta_deg, result)`` is given each beta's engine ``Result``
         (records, totals, rig; also a cancelled one) before it is analysed. The sweep keeps
         only the reduced rows; a caller that wants every beta's records (the add-on's per-beta
@@ -623,6 +661,7 @@ def sweep(
     """
     _check_sweep_arguments(dict(locals()))
     betas = _checked_betas(betas, store, n_batches)
+    contrast_target = _contrast_target(target, visibility)
     seeds = [beta_seed(seed, k, seed_per_beta) for k in range(len(betas))]
     rig_kwargs = dict(rig_kwargs or {})
     run_kwargs = dict(run_kwargs or {})
@@ -649,8 +688,12 @@ def sweep(
         rig_kwargs,
     )
     meta["seed_per_beta"] = seed_per_beta
+    light = rig_kwargs.get("spectrum")  # the rig's light: None = flat white 400-700 nm
+    meta["light"] = "white" if light is None else str(getattr(light, "name", "") or "table")
     if visibility is not None:
         meta["visibility"] = jsonable(dict(visibility))
+    if contrast_target is not None:
+        meta["contrast_target"] = contrast_target.to_dict()
     setup = _setup_of(static_scene, scene_or_builder, distance, point, normal, tilt_axis, rig_kwargs, rig_builder, meta)
     analyse = functools.partial(
         _beta_outcome,
@@ -661,6 +704,7 @@ def sweep(
         max_angle_deg=max_angle_deg,
         visibility=visibility,
         out_dir=out_dir,
+        contrast_target=contrast_target,
     )
 
     def outcome(i, res, seconds, beta, rig, unit):
@@ -719,6 +763,8 @@ def write_outputs(result: SweepResult, out_dir: str | os.PathLike, plots: bool =
             vis["target"],
             vis["background"],
             seed_per_beta=bool(result.meta.get("seed_per_beta", False)),
+            surround_px=vis.get("surround_px"),
+            meta=result.meta,
         )
         paths.update({k: v for k, v in extra.items() if k != "report"})
         if "report" in paths:

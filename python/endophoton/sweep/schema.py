@@ -84,18 +84,34 @@ CSV_COLUMNS: dict[str, str] = {
 
 # Visibility columns (endophoton.sweep.view_sweep.add_visibility; None unless the sweep ran with visibility=...).
 VISIBILITY_COLUMNS = {
-    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's",
+    "fluorescence_contrast": "Weber contrast of the target's mean fluorescence radiance against the background's "
+    "(the wall in the surround ring with surround_px, else the whole background region)",
     "fluorescence_contrast_stderr": "jackknife standard error (packet batches)",
-    "white_contrast": "Weber contrast in the white-light image (all stored records; with fluorescent_only "
-    "runs this is the fluorescent records only)",
+    "white_contrast": "Weber contrast in the white-light image, made of all the light: every exit of the white pass "
+    "in a fluorescent-only sweep (never the fluorescence image's records), or of the run itself",
     "white_contrast_stderr": "jackknife standard error",
     "red_green_contrast": "Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB",
     "red_green_contrast_stderr": "jackknife standard error",
     "red_green_camera_contrast": "the same with camera-like non-negative R, G sensitivities (defined under "
     "blue light, where linear-sRGB G of red or blue-green light is negative)",
     "red_green_camera_contrast_stderr": "jackknife standard error",
+    "fluorescence_michelson": "Michelson contrast (T - B) / (T + B) of the fluorescence radiance",
+    "fluorescence_michelson_stderr": "jackknife standard error",
+    "white_michelson": "Michelson contrast of the white-light radiance",
+    "white_michelson_stderr": "jackknife standard error",
+    "region_fluorescence_contrast": "with a surround ring and a named background region: fluorescence_contrast "
+    "against the whole region (for comparison), else empty",
+    "region_fluorescence_contrast_stderr": "jackknife standard error",
+    "region_white_contrast": "white_contrast against the whole background region (surround sweeps), else empty",
+    "region_white_contrast_stderr": "jackknife standard error",
+    "region_red_green_contrast": "red_green_contrast against the whole background region (surround sweeps), else empty",
+    "region_red_green_contrast_stderr": "jackknife standard error",
     "target_pixels": "pixels of the view that see the target region",
-    "background_pixels": "pixels of the view that see the background region",
+    "background_pixels": "pixels of the view in the background (the surround ring, or the whole region)",
+    "view_packets": "packets behind the fluorescence image (the store run plus any top-ups of a target sweep)",
+    "white_packets": "packets behind the white-light image (the white pass, or the run itself)",
+    "target_reached": "target sweeps: 1 if the criterion's stderr reached the requested error, 0 if the cap "
+    "stopped the beta first; else empty",
 }
 CSV_COLUMNS.update(VISIBILITY_COLUMNS)
 
@@ -352,7 +368,11 @@ def polar_filename(beta: float, frame: str = "light") -> str:
 
 
 #: File names of a sweep with visibility (endophoton.sweep.view_sweep): the plot and the contact sheet.
-VISIBILITY_FILES = {"plot": "visibility.png", "contact_sheet": "views_contact_sheet.png"}
+VISIBILITY_FILES = {
+    "plot": "visibility.png",
+    "contact_sheet": "views_contact_sheet.png",
+    "surround": "surround_vs_region.png",
+}
 
 
 def polar_plots(result) -> list[tuple[float, str, str]]:

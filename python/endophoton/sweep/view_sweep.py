@@ -10,26 +10,33 @@ from __future__ import annotations
 import io
 import math
 import os
+from typing import Callable
 
 import numpy as np
 
 from ..io import no_nan, unjson
 from ..paper import PAPER_TRENDS
-from ..view.render import render_view
 from ..report import ALPHA, SIGMAS, value_verdict
 from .schema import VISIBILITY_COLUMNS, VISIBILITY_FILES
-from ..view.visibility import contrast, fit_peak
+from ..view.visibility import fit_peak
+from . import view_runs
+from .view_runs import view_of_beta
 
 __all__ = [
     "PAPER_BETA_DEG",
     "VISIBILITY_COLUMNS",
     "visibility_columns",
+    "rerun_of",
     "add_visibility",
     "write_visibility_outputs",
     "visibility_fits",
     "plot_visibility",
     "contact_sheet",
     "visibility_report",
+    "lights_report",
+    "flat_band",
+    "criterion_answer",
+    "plot_surround",
 ]
 
 #: The seed paper's answer (its energy fit peaks near 34 deg): where pathological changes are best visible.
@@ -41,30 +48,64 @@ _SERIES = (
 )
 
 
-def visibility_columns(result, target: str, background: str, out_dir=None, prefix: str = "", **render_kwargs) -> dict:
-    """Hook for the beta sweep: render the run's view and return the :data:`VISIBILITY_COLUMNS` as a
-    flat, JSON-able dict (None where a contrast is undefined). ``render_kwargs`` go to ``render_view``;
-    with ``out_dir`` the view's images and arrays are saved there with file names starting ``prefix``."""
-    view = render_view(result, **render_kwargs)
-    pixels = {field: view.pixels_of(name, field) for field, name in (("target", target), ("background", background))}
-    if not all(pixels.values()):  # a region out of view (e.g. the polyp at a steep beta): undefined, not an error
-        cols = {k: None for k in VISIBILITY_COLUMNS}
-        cols["target_pixels"], cols["background_pixels"] = pixels["target"], pixels["background"]
-        if out_dir is not None:
-            view.save(out_dir, prefix=prefix)
-        return cols
-    c = contrast(view, target, background)
-    cols = {}
-    for key in ("fluorescence", "white", "red_green"):
-        cols[key + "_contrast"] = c[key]
-        cols[key + "_contrast_stderr"] = c[key + "_stderr"]
-    cam = contrast(view, target, background, "camera")
-    cols["red_green_camera_contrast"] = cam["red_green"]
-    cols["red_green_camera_contrast_stderr"] = cam["red_green_stderr"]
-    cols["target_pixels"], cols["background_pixels"] = pixels["target"], pixels["background"]
+def rerun_of(result, **run_kwargs) -> Callable:
+    """``run_more(packets, seed, fluorescent_only)``: ``ep.run`` of ``result``'s scene and source again with
+    its fluorescence rule and lumen (the white pass and top-ups of :func:`view_runs.view_of_beta`);
+    ``run_kwargs`` (threads, progress, cancel, ...) are passed on."""
+    opts = dict(getattr(result, "options", {}) or {})
+    kw = {"fluorescence_rule": opts.get("fluorescence_rule", "paper"), "lumen": opts.get("lumen", True)}
+    kw.update(run_kwargs)
+
+    def run_more(packets, seed, fluorescent_only):
+        from ..run import run
+
+        return run(
+            result.scene, result.source, photons=int(packets), seed=int(seed), fluorescent_only=fluorescent_only, **kw
+        )
+
+    return run_more
+
+
+def visibility_columns(
+    result,
+    target: str,
+    background: str | None,
+    out_dir=None,
+    prefix: str = "",
+    *,
+    surround_px=None,
+    run_more: Callable | None = None,
+    contrast_target=None,
+    white_packets=None,
+    **render_kwargs,
+) -> dict:
+    """Render the run's view and return the :data:`VISIBILITY_COLUMNS` as a flat, JSON-able dict (None
+    where a contrast is undefined): :func:`view_runs.view_of_beta` (the white image from all the light,
+    a white pass for a fluorescent-only run; ``contrast_target`` tops the view up). ``background`` is the
+    whole region, or with ``surround_px`` the ring of that width around the target (of that region only,
+    if one is named). ``render_kwargs`` go to ``render_view`` (``estimator`` among them); ``run_more``
+    defaults to :func:`rerun_of` ``(result)``. With ``out_dir`` the view's images and arrays are saved
+    there with file names starting ``prefix``."""
+    if run_more is None:
+        run_more = rerun_of(result)
+    seed = int(dict(getattr(result, "options", {}) or {}).get("seed", 1))
+    cols, view = view_of_beta(
+        result,
+        target,
+        background,
+        surround_px,
+        run_more,
+        seed,
+        contrast_target=contrast_target,
+        white_packets=white_packets,
+        **render_kwargs,
+    )
     if out_dir is not None:
         view.save(out_dir, prefix=prefix)
-    return cols
+    out = {k: cols.get(k) for k in VISIBILITY_COLUMNS}
+    if cols.get("cancelled"):  # a top-up was cancelled: add_visibility marks the row
+        out["cancelled"] = 1
+    return out
 
 
 def _column(rows, key):
@@ -76,7 +117,7 @@ def _column(rows, key):
 def visibility_fits(betas, rows) -> dict:
     """:func:`visibility.fit_peak` of each visibility column over beta: {column: fit}."""
     b = np.asarray(betas, dtype=np.float64)
-    return {key: fit_peak(b, _column(rows, key), _column(rows, key + "_stderr")) for key, _ in _SERIES}
+    return {key: fit_peak(b, _column(rows, key), _column(rows, key + "_stderr")) for key, _ in _CRITERIA}
 
 
 def plot_visibility(betas, rows, path) -> str:
@@ -157,9 +198,43 @@ def _fmt(v, digits=1):
 
 _CRITERIA = (
     ("red_green_contrast", "red/green contrast"),
+    ("red_green_camera_contrast", "red/green contrast, camera channels"),
     ("fluorescence_contrast", "fluorescence Weber contrast"),
     ("white_contrast", "white-light Weber contrast"),
+    ("fluorescence_michelson", "fluorescence Michelson contrast"),
+    ("white_michelson", "white-light Michelson contrast"),
 )
+
+
+def flat_band(rows, key) -> float | None:
+    """X of "flat within ±X over the swept range": the largest |y_β − ȳ| + 2 stderr_β, ȳ the weighted mean
+    of the β values (weights 1/stderr²). Each β's true contrast lies within ±X of ȳ at 2σ; None without a
+    defined value with a positive stderr."""
+    y, se = _column(rows, key), _column(rows, key + "_stderr")
+    ok = np.isfinite(y) & np.isfinite(se) & (se > 0)
+    if not ok.any():
+        return None
+    w = 1.0 / se[ok] ** 2
+    mean = float(np.sum(w * y[ok]) / np.sum(w))
+    return float(np.max(np.abs(y[ok] - mean) + 2.0 * se[ok]))
+
+
+def criterion_answer(f, rows, key, betas) -> str:
+    """One criterion's answer: the β at maximum with its error and 68 % range, the end of the range where a
+    contrast that varies is largest, or "flat within ±X over the swept range"."""
+    if f["x_peak"] is None:
+        return "n/a (fewer than 3 β with a defined value)"
+    if not _varies(f):
+        b = np.asarray(betas, dtype=np.float64)
+        return f"flat within ±{flat_band(rows, key):.3g} over the swept range ({b.min():g}–{b.max():g}°)"
+    if not f["vertex"]:
+        return f"largest at β = {f['x_peak']:.1f}°, at the end of the points fitted: no maximum fitted"
+    if f["x_peak_stderr"] is None:
+        return f"most visible at β = {f['x_peak']:.1f}°"
+    return (
+        f"most visible at β = {f['x_peak']:.1f}° ± {f['x_peak_stderr']:.1f}° "
+        f"(68 %: {f['x_peak_lo']:.1f}–{f['x_peak_hi']:.1f}°)"
+    )
 
 
 def _varies(f) -> bool:
@@ -236,51 +311,175 @@ def _answer(fits) -> str:
         f"{ALPHA:g}), so its largest value, at β = {rg['x_max']:g}°, is noise, and it can neither confirm "
         "nor rule out the paper's 34°."
     )
-    for key, other in _CRITERIA[1:]:
+    for key, other in _CRITERIA[2:4]:
         f = fits[key]
         if f["x_peak"] is not None and _varies(f):
             text += " " + _peak_sentence(f, other)
     return text
 
 
-def visibility_report(betas, rows, target: str = "polyp", background: str = "wall", seed_per_beta: bool = False) -> str:
-    """Markdown section answering the paper's question from the visibility columns; ``seed_per_beta``
-    says whether the betas ran with seeds of their own (independent errors: the flatness test holds
-    its level) or with one seed (correlated errors: the test is conservative)."""
+def _records_words(meta) -> str:
+    """Which records make each image (the report says so)."""
+    vis = dict((meta or {}).get("visibility") or {})
+    if vis.get("estimator") not in (None, "kernel"):
+        return f"Both images come from the `{vis['estimator']}` estimator's own tallies of all the light and of the fluorescent light."
+    if (meta or {}).get("fluorescent_only", True):
+        return (
+            "The fluorescence image (and the red/green contrast) is made of the store run's fluorescent records; "
+            "the white-light image of a white pass, a run of its own seed that records every exit (all the light), "
+            "so the white and fluorescence contrasts never share a record (`sweep.view_runs`)."
+        )
+    return "The white-light image is made of every stored exit (all the light), the fluorescence image of the fluorescent ones."
+
+
+def _background_words(background, surround_px) -> str:
+    if surround_px is None:
+        return f"the whole region `{background}`"
+    where = "" if background is None else f" of `{background}`"
+    return f"the wall{where} seen in a ring of {surround_px:g} pixels around the target (docs/render.md)"
+
+
+def _target_words(rows, meta) -> str:
+    """The error each β reached, against a target sweep's request."""
+    t = (meta or {}).get("contrast_target")
+    if not t:
+        return ""
+    key = {
+        "red_green": "red_green_contrast",
+        "red_green_camera": "red_green_camera_contrast",
+        "fluorescence": "fluorescence_contrast",
+        "white": "white_contrast",
+    }[t["criterion"]]
+    se = _column(rows, key + "_stderr")
+    reached = sum(1 for r in rows if r.get("target_reached") == 1)
+    packets = _column(rows, "view_packets" if t["criterion"] != "white" else "white_packets")
+    worst = f"{np.nanmax(se):.3g}" if np.isfinite(se).any() else "n/a"
+    return (
+        f"Target: each β ran until the {t['criterion']} contrast's standard error was ≤ {t['stderr']:g} or "
+        f"{t['max_packets']:,} packets were behind its image; {reached} of {len(rows)} β reached it (largest "
+        f"stderr {worst}; packets per β {np.nanmin(packets):,.0f}–{np.nanmax(packets):,.0f})."
+    )
+
+
+def visibility_report(
+    betas,
+    rows,
+    target: str = "polyp",
+    background: str | None = "wall",
+    seed_per_beta: bool = True,
+    surround_px=None,
+    meta=None,
+) -> str:
+    """Markdown section answering the paper's question from the visibility columns, for every criterion;
+    ``seed_per_beta`` says whether the betas ran with seeds of their own (independent errors: the flatness
+    test holds its level) or with one seed (correlated errors: the test is conservative); ``surround_px`` and
+    ``meta`` (the sweep's) word the background, the records of each image and a target sweep's errors."""
     fits = visibility_fits(betas, rows)
     lines = [
         "## At which β is the polyp most visible?",
         "",
-        f"Visibility of `{target}` against `{background}` in the endoscope's own view (ep.render_view, "
-        "kernel estimate), per β: Weber contrasts of the mean fluorescence and white-light radiance and "
-        "the red/green ratio contrast of the fluorescence image, each with a jackknife standard error "
-        "over packet batches. The maximum is the vertex of a weighted parabola through the five points "
-        "around the largest value; its uncertainty comes from a parametric bootstrap of the points "
-        "within their standard errors (`visibility.fit_peak`). Whether a contrast depends on β at all "
-        "is the chi-square test of one value for every β; at p ≥ "
-        f"{ALPHA:g} its largest value is not a maximum but noise. " + _seed_words(seed_per_beta),
+        f"Visibility of `{target}` against {_background_words(background, surround_px)} in the endoscope's "
+        "own view (ep.render_view), per β: Weber and Michelson contrasts of the mean fluorescence and "
+        "white-light radiance and the red/green ratio contrast of the fluorescence image, each with a "
+        "jackknife standard error over packet batches. " + _records_words(meta) + " The maximum is the "
+        "vertex of a weighted parabola through the five points around the largest value; its uncertainty "
+        "comes from a parametric bootstrap of the points within their standard errors (`visibility.fit_peak`). "
+        "Whether a contrast depends on β at all is the chi-square test of one value for every β; at p ≥ "
+        f"{ALPHA:g} it is flat: no β is a maximum, and the answer gives the band ±X around the weighted mean "
+        "that holds every β's value at 2σ. " + _seed_words(seed_per_beta),
         "",
-        "| criterion | β at maximum | ± stderr | 68 % range | fitted maximum | inside the swept range | varies with β (p) |",
+    ]
+    if _target_words(rows, meta):
+        lines += [_target_words(rows, meta), ""]
+    lines += [
+        "| criterion | answer | β at maximum | ± stderr | 68 % range | varies with β (p) | largest stderr |",
         "|---|---|---|---|---|---|---|",
     ]
     for key, label in _CRITERIA:
         f = fits[key]
         varies = "n/a" if f["flat_p"] is None else f"{'yes' if _varies(f) else 'no'} ({_p_text(f['flat_p'])})"
+        se = _column(rows, key + "_stderr")
+        worst = f"{np.nanmax(se):.3g}" if np.isfinite(se).any() else "n/a"
         lines.append(
-            f"| {label} | {_fmt(f['x_peak'])}° | {_fmt(f['x_peak_stderr'])}° | "
-            f"{_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {'yes' if f['vertex'] else 'no'} | "
-            f"{'yes' if f['interior'] else 'no'} | {varies} |"
+            f"| {label} | {criterion_answer(f, rows, key, betas)} | {_fmt(f['x_peak'])}° | "
+            f"{_fmt(f['x_peak_stderr'])}° | {_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {varies} | {worst} |"
         )
     lines += ["", _answer(fits)]
+    if surround_px is not None and np.isfinite(_column(rows, "region_red_green_contrast")).any():
+        lines += ["", _surround_words(betas, rows, background, surround_px)]
     return "\n".join(lines) + "\n"
 
 
-def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> dict:
+def _surround_words(betas, rows, background, surround_px) -> str:
+    """The surround ring against the whole region: how far apart their contrasts are, in σ."""
+    parts = []
+    for key, label in (
+        ("red_green_contrast", "red/green"),
+        ("fluorescence_contrast", "fluorescence Weber"),
+        ("white_contrast", "white-light Weber"),
+    ):
+        a, sa = _column(rows, key), _column(rows, key + "_stderr")
+        b, sb = _column(rows, "region_" + key), _column(rows, "region_" + key + "_stderr")
+        ok = np.isfinite(a) & np.isfinite(b) & np.isfinite(sa) & np.isfinite(sb)
+        if ok.any():
+            z = np.abs(a[ok] - b[ok]) / np.sqrt(sa[ok] ** 2 + sb[ok] ** 2)
+            parts.append(
+                f"{label}: ring {np.nanmean(a[ok]):.3g} against whole region {np.nanmean(b[ok]):.3g} on average, "
+                f"up to {z.max():.1f} σ apart (σ of the two, taken as independent)"
+            )
+    return (
+        f"**Surround against the whole region** ({VISIBILITY_FILES['surround']}): the contrast against the wall "
+        f"in the {surround_px:g}-pixel ring and against all of `{background}`. " + "; ".join(parts) + "."
+    )
+
+
+def plot_surround(betas, rows, path) -> str:
+    """The contrasts against the surround ring and against the whole background region, over β (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    from ..io import atomic_write_bytes
+
+    b = np.asarray(betas, dtype=np.float64)
+    fig = Figure(figsize=(10, 3.8))
+    for i, (key, label) in enumerate(
+        (
+            ("red_green_contrast", "red/green"),
+            ("fluorescence_contrast", "fluorescence Weber"),
+            ("white_contrast", "white-light Weber"),
+        )
+    ):
+        ax = fig.add_subplot(1, 3, i + 1)
+        for prefix, name, colour in (("", "surround ring", "tab:red"), ("region_", "whole region", "tab:gray")):
+            y, se = _column(rows, prefix + key), _column(rows, prefix + key + "_stderr")
+            ok = np.isfinite(y)
+            if ok.any():
+                ax.errorbar(
+                    b[ok], y[ok], yerr=np.nan_to_num(se[ok]), fmt="o-", color=colour, capsize=3, label=name, ms=3
+                )
+        ax.set_xlabel("β (deg)")
+        ax.set_title(label, fontsize=10)
+        ax.legend(fontsize=7)
+    fig.suptitle("Contrast of the target: against the surround ring and against the whole region")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def add_visibility(
+    row: dict, result, beta: float, visibility, out_dir=None, run_more=None, contrast_target=None
+) -> dict:
     """Sweep hook: add the visibility columns of one beta's run to its row, saving its views to
     ``out_dir/views/beta<β>_*.png`` when ``out_dir`` is given. ``visibility`` is a mapping with ``target``,
-    ``background``, optional ``images_dir`` (where the views go; default ``out_dir/views``) and optional
-    ``render_view`` keyword arguments (width, height, kernel_radius, ...). An undefined contrast is None,
-    the sweep's mark for an undefined cell (never NaN)."""
+    ``background`` (a region, or None: every surface in the ring), optional ``surround_px`` (the ring's width
+    in pixels: the background is the wall in that ring; None: the whole background region), ``white_packets``
+    (the white pass's packets), ``images_dir`` (where the views go; default ``out_dir/views``) and
+    ``render_view`` keyword arguments (width, height, kernel_radius, estimator, ...). ``run_more`` and
+    ``contrast_target``: :func:`visibility_columns`. An undefined contrast is None, the sweep's mark for an
+    undefined cell (never NaN); a top-up run that was cancelled sets the row's ``cancelled``."""
     vis = dict(visibility)
     try:
         target, background = vis.pop("target"), vis.pop("background")
@@ -289,21 +488,107 @@ def add_visibility(row: dict, result, beta: float, visibility, out_dir=None) -> 
     img_dir = vis.pop("images_dir", None)
     if img_dir is None and out_dir is not None:
         img_dir = os.path.join(os.fspath(out_dir), "views")
-    cols = visibility_columns(result, target, background, out_dir=img_dir, prefix=f"beta{float(beta):g}_", **vis)
-    row.update(no_nan(cols))
+    cols = visibility_columns(
+        result,
+        target,
+        background,
+        out_dir=img_dir,
+        prefix=f"beta{float(beta):g}_",
+        run_more=run_more,
+        contrast_target=contrast_target,
+        **vis,
+    )
+    if cols.pop("cancelled", 0):
+        row["cancelled"] = 1
+    row.update(no_nan({k: v for k, v in cols.items() if k in VISIBILITY_COLUMNS}))
     return row
 
 
 def write_visibility_outputs(
-    betas, rows, out_dir, target: str = "polyp", background: str = "wall", seed_per_beta: bool = False
+    betas,
+    rows,
+    out_dir,
+    target: str = "polyp",
+    background: str | None = "wall",
+    seed_per_beta: bool = True,
+    surround_px=None,
+    meta=None,
 ) -> dict:
     """After a sweep with visibility columns: ``visibility.png`` (plot with fitted maxima),
-    ``views_contact_sheet.png`` (fluorescence views across beta, if saved) and the report section
-    (returned under ``"report"``; the caller appends it to report.md). ``seed_per_beta``: whether
-    the sweep ran every beta with a seed of its own (the report's words on the flatness test)."""
+    ``views_contact_sheet.png`` (fluorescence views across beta, if saved), with a surround ring and a
+    background region ``surround_vs_region.png``, and the report section (returned under ``"report"``; the
+    caller appends it to report.md; :func:`visibility_report`)."""
     out = {"plot": plot_visibility(betas, rows, os.path.join(out_dir, VISIBILITY_FILES["plot"]))}
     views = [os.path.join(out_dir, "views", f"beta{float(b):g}_fluorescence.png") for b in betas]
     if views and all(os.path.exists(p) for p in views):
         out["contact_sheet"] = contact_sheet(views, betas, os.path.join(out_dir, VISIBILITY_FILES["contact_sheet"]))
-    out["report"] = visibility_report(betas, rows, target, background, seed_per_beta=seed_per_beta)
+    if surround_px is not None and np.isfinite(_column(rows, "region_red_green_contrast")).any():
+        out["surround"] = plot_surround(betas, rows, os.path.join(out_dir, VISIBILITY_FILES["surround"]))
+    out["report"] = visibility_report(
+        betas, rows, target, background, seed_per_beta=seed_per_beta, surround_px=surround_px, meta=meta
+    )
     return out
+
+
+def _light_criterion(meta) -> tuple[str, str]:
+    """The colour criterion of a sweep: the one a target sweep ran to; else camera channels under blue light
+    (linear-sRGB G of red fluorescence is negative there), sRGB under white light."""
+    t = (meta or {}).get("contrast_target")
+    if t:  # the criterion the sweep ran to
+        return next((k, name) for k, name in _CRITERIA if k == view_runs.CRITERIA[t["criterion"]][0])
+    blue = "blue" in str((meta or {}).get("light", "white"))
+    return (
+        ("red_green_camera_contrast", "red/green contrast, camera channels")
+        if blue
+        else (
+            "red_green_contrast",
+            "red/green contrast",
+        )
+    )
+
+
+def lights_report(sweeps) -> str:
+    """Markdown comparing the answers of sweeps of one scene under different lights: ``sweeps`` is a list
+    of ``(label, SweepResult)``. Per light: the colour contrast's answer (β at maximum ± error, 68 % range,
+    or flat within ±X), its mean level over β with the error of that mean, the largest per-β error, and the
+    paper's 34°; then the lights side by side."""
+    lines = ["## The answer on the colon, under each light", ""]
+    lines += [
+        "| light | criterion | answer | mean contrast over β | largest stderr at a β | against the paper's 34° |",
+        "|---|---|---|---|---|---|",
+    ]
+    levels = []
+    for label, res in sweeps:
+        key, name = _light_criterion(res.meta)
+        rows, betas = res.rows, res.betas
+        f = visibility_fits(betas, rows)[key]
+        y, se = _column(rows, key), _column(rows, key + "_stderr")
+        ok = np.isfinite(y) & np.isfinite(se) & (se > 0)
+        if ok.any():
+            w = 1.0 / se[ok] ** 2
+            mean, mean_se = float(np.sum(w * y[ok]) / np.sum(w)), float(1.0 / math.sqrt(np.sum(w)))
+            level = f"{mean:.3g} ± {mean_se:.2g}"
+            levels.append((label, mean, mean_se))
+        else:
+            level = "n/a"
+        worst = f"{np.nanmax(se):.3g}" if np.isfinite(se).any() else "n/a"
+        if f["x_peak"] is not None and _varies(f) and f["vertex"] and f["x_peak_stderr"]:
+            verdict, z = value_verdict(f["x_peak"], f["x_peak_stderr"], PAPER_BETA_DEG)
+            paper = f"{abs(z):.1f} σ away: {'consistent' if verdict == 'consistent' else 'different'}"
+        elif f["x_peak"] is not None and not _varies(f):
+            paper = "flat: neither confirmed nor ruled out"
+        else:
+            paper = "no maximum fitted"
+        lines.append(f"| {label} | {name} | {criterion_answer(f, rows, key, betas)} | {level} | {worst} | {paper} |")
+    if len(levels) >= 2:
+        (la, a, sa), (lb, b, sb) = levels[0], levels[1]
+        z = abs(a - b) / math.hypot(sa, sb)
+        lines += [
+            "",
+            f"Over the swept β the polyp's colour contrast averages {a:.3g} ± {sa:.2g} under {la} light and "
+            f"{b:.3g} ± {sb:.2g} under {lb} light ({z:.1f} σ apart): "
+            + (f"{la if a > b else lb} light shows the polyp more clearly." if z >= SIGMAS else "no difference shown.")
+            + " (Each light's criterion is in the table: under blue light the camera channels, since linear-sRGB "
+            "G of red fluorescence seen through the long-pass filter is negative.)",
+        ]
+    return "\n".join(lines) + "\n"

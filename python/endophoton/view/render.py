@@ -51,7 +51,7 @@ from ..run import MAX_THREADS
 from ..sources import MAX_IMAGE_SIDE, is_image_side
 from ..spectra import Spectrum
 
-__all__ = ["render_view", "View", "excitation_spectrum", "emission_filter_function"]
+__all__ = ["render_view", "View", "excitation_spectrum", "emission_filter_function", "kernel_candidates"]
 
 _CHUNK_PIXELS = 4096
 
@@ -135,7 +135,8 @@ class View:
     ``bias``, ``bias_stderr``, ``xyz``, ``rgb`` (linear sRGB, white balanced, unclipped), ``srgb8``,
     ``exposure``, ``spectrum`` (H, W, bins); ``aperture`` (same radiance/rgb keys, or None without an
     aperture); ``region_pixels``; ``region_batches`` (per-region, per-batch pixel-mean sums);
-    ``pixel_batches[name]`` (H, W, B) per-batch radiance estimates (not saved).
+    ``pixel_batches[name]`` (H, W, B) per-batch radiance estimates and ``pixel_colour_sums[name]`` (``xyz``:
+    H, W, 3, B; ``camera_rg``: H, W, 2, B) per-batch colour sums (not saved); ``gains`` (white balance).
     """
 
     def __init__(self, **kw):
@@ -189,10 +190,11 @@ class View:
             bias[name] = d
         return {"radius": self.kernel["radius"], "angle_deg": self.kernel["angle_deg"], "bias": bias}
 
-    def contrast(self, target: str, background: str, channels: str = "srgb") -> dict:
+    def contrast(self, target: str, background: str | None, channels: str = "srgb", surround_px=None) -> dict:
+        """:func:`endophoton.view.visibility.contrast` of this view."""
         from .visibility import contrast
 
-        return contrast(self, target, background, channels)
+        return contrast(self, target, background, channels, surround_px)
 
     def save(self, out_dir, prefix: str = "") -> dict:
         """Write ``white.png``, ``fluorescence.png`` (and ``aperture_*.png``) and ``view.npz`` (float arrays)
@@ -351,6 +353,21 @@ def _accumulate(acc, key, index, weights, size):
     acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
 
 
+def kernel_candidates(positions, directions, camera_position, kernel_radius: float, kernel_angle_deg: float):
+    """Which records (positions, directions: (N, 3), scene units) can enter the kernel of some pixel of a
+    camera at ``camera_position``: those whose exit direction lies within kernel_angle_deg + arcsin(2 r /
+    distance) of the direction to the camera (a kernel centre lies on a ray through the camera, at most r
+    from the record). A boolean (N,) mask; the kernel estimate's pre-filter, and the one rule by which a
+    caller may drop records the kernel estimate cannot use (sweep.view_runs keeps top-up records this way)."""
+    pos = np.asarray(positions, dtype=np.float64)
+    to_cam = np.asarray(camera_position, dtype=np.float64) - pos
+    dist = np.linalg.norm(to_cam, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cosc = np.einsum("ij,ij->i", np.asarray(directions, dtype=np.float64), to_cam) / dist
+        slack = np.arcsin(np.minimum(1.0, 2.0 * kernel_radius / np.maximum(dist, 1e-300)))
+    return (dist > 0) & (cosc >= np.cos(np.minimum(math.pi, math.radians(kernel_angle_deg) + slack)))
+
+
 def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm):
     """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays."""
     from scipy.spatial import cKDTree
@@ -358,14 +375,7 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     B = rec["Pb"].size
     theta = math.radians(theta_deg)
     chord = 2.0 * math.sin(theta / 2.0)
-    cam_margin = 2.0 * r
-    # Only records heading (roughly) to the camera can enter any kernel: cheap pre-filter.
-    to_cam = rec["cam"] - rec["pos"]
-    dist = np.linalg.norm(to_cam, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cosc = np.einsum("ij,ij->i", rec["dir"], to_cam) / dist
-        slack = np.arcsin(np.minimum(1.0, cam_margin / np.maximum(dist, 1e-300)))
-    keep = np.flatnonzero((dist > 0) & (cosc >= np.cos(np.minimum(math.pi, theta + slack))))
+    keep = np.flatnonzero(kernel_candidates(rec["pos"], rec["dir"], rec["cam"], r, theta_deg))
     n_pix = px.shape[0]
     acc = {}
     if keep.size == 0 or n_pix == 0:
@@ -401,8 +411,11 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
                 wc = w * rec["cmf"][j, c]
                 _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
+                _accumulate(acc, f"{name}_xyz{c}_pix_batch", pb, wc, n_pix * B)
             for c in range(2):
-                _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, w * rec["cam_rg"][j, c], n_regions * B)
+                wc = w * rec["cam_rg"][j, c]
+                _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
+                _accumulate(acc, f"{name}_cam{c}_pix_batch", pb, wc, n_pix * B)
             sb = rec["sbin"][j]
             ok = sb >= 0
             _accumulate(acc, name + "_spec_pix", p[ok] * rec["nbins"] + sb[ok], w[ok], n_pix * rec["nbins"])
@@ -576,6 +589,10 @@ def render_view(
         region_pixels=region_pixels,
         region_batches=region_batches,
         pixel_batches={name: _pixel_batches(acc, name, hit, (H, W), Pb) for name in ("white", "fluorescence")},
+        pixel_colour_sums={
+            name: _pixel_colour_sums(acc, name, hit, (H, W), Pb.size) for name in ("white", "fluorescence")
+        },
+        gains=gains,
         spectrum_bin_edges_nm=colour.spectrum_bins(),
     )
 
@@ -586,6 +603,20 @@ def _pixel_batches(acc, name, hit, shape, Pb):
     out = np.zeros((hit.size, B))
     out[hit] = acc.get(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
     return out.reshape(shape + (B,))
+
+
+def _pixel_colour_sums(acc, name, hit, shape, B):
+    """Per-pixel, per-batch sums (not divided by the batch's packets) of the image's XYZ (H, W, 3, B) and
+    camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs."""
+    n_hit = int(hit.sum())
+    out = {}
+    for key, tag, k in (("xyz", "xyz", 3), ("camera_rg", "cam", 2)):
+        a = np.zeros((hit.size, k, B))
+        a[hit] = np.stack(
+            [acc.get(f"{name}_{tag}{c}_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B) for c in range(k)], axis=1
+        )
+        out[key] = a.reshape(shape + (k, B))
+    return out
 
 
 def _region_batches(acc, preg, region_pixels, B, gains):

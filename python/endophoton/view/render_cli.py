@@ -24,6 +24,14 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--target", default=None, help="target region (e.g. the polyp); needs --background")
     p.add_argument("--background", default=None, help="background region (e.g. the wall)")
+    p.add_argument(
+        "--surround",
+        type=float,
+        default=None,
+        metavar="PIXELS",
+        help="the background is the wall seen in a ring of PIXELS pixels around --target (of --background's "
+        "region, if given); the contrast object then also has the Michelson contrasts (docs/render.md)",
+    )
     p.add_argument("--excitation", default="white", help="white (default, flat 400-700 nm) or blue (405 nm)")
     p.add_argument(
         "--emission-filter",
@@ -81,6 +89,17 @@ def _check_before_the_run(args, scene) -> None:
         v = getattr(args, option)
         if v is not None and v not in names:
             raise ValueError(f"--{option} = {v!r} is not a region of the scene (regions: {', '.join(names)})")
+#: The keys of the printed ``contrast`` object against a whole --background region (the render CLI's contract).
+CONTRAST_KEYS = (
+    "target",
+    "background",
+    "fluorescence",
+    "fluorescence_stderr",
+    "white",
+    "white_stderr",
+    "red_green",
+    "red_green_stderr",
+)
 
 
 def render_main(args) -> int:
@@ -91,8 +110,13 @@ def render_main(args) -> int:
 
     for name, lo in (("photons", 1), ("seed", 0), ("threads", 0), ("width", 1), ("height", 1)):
         _check_int(name, getattr(args, name), lo)
-    if (args.target is None) != (args.background is None):
-        raise ValueError(f"--target = {args.target!r}, --background = {args.background!r}: give both or neither")
+    surround = getattr(args, "surround", None)
+    if args.target is not None and args.background is None and surround is None:
+        raise ValueError(f"--target = {args.target!r}: give --background REGION or --surround PIXELS")
+    if args.target is None and (args.background is not None or surround is not None):
+        raise ValueError(f"--background = {args.background!r}, --surround = {surround!r}: give --target too")
+    if surround is not None and not surround >= 1:
+        raise ValueError(f"--surround = {surround!r} must be a number of pixels >= 1")
     scene, source, camera, defaults = _load(args.scene)
     _check_before_the_run(args, scene)
     if camera is None and not hasattr(source, "camera"):
@@ -130,8 +154,11 @@ def render_main(args) -> int:
         "photons": view.packets,
         "kernel": view.kernel_summary(),
     }
-    if args.target is not None:
-        out["contrast"] = view.contrast(args.target, args.background)
+    if args.target is not None and surround is None:  # the contract's object, exactly as before
+        c = view.contrast(args.target, args.background)
+        out["contrast"] = {k: v for k, v in c.items() if k in CONTRAST_KEYS}
+    elif args.target is not None:
+        out["contrast"] = view.contrast(args.target, args.background, surround_px=surround)
     with out_dir_errors(args.out):
         view.save(args.out)
     print(json.dumps(out, sort_keys=True, allow_nan=False))

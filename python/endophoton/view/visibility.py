@@ -10,11 +10,13 @@ statistic):
     se^2 = (B - 1) / B * sum_b (f(theta_(-b)) - mean_b f(theta_(-b)))^2
 
 * Weber contrast of a radiance: C = (L_target - L_background) / L_background.
+* Michelson contrast: M = (L_target - L_background) / (L_target + L_background), in [-1, 1].
 * Red/green ratio contrast (photofrin fluorescence endoscopy): the ratio
   rho = mean R / mean G of a region's linear-sRGB fluorescence image, then
   C_rg = (rho_target - rho_background) / rho_background.
 
-A contrast whose denominator is 0 is reported as None (never NaN).
+The background is a whole region, or the surround: the wall seen in a ring of pixels around the target
+(:func:`surround_mask`, docs/render.md). A contrast whose denominator is 0 is reported as None (never NaN).
 """
 from __future__ import annotations
 
@@ -23,8 +25,18 @@ import math
 import numpy as np
 
 from ..analysis import chi2_sf, polyfit_ready
+from . import colour
 
-__all__ = ["jackknife", "weber", "contrast", "fit_peak"]
+__all__ = [
+    "jackknife",
+    "weber",
+    "michelson",
+    "contrast",
+    "fit_peak",
+    "SURROUND_PX",
+    "surround_mask",
+    "pixel_group_batches",
+]
 
 
 def jackknife(sums: np.ndarray, packets_per_batch: np.ndarray, stat) -> tuple[float | None, float | None]:
@@ -60,12 +72,93 @@ def weber(target: float, background: float) -> float | None:
     return (target - background) / background if background > 0 else None
 
 
-def contrast(view, target: str, background: str, channels: str = "srgb") -> dict:
-    """Visibility of region ``target`` against ``background`` in a rendered ``view``.
+def michelson(target: float, background: float) -> float | None:
+    """(target - background) / (target + background); None when both are 0."""
+    total = target + background
+    return (target - background) / total if total > 0 else None
 
-    Returns the CLI's ``contrast`` object: target, background, fluorescence (Weber contrast of the
-    mean fluorescence radiance), white (the same in the white-light image), red_green (Weber contrast
-    of the R/G ratio of the fluorescence image's mean linear sRGB), each with ``_stderr``.
+
+#: Default width of the surround ring, pixels (docs/render.md, "Contrast against the surroundings").
+SURROUND_PX = 8
+
+
+def surround_mask(region_map, target_index: int, width_px: float, background_index: int | None = None) -> np.ndarray:
+    """The pixels of the ring around the target: pixels that see a surface (``region_map`` >= 0), not the
+    target, whose centre lies within ``width_px`` pixels (Euclidean, centre to centre) of a target pixel;
+    with ``background_index`` only those that see that region. A boolean (H, W) mask."""
+    from scipy.ndimage import distance_transform_edt
+
+    rmap = np.asarray(region_map)
+    t = rmap == int(target_index)
+    if not t.any():
+        return np.zeros(rmap.shape, dtype=bool)
+    ring = (~t) & (rmap >= 0) & (distance_transform_edt(~t) <= float(width_px))
+    if background_index is not None:
+        ring &= rmap == int(background_index)
+    return ring
+
+
+def pixel_group_batches(view, mask) -> dict:
+    """Per-batch sums of a group of pixels (``mask``, (H, W) booleans) divided by its pixel count, as
+    ``view.region_batches`` holds them per region: ``{name}_radiance`` (B,), ``{name}_rgb`` (3, B, linear
+    sRGB, white balanced) and ``{name}_camera_rg`` (2, B) for name in white, fluorescence."""
+    m = np.asarray(mask, dtype=bool)
+    n = int(m.sum())
+    if n == 0:
+        raise ValueError("pixel group: no pixel")
+    Pb = np.asarray(view.packets_per_batch, dtype=np.float64)
+    g = np.ones(3) if getattr(view, "gains", None) is None else np.asarray(view.gains, dtype=np.float64)
+    out = {}
+    for name in ("white", "fluorescence"):
+        out[name + "_radiance"] = (view.pixel_batches[name][m] * Pb).sum(axis=0) / n
+        sums = view.pixel_colour_sums[name]
+        xyz = sums["xyz"][m].sum(axis=0) / n  # (3, B)
+        out[name + "_rgb"] = colour.XYZ_TO_SRGB @ (xyz * g[:, None])
+        out[name + "_camera_rg"] = sums["camera_rg"][m].sum(axis=0) / n
+    return out
+
+
+def _region_group(view, index: int) -> dict:
+    """:func:`pixel_group_batches`' dict of one whole region, from ``view.region_batches``."""
+    rb = view.region_batches
+    keys = [f"{n}_{k}" for n in ("white", "fluorescence") for k in ("radiance", "rgb", "camera_rg")]
+    return {k: np.asarray(rb[k][index]) for k in keys}
+
+
+def _group_contrasts(t: dict, b: dict, packets_per_batch, channels: str) -> dict:
+    """Weber and Michelson contrasts of both images' radiance and the red/green contrast, target group
+    ``t`` against background group ``b`` (dicts of :func:`pixel_group_batches`), with jackknife errors."""
+    out = {}
+    for key in ("fluorescence", "white"):
+        s = np.stack([t[key + "_radiance"], b[key + "_radiance"]])
+        out[key], out[key + "_stderr"] = jackknife(s, packets_per_batch, lambda m: weber(m[0], m[1]))
+        out[key + "_michelson"], out[key + "_michelson_stderr"] = jackknife(
+            s, packets_per_batch, lambda m: michelson(m[0], m[1])
+        )
+    key = "fluorescence_rgb" if channels == "srgb" else "fluorescence_camera_rg"
+    rgb = np.stack([t[key][:2], b[key][:2]])  # (2 groups, R G, B batches)
+
+    def rg(m):
+        if not (m[0, 1] > 0 and m[1, 1] > 0):
+            return None
+        return weber(m[0, 0] / m[0, 1], m[1, 0] / m[1, 1])
+
+    out["red_green"], out["red_green_stderr"] = jackknife(rgb, packets_per_batch, rg)
+    return out
+
+
+def contrast(
+    view, target: str, background: str | None, channels: str = "srgb", surround_px: float | None = None
+) -> dict:
+    """Visibility of region ``target`` against its background in a rendered ``view``.
+
+    The background is the whole region ``background`` (``surround_px`` None), or the surround: the pixels
+    within ``surround_px`` pixels of the target that see a surface (:func:`surround_mask`), only those of
+    region ``background`` when one is named. Returns the CLI's ``contrast`` object: target, background,
+    surround_px, background_pixels, fluorescence (Weber contrast of the mean fluorescence radiance), white
+    (the same in the white-light image), fluorescence_michelson, white_michelson (Michelson contrasts),
+    red_green (Weber contrast of the R/G ratio of the fluorescence image's mean linear sRGB), each with
+    ``_stderr``.
 
     ``channels="camera"`` takes R and G from camera-like, non-negative sensitivities instead: each
     record's linear-sRGB R and G with negative parts clipped to 0. Saturated red (photofrin at 630 nm) or
@@ -74,23 +167,27 @@ def contrast(view, target: str, background: str, channels: str = "srgb") -> dict
     """
     if channels not in ("srgb", "camera"):
         raise ValueError(f"channels = {channels!r} must be 'srgb' or 'camera'")
-    ti, bi = view.region_index(target, "target"), view.region_index(background, "background")
-    if ti == bi:
-        raise ValueError(f"background = {background!r} is the target region; give two different regions")
-    rb = view.region_batches
-    out = {"target": target, "background": background}
-    for key in ("fluorescence", "white"):
-        s = rb[key + "_radiance"][[ti, bi]]
-        out[key], out[key + "_stderr"] = jackknife(s, view.packets_per_batch, lambda m: weber(m[0], m[1]))
-    key = "fluorescence_rgb" if channels == "srgb" else "fluorescence_camera_rg"
-    rgb = rb[key][[ti, bi]][:, :2]  # (2 regions, R G, B batches)
-
-    def rg(m):
-        if not (m[0, 1] > 0 and m[1, 1] > 0):
-            return None
-        return weber(m[0, 0] / m[0, 1], m[1, 0] / m[1, 1])
-
-    out["red_green"], out["red_green_stderr"] = jackknife(rgb, view.packets_per_batch, rg)
+    ti = view.region_index(target, "target")
+    if surround_px is None:
+        if background is None:
+            raise ValueError("background = None: name a background region or give surround_px")
+        bi = view.region_index(background, "background")
+        if ti == bi:
+            raise ValueError(f"background = {background!r} is the target region; give two different regions")
+        t, b, nb = _region_group(view, ti), _region_group(view, bi), int(view.region_pixels[bi])
+    else:
+        if isinstance(surround_px, bool) or not isinstance(surround_px, (int, float)) or not surround_px >= 1:
+            raise ValueError(f"surround_px = {surround_px!r} must be a number of pixels >= 1")
+        bi = None if background is None else view.region_index(background, "background")
+        if bi == ti:
+            raise ValueError(f"background = {background!r} is the target region; give two different regions")
+        ring = surround_mask(view.region_map, ti, surround_px, bi)
+        nb = int(ring.sum())
+        if nb == 0:
+            raise ValueError(f"surround_px = {surround_px!r}: no background pixel lies in the ring around {target!r}")
+        t, b = pixel_group_batches(view, view.region_map == ti), pixel_group_batches(view, ring)
+    out = {"target": target, "background": background, "surround_px": surround_px, "background_pixels": nb}
+    out.update(_group_contrasts(t, b, view.packets_per_batch, channels))
     return out
 
 
