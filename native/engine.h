@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "camera_tally.h"
 #include "records.h"
 #include "run_config.h"
 #include "scene.h"
@@ -65,6 +66,7 @@ struct RunResult {
     Estimate energy[kEnergyTallies];  // meaningful in spectral runs
     std::vector<Estimate> absorbed_by_region;
     EscapeRecords records;
+    std::shared_ptr<CameraImage> camera_image;  // runs with a camera_view (camera_tally.h)
     bool cancelled = false;
     bool target_reached = false;
     bool spectral = false;

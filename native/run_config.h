@@ -1,9 +1,12 @@
 // Options of one run. Defaults follow MCML (roulette at 1e-4 with survival 1/10).
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <string>
 
 namespace ep {
+
+struct CameraView;  // camera_tally.h
 
 enum class FluorescenceRule { kPaper, kEEM };
 
@@ -40,6 +43,9 @@ struct RunConfig {
     // Light crosses the lumen (issue 9): exits go on through the ambient and the
     // rig head is a body. false = every exit ends its packet, as before (benchmarks).
     bool lumen = true;
+    // Next-event estimation toward a pinhole camera (camera_tally.h); null =
+    // none (the run pays one branch per interaction). Fixed photon counts only.
+    std::shared_ptr<const CameraView> camera_view;
     // Test hook: cancel right after this many units are merged (0 = never), so
     // a cancelled partial result can be tested without depending on timing.
     uint64_t test_cancel_after_units = 0;
