@@ -205,19 +205,7 @@ void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e
     for (int iter = 0; iter < 4 && !solved; ++iter) {
         rf = refraction_point(e.p, C, x0, N, n);
         if (!rf.ok) break;
-        if (iter == 0) {
-            if (view.pixel_of(rf.x) < 0) return;  // outside the image: nothing to score
-            // Depth roulette (unbiased): beyond tau_cut a score survives with
-            // chance exp(tau_cut - tau_est) and counts 1/chance.
-            const Float tau_est = extinction(scene, e.region, e.lambda_nm) * rf.l1 * unit_cm;
-            if (tau_est > view.tau_cut) {
-                q = std::exp(view.tau_cut - tau_est);
-                if (!(rng.uniform() < q)) {
-                    ++k.thinned;
-                    return;
-                }
-            }
-        }
+        if (iter == 0 && view.pixel_of(rf.x) < 0) return;  // outside the image: nothing to score
         const Vec3 w = (rf.x - e.p) / rf.l1;
         const Float tol = 1e-6 * (max_abs_component(e.p) + scene.extent()) + 1e-9 * rf.l1;
         const PathExit pe = walk_out(scene, e.p, w, rf.l1 * (1 + 1e-6) + tol, e.set, e.lambda_nm, e.n, hits);
@@ -241,6 +229,17 @@ void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e
     }
     const int64_t pixel = view.pixel_of(rf.x);
     if (pixel < 0) return;
+    // Depth roulette (unbiased): beyond tau_cut a score survives with chance
+    // exp(tau_cut - tau) and counts 1/chance, so no score carries more than
+    // exp(-tau_cut) of attenuation: deep events cost one path query, not two,
+    // and add no heavy tail.
+    if (tau > view.tau_cut) {
+        q = std::exp(view.tau_cut - tau);
+        if (!(rng.uniform() < q)) {
+            ++k.thinned;
+            return;
+        }
+    }
     // Occlusion: the lumen segment from x to the pinhole must enter no region.
     const Vec3 to_c = (C - rf.x) / rf.l2;
     const Float eps = 1e-6 * (max_abs_component(rf.x) + scene.extent());
