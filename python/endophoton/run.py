@@ -16,12 +16,11 @@ from .quality import quality_preset
 from .scene import Scene
 from .io import check_bool, check_int, check_path, check_real
 from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
+from .io import MAX_THREADS  # noqa: F401  (largest thread count a run accepts; owner: io)
 
 CancelToken = _core.CancelToken
 #: Largest packet count a request may name (photons, store, max_photons): 2^62.
 MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
-#: Largest thread count a run accepts (a count the system cannot start is a named error too).
-MAX_THREADS = 4096
 
 
 @dataclass

@@ -9,7 +9,7 @@ run hands back per pixel, per batch sums of:
     0..5   white image: energy, X, Y, Z, camera R, camera G
     6..11  fluorescence image: the same for fluorescent packets, times the emission filter T(lambda)
 
-and per-pixel spectra. :func:`render_view` (``estimator="nee"``) turns them into a :class:`View`.
+and per-pixel spectra. :func:`render_view` (``estimator="nee"``, render._nee_sums) turns them into a :class:`View`.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from . import colour
 
-__all__ = ["view_request", "camera_view", "CHANNELS", "nee_sums"]
+__all__ = ["view_request", "camera_view", "CHANNELS"]
 
 CHANNELS = ("energy", "x", "y", "z", "camera_r", "camera_g")
 _LAMBDA0_NM, _LAMBDA1_NM, _DLAMBDA_NM = 200.0, 1100.0, 0.1
@@ -157,31 +157,3 @@ def _check_camera_outside(scene, camera):
         raise ValueError(
             f"camera.position = {camera.position.tolist()} lies inside a region: put the camera in the ambient medium"
         )
-
-
-def nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance):
-    """The run's camera tally, checked against the render's arguments: (sums (pixels, B, 12), spectrum
-    (pixels, 2, bins), counters). ValueError naming the argument that differs from the run's request."""
-    img = getattr(result, "camera_image", None)
-    desc = getattr(result, "view_request", None)
-    if img is None or desc is None:
-        raise ValueError(
-            "estimator = 'nee': the run has no camera tally; run it with ep.run(..., view=True) "
-            "(or view=dict(camera=..., width=..., height=...))"
-        )
-    want = dict(
-        camera=camera.to_dict(),
-        width=W,
-        height=H,
-        n_batches=n_batches,
-        emission_filter=filter_desc,
-        white_balance=white_balance,
-    )
-    for k, v in want.items():
-        if desc[k] != v:
-            raise ValueError(
-                f"{k} = {v!r} differs from the run's camera tally ({desc[k]!r}): render with the run's "
-                f"view settings or run again with view=dict({k}=...)"
-            )
-    counters = {k: int(img[k]) for k in ("events", "thinned", "scored", "occluded", "unresolved", "crossing")}
-    return img["sums"], img["spectrum"], counters

@@ -46,8 +46,7 @@ from .. import _core
 from . import colour
 from ..analysis import batch_index
 from .camera import Camera
-from ..io import check_int, shown
-from ..run import MAX_THREADS
+from ..io import MAX_THREADS, check_int, shown
 from ..sources import MAX_IMAGE_SIDE, is_image_side
 from ..spectra import Spectrum
 
@@ -549,9 +548,7 @@ def render_view(
     preg = region[hit].astype(np.int64)
     nee_counters = None
     if estimator == "nee":
-        from .nee import nee_sums
-
-        sums, spectrum, nee_counters = nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance)
+        sums, spectrum, nee_counters = _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance)
         _, Pb = batch_index(np.zeros(0, dtype=np.int64), n_batches, P)
         acc = _nee_acc(sums, spectrum, hit, preg, n_regions)
         rec = dict(nbins=spectrum.shape[2], energy={}, Pb=Pb)
@@ -614,6 +611,34 @@ def check_spectral(result):
             "result: the run was not spectral (spectral=None and no fluorophores or spectral media), so its light "
             "has no wavelength and no colour; run ep.run(..., spectral=True) to render it"
         )
+
+
+def _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance):
+    """The run's camera tally, checked against the render's arguments: (sums (pixels, B, 12), spectrum
+    (pixels, 2, bins), counters). ValueError naming the argument that differs from the run's request."""
+    img = getattr(result, "camera_image", None)
+    desc = getattr(result, "view_request", None)
+    if img is None or desc is None:
+        raise ValueError(
+            "estimator = 'nee': the run has no camera tally; run it with ep.run(..., view=True) "
+            "(or view=dict(camera=..., width=..., height=...))"
+        )
+    want = dict(
+        camera=camera.to_dict(),
+        width=W,
+        height=H,
+        n_batches=n_batches,
+        emission_filter=filter_desc,
+        white_balance=white_balance,
+    )
+    for k, v in want.items():
+        if desc[k] != v:
+            raise ValueError(
+                f"{k} = {v!r} differs from the run's camera tally ({desc[k]!r}): render with the run's "
+                f"view settings or run again with view=dict({k}=...)"
+            )
+    counters = {k: int(img[k]) for k in ("events", "thinned", "scored", "occluded", "unresolved", "crossing")}
+    return img["sums"], img["spectrum"], counters
 
 
 def _nee_acc(sums, spectrum, hit, preg, n_regions):
