@@ -208,7 +208,9 @@ void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e
         if (iter == 0 && view.pixel_of(rf.x) < 0) return;  // outside the image: nothing to score
         const Vec3 w = (rf.x - e.p) / rf.l1;
         const Float tol = 1e-6 * (max_abs_component(e.p) + scene.extent()) + 1e-9 * rf.l1;
-        const PathExit pe = walk_out(scene, e.p, w, rf.l1 * (1 + 1e-6) + tol, e.set, e.lambda_nm, e.n, hits);
+        // Cast past x: where the wall curves away from the facet x lies inside
+        // the tissue, and the exit found beyond it gives the facet to solve on.
+        const PathExit pe = walk_out(scene, e.p, w, 2 * rf.l1 + tol, e.set, e.lambda_nm, e.n, hits);
         if (pe.other_n) {
             ++k.crossing;
             return;
