@@ -275,6 +275,7 @@ def sections(R):
         "(rings along it × points around it) and measures the engine scene's build, then packets/s of a 1-thread run "
         "after a 2 000-packet warm-up, and the per-cube cache store that run built.\n\n" + mesh_t
         + "\n## 11. Grids: speed and memory (frozen)\n\n" + frozen("grids")
+        + "\n## 12. Camera estimators side by side (issue 34; frozen, 2026-12-05)\n\n" + frozen("camera_estimators")
     )  # fmt: skip
 
 

@@ -154,6 +154,16 @@ void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
         bad("time_budget_s", c.time_budget_s, "must be a finite number >= 0 (0 = none)");
     if (c.threads < 0) bad("threads", c.threads, "must be >= 0");
     if (c.batches < 2) bad("batches", c.batches, "must be >= 2");
+    if (c.camera_view) {
+        if (c.photons == 0 || c.store > 0 || c.target_tally >= 0 || c.time_budget_s > 0)
+            throw std::invalid_argument("camera_view needs a fixed photon count (no store, target or time budget)");
+        if (c.camera_view->packets != c.photons)
+            throw std::invalid_argument("camera_view.packets = " + std::to_string(c.camera_view->packets) +
+                                        " must equal photons = " + std::to_string(c.photons));
+        c.camera_view->check();
+        if (!(c.force_spectral || scene.has_fluorophores() || scene.has_spectral_media()))
+            throw std::invalid_argument("camera_view needs a spectral run (spectral=True): its colours need wavelengths");
+    }
     if (c.store > 0 && !c.record_escapes)
         throw std::invalid_argument("store = " + std::to_string(c.store) + " needs record_escapes = True");
     if (c.store > 0 && c.fluorescent_only && !scene.has_fluorophores())
@@ -266,6 +276,10 @@ class UnitMerger {
             result_.peak_record_bytes = std::max(result_.peak_record_bytes, result_.records.memory_bytes());
         }
         if (u.own_grids) accepted_.push_back(std::move(u.own_grids));
+        if (cfg_.camera_view) {  // in unit order: the image is the same on any thread count
+            if (!result_.camera_image) result_.camera_image = std::make_shared<CameraImage>(cfg_.camera_view);
+            result_.camera_image->add(u.camera);
+        }
         result_.units.push_back(std::move(u.tally));
         if (cfg_.stats) result_.unit_stats.push_back(u.stats);
         const size_t k = result_.units.size();

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "camera_tally.h"
 #include "records.h"
 #include "run_config.h"
 #include "scene.h"
@@ -81,6 +82,7 @@ struct RunResult {
     std::vector<Estimate> absorbed_by_region;
     std::vector<Estimate> emitted_by_fluorophore;  // by fluorophore id (UnitTally::emitted_by_fluorophore)
     EscapeRecords records;
+    std::shared_ptr<CameraImage> camera_image;  // runs with a camera_view (camera_tally.h)
     bool cancelled = false;
     bool target_reached = false;
     bool spectral = false;

@@ -1,9 +1,12 @@
 // Options of one run. Defaults follow MCML (roulette at 1e-4 with survival 1/10).
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <string>
 
 namespace ep {
+
+struct CameraView;  // camera_tally.h
 
 enum class FluorescenceRule { kPaper, kEEM };
 
@@ -42,6 +45,9 @@ struct RunConfig {
     bool lumen = true;
     // Count the engine's events per unit (stats.h; the CLI's --stats): RunResult::unit_stats.
     bool stats = false;
+    // Next-event estimation toward a pinhole camera (camera_tally.h); null =
+    // none (the run pays one branch per interaction). Fixed photon counts only.
+    std::shared_ptr<const CameraView> camera_view;
     // Test hook: cancel right after this many units are merged (0 = never), so
     // a cancelled partial result can be tested without depending on timing.
     uint64_t test_cancel_after_units = 0;

@@ -158,6 +158,7 @@ class PacketWalk {
     bool scatter_and_survive();
     void fluoresce();
     void fluoresce_with(const FluorophoreRef& f);
+    void offer_camera();
     void escape();
     // The memo of the packet's light when it emits one ray only, else null.
     LaunchMemo* launch_memo() {
@@ -198,6 +199,7 @@ class PacketWalk {
     const Float unit_cm_, extent_;
     const uint64_t max_events_;
     Rng rng_{0, 0};
+    Rng camera_rng_{0, 0};  // the camera tally's depth roulette (its own stream)
     PacketState st_;
     mutable std::vector<Hit> probe_hits_;  // inside_just_ahead's own query (rare)
 };
@@ -283,7 +285,8 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
     const PacketState& st = st_;
-    if (!local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
+    // The camera tally scores every interaction, which interact() offers it.
+    if (cfg_.camera_view || !local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
     // Spectral: the loop holds at most LoopTrials::kMax fluorophores.
     if constexpr (kSpectral) return scene_.region(size_t(st.med.region)).fluorophores.size() <= LoopTrials::kMax;
     return true;
@@ -524,6 +527,7 @@ template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::launch(uint64_t index) {
     out_.tally.packets += 1;
     rng_ = Rng(cfg_.seed, index);
+    if (cfg_.camera_view) camera_rng_ = Rng(cfg_.seed ^ 0x6A09E667F3BCC909ULL, index);
     const Emission em = source_.emit(halton_, index, kSpectral);
     PacketState& st = st_;
     st.index = index;
@@ -950,7 +954,30 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
     if constexpr (kGrids) deposit_grids(st.p, dW, st.W);
     if constexpr (kSpectral) fluoresce();
+    if constexpr (kSpectral)
+        if (cfg_.camera_view && st.med.mus > 0 && st.W > 0) offer_camera();
     return scatter_and_survive();
+}
+
+// The camera tally's next event (camera_tally.h): the packet as it is about
+// to scatter (after the capture and any fluorescence), at its wavelength.
+// Not inlined: runs without a camera keep interact() as it was.
+template <bool kSpectral, bool kGrids>
+__attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::offer_camera() {
+    thread_local std::vector<Hit> hits;
+    const PacketState& st = st_;
+    CameraEvent e;
+    e.p = st.p;
+    e.d = st.d;
+    e.set = st.set;
+    e.region = st.med.region;
+    e.weight_energy = st.W * st.energy_per_weight;
+    e.lambda_nm = st.lambda;
+    e.fluorescent = st.fluorescent;
+    e.packet = st.index;
+    e.g = st.med.g;
+    e.n = st.med.n;
+    next_event(scene_, *cfg_.camera_view, e, camera_rng_, hits, out_.camera);
 }
 
 // The grids' deposits of an interaction at p: the weight dW it absorbed (the

@@ -13,6 +13,7 @@
 #include <memory>
 #include <vector>
 
+#include "camera_tally.h"
 #include "entry_planes.h"
 #include "halton.h"
 #include "records.h"
@@ -35,6 +36,7 @@ namespace ep {
 struct UnitOutput {
     UnitTally tally;
     EscapeRecords records;
+    CameraScores camera;  // next-event scores (runs with a camera_view only)
     GridSet* grids = nullptr;  // where the deposits go; null without grids
     // Members of *grids, kept as pointers for the deposit calls of transport.cpp.
     VoxelAccumulator* absorbed_grid = nullptr;      // absorbed weight

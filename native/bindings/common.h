@@ -42,6 +42,10 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records);
 // Throws std::invalid_argument unless `a` has shape (N, 3); `what` names the field.
 void require_rows_of_3(const py::array& a, const std::string& what);
 
+// The camera tally's image of a run (camera_view.cpp), None without one; moves its arrays.
+py::object camera_image_dict(const std::shared_ptr<CameraImage>& img);
+
+void bind_camera_view(py::module_& m);     // camera_view.cpp: CameraView
 void bind_scene(py::module_& m);           // scene.cpp: Scene
 void bind_source(py::module_& m);          // source.cpp: Source
 void bind_run(py::module_& m);             // run.cpp: CancelToken, RunConfig, run, check_run

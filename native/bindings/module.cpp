@@ -45,6 +45,7 @@ PYBIND11_MODULE(_core, m) {
     m.attr("BALANCE_TALLIES") = balance;
     ep::bind::bind_scene(m);
     ep::bind::bind_source(m);
+    ep::bind::bind_camera_view(m);  // before bind_run: RunConfig.camera_view takes a CameraView
     ep::bind::bind_run(m);
     ep::bind::bind_mesh_check(m);
     ep::bind::bind_spectrum_check(m);

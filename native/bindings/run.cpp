@@ -118,6 +118,10 @@ void bind_config(py::module_& m) {
         .def_readwrite("safe_distance", &RunConfig::safe_distance)
         .def_readwrite("lumen", &RunConfig::lumen)
         .def_readwrite("stats", &RunConfig::stats)
+        .def_property(
+            "camera_view", [](const RunConfig& c) { return std::const_pointer_cast<CameraView>(c.camera_view); },
+            [](RunConfig& c, std::shared_ptr<CameraView> v) { c.camera_view = std::move(v); },
+            "the camera tally's request (a CameraView) or None")
         .def_readwrite("test_cancel_after_units", &RunConfig::test_cancel_after_units)
         .def_readwrite("test_fail_thread", &RunConfig::test_fail_thread)
         .def_property(
@@ -174,6 +178,7 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
     d["grid_names"] = r.grid_names;
     d["grid_absorbed_sum"] = r.grid_absorbed_sum;
     d["record_bytes"] = r.peak_record_bytes;
+    d["camera_view"] = camera_image_dict(r.camera_image);
     if (with_records)
         d["escapes"] = records_dict(std::move(r.records));
     else

@@ -239,6 +239,10 @@ def check_output_files(folder: str | os.PathLike, names) -> list[str]:
     return paths
 
 
+#: The most worker threads a run may ask for (ep.run, render_view; 0 = all cores).
+MAX_THREADS = 4096
+
+
 def check_int(name: str, v, lo: int, hi: int) -> int:
     """``v`` is an integer (not a bool, not a float, not a string) in [lo, hi]."""
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Integral):

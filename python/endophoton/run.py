@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from types import SimpleNamespace
 
+import numpy as np
 
 from . import _core, placement
 from .quality import quality_preset
@@ -16,6 +17,7 @@ from .scene import Scene
 from .callbacks import checked_progress
 from .io import check_bool, check_int, check_path, check_real
 from .tallies import FRACTIONS, TARGET_TALLIES, Target  # noqa: F401  (re-exported: endophoton.run.Target)
+from .io import MAX_THREADS  # noqa: F401  (largest thread count a run accepts; owner: io)
 
 CancelToken = _core.CancelToken
 #: Largest packet count a request may name (photons, store, max_photons): 2^62.
@@ -24,8 +26,6 @@ MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
 #: run also stops early, as "target_unreachable" with a warning, once the packets its error so far
 #: projects exceed ten times this cap (docs/numerics.md, "Unreachable targets").
 DEFAULT_TARGET_MAX_PHOTONS = int(_core.DEFAULT_TARGET_MAX_PACKETS)
-#: Largest thread count a run accepts (a count the system cannot start is a named error too).
-MAX_THREADS = 4096
 
 
 @dataclass
@@ -64,7 +64,14 @@ class Result:
     """What a run produced. Fractions are per launched packet, each with ``<name>_stderr``
     from batch means over consecutive blocks of packets."""
 
-    def __init__(self, raw: dict, scene: Scene, source, options: dict):
+    def __init__(self, raw: dict, scene: Scene, source, options: dict, view_request: dict | None = None):
+        # The camera tally (ep.run(..., view=...)): arrays for render_view, not part of the summary.
+        self.camera_image = raw.pop("camera_view", None)
+        self.view_request = view_request
+        if self.camera_image is not None:
+            for k in ("sums", "spectrum"):
+                if not np.all(np.isfinite(self.camera_image[k])):
+                    raise ValueError(f"result.camera_view.{k} holds a non-finite value (engine bug)")
         _require_finite(raw)
         self._raw = raw
         self.scene = scene
@@ -336,6 +343,7 @@ def run(
     client=None,
     chunk_units: int = 0,
     stats: bool = False,
+    view=None,
 ) -> Result:
     """Trace photon packets through ``scene`` from ``source``.
 
@@ -368,19 +376,33 @@ def run(
     crossings, triangle-cache hits and misses, full ray queries) per work unit;
     the result's ``stats`` holds the totals and ``stats["per_unit"]`` the counts
     of each merged unit (native/stats.h). Local runs only.
+    ``view`` (None: off): True or a dict (endophoton.view.nee.view_request) makes the run tally the
+    camera's image by next-event estimation (docs/render.md), which ``ep.render_view(result)`` then
+    renders (estimator "nee"). It needs a fixed ``photons`` count, a spectral run and no ``client``.
 
     Lengths in scene units; ``max_path_cm`` in cm; mua/mus in cm^-1.
     """
     # every argument of this call, captured once by name, checked as check_run() checks them
     opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**locals()), engine_check=False)
     progress = checked_progress("progress", progress)  # a value other than None/True/False: TypeError naming it
+    config, view_desc = _core.RunConfig(**opts), None
+    if view is not None and view is not False:
+        from .view import nee
+
+        if client is not None:
+            raise ValueError(
+                "view: the camera tally is not carried through the Dask unit path yet; run it locally (client=None)"
+            )
+        if "photons" not in opts or "store" in opts:
+            raise ValueError("view: the camera tally needs a fixed photon count (photons=N, no store or target)")
+        config.camera_view, view_desc = nee.camera_view(scene, source, opts["photons"], view)
     if client is not None:  # a dask.distributed.Client: the same result, traced on its workers
         from . import distributed
 
         raw = distributed.run(scene, source, opts, client, chunk_units=chunk_units, progress=progress, cancel=cancel)
     else:
-        raw = _core.run(native_scene, native_source, _core.RunConfig(**opts), progress, cancel)
-    return Result(with_warnings(raw, notes), scene, source, opts)
+        raw = _core.run(native_scene, native_source, config, progress, cancel)
+    return Result(with_warnings(raw, notes), scene, source, opts, view_desc)
 
 
 def with_warnings(raw: dict, notes: list[str]) -> dict:

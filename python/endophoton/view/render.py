@@ -46,8 +46,7 @@ from .. import _core
 from . import colour
 from ..analysis import batch_index
 from .camera import Camera
-from ..io import check_int, shown
-from ..run import MAX_THREADS
+from ..io import MAX_THREADS, check_int, shown
 from ..sources import MAX_IMAGE_SIDE, is_image_side
 from ..spectra import Spectrum
 
@@ -480,6 +479,7 @@ def render_view(
     exposure="auto",
     n_batches: int = 20,
     threads: int = 0,
+    estimator: str = "auto",
 ) -> View:
     """Render the image the camera records from ``result``'s escape records (surface photon map).
 
@@ -497,14 +497,22 @@ def render_view(
     exposure : "auto" (99th percentile of the largest linear channel -> 0.5, per image) or a fixed factor
     n_batches : packet-index blocks for the batch-means standard errors
     threads : for the primary rays and the gather (0 = all cores)
+    estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased, the
+        most efficient: docs/render.md), "kernel" (the kernel estimate over the escape records) or "auto"
+        (nee when the run has a camera tally, else kernel)
     """
     _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"estimator = {estimator!r} must be one of {', '.join(map(repr, ESTIMATORS))}")
     if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
         raise ValueError(
             f"result = {shown(result)}: render_view's first argument must be an ep.Result "
             "(from ep.run(..., record_escapes=True))"
         )
     check_int("threads", threads, 0, MAX_THREADS)  # the rule of ep.run
+    check_spectral(result)
+    if estimator == "auto":
+        estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
     camera, W, H = _resolve_camera(result, camera, width, height)
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)
@@ -549,15 +557,23 @@ def render_view(
         kernel_radius = default
     check_kernel(kernel_radius, kernel_angle_deg, scene.unit_cm)
     P = _packets(result)
-    rec = _records(result, n_batches, P, T)
-    rec["cam"] = camera.position
-    # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
-    rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
     n_regions = len(scene.regions)
     preg = region[hit].astype(np.int64)
-    acc, n_candidates = _kernel_gather(
-        px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads), scene.unit_cm
-    )
+    nee_counters = None
+    if estimator == "nee":
+        sums, spectrum, nee_counters = _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance)
+        _, Pb = batch_index(np.zeros(0, dtype=np.int64), n_batches, P)
+        acc = _nee_acc(sums, spectrum, hit, preg, n_regions)
+        rec = dict(nbins=spectrum.shape[2], energy={}, Pb=Pb)
+        n_candidates = int(nee_counters["scored"])
+    else:
+        rec = _records(result, n_batches, P, T)
+        rec["cam"] = camera.position
+        # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
+        rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
+        acc, n_candidates = _kernel_gather(
+            px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads), scene.unit_cm
+        )
     Pb = rec["Pb"]
     images = {
         name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
@@ -566,7 +582,9 @@ def render_view(
     region_pixels = np.bincount(preg, minlength=n_regions)[:n_regions]
     region_batches = _region_batches(acc, preg, region_pixels, Pb.size, gains)
     aperture = None
-    if camera.aperture_radius > 0:
+    if camera.aperture_radius > 0 and (estimator == "kernel" or result.escapes is not None):
+        if estimator == "nee":
+            rec = _records(result, n_batches, P, T)
         focus = camera.focus_distance or _autofocus(depth, hit, W, H)
         aperture = _aperture_images(
             native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm, int(threads)
@@ -582,6 +600,8 @@ def render_view(
         packets_per_batch=Pb,
         kernel=dict(radius=float(kernel_radius), angle_deg=float(kernel_angle_deg)),
         candidates=int(n_candidates),
+        estimator=estimator,
+        nee=nee_counters,
         emission_filter=filter_desc,
         white_balance=white_balance,
         images=images,
@@ -595,6 +615,70 @@ def render_view(
         gains=gains,
         spectrum_bin_edges_nm=colour.spectrum_bins(),
     )
+
+
+ESTIMATORS = ("auto", "nee", "kernel")
+
+
+def check_spectral(result):
+    """ValueError naming ``result`` when its run traced no wavelengths (``spectral=None`` without fluorophores or
+    spectral media): its records and tallies are at wavelength 0, which has no colour."""
+    if getattr(result, "spectral", True) is False:
+        raise ValueError(
+            "result: the run was not spectral (spectral=None and no fluorophores or spectral media), so its light "
+            "has no wavelength and no colour; run ep.run(..., spectral=True) to render it"
+        )
+
+
+def _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance):
+    """The run's camera tally, checked against the render's arguments: (sums (pixels, B, 12), spectrum
+    (pixels, 2, bins), counters). ValueError naming the argument that differs from the run's request."""
+    img = getattr(result, "camera_image", None)
+    desc = getattr(result, "view_request", None)
+    if img is None or desc is None:
+        raise ValueError(
+            "estimator = 'nee': the run has no camera tally; run it with ep.run(..., view=True) "
+            "(or view=dict(camera=..., width=..., height=...))"
+        )
+    want = dict(
+        camera=camera.to_dict(),
+        width=W,
+        height=H,
+        n_batches=n_batches,
+        emission_filter=filter_desc,
+        white_balance=white_balance,
+    )
+    for k, v in want.items():
+        if desc[k] != v:
+            raise ValueError(
+                f"{k} = {v!r} differs from the run's camera tally ({desc[k]!r}): render with the run's "
+                f"view settings or run again with view=dict({k}=...)"
+            )
+    counters = {k: int(img[k]) for k in ("events", "thinned", "scored", "occluded", "unresolved", "crossing")}
+    return img["sums"], img["spectrum"], counters
+
+
+def _nee_acc(sums, spectrum, hit, preg, n_regions):
+    """The next-event tally's sums (pixels, B, 12) and spectra (pixels, 2, bins) as the sums
+    :func:`_image_from_sums` and :func:`_region_batches` take (hit pixels; regions by the pixel's region).
+    The estimate is unbiased: its 'half kernel' sums equal the full ones, so every bias reads 0."""
+    hp = np.flatnonzero(hit)
+    s = sums[hp]  # (n_hit, B, 12)
+    B = s.shape[1]
+    acc = {}
+    for j, name in enumerate(("white", "fluorescence")):
+        o = 6 * j
+        acc[name + "_pix_batch"] = s[:, :, o].ravel()
+        acc[name + "_half_pix_batch"] = acc[name + "_pix_batch"]
+        for c in range(3):
+            acc[f"{name}_xyz{c}_pix"] = s[:, :, o + 1 + c].sum(axis=1)
+        for key, first, n in (("xyz", o + 1, 3), ("cam", o + 4, 2)):
+            for c in range(n):
+                reg = np.zeros((n_regions, B))
+                np.add.at(reg, preg, s[:, :, first + c])
+                acc[f"{name}_{key}{c}_reg_batch"] = reg.ravel()
+        acc[name + "_spec_pix"] = spectrum[hp, j, :].ravel()
+    return acc
 
 
 def _pixel_batches(acc, name, hit, shape, Pb):

@@ -41,6 +41,13 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     )
     p.add_argument("--kernel-radius", type=float, default=None, help="scene units (default: 2 pixel footprints)")
     p.add_argument("--kernel-angle", type=float, default=15.0, help="degrees (default 15)")
+    p.add_argument(
+        "--estimator",
+        choices=("nee", "kernel"),
+        default="nee",
+        help="nee (default: next-event estimation toward the camera during the run, unbiased, the most "
+        "efficient; docs/render.md) or kernel (kernel estimate over the escape records)",
+    )
     return p
 
 
@@ -136,6 +143,10 @@ def render_main(args) -> int:
         kwargs["seed"] = args.seed
     if args.threads is not None:
         kwargs["threads"] = args.threads
+    estimator = getattr(args, "estimator", "kernel")
+    emission_filter = "auto" if args.emission_filter is None else args.emission_filter
+    if estimator == "nee":
+        kwargs["view"] = dict(camera=camera, width=args.width, height=args.height, emission_filter=emission_filter)
     res = run(scene, source, photons=photons, record_escapes=True, spectral=True, **kwargs)
     view = render_view(
         res,
@@ -145,7 +156,8 @@ def render_main(args) -> int:
         kernel_radius=args.kernel_radius,
         kernel_angle_deg=args.kernel_angle,
         threads=kwargs.get("threads", 0),
-        emission_filter="auto" if args.emission_filter is None else args.emission_filter,
+        emission_filter=emission_filter,
+        estimator=estimator,
     )
     out = {
         "width": view.width,
@@ -153,6 +165,7 @@ def render_main(args) -> int:
         "regions": view.regions(),
         "photons": view.packets,
         "kernel": view.kernel_summary(),
+        "estimator": view.estimator,
     }
     if args.target is not None and surround is None:  # the contract's object, exactly as before
         c = view.contrast(args.target, args.background)

@@ -1,0 +1,108 @@
+#!/usr/bin/env python3
+"""Benchmark (not a test): the camera estimators side by side on the colon view (issue 34).
+
+    /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1]
+
+The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its 128 x 128 camera. Two runs with the
+same seed: one records the escapes and renders them with the kernel estimate (estimator="kernel"), one
+tallies the camera by next-event estimation (view=True, estimator="nee"). For each it prints the CPU
+seconds of run + render (process time, all threads), the polyp's red/green contrast against the colon
+with its batch-means stderr, the figure of merit FOM = 1 / (stderr^2 x CPU s), the share of tissue
+pixels whose white radiance has a relative stderr <= 20 % and the share left at exactly 0, and the
+run's packets per CPU second. A third run (no records, no camera) gives the throughput without either.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import os
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, os.path.join(ROOT, "python"))
+sys.path.insert(0, HERE)
+
+import numpy as np  # noqa: E402
+
+import endophoton as ep  # noqa: E402
+from colon_scene import colon_scene  # noqa: E402
+
+
+def pixel_shares(view) -> dict:
+    """Share of the tissue pixels (white image) within 20 % relative stderr, and at exactly 0."""
+    img = view.images["white"]
+    tissue = view.region_map >= 0
+    L, se = img["radiance"][tissue], img["radiance_stderr"][tissue]
+    ok = (L > 0) & (se <= 0.2 * np.where(L > 0, L, 1.0))
+    return dict(tissue_pixels=int(tissue.sum()), within_20=float(ok.mean()), zero=float((L == 0).mean()))
+
+
+def measure(photons: int, threads: int = 0, seed: int = 1) -> dict:
+    """The figures of one side-by-side comparison, as a dict per estimator."""
+    scene, rig = colon_scene(beta_deg=20.0)
+    out = {}
+    for name, kw in (("kernel", dict(record_escapes=True)), ("nee", dict(record_escapes=False, view=True))):
+        c0, w0 = time.process_time(), time.perf_counter()
+        res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
+        c1 = time.process_time()
+        view = ep.render_view(res, estimator=name, threads=threads)
+        c2, w2 = time.process_time(), time.perf_counter()
+        con = view.contrast("polyp", "colon")
+        se = con["red_green_stderr"]
+        cpu = c2 - c0
+        out[name] = dict(
+            run_cpu_s=c1 - c0,
+            render_cpu_s=c2 - c1,
+            cpu_s=cpu,
+            wall_s=w2 - w0,
+            red_green=con["red_green"],
+            red_green_stderr=se,
+            fom=1.0 / (se * se * cpu) if se else float("inf"),
+            packets_per_cpu_s=photons / (c1 - c0),
+            nee=view.nee,
+            **pixel_shares(view),
+        )
+    c0 = time.process_time()
+    ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, record_escapes=False)
+    out["plain_packets_per_cpu_s"] = photons / (time.process_time() - c0)
+    return out
+
+
+def table(m: dict, photons: int) -> str:
+    rows = [
+        "| estimator | CPU s (run + render) | red/green contrast | FOM (s^-1) | tissue px within 20 % | "
+        "tissue px at 0 | packets / CPU s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name in ("kernel", "nee"):
+        r = m[name]
+        rows.append(
+            f"| {name} | {r['run_cpu_s']:.1f} + {r['render_cpu_s']:.1f} | {r['red_green']:.3f} ± "
+            f"{r['red_green_stderr']:.3f} | {r['fom']:.1f} | {100 * r['within_20']:.1f} % | "
+            f"{100 * r['zero']:.1f} % | {r['packets_per_cpu_s']:,.0f} |"
+        )
+    ratio = m["nee"]["fom"] / m["kernel"]["fom"]
+    rows.append("")
+    rows.append(
+        f"FOM ratio nee / kernel = {ratio:.1f}; packets / CPU s without records or camera: "
+        f"{m['plain_packets_per_cpu_s']:,.0f} ({photons:,} packets, {_dt.date.today().isoformat()})"
+    )
+    return "\n".join(rows)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--photons", type=int, default=1_000_000)
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=1)
+    a = ap.parse_args(argv)
+    m = measure(a.photons, a.threads, a.seed)
+    print(table(m, a.photons))
+    print("nee counters:", m["nee"]["nee"])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

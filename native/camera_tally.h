@@ -1,0 +1,129 @@
+// Next-event estimation toward a pinhole camera (issue 34, docs/render.md
+// "The next-event estimate"). At every scattering event inside tissue the
+// packet scores the light that would leave it, unscattered, through the
+// refracting surface into the camera: the exit point x on the local facet
+// (Snell's law between the event and the pinhole), the Henyey-Greenstein
+// density toward x, Beer-Lambert attenuation along the path inside, Fresnel
+// transmission at x, the solid-angle Jacobian of the refraction and an
+// occlusion ray from x to the pinhole. The score lands in the pixel x projects
+// to, in the images' units: energy of a 500 nm photon per launched packet per
+// cm^2 per sr.
+//
+// The scores of a work unit are kept in the unit's output (CameraScores) and
+// added into the run's image (CameraImage) when the engine merges the unit,
+// strictly in unit order, so the image is bit-identical on any thread count.
+// A run without a CameraView pays one branch per interaction.
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "scene.h"
+#include "vecmath.h"
+
+namespace ep {
+
+class Rng;
+
+// What the camera tally needs: the pinhole, the image, its batches and the
+// colour channels every score is split into (tables over wavelength).
+struct CameraView {
+    Vec3 position, forward, right, up;      // scene units; unit, orthonormal frame
+    Float tan_x = 0, tan_y = 0;             // image half-extents at unit depth
+    int width = 0, height = 0;              // pixels; row 0 at the top
+    std::vector<double> pixel_solid_angle;  // sr, width * height, row-major
+    int batches = 20;                       // contiguous packet-index blocks (analysis.batch_index)
+    uint64_t packets = 0;                   // packets of the run (the batches' denominator)
+    double tau_cut = 3.0;                   // optical depth beyond which scores are thinned by roulette
+    // Channel tables on the wavelength grid lambda0_nm + i dlambda_nm (nearest
+    // entry; clamped at the ends): channel k of a score is value * table[i K + k],
+    // counted for fluorescent packets only where fluorescent_only[k].
+    double lambda0_nm = 0, dlambda_nm = 1;
+    int channels = 0;
+    std::vector<double> table;
+    std::vector<uint8_t> fluorescent_only;
+    // Per-pixel spectra (no batches): bin of each grid entry (-1: none), and
+    // the weight of the fluorescent spectrum (the emission filter).
+    int spectrum_bins = 0;
+    std::vector<int32_t> spectrum_bin;
+    std::vector<double> spectrum_fluorescent_weight;
+
+    size_t pixels() const { return size_t(width) * size_t(height); }
+    size_t lambdas() const { return spectrum_bin.size(); }
+    // std::invalid_argument naming the field.
+    void check() const;
+    // Grid entry of wavelength lambda_nm.
+    size_t lambda_index(double lambda_nm) const;
+    // Batch of packet `index` (batch b holds [floor(b P / B), floor((b + 1) P / B))).
+    int batch_of(uint64_t index) const;
+    // Pixel the point x projects to through the pinhole, -1 outside the image.
+    int64_t pixel_of(const Vec3& x) const;
+    // Whether x projects into the image widened by `margin` (a fraction of its half-extents).
+    bool near_view(const Vec3& x, Float margin) const;
+};
+
+struct CameraScore {
+    uint64_t packet;
+    uint32_t pixel;
+    uint32_t fluorescent;
+    double lambda_nm;
+    double value;  // energy radiance of the score (per packet, cm^-2 sr^-1)
+};
+
+// Counts of what the scattering events did (per unit, summed in the image).
+struct CameraCounters {
+    uint64_t events = 0;      // scattering events offered to the estimator
+    uint64_t thinned = 0;     // dropped by the depth roulette (unbiased)
+    uint64_t scored = 0;      // scores made
+    uint64_t occluded = 0;    // exit point hidden from the pinhole
+    uint64_t unresolved = 0;  // path to the exit point not solved (excluded: bias, docs/render.md)
+    uint64_t crossing = 0;    // path crosses an interface of another refractive index (excluded)
+    void add(const CameraCounters& o) {
+        events += o.events;
+        thinned += o.thinned;
+        scored += o.scored;
+        occluded += o.occluded;
+        unresolved += o.unresolved;
+        crossing += o.crossing;
+    }
+};
+
+struct CameraScores {
+    std::vector<CameraScore> scores;
+    CameraCounters counters;
+};
+
+// One scattering event offered to the estimator.
+struct CameraEvent {
+    Vec3 p, d;            // position (scene units) and direction before the scattering
+    uint64_t set = 0;     // regions containing p
+    int region = -1;      // the top one, where the event is
+    Float weight_energy;  // packet weight x energy per weight, after the capture
+    Float lambda_nm = 0;
+    bool fluorescent = false;
+    uint64_t packet = 0;
+    Float g = 0, n = 1;  // of the event's region
+};
+
+// Scores `e` into `out`. `rng` draws the depth roulette (a stream of its own,
+// so the packet's transport does not change); `hits` is scratch.
+void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e, Rng& rng, std::vector<Hit>& hits,
+                CameraScores& out);
+
+// The run's image: per pixel, per batch, per channel sums of the scores, and
+// per-pixel spectra (white, fluorescent). Units: as the scores, summed (divide
+// by the packets).
+class CameraImage {
+  public:
+    explicit CameraImage(std::shared_ptr<const CameraView> view);
+    void add(const CameraScores& unit);
+    const CameraView& view() const { return *view_; }
+    std::vector<double> sums;      // pixels x batches x channels
+    std::vector<double> spectrum;  // pixels x 2 x spectrum_bins
+    CameraCounters counters;
+
+  private:
+    std::shared_ptr<const CameraView> view_;
+};
+
+}  // namespace ep
