@@ -2,7 +2,7 @@
 """Checks before a run starts, so a mistake costs a message, not a run.
 
 Every check reads the exported regions (export.RegionExport: metres, world
-space) or plain settings and raises :class:`export.InputError` naming the
+space) or plain settings and raises :class:`errors.InputError` naming the
 scene or object and the field; none creates a datablock or a file.
 
 - :func:`region_sizes`: each region's extent and wall thickness in mm.  The
@@ -32,7 +32,7 @@ import tempfile
 
 import numpy as np
 
-from .export import InputError
+from .errors import InputError
 
 # A region thinner than this many transport mean free paths, or thicker than
 # the upper bound, is almost surely a unit-scale mistake (the paper's colon

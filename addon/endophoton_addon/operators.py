@@ -10,9 +10,20 @@ import os
 
 import bpy
 
-from . import export, guards, package_finder, properties, results, rig, simulation, sweep_job
+from . import (
+    export,
+    guards,
+    legend_render,
+    package_finder,
+    properties,
+    result_export,
+    results,
+    rig,
+    simulation,
+    sweep_job,
+)
 from .package_finder import EngineMissing
-from .export import InputError
+from .errors import InputError
 
 # The job being run (one at a time); "modal" is True from invoke until the
 # modal operator has finished (results added) or been cancelled.
@@ -263,9 +274,8 @@ class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
             self.report({"ERROR"}, f"Export of '{collection.name}': filepath is empty")
             return {"CANCELLED"}
         try:
-            paths = results.export_result(
-                package_finder.require(), collection, bpy.path.abspath(self.filepath), self.format
-            )
+            package_finder.require()  # the package writes the files (endophoton.io)
+            paths = result_export.export_result(collection, bpy.path.abspath(self.filepath), self.format)
         except (OSError, ValueError, EngineMissing) as exc:
             self.report({"ERROR"}, f"Export of '{collection.name}' to '{self.filepath}' failed: {exc}")
             return {"CANCELLED"}
@@ -297,7 +307,8 @@ class ENDOPHOTON_OT_check_scene(bpy.types.Operator):
 
 
 class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
-    """Render the scene camera and save the picture with the colour bar of the active result beside it"""
+    """Render the active result from its rig's endoscope camera (Cycles, denoising off) and save the
+    picture with the colour bar of its points beside it"""
 
     bl_idname = "endophoton.render_legend"
     bl_label = "Render with Legend"
@@ -325,11 +336,11 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
                     simulation.grid_folder(context.scene.endophoton),
                     bpy.path.clean_name(collection.name) + "_legend.png",
                 )
-            image = results.render_with_legend(context.scene, collection, path)
+            image, note = legend_render.render_with_legend(context.scene, collection, path)
         except (RuntimeError, InputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"EndoPhoton: render with legend -> '{image.filepath}' (image '{image.name}')")
+        self.report({"INFO"}, f"EndoPhoton: {note} -> '{image.filepath}' (image '{image.name}')")
         return {"FINISHED"}
 
 

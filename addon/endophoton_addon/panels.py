@@ -3,7 +3,7 @@
 
 import bpy
 
-from . import operators, package_finder, presets, results, rig, sweep_job
+from . import endoscope_views, operators, package_finder, presets, results, rig, run_summary, sweep_job
 from .utils import wrap_text
 
 
@@ -252,11 +252,11 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
         box = layout.box()
         box.label(text=collection.name, icon="OUTLINER_COLLECTION")
         col = box.column(align=True)
-        for label, value in results.summary_rows(collection):
+        for label, value in run_summary.summary_rows(collection):
             row = col.split(factor=0.34, align=True)
             row.label(text=label)
             row.label(text=value)
-        for name, image in sorted(results.view_images(collection).items()):  # Image Editor: "EP View ..."
+        for name, image in sorted(endoscope_views.view_images(collection).items()):  # Image Editor: "EP View ..."
             col.label(text=f"{name.capitalize()} view {image.size[0]}×{image.size[1]}", icon="IMAGE_DATA")
         for line in wrap_text(collection.get("endophoton_view_error", ""), SIDEBAR_CHARS):
             col.label(text=line, icon="ERROR")

@@ -192,13 +192,13 @@ _NAME_ITEMS = {}  # Blender needs the dynamic enum's strings kept alive
 
 def _name_items(settings, kind):
     """ "Any" plus the names of the active result's fluorophores / regions."""
-    from . import results
+    from . import points
 
     names = []
     collection = settings.result_collection
     if collection is not None:
-        for obj in results.points_objects(collection):
-            names = results.point_names(obj).get(kind, [])
+        for obj in points.points_objects(collection):
+            names = points.point_names(obj).get(kind, [])
     items = [("ANY", "Any", f"Records of every {kind}")] + [(n, n, f"Only the {kind} '{n}'") for n in names]
     return _NAME_ITEMS.setdefault((kind, tuple(names)), items)
 

@@ -22,8 +22,8 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, presets, rig, sweep_blend
-from .export import InputError
+from . import export, guards, package_finder, preferences, presets, rig, sweep_blend, volumes
+from .errors import InputError
 
 _ACTIVE_JOBS = set()
 _ACTIVE_LOCK = threading.Lock()
@@ -346,7 +346,7 @@ class SimulationJob(BackgroundJob):
         self.error = None
         self.error_traceback = None
         self.grid_info = []  # [(name, active voxel count, max value)] read in the worker
-        self.render_grids = {}  # results.write_render_grids: {grid name: index -> metres matrix}
+        self.render_grids = {}  # volumes.write_render_grids: {grid name: index -> metres matrix}
         self.view = None  # ep.View of the rig camera (inputs.endoscope_view), computed in the worker
         self.view_error = None  # why there is no view although one was asked for
         self.created_folders = []  # folders this run made for its files, deepest first
@@ -408,9 +408,7 @@ class SimulationJob(BackgroundJob):
         grid_path = getattr(self.result, "grid_path", None)
         if grid_path and not getattr(self.result, "cancelled", False):
             self.grid_info = read_grid_info(grid_path)
-            from . import results
-
-            self.render_grids = results.write_render_grids(grid_path)
+            self.render_grids = volumes.write_render_grids(grid_path)
         self.view, self.view_error = endoscope_view(self.ep, self.inputs, self.result)
 
 
@@ -530,10 +528,9 @@ def _discard_partial_grid(job):
     """A cancelled run may still have written its (partial) grid file: remove
     it, it is ours (a fresh name per run) and nothing refers to it; and the
     folders the run made for it, if they are empty now."""
-    from . import results
 
     path = job.inputs.grid_path
-    for name in (path, results.render_grid_path(path)) if path else ():
+    for name in (path, volumes.render_grid_path(path)) if path else ():
         if os.path.isfile(name):
             os.remove(name)
     remove_empty_folders(job.created_folders)

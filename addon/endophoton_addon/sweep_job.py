@@ -27,7 +27,7 @@ from typing import Optional
 import numpy as np
 
 from . import export, guards, package_finder, preferences, rig, simulation, sweep_blend
-from .export import InputError
+from .errors import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
 IMAGE_KEY = "endophoton_sweep_plot"  # ID property on every image the sweep loaded

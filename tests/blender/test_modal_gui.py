@@ -34,7 +34,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["run2_stopped_after"] >= report["esc_sent"] and report["run2_ticks"] >= 3
     assert report["run2_collection"] == report["run1_collection"]
     assert report["objects_after_run2"] == report["objects_after_run1"]
-    # run 1's files only: its .vdb and the Cycles copy (results.RENDER_GRID_SUFFIX)
+    # run 1's files only: its .vdb and the Cycles copy (volumes.RENDER_GRID_SUFFIX)
     assert len(report["grid_files"]) == 2 and report["grid_files"][0].endswith(".cycles.vdb")
     assert report["status_cleared"]
 

@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 import pytest
 
-from endophoton_addon import results, rig, sweep_blend, sweep_job
+from endophoton_addon import points, results, rig, sweep_blend, sweep_job
 from conftest import REPO, data_snapshot, open_blend
 
 BETAS, STORE, SEED = "0,30", 2_000, 5
@@ -419,8 +419,8 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     kept = sweep_job.sweep_collections(scene, sweep_job.sweep_id(remote.inputs))
     assert [c[results.PARAMS_KEY]["beta_deg"] for c in kept] == [0.0, 30.0]
     for collection, row in zip(kept, remote.result.rows):
-        (points,) = results.points_objects(collection)
-        assert len(points.data.vertices) == row["records"] == STORE
+        (cloud,) = points.points_objects(collection)
+        assert len(cloud.data.vertices) == row["records"] == STORE
     # The bar followed the chunks merged over all angles, and they all came in.
     merged, total = remote._chunks
     assert merged == total > 0
