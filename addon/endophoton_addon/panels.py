@@ -3,13 +3,29 @@
 
 import bpy
 
-from . import endoscope_views, operators, package_finder, presets, results, rig, run_summary, sweep_job
+from . import endoscope_views, operators, package_finder, presets, results, rig, run_summary, sweep_answer, sweep_job
 from .utils import wrap_text
 
 
 # Characters a label shows at the default sidebar width (measured on the
 # screenshots of tests/blender/test_screenshots.py); longer lines are wrapped.
 SIDEBAR_CHARS = 28
+
+
+def draw_rows(col, rows, width=SIDEBAR_CHARS):
+    """(label, value) rows as wrapped lines, readable at the default sidebar width: the label on
+    its own line when "label: value" does not fit, the value wrapped below it, never cut."""
+    for label, value in rows:
+        lines = wrap_text(f"{label}: {value}", width)
+        if len(lines) > 1:
+            col.label(text=f"{label}:")
+            lines = wrap_text(value, width - 2)
+            for line in lines:
+                row = col.row()
+                row.separator(factor=1.0)
+                row.label(text=line)
+        else:
+            col.label(text=lines[0] if lines else f"{label}:")
 
 
 class _EndoPhotonPanel:
@@ -184,8 +200,14 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "batches")
         layout.prop(s, "fluorescent_only")
         layout.prop(s, "fluorescence_rule", text="Rule")
-        layout.prop(s, "output_dir", text="")
+        layout.prop(s, "output_dir", text="Output")
         layout.prop(s, "keep_runs")
+        box = layout.box()
+        box.prop(s, "visibility")
+        col = box.column()
+        col.active = s.visibility
+        for name in sweep_answer.VISIBILITY_FIELDS:
+            col.prop(s, name)
         row = layout.row()
         row.scale_y = 1.5
         row.enabled = package_finder.get() is not None
@@ -195,11 +217,11 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
             return
         box = layout.box()
         box.label(text="Last sweep", icon="IMAGE_DATA")
-        col = box.column(align=True)
-        for label, value in rows:
-            row = col.split(factor=0.4, align=True)
-            row.label(text=label)
-            row.label(text=value)
+        plot = bpy.data.images.get(sweep_job.image_name("visibility.png"))
+        if plot is not None and plot.get(sweep_job.IMAGE_KEY):
+            plot.preview_ensure()
+            box.template_icon(icon_value=plot.preview.icon_id, scale=8.0)
+        draw_rows(box.column(align=True), rows)
 
 
 class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):

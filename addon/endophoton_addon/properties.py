@@ -13,7 +13,7 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import colour_maps, presets
+from . import colour_maps, presets, sweep_answer
 
 ROLE_ITEMS = (
     ("NONE", "None", "Not part of the simulation"),
@@ -258,6 +258,30 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         "'//endophoton_sweep' next to the .blend, or the temporary folder for an unsaved file",
         subtype="DIR_PATH",
         default="",
+    )
+    visibility: BoolProperty(
+        name="Visibility",
+        description="Render the endoscope's view at every β and measure the contrast of the Target region "
+        "against the Background (the command line's --target/--background): the sweep then answers at which "
+        "β the target is most visible (plot, β ± error, verdict against the paper's 34°)",
+        default=True,
+    )
+    target_region: EnumProperty(
+        name="Target",
+        description="Region whose visibility the sweep measures (e.g. the polyp)",
+        items=lambda self, context: sweep_answer.region_items(self.id_data, "target"),
+    )
+    background_region: EnumProperty(
+        name="Background",
+        description="Region the target is seen against (e.g. the colon wall)",
+        items=lambda self, context: sweep_answer.region_items(self.id_data, "background"),
+    )
+    view_size: IntProperty(
+        name="View Size [px]",
+        description="Width = height of the endoscope view rendered at every β, in pixels (--view-size)",
+        default=128,
+        min=8,
+        max=1024,
     )
     keep_runs: EnumProperty(
         name="Per-β Results",

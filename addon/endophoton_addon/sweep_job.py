@@ -26,7 +26,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, rig, simulation, sweep_blend
+from . import export, guards, package_finder, preferences, rig, simulation, sweep_answer, sweep_blend
 from .errors import InputError
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
@@ -65,10 +65,13 @@ class SweepInputs:
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
     timestamp: str = ""
     sweep_id: str = ""  # tags the sweep's β collections (SWEEP_ID_KEY); unique per sweep
+    visibility: Optional[dict] = None  # endophoton.sweep's visibility request (sweep_answer.visibility_request)
 
     def sweep_kwargs(self):
         """Keyword arguments of ``endophoton.sweep`` (all but the scene, progress and cancel)."""
+        visibility = {} if self.visibility is None else {"visibility": dict(self.visibility)}
         return dict(
+            **visibility,
             betas=list(self.betas),
             store=self.store,
             seed=self.seed,
@@ -172,6 +175,9 @@ def collect_sweep_inputs(context, ep):
     guards.check_overlaps(regions)
     rig_obj = simulation._pick_rig(scene)
     geometry = _rig_geometry(rig_obj, scale)
+    visibility = sweep_answer.visibility_request(settings, [r.name for r in regions], who)
+    if visibility is not None and not rig.has_camera(rig_obj):
+        raise InputError(f"{who}: sweep.visibility needs the rig's camera; rig '{rig_obj.name}' has none")
 
     inputs = SweepInputs(
         scene_name=scene.name,
@@ -191,6 +197,7 @@ def collect_sweep_inputs(context, ep):
         endoscope_view=bool(scene.endophoton.output_views) and rig.has_camera(rig_obj),
         timestamp=time.strftime("%Y%m%d-%H%M%S"),
         sweep_id=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}",
+        visibility=visibility,
         **geometry,
     )
     try:
@@ -439,6 +446,7 @@ def sweep_summary(ep, result, paths, out_dir):
             "packets_max": float(np.nanmax(packets)),
             "seconds": float(np.nansum(result.column("seconds"))),
             "plots": len(paths.get("plots", [])),
+            **sweep_answer.visibility_summary(result),
         }
     )
 
@@ -460,6 +468,12 @@ def prepare_job(context, interactive=False):
     if interactive:
         inputs.threads = simulation.interactive_threads(inputs.threads)
     return SweepJob(ep, inputs, engine_scene)
+
+
+def plot_paths(paths):
+    """The PNGs of a finished sweep to load: its plots, and with visibility the contrast-against-β
+    plot (``visibility.png``) and the contact sheet of the views when it was made."""
+    return list(paths.get("plots", [])) + [paths[key] for key in ("plot", "contact_sheet") if key in paths]
 
 
 def image_name(path):
@@ -523,7 +537,7 @@ def finish_sweep(context, job):
     if job.cancelled or job.result is None:
         return None
     collections = make_beta_collections(context, job)
-    images = load_plot_images(job.paths.get("plots", []))
+    images = load_plot_images(plot_paths(job.paths))
     scene = bpy.data.scenes.get(job.inputs.scene_name) or context.scene
     summary = {k: v for k, v in job.summary.items() if v is not None}  # ID properties hold no None
     scene[SUMMARY_KEY] = dict(summary, images=len(images), collections=[c.name for c in collections])
@@ -625,14 +639,14 @@ def summary_rows(scene):
         return f"{value:.1f} ± {error}°{edge}"
 
     degree = s.get("fit_degree", 0)
-    rows = [
+    rows = sweep_answer.answer_rows(s) + [
         ("β", f"{s.get('beta_min', 0):g}…{s.get('beta_max', 0):g}° ({s.get('n_betas', 0)} values)"),
         (
             "Store N",
             f"{s.get('store', 0):,} · seed {s.get('seed', 0)}" + (" (+ one per β)" if s.get("seed_per_beta") else ""),
         ),
-        ("Best β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
-        ("Best β (/packet)", angle("energy_per_packet")),
+        ("Energy max β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
+        ("Energy max β (/packet)", angle("energy_per_packet")),
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
         ("Time", f"{s.get('seconds', 0.0):.1f} s"),
         ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),

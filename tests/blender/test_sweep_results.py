@@ -23,6 +23,7 @@ def _sweep(tmp_path, seed_per_beta=False):
     assert s.keep_runs == "AUTO"  # the default: kept for a small sweep like this one
     s.betas, s.store, s.seed, s.threads = ",".join(f"{b:g}" for b in BETAS), STORE, SEED, 1
     s.seed_per_beta = seed_per_beta
+    s.visibility = False
     s.output_dir = str(tmp_path / "sweep")
     before = data_snapshot()
     job = sweep_job.prepare_job(bpy.context)
