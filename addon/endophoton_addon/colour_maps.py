@@ -24,24 +24,21 @@ wavelength's hue at full brightness (largest channel 1).  ``endophoton.view.colo
 first needed: the add-on registers before package_finder has found the package.
 """
 
-import importlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 
 # --- wavelength -> colour (endophoton.view.colour owns the conversion) -------------
-def _package(module):
-    """``endophoton.<module>``, imported through package_finder (EngineMissing names the fix)."""
+def _colour():
+    """``endophoton.view.colour``, the wavelength conversion's owner (package_finder.require first:
+    a missing engine raises EngineMissing naming the fix)."""
     from . import package_finder
 
     package_finder.require()
-    return package_finder.part(module)
+    from endophoton.view import colour
 
-
-def _colour():
-    """``endophoton.view.colour``, the wavelength conversion's owner."""
-    return _package("view.colour")
+    return colour
 
 
 def wavelength_rgb(nm):
@@ -293,12 +290,16 @@ def legend_figure(legend, path, image=None, title=None):
     file in the same folder, then ``os.replace``; the temporary file is removed on
     failure): a failed write leaves the old file, or none, and raises a
     RuntimeError naming ``path``.  The folder must exist."""
-    package_io = _package("io")
+    from . import package_finder
+
+    package_finder.require()
+    from endophoton.io import atomic_write_bytes
+
     data = _legend_png(legend, image, title, path)
     if not data.startswith(PNG_SIGNATURE):
         raise RuntimeError(f"legend: matplotlib made no PNG for '{path}' ({len(data)} bytes); nothing written")
     try:
-        return package_io.atomic_write_bytes(path, data, make_dirs=False)
+        return atomic_write_bytes(path, data, make_dirs=False)
     except OSError as exc:
         raise RuntimeError(f"legend: could not write '{path}': {exc.strerror or exc}") from None
 

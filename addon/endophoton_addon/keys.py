@@ -18,3 +18,4 @@ PARAMS_KEY = "endophoton_params"  # on the run's collection: what the run was as
 
 
 SWEEP_KEY = "endophoton_sweep"  # on a sweep's parent collection (its sweep id): holds its β collections
+SWEEP_PLOT_KEY = "endophoton_sweep_plot"  # on every image a sweep loaded (its plots)

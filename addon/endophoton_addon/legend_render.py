@@ -7,7 +7,7 @@ import os
 import bpy
 import numpy as np
 
-from . import colour_maps, points, rig
+from . import blend_paths, colour_maps, points, rig
 from .keys import PARAMS_KEY, RUN_KEY
 
 
@@ -108,6 +108,7 @@ def render_with_legend(scene, collection, path):
                 bpy.data.images.remove(image)
         raise
     image = bpy.data.images.load(path, check_existing=True)
+    image.filepath = blend_paths.stored_path(image.filepath)
     image.reload()
     image[RUN_KEY] = collection.get(RUN_KEY)
     image["endophoton_camera"] = camera.name

@@ -28,9 +28,10 @@ import numpy as np
 
 from . import export, guards, package_finder, preferences, rig, simulation, sweep_answer, sweep_blend
 from .errors import InputError
+from .keys import SWEEP_PLOT_KEY
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
-IMAGE_KEY = "endophoton_sweep_plot"  # ID property on every image the sweep loaded
+IMAGE_KEY = SWEEP_PLOT_KEY  # ID property on every image the sweep loaded
 SUMMARY_KEY = "endophoton_sweep"  # ID property on the scene: the last finished sweep
 DEFAULT_DIR_NAME = "endophoton_sweep"
 # keep_runs "AUTO": per-β collections up to β values × Store N records; a kept escape
@@ -95,10 +96,10 @@ def parse_betas(ep, text, who):
     field = f"{who}: sweep.betas = '{text}'"
     if not text.strip():
         raise InputError(f"{field} is empty; give angles in degrees, e.g. '0,10,20' or '0:60:5'")
+    from endophoton.sweep import driver, schema
+
     try:
-        values = package_finder.part("sweep.driver").parse_betas(
-            text, spacing=False
-        )  # spacing: below, worded for this field
+        values = driver.parse_betas(text, spacing=False)  # spacing: below, worded for this field
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise InputError(
             f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
@@ -106,11 +107,9 @@ def parse_betas(ep, text, who):
         ) from None
     for beta in values:
         if not math.isfinite(beta) or not -90.0 < beta < 90.0:
-            raise InputError(
-                f"{field}: β = {package_finder.part('sweep.schema').beta_text(beta)}° must be a finite angle in (-90, 90) degrees"
-            )
+            raise InputError(f"{field}: β = {schema.beta_text(beta)}° must be a finite angle in (-90, 90) degrees")
     try:  # the package's own rule: no two β closer than its resolution (sweep_schema.BETA_RESOLUTION_DEG)
-        package_finder.part("sweep.schema").check_beta_spacing(values, field)
+        schema.check_beta_spacing(values, field)
     except ValueError as e:
         raise InputError(str(e)) from None
     return [float(b) for b in values]
@@ -206,8 +205,10 @@ def collect_sweep_inputs(context, ep):
         raise simulation.engine_rejected(exc, "sweep") from exc
     # The head for every β, as the sweep will build it, and its placement in the
     # scene: the package's own check (ep.sweep makes it too), before anything starts.
+    from endophoton.sweep import driver
+
     try:
-        package_finder.part("sweep.driver").check_placements(
+        driver.check_placements(
             engine_scene,
             betas,
             distance=inputs.distance_m,
@@ -326,7 +327,8 @@ class SweepJob(simulation.BackgroundJob):
             self.runs[index] = result
 
     def _body(self):
-        bs = package_finder.part("sweep.driver")
+        from endophoton.sweep import driver as bs
+
         if self.inputs.keep_runs:
             extra_keep = {"on_run": self._on_run}
         else:
@@ -369,6 +371,8 @@ def beta_run_inputs(inputs, index, result, ep):
     """simulation.RunInputs of the sweep ``inputs``' β number ``index`` (plain values, no bpy):
     a store-N run of that β with its seed (``endophoton.sweep.schema.beta_seed``), no grids (the sweep
     asks for none)."""
+    from endophoton.sweep.schema import beta_seed
+
     beta = inputs.betas[index]
     source = getattr(result, "source", None)
     matrix = getattr(source, "transform", None)
@@ -381,7 +385,7 @@ def beta_run_inputs(inputs, index, result, ep):
         beta_deg=float(beta),
         kind="store",
         count=int(inputs.store),
-        seed=package_finder.part("sweep.schema").beta_seed(inputs.seed, index, inputs.seed_per_beta),
+        seed=beta_seed(inputs.seed, index, inputs.seed_per_beta),
         threads=int(inputs.threads),
         fluorescent_only=inputs.fluorescent_only,
         fluorescence_rule=inputs.fluorescence_rule,
@@ -399,7 +403,9 @@ def min_fit_points(ep):
     """Angles the panel needs before it shows a best β: the paper's fit degree + 3, so that the
     fit keeps >= 2 degrees of freedom (a degree-6 polynomial through fewer points interpolates
     the noise)."""
-    return int(ep.paper.PAPER_TRENDS["energy_fit_degree"]) + 3
+    from endophoton.paper import PAPER_TRENDS
+
+    return int(PAPER_TRENDS["energy_fit_degree"]) + 3
 
 
 def sweep_summary(ep, result, paths, out_dir):
@@ -412,8 +418,11 @@ def sweep_summary(ep, result, paths, out_dir):
     numbers of report.md.  A β without a fit (too few angles) is None, never NaN; the scene's copy
     leaves it out (Blender's ID properties hold no None), which :func:`summary_rows`
     shows as "needs ≥ N β values"."""
+    from endophoton.io import no_nan
+    from endophoton.report import compute_trends
+
     betas = result.betas
-    trends = ep.report.compute_trends(result)
+    trends = compute_trends(result)
     enough = len(result.rows) >= min_fit_points(ep)
     best = {}
     for key in ("energy_total", "energy_per_packet"):
@@ -429,7 +438,7 @@ def sweep_summary(ep, result, paths, out_dir):
     best_total = best["best_beta_energy_total"]
     degree = int(trends["energy_total_fit"]["deg"]) if best_total is not None else 0
     packets = result.column("packets_traced")
-    return ep.io.no_nan(
+    return no_nan(
         {
             "out_dir": out_dir,
             "csv": paths["csv"],
@@ -499,6 +508,8 @@ def load_plot_images(paths):
     """
     import bpy
 
+    from . import blend_paths
+
     wanted = {image_name(path): os.path.abspath(path) for path in paths}
     for img in sweep_images():
         if img.name not in wanted:
@@ -508,7 +519,7 @@ def load_plot_images(paths):
         img = bpy.data.images.get(name)
         if img is not None and img.get(IMAGE_KEY):
             if os.path.normpath(bpy.path.abspath(img.filepath)) != os.path.normpath(path):
-                img.filepath = path
+                img.filepath = blend_paths.stored_path(path)
         else:
             try:
                 img = bpy.data.images.load(path, check_existing=True)
@@ -516,6 +527,7 @@ def load_plot_images(paths):
                 raise RuntimeError(f"Sweep plot '{path}' could not be loaded: {exc}") from exc
             img.name = name
             img[IMAGE_KEY] = True
+            img.filepath = blend_paths.stored_path(img.filepath)
         img.use_fake_user = True  # nothing else uses a plot: kept when the .blend is saved and reopened
         img.reload()
         images.append(img)
@@ -542,6 +554,13 @@ def finish_sweep(context, job):
     summary = {k: v for k, v in job.summary.items() if v is not None}  # ID properties hold no None
     scene[SUMMARY_KEY] = dict(summary, images=len(images), collections=[c.name for c in collections])
     return images
+
+
+def discard_job(job):
+    """A cancelled sweep leaves nothing to discard: it writes its files only after its last β
+    (and not at all once cancelled), and adds nothing to the scene until finish_sweep."""
+    job.beta_runs = []
+    job.runs = {}
 
 
 def sweep_id(inputs):

@@ -9,7 +9,7 @@ import bpy
 import mathutils
 import numpy as np
 
-from . import node_utils
+from . import blend_paths, node_utils
 from .keys import RUN_KEY
 
 DENSITY_NODE = "EP Density Scale"
@@ -182,7 +182,7 @@ def create_volume(name, path, grid_name, vmax, voxel_m, scale_length, run_id, in
     written by :func:`write_render_grids` (grid space = voxel index space)."""
     volume = bpy.data.volumes.new(name)
     volume[RUN_KEY] = run_id
-    volume.filepath = path
+    volume.filepath = blend_paths.stored_path(path)
     # Load up front: a missing or unreadable file is reported here, not at render time.
     if not volume.grids.load():
         raise RuntimeError(f"grid file '{path}' could not be read: {volume.grids.error_message}")

@@ -125,7 +125,7 @@ def test_render_with_legend_uses_the_runs_endoscope_camera_and_cycles(ep, tmp_pa
         assert bpy.ops.endophoton.render_legend(filepath=path) == {"FINISHED"}
     finally:
         legend_render.RENDER_SAMPLES = samples
-    image = next(im for im in bpy.data.images if im.filepath == path)
+    image = next(im for im in bpy.data.images if bpy.path.abspath(im.filepath) == path)
     rig_camera = bpy.data.objects["EP Endoscope Camera"]
     assert image["endophoton_camera"] == rig_camera.name
     assert scene.camera is other and scene.render.engine == "BLENDER_EEVEE" and scene.cycles.use_denoising

@@ -65,3 +65,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     # The driver held each job's worker until the UI had ticked (run 1, run 2, and
     # each β of sweep 1): the UI ticked every time, none timed out.
     assert report["holds"] >= 4 and report["hold_timeouts"] == 0
+    # Esc -> the operator ended: a figure for the record (docs/addon.md), never a verdict.
+    print(f"cancel latency: run {report['run2_cancel_seconds']:.2f} s, sweep {report['sweep2_cancel_seconds']:.2f} s")
+    print("cancel figures:", {k: v for k, v in report.items() if k.startswith("run2_") and "cancel" in k or "esc" in k})
+    print("run2 texts:", report["run2_texts"], "gaps:", report["run2_gaps"])
