@@ -16,6 +16,7 @@ import pytest
 from mathutils import Vector
 
 from endophoton_addon import points, results, run_summary, simulation
+from endophoton_addon import volumes as grid_volumes
 from conftest import data_snapshot, mesh_object, open_blend
 
 PACKETS = 20_000
@@ -101,11 +102,11 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
     assert sorted(o["endophoton_grid"] for o in volumes) == sorted(res.grid_names)
     assert {"absorbed", "fluorescence"} <= set(res.grid_names)
     assert os.path.dirname(res.grid_path) == str(tmp_path)
-    cycles_copy = volumes.render_grid_path(res.grid_path)
+    cycles_copy = grid_volumes.render_grid_path(res.grid_path)
     for obj in volumes:
-        # Cycles loads the copy in voxel index space (volumes.RENDER_GRID_SUFFIX): same voxels and
+        # Cycles loads the copy in voxel index space (grid_volumes.RENDER_GRID_SUFFIX): same voxels and
         # values, and the object's matrix puts voxel (i, j, k) where the engine's file does.
-        assert obj.data.filepath == cycles_copy
+        assert os.path.normpath(bpy.path.abspath(obj.data.filepath)) == cycles_copy  # stored //-relative
         engine_grid = pyopenvdb.read(res.grid_path, obj["endophoton_grid"])
         copy_grid = pyopenvdb.read(cycles_copy, obj["endophoton_grid"])
         assert copy_grid.activeVoxelCount() == engine_grid.activeVoxelCount()
