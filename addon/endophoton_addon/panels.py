@@ -209,7 +209,7 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout = self.layout
         s = context.scene.endophoton.sweep
         layout.label(text="Tilts the chosen rig about its target")
-        layout.prop(s, "betas")
+        layout.prop(s, "betas", text="β")
         layout.prop(s, "store")
         row = layout.row(align=True)
         row.prop(s, "seed")
@@ -219,13 +219,13 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "fluorescent_only")
         layout.prop(s, "fluorescence_rule", text="Rule")
         layout.prop(s, "output_dir", text="Output")
-        layout.prop(s, "keep_runs")
+        layout.prop(s, "keep_runs", text="Per β")
         box = layout.box()
         box.prop(s, "visibility")
         col = box.column()
         col.active = s.visibility
         for name in sweep_answer.VISIBILITY_FIELDS:
-            col.prop(s, name)
+            col.prop(s, name, text=sweep_answer.SHORT_LABELS.get(name, ""))
         row = layout.row()
         row.scale_y = 1.5
         row.enabled = package_finder.get() is not None
@@ -295,7 +295,7 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
                 op.name = run.name
                 row.operator("endophoton.result_delete", text="", icon="X").name = run.name
         box = layout.box()
-        for i, line in enumerate(wrap_text(collection.name, SIDEBAR_CHARS)):
+        for i, line in enumerate(wrap_text(run_label(collection.name), SIDEBAR_CHARS)):
             box.label(text=line, icon="OUTLINER_COLLECTION" if i == 0 else "NONE")
         col = box.column(align=True)
         for label, value in run_summary.summary_rows(collection):

@@ -15,6 +15,8 @@ from .errors import InputError
 
 # Sweep settings the panel draws in its Visibility box, in order (see the module docstring).
 VISIBILITY_FIELDS = ("target_region", "background_region", "view_size")
+# Labels that fit the default sidebar width beside their field ("" = the property's own name).
+SHORT_LABELS = {"target_region": "Target", "background_region": "vs", "view_size": "View px"}
 ROLE_ORDER = {"target": ("POLYP", "TISSUE"), "background": ("TISSUE", "POLYP")}
 _ITEMS = {}  # Blender needs a dynamic enum's strings kept alive
 
