@@ -20,7 +20,7 @@ import numpy as np
 
 if not hasattr(bpy.types.Scene, "endophoton"):
     addon_utils.enable("endophoton_addon", default_set=True)
-from endophoton_addon import results  # noqa: E402
+from endophoton_addon import points as point_cloud, results  # noqa: E402
 
 argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
 packets = int(argv[0]) if argv else 20_000
@@ -37,9 +37,9 @@ print(f"{'β [deg]':>8} {'Rd':>8} {'± se':>7} {'photofrin share of polyp fluore
 for collection in results.result_collections(scene):
     params = collection[results.PARAMS_KEY]
     rd, rd_se = collection[results.SUMMARY_KEY]["totals"]["diffuse_reflectance"]
-    points = results.points_objects(collection)[0]
-    columns = results.read_point_columns(points.data)
-    names = results.point_names(points)
+    points = point_cloud.points_objects(collection)[0]
+    columns = point_cloud.read_point_columns(points.data)
+    names = point_cloud.point_names(points)
     polyp = columns["region"] == names["region"].index("Polyp")
     fluorescent = polyp & columns["fluorescent"].astype(bool)
     photofrin = fluorescent & (columns["fluorophore"] == names["fluorophore"].index("photofrin"))

@@ -22,18 +22,25 @@ bl_info = {
     "category": "Render",
 }
 
-import importlib
 
 # Registration order matters: preferences and properties first (operators and
 # panels refer to them), panels last.  Each module lists its classes in
 # CLASSES; properties.py also lists the PointerProperties it attaches to
-# Blender's types in POINTERS, operators.py its app handlers in HANDLERS.
+# Blender's types in POINTERS, operators.py its app handlers in HANDLERS,
+# rig_overlay.py its viewport draw handlers in DRAW_HANDLERS.
 # This file holds the only registration loop.
-_MODULE_NAMES = ("preferences", "properties", "operators", "panels")
+_DRAW_HANDLES = {}  # (space type, callback) -> handle of draw_handler_add
+
+
+def _add_draw_handler(key, region, draw_type):
+    if key not in _DRAW_HANDLES:
+        _DRAW_HANDLES[key] = key[0].draw_handler_add(key[1], (), region, draw_type)
 
 
 def _modules():
-    return [importlib.import_module(f"{__name__}.{name}") for name in _MODULE_NAMES]
+    from . import operators, panels, preferences, properties, rig_overlay
+
+    return [preferences, properties, operators, panels, rig_overlay]
 
 
 def _steps():
@@ -51,6 +58,17 @@ def _steps():
                 (
                     lambda o=owner, n=name, g=group: setattr(o, n, bpy.props.PointerProperty(type=g)),
                     lambda o=owner, n=name: delattr(o, n),
+                )
+            )
+    for module in modules:
+        for space, callback, region, draw_type in getattr(module, "DRAW_HANDLERS", ()):
+            key = (space, callback)  # the handle lives in _DRAW_HANDLES between register and unregister
+            steps.append(
+                (
+                    lambda k=key, r=region, d=draw_type: _add_draw_handler(k, r, d),
+                    lambda k=key, r=region: k[0].draw_handler_remove(_DRAW_HANDLES.pop(k), r)
+                    if k in _DRAW_HANDLES
+                    else None,
                 )
             )
     for module in modules:

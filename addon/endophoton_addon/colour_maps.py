@@ -5,7 +5,7 @@ categories (fluorescent or not, fluorophore, region) and continuous values
 each mapping shows.
 
 The point cloud stores the engine's record columns as named attributes
-(results.POINT_ATTRIBUTES); :func:`colour_records` turns them into one linear
+(points.POINT_ATTRIBUTES); :func:`colour_records` turns them into one linear
 RGB colour and one "shown" flag per point, which results.py writes back as the
 named attributes ``ep_colour`` and ``ep_show`` with ``foreach_set`` — the way
 Molecular Nodes colours atoms.  Nothing here depends on Blender, so the tests
@@ -20,28 +20,25 @@ channels of out-of-gamut lines clipped per record (render_view's camera-like
 R/G sensitivities); the points glow with strength proportional to their
 energy and add up (results.py), so a pixel's colour is that of the energy
 summed over the records it shows.  The legend's swatches show each
-wavelength's hue (largest channel 1).  ``endophoton.view.colour`` is imported when
+wavelength's hue at full brightness (largest channel 1).  ``endophoton.view.colour`` is imported when
 first needed: the add-on registers before package_finder has found the package.
 """
 
-import importlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 
 # --- wavelength -> colour (endophoton.view.colour owns the conversion) -------------
-def _package(module):
-    """``endophoton.<module>``, imported through package_finder (EngineMissing names the fix)."""
+def _colour():
+    """``endophoton.view.colour``, the wavelength conversion's owner (package_finder.require first:
+    a missing engine raises EngineMissing naming the fix)."""
     from . import package_finder
 
     package_finder.require()
-    return package_finder.part(module)
+    from endophoton.view import colour
 
-
-def _colour():
-    """``endophoton.view.colour``, the wavelength conversion's owner."""
-    return _package("view.colour")
+    return colour
 
 
 def wavelength_rgb(nm):
@@ -53,13 +50,20 @@ def wavelength_rgb(nm):
     return np.maximum(rgb, 0.0)
 
 
+# The swatches' hue range: CIE 1931's chromaticity is constant from about 690 nm to 780 nm and
+# nearly so below 400 nm, while the package's analytic colour-matching fit (endophoton.view.colour)
+# turns green in its tails (above ~710 nm, below ~395 nm), where its values are ~1e-3 of the peak.
+SWATCH_HUE_NM = (400.0, 680.0)
+
+
 def wavelength_swatches(nm):
-    """Legend colours (N, 3) in [0, 1]: :func:`wavelength_rgb` scaled to largest channel 1 (its hue),
-    fading to black where that channel is below 5 % of the brightest visible line's (the ends of
-    the visible range)."""
-    rgb = wavelength_rgb(nm)
-    floor = 0.05 * wavelength_rgb(np.arange(380.0, 781.0)).max()
-    return rgb / np.maximum(rgb.max(axis=1, keepdims=True), floor)
+    """Legend colours (N, 3) in [0, 1]: each wavelength's hue at full brightness (largest
+    channel 1) — :func:`wavelength_rgb` of the wavelength clamped to ``SWATCH_HUE_NM`` (a 719
+    or 799 nm line shows the deep red of 680 nm, never black: the swatch names the hue,
+    the points' glow carries the brightness)."""
+    clamped = np.clip(np.asarray(nm, dtype=np.float64).reshape(-1), *SWATCH_HUE_NM)
+    rgb = wavelength_rgb(clamped)
+    return rgb / rgb.max(axis=1, keepdims=True)
 
 
 def exposed_srgb(linear_rgb):
@@ -286,12 +290,16 @@ def legend_figure(legend, path, image=None, title=None):
     file in the same folder, then ``os.replace``; the temporary file is removed on
     failure): a failed write leaves the old file, or none, and raises a
     RuntimeError naming ``path``.  The folder must exist."""
-    package_io = _package("io")
+    from . import package_finder
+
+    package_finder.require()
+    from endophoton.io import atomic_write_bytes
+
     data = _legend_png(legend, image, title, path)
     if not data.startswith(PNG_SIGNATURE):
         raise RuntimeError(f"legend: matplotlib made no PNG for '{path}' ({len(data)} bytes); nothing written")
     try:
-        return package_io.atomic_write_bytes(path, data, make_dirs=False)
+        return atomic_write_bytes(path, data, make_dirs=False)
     except OSError as exc:
         raise RuntimeError(f"legend: could not write '{path}': {exc.strerror or exc}") from None
 

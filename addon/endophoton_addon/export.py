@@ -17,10 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import presets
-
-
-class InputError(ValueError):
-    """Bad user input; the message names the object (or scene) and the field."""
+from .errors import InputError
 
 
 @dataclass

@@ -2,7 +2,7 @@
 """Checks before a run starts, so a mistake costs a message, not a run.
 
 Every check reads the exported regions (export.RegionExport: metres, world
-space) or plain settings and raises :class:`export.InputError` naming the
+space) or plain settings and raises :class:`errors.InputError` naming the
 scene or object and the field; none creates a datablock or a file.
 
 - :func:`region_sizes`: each region's extent and wall thickness in mm.  The
@@ -30,13 +30,22 @@ import tempfile
 
 import numpy as np
 
-from .export import InputError
+from .errors import InputError
 
 # A region thinner than this many transport mean free paths, or thicker than
 # the upper bound, is almost surely a unit-scale mistake (the paper's colon
-# wall, 3 mm, is 12 transport mean free paths; a 1 m slab is 4000).
+# wall, 3 mm, is 12 transport mean free paths; the same wall modelled in mm
+# numbers in a metre scene is 3 m = 12,000).
 MIN_THICKNESS_MFP = 1.0
-MAX_THICKNESS_MFP = 1e5
+MAX_THICKNESS_MFP = 1e3
+# A region larger than this across is a scale-up: an endoscope's scene (a colon
+# segment, a polyp) is centimetres; a colon of mm numbers in a metre scene is 80 m.
+MAX_EXTENT_M = 1.0
+SCALE_UP_FIX = (
+    "probably millimetre numbers in a metre scene (or a Unit Scale 1000 times too large). Fix: set "
+    "Scene Properties > Units > Unit Scale to 0.001 if you modelled in millimetres (1 unit = 1 mm), or "
+    "scale the objects down by 1000; or tick Allow Unusual Scale"
+)
 # A run above these asks first (scene setting "Allow Large Runs").
 MAX_RECORDS = 5_000_000
 MAX_PACKETS = 100_000_000
@@ -81,11 +90,26 @@ def size_lines(regions):
 
 
 def check_unit_scale(regions, scale_length, who):
-    for name, _extent, thickness, mfp_mm in region_sizes(regions):
+    """Refuse a scene whose size says its unit is wrong: a region larger than MAX_EXTENT_M across
+    or thicker than MAX_THICKNESS_MFP transport mean free paths (a scale-up), or thinner than
+    MIN_THICKNESS_MFP (a scale-down); the message names the region and the fix."""
+    scale = f"unit_settings.scale_length = {scale_length:g} m per unit"
+    for name, extent, thickness, mfp_mm in region_sizes(regions):
+        if float(np.max(extent)) > MAX_EXTENT_M * 1e3:
+            raise InputError(
+                f"{who}: region '{name}' is {float(np.max(extent)) / 1e3:.3g} m across with {scale}, larger than "
+                f"{MAX_EXTENT_M:g} m (an endoscope's scene is centimetres): {SCALE_UP_FIX}"
+            )
         if not math.isfinite(mfp_mm):
             continue
         ratio = thickness / mfp_mm
-        if ratio < MIN_THICKNESS_MFP or ratio > MAX_THICKNESS_MFP:
+        if ratio > MAX_THICKNESS_MFP:
+            raise InputError(
+                f"{who}: region '{name}' is {thickness:.3g} mm thick with {scale}, {ratio:.3g} transport mean free "
+                f"paths (1/(μa + μs(1−g)) = {mfp_mm:.3g} mm), more than {MAX_THICKNESS_MFP:g}: no light crosses "
+                f"it, {SCALE_UP_FIX}"
+            )
+        if ratio < MIN_THICKNESS_MFP:
             raise InputError(
                 f"{who}: unit_settings.scale_length = {scale_length:g} m per unit makes region '{name}' "
                 f"{thickness:.3g} mm thick, {ratio:.3g} transport mean free paths "
@@ -98,9 +122,9 @@ def check_overlaps(regions):
     """Raise InputError naming two regions of equal priority that overlap. The test is the engine
     package's (endophoton.overlaps, the one rule of every path), asked here before the run so the
     message names the Blender objects."""
-    from . import package_finder
+    from endophoton.overlaps import equal_priority_overlaps
 
-    found = package_finder.part("overlaps").equal_priority_overlaps(regions)
+    found = equal_priority_overlaps(regions)
     if found:
         a, b, priority = found[0]
         raise InputError(
@@ -150,10 +174,15 @@ def check_voxels(regions, voxel_m, who):
     hi = np.max([r.vertices.max(axis=0) for r in regions], axis=0).astype(np.float64)
     voxels = float(np.prod(np.ceil((hi - lo) / voxel_m) + 1))
     if voxels > MAX_VOXELS:
+        size = f"the scene's {((hi - lo) * 1e3).round(3).tolist()} mm"
+        if float(np.max(hi - lo)) > MAX_EXTENT_M:  # the scene, not the voxel, is too large
+            fix = f"the scene is {float(np.max(hi - lo)):.3g} m across: {SCALE_UP_FIX}"
+        else:
+            smallest = voxel_m * (voxels / MAX_VOXELS) ** (1.0 / 3.0) * 1.05
+            fix = f"choose a voxel size of at least {smallest * 1e3:.3g} mm, or turn Volume Grids off"
         raise InputError(
-            f"{who}: simulation.voxel_size = {voxel_m * 1e3:g} mm gives up to {voxels:.3g} voxels "
-            f"over the scene's {((hi - lo) * 1e3).round(3).tolist()} mm (limit {MAX_VOXELS:.3g}); "
-            "choose a larger voxel size"
+            f"{who}: simulation.voxel_size = {voxel_m * 1e3:g} mm gives up to {voxels:.3g} voxels over {size} "
+            f"(limit {MAX_VOXELS:.3g}); {fix}"
         )
 
 
@@ -203,6 +232,17 @@ def resolve_folder(raw, field, default_name, value=None):
         existing = parent
     if not os.path.isdir(existing):
         raise InputError(f"{field}: '{existing}' is a file, not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"{field}: '{existing}' is not writable")
+    if not os.access(existing, os.W_OK | os.X_OK) or not _can_create_in(existing):
+        raise InputError(f"{field}: '{existing}' is not writable; choose another folder")
     return path
+
+
+def _can_create_in(folder):
+    """Whether a folder can be made in ``folder`` (os.access says yes to root everywhere, also in
+    /proc): a probe folder is made and removed again, so nothing is left."""
+    try:
+        probe = tempfile.mkdtemp(prefix=".endophoton_probe_", dir=folder)
+    except OSError:
+        return False
+    os.rmdir(probe)
+    return True

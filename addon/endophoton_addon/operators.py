@@ -7,16 +7,30 @@ created, so a rejected run leaves the scene untouched.
 """
 
 import os
+import time
 
 import bpy
 
-from . import export, guards, package_finder, properties, results, rig, simulation, sweep_job
+from . import (
+    blend_paths,
+    export,
+    guards,
+    legend_render,
+    package_finder,
+    properties,
+    result_export,
+    results,
+    rig,
+    simulation,
+    sweep_job,
+)
 from .package_finder import EngineMissing
-from .export import InputError
+from .errors import InputError
 
 # The job being run (one at a time); "modal" is True from invoke until the
 # modal operator has finished (results added) or been cancelled.
-_running = {"job": None, "modal": False}
+_running = {"job": None, "modal": False, "ended_at": None}
+HEADER_EVERY_S = 1.0  # the viewport header's progress text: at most this often (it redraws the whole area)
 
 
 def running_job():
@@ -263,9 +277,8 @@ class ENDOPHOTON_OT_export_result(_NamedResult, bpy.types.Operator):
             self.report({"ERROR"}, f"Export of '{collection.name}': filepath is empty")
             return {"CANCELLED"}
         try:
-            paths = results.export_result(
-                package_finder.require(), collection, bpy.path.abspath(self.filepath), self.format
-            )
+            package_finder.require()  # the package writes the files (endophoton.io)
+            paths = result_export.export_result(collection, bpy.path.abspath(self.filepath), self.format)
         except (OSError, ValueError, EngineMissing) as exc:
             self.report({"ERROR"}, f"Export of '{collection.name}' to '{self.filepath}' failed: {exc}")
             return {"CANCELLED"}
@@ -297,7 +310,8 @@ class ENDOPHOTON_OT_check_scene(bpy.types.Operator):
 
 
 class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
-    """Render the scene camera and save the picture with the colour bar of the active result beside it"""
+    """Render the active result from its rig's endoscope camera (Cycles, denoising off) and save the
+    picture with the colour bar of its points beside it"""
 
     bl_idname = "endophoton.render_legend"
     bl_label = "Render with Legend"
@@ -325,11 +339,11 @@ class ENDOPHOTON_OT_render_legend(bpy.types.Operator):
                     simulation.grid_folder(context.scene.endophoton),
                     bpy.path.clean_name(collection.name) + "_legend.png",
                 )
-            image = results.render_with_legend(context.scene, collection, path)
+            image, note = legend_render.render_with_legend(context.scene, collection, path)
         except (RuntimeError, InputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"EndoPhoton: render with legend -> '{image.filepath}' (image '{image.name}')")
+        self.report({"INFO"}, f"EndoPhoton: {note} -> '{image.filepath}' (image '{image.name}')")
         return {"FINISHED"}
 
 
@@ -432,10 +446,16 @@ class _JobOperator:
 
     def modal(self, context, event):
         job = self._job
-        if event.type == "ESC" and event.value == "PRESS":
+        esc = event.type == "ESC" and event.value == "PRESS"
+        if esc or (event.type == "TIMER" and job.cancelled_at is not None and not job.done):  # Esc or Cancel
+            # The operator ends now; the engine stops at the end of the unit it is tracing
+            # (its cancel granularity), in the background: _drain discards what it leaves.
             job.cancel()
-            self._status(context, "EndoPhoton: cancelling…")
-            return {"RUNNING_MODAL"}
+            self._cleanup(context)
+            _drain(job, self.job_module)
+            self.report({"WARNING"}, "EndoPhoton: cancelled; nothing was added (the previous result stays)")
+            _redraw_sidebars(context)
+            return {"CANCELLED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         if not job.done:
@@ -479,8 +499,12 @@ class _JobOperator:
     def _status(self, _context, text):
         if self._workspace is not None:
             self._workspace.status_text_set(text)
-        if self._area is not None:
+        # The viewport header's text redraws the whole 3D view (its point clouds and volumes):
+        # at most once a HEADER_EVERY_S, and always when it is cleared.
+        now = time.monotonic()
+        if self._area is not None and (text is None or now - getattr(self, "_header_at", 0.0) >= HEADER_EVERY_S):
             self._area.header_text_set(text)
+            self._header_at = now
 
     def _cleanup(self, context):
         wm = context.window_manager
@@ -490,7 +514,27 @@ class _JobOperator:
         wm.progress_end()
         self._status(context, None)
         self._area = self._workspace = None
-        _running["modal"] = False
+        _running.update(modal=False, ended_at=time.monotonic())
+
+
+def _drain(job, job_module, every_s=0.2):
+    """After Esc: wait for the cancelled job's worker in a timer (the UI runs on) and discard what
+    it leaves (``job_module.discard_job``: a run's partial grid file); Run and Sweep β stay
+    disabled (running_job) until it has ended."""
+
+    def poll():
+        if not job.done:
+            return every_s
+        try:
+            job_module.discard_job(job)
+        except OSError as exc:  # a partial file we could not remove: say so, never raise in a timer
+            print(f"EndoPhoton: after cancel: {exc}")
+        if _running["job"] is job and not _running["modal"]:
+            _running["job"] = None
+        _redraw_sidebars()
+        return None
+
+    bpy.app.timers.register(poll, first_interval=every_s)
 
 
 class ENDOPHOTON_OT_run(_JobOperator, bpy.types.Operator):
@@ -519,7 +563,7 @@ def _forget_engine_scenes(_file_path=None):
 
 
 # (bpy.app.handlers list name, function): added and removed by the registration loop.
-HANDLERS = (("load_post", _forget_engine_scenes),)
+HANDLERS = (("load_post", _forget_engine_scenes), ("save_post", blend_paths.relative_on_save))
 
 CLASSES = (
     ENDOPHOTON_OT_add_endoscope,

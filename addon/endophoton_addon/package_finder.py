@@ -14,7 +14,6 @@ Nothing here raises into the UI: :func:`status` returns the module or a plain
 message the panel shows instead of a traceback.
 """
 
-import importlib
 import os
 import sys
 
@@ -83,7 +82,7 @@ def _try_import(path):
             sys.path.insert(0, path)
             _state["added_path"] = path
     try:
-        module = importlib.import_module("endophoton")
+        import endophoton as module
     except Exception as exc:  # ImportError, or an ABI/linker error from the extension
         _forget_partial_import()
         where = f" from '{path}'" if path else ""
@@ -140,11 +139,3 @@ def require():
     if module is None:
         raise EngineMissing(message)
     return module
-
-
-def part(name):
-    """The engine package's module ``endophoton.<name>`` (e.g. ``"sweep.driver"``, ``"view.colour"``),
-    imported through :func:`require` so a missing engine raises :class:`EngineMissing` naming the fix."""
-    import importlib
-
-    return importlib.import_module(f"{require().__name__}.{name}")

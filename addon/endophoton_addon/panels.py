@@ -1,15 +1,45 @@
 # SPDX-License-Identifier: MIT
 """The "EndoPhoton" sidebar tab of the 3D viewport."""
 
+import re
+
 import bpy
 
-from . import operators, package_finder, presets, results, rig, sweep_job
+from . import endoscope_views, operators, package_finder, presets, results, rig, run_summary, sweep_answer, sweep_job
 from .utils import wrap_text
 
 
 # Characters a label shows at the default sidebar width (measured on the
 # screenshots of tests/blender/test_screenshots.py); longer lines are wrapped.
 SIDEBAR_CHARS = 28
+
+
+EEVEE_NOTE = (
+    "The points render in Cycles only (EEVEE draws no point clouds); Render with Legend uses Cycles, " "denoising off"
+)
+
+
+def run_label(name):
+    """A run's name short enough for a list row beside its eye and X at the default width:
+    'EP β=+20.0° 20250105-071536' -> 'β=+20.0° 07:15:36' (β digits and time kept whole)."""
+    short = name[3:] if name.startswith("EP ") else name
+    return re.sub(r"\b\d{8}-(\d\d)(\d\d)(\d\d)\b", r"\1:\2:\3", short)
+
+
+def draw_rows(col, rows, width=SIDEBAR_CHARS):
+    """(label, value) rows as wrapped lines, readable at the default sidebar width: the label on
+    its own line when "label: value" does not fit, the value wrapped below it, never cut."""
+    for label, value in rows:
+        lines = wrap_text(f"{label}: {value}", width)
+        if len(lines) > 1:
+            col.label(text=f"{label}:")
+            lines = wrap_text(value, width - 2)
+            for line in lines:
+                row = col.row()
+                row.separator(factor=1.0)
+                row.label(text=line)
+        else:
+            col.label(text=lines[0] if lines else f"{label}:")
 
 
 class _EndoPhotonPanel:
@@ -44,8 +74,11 @@ class ENDOPHOTON_PT_main(_EndoPhotonPanel, bpy.types.Panel):
         job = operators.running_job()
         if job is not None:
             box = layout.box()
-            for i, line in enumerate(job.panel_lines()):
-                box.label(text=line, icon="TIME" if i == 0 else "NONE")
+            col = box.column(align=True)
+            lines = job.panel_lines() if job.cancelled_at is None else ["Cancelling: the engine ends its unit"]
+            for i, line in enumerate(lines):
+                for j, part in enumerate(wrap_text(line, SIDEBAR_CHARS)):
+                    col.label(text=part, icon="TIME" if i == j == 0 else "NONE")
             box.operator("endophoton.cancel_run", icon="CANCEL")
 
 
@@ -102,6 +135,7 @@ class ENDOPHOTON_PT_endoscope(_EndoPhotonPanel, bpy.types.Panel):
         layout.operator("endophoton.add_endoscope", icon="OUTLINER_OB_CAMERA")
         settings = context.scene.endophoton
         layout.prop(settings, "rig")
+        layout.prop(settings, "show_rig_overlay")
         rig_obj = context.object if rig.is_rig(context.object) else settings.rig
         if rig_obj is None:
             return
@@ -149,7 +183,7 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         sub.active = s.output_grids
         sub.prop(s, "voxel_size")
         sub.prop(s, "grid_per_fluorophore")
-        sub.prop(s, "grid_dir", text="")
+        sub.prop(s, "grid_dir", text="Folder")
         col = layout.column(heading="Guards")
         col.prop(s, "allow_unusual_scale")
         col.prop(s, "allow_large_runs")
@@ -175,7 +209,7 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout = self.layout
         s = context.scene.endophoton.sweep
         layout.label(text="Tilts the chosen rig about its target")
-        layout.prop(s, "betas")
+        layout.prop(s, "betas", text="β")
         layout.prop(s, "store")
         row = layout.row(align=True)
         row.prop(s, "seed")
@@ -184,8 +218,14 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
         layout.prop(s, "batches")
         layout.prop(s, "fluorescent_only")
         layout.prop(s, "fluorescence_rule", text="Rule")
-        layout.prop(s, "output_dir", text="")
-        layout.prop(s, "keep_runs")
+        layout.prop(s, "output_dir", text="Output")
+        layout.prop(s, "keep_runs", text="Per β")
+        box = layout.box()
+        box.prop(s, "visibility")
+        col = box.column()
+        col.active = s.visibility
+        for name in sweep_answer.VISIBILITY_FIELDS:
+            col.prop(s, name, text=sweep_answer.SHORT_LABELS.get(name, ""))
         row = layout.row()
         row.scale_y = 1.5
         row.enabled = package_finder.get() is not None
@@ -195,11 +235,11 @@ class ENDOPHOTON_PT_sweep(_EndoPhotonPanel, bpy.types.Panel):
             return
         box = layout.box()
         box.label(text="Last sweep", icon="IMAGE_DATA")
-        col = box.column(align=True)
-        for label, value in rows:
-            row = col.split(factor=0.4, align=True)
-            row.label(text=label)
-            row.label(text=value)
+        plot = bpy.data.images.get(sweep_job.image_name("visibility.png"))
+        if plot is not None and plot.get(sweep_job.IMAGE_KEY):
+            plot.preview_ensure()
+            box.template_icon(icon_value=plot.preview.icon_id, scale=8.0)
+        draw_rows(box.column(align=True), rows)
 
 
 class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
@@ -229,6 +269,9 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
                 split.prop(entry, "colour", text="")
                 split.label(text=entry.name)
             box.operator("endophoton.render_legend", icon="RENDER_STILL")
+            if context.scene.render.engine != "CYCLES":  # EEVEE draws no point clouds (Blender 3.4)
+                for line in wrap_text(EEVEE_NOTE, SIDEBAR_CHARS):
+                    box.label(text=line)
         layout.prop(s, "point_radius")
         layout.prop(s, "volume_density")
         row = layout.row(align=True)
@@ -246,17 +289,20 @@ class ENDOPHOTON_PT_results(_EndoPhotonPanel, bpy.types.Panel):
             for run in runs:
                 row = col.row(align=True)
                 row.prop(run, "hide_viewport", text="", emboss=False)  # compare runs / β side by side
-                op = row.operator("endophoton.result_activate", text=run.name, depress=run == collection, emboss=True)
+                op = row.operator(
+                    "endophoton.result_activate", text=run_label(run.name), depress=run == collection, emboss=True
+                )
                 op.name = run.name
                 row.operator("endophoton.result_delete", text="", icon="X").name = run.name
         box = layout.box()
-        box.label(text=collection.name, icon="OUTLINER_COLLECTION")
+        for i, line in enumerate(wrap_text(run_label(collection.name), SIDEBAR_CHARS)):
+            box.label(text=line, icon="OUTLINER_COLLECTION" if i == 0 else "NONE")
         col = box.column(align=True)
-        for label, value in results.summary_rows(collection):
+        for label, value in run_summary.summary_rows(collection):
             row = col.split(factor=0.34, align=True)
             row.label(text=label)
             row.label(text=value)
-        for name, image in sorted(results.view_images(collection).items()):  # Image Editor: "EP View ..."
+        for name, image in sorted(endoscope_views.view_images(collection).items()):  # Image Editor: "EP View ..."
             col.label(text=f"{name.capitalize()} view {image.size[0]}×{image.size[1]}", icon="IMAGE_DATA")
         for line in wrap_text(collection.get("endophoton_view_error", ""), SIDEBAR_CHARS):
             col.label(text=line, icon="ERROR")

@@ -13,7 +13,7 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import colour_maps, presets
+from . import colour_maps, presets, sweep_answer
 
 ROLE_ITEMS = (
     ("NONE", "None", "Not part of the simulation"),
@@ -33,10 +33,15 @@ FLUOROPHORE_ITEMS = tuple(
 
 # --- per object --------------------------------------------------------------
 class EndoPhotonFluorophore(bpy.types.PropertyGroup):
-    species: EnumProperty(name="Fluorophore", items=FLUOROPHORE_ITEMS, default="collagen")
+    species: EnumProperty(
+        name="Fluorophore",
+        description="Excitation-emission matrix of the fluorophore (the package data/eem/)",
+        items=FLUOROPHORE_ITEMS,
+        default="collagen",
+    )
     d: FloatProperty(
         name="d",
-        description="Probability that an interaction can excite this fluorophore",
+        description="Probability (0-1, unitless) that an interaction can excite this fluorophore",
         default=0.2,
         min=0.0,
         max=1.0,
@@ -44,7 +49,7 @@ class EndoPhotonFluorophore(bpy.types.PropertyGroup):
     )
     c: FloatProperty(
         name="c",
-        description="Probability that an excitation emits a fluorescence photon",
+        description="Probability (0-1, unitless) that an excitation emits a fluorescence photon",
         default=0.4,
         min=0.0,
         max=1.0,
@@ -88,7 +93,7 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
     )
     g: FloatProperty(
         name="g",
-        description="Scattering anisotropy (Henyey-Greenstein), -1..1",
+        description="Scattering anisotropy g (Henyey-Greenstein mean cosine, -1..1, unitless)",
         default=0.9,
         soft_min=-1.0,
         soft_max=1.0,
@@ -97,7 +102,7 @@ class EndoPhotonMedium(bpy.types.PropertyGroup):
     )
     n: FloatProperty(
         name="n",
-        description="Refractive index (>= 1)",
+        description="Refractive index n (>= 1, unitless)",
         default=1.1,
         soft_min=1.0,
         soft_max=3.0,
@@ -141,7 +146,14 @@ def _tissue_preset_chosen(self, _context):
 
 
 class EndoPhotonObjectSettings(bpy.types.PropertyGroup):
-    role: EnumProperty(name="Role", items=ROLE_ITEMS, default="NONE", update=_role_changed)
+    role: EnumProperty(
+        name="Role",
+        description="What the mesh is in the simulation: tissue, a polyp, or not part of it (choosing a role "
+        "loads its default medium, priority and fluorophores)",
+        items=ROLE_ITEMS,
+        default="NONE",
+        update=_role_changed,
+    )
     tissue_preset: EnumProperty(
         name="Tissue Preset",
         description="Load published optical properties into the medium",
@@ -154,7 +166,7 @@ class EndoPhotonObjectSettings(bpy.types.PropertyGroup):
     priority: IntProperty(
         name="Priority",
         default=0,
-        description="Where regions overlap, the higher priority owns the space",
+        description="Where regions overlap, the higher priority owns the space (an integer rank)",
     )
     fluorophores: CollectionProperty(type=EndoPhotonFluorophore)
     active_fluorophore: IntProperty(default=0, min=0)
@@ -174,23 +186,26 @@ _ANGLE = dict(subtype="ANGLE")
 # The rig's geometry, one table: field -> (property type, label, description, default, keywords).
 # Every field moves or resizes the rig when edited (update=_rig_changed).
 RIG_FIELDS = {
-    "beta": (FloatProperty, "β", "Tilt of the viewing axis from the surface normal at the target", 0.0,
+    "beta": (FloatProperty, "β", "Tilt of the viewing axis from the surface normal at the target (degrees)", 0.0,
              dict(_ANGLE, min=-1.5707963, max=1.5707963)),
-    "distance": (FloatProperty, "Distance", "Distance from the target point to the tip along the viewing axis",
+    "distance": (FloatProperty, "Distance", "Distance from the target point to the tip along the viewing axis "
+                 "(scene length units)",
                  0.01, _LENGTH),
-    "target": (FloatVectorProperty, "Target", "Point on the tissue surface the endoscope orbits around",
+    "target": (FloatVectorProperty, "Target", "Point on the tissue surface the endoscope orbits around (scene length units)",
                (0.0, 0.0, 0.0), dict(subtype="TRANSLATION", unit="LENGTH", size=3)),
     "normal": (FloatVectorProperty, "Surface Normal", "Outward surface normal at the target (β = 0 looks along "
-               "−normal)", (0.0, 0.0, 1.0), _VECTOR),
-    "tilt_axis": (FloatVectorProperty, "Tilt Axis", "Axis β rotates about (made perpendicular to the normal)",
+               "−normal); a direction, unitless", (0.0, 0.0, 1.0), _VECTOR),
+    "tilt_axis": (FloatVectorProperty, "Tilt Axis", "Axis β rotates about (made perpendicular to the normal); a direction, unitless",
                   (0.0, 1.0, 0.0), _VECTOR),
-    "head_diameter": (FloatProperty, "Head Diameter", "", 0.012, _LENGTH),
-    "light_diameter": (FloatProperty, "Light Guide Diameter", "", 0.003, _LENGTH),
-    "light_offset": (FloatProperty, "Light Offset", "Distance of each light guide from the head's axis", 0.0035,
+    "head_diameter": (FloatProperty, "Head Diameter", "Diameter of the endoscope head (scene length units; "
+                      "12 mm by default)", 0.012, _LENGTH),
+    "light_diameter": (FloatProperty, "Light Guide Diameter", "Diameter of each light guide (scene length "
+                       "units; 3 mm by default)", 0.003, _LENGTH),
+    "light_offset": (FloatProperty, "Light Offset", "Distance of each light guide from the head's axis (scene length units)", 0.0035,
                      _LENGTH),
-    "cone_angle": (FloatProperty, "Cone Angle", "Full apex angle of each light's emission cone", 0.2617994,
+    "cone_angle": (FloatProperty, "Cone Angle", "Full apex angle of each light's emission cone (degrees)", 0.2617994,
                    dict(_ANGLE, min=0.0, max=3.1415926)),
-    "camera_fov": (FloatProperty, "Camera FOV", "", 2.0943951, dict(_ANGLE, min=0.0174533, max=3.0)),
+    "camera_fov": (FloatProperty, "Camera FOV", "Full field of view of the endoscope camera (degrees)", 2.0943951, dict(_ANGLE, min=0.0174533, max=3.0)),
 }
 # fmt: on
 
@@ -215,13 +230,13 @@ _NAME_ITEMS = {}  # Blender needs the dynamic enum's strings kept alive
 
 def _name_items(settings, kind):
     """ "Any" plus the names of the active result's fluorophores / regions."""
-    from . import results
+    from . import points
 
     names = []
     collection = settings.result_collection
     if collection is not None:
-        for obj in results.points_objects(collection):
-            names = results.point_names(obj).get(kind, [])
+        for obj in points.points_objects(collection):
+            names = points.point_names(obj).get(kind, [])
     items = [("ANY", "Any", f"Records of every {kind}")] + [(n, n, f"Only the {kind} '{n}'") for n in names]
     return _NAME_ITEMS.setdefault((kind, tuple(names)), items)
 
@@ -245,11 +260,11 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
     )
     store: IntProperty(
         name="Store N",
-        description="Records stored per β (store-N mode)",
+        description="Records stored per β (store-N mode), a count of records",
         default=500_000,
         soft_min=1,
     )
-    seed: IntProperty(name="Seed", description="Engine seed, the same for every β", default=1, min=0)
+    seed: IntProperty(name="Seed", description="Engine seed (an integer), the same for every β", default=1, min=0)
     seed_per_beta: BoolProperty(
         name="Seed per β",
         description="β k runs with seed + k × 0x9E3779B97F4A7C15 (mod 2^64) instead of the same seed: "
@@ -258,14 +273,14 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
     )
     threads: IntProperty(
         name="Threads",
-        description="0 = all cores (all but one while the UI runs)",
+        description="Engine threads, a count; 0 = all cores (all but one while the UI runs)",
         default=0,
         min=0,
         max=1024,
     )
     batches: IntProperty(
         name="Batches",
-        description="Batches for the batch-means standard errors",
+        description="Batches (a count, >= 2) for the batch-means standard errors",
         default=20,
         soft_min=2,
     )
@@ -274,13 +289,42 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         description="Store only fluorescence records (the paper's photon map)",
         default=True,
     )
-    fluorescence_rule: EnumProperty(name="Fluorescence Rule", items=FLUORESCENCE_RULE_ITEMS, default="paper")
+    fluorescence_rule: EnumProperty(
+        name="Fluorescence Rule",
+        description="When an interaction fluoresces: the paper rule, or the EEM excitation efficiency",
+        items=FLUORESCENCE_RULE_ITEMS,
+        default="paper",
+    )
     output_dir: StringProperty(
         name="Output Folder",
         description="Where sweep.csv, sweep.json, the plots and report.md are written; empty = "
         "'//endophoton_sweep' next to the .blend, or the temporary folder for an unsaved file",
         subtype="DIR_PATH",
         default="",
+    )
+    visibility: BoolProperty(
+        name="Visibility",
+        description="Render the endoscope's view at every β and measure the contrast of the Target region "
+        "against the Background (the command line's --target/--background): the sweep then answers at which "
+        "β the target is most visible (plot, β ± error, verdict against the paper's 34°)",
+        default=True,
+    )
+    target_region: EnumProperty(
+        name="Target",
+        description="Region whose visibility the sweep measures (e.g. the polyp)",
+        items=lambda self, context: sweep_answer.region_items(self.id_data, "target"),
+    )
+    background_region: EnumProperty(
+        name="Background",
+        description="Region the target is seen against (e.g. the colon wall)",
+        items=lambda self, context: sweep_answer.region_items(self.id_data, "background"),
+    )
+    view_size: IntProperty(
+        name="View Size [px]",
+        description="Width = height of the endoscope view rendered at every β, in pixels (--view-size)",
+        default=128,
+        min=8,
+        max=1024,
     )
     keep_runs: EnumProperty(
         name="Per-β Results",
@@ -299,11 +343,29 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
 class EndoPhotonLegendEntry(bpy.types.PropertyGroup):
     """One row of the active result's colour bar (the panel draws the swatch)."""
 
-    colour: FloatVectorProperty(name="Colour", subtype="COLOR", size=3, min=0.0, max=1.0)
+    colour: FloatVectorProperty(
+        name="Colour",
+        description="The legend entry colour (linear RGB, 0-1)",
+        subtype="COLOR",
+        size=3,
+        min=0.0,
+        max=1.0,
+    )
 
 
 class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
-    rig: PointerProperty(name="Endoscope", type=bpy.types.Object, poll=_is_rig)
+    show_rig_overlay: BoolProperty(
+        name="Show Aim Lines",
+        description="Draw each rig's light axes and cones, the camera's frustum to the rig's distance and the "
+        "target point in the 3D viewport (they follow the rig's properties)",
+        default=True,
+    )
+    rig: PointerProperty(
+        name="Endoscope",
+        description="The endoscope rig to simulate (needed when the scene has several)",
+        type=bpy.types.Object,
+        poll=_is_rig,
+    )
     sweep: PointerProperty(type=EndoPhotonSweepSettings)
 
     quality: EnumProperty(
@@ -313,6 +375,8 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
             for key, p in presets.QUALITY_PRESETS.items()
         )
         + (("CUSTOM", "Custom", "Use the packet / record count below"),),
+        description="How long to run: a preset runs until the diffuse reflectance relative standard error "
+        "(%) reaches its goal; Custom uses the packet or record count below",
         default="PREVIEW",
     )
     mode: EnumProperty(
@@ -321,20 +385,36 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
             ("PHOTONS", "Packets", "Launch a fixed number of packets"),
             ("STORE", "Store N", "Run until N surface records are stored"),
         ),
+        description="What the count counts: packets launched, or surface records stored",
         default="PHOTONS",
     )
-    photons: IntProperty(name="Packets", default=100_000, min=0, soft_min=1)
-    store: IntProperty(name="Store N", default=100_000, min=0, soft_min=1)
+    photons: IntProperty(
+        name="Packets", description="Packets to launch (a count of packets)", default=100_000, min=0, soft_min=1
+    )
+    store: IntProperty(
+        name="Store N",
+        description="Surface records to store before the run stops (a count of records)",
+        default=100_000,
+        min=0,
+        soft_min=1,
+    )
     fluorescent_only: BoolProperty(
         name="Fluorescent Only",
         description="Keep only fluorescence records in the surface map",
         default=False,
     )
-    fluorescence_rule: EnumProperty(name="Fluorescence Rule", items=FLUORESCENCE_RULE_ITEMS, default="paper")
-    seed: IntProperty(name="Seed", default=1, min=0)
+    fluorescence_rule: EnumProperty(
+        name="Fluorescence Rule",
+        description="When an interaction fluoresces: the paper rule, or the EEM excitation efficiency",
+        items=FLUORESCENCE_RULE_ITEMS,
+        default="paper",
+    )
+    seed: IntProperty(
+        name="Seed", description="Engine seed (an integer): the same seed gives the same result", default=1, min=0
+    )
     threads: IntProperty(
         name="Threads",
-        description="0 = all cores (all but one while the UI runs, to keep it responsive)",
+        description="Engine threads, a count; 0 = all cores (all but one while the UI runs, to keep it responsive)",
         default=0,
         min=0,
         max=1024,
@@ -342,8 +422,8 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
 
     allow_unusual_scale: BoolProperty(
         name="Allow Unusual Scale",
-        description="Run even when a region is thinner than one transport mean free path or "
-        "thicker than 1e5 (usually a wrong Unit Scale)",
+        description="Run even when a region is thinner than one transport mean free path, thicker than "
+        "1000 or larger than 1 m across (usually a wrong Unit Scale)",
         default=False,
     )
     allow_large_runs: BoolProperty(
@@ -354,8 +434,16 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     scene_report: StringProperty(name="Scene Check", default="", options={"SKIP_SAVE"})
 
-    output_points: BoolProperty(name="Surface Point Cloud", default=True)
-    output_grids: BoolProperty(name="Volume Grids", default=True)
+    output_points: BoolProperty(
+        name="Surface Point Cloud",
+        description="Bring the run's escape records back as a point cloud (one point per record)",
+        default=True,
+    )
+    output_grids: BoolProperty(
+        name="Volume Grids",
+        description="Tally absorbed energy and fluorescence in voxel grids (.vdb) shown as Volume objects",
+        default=True,
+    )
     output_views: BoolProperty(
         name="Endoscope View Images",
         description="After a run, render the endoscope camera's white-light and fluorescence images from the "
@@ -364,13 +452,16 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     voxel_size: FloatProperty(
         name="Voxel Size",
+        description="Edge of one grid voxel (scene length units; at most 256³ voxels over the scene)",
         subtype="DISTANCE",
         unit="LENGTH",
         default=0.0005,
         min=0.0,
         precision=5,
     )
-    grid_per_fluorophore: BoolProperty(name="Grid per Fluorophore", default=False)
+    grid_per_fluorophore: BoolProperty(
+        name="Grid per Fluorophore", description="Also one fluorescence grid per fluorophore", default=False
+    )
     grid_dir: StringProperty(
         name="Grid Folder",
         description="Where .vdb files are written; empty = '//endophoton_cache' next to the "
@@ -381,6 +472,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
 
     point_radius: FloatProperty(
         name="Point Radius",
+        description="Radius each photon record is drawn with (scene length units)",
         subtype="DISTANCE",
         unit="LENGTH",
         default=0.0001,
@@ -390,6 +482,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     color_by: EnumProperty(
         name="Colour By",
+        description="Record attribute the points are coloured by (its unit is in the legend)",
         items=tuple(
             (
                 m.key,
@@ -439,6 +532,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     volume_scale: EnumProperty(
         name="Volume Scale",
+        description="How grid values map to colour and density (own maximum, a shared maximum, or log)",
         items=(
             ("OWN", "Own Max", "Each grid from 0 to its own maximum"),
             ("SHARED", "Shared", "Every grid of a run on one scale: the largest maximum of its grids"),
@@ -449,7 +543,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     volume_decades: FloatProperty(
         name="Decades",
-        description="Decades below the maximum the log scale shows",
+        description="Decades (powers of ten) below the maximum the log scale shows",
         default=3.0,
         min=0.1,
         soft_max=8.0,
@@ -457,7 +551,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     )
     volume_density: FloatProperty(
         name="Volume Density",
-        description="Optical depth of one voxel at the grid's maximum (density and glow of the grids)",
+        description="Optical depth (unitless) of one voxel at the grid's maximum (density and glow of the grids)",
         default=0.2,
         min=0.0,
         soft_max=10.0,

@@ -75,10 +75,15 @@ def _children_by_part(obj):
     return {child.get(PART_KEY): child for child in obj.children if child.get(PART_KEY)}
 
 
+def camera_of(obj):
+    """The rig's camera object, or None when it is gone."""
+    camera = _children_by_part(obj).get("camera")
+    return camera if camera is not None and camera.type == "CAMERA" else None
+
+
 def has_camera(obj):
     """True when the rig still has its camera (the endoscope view needs it)."""
-    camera = _children_by_part(obj).get("camera")
-    return camera is not None and camera.type == "CAMERA"
+    return camera_of(obj) is not None
 
 
 def update_rig(obj):
@@ -181,8 +186,7 @@ def create_rig(
     s.beta = beta
     update_rig(root)
 
-    if scene.camera is None:
-        scene.camera = next(c for c in root.children if c.get(PART_KEY) == "camera")
+    scene.camera = camera_of(root)  # the endoscope's view is the picture a render should show
     if scene.endophoton.rig is None:
         scene.endophoton.rig = root
     return root

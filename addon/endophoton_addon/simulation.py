@@ -9,7 +9,6 @@ returns the engine's Result.  The modal operator (operators.py), the blocking
 """
 
 import contextlib
-import importlib
 import math
 import os
 import re
@@ -22,8 +21,8 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, presets, rig, sweep_blend
-from .export import InputError
+from . import export, guards, package_finder, preferences, presets, rig, sweep_blend, volumes
+from .errors import InputError
 
 _ACTIVE_JOBS = set()
 _ACTIVE_LOCK = threading.Lock()
@@ -267,16 +266,25 @@ class Progress:
     elapsed: float
     rate: float  # packets (or records) per second
     eta: Optional[float]  # seconds, None when unknown
+    target_error: Optional[float] = None  # a quality preset: the diffuse reflectance's relative error goal
+    cap: int = 0  # ... and its packet cap
 
     @property
     def fraction(self):
         return min(1.0, self.done / self.total) if self.total > 0 else 0.0
 
+    def goal(self):
+        """What ends a run without a fixed packet count, with the ETA that can be given."""
+        if self.target_error is None:  # "store N" runs: the packet count is open-ended
+            return "ETA -- (until N records are stored)"
+        bound = ""
+        if self.cap > self.done and self.rate > 0:
+            bound = f", ETA ≤ {format_seconds((self.cap - self.done) / self.rate)}"
+        return f"until Rd ±{100 * self.target_error:g} % (≤ {self.cap:,} packets{bound})"
+
     def text(self):
-        if self.total <= 0:  # "store N" runs: the packet count is open-ended
-            return (
-                f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · " "ETA -- (store N) · Esc to cancel"
-            )
+        if self.total <= 0:
+            return f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · {self.goal()} · Esc to cancel"
         eta = "--" if self.eta is None else format_seconds(self.eta)
         return (
             f"EndoPhoton: {self.done:,}/{self.total:,} packets · {self.rate:,.0f} packets/s · "
@@ -299,6 +307,8 @@ class BackgroundJob:
     ``self._finished`` event the worker sets when it ends."""
 
     thread_name = "endophoton-job"
+    cancelled_at = None  # time.monotonic() of the first cancel (Esc): cancel latency figures
+    finished_at = None  # time.monotonic() when the worker ended
 
     def start(self):
         self._t0 = time.monotonic()
@@ -307,6 +317,8 @@ class BackgroundJob:
         self._thread.start()
 
     def cancel(self):
+        if self.cancelled_at is None:
+            self.cancelled_at = time.monotonic()
         self.token.cancel()
 
     @property
@@ -326,6 +338,7 @@ class BackgroundJob:
             self.error_traceback = None if isinstance(exc, InputError) else traceback.format_exc()
         finally:
             untrack_job(self)
+            self.finished_at = time.monotonic()
             self._finished.set()
 
 
@@ -346,7 +359,7 @@ class SimulationJob(BackgroundJob):
         self.error = None
         self.error_traceback = None
         self.grid_info = []  # [(name, active voxel count, max value)] read in the worker
-        self.render_grids = {}  # results.write_render_grids: {grid name: index -> metres matrix}
+        self.render_grids = {}  # volumes.write_render_grids: {grid name: index -> metres matrix}
         self.view = None  # ep.View of the rig camera (inputs.endoscope_view), computed in the worker
         self.view_error = None  # why there is no view although one was asked for
         self.created_folders = []  # folders this run made for its files, deepest first
@@ -363,13 +376,20 @@ class SimulationJob(BackgroundJob):
         elapsed = time.monotonic() - self._t0 if self._t0 else 0.0
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (total - done) / rate if rate > 0 and total >= done > 0 else None
-        return Progress(done, total, elapsed, rate, eta)
+        target = self.inputs.target_error if self.inputs.kind == "target" else None
+        total = 0 if target is not None else total  # a preset's count is a cap, not a total
+        return Progress(done, total, elapsed, rate, None if target is not None else eta, target, self.inputs.count)
 
     def panel_lines(self):
-        """Lines for the sidebar's progress box."""
+        """Lines for the sidebar's progress box (the panel wraps them to its width)."""
         progress = self.progress()
-        of_total = f"/{progress.total:,}" if progress.total > 0 else ""
-        return [f"Running: {progress.done:,}{of_total} packets", f"{progress.rate:,.0f} packets/s"]
+        lines = [f"Running: {progress.done:,} packets"]
+        if progress.total > 0:
+            eta = "--" if progress.eta is None else format_seconds(progress.eta)
+            lines.append(f"of {progress.total:,}, ETA {eta}")
+        else:
+            lines.append(progress.goal())
+        return lines + [f"{progress.rate:,.0f} packets/s"]
 
     # --- worker thread (no bpy here) ----------------------------------------
     def _on_progress(self, done, total):
@@ -381,7 +401,14 @@ class SimulationJob(BackgroundJob):
         # checks (~0.1 s on colon_polyp.blend: kept off the main thread); a rejected or failed run
         # removes the folders it made.
         if self.inputs.grid_path:
-            self.created_folders = make_folders(os.path.dirname(self.inputs.grid_path))
+            folder = os.path.dirname(self.inputs.grid_path)
+            try:
+                self.created_folders = make_folders(folder)
+            except OSError as exc:  # checked before the run (guards.resolve_folder); the disk may change
+                raise InputError(
+                    f"Scene '{self.inputs.scene_name}': simulation.grid_dir: cannot create '{folder}': "
+                    f"{exc.strerror or exc}; choose another Grid Folder"
+                ) from None
         try:
             try:
                 self.ep.check_run(self.engine_scene, self.engine_rig, **self.run_kwargs)
@@ -408,9 +435,7 @@ class SimulationJob(BackgroundJob):
         grid_path = getattr(self.result, "grid_path", None)
         if grid_path and not getattr(self.result, "cancelled", False):
             self.grid_info = read_grid_info(grid_path)
-            from . import results
-
-            self.render_grids = results.write_render_grids(grid_path)
+            self.render_grids = volumes.write_render_grids(grid_path)
         self.view, self.view_error = endoscope_view(self.ep, self.inputs, self.result)
 
 
@@ -450,7 +475,8 @@ def cluster_client(stack, ep, address):
     closed by ``stack``; None when the address is empty (run locally)."""
     if not address:
         return None
-    connect = importlib.import_module(ep.__name__ + ".distributed").connect
+    from endophoton.distributed import connect
+
     return stack.enter_context(connect(address))
 
 
@@ -495,7 +521,6 @@ def finish_job(context, job):
     Returns the collection, or None when the run was cancelled (then nothing
     is created).  Raises RuntimeError if the worker failed.
     """
-    from . import results
 
     if not job.done:
         raise RuntimeError("finish_job called before the run finished")
@@ -526,14 +551,19 @@ def collection_from_run(
     return collection
 
 
+def discard_job(job):
+    """A cancelled job's leftovers, whatever the engine returned: its grid files (fresh names,
+    nothing refers to them) and the folders it made, if empty."""
+    _discard_partial_grid(job)
+
+
 def _discard_partial_grid(job):
     """A cancelled run may still have written its (partial) grid file: remove
     it, it is ours (a fresh name per run) and nothing refers to it; and the
     folders the run made for it, if they are empty now."""
-    from . import results
 
     path = job.inputs.grid_path
-    for name in (path, results.render_grid_path(path)) if path else ():
+    for name in (path, volumes.render_grid_path(path)) if path else ():
         if os.path.isfile(name):
             os.remove(name)
     remove_empty_folders(job.created_folders)

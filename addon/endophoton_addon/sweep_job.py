@@ -26,11 +26,12 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, rig, simulation, sweep_blend
-from .export import InputError
+from . import export, guards, package_finder, preferences, rig, simulation, sweep_answer, sweep_blend
+from .errors import InputError
+from .keys import SWEEP_PLOT_KEY
 
 IMAGE_PREFIX = "EndoPhoton Sweep: "  # + the plot's file name, e.g. "EndoPhoton Sweep: energy.png"
-IMAGE_KEY = "endophoton_sweep_plot"  # ID property on every image the sweep loaded
+IMAGE_KEY = SWEEP_PLOT_KEY  # ID property on every image the sweep loaded
 SUMMARY_KEY = "endophoton_sweep"  # ID property on the scene: the last finished sweep
 DEFAULT_DIR_NAME = "endophoton_sweep"
 # keep_runs "AUTO": per-β collections up to β values × Store N records; a kept escape
@@ -65,10 +66,13 @@ class SweepInputs:
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
     timestamp: str = ""
     sweep_id: str = ""  # tags the sweep's β collections (SWEEP_ID_KEY); unique per sweep
+    visibility: Optional[dict] = None  # endophoton.sweep's visibility request (sweep_answer.visibility_request)
 
     def sweep_kwargs(self):
         """Keyword arguments of ``endophoton.sweep`` (all but the scene, progress and cancel)."""
+        visibility = {} if self.visibility is None else {"visibility": dict(self.visibility)}
         return dict(
+            **visibility,
             betas=list(self.betas),
             store=self.store,
             seed=self.seed,
@@ -92,10 +96,10 @@ def parse_betas(ep, text, who):
     field = f"{who}: sweep.betas = '{text}'"
     if not text.strip():
         raise InputError(f"{field} is empty; give angles in degrees, e.g. '0,10,20' or '0:60:5'")
+    from endophoton.sweep import driver, schema
+
     try:
-        values = package_finder.part("sweep.driver").parse_betas(
-            text, spacing=False
-        )  # spacing: below, worded for this field
+        values = driver.parse_betas(text, spacing=False)  # spacing: below, worded for this field
     except (ValueError, argparse.ArgumentTypeError) as e:
         raise InputError(
             f"{field} must be a list '0,10,20' or a range 'start:stop:step' "
@@ -103,11 +107,9 @@ def parse_betas(ep, text, who):
         ) from None
     for beta in values:
         if not math.isfinite(beta) or not -90.0 < beta < 90.0:
-            raise InputError(
-                f"{field}: β = {package_finder.part('sweep.schema').beta_text(beta)}° must be a finite angle in (-90, 90) degrees"
-            )
+            raise InputError(f"{field}: β = {schema.beta_text(beta)}° must be a finite angle in (-90, 90) degrees")
     try:  # the package's own rule: no two β closer than its resolution (sweep_schema.BETA_RESOLUTION_DEG)
-        package_finder.part("sweep.schema").check_beta_spacing(values, field)
+        schema.check_beta_spacing(values, field)
     except ValueError as e:
         raise InputError(str(e)) from None
     return [float(b) for b in values]
@@ -172,6 +174,9 @@ def collect_sweep_inputs(context, ep):
     guards.check_overlaps(regions)
     rig_obj = simulation._pick_rig(scene)
     geometry = _rig_geometry(rig_obj, scale)
+    visibility = sweep_answer.visibility_request(settings, [r.name for r in regions], who)
+    if visibility is not None and not rig.has_camera(rig_obj):
+        raise InputError(f"{who}: sweep.visibility needs the rig's camera; rig '{rig_obj.name}' has none")
 
     inputs = SweepInputs(
         scene_name=scene.name,
@@ -191,6 +196,7 @@ def collect_sweep_inputs(context, ep):
         endoscope_view=bool(scene.endophoton.output_views) and rig.has_camera(rig_obj),
         timestamp=time.strftime("%Y%m%d-%H%M%S"),
         sweep_id=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}",
+        visibility=visibility,
         **geometry,
     )
     try:
@@ -199,8 +205,10 @@ def collect_sweep_inputs(context, ep):
         raise simulation.engine_rejected(exc, "sweep") from exc
     # The head for every β, as the sweep will build it, and its placement in the
     # scene: the package's own check (ep.sweep makes it too), before anything starts.
+    from endophoton.sweep import driver
+
     try:
-        package_finder.part("sweep.driver").check_placements(
+        driver.check_placements(
             engine_scene,
             betas,
             distance=inputs.distance_m,
@@ -319,7 +327,8 @@ class SweepJob(simulation.BackgroundJob):
             self.runs[index] = result
 
     def _body(self):
-        bs = package_finder.part("sweep.driver")
+        from endophoton.sweep import driver as bs
+
         if self.inputs.keep_runs:
             extra_keep = {"on_run": self._on_run}
         else:
@@ -362,6 +371,8 @@ def beta_run_inputs(inputs, index, result, ep):
     """simulation.RunInputs of the sweep ``inputs``' β number ``index`` (plain values, no bpy):
     a store-N run of that β with its seed (``endophoton.sweep.schema.beta_seed``), no grids (the sweep
     asks for none)."""
+    from endophoton.sweep.schema import beta_seed
+
     beta = inputs.betas[index]
     source = getattr(result, "source", None)
     matrix = getattr(source, "transform", None)
@@ -374,7 +385,7 @@ def beta_run_inputs(inputs, index, result, ep):
         beta_deg=float(beta),
         kind="store",
         count=int(inputs.store),
-        seed=package_finder.part("sweep.schema").beta_seed(inputs.seed, index, inputs.seed_per_beta),
+        seed=beta_seed(inputs.seed, index, inputs.seed_per_beta),
         threads=int(inputs.threads),
         fluorescent_only=inputs.fluorescent_only,
         fluorescence_rule=inputs.fluorescence_rule,
@@ -392,7 +403,9 @@ def min_fit_points(ep):
     """Angles the panel needs before it shows a best β: the paper's fit degree + 3, so that the
     fit keeps >= 2 degrees of freedom (a degree-6 polynomial through fewer points interpolates
     the noise)."""
-    return int(ep.paper.PAPER_TRENDS["energy_fit_degree"]) + 3
+    from endophoton.paper import PAPER_TRENDS
+
+    return int(PAPER_TRENDS["energy_fit_degree"]) + 3
 
 
 def sweep_summary(ep, result, paths, out_dir):
@@ -405,8 +418,11 @@ def sweep_summary(ep, result, paths, out_dir):
     numbers of report.md.  A β without a fit (too few angles) is None, never NaN; the scene's copy
     leaves it out (Blender's ID properties hold no None), which :func:`summary_rows`
     shows as "needs ≥ N β values"."""
+    from endophoton.io import no_nan
+    from endophoton.report import compute_trends
+
     betas = result.betas
-    trends = ep.report.compute_trends(result)
+    trends = compute_trends(result)
     enough = len(result.rows) >= min_fit_points(ep)
     best = {}
     for key in ("energy_total", "energy_per_packet"):
@@ -422,7 +438,7 @@ def sweep_summary(ep, result, paths, out_dir):
     best_total = best["best_beta_energy_total"]
     degree = int(trends["energy_total_fit"]["deg"]) if best_total is not None else 0
     packets = result.column("packets_traced")
-    return ep.io.no_nan(
+    return no_nan(
         {
             "out_dir": out_dir,
             "csv": paths["csv"],
@@ -439,6 +455,7 @@ def sweep_summary(ep, result, paths, out_dir):
             "packets_max": float(np.nanmax(packets)),
             "seconds": float(np.nansum(result.column("seconds"))),
             "plots": len(paths.get("plots", [])),
+            **sweep_answer.visibility_summary(result),
         }
     )
 
@@ -460,6 +477,12 @@ def prepare_job(context, interactive=False):
     if interactive:
         inputs.threads = simulation.interactive_threads(inputs.threads)
     return SweepJob(ep, inputs, engine_scene)
+
+
+def plot_paths(paths):
+    """The PNGs of a finished sweep to load: its plots, and with visibility the contrast-against-β
+    plot (``visibility.png``) and the contact sheet of the views when it was made."""
+    return list(paths.get("plots", [])) + [paths[key] for key in ("plot", "contact_sheet") if key in paths]
 
 
 def image_name(path):
@@ -485,6 +508,8 @@ def load_plot_images(paths):
     """
     import bpy
 
+    from . import blend_paths
+
     wanted = {image_name(path): os.path.abspath(path) for path in paths}
     for img in sweep_images():
         if img.name not in wanted:
@@ -494,7 +519,7 @@ def load_plot_images(paths):
         img = bpy.data.images.get(name)
         if img is not None and img.get(IMAGE_KEY):
             if os.path.normpath(bpy.path.abspath(img.filepath)) != os.path.normpath(path):
-                img.filepath = path
+                img.filepath = blend_paths.stored_path(path)
         else:
             try:
                 img = bpy.data.images.load(path, check_existing=True)
@@ -502,6 +527,7 @@ def load_plot_images(paths):
                 raise RuntimeError(f"Sweep plot '{path}' could not be loaded: {exc}") from exc
             img.name = name
             img[IMAGE_KEY] = True
+            img.filepath = blend_paths.stored_path(img.filepath)
         img.use_fake_user = True  # nothing else uses a plot: kept when the .blend is saved and reopened
         img.reload()
         images.append(img)
@@ -523,11 +549,18 @@ def finish_sweep(context, job):
     if job.cancelled or job.result is None:
         return None
     collections = make_beta_collections(context, job)
-    images = load_plot_images(job.paths.get("plots", []))
+    images = load_plot_images(plot_paths(job.paths))
     scene = bpy.data.scenes.get(job.inputs.scene_name) or context.scene
     summary = {k: v for k, v in job.summary.items() if v is not None}  # ID properties hold no None
     scene[SUMMARY_KEY] = dict(summary, images=len(images), collections=[c.name for c in collections])
     return images
+
+
+def discard_job(job):
+    """A cancelled sweep leaves nothing to discard: it writes its files only after its last β
+    (and not at all once cancelled), and adds nothing to the scene until finish_sweep."""
+    job.beta_runs = []
+    job.runs = {}
 
 
 def sweep_id(inputs):
@@ -625,14 +658,14 @@ def summary_rows(scene):
         return f"{value:.1f} ± {error}°{edge}"
 
     degree = s.get("fit_degree", 0)
-    rows = [
+    rows = sweep_answer.answer_rows(s) + [
         ("β", f"{s.get('beta_min', 0):g}…{s.get('beta_max', 0):g}° ({s.get('n_betas', 0)} values)"),
         (
             "Store N",
             f"{s.get('store', 0):,} · seed {s.get('seed', 0)}" + (" (+ one per β)" if s.get("seed_per_beta") else ""),
         ),
-        ("Best β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
-        ("Best β (/packet)", angle("energy_per_packet")),
+        ("Energy max β (sum)", angle("energy_total") + (f" deg-{degree} fit" if degree else "")),
+        ("Energy max β (/packet)", angle("energy_per_packet")),
         ("Packets", f"{s.get('packets_min', 0):,.0f} – {s.get('packets_max', 0):,.0f}"),
         ("Time", f"{s.get('seconds', 0.0):.1f} s"),
         ("Plots", f"{s.get('images', 0)} images '{IMAGE_PREFIX}…'"),

@@ -97,6 +97,7 @@ def invoke_sweep(betas, store):
     sweep = bpy.context.scene.endophoton.sweep
     sweep.betas, sweep.store, sweep.output_dir = betas, store, SWEEP_DIR
     sweep.keep_runs = "OFF"  # this test checks the modal job; per-β collections: test_sweep_operator
+    sweep.visibility = False  # the energy sweep's plots; the visibility answer: test_sweep_answer
     window, area, region = view3d()
     with bpy.context.temp_override(window=window, area=area, region=region):
         return sorted(bpy.ops.endophoton.sweep_beta("INVOKE_DEFAULT"))
@@ -165,11 +166,16 @@ def _tick():
             window.event_simulate(type="ESC", value="PRESS")
             window.event_simulate(type="ESC", value="RELEASE")
             report["esc_sent"] = now - state["t"]
+            state["esc_at"], state["job"] = time.monotonic(), operators.running_job()
         if "esc_sent" in report and operators.running_job() is None:
             gaps = [b - a for a, b in zip(state["ticks"], state["ticks"][1:])]
             coll = settings.result_collection
             report.update(
                 run2_stopped_after=now - state["t"],
+                run2_cancel_seconds=now - state["t"] - report["esc_sent"],  # a figure, never a verdict
+                run2_esc_to_cancel=(state["job"].cancelled_at or now) - state["esc_at"],
+                run2_esc_to_operator_end=(operators._running["ended_at"] or now) - state["esc_at"],
+                run2_cancel_to_worker_end=(state["job"].finished_at or now) - (state["job"].cancelled_at or now),
                 run2_max_gap=max(gaps) if gaps else None,
                 run2_ticks=len(state["ticks"]),
                 run2_gaps=[(round(a - state["t"], 2), round(g, 2)) for a, g in zip(state["ticks"], gaps) if g > 0.5],
@@ -224,6 +230,7 @@ def _tick():
             finish(
                 dict(
                     sweep2_stopped_after=now - state["t"],
+                    sweep2_cancel_seconds=now - state["t"] - report["sweep_esc_sent"],
                     sweep2_texts=state["texts"][-3:],
                     images_after_sweep2=sorted(i.name for i in bpy.data.images),
                     objects_after_sweep2=sorted(o.name for o in bpy.data.objects),

@@ -31,7 +31,7 @@ import os
 import bpy
 import numpy as np
 
-from endophoton_addon import results, simulation
+from endophoton_addon import points, results, simulation
 from conftest import open_blend
 
 # 4 x 10^6 packets: the polyp fills ~1,300 of the 57,600 pixels; the jackknife error of the polyp-minus-
@@ -144,21 +144,21 @@ def test_polyp_photofrin_renders_red_from_endoscope(ep, tmp_path, out_dir):
     s.point_radius = 0.00015
 
     s.color_by, s.filter_fluorescent, s.filter_toward_camera = "WAVELENGTH", True, True
-    points = results.points_objects(collection)[0]
-    mesh = points.data
+    cloud = points.points_objects(collection)[0]
+    mesh = cloud.data
     shown = np.empty(len(mesh.vertices), bool)
-    mesh.attributes[results.SHOW_ATTR].data.foreach_get("value", shown)
+    mesh.attributes[points.SHOW_ATTR].data.foreach_get("value", shown)
     # Vertices are the run's records in order (fluorescent_only: every record is a point).
     packet = np.asarray(job.result.escapes["packet"])
     assert len(packet) == len(shown)
     batch, _ = ep.analysis.batch_index(packet, BATCHES, int(job.result.packets_traced))
     sums = []
     for b in range(BATCHES):  # each batch's points alone, colours and strengths unchanged
-        mesh.attributes[results.SHOW_ATTR].data.foreach_set("value", shown & (batch == b))
+        mesh.attributes[points.SHOW_ATTR].data.foreach_set("value", shown & (batch == b))
         mesh.update()
         rgb = _render_linear(scene, os.path.join(str(tmp_path), f"batch{b}.exr"))
         sums.append([rgb[..., c][m].sum() for m in (polyp_mask, wall_mask) for c in (0, 1)])
-    mesh.attributes[results.SHOW_ATTR].data.foreach_set("value", shown)
+    mesh.attributes[points.SHOW_ATTR].data.foreach_set("value", shown)
     mesh.update()
     difference, sigma = jackknife_difference(sums)
     total = np.sum(sums, axis=0)
@@ -171,7 +171,7 @@ def test_polyp_photofrin_renders_red_from_endoscope(ep, tmp_path, out_dir):
     assert difference > 4 * sigma
 
     # The legend: wavelength in nm over the shown (fluorescent) records.
-    legend = results.legend_of(results.points_objects(collection)[0])
+    legend = points.legend_of(points.points_objects(collection)[0])
     assert legend.unit == "nm" and legend.lo >= 380 and legend.hi <= 830 and legend.hi > 600
     assert s.legend_header.startswith("Wavelength [nm]") and len(s.legend) >= 2
     path = os.path.join(out_dir, "colon_polyp_with_legend.png")

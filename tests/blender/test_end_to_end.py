@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from mathutils import Vector
 
-from endophoton_addon import results, simulation
+from endophoton_addon import points, results, run_summary, simulation
+from endophoton_addon import volumes as grid_volumes
 from conftest import data_snapshot, mesh_object, open_blend
 
 PACKETS = 20_000
@@ -101,11 +102,11 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
     assert sorted(o["endophoton_grid"] for o in volumes) == sorted(res.grid_names)
     assert {"absorbed", "fluorescent_light"} <= set(res.grid_names)
     assert os.path.dirname(res.grid_path) == str(tmp_path)
-    cycles_copy = results.render_grid_path(res.grid_path)
+    cycles_copy = grid_volumes.render_grid_path(res.grid_path)
     for obj in volumes:
-        # Cycles loads the copy in voxel index space (results.RENDER_GRID_SUFFIX): same voxels and
+        # Cycles loads the copy in voxel index space (grid_volumes.RENDER_GRID_SUFFIX): same voxels and
         # values, and the object's matrix puts voxel (i, j, k) where the engine's file does.
-        assert obj.data.filepath == cycles_copy
+        assert os.path.normpath(bpy.path.abspath(obj.data.filepath)) == cycles_copy  # stored //-relative
         engine_grid = pyopenvdb.read(res.grid_path, obj["endophoton_grid"])
         copy_grid = pyopenvdb.read(cycles_copy, obj["endophoton_grid"])
         assert copy_grid.activeVoxelCount() == engine_grid.activeVoxelCount()
@@ -131,7 +132,7 @@ def test_flat_tissue_end_to_end(ep, tmp_path):
         value, stderr = summary["totals"][name]
         assert value == getattr(res, name) and stderr == getattr(res, name + "_stderr")
     assert set(summary["absorbed_by_region"]) == {"Tissue", "Polyp"}
-    lines = results.summary_lines(collection)
+    lines = run_summary.summary_lines(collection)
     assert f"Rd: {res.diffuse_reflectance:.4g}±{res.diffuse_reflectance_stderr:.1g}" in lines
     assert "Traced: 20,000" in lines
     assert any(line.startswith("A Polyp: ") for line in lines)
@@ -171,7 +172,7 @@ def test_two_runs_coexist_delete_removes_files_export_round_trips(ep, tmp_path):
     table = np.genfromtxt(paths["CSV"], delimiter=",", names=True)
     np.testing.assert_allclose(table["wavelength"], escapes["wavelength"], rtol=1e-6)
     np.testing.assert_array_equal(table["region"], escapes["region"])
-    np.testing.assert_allclose(table["depth"], escapes["max_depth"], rtol=1e-6)
+    np.testing.assert_allclose(table["max_depth"], escapes["max_depth"], rtol=1e-6)
     np.testing.assert_allclose(table["direction_z"], np.asarray(escapes["direction"])[:, 2], rtol=1e-6, atol=1e-7)
     with np.load(paths["NPZ"]) as npz:
         np.testing.assert_allclose(npz["energy"], escapes["energy"], rtol=1e-6)
@@ -208,18 +209,18 @@ def test_points_node_group_goes_with_its_last_user(ep, tmp_path):
     settings.quality, settings.photons, settings.output_grids, settings.output_views = "CUSTOM", 2_000, False, False
     _job, first, _seen = _run_job(bpy.context)
     _job, second, _seen = _run_job(bpy.context)
-    group = bpy.data.node_groups[results.POINTS_GROUP]
+    group = bpy.data.node_groups[points.POINTS_GROUP]
     assert group.users == 2
     assert bpy.ops.endophoton.result_delete(name=first.name) == {"FINISHED"}
-    assert bpy.data.node_groups[results.POINTS_GROUP].users == 1
+    assert bpy.data.node_groups[points.POINTS_GROUP].users == 1
     assert bpy.ops.endophoton.result_delete(name=second.name) == {"FINISHED"}
-    assert results.POINTS_GROUP not in bpy.data.node_groups
+    assert points.POINTS_GROUP not in bpy.data.node_groups
 
     _run_job(bpy.context)
-    assert bpy.data.node_groups[results.POINTS_GROUP].users == 1
+    assert bpy.data.node_groups[points.POINTS_GROUP].users == 1
     assert bpy.ops.endophoton.clear_results() == {"FINISHED"}
     assert not _result_collections()
-    assert results.POINTS_GROUP not in bpy.data.node_groups
+    assert points.POINTS_GROUP not in bpy.data.node_groups
 
 
 def test_operator_execute_store_mode(ep, tmp_path):

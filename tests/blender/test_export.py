@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from endophoton_addon import export
-from endophoton_addon.export import InputError
+from endophoton_addon.errors import InputError
 from conftest import mesh_object
 
 CUBE_V = np.array(

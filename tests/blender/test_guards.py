@@ -109,3 +109,50 @@ def test_voxel_size_too_small_is_refused_up_front(tmp_path):
     s = _scene(tmp_path)
     s.voxel_size = 0.00005  # 50 µm over a 40 × 40 × 23 mm scene: (800 + 1)² (460 + 1) ≈ 2.96e8 voxels
     _assert_rejected(tmp_path, r"simulation.voxel_size = 0.05 mm gives up to 2.9\de\+08 voxels")
+
+
+@pytest.mark.parametrize(
+    "scale, pattern",
+    [
+        # mm numbers in a metre scene: the 40 mm slab's numbers read as metres (×1000) -> 40 m across
+        (1000.0, r"region 'Tissue' is 40 m across with unit_settings.scale_length = 1000 m per unit, larger than 1 m"),
+        # ×100: 4 m across (the voxel guard used to catch this with the wrong advice)
+        (100.0, r"region 'Tissue' is 4 m across .* larger than 1 m"),
+    ],
+)
+def test_scale_up_is_refused_as_a_unit_mistake_with_the_fix(tmp_path, scale, pattern):
+    """Issue 36, defect 5: scale-ups ran silently; now a region larger than 1 m is a unit mistake
+    and the message says how to fix it."""
+    _scene(tmp_path)
+    bpy.context.scene.unit_settings.scale_length = scale
+    _assert_rejected(tmp_path, pattern + r".*millimetre numbers in a metre scene.*Unit Scale to 0\.001")
+
+
+def test_thickness_above_1000_transport_mfp_is_a_scale_up(tmp_path):
+    """A 20 mm slab of a strongly scattering medium (μs' = 600 cm⁻¹): 10 mm = 6000 transport mfp."""
+    s = _scene(tmp_path)
+    tissue = bpy.data.objects["Tissue"]
+    tissue.endophoton.medium.mus, tissue.endophoton.medium.g = 6000.0, 0.0
+    s.output_grids = False
+    _assert_rejected(tmp_path, r"region 'Tissue' is 10 mm thick .* more than 1000: no light crosses it.*Unit Scale")
+
+
+def test_voxel_advice_names_a_size_that_fits(tmp_path):
+    """The voxel guard's advice is a size, and that size passes."""
+    s = _scene(tmp_path)
+    s.voxel_size = 0.00005
+    with pytest.raises(RuntimeError, match=r"choose a voxel size of at least ([\d.]+) mm") as caught:
+        bpy.ops.endophoton.run_simulation()
+    import re
+
+    advised_mm = float(re.search(r"at least ([\d.]+) mm", str(caught.value)).group(1))
+    regions = export.export_regions(bpy.context.scene, bpy.context.view_layer, bpy.context.evaluated_depsgraph_get())
+    guards.check_voxels(regions, advised_mm * 1e-3, "Scene")  # no error
+
+
+def test_unwritable_grid_folder_is_named_not_a_traceback(tmp_path, capfd):
+    """Issue 36, defect 7: /proc/nope passes os.access for root; the folder check tries it."""
+    s = _scene(tmp_path)
+    s.grid_dir = "/proc/nope"
+    _assert_rejected(tmp_path, r"simulation.grid_dir = '/proc/nope': '/proc' is not writable")
+    assert "Traceback" not in capfd.readouterr().err

@@ -34,7 +34,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["run2_stopped_after"] >= report["esc_sent"] and report["run2_ticks"] >= 3
     assert report["run2_collection"] == report["run1_collection"]
     assert report["objects_after_run2"] == report["objects_after_run1"]
-    # run 1's files only: its .vdb and the Cycles copy (results.RENDER_GRID_SUFFIX)
+    # run 1's files only: its .vdb and the Cycles copy (volumes.RENDER_GRID_SUFFIX)
     assert len(report["grid_files"]) == 2 and report["grid_files"][0].endswith(".cycles.vdb")
     assert report["status_cleared"]
 
@@ -65,3 +65,7 @@ def test_modal_operator_in_window(ep, tmp_path):
     # The driver held each job's worker until the UI had ticked (run 1, run 2, and
     # each β of sweep 1): the UI ticked every time, none timed out.
     assert report["holds"] >= 4 and report["hold_timeouts"] == 0
+    # Esc -> the operator ended: a figure for the record (docs/addon.md), never a verdict.
+    print(f"cancel latency: run {report['run2_cancel_seconds']:.2f} s, sweep {report['sweep2_cancel_seconds']:.2f} s")
+    print("cancel figures:", {k: v for k, v in report.items() if k.startswith("run2_") and "cancel" in k or "esc" in k})
+    print("run2 texts:", report["run2_texts"], "gaps:", report["run2_gaps"])

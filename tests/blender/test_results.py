@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mathutils import Vector
 
-from endophoton_addon import results
+from endophoton_addon import node_utils, points, results, volumes
 
 K = 2_000
 
@@ -54,9 +54,9 @@ def _attr(mesh, name):
 def test_point_cloud_from_records(scale_length):
     bpy.context.scene.unit_settings.scale_length = scale_length
     rec = _records(np.random.default_rng(7))
-    positions, attrs = results.point_cloud_arrays(rec, scale_length)
-    material = results._points_material("m", "run")
-    obj = results.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run")
+    positions, attrs = points.point_cloud_arrays(rec, scale_length)
+    material = points._points_material("m", "run")
+    obj = points.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run")
     bpy.context.scene.collection.objects.link(obj)
 
     mesh = obj.data
@@ -77,7 +77,7 @@ def test_point_cloud_from_records(scale_length):
 
     # The Geometry Nodes modifier turns it into a point cloud with the attributes.
     modifier = obj.modifiers[0]
-    assert modifier.type == "NODES" and modifier.node_group.name == results.POINTS_GROUP
+    assert modifier.type == "NODES" and modifier.node_group.name == points.POINTS_GROUP
     assert any(n.bl_idname == "GeometryNodeMeshToPoints" for n in modifier.node_group.nodes)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     clouds = [
@@ -99,7 +99,7 @@ def test_point_cloud_rejects_mismatched_columns():
     rec["weight"] = rec["weight"][:9]
     before = len(bpy.data.meshes)
     with pytest.raises(ValueError, match="escape column 'weight' has shape"):
-        results.point_cloud_arrays(rec, 1.0)
+        points.point_cloud_arrays(rec, 1.0)
     assert len(bpy.data.meshes) == before
 
 
@@ -112,7 +112,7 @@ def test_wavelength_colour_is_the_packages_conversion(ep):
     """One owner: the add-on's wavelength colour is endophoton.view.colour's CIE 1931 -> white-balanced
     linear sRGB (negatives clipped); the hue of each spectral line is that of the CIE table's XYZ
     through the IEC matrix (recomputed here): red at photofrin's 630 nm, green at 530 nm, blue at
-    collagen's 450 nm; the legend swatches keep the hue with largest channel 1."""
+    collagen's 450 nm; the legend swatches keep the hue with largest channel 1, the far red included."""
     from endophoton_addon import colour_maps
 
     nm = np.array(sorted(CIE_TABLE), dtype=float)
@@ -126,26 +126,29 @@ def test_wavelength_colour_is_the_packages_conversion(ep):
     np.testing.assert_allclose(swatches.max(axis=1)[:3], 1.0)
     assert swatches[3, 0] > 5 * swatches[3, 1]  # photofrin's 690 nm band stays red
     assert np.all(swatches >= 0) and np.all(swatches <= 1)
-    # Outside the visible range: black.
-    assert np.all(colour_maps.wavelength_swatches([300.0, 900.0]) < 1e-6)
+    # The far red of the fluorescence lines (719, 799 nm) at full brightness and red, never black
+    # (issue 36): the swatch shows the hue; the fit's tails (green beyond ~710 nm) are not used.
+    far = colour_maps.wavelength_swatches([719.0, 799.0])
+    np.testing.assert_allclose(far[:, 0], 1.0)
+    assert np.all(far[:, 1:] < 0.1)
 
 
 def _points_in_collection(rec):
-    positions, attrs = results.point_cloud_arrays(rec, 1.0)
-    material = results._points_material("m", "run")
+    positions, attrs = points.point_cloud_arrays(rec, 1.0)
+    material = points._points_material("m", "run")
     names = {"fluorophore": ["collagen", "photofrin"], "region": ["Colon", "Polyp"]}
-    obj = results.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run", names=names)
+    obj = points.create_point_cloud("Photons", positions, attrs, 0.0001, material, "run", names=names)
     coll = bpy.data.collections.new("EP run")
     coll[results.RESULT_KEY] = True
     bpy.context.scene.collection.children.link(coll)
     coll.objects.link(obj)
     bpy.context.scene.endophoton.result_collection = coll
-    results.recolour(obj, bpy.context.scene.endophoton)
+    points.recolour(obj, bpy.context.scene.endophoton)
     return obj
 
 
 def _colours(obj):
-    attribute = obj.data.attributes[results.COLOUR_ATTR]
+    attribute = obj.data.attributes[points.COLOUR_ATTR]
     out = np.empty(len(attribute.data) * 4, np.float32)
     attribute.data.foreach_get("color", out)
     return out.reshape(-1, 4)[:, :3]
@@ -163,7 +166,7 @@ def test_colour_by_each_attribute_with_legend(color_by):
     settings = bpy.context.scene.endophoton
     settings.color_by = color_by
     rgb = _colours(obj)
-    legend = results.legend_of(obj)
+    legend = points.legend_of(obj)
     assert legend is not None and legend.entries and legend.shown == legend.total == 400
     if color_by == "WAVELENGTH":
         red = rgb[rec["wavelength"] > 615]
@@ -208,7 +211,7 @@ def test_filters_and_radius_update_results():
     settings = bpy.context.scene.endophoton
 
     def shown():
-        attribute = obj.data.attributes[results.SHOW_ATTR]
+        attribute = obj.data.attributes[points.SHOW_ATTR]
         out = np.empty(len(attribute.data), bool)
         attribute.data.foreach_get("value", out)
         return out
@@ -221,9 +224,9 @@ def test_filters_and_radius_update_results():
     settings.filter_fluorophore = "ANY"
     settings.filter_region = "Polyp"
     np.testing.assert_array_equal(shown(), rec["region"] == 1)
-    assert results.legend_of(obj).shown == int((rec["region"] == 1).sum())
+    assert points.legend_of(obj).shown == int((rec["region"] == 1).sum())
     settings.point_radius = 0.0007
-    ids = results._group_input_identifiers(obj.modifiers[0].node_group)
+    ids = node_utils.group_input_identifiers(obj.modifiers[0].node_group)
     assert obj.modifiers[0][ids["Radius"]] == pytest.approx(0.0007)
 
 
@@ -235,7 +238,7 @@ def test_legend_png_is_written_whole_or_not_at_all(ep, tmp_path, monkeypatch):
 
     from endophoton_addon import colour_maps
 
-    legend = results.legend_of(_points_in_collection(_records(np.random.default_rng(3), k=50)))
+    legend = points.legend_of(_points_in_collection(_records(np.random.default_rng(3), k=50)))
     path = tmp_path / "l.png"
     assert colour_maps.legend_figure(legend, str(path)) == str(path)
     png = path.read_bytes()
@@ -274,9 +277,9 @@ def test_legend_when_the_filters_show_nothing(color_by, title):
     settings = bpy.context.scene.endophoton
     settings.color_by = color_by
     settings.filter_fluorophore = "collagen"
-    assert not _attr(obj.data, results.SHOW_ATTR).any()
+    assert not _attr(obj.data, points.SHOW_ATTR).any()
     assert settings.legend_header == f"{title}: none shown (0/300)"
-    assert len(settings.legend) == 0 and results.legend_of(obj).entries == []
+    assert len(settings.legend) == 0 and points.legend_of(obj).entries == []
     settings.filter_fluorophore = "ANY"
     assert settings.legend_header.endswith(" · 300/300 shown") and "none" not in settings.legend_header
     assert len(settings.legend) > 0
@@ -290,14 +293,14 @@ def test_nan_display_setting_changes_no_result(field):
     obj = _points_in_collection(rec)
     settings = bpy.context.scene.endophoton
     settings.filter_toward_camera = True  # the camera cone is used
-    ids = results._group_input_identifiers(obj.modifiers[0].node_group)
+    ids = node_utils.group_input_identifiers(obj.modifiers[0].node_group)
     radius = obj.modifiers[0][ids["Radius"]]
-    show = _attr(obj.data, results.SHOW_ATTR).copy()
+    show = _attr(obj.data, points.SHOW_ATTR).copy()
     setattr(settings, field, float("nan"))
     message = f"Scene 'Scene': simulation.{field} = nan must be a finite number"
     assert settings.legend_header.startswith(message)
     assert obj.modifiers[0][ids["Radius"]] == radius
-    np.testing.assert_array_equal(_attr(obj.data, results.SHOW_ATTR), show)
+    np.testing.assert_array_equal(_attr(obj.data, points.SHOW_ATTR), show)
     with pytest.raises(RuntimeError, match=message.replace("(", r"\(")):
         bpy.ops.endophoton.result_activate()
 
@@ -321,7 +324,7 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     path = tmp_path / "grid.vdb"
     active = _write_vdb(path, "absorbed", 0.001)  # 1 mm voxels, file in metres
     assert active > 0
-    obj = results.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, scale_length, "run")
+    obj = volumes.create_volume("EP Grid", str(path), "absorbed", 2.0, 0.001, scale_length, "run")
     bpy.context.scene.collection.objects.link(obj)
     volume = obj.data
     assert volume.grids.load()
@@ -341,9 +344,9 @@ def test_volume_object_loads_grid(tmp_path, scale_length):
     nodes = volume.materials[0].node_tree.nodes
     attribute = next(n for n in nodes if n.bl_idname == "ShaderNodeAttribute")
     assert attribute.attribute_name == "absorbed"
-    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
+    assert nodes[volumes.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
     bpy.context.scene.endophoton.volume_density = 5.0  # no result collection: untouched
-    assert nodes[results.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
+    assert nodes[volumes.DENSITY_NODE].outputs[0].default_value == pytest.approx(0.2)
 
 
 def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
@@ -356,7 +359,7 @@ def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
     for name, peak in (("absorbed", 2.0), ("fluorescence", 8.0)):
         path = tmp_path / f"{name}.vdb"
         _write_vdb(path, name, 0.001)
-        objs[name] = results.create_volume(f"EP Grid {name}", str(path), name, peak, 0.001, 1.0, "run")
+        objs[name] = volumes.create_volume(f"EP Grid {name}", str(path), name, peak, 0.001, 1.0, "run")
         coll.objects.link(objs[name])
     settings = bpy.context.scene.endophoton
 
@@ -364,16 +367,16 @@ def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
         return objs[name].data.materials[0].node_tree.nodes[key].outputs[0].default_value
 
     settings.volume_scale = "SHARED"
-    assert node("absorbed", results.INV_PEAK_NODE) == pytest.approx(0.125)
-    assert node("fluorescence", results.INV_PEAK_NODE) == pytest.approx(0.125)
-    assert node("absorbed", results.LOG_NODE) == 0.0
+    assert node("absorbed", volumes.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("fluorescence", volumes.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("absorbed", volumes.LOG_NODE) == 0.0
     settings.volume_scale = "OWN"
-    assert node("absorbed", results.INV_PEAK_NODE) == pytest.approx(0.5)
-    assert node("fluorescence", results.INV_PEAK_NODE) == pytest.approx(0.125)
+    assert node("absorbed", volumes.INV_PEAK_NODE) == pytest.approx(0.5)
+    assert node("fluorescence", volumes.INV_PEAK_NODE) == pytest.approx(0.125)
     settings.volume_scale, settings.volume_decades = "LOG", 4.0
-    assert node("absorbed", results.LOG_NODE) == 1.0 and node("absorbed", results.DECADES_NODE) == 4.0
+    assert node("absorbed", volumes.LOG_NODE) == 1.0 and node("absorbed", volumes.DECADES_NODE) == 4.0
     settings.volume_density = 3.0
-    assert node("fluorescence", results.DENSITY_NODE) == pytest.approx(3.0)
+    assert node("fluorescence", volumes.DENSITY_NODE) == pytest.approx(3.0)
 
     def ramp(name):
         nodes = objs[name].data.materials[0].node_tree.nodes
@@ -381,7 +384,7 @@ def test_volume_scale_own_shared_log_and_ramp_per_grid(tmp_path):
         return [tuple(e.color)[:3] for e in r.color_ramp.elements]
 
     assert ramp("absorbed") != ramp("fluorescence")
-    assert ramp("absorbed")[-1] == pytest.approx(results.GRID_RAMPS["absorbed"][-1])
+    assert ramp("absorbed")[-1] == pytest.approx(volumes.GRID_RAMPS["absorbed"][-1])
 
 
 def test_wavelength_colour_without_package_says_so_in_panel(tmp_path):
@@ -403,14 +406,14 @@ def test_wavelength_colour_without_package_says_so_in_panel(tmp_path):
         with pytest.raises(package_finder.EngineMissing, match="EndoPhoton engine not found"):
             colour_maps.wavelength_rgb([500.0])
         settings.color_by = "WAVELENGTH"
-        assert results.recolour(obj, settings) is None
+        assert points.recolour(obj, settings) is None
         assert settings.legend_header.startswith("Cannot colour the points: EndoPhoton engine not found")
         assert len(settings.legend) == 0
     finally:
         sys.modules.update(saved)
         ensure_addon()
         package_finder.forget()
-    assert results.recolour(obj, settings).unit == "nm"
+    assert points.recolour(obj, settings).unit == "nm"
 
 
 def test_toward_camera_filter_and_energy_glow():
@@ -433,10 +436,10 @@ def test_toward_camera_filter_and_energy_glow():
     angle = np.degrees(np.arccos(np.clip(np.sum(rec["direction"] * to_cam, 1) / np.linalg.norm(to_cam, axis=1), -1, 1)))
     expected = angle <= 30.0
     clear = np.abs(angle - 30.0) > 1e-3  # leave rounding at the cone's edge out of the verdict
-    show = _attr(obj.data, results.SHOW_ATTR)
+    show = _attr(obj.data, points.SHOW_ATTR)
     assert 20 < expected.sum() < 1000
     np.testing.assert_array_equal(show[clear], expected[clear])
-    strength = _attr(obj.data, results.STRENGTH_ATTR)
+    strength = _attr(obj.data, points.STRENGTH_ATTR)
     np.testing.assert_allclose(strength, rec["energy"] / rec["energy"][show].mean(), rtol=1e-5)
     settings.filter_toward_camera = False
-    assert _attr(obj.data, results.SHOW_ATTR).all()
+    assert _attr(obj.data, points.SHOW_ATTR).all()

@@ -43,7 +43,18 @@ def test_progress_text():
     assert "ETA 1h02m" in long.text()
     store = simulation.Progress(done=7_000, total=0, elapsed=1.0, rate=7_000.0, eta=None)
     assert store.fraction == 0.0
-    assert store.text() == "EndoPhoton: 7,000 packets · 7,000 packets/s · ETA -- (store N) · Esc to cancel"
+    assert store.text() == (
+        "EndoPhoton: 7,000 packets · 7,000 packets/s · ETA -- (until N records are stored) · Esc to cancel"
+    )
+    # Issue 36, defect 8: a quality preset's run says what ends it and bounds the ETA by its cap.
+    preset = simulation.Progress(
+        done=10_000, total=0, elapsed=1.0, rate=10_000.0, eta=None, target_error=0.05, cap=1_000_000
+    )
+    assert preset.text() == (
+        "EndoPhoton: 10,000 packets · 10,000 packets/s · until Rd ±5 % (≤ 1,000,000 packets, ETA ≤ 1m39s)"
+        " · Esc to cancel"
+    )
+    assert "store N" not in preset.text()
 
 
 def test_interactive_threads_leave_a_core():

@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 import pytest
 
-from endophoton_addon import results, rig, sweep_blend, sweep_job
+from endophoton_addon import points, results, rig, sweep_blend, sweep_job
 from conftest import REPO, data_snapshot, open_blend
 
 BETAS, STORE, SEED = "0,30", 2_000, 5
@@ -31,6 +31,7 @@ def _setup(tmp_path, betas=BETAS, store=STORE, keep_runs="OFF"):
     scene = open_blend("flat_tissue.blend", tmp_path / "grids")
     s = scene.endophoton.sweep
     s.betas, s.store, s.seed, s.threads, s.keep_runs = betas, store, SEED, 1, keep_runs
+    s.visibility = False  # the energy sweep of sweep_blend (test_sweep_answer.py runs the visibility sweep)
     s.output_dir = str(tmp_path / "sweep")
     return scene
 
@@ -364,7 +365,7 @@ def test_summary_best_beta_is_the_reports_fit(ep, tmp_path):
     summary = scene[sweep_job.SUMMARY_KEY].to_dict()
     report = (tmp_path / "sweep" / "report.md").read_text(encoding="utf-8")
     rows = dict(sweep_job.summary_rows(scene))
-    for key, label in (("energy_total", "Best β (sum)"), ("energy_per_packet", "Best β (/packet)")):
+    for key, label in (("energy_total", "Energy max β (sum)"), ("energy_per_packet", "Energy max β (/packet)")):
         peak, se, fit = trends[key + "_peak"], trends[key + "_peak_se"], trends[key + "_fit"]
         assert fit["deg"] == ep.paper.PAPER_TRENDS["energy_fit_degree"] == summary["fit_degree"]
         assert min(betas) <= peak <= max(betas) and se is not None and se > 0
@@ -419,8 +420,8 @@ def test_sweep_on_a_dask_scheduler_matches_the_local_sweep(ep, tmp_path):
     kept = sweep_job.sweep_collections(scene, sweep_job.sweep_id(remote.inputs))
     assert [c[results.PARAMS_KEY]["beta_deg"] for c in kept] == [0.0, 30.0]
     for collection, row in zip(kept, remote.result.rows):
-        (points,) = results.points_objects(collection)
-        assert len(points.data.vertices) == row["records"] == STORE
+        (cloud,) = points.points_objects(collection)
+        assert len(cloud.data.vertices) == row["records"] == STORE
     # The bar followed the chunks merged over all angles, and they all came in.
     merged, total = remote._chunks
     assert merged == total > 0

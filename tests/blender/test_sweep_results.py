@@ -11,7 +11,7 @@ import os
 import bpy
 import numpy as np
 
-from endophoton_addon import results, sweep_job
+from endophoton_addon import endoscope_views, points, results, sweep_job
 from conftest import data_snapshot, open_blend
 
 BETAS, STORE, SEED = (0.0, 20.0, 40.0), 1_500, 7
@@ -23,6 +23,7 @@ def _sweep(tmp_path, seed_per_beta=False):
     assert s.keep_runs == "AUTO"  # the default: kept for a small sweep like this one
     s.betas, s.store, s.seed, s.threads = ",".join(f"{b:g}" for b in BETAS), STORE, SEED, 1
     s.seed_per_beta = seed_per_beta
+    s.visibility = False
     s.output_dir = str(tmp_path / "sweep")
     before = data_snapshot()
     job = sweep_job.prepare_job(bpy.context)
@@ -73,7 +74,7 @@ def test_seed_per_beta_gives_every_beta_and_its_collection_its_own_seed(ep, tmp_
 
 
 def _points(collection):
-    (obj,) = results.points_objects(collection)
+    (obj,) = points.points_objects(collection)
     co = np.empty(len(obj.data.vertices) * 3, np.float32)
     obj.data.vertices.foreach_get("co", co)
     return obj, co.reshape(-1, 3)
@@ -104,7 +105,7 @@ def test_each_beta_is_a_tagged_collection_and_deletes_alone(ep, tmp_path):
         expected = np.asarray(kept[i]["position"], np.float64).reshape(-1, 3) / scale
         np.testing.assert_allclose(co, expected.astype(np.float32), rtol=0, atol=1e-6 * np.abs(expected).max())
         # The rig camera's images beside the run, tagged with the sweep too.
-        views = results.view_images(collection)
+        views = endoscope_views.view_images(collection)
         assert sorted(views) == ["fluorescence", "white"]
         assert all(img[results.PARAMS_KEY][sweep_job.SWEEP_ID_KEY] == sid for img in views.values())
         assert all(img[results.PARAMS_KEY]["beta_deg"] == beta for img in views.values())
@@ -139,7 +140,7 @@ def test_each_beta_is_a_tagged_collection_and_deletes_alone(ep, tmp_path):
     assert sweep_job.sweep_collections(scene, sid) == [collections[0], collections[2]]
     for collection, i in ((collections[0], 0), (collections[2], 2)):
         assert len(_points(collection)[1]) == ref.rows[i]["records"]
-        assert sorted(results.view_images(collection)) == ["fluorescence", "white"]
+        assert sorted(endoscope_views.view_images(collection)) == ["fluorescence", "white"]
     assert sorted(os.listdir(job.inputs.out_dir)) == sweep_files  # the sweep's own files stay
     # The parent goes with its last β, and nothing of the sweep is left in the scene.
     parent_name = parent.name

@@ -7,7 +7,7 @@ import os
 import bpy
 import numpy as np
 
-from endophoton_addon import results, rig, simulation
+from endophoton_addon import endoscope_views, results, rig, simulation
 from conftest import open_blend
 
 
@@ -40,9 +40,9 @@ def _srgb8(linear):
 
 def test_view_images_made_kept_and_removed(ep, tmp_path):
     scene, job, collection = _run("colon_polyp.blend", tmp_path)
-    images = results.view_images(collection)
+    images = endoscope_views.view_images(collection)
     assert set(images) == {"white", "fluorescence"}
-    assert sorted(collection[results.VIEWS_KEY]) == sorted(im.name for im in images.values())
+    assert sorted(collection[endoscope_views.VIEWS_KEY]) == sorted(im.name for im in images.values())
     # the package's own image of the same records, computed here again
     view = ep.render_view(job.result, threads=job.inputs.threads)
     size = tuple(job.engine_rig.camera_resolution)
@@ -85,8 +85,8 @@ def test_no_view_without_camera_or_when_off(ep, tmp_path):
     for prepare, settings in ((_remove_camera, {}), (None, {"output_views": False})):
         _scene, job, collection = _run("flat_tissue.blend", tmp_path, prepare, **settings)
         assert not job.inputs.endoscope_view and job.view is None and job.view_error is None
-        assert not results.view_images(collection) and results.VIEWS_KEY not in collection
-        assert not any(results.VIEW_KEY in im for im in bpy.data.images)
+        assert not endoscope_views.view_images(collection) and endoscope_views.VIEWS_KEY not in collection
+        assert not any(endoscope_views.VIEW_KEY in im for im in bpy.data.images)
 
 
 def test_a_grids_only_run_asks_for_no_records(ep, tmp_path):

@@ -5,7 +5,7 @@ in its own ramp's colour.
 Cause of the former failure (about half the grids rendered empty, which ones
 following the Volume datablock's name): Cycles 3.4 shifts the bounding mesh of
 a volume by up to 0.1/dim *grid units*, hashed from the datablock's name; with
-grids in metres that is many voxels (see results.RENDER_GRID_SUFFIX).  The
+grids in metres that is many voxels (see grid_volumes.RENDER_GRID_SUFFIX).  The
 add-on now renders a copy of the grids in voxel index space."""
 
 import os
@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from endophoton_addon import results, simulation
+from endophoton_addon import volumes as grid_volumes
 from conftest import open_blend
 
 
@@ -54,10 +55,10 @@ def test_each_grid_renders_alone(ep, tmp_path, out_dir, blend):
     job.wait()
     collection = simulation.finish_job(bpy.context, job)
     volumes = [o for o in collection.objects if o.type == "VOLUME"]
-    assert {o["endophoton_grid"] for o in volumes} == set(results.GRID_RAMPS)
-    cycles_copy = results.render_grid_path(job.inputs.grid_path)
+    assert {o["endophoton_grid"] for o in volumes} == set(grid_volumes.GRID_RAMPS)
+    cycles_copy = grid_volumes.render_grid_path(job.inputs.grid_path)
     assert os.path.isfile(cycles_copy)
-    assert all(bpy.path.abspath(o.data.filepath) == cycles_copy for o in volumes)
+    assert all(os.path.normpath(bpy.path.abspath(o.data.filepath)) == cycles_copy for o in volumes)
     scene.world = None  # black background: any lit pixel is the grid's glow
     render = scene.render
     render.engine = "CYCLES"
@@ -77,7 +78,7 @@ def test_each_grid_renders_alone(ep, tmp_path, out_dir, blend):
     print(blend, lit, order)
     assert all(n > 100 for n in lit.values()), f"grids rendering (nearly) empty: {lit}"
     # each grid glows in its own ramp's hue; the four ramps' channel orders differ
-    for name, stops in results.GRID_RAMPS.items():
+    for name, stops in grid_volumes.GRID_RAMPS.items():
         expected = _channel_order(stops)
         assert len(expected) >= 2 and expected <= order[name], (name, expected, order[name])
     results.remove_run(collection)
