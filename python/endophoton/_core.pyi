@@ -14,6 +14,7 @@ import numpy.typing as npt
 __version__: str
 MAX_REGIONS: int
 MAX_PACKET_REQUEST: int
+DEFAULT_TARGET_MAX_PACKETS: int
 DEFAULT_CACHE_STORE_BYTES: int
 MIN_WAVELENGTH_NM: float
 MAX_WAVELENGTH_NM: float
@@ -65,6 +66,21 @@ class CancelToken:
     @property
     def cancelled(self) -> bool: ...
 
+class CameraView:
+    """The camera tally's request (native/camera_tally.h); built by endophoton.view.nee."""
+
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def batches(self) -> int: ...
+    @property
+    def channels(self) -> int: ...
+    @property
+    def packets(self) -> int: ...
+    def __init__(self, **options: Any) -> None: ...
+
 class RunConfig:
     """Options of one run (native/run_config.h), one attribute per field; RunConfig(**options)."""
 
@@ -91,6 +107,8 @@ class RunConfig:
     batches: int
     safe_distance: bool
     lumen: bool
+    stats: bool
+    camera_view: CameraView | None
     test_cancel_after_units: int
     test_fail_thread: int
     fluorescence_rule: str

@@ -430,8 +430,8 @@ def _medium_from_dict(owner: str, md) -> Medium:
         return Medium(
             mua=_coefficient_from_json(owner, "mua", md["mua"]),
             mus=_coefficient_from_json(owner, "mus", md["mus"]),
-            g=md.get("g", scene_schema.default("medium", "g")),
-            n=md.get("n", scene_schema.default("medium", "n")),
+            g=md.get("g", scene_schema.default("medium_values", "g")),
+            n=md.get("n", scene_schema.default("medium_values", "n")),
         )
     except ValueError as e:
         msg = str(e)

@@ -38,7 +38,7 @@ def schema() -> dict:
 
 def default(definition: str, field: str):
     """The schema's ``default`` of ``field`` of the object ``definition`` ("scene" for the top level,
-    else a name under ``definitions``, e.g. "medium", "region"): the loader's value for an omitted
+    else a name under ``definitions``, e.g. "medium_values", "region"): the loader's value for an omitted
     field, so that the schema and the loader are one rule (test_hardening_38 holds them together)."""
     node = schema() if definition == "scene" else schema()["definitions"][definition]
     return node["properties"][field]["default"]

@@ -584,7 +584,7 @@ RIG_VARIANTS = {
 @pytest.fixture(scope="module")
 def rig_reference():
     scene, rig = _rig_scene("cm")
-    res = ep.run(scene, rig, photons=60_000, seed=30, threads=2)
+    res = ep.run(scene, rig, photons=60_000, seed=30, threads=2, spectral=True)
     return res, ep.render_view(res, kernel_angle_deg=30.0, threads=2)
 
 
@@ -596,7 +596,7 @@ def test_rig_scene_gives_the_same_fractions_and_image_in_any_unit_place_and_orie
     each region covers the same pixels up to its outline (float32 vertices)."""
     ref, ref_view = rig_reference
     scene, rig = _rig_scene(**RIG_VARIANTS[variant])
-    res = ep.run(scene, rig, photons=60_000, seed=31, threads=2)
+    res = ep.run(scene, rig, photons=60_000, seed=31, threads=2, spectral=True)
     assert_energy_conserved(res)
     # Far from the origin the edges are resolved more coarsely, and the run says so for both boxes
     # (scale_check.h, kEdgeResolutionMfp); the fractions and image below still agree.

@@ -214,8 +214,8 @@ def test_every_schema_default_is_the_loaders_value_for_an_omitted_field():
         ("scene", "unit"): scene.unit,
         ("scene", "ambient_n"): scene.ambient_n,
         ("region", "priority"): scene.regions[0].priority,
-        ("medium", "g"): scene.regions[0].medium.g,
-        ("medium", "n"): scene.regions[0].medium.n,
+        ("medium_values", "g"): scene.regions[0].medium.g,
+        ("medium_values", "n"): scene.regions[0].medium.n,
     }
     for definition, field, value in defaults:
         assert (definition, field) in got, f"schema default of {definition}.{field} has no loader check here"

@@ -272,7 +272,16 @@ def test_sweep_cli_background_needs_target(tmp_path):
     from cli_helpers import run_cli
 
     p = run_cli(
-        "sweep", "--betas", "0", "--store", "100", "--out", tmp_path, "--background", "tissue", "--no-progress",
+        "sweep",
+        "--betas",
+        "0",
+        "--store",
+        "100",
+        "--out",
+        tmp_path,
+        "--background",
+        "tissue",
+        "--no-progress",
         timeout=120,
     )
     assert p.returncode == 2 and "--background needs --target" in p.stderr

@@ -600,6 +600,17 @@ def _sweep_on_cluster(client, chunk_units, betas, seeds, setup, kw, outcome, row
     )
 
 
+def _view_meta(meta: dict, seed_per_beta: bool, rig_kwargs: dict, visibility, contrast_target) -> None:
+    """Adds to ``meta`` the sweep's seeds rule, its light, and its view request and target, if any."""
+    meta["seed_per_beta"] = seed_per_beta
+    light = rig_kwargs.get("spectrum")  # the rig's light: None = flat white 400-700 nm
+    meta["light"] = "white" if light is None else str(getattr(light, "name", "") or "table")
+    if visibility is not None:
+        meta["visibility"] = jsonable(dict(visibility))
+    if contrast_target is not None:
+        meta["contrast_target"] = contrast_target.to_dict()
+
+
 def sweep(
     scene_or_builder: Any = None,
     betas: Iterable[float] = range(0, 60, 5),
@@ -687,13 +698,7 @@ def sweep(
         tilt_axis,
         rig_kwargs,
     )
-    meta["seed_per_beta"] = seed_per_beta
-    light = rig_kwargs.get("spectrum")  # the rig's light: None = flat white 400-700 nm
-    meta["light"] = "white" if light is None else str(getattr(light, "name", "") or "table")
-    if visibility is not None:
-        meta["visibility"] = jsonable(dict(visibility))
-    if contrast_target is not None:
-        meta["contrast_target"] = contrast_target.to_dict()
+    _view_meta(meta, seed_per_beta, rig_kwargs, visibility, contrast_target)
     setup = _setup_of(static_scene, scene_or_builder, distance, point, normal, tilt_axis, rig_kwargs, rig_builder, meta)
     analyse = functools.partial(
         _beta_outcome,

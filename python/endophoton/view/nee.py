@@ -88,7 +88,7 @@ def camera_view(scene, source, photons, view):
     (a dict :func:`render_view` checks its own arguments against). ValueError naming the field."""
     from .. import _core
     from .render import _gains, _resolve_camera, emission_filter_function, excitation_spectrum
-    from ..analysis import _check_batches
+    from ..analysis.batches import _check_batches
 
     req = _as_request(view)
     if photons is None:
