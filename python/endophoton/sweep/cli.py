@@ -120,7 +120,9 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     parser.add_argument(
         "--estimator",
         default=None,
-        help="the view's camera estimator, passed to ep.render_view (default: render_view's)",
+        choices=("kernel",),
+        help="the view's camera estimator: kernel (the records' kernel estimate, the only one a store-N sweep "
+        "can use; the camera tally 'nee' is the render command's)",
     )
     parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
     parser.add_argument(

@@ -330,6 +330,13 @@ def _contrast_target(target, visibility):
     from .view_runs import contrast_target
 
     checked = contrast_target(target, "target")
+    estimator = (visibility or {}).get("estimator")
+    if estimator not in (None, "kernel", "auto"):
+        raise ValueError(
+            f"visibility['estimator'] = {estimator!r}: a sweep renders each β from its records (the kernel "
+            "estimate); the camera tally ('nee') needs a fixed-count run of its own (ep.run(..., view=True), "
+            "the render command), which a store-N sweep does not make"
+        )
     if checked is not None and visibility is None:
         raise ValueError(f"target = {target!r} needs a view: give visibility={{'target': ..., 'background': ...}}")
     return checked
