@@ -269,7 +269,7 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         name="Seed per β",
         description="β k runs with seed + k × 0x9E3779B97F4A7C15 (mod 2^64) instead of the same seed: "
         "independent runs, so the report's test of whether a contrast depends on β holds its level",
-        default=False,
+        default=True,
     )
     threads: IntProperty(
         name="Threads",

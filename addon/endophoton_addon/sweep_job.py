@@ -61,7 +61,7 @@ class SweepInputs:
     rig_params: dict  # head_diameter_mm, ... (EndoscopeRig keywords)
     out_dir: str
     scale_length: float
-    seed_per_beta: bool = False  # β k runs with its own seed (endophoton.sweep.schema.beta_seed)
+    seed_per_beta: bool = True  # β k runs with its own seed (endophoton.sweep.schema.beta_seed)
     keep_runs: bool = False  # every β becomes a results collection (its records kept until the end)
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
     timestamp: str = ""

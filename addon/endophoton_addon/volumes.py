@@ -25,10 +25,11 @@ GRID_RAMPS = {
     "fluorescent_light_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
     "emission_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
     "emission_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
-    "fluorescence": ((0.05, 0.5, 0.05), (0.2, 1.0, 0.3), (0.85, 1.0, 0.75)),
-    "fluorescence_collagen": ((0.03, 0.2, 0.6), (0.1, 0.55, 1.0), (0.75, 0.95, 1.0)),
-    "fluorescence_photofrin": ((0.5, 0.0, 0.08), (1.0, 0.05, 0.2), (1.0, 0.75, 0.85)),
 }
+# Files written before the rename hold the light grids under their old names: the same ramps.
+LEGACY_RAMP_NAMES = {"fluorescence": "fluorescent_light", "fluorescence_collagen": "fluorescent_light_collagen",
+                     "fluorescence_photofrin": "fluorescent_light_photofrin"}  # fmt: skip
+GRID_RAMPS.update({old: GRID_RAMPS[new] for old, new in LEGACY_RAMP_NAMES.items()})
 
 
 OTHER_RAMP = ((0.3, 0.05, 0.5), (0.7, 0.2, 1.0), (0.95, 0.85, 1.0))

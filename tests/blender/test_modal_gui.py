@@ -23,7 +23,8 @@ def test_modal_operator_in_window(ep, tmp_path):
     assert report["invoke_1"] == ["RUNNING_MODAL"]
     assert report["run1_texts"] and all("packets/s" in t and "ETA" in t for t in report["run1_texts"])
     assert report["run1_collection"].startswith("EP β=+0.0° ")
-    assert len(report["run1_objects"]) == 3  # points + 2 grids
+    # points + absorbed + fluorescent_light + an emission grid per fluorophore (collagen, photofrin)
+    assert len(report["run1_objects"]) == 5, report["run1_objects"]
     # The UI kept running: timer ticks never stalled (software GL, 2 cores).
     assert report["run1_ticks"] >= 5
     # The UI stayed live: its timer kept ticking while the job ran. (Gap lengths

@@ -102,10 +102,14 @@ def test_sweep_job_matches_python_api(ep, tmp_path):
     with open(out / "sweep.csv", newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         header, rows = reader.fieldnames, list(reader)
-    assert header == _documented_columns() == list(importlib.import_module('endophoton.sweep.schema').CSV_COLUMNS)
+    fixed = list(importlib.import_module('endophoton.sweep.schema').CSV_COLUMNS)
+    assert header[: len(fixed)] == _documented_columns() == fixed
+    assert header[len(fixed) :] and all(h.startswith("absorbed_by_region.") for h in header[len(fixed) :])
     assert [float(r["beta_deg"]) for r in rows] == [0.0, 30.0]
     assert all(int(r["records"]) == STORE and int(r["packets_traced"]) > STORE for r in rows)
-    assert all(int(r["seed"]) == SEED and r["cancelled"] == "0" for r in rows)
+    beta_seed = importlib.import_module("endophoton.sweep.schema").beta_seed  # a seed per β by default
+    assert [int(r["seed"]) for r in rows] == [beta_seed(SEED, k, True) for k in range(len(rows))]
+    assert all(r["cancelled"] == "0" for r in rows)
     for name in ("sweep.json", "report.md"):
         assert (out / name).stat().st_size > 0
 
