@@ -22,6 +22,11 @@ def stored_path(path):
     """``path`` as the .blend should hold it: ``//``-relative when the .blend is saved, else as is."""
     if not path or path.startswith("//") or not bpy.data.filepath:
         return path
+    # A .blend opened by a relative path (``open_mainfile(filepath="scenes/a.blend")``)
+    # has a relative bpy.data.filepath; Blender resolves "//" against it without the
+    # working directory and misses the file, so such paths stay absolute.
+    if not os.path.isabs(bpy.data.filepath):
+        return path
     try:
         return bpy.path.relpath(os.path.abspath(path))
     except ValueError:  # another drive (Windows): keep it absolute

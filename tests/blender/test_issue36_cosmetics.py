@@ -40,3 +40,19 @@ def test_absolute_paths_of_an_unsaved_file_become_relative_when_saved(ep, tmp_pa
     bpy.ops.wm.open_mainfile(filepath=blend)
     assert _volume_paths() and all(p.startswith("//grids/") for p in _volume_paths())
     assert all(os.path.isfile(bpy.path.abspath(p)) for p in _volume_paths())
+
+
+def test_a_blend_opened_by_a_relative_path_keeps_absolute_grid_paths(ep, tmp_path, monkeypatch):
+    """open_mainfile("blend_scenes/x.blend") leaves bpy.data.filepath relative; Blender
+    resolves "//" against it without the working directory, so the run's grids must
+    stay absolute to load (the docs/addon.md snippet in a clone under /tmp failed so)."""
+    repo = tmp_path / "repo"
+    (repo / "blend_scenes").mkdir(parents=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(repo / "blend_scenes" / "scene.blend"))
+    monkeypatch.chdir(repo)
+    bpy.ops.wm.open_mainfile(filepath="blend_scenes/scene.blend")
+    assert not os.path.isabs(bpy.data.filepath)
+    bpy.context.scene.endophoton.grid_dir = str(tmp_path / "grids")
+    _slab_run(packets=1000, grids=True)
+    assert _volume_paths() and all(os.path.isabs(p) for p in _volume_paths())
+    assert all(len(v.grids) > 0 for v in bpy.data.volumes)
