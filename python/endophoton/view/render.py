@@ -352,6 +352,16 @@ def _accumulate(acc, key, index, weights, size):
     acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
 
 
+def _accumulate_block(acc, key, index, weights, size, lo, hi):
+    """:func:`_accumulate` of indices that all lie in [lo, hi): only that block of ``acc[key]`` (an array of
+    ``size``, zero where never added to) is touched, so a block of pixels costs its own size, not the image's.
+    Each bin receives the same sum as from :func:`_accumulate` (bit-identical)."""
+    a = acc.get(key)
+    if a is None:
+        a = acc[key] = np.zeros(size)
+    a[lo:hi] += np.bincount(index - lo, weights=weights, minlength=hi - lo)[: hi - lo]
+
+
 def kernel_candidates(positions, directions, camera_position, kernel_radius: float, kernel_angle_deg: float):
     """Which records (positions, directions: (N, 3), scene units) can enter the kernel of some pixel of a
     camera at ``camera_position``: those whose exit direction lies within kernel_angle_deg + arcsin(2 r /
@@ -402,22 +412,26 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         k = pk[p] * norm
         pb = p * B + rec["batch"][j]
         rb = preg[p] * B + rec["batch"][j]
+        # The chunk's pixels [p0, p1) own the blocks [p0 B, p1 B) of the per-pixel sums: add only there.
+        nb = rec["nbins"]
+        pix = (n_pix, p0, p1)
+        pix_b = (n_pix * B, p0 * B, p1 * B)
         for name, e in rec["energy"].items():
             w = e[j] * k
-            _accumulate(acc, name + "_pix_batch", pb, w, n_pix * B)
-            _accumulate(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, n_pix * B)
+            _accumulate_block(acc, name + "_pix_batch", pb, w, *pix_b)
+            _accumulate_block(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, *pix_b)
             for c in range(3):
                 wc = w * rec["cmf"][j, c]
-                _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix)
+                _accumulate_block(acc, f"{name}_xyz{c}_pix", p, wc, *pix)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate(acc, f"{name}_xyz{c}_pix_batch", pb, wc, n_pix * B)
+                _accumulate_block(acc, f"{name}_xyz{c}_pix_batch", pb, wc, *pix_b)
             for c in range(2):
                 wc = w * rec["cam_rg"][j, c]
                 _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate(acc, f"{name}_cam{c}_pix_batch", pb, wc, n_pix * B)
+                _accumulate_block(acc, f"{name}_cam{c}_pix_batch", pb, wc, *pix_b)
             sb = rec["sbin"][j]
             ok = sb >= 0
-            _accumulate(acc, name + "_spec_pix", p[ok] * rec["nbins"] + sb[ok], w[ok], n_pix * rec["nbins"])
+            _accumulate_block(acc, name + "_spec_pix", p[ok] * nb + sb[ok], w[ok], n_pix * nb, p0 * nb, p1 * nb)
     return acc, keep.size
 
 
