@@ -352,14 +352,20 @@ def _accumulate(acc, key, index, weights, size):
     acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
 
 
-def _accumulate_block(acc, key, index, weights, size, lo, hi):
-    """:func:`_accumulate` of indices that all lie in [lo, hi): only that block of ``acc[key]`` (an array of
-    ``size``, zero where never added to) is touched, so a block of pixels costs its own size, not the image's.
-    Each bin receives the same sum as from :func:`_accumulate` (bit-identical)."""
+def _bins(index):
+    """The distinct bins of ``index`` and each entry's place among them: what :func:`_accumulate_sparse` adds by."""
+    return np.unique(index, return_inverse=True)
+
+
+def _accumulate_sparse(acc, key, bins, weights, size):
+    """:func:`_accumulate` of the entries grouped by ``bins`` (:func:`_bins` of their indices): only the bins
+    that receive something are touched, so a chunk of pixels costs its entries, not the image's size.
+    Each bin receives the same sum, in the same order, as from :func:`_accumulate` (bit-identical)."""
     a = acc.get(key)
     if a is None:
         a = acc[key] = np.zeros(size)
-    a[lo:hi] += np.bincount(index - lo, weights=weights, minlength=hi - lo)[: hi - lo]
+    u, inv = bins
+    a[u] += np.bincount(inv, weights=weights, minlength=u.size)
 
 
 def kernel_candidates(positions, directions, camera_position, kernel_radius: float, kernel_angle_deg: float):
@@ -412,26 +418,27 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         k = pk[p] * norm
         pb = p * B + rec["batch"][j]
         rb = preg[p] * B + rec["batch"][j]
-        # The chunk's pixels [p0, p1) own the blocks [p0 B, p1 B) of the per-pixel sums: add only there.
+        if p.size == 0:
+            continue
+        # Only the bins the chunk's pairs reach are touched (a dense block per chunk cost the image's size).
         nb = rec["nbins"]
-        pix = (n_pix, p0, p1)
-        pix_b = (n_pix * B, p0 * B, p1 * B)
+        sb = rec["sbin"][j]
+        ok = sb >= 0
+        g_p, g_pb, g_half, g_spec = _bins(p), _bins(pb), _bins(pb[half]), _bins(p[ok] * nb + sb[ok])
         for name, e in rec["energy"].items():
             w = e[j] * k
-            _accumulate_block(acc, name + "_pix_batch", pb, w, *pix_b)
-            _accumulate_block(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, *pix_b)
+            _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
+            _accumulate_sparse(acc, name + "_half_pix_batch", g_half, e[j][half] * pk[p][half] * norm_h, n_pix * B)
             for c in range(3):
                 wc = w * rec["cmf"][j, c]
-                _accumulate_block(acc, f"{name}_xyz{c}_pix", p, wc, *pix)
+                _accumulate_sparse(acc, f"{name}_xyz{c}_pix", g_p, wc, n_pix)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate_block(acc, f"{name}_xyz{c}_pix_batch", pb, wc, *pix_b)
+                _accumulate_sparse(acc, f"{name}_xyz{c}_pix_batch", g_pb, wc, n_pix * B)
             for c in range(2):
                 wc = w * rec["cam_rg"][j, c]
                 _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate_block(acc, f"{name}_cam{c}_pix_batch", pb, wc, *pix_b)
-            sb = rec["sbin"][j]
-            ok = sb >= 0
-            _accumulate_block(acc, name + "_spec_pix", p[ok] * nb + sb[ok], w[ok], n_pix * nb, p0 * nb, p1 * nb)
+                _accumulate_sparse(acc, f"{name}_cam{c}_pix_batch", g_pb, wc, n_pix * B)
+            _accumulate_sparse(acc, name + "_spec_pix", g_spec, w[ok], n_pix * nb)
     return acc, keep.size
 
 
@@ -464,8 +471,9 @@ def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefi
     k = colour.auto_exposure(rgb.max(axis=-1), hit.reshape(H, W)) if exposure == "auto" else float(exposure)
     img["exposure"] = np.float64(k)
     img["srgb8"] = colour.to_srgb8(rgb, k)
-    spec = acc.get(f"{prefix}{name}_spec_pix", np.zeros(n_hit * nbins)).reshape(n_hit, nbins) / P
-    img["spectrum"] = full(spec, (nbins,)).astype(np.float32)
+    spec = np.zeros((H * W, nbins), dtype=np.float32)  # float32 directly: no full-size float64 copy
+    spec[hit] = acc.pop(f"{prefix}{name}_spec_pix", np.zeros(n_hit * nbins)).reshape(n_hit, nbins) / P
+    img["spectrum"] = spec.reshape(H, W, nbins)
     return img
 
 
@@ -688,33 +696,40 @@ def _nee_acc(sums, spectrum, hit, preg, n_regions):
             acc[f"{name}_xyz{c}_pix"] = s[:, :, o + 1 + c].sum(axis=1)
         for key, first, n in (("xyz", o + 1, 3), ("cam", o + 4, 2)):
             for c in range(n):
-                reg = np.zeros((n_regions, B))
-                np.add.at(reg, preg, s[:, :, first + c])
-                acc[f"{name}_{key}{c}_reg_batch"] = reg.ravel()
+                acc[f"{name}_{key}{c}_reg_batch"] = _region_sums(preg, s[:, :, first + c], n_regions).ravel()
         acc[name + "_spec_pix"] = spectrum[hp, j, :].ravel()
     return acc
 
 
 def _pixel_batches(acc, name, hit, shape, Pb):
-    """Per-pixel, per-batch radiance estimates (H, W, B): batch sums / packets in the batch."""
+    """Per-pixel, per-batch radiance estimates (H, W, B): batch sums / packets in the batch. Takes the sums
+    out of ``acc`` (their last use: the render's memory peak holds one copy)."""
     B = Pb.size
     out = np.zeros((hit.size, B))
-    out[hit] = acc.get(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
+    out[hit] = acc.pop(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
     return out.reshape(shape + (B,))
 
 
 def _pixel_colour_sums(acc, name, hit, shape, B):
     """Per-pixel, per-batch sums (not divided by the batch's packets) of the image's XYZ (H, W, 3, B) and
-    camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs."""
+    camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs.
+    Takes the sums out of ``acc`` (their last use), one channel at a time."""
     n_hit = int(hit.sum())
     out = {}
     for key, tag, k in (("xyz", "xyz", 3), ("camera_rg", "cam", 2)):
         a = np.zeros((hit.size, k, B))
-        a[hit] = np.stack(
-            [acc.get(f"{name}_{tag}{c}_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B) for c in range(k)], axis=1
-        )
+        for c in range(k):  # channel by channel: no (pixels, k, B) temporary
+            a[hit, c] = acc.pop(f"{name}_{tag}{c}_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)
         out[key] = a.reshape(shape + (k, B))
     return out
+
+
+def _region_sums(preg, values, n_regions):
+    """Sums (n_regions, B) of the rows of ``values`` (pixels, B) by the pixels' regions ``preg``: one bincount,
+    adding each region's pixels in order (as np.add.at did, bit-identical, in time linear in the pixels)."""
+    B = values.shape[1]
+    index = (preg[:, None] * B + np.arange(B)).ravel()
+    return np.bincount(index, weights=np.ravel(values), minlength=n_regions * B)[: n_regions * B].reshape(n_regions, B)
 
 
 def _region_batches(acc, preg, region_pixels, B, gains):
@@ -725,12 +740,9 @@ def _region_batches(acc, preg, region_pixels, B, gains):
     out = {}
     for name in ("white", "fluorescence"):
         pb = acc.get(name + "_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)
-        reg = np.zeros((n_regions, B))
-        np.add.at(reg, preg, pb)
-        out[name + "_radiance"] = reg * inv[:, None]
-        half = np.zeros((n_regions, B))
-        np.add.at(half, preg, acc.get(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B))
-        out[name + "_half_radiance"] = half * inv[:, None]
+        out[name + "_radiance"] = _region_sums(preg, pb, n_regions) * inv[:, None]
+        half = acc.pop(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)  # its last use
+        out[name + "_half_radiance"] = _region_sums(preg, half, n_regions) * inv[:, None]
         xyz = (
             np.stack(
                 [acc.get(f"{name}_xyz{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(3)],
