@@ -45,6 +45,7 @@ from .. import _core
 
 from . import colour
 from ..analysis import batch_index
+from .budget import MAX_PAIRS_PER_CHUNK, check_render_memory
 from .camera import Camera
 from ..io import MAX_THREADS, check_int, shown
 from ..sources import MAX_IMAGE_SIDE, is_image_side
@@ -254,9 +255,10 @@ def _png_bytes(srgb8: np.ndarray) -> bytes:
 # --------------------------------------------------------------------------
 
 
-def _resolve_camera(result, camera, width, height):
+def _resolve_camera(src, camera, width, height):
+    """(Camera, width, height) of a render from the run's source ``src``: the rig's camera and resolution
+    when ``camera`` is None, else 128 x 128 unless given. ValueError naming the camera, width or height."""
     if camera is None:
-        src = getattr(result, "source", None)
         if src is None or not hasattr(src, "camera"):
             raise ValueError(
                 "camera = None: the run's source has no camera (only an EndoscopeRig has one); "
@@ -383,6 +385,20 @@ def kernel_candidates(positions, directions, camera_position, kernel_radius: flo
     return (dist > 0) & (cosc >= np.cos(np.minimum(math.pi, math.radians(kernel_angle_deg) + slack)))
 
 
+def _pixel_chunks(cum):
+    """The kernel gather's chunks [p0, p1) of pixels, given ``cum`` (pixels + 1,), the running count of the
+    pairs in their balls: _CHUNK_PIXELS pixels, split where a chunk would hold more than MAX_PAIRS_PER_CHUNK
+    pairs (one pixel at least); chunks without a pair are skipped."""
+    n_pix, p0 = cum.size - 1, 0
+    while p0 < n_pix:
+        p1 = min(n_pix, p0 + _CHUNK_PIXELS)
+        if cum[p1] - cum[p0] > MAX_PAIRS_PER_CHUNK:
+            p1 = max(p0 + 1, int(np.searchsorted(cum, cum[p0] + MAX_PAIRS_PER_CHUNK, side="right")) - 1)
+        if cum[p1] > cum[p0]:
+            yield p0, p1
+        p0 = p1
+
+
 def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm):
     """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays."""
     from scipy.spatial import cKDTree
@@ -400,11 +416,12 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     cos_t, cos_h = math.cos(theta), math.cos(theta / 2)
     norm = 1.0 / (math.pi * (r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_t))
     norm_h = 1.0 / (math.pi * (0.5 * r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_h))
-    for p0 in range(0, n_pix, _CHUNK_PIXELS):
-        p1 = min(n_pix, p0 + _CHUNK_PIXELS)
-        lists = tree.query_ball_point(
-            query[p0:p1], math.sqrt(2.0) * (1 + 1e-9), workers=threads or -1, return_sorted=False
-        )
+    ball = math.sqrt(2.0) * (1 + 1e-9)
+    # the pairs each pixel's ball holds, counted first: chunks of _CHUNK_PIXELS pixels, split where they would
+    # hold more than MAX_PAIRS_PER_CHUNK pairs (a pixel's own pairs are at most the records)
+    n_ball = tree.query_ball_point(query, ball, workers=threads or -1, return_length=True)
+    for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
+        lists = tree.query_ball_point(query[p0:p1], ball, workers=threads or -1, return_sorted=False)
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
         if counts.sum() == 0:
             continue
@@ -502,6 +519,7 @@ def render_view(
     n_batches: int = 20,
     threads: int = 0,
     estimator: str = "auto",
+    memory_budget_bytes: float | None = None,
 ) -> View:
     """Render the image the camera records from ``result``'s escape records (surface photon map).
 
@@ -522,6 +540,9 @@ def render_view(
     estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased, the
         most efficient: docs/render.md), "kernel" (the kernel estimate over the escape records) or "auto"
         (nee when the run has a camera tally, else kernel)
+    memory_budget_bytes : the most memory the render may need (None: ``view.budget.RENDER_MEMORY_BUDGET_BYTES``,
+        4 GiB); a size that needs more (:func:`endophoton.view.budget.render_memory_bytes`) is refused before
+        anything is allocated, with a ValueError naming width and height
     """
     _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
     if estimator not in ESTIMATORS:
@@ -535,7 +556,16 @@ def render_view(
     check_spectral(result)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
-    camera, W, H = _resolve_camera(result, camera, width, height)
+    camera, W, H = _resolve_camera(result.source, camera, width, height)
+    esc = result.escapes
+    check_render_memory(
+        W,
+        H,
+        n_batches,
+        records=len(esc["weight"]) if isinstance(esc, dict) and "weight" in esc else 0,
+        aperture=camera.aperture_radius > 0 and (estimator == "kernel" or esc is not None),
+        memory_budget_bytes=memory_budget_bytes,
+    )
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)
     gains = _gains(white_balance, light)
@@ -714,12 +744,14 @@ def _pixel_colour_sums(acc, name, hit, shape, B):
     """Per-pixel, per-batch sums (not divided by the batch's packets) of the image's XYZ (H, W, 3, B) and
     camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs.
     Takes the sums out of ``acc`` (their last use), one channel at a time."""
-    n_hit = int(hit.sum())
+    hp = np.flatnonzero(hit)
     out = {}
     for key, tag, k in (("xyz", "xyz", 3), ("camera_rg", "cam", 2)):
         a = np.zeros((hit.size, k, B))
         for c in range(k):  # channel by channel: no (pixels, k, B) temporary
-            a[hit, c] = acc.pop(f"{name}_{tag}{c}_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)
+            sums = acc.pop(f"{name}_{tag}{c}_pix_batch", None)
+            if sums is not None:  # never added to: zero
+                a[hp, c] = sums.reshape(hp.size, B)
         out[key] = a.reshape(shape + (k, B))
     return out
 
