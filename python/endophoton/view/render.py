@@ -727,6 +727,7 @@ def _nee_acc(sums, spectrum, hit, preg, n_regions):
         for key, first, n in (("xyz", o + 1, 3), ("cam", o + 4, 2)):
             for c in range(n):
                 acc[f"{name}_{key}{c}_reg_batch"] = _region_sums(preg, s[:, :, first + c], n_regions).ravel()
+                acc[f"{name}_{key}{c}_pix_batch"] = s[:, :, first + c].ravel()  # View.pixel_colour_sums
         acc[name + "_spec_pix"] = spectrum[hp, j, :].ravel()
     return acc
 
