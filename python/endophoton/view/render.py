@@ -399,8 +399,11 @@ def _pixel_chunks(cum):
         p0 = p1
 
 
-def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm):
-    """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays."""
+def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, image_pixel, n_image):
+    """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays.
+    ``image_pixel`` (hit pixels,): each hit pixel's index in the image of ``n_image`` pixels: the colour sums
+    are laid out as View.pixel_colour_sums holds them, (n_image, channels, B), so the View takes them
+    without a copy."""
     from scipy.spatial import cKDTree
 
     B = rec["Pb"].size
@@ -442,6 +445,8 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         sb = rec["sbin"][j]
         ok = sb >= 0
         g_p, g_pb, g_half, g_spec = _bins(p), _bins(pb), _bins(pb[half]), _bins(p[ok] * nb + sb[ok])
+        # (image pixel, channel, batch) of channel 0 of the XYZ (3 channels) and camera R, G (2) sums
+        g_xyz, g_cam = (_bins((image_pixel[p] * n + 0) * B + rec["batch"][j]) for n in (3, 2))
         for name, e in rec["energy"].items():
             w = e[j] * k
             _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
@@ -450,11 +455,11 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
                 wc = w * rec["cmf"][j, c]
                 _accumulate_sparse(acc, f"{name}_xyz{c}_pix", g_p, wc, n_pix)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate_sparse(acc, f"{name}_xyz{c}_pix_batch", g_pb, wc, n_pix * B)
+                _accumulate_sparse(acc, f"{name}_xyz_image", (g_xyz[0] + c * B, g_xyz[1]), wc, n_image * 3 * B)
             for c in range(2):
                 wc = w * rec["cam_rg"][j, c]
                 _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate_sparse(acc, f"{name}_cam{c}_pix_batch", g_pb, wc, n_pix * B)
+                _accumulate_sparse(acc, f"{name}_cam_image", (g_cam[0] + c * B, g_cam[1]), wc, n_image * 2 * B)
             _accumulate_sparse(acc, name + "_spec_pix", g_spec, w[ok], n_pix * nb)
     return acc, keep.size
 
@@ -624,7 +629,18 @@ def render_view(
         # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
         rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
         acc, n_candidates = _kernel_gather(
-            px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads), scene.unit_cm
+            px,
+            pw,
+            pk,
+            preg,
+            n_regions,
+            rec,
+            float(kernel_radius),
+            float(kernel_angle_deg),
+            int(threads),
+            scene.unit_cm,
+            np.flatnonzero(hit),
+            hit.size,
         )
     Pb = rec["Pb"]
     images = {
@@ -725,9 +741,11 @@ def _nee_acc(sums, spectrum, hit, preg, n_regions):
         for c in range(3):
             acc[f"{name}_xyz{c}_pix"] = s[:, :, o + 1 + c].sum(axis=1)
         for key, first, n in (("xyz", o + 1, 3), ("cam", o + 4, 2)):
+            image = np.zeros((hit.size, n, B))  # View.pixel_colour_sums' layout
             for c in range(n):
                 acc[f"{name}_{key}{c}_reg_batch"] = _region_sums(preg, s[:, :, first + c], n_regions).ravel()
-                acc[f"{name}_{key}{c}_pix_batch"] = s[:, :, first + c].ravel()  # View.pixel_colour_sums
+                image[hp, c] = s[:, :, first + c]
+            acc[f"{name}_{key}_image"] = image.ravel()
         acc[name + "_spec_pix"] = spectrum[hp, j, :].ravel()
     return acc
 
@@ -744,16 +762,12 @@ def _pixel_batches(acc, name, hit, shape, Pb):
 def _pixel_colour_sums(acc, name, hit, shape, B):
     """Per-pixel, per-batch sums (not divided by the batch's packets) of the image's XYZ (H, W, 3, B) and
     camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs.
-    Takes the sums out of ``acc`` (their last use), one channel at a time."""
-    hp = np.flatnonzero(hit)
+    The sums are accumulated in this layout (image pixel, channel, batch): the View takes them out of ``acc``
+    without a copy."""
     out = {}
     for key, tag, k in (("xyz", "xyz", 3), ("camera_rg", "cam", 2)):
-        a = np.zeros((hit.size, k, B))
-        for c in range(k):  # channel by channel: no (pixels, k, B) temporary
-            sums = acc.pop(f"{name}_{tag}{c}_pix_batch", None)
-            if sums is not None:  # never added to: zero
-                a[hp, c] = sums.reshape(hp.size, B)
-        out[key] = a.reshape(shape + (k, B))
+        a = acc.pop(f"{name}_{tag}_image", None)
+        out[key] = (np.zeros(hit.size * k * B) if a is None else a).reshape(shape + (k, B))
     return out
 
 
