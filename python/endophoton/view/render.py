@@ -399,14 +399,14 @@ def _pixel_chunks(cum):
         p0 = p1
 
 
-def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, image_pixel, n_image):
+def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit):
     """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays.
-    ``image_pixel`` (hit pixels,): each hit pixel's index in the image of ``n_image`` pixels: the colour sums
-    are laid out as View.pixel_colour_sums holds them, (n_image, channels, B), so the View takes them
-    without a copy."""
+    ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
+    View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy."""
     from scipy.spatial import cKDTree
 
     B = rec["Pb"].size
+    image_pixel, n_image = np.flatnonzero(hit), hit.size
     theta = math.radians(theta_deg)
     chord = 2.0 * math.sin(theta / 2.0)
     keep = np.flatnonzero(kernel_candidates(rec["pos"], rec["dir"], rec["cam"], r, theta_deg))
@@ -426,8 +426,6 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
         lists = tree.query_ball_point(query[p0:p1], ball, workers=threads or -1, return_sorted=False)
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
-        if counts.sum() == 0:
-            continue
         j = keep[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
         p = np.repeat(np.arange(p0, p1), counts)
         d2 = np.sum((rec["pos"][j] - px[p]) ** 2, axis=1)
@@ -435,18 +433,18 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         inside = (d2 <= r * r) & (cw >= cos_t)
         half = inside & (d2 <= 0.25 * r * r) & (cw >= cos_h)
         p, j, half = p[inside], j[inside], half[inside]
+        if p.size == 0:
+            continue
         k = pk[p] * norm
         pb = p * B + rec["batch"][j]
         rb = preg[p] * B + rec["batch"][j]
-        if p.size == 0:
-            continue
         # Only the bins the chunk's pairs reach are touched (a dense block per chunk cost the image's size).
         nb = rec["nbins"]
         sb = rec["sbin"][j]
         ok = sb >= 0
         g_p, g_pb, g_half, g_spec = _bins(p), _bins(pb), _bins(pb[half]), _bins(p[ok] * nb + sb[ok])
         # (image pixel, channel, batch) of channel 0 of the XYZ (3 channels) and camera R, G (2) sums
-        g_xyz, g_cam = (_bins((image_pixel[p] * n + 0) * B + rec["batch"][j]) for n in (3, 2))
+        g_xyz, g_cam = (_bins(image_pixel[p] * (n * B) + rec["batch"][j]) for n in (3, 2))
         for name, e in rec["energy"].items():
             w = e[j] * k
             _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
@@ -562,15 +560,7 @@ def render_view(
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
     camera, W, H = _resolve_camera(result.source, camera, width, height)
-    esc = result.escapes
-    check_render_memory(
-        W,
-        H,
-        n_batches,
-        records=len(esc["weight"]) if isinstance(esc, dict) and "weight" in esc else 0,
-        aperture=camera.aperture_radius > 0 and (estimator == "kernel" or esc is not None),
-        memory_budget_bytes=memory_budget_bytes,
-    )
+    _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes)
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)
     gains = _gains(white_balance, light)
@@ -628,20 +618,8 @@ def render_view(
         rec["cam"] = camera.position
         # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
         rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
-        acc, n_candidates = _kernel_gather(
-            px,
-            pw,
-            pk,
-            preg,
-            n_regions,
-            rec,
-            float(kernel_radius),
-            float(kernel_angle_deg),
-            int(threads),
-            scene.unit_cm,
-            np.flatnonzero(hit),
-            hit.size,
-        )
+        gather = (px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads))
+        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit)
     Pb = rec["Pb"]
     images = {
         name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
@@ -686,6 +664,20 @@ def render_view(
 
 
 ESTIMATORS = ("auto", "nee", "kernel")
+
+
+def _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes):
+    """:func:`endophoton.view.budget.check_render_memory` of this render, records counted, before anything
+    is allocated."""
+    esc = result.escapes
+    check_render_memory(
+        W,
+        H,
+        n_batches,
+        records=len(esc["weight"]) if isinstance(esc, dict) and "weight" in esc else 0,
+        aperture=camera.aperture_radius > 0 and (estimator == "kernel" or esc is not None),
+        memory_budget_bytes=memory_budget_bytes,
+    )
 
 
 def check_spectral(result):
