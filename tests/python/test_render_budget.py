@@ -117,7 +117,8 @@ def test_the_same_records_give_the_same_region_means_at_two_sizes():
 
 
 def test_render_cli_refuses_an_image_beyond_the_budget_before_the_run(tmp_path, monkeypatch, capsys):
-    """`render --width 8192 --height 8192` exits 2 naming the options and the budget before the engine runs."""
+    """`render --width 8192 --height 8192` exits 2 naming the options and the budget before the engine runs;
+    so do a bad emission filter and a camera inside tissue with the kernel estimator."""
     import json
 
     from endophoton.cli import main
@@ -126,6 +127,7 @@ def test_render_cli_refuses_an_image_beyond_the_budget_before_the_run(tmp_path, 
     def no_run(*a, **k):
         raise AssertionError("the engine ran")
 
+    real_run = sys.modules["endophoton.run"].run
     monkeypatch.setattr(sys.modules["endophoton.run"], "run", no_run)  # the package's `run` is the function
     path = tmp_path / "scene.json"
     path.write_text(json.dumps(SCENE))  # the render CLI tests' scene
@@ -137,8 +139,16 @@ def test_render_cli_refuses_an_image_beyond_the_budget_before_the_run(tmp_path, 
         (["--width", "64", "--height", "64", "--memory-budget-gib", "0.001"], "raise --memory-budget-gib"),
         (["--memory-budget-gib", "-1"], "--memory-budget-gib = -1.0 must be a positive number of GiB"),
         (["--memory-budget-gib", "nan"], "--memory-budget-gib = nan must be a positive number of GiB"),
+        (["--estimator", "kernel", "--emission-filter", "5000"], "emission_filter = 5000.0 must be a cut-on"),
     ]:
         assert main(base + extra) == 2, extra
         err = capsys.readouterr().err
         assert needle in err and "Traceback" not in err, (extra, err)
+    inside = dict(SCENE, camera=dict(SCENE["camera"], position=[2, 2, -1], look_at=[2, 2, 0]))  # in the wall
+    path.write_text(json.dumps(inside))
+    for estimator in ("kernel", "nee"):  # nee: ep.run's view request refuses it before tracing
+        monkeypatch.setattr(sys.modules["endophoton.run"], "run", no_run if estimator == "kernel" else real_run)
+        assert main(base + ["--estimator", estimator]) == 2
+        err = capsys.readouterr().err
+        assert "camera.position = [2.0, 2.0, -1.0] lies inside a region" in err and "Traceback" not in err, err
     assert not (tmp_path / "o").exists()

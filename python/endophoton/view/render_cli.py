@@ -94,10 +94,13 @@ def _check_before_the_run(args, scene, source, camera) -> int | None:
     """The render inputs a run would only meet after tracing, checked first: --width/--height in
     [1, MAX_IMAGE_SIDE], --target/--background naming regions of the scene, a camera to render from, and
     the image's memory (view.budget: the render and, with --estimator nee, the run's camera tally) within
-    --memory-budget-gib. ValueError naming the option (an unknown --target used to be refused after the
-    whole run, 8192 x 8192 died in a MemoryError). Returns the budget in bytes (None: the default)."""
+    --memory-budget-gib; with --estimator kernel also the emission filter and the camera outside tissue (the
+    nee run's view request checks those before tracing). ValueError naming the option (an unknown --target
+    used to be refused after the whole run, 8192 x 8192 died in a MemoryError, a camera inside tissue was
+    found after the kernel run). Returns the budget in bytes (None: the default)."""
     from .budget import check_render_memory
-    from .render import _resolve_camera
+    from .nee import _check_camera_outside
+    from .render import _resolve_camera, emission_filter_function, excitation_spectrum
     from ..sources import MAX_IMAGE_SIDE, is_image_side
 
     for name in ("width", "height"):
@@ -118,16 +121,18 @@ def _check_before_the_run(args, scene, source, camera) -> int | None:
     if gib is not None and not (math.isfinite(gib) and gib > 0):
         raise ValueError(f"--memory-budget-gib = {gib!r} must be a positive number of GiB")
     budget = None if gib is None else gib * 2**30
-    _, W, H = _resolve_camera(source, camera, args.width, args.height)
-    check_render_memory(
-        W,
-        H,
-        tally=getattr(args, "estimator", "kernel") == "nee",
-        aperture=camera is not None and camera.aperture_radius > 0,
-        memory_budget_bytes=budget,
-        names=("--width", "--height", "--memory-budget-gib"),
-    )
+    cam, W, H = _resolve_camera(source, camera, args.width, args.height)
+    nee = getattr(args, "estimator", "kernel") == "nee"
+    aperture = camera is not None and camera.aperture_radius > 0
+    check_render_memory(W, H, tally=nee, aperture=aperture, memory_budget_bytes=budget, names=_BUDGET_NAMES)
+    if not nee:
+        light = excitation_spectrum(args.excitation)
+        emission_filter_function("auto" if args.emission_filter is None else args.emission_filter, light)
+        _check_camera_outside(scene, cam)
     return budget
+
+
+_BUDGET_NAMES = ("--width", "--height", "--memory-budget-gib")
 
 
 #: The keys of the printed ``contrast`` object against a whole --background region (the render CLI's contract).
