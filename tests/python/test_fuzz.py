@@ -425,9 +425,9 @@ RENDER_SIZES = ["0", "-1", "1", "2", "7", "8192", "8193", "100000", "1.5", "abc"
 def test_render_cli_sizes_and_targets_give_json_or_exit_2_before_the_run(
     tmp_path_factory, capsys, option, size, target
 ):
-    """Render sizes beyond [1, 8192] and unknown --target regions are refused before the run (exit 2);
-    sizes that would cost more than a tiny render are not run here (the render's own scaling is
-    another branch's). Valid tiny ones give JSON."""
+    """Render sizes beyond [1, 8192], sizes beyond the memory budget (view.budget) and unknown --target
+    regions are refused before the run (exit 2); other sizes that would cost more than a tiny render are
+    not run here. Valid tiny ones give JSON."""
     tmp = tmp_path_factory.mktemp("render")
     doc = dict(
         copy.deepcopy(BASE), camera={"position": [0, 0, 1], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 40}
@@ -437,8 +437,12 @@ def test_render_cli_sizes_and_targets_give_json_or_exit_2_before_the_run(
     if target is not None:
         argv += ["--target", target, "--background", "polyp"]
     valid = size.lstrip("-").isdigit() and 1 <= int(size) <= 8192 and target != "nope"
+    if valid and int(size) == 8192:  # 8192 x 128 with the run's camera tally: beyond the 4 GiB budget
+        code, out, err = _cli_outcome(argv, capsys)
+        assert code == 2 and "more than the memory budget" in err, (argv, code, err)
+        return
     if valid and int(size) > 16:
-        return  # a large render: its cost is the view branch's to bound
+        return  # a larger render within the budget: a run this test need not pay for
     code, out, err = _cli_outcome(argv, capsys)
     if valid:
         assert code in (0, 2), err  # 2: e.g. the camera sees no pixel of the target

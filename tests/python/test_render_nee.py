@@ -227,3 +227,24 @@ def test_colon_agrees_with_aperture():
     _assert_agree(nee, other, min_pixels=10, power=False)  # few converged aperture pixels: the regions test below
     chi, dof = _aperture_region_chi2(nee, other, ("polyp", "colon"))
     assert chi < chi2_limit(dof), (chi, dof)
+
+
+@pytest.mark.parametrize("estimator", ["nee", "kernel"])
+def test_pixel_colour_sums_add_up_to_the_region_sums(estimator):
+    """A surround contrast groups pixels by View.pixel_colour_sums, a region contrast uses View.region_batches;
+    summed over a region's pixels the first must give the second (the nee view's colour sums used to be
+    all zero, so its surround red/green contrast was always None)."""
+    from endophoton.view.visibility import _region_group, pixel_group_batches
+
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.5)
+    cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
+    view = dict(camera=cam, width=12, height=12) if estimator == "nee" else None
+    res = ep.run(polyp_box_scene(), src, photons=2000, seed=1, spectral=True, view=view, threads=1)
+    v = render_view(res, cam, 12, 12, estimator=estimator, kernel_radius=0.3)
+    for name in ("polyp", "wall"):
+        i = v.region_index(name)
+        by_pixels, by_region = pixel_group_batches(v, v.region_map == i), _region_group(v, i)
+        for key in ("white_rgb", "fluorescence_rgb", "fluorescence_camera_rg", "white_radiance"):
+            assert np.abs(by_region[key]).max() > 0, (name, key)
+            np.testing.assert_allclose(by_pixels[key], by_region[key], rtol=1e-12, atol=0, err_msg=f"{name} {key}")
+    assert v.contrast("polyp", None, surround_px=3)["red_green"] is not None

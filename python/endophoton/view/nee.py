@@ -23,7 +23,17 @@ __all__ = ["view_request", "camera_view", "CHANNELS"]
 
 CHANNELS = ("energy", "x", "y", "z", "camera_r", "camera_g")
 _LAMBDA0_NM, _LAMBDA1_NM, _DLAMBDA_NM = 200.0, 1100.0, 0.1
-_KEYS = {"camera", "width", "height", "n_batches", "excitation", "emission_filter", "white_balance", "tau_cut"}
+_KEYS = {
+    "camera",
+    "width",
+    "height",
+    "n_batches",
+    "excitation",
+    "emission_filter",
+    "white_balance",
+    "tau_cut",
+    "memory_budget_bytes",
+}
 DEFAULT_TAU_CUT = 3.0
 
 
@@ -36,13 +46,16 @@ def view_request(
     emission_filter="auto",
     white_balance="white",
     tau_cut: float = DEFAULT_TAU_CUT,
+    memory_budget_bytes: float | None = None,
 ) -> dict:
     """The keys of ``ep.run(..., view=dict(...))``; the same names and defaults as :func:`render_view`'s.
 
     camera : None (the rig's camera), an ep.Camera or its dict; width, height : pixels (default: the rig
     camera's resolution, else 128); n_batches : batches of the batch-means standard errors; excitation,
     emission_filter, white_balance : as render_view's (they set the colour channels); tau_cut : optical
-    depth (mu_t x path to the exit point) beyond which scores are thinned by an unbiased roulette.
+    depth (mu_t x path to the exit point) beyond which scores are thinned by an unbiased roulette;
+    memory_budget_bytes : the most memory the tally and its render may need (None: 4 GiB,
+    ``view.budget.RENDER_MEMORY_BUDGET_BYTES``): a larger image is refused before the run.
     """
     return dict(
         camera=camera,
@@ -53,6 +66,7 @@ def view_request(
         emission_filter=emission_filter,
         white_balance=white_balance,
         tau_cut=tau_cut,
+        memory_budget_bytes=memory_budget_bytes,
     )
 
 
@@ -89,20 +103,25 @@ def camera_view(scene, source, photons, view):
     from .. import _core
     from .render import _gains, _resolve_camera, emission_filter_function, excitation_spectrum
     from ..analysis.batches import _check_batches
+    from .budget import check_render_memory
 
     req = _as_request(view)
     if photons is None:
         raise ValueError("view: the camera tally needs a fixed photon count (photons=N, no store or target)")
-
-    class _Src:  # _resolve_camera reads result.source
-        pass
-
-    holder = _Src()
-    holder.source = source
-    camera, W, H = _resolve_camera(holder, req["camera"], req["width"], req["height"])
+    camera, W, H = _resolve_camera(source, req["camera"], req["width"], req["height"])
     B = _check_batches(req["n_batches"])
     if photons < B:
         raise ValueError(f"photons = {photons} must be >= view n_batches = {B}")
+    # the tally (pixels x batches x 12 sums) and the render that reads it, before the engine allocates it
+    check_render_memory(
+        W,
+        H,
+        B,
+        tally=True,
+        aperture=camera.aperture_radius > 0,
+        memory_budget_bytes=req["memory_budget_bytes"],
+        names=("view width", "view height", "view memory_budget_bytes"),
+    )
     tau = req["tau_cut"]
     if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not (math.isfinite(tau) and tau >= 0):
         raise ValueError(f"view tau_cut = {tau!r} must be a finite number >= 0 (optical depth)")

@@ -45,6 +45,7 @@ from .. import _core
 
 from . import colour
 from ..analysis import batch_index
+from .budget import MAX_PAIRS_PER_CHUNK, check_render_memory
 from .camera import Camera
 from ..io import MAX_THREADS, check_int, shown
 from ..sources import MAX_IMAGE_SIDE, is_image_side
@@ -254,9 +255,10 @@ def _png_bytes(srgb8: np.ndarray) -> bytes:
 # --------------------------------------------------------------------------
 
 
-def _resolve_camera(result, camera, width, height):
+def _resolve_camera(src, camera, width, height):
+    """(Camera, width, height) of a render from the run's source ``src``: the rig's camera and resolution
+    when ``camera`` is None, else 128 x 128 unless given. ValueError naming the camera, width or height."""
     if camera is None:
-        src = getattr(result, "source", None)
         if src is None or not hasattr(src, "camera"):
             raise ValueError(
                 "camera = None: the run's source has no camera (only an EndoscopeRig has one); "
@@ -352,6 +354,22 @@ def _accumulate(acc, key, index, weights, size):
     acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
 
 
+def _bins(index):
+    """The distinct bins of ``index`` and each entry's place among them: what :func:`_accumulate_sparse` adds by."""
+    return np.unique(index, return_inverse=True)
+
+
+def _accumulate_sparse(acc, key, bins, weights, size):
+    """:func:`_accumulate` of the entries grouped by ``bins`` (:func:`_bins` of their indices): only the bins
+    that receive something are touched, so a chunk of pixels costs its entries, not the image's size.
+    Each bin receives the same sum, in the same order, as from :func:`_accumulate` (bit-identical)."""
+    a = acc.get(key)
+    if a is None:
+        a = acc[key] = np.zeros(size)
+    u, inv = bins
+    a[u] += np.bincount(inv, weights=weights, minlength=u.size)
+
+
 def kernel_candidates(positions, directions, camera_position, kernel_radius: float, kernel_angle_deg: float):
     """Which records (positions, directions: (N, 3), scene units) can enter the kernel of some pixel of a
     camera at ``camera_position``: those whose exit direction lies within kernel_angle_deg + arcsin(2 r /
@@ -367,11 +385,28 @@ def kernel_candidates(positions, directions, camera_position, kernel_radius: flo
     return (dist > 0) & (cosc >= np.cos(np.minimum(math.pi, math.radians(kernel_angle_deg) + slack)))
 
 
-def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm):
-    """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays."""
+def _pixel_chunks(cum):
+    """The kernel gather's chunks [p0, p1) of pixels, given ``cum`` (pixels + 1,), the running count of the
+    pairs in their balls: _CHUNK_PIXELS pixels, split where a chunk would hold more than MAX_PAIRS_PER_CHUNK
+    pairs (one pixel at least); chunks without a pair are skipped."""
+    n_pix, p0 = cum.size - 1, 0
+    while p0 < n_pix:
+        p1 = min(n_pix, p0 + _CHUNK_PIXELS)
+        if cum[p1] - cum[p0] > MAX_PAIRS_PER_CHUNK:
+            p1 = max(p0 + 1, int(np.searchsorted(cum, cum[p0] + MAX_PAIRS_PER_CHUNK, side="right")) - 1)
+        if cum[p1] > cum[p0]:
+            yield p0, p1
+        p0 = p1
+
+
+def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit):
+    """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays.
+    ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
+    View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy."""
     from scipy.spatial import cKDTree
 
     B = rec["Pb"].size
+    image_pixel, n_image = np.flatnonzero(hit), hit.size
     theta = math.radians(theta_deg)
     chord = 2.0 * math.sin(theta / 2.0)
     keep = np.flatnonzero(kernel_candidates(rec["pos"], rec["dir"], rec["cam"], r, theta_deg))
@@ -384,14 +419,13 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     cos_t, cos_h = math.cos(theta), math.cos(theta / 2)
     norm = 1.0 / (math.pi * (r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_t))
     norm_h = 1.0 / (math.pi * (0.5 * r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_h))
-    for p0 in range(0, n_pix, _CHUNK_PIXELS):
-        p1 = min(n_pix, p0 + _CHUNK_PIXELS)
-        lists = tree.query_ball_point(
-            query[p0:p1], math.sqrt(2.0) * (1 + 1e-9), workers=threads or -1, return_sorted=False
-        )
+    ball = math.sqrt(2.0) * (1 + 1e-9)
+    # the pairs each pixel's ball holds, counted first: chunks of _CHUNK_PIXELS pixels, split where they would
+    # hold more than MAX_PAIRS_PER_CHUNK pairs (a pixel's own pairs are at most the records)
+    n_ball = tree.query_ball_point(query, ball, workers=threads or -1, return_length=True)
+    for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
+        lists = tree.query_ball_point(query[p0:p1], ball, workers=threads or -1, return_sorted=False)
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
-        if counts.sum() == 0:
-            continue
         j = keep[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
         p = np.repeat(np.arange(p0, p1), counts)
         d2 = np.sum((rec["pos"][j] - px[p]) ** 2, axis=1)
@@ -399,25 +433,32 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         inside = (d2 <= r * r) & (cw >= cos_t)
         half = inside & (d2 <= 0.25 * r * r) & (cw >= cos_h)
         p, j, half = p[inside], j[inside], half[inside]
+        if p.size == 0:
+            continue
         k = pk[p] * norm
         pb = p * B + rec["batch"][j]
         rb = preg[p] * B + rec["batch"][j]
+        # Only the bins the chunk's pairs reach are touched (a dense block per chunk cost the image's size).
+        nb = rec["nbins"]
+        sb = rec["sbin"][j]
+        ok = sb >= 0
+        g_p, g_pb, g_half, g_spec = _bins(p), _bins(pb), _bins(pb[half]), _bins(p[ok] * nb + sb[ok])
+        # (image pixel, channel, batch) of channel 0 of the XYZ (3 channels) and camera R, G (2) sums
+        g_xyz, g_cam = (_bins(image_pixel[p] * (n * B) + rec["batch"][j]) for n in (3, 2))
         for name, e in rec["energy"].items():
             w = e[j] * k
-            _accumulate(acc, name + "_pix_batch", pb, w, n_pix * B)
-            _accumulate(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, n_pix * B)
+            _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
+            _accumulate_sparse(acc, name + "_half_pix_batch", g_half, e[j][half] * pk[p][half] * norm_h, n_pix * B)
             for c in range(3):
                 wc = w * rec["cmf"][j, c]
-                _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix)
+                _accumulate_sparse(acc, f"{name}_xyz{c}_pix", g_p, wc, n_pix)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate(acc, f"{name}_xyz{c}_pix_batch", pb, wc, n_pix * B)
+                _accumulate_sparse(acc, f"{name}_xyz_image", (g_xyz[0] + c * B, g_xyz[1]), wc, n_image * 3 * B)
             for c in range(2):
                 wc = w * rec["cam_rg"][j, c]
                 _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate(acc, f"{name}_cam{c}_pix_batch", pb, wc, n_pix * B)
-            sb = rec["sbin"][j]
-            ok = sb >= 0
-            _accumulate(acc, name + "_spec_pix", p[ok] * rec["nbins"] + sb[ok], w[ok], n_pix * rec["nbins"])
+                _accumulate_sparse(acc, f"{name}_cam_image", (g_cam[0] + c * B, g_cam[1]), wc, n_image * 2 * B)
+            _accumulate_sparse(acc, name + "_spec_pix", g_spec, w[ok], n_pix * nb)
     return acc, keep.size
 
 
@@ -450,8 +491,9 @@ def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefi
     k = colour.auto_exposure(rgb.max(axis=-1), hit.reshape(H, W)) if exposure == "auto" else float(exposure)
     img["exposure"] = np.float64(k)
     img["srgb8"] = colour.to_srgb8(rgb, k)
-    spec = acc.get(f"{prefix}{name}_spec_pix", np.zeros(n_hit * nbins)).reshape(n_hit, nbins) / P
-    img["spectrum"] = full(spec, (nbins,)).astype(np.float32)
+    spec = np.zeros((H * W, nbins), dtype=np.float32)  # float32 directly: no full-size float64 copy
+    spec[hit] = acc.pop(f"{prefix}{name}_spec_pix", np.zeros(n_hit * nbins)).reshape(n_hit, nbins) / P
+    img["spectrum"] = spec.reshape(H, W, nbins)
     return img
 
 
@@ -480,6 +522,7 @@ def render_view(
     n_batches: int = 20,
     threads: int = 0,
     estimator: str = "auto",
+    memory_budget_bytes: float | None = None,
 ) -> View:
     """Render the image the camera records from ``result``'s escape records (surface photon map).
 
@@ -500,6 +543,9 @@ def render_view(
     estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased, the
         most efficient: docs/render.md), "kernel" (the kernel estimate over the escape records) or "auto"
         (nee when the run has a camera tally, else kernel)
+    memory_budget_bytes : the most memory the render may need (None: ``view.budget.RENDER_MEMORY_BUDGET_BYTES``,
+        4 GiB); a size that needs more (:func:`endophoton.view.budget.render_memory_bytes`) is refused before
+        anything is allocated, with a ValueError naming width and height
     """
     _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
     if estimator not in ESTIMATORS:
@@ -513,7 +559,8 @@ def render_view(
     check_spectral(result)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
-    camera, W, H = _resolve_camera(result, camera, width, height)
+    camera, W, H = _resolve_camera(result.source, camera, width, height)
+    _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes)
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)
     gains = _gains(white_balance, light)
@@ -571,9 +618,8 @@ def render_view(
         rec["cam"] = camera.position
         # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
         rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
-        acc, n_candidates = _kernel_gather(
-            px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads), scene.unit_cm
-        )
+        gather = (px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads))
+        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit)
     Pb = rec["Pb"]
     images = {
         name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
@@ -618,6 +664,20 @@ def render_view(
 
 
 ESTIMATORS = ("auto", "nee", "kernel")
+
+
+def _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes):
+    """:func:`endophoton.view.budget.check_render_memory` of this render, records counted, before anything
+    is allocated."""
+    esc = result.escapes
+    check_render_memory(
+        W,
+        H,
+        n_batches,
+        records=len(esc["weight"]) if isinstance(esc, dict) and "weight" in esc else 0,
+        aperture=camera.aperture_radius > 0 and (estimator == "kernel" or esc is not None),
+        memory_budget_bytes=memory_budget_bytes,
+    )
 
 
 def check_spectral(result):
@@ -673,34 +733,42 @@ def _nee_acc(sums, spectrum, hit, preg, n_regions):
         for c in range(3):
             acc[f"{name}_xyz{c}_pix"] = s[:, :, o + 1 + c].sum(axis=1)
         for key, first, n in (("xyz", o + 1, 3), ("cam", o + 4, 2)):
+            image = np.zeros((hit.size, n, B))  # View.pixel_colour_sums' layout
             for c in range(n):
-                reg = np.zeros((n_regions, B))
-                np.add.at(reg, preg, s[:, :, first + c])
-                acc[f"{name}_{key}{c}_reg_batch"] = reg.ravel()
+                acc[f"{name}_{key}{c}_reg_batch"] = _region_sums(preg, s[:, :, first + c], n_regions).ravel()
+                image[hp, c] = s[:, :, first + c]
+            acc[f"{name}_{key}_image"] = image.ravel()
         acc[name + "_spec_pix"] = spectrum[hp, j, :].ravel()
     return acc
 
 
 def _pixel_batches(acc, name, hit, shape, Pb):
-    """Per-pixel, per-batch radiance estimates (H, W, B): batch sums / packets in the batch."""
+    """Per-pixel, per-batch radiance estimates (H, W, B): batch sums / packets in the batch. Takes the sums
+    out of ``acc`` (their last use: the render's memory peak holds one copy)."""
     B = Pb.size
     out = np.zeros((hit.size, B))
-    out[hit] = acc.get(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
+    out[hit] = acc.pop(name + "_pix_batch", np.zeros(int(hit.sum()) * B)).reshape(-1, B) / Pb
     return out.reshape(shape + (B,))
 
 
 def _pixel_colour_sums(acc, name, hit, shape, B):
     """Per-pixel, per-batch sums (not divided by the batch's packets) of the image's XYZ (H, W, 3, B) and
-    camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs."""
-    n_hit = int(hit.sum())
+    camera R, G (H, W, 2, B): what a contrast over any group of pixels (visibility.pixel_group_batches) needs.
+    The sums are accumulated in this layout (image pixel, channel, batch): the View takes them out of ``acc``
+    without a copy."""
     out = {}
     for key, tag, k in (("xyz", "xyz", 3), ("camera_rg", "cam", 2)):
-        a = np.zeros((hit.size, k, B))
-        a[hit] = np.stack(
-            [acc.get(f"{name}_{tag}{c}_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B) for c in range(k)], axis=1
-        )
-        out[key] = a.reshape(shape + (k, B))
+        a = acc.pop(f"{name}_{tag}_image", None)
+        out[key] = (np.zeros(hit.size * k * B) if a is None else a).reshape(shape + (k, B))
     return out
+
+
+def _region_sums(preg, values, n_regions):
+    """Sums (n_regions, B) of the rows of ``values`` (pixels, B) by the pixels' regions ``preg``: one bincount,
+    adding each region's pixels in order (as np.add.at did, bit-identical, in time linear in the pixels)."""
+    B = values.shape[1]
+    index = (preg[:, None] * B + np.arange(B)).ravel()
+    return np.bincount(index, weights=np.ravel(values), minlength=n_regions * B)[: n_regions * B].reshape(n_regions, B)
 
 
 def _region_batches(acc, preg, region_pixels, B, gains):
@@ -711,12 +779,9 @@ def _region_batches(acc, preg, region_pixels, B, gains):
     out = {}
     for name in ("white", "fluorescence"):
         pb = acc.get(name + "_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)
-        reg = np.zeros((n_regions, B))
-        np.add.at(reg, preg, pb)
-        out[name + "_radiance"] = reg * inv[:, None]
-        half = np.zeros((n_regions, B))
-        np.add.at(half, preg, acc.get(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B))
-        out[name + "_half_radiance"] = half * inv[:, None]
+        out[name + "_radiance"] = _region_sums(preg, pb, n_regions) * inv[:, None]
+        half = acc.pop(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)  # its last use
+        out[name + "_half_radiance"] = _region_sums(preg, half, n_regions) * inv[:, None]
         xyz = (
             np.stack(
                 [acc.get(f"{name}_xyz{c}_reg_batch", np.zeros(n_regions * B)).reshape(n_regions, B) for c in range(3)],

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 
 
@@ -41,6 +42,14 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     )
     p.add_argument("--kernel-radius", type=float, default=None, help="scene units (default: 2 pixel footprints)")
     p.add_argument("--kernel-angle", type=float, default=15.0, help="degrees (default 15)")
+    p.add_argument(
+        "--memory-budget-gib",
+        type=float,
+        default=None,
+        metavar="GIB",
+        help="the most memory the render may need, GiB (default 4: view.budget.RENDER_MEMORY_BUDGET_BYTES); a "
+        "larger --width x --height is refused before the run",
+    )
     p.add_argument(
         "--estimator",
         choices=("nee", "kernel"),
@@ -81,10 +90,17 @@ def _check_int(name, v, lo):
         raise ValueError(f"--{name} = {v} must be >= {lo}")
 
 
-def _check_before_the_run(args, scene) -> None:
+def _check_before_the_run(args, scene, source, camera) -> int | None:
     """The render inputs a run would only meet after tracing, checked first: --width/--height in
-    [1, MAX_IMAGE_SIDE] and --target/--background naming regions of the scene (ValueError naming
-    the option; an unknown --target used to be refused after the whole run)."""
+    [1, MAX_IMAGE_SIDE], --target/--background naming regions of the scene, a camera to render from, and
+    the image's memory (view.budget: the render and, with --estimator nee, the run's camera tally) within
+    --memory-budget-gib; with --estimator kernel also the emission filter and the camera outside tissue (the
+    nee run's view request checks those before tracing). ValueError naming the option (an unknown --target
+    used to be refused after the whole run, 8192 x 8192 died in a MemoryError, a camera inside tissue was
+    found after the kernel run). Returns the budget in bytes (None: the default)."""
+    from .budget import check_render_memory
+    from .nee import _check_camera_outside
+    from .render import _resolve_camera, emission_filter_function, excitation_spectrum
     from ..sources import MAX_IMAGE_SIDE, is_image_side
 
     for name in ("width", "height"):
@@ -96,6 +112,29 @@ def _check_before_the_run(args, scene) -> None:
         v = getattr(args, option)
         if v is not None and v not in names:
             raise ValueError(f"--{option} = {v!r} is not a region of the scene (regions: {', '.join(names)})")
+    if camera is None and not hasattr(source, "camera"):
+        raise ValueError(
+            f"camera: SCENE.json has no 'camera' object and source.type = "
+            f"{type(source).__name__} has no camera of its own"
+        )
+    gib = getattr(args, "memory_budget_gib", None)
+    if gib is not None and not (math.isfinite(gib) and gib > 0):
+        raise ValueError(f"--memory-budget-gib = {gib!r} must be a positive number of GiB")
+    budget = None if gib is None else gib * 2**30
+    cam, W, H = _resolve_camera(source, camera, args.width, args.height)
+    nee = getattr(args, "estimator", "kernel") == "nee"
+    aperture = camera is not None and camera.aperture_radius > 0
+    check_render_memory(W, H, tally=nee, aperture=aperture, memory_budget_bytes=budget, names=_BUDGET_NAMES)
+    if not nee:
+        light = excitation_spectrum(args.excitation)
+        emission_filter_function("auto" if args.emission_filter is None else args.emission_filter, light)
+        _check_camera_outside(scene, cam)
+    return budget
+
+
+_BUDGET_NAMES = ("--width", "--height", "--memory-budget-gib")
+
+
 #: The keys of the printed ``contrast`` object against a whole --background region (the render CLI's contract).
 CONTRAST_KEYS = (
     "target",
@@ -125,12 +164,7 @@ def render_main(args) -> int:
     if surround is not None and not surround >= 1:
         raise ValueError(f"--surround = {surround!r} must be a number of pixels >= 1")
     scene, source, camera, defaults = _load(args.scene)
-    _check_before_the_run(args, scene)
-    if camera is None and not hasattr(source, "camera"):
-        raise ValueError(
-            f"camera: SCENE.json has no 'camera' object and source.type = "
-            f"{type(source).__name__} has no camera of its own"
-        )
+    budget = _check_before_the_run(args, scene, source, camera)
     # before the run: the kernel's size against the scene's unit, the output folder and every output file
     check_kernel(args.kernel_radius, args.kernel_angle, scene.unit_cm, names=("--kernel-radius", "--kernel-angle"))
     check_out_dir(args.out)
@@ -146,7 +180,13 @@ def render_main(args) -> int:
     estimator = getattr(args, "estimator", "kernel")
     emission_filter = "auto" if args.emission_filter is None else args.emission_filter
     if estimator == "nee":
-        kwargs["view"] = dict(camera=camera, width=args.width, height=args.height, emission_filter=emission_filter)
+        kwargs["view"] = dict(
+            camera=camera,
+            width=args.width,
+            height=args.height,
+            emission_filter=emission_filter,
+            memory_budget_bytes=budget,
+        )
     res = run(scene, source, photons=photons, record_escapes=True, spectral=True, **kwargs)
     view = render_view(
         res,
@@ -158,6 +198,7 @@ def render_main(args) -> int:
         threads=kwargs.get("threads", 0),
         emission_filter=emission_filter,
         estimator=estimator,
+        memory_budget_bytes=budget,
     )
     out = {
         "width": view.width,
