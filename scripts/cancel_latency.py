@@ -4,10 +4,9 @@ without escape records and grids. Prints figures; it is a measurement, not a tes
 
     nice /usr/bin/python3 scripts/cancel_latency.py [--after 2] [--repeat 3] [--photons 50000000]
 
-Each case starts ep.run in a thread, cancels after ``--after`` seconds and times cancel() ->
-return (the median and maximum of ``--repeat`` runs), and the part of it spent in ep.run after the
-engine's workers stopped (result["seconds"] against the run's own end) is not separated: the
-figure is what a caller (the add-on's timer) waits.
+Each case starts ep.run in a thread, cancels after ``--after`` seconds and times cancel() -> return
+(the median and maximum of ``--repeat`` runs): what a caller (the add-on's worker) waits. The add-on's
+whole wait after Esc, view and grids included, is scripts/cancel_latency_blender.py's figure.
 """
 from __future__ import annotations
 
