@@ -162,7 +162,8 @@ void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
                                         " must equal photons = " + std::to_string(c.photons));
         c.camera_view->check();
         if (!(c.force_spectral || scene.has_fluorophores() || scene.has_spectral_media()))
-            throw std::invalid_argument("camera_view needs a spectral run (spectral=True): its colours need wavelengths");
+            throw std::invalid_argument(
+                "camera_view needs a spectral run (spectral=True): its colours need wavelengths");
     }
     if (c.store > 0 && !c.record_escapes)
         throw std::invalid_argument("store = " + std::to_string(c.store) + " needs record_escapes = True");
@@ -411,7 +412,9 @@ void trace_units_until_done(RunState& st, const UnitPlan& plan, Tracer& tracer, 
         uint64_t counted = first;
         const auto tick = [&](uint64_t k) {
             // Cancel is checked before every packet (two relaxed loads), so a
-            // Ctrl-C lands within one packet even when packets are slow.
+            // Ctrl-C lands within one packet even when packets are slow: the
+            // unit is abandoned, never merged (the result holds whole units).
+            if (st.cfg.test_cancel_at_packet > 0 && k >= st.cfg.test_cancel_at_packet) st.user_cancel.store(true);
             if (st.cancelled() || st.stop.load(std::memory_order_relaxed)) return false;
             if ((k & 255) == 0) {
                 st.done_packets.fetch_add(k - counted);  // progress every 256 packets
@@ -448,8 +451,9 @@ void trace_claimed_units(RunState& st) {
     // The worker leaves: the units still staged are added. (An abandoned unit
     // emptied the staging set, deposits of earlier units included; units are
     // only abandoned when the run is cancelled or failed, and then no grid is
-    // written. A fixed-count run stops once its last unit merged.)
-    if (staging && staging->packets > 0) flush(*staging);
+    // written, so a cancelled run adds nothing. A fixed-count run stops once
+    // its last unit merged.)
+    if (staging && staging->packets > 0 && !st.cancelled()) flush(*staging);
 }
 
 void worker(RunState& st) {
@@ -670,11 +674,12 @@ std::string target_warning(const RunResult& r, const RunConfig& cfg, const UnitP
 
 }  // namespace
 
-RunResult UnitReducer::finish(int threads) {
+RunResult UnitReducer::finish(int threads, bool cancelled) {
     RunResult& result = impl_->result;
     const RunConfig& cfg = impl_->cfg;
     result.threads = threads;
-    if (result.stop == StopReason::kNone) result.stop = StopReason::kCancelled;  // workers left early: cancelled
+    // Workers that left early, or a cancel after the stop rule's end (before the grid write): cancelled.
+    if (result.stop == StopReason::kNone || cancelled) result.stop = StopReason::kCancelled;
     result.cancelled = result.stop == StopReason::kCancelled;
     result.target_reached = result.stop == StopReason::kTarget;
     result.store_reached = result.stop == StopReason::kStore;
@@ -711,7 +716,7 @@ RunResult run(const Scene& scene, const Source& source, const RunConfig& cfg_in,
     RunState st(scene, source, cfg, plan.unit_size, plan.limit, plan.n_units_max, reducer, cancel);
     run_workers(st, threads, cfg.photons > 0 ? cfg.photons : 0, progress);
     if (!st.error.empty()) throw std::runtime_error(st.error);
-    return reducer.finish(threads);
+    return reducer.finish(threads, st.cancelled());
 }
 
 }  // namespace ep

@@ -180,8 +180,10 @@ class UnitReducer {
     uint64_t records() const;
     const UnitPlan& plan() const;
     const RunConfig& config() const;  // prepared
-    // Ends the run. A run its stop rule did not end is marked cancelled.
-    RunResult finish(int threads);
+    // Ends the run. A run its stop rule did not end is marked cancelled, and so
+    // is one its caller cancelled after that end (`cancelled`: ep::run's token
+    // was set by the time its workers stopped): neither writes a grid file.
+    RunResult finish(int threads, bool cancelled = false);
 
   private:
     struct Impl;

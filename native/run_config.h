@@ -51,6 +51,9 @@ struct RunConfig {
     // Test hook: cancel right after this many units are merged (0 = never), so
     // a cancelled partial result can be tested without depending on timing.
     uint64_t test_cancel_after_units = 0;
+    // Test hook: cancel as a worker is about to trace this packet index (0 =
+    // never), as a cancel() landing in the middle of its unit does.
+    uint64_t test_cancel_at_packet = 0;
     // Test hook: thread creation fails from this thread on (0 = never), as it
     // does when the system runs out of threads or memory.
     int test_fail_thread = 0;

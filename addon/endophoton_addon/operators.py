@@ -448,8 +448,8 @@ class _JobOperator:
         job = self._job
         esc = event.type == "ESC" and event.value == "PRESS"
         if esc or (event.type == "TIMER" and job.cancelled_at is not None and not job.done):  # Esc or Cancel
-            # The operator ends now; the engine stops at the end of the unit it is tracing
-            # (its cancel granularity), in the background: _drain discards what it leaves.
+            # The operator ends now; the engine stops before its next packet and the worker skips
+            # the rest of its work (grids, view), in the background: _drain discards what it leaves.
             job.cancel()
             self._cleanup(context)
             _drain(job, self.job_module)
@@ -518,9 +518,9 @@ class _JobOperator:
 
 
 def _drain(job, job_module, every_s=0.2):
-    """After Esc: wait for the cancelled job's worker in a timer (the UI runs on) and discard what
-    it leaves (``job_module.discard_job``: a run's partial grid file); Run and Sweep β stay
-    disabled (running_job) until it has ended."""
+    """After Esc: wait for the cancelled job's worker in a timer (the UI runs on; well under a second,
+    docs/addon.md "Running") and discard what it leaves (``job_module.discard_job``: a run's partial
+    grid file); Run and Sweep β stay disabled (running_job) until it has ended."""
 
     def poll():
         if not job.done:

@@ -370,6 +370,12 @@ class SimulationJob(BackgroundJob):
         self._thread = None
 
     # --- main thread: start(), cancel(), done and wait() from BackgroundJob ---
+    @property
+    def cancelled(self):
+        """Whether the run was cancelled (Esc, Cancel, Ctrl-C), also after the engine's end: its result,
+        complete or not, is not kept (SweepJob.cancelled says the same of a sweep)."""
+        return self.token.cancelled or getattr(self.result, "cancelled", False)
+
     def progress(self):
         with self._lock:
             done, total = self._progress
@@ -432,11 +438,14 @@ class SimulationJob(BackgroundJob):
                 cancel=self.token,
                 **kwargs,
             )
+        # After Esc the result is discarded (finish_job): the work below, for the result's objects,
+        # is skipped, and the view (seconds of kernel gather) stops within a block of pixels.
         grid_path = getattr(self.result, "grid_path", None)
-        if grid_path and not getattr(self.result, "cancelled", False):
+        if grid_path and not self.cancelled:
             self.grid_info = read_grid_info(grid_path)
             self.render_grids = volumes.write_render_grids(grid_path)
-        self.view, self.view_error = endoscope_view(self.ep, self.inputs, self.result)
+        if not self.cancelled:
+            self.view, self.view_error = endoscope_view(self.ep, self.inputs, self.result, self.token)
 
 
 def make_folders(path):
@@ -456,16 +465,17 @@ def remove_empty_folders(folders):
             os.rmdir(folder)
 
 
-def endoscope_view(ep, inputs, result):
+def endoscope_view(ep, inputs, result, cancel=None):
     """(ep.View of the rig's camera, None) from the run's escape records (worker thread),
-    or (None, reason) when the scene does not ask for one or the run left no records."""
+    or (None, reason) when the scene does not ask for one or the run left no records;
+    (None, None) once ``cancel`` (the job's CancelToken) is cancelled."""
     if not inputs.endoscope_view or result is None or getattr(result, "cancelled", False):
         return None, None
     escapes = getattr(result, "escapes", None)
     if escapes is None or len(escapes.get("weight", ())) == 0:
         return None, "the run left no escape records to image"
     try:
-        return ep.render_view(result, threads=inputs.threads), None
+        return ep.render_view(result, threads=inputs.threads, cancel=cancel), None
     except ValueError as exc:  # e.g. the camera inside tissue: keep the run, say why there is no view
         return None, f"endoscope view not rendered: {exc}"
 
@@ -528,7 +538,7 @@ def finish_job(context, job):
         raise job.error
     if job.error is not None:
         raise RuntimeError(f"EndoPhoton run failed: {type(job.error).__name__}: {job.error}")
-    if job.result is None or getattr(job.result, "cancelled", False):
+    if job.result is None or job.cancelled:  # a cancel that came after the engine's end too
         _discard_partial_grid(job)
         return None
     return collection_from_run(

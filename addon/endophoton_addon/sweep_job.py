@@ -351,7 +351,10 @@ class SweepJob(simulation.BackgroundJob):
             self.cancelled = True  # nothing is written, nothing will be added
             self.runs = {}
             return
-        self.beta_runs = [self._beta_run(i, self.runs.pop(i)) for i in sorted(self.runs)]
+        self.beta_runs = [self._beta_run(i, self.runs.pop(i)) for i in sorted(self.runs) if not self.token.cancelled]
+        if self.token.cancelled:  # Esc while the kept runs' views were rendered (each stops within a block)
+            self.cancelled, self.runs, self.beta_runs = True, {}, []
+            return
         with self._lock:
             self._phase = "writing"
         paths = bs.write_outputs(result, self.inputs.out_dir)
@@ -363,7 +366,7 @@ class SweepJob(simulation.BackgroundJob):
         """(RunInputs, Result, view, view error) of β ``index``: what a single Run of
         that β in store-N mode would hand to simulation.collection_from_run (worker thread)."""
         inputs = beta_run_inputs(self.inputs, index, result, self.ep)
-        view, view_error = simulation.endoscope_view(self.ep, inputs, result)
+        view, view_error = simulation.endoscope_view(self.ep, inputs, result, self.token)
         return inputs, result, view, view_error
 
 

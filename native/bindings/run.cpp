@@ -123,6 +123,7 @@ void bind_config(py::module_& m) {
             [](RunConfig& c, std::shared_ptr<CameraView> v) { c.camera_view = std::move(v); },
             "the camera tally's request (a CameraView) or None")
         .def_readwrite("test_cancel_after_units", &RunConfig::test_cancel_after_units)
+        .def_readwrite("test_cancel_at_packet", &RunConfig::test_cancel_at_packet)
         .def_readwrite("test_fail_thread", &RunConfig::test_fail_thread)
         .def_property(
             "fluorescence_rule", [](const RunConfig& c) { return rule_name(c.rule); },

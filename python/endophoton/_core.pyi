@@ -110,6 +110,7 @@ class RunConfig:
     stats: bool
     camera_view: CameraView | None
     test_cancel_after_units: int
+    test_cancel_at_packet: int
     test_fail_thread: int
     fluorescence_rule: str
     target_tally: str

@@ -336,6 +336,46 @@ def test_cancel_keeps_previous_result(ep, tmp_path):
     assert settings.result_collection == previous
 
 
+class _EscAfterTheEngine:
+    """The engine module, but the job is cancelled right after ep.run returns a finished run (Esc while
+    the worker reads the grids and renders the view: the 8-14 s of issue 36), and render_view is counted."""
+
+    def __init__(self, ep, job):
+        self._ep, self._job, self.views = ep, job, 0
+
+    def __getattr__(self, name):
+        return getattr(self._ep, name)
+
+    def run(self, *a, **kw):
+        result = self._ep.run(*a, **kw)
+        self._job.cancel()
+        return result
+
+    def render_view(self, *a, **kw):
+        self.views += 1
+        return self._ep.render_view(*a, **kw)
+
+
+def test_esc_after_the_engine_ends_skips_the_view_and_adds_nothing(ep, tmp_path):
+    """Issue 36: a cancel that lands after the engine's end (a short Preview run) skipped nothing and
+    the worker rendered the whole endoscope view first. Now the worker reads no grid, renders no view,
+    and the finished result is discarded like a cancelled one: no object, no file."""
+    scene = open_blend("flat_tissue.blend", tmp_path)
+    settings = scene.endophoton
+    settings.quality, settings.photons, settings.output_views = "CUSTOM", 3_000, True
+    before = data_snapshot()
+    job = simulation.prepare_job(bpy.context)
+    assert job.inputs.endoscope_view and job.inputs.grid_path
+    job.ep = engine = _EscAfterTheEngine(job.ep, job)
+    job.start()
+    assert job.wait(600.0), "the job did not end"  # a hang guard, not a verdict on speed
+    assert job.error is None and job.result is not None and not job.result.cancelled  # the engine had finished
+    assert job.cancelled and engine.views == 0 and job.view is None and job.grid_info == []
+    assert simulation.finish_job(bpy.context, job) is None
+    assert data_snapshot() == before
+    assert not os.listdir(tmp_path), "a cancelled job left its grid file"
+
+
 def test_engine_rejection_leaves_scene_untouched(ep, tmp_path):
     """Errors found by the engine itself (here: light guides outside the head)
     are reported before the run starts; nothing is created."""

@@ -350,6 +350,11 @@ def _records(result, n_batches, P, T):
     )
 
 
+def _cancelled(cancel):
+    """Whether render_view's ``cancel`` (None or a CancelToken) is cancelled."""
+    return cancel is not None and cancel.cancelled
+
+
 def _accumulate(acc, key, index, weights, size):
     acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
 
@@ -399,10 +404,11 @@ def _pixel_chunks(cum):
         p0 = p1
 
 
-def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit):
+def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit, cancel=None):
     """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays.
     ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
-    View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy."""
+    View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy. Returns (None, 0) once
+    ``cancel`` (a CancelToken or None) is cancelled: it is checked before and in the middle of every chunk."""
     from scipy.spatial import cKDTree
 
     B = rec["Pb"].size
@@ -424,7 +430,11 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     # hold more than MAX_PAIRS_PER_CHUNK pairs (a pixel's own pairs are at most the records)
     n_ball = tree.query_ball_point(query, ball, workers=threads or -1, return_length=True)
     for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
+        if _cancelled(cancel):
+            return None, 0
         lists = tree.query_ball_point(query[p0:p1], ball, workers=threads or -1, return_sorted=False)
+        if _cancelled(cancel):  # again before the chunk's sums (half its time)
+            return None, 0
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
         j = keep[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
         p = np.repeat(np.arange(p0, p1), counts)
@@ -523,7 +533,8 @@ def render_view(
     threads: int = 0,
     estimator: str = "auto",
     memory_budget_bytes: float | None = None,
-) -> View:
+    cancel=None,
+) -> View | None:
     """Render the image the camera records from ``result``'s escape records (surface photon map).
 
     result : an ``ep.Result`` with escape records (``record_escapes=True``); a spectral run gives colour
@@ -546,6 +557,8 @@ def render_view(
     memory_budget_bytes : the most memory the render may need (None: ``view.budget.RENDER_MEMORY_BUDGET_BYTES``,
         4 GiB); a size that needs more (:func:`endophoton.view.budget.render_memory_bytes`) is refused before
         anything is allocated, with a ValueError naming width and height
+    cancel : None or an ``ep.CancelToken``: once cancelled, render_view stops at its next check (twice per
+        block of pixels of the kernel gather, and between the steps after it) and returns None (the add-on's Esc)
     """
     _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
     if estimator not in ESTIMATORS:
@@ -556,6 +569,8 @@ def render_view(
             "(from ep.run(..., record_escapes=True))"
         )
     check_int("threads", threads, 0, MAX_THREADS)  # the rule of ep.run
+    if cancel is not None and not hasattr(cancel, "cancelled"):
+        raise ValueError(f"cancel = {shown(cancel)} must be None or an endophoton.CancelToken")
     check_spectral(result)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
@@ -619,12 +634,16 @@ def render_view(
         # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
         rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
         gather = (px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads))
-        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit)
+        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit, cancel)
+    if acc is None or _cancelled(cancel):  # also between the steps after the gather (~0.5 s each)
+        return None
     Pb = rec["Pb"]
     images = {
         name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
         for name in ("white", "fluorescence")
     }
+    if _cancelled(cancel):
+        return None
     region_pixels = np.bincount(preg, minlength=n_regions)[:n_regions]
     region_batches = _region_batches(acc, preg, region_pixels, Pb.size, gains)
     aperture = None
