@@ -9,13 +9,15 @@ the calling thread merges them in unit order into the run's reducer (its stop ru
 "store N" or target run ends, as in ``ep.run``) and, every ``every_s`` seconds, finishes a second
 reducer fed the same batches so far: a snapshot :class:`Result` of the units merged so far (a
 partial run, ``cancelled`` True), handed to ``on_snapshot(result)`` (e.g. to render it with
-``ep.render_view`` and watch the noise fall).
+``ep.render_view`` and watch the noise fall). The snapshot and its callback run in a thread of
+their own, so the merge and the tracing go on meanwhile; one snapshot at a time.
 
 Cost: a snapshot re-merges every batch so far (the reducer cannot be finished twice), so its cost
-grows with the run; the next snapshot waits at least ``every_s`` and at least the time the last one
-took (``on_snapshot`` included) divided by ``overhead_share``, which bounds the snapshots' share of
-the run's time. The batches are kept in memory until the run ends (about the size of its records).
-A run with grids writes each snapshot's grids to a scratch file (removed).
+grows with the run. The next snapshot starts at least ``every_s`` after the last one ended; when
+the run's threads take every core (the snapshot then competes with them) also at least the time
+the last one took (``on_snapshot`` included) divided by ``overhead_share``, which bounds the
+snapshots' share of the run's time. The batches are kept in memory until the run ends (about the
+size of its records). A run with grids writes each snapshot's grids to a scratch file (removed).
 """
 from __future__ import annotations
 
@@ -145,11 +147,13 @@ def run_live(
 ) -> Result:
     """``ep.run(scene, source, photons, **kwargs)`` that hands ``on_snapshot(result)`` a snapshot
     :class:`Result` of the units merged so far every ``every_s`` seconds (wall clock, > 0), at most
-    ``overhead_share`` (0 < share <= 1) of the time spent so far being spent on snapshots. The
+    ``overhead_share`` (0 < share <= 1) of the run's time spent on snapshots when its threads take
+    every core (module docstring); ``on_snapshot`` runs in a thread of its own, one call at a time,
+    and is not called once the run has ended (a call under way then ends in the background). The
     final result is the same bits as ``ep.run``'s with the same arguments (its ``seconds`` and
     ``threads`` aside); each snapshot is a partial run (``cancelled`` True) whose ``photons`` never
     decrease. ``snapshot_after_chunks`` (N > 0) also makes a snapshot after each of the first N
-    merged chunks, whatever the clock says (tests; a deterministic refresh). ``chunk_units`` (K > 0)
+    merged chunks, whatever the clock says, in the calling thread (tests; a deterministic refresh). ``chunk_units`` (K > 0)
     traces K units per chunk (0: about :data:`CHUNK_SECONDS` of work each); chunks never change a
     result, units do.
 
@@ -221,28 +225,47 @@ class _LiveRun:
             return False
         return not (self.reducer.stopped or self.reducer.merged_units >= self.n_units)
 
-    def _snapshot(self, live) -> None:
+    def _snapshot(self, live, batches: list) -> None:
+        """A snapshot of ``batches`` handed to ``on_snapshot`` (none once the run has ended); then
+        the time of the next one: ``every_s`` on, or ``took / share`` on when the run's threads
+        take every core (a snapshot then competes with them; else it has a core of its own)."""
         t0 = time.perf_counter()
-        raw = _snapshot_raw(self.native_scene, self.native_source, self.opts, self.batches, self.threads)
-        live.on_snapshot(Result(raw, self.scene, self.source, self.opts))
+        try:
+            raw = _snapshot_raw(self.native_scene, self.native_source, self.opts, batches, self.threads)
+            if not self.ended:
+                live.on_snapshot(Result(raw, self.scene, self.source, self.opts))
+        except BaseException as exc:  # raised by the merging thread
+            self.snapshot_error = exc
         took = time.perf_counter() - t0
-        self.next_snapshot = time.monotonic() + max(live.every_s, took / live.share)
+        spacing = max(live.every_s, took / live.share) if self.threads >= (os.cpu_count() or 1) else live.every_s
+        self.next_snapshot = time.monotonic() + spacing
+
+    def _maybe_snapshot(self, live, merged_now: bool) -> None:
+        """After a merge: a forced snapshot (the first ``live.forced`` chunks) in this thread, or a
+        due one in the snapshot thread, which renders while the merge and the tracing go on."""
+        if merged_now and self.merged_chunks <= live.forced:
+            self._snapshot(live, list(self.batches))
+        elif merged_now and time.monotonic() >= self.next_snapshot and not self.snapshotting.is_alive():
+            self.snapshotting = threading.Thread(target=self._snapshot, args=(live, list(self.batches)), daemon=True)
+            self.snapshotting.start()
+        if self.snapshot_error is not None:
+            raise self.snapshot_error
 
     def run(self, progress, cancel, live) -> dict:
         tracers = [threading.Thread(target=self.tracing.trace, daemon=True) for _ in range(self.threads)]
         for t in tracers:
             t.start()
         self.merged_chunks, self.next_snapshot = 0, time.monotonic() + live.every_s
+        self.snapshotting, self.snapshot_error, self.ended = threading.Thread(), None, False
         try:
             going = True
             while going and not (cancel is not None and cancel.cancelled):
                 before = self.merged_chunks
                 going = self._merge_one(progress)
-                merged_now = self.merged_chunks > before
-                forced = merged_now and self.merged_chunks <= live.forced
-                if going and merged_now and (forced or time.monotonic() >= self.next_snapshot):
-                    self._snapshot(live)
+                if going:
+                    self._maybe_snapshot(live, self.merged_chunks > before)
         finally:
+            self.ended = True  # a snapshot still being made is not handed on
             self.tracing.halt()
             for t in tracers:
                 t.join()

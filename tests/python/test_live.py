@@ -4,6 +4,8 @@ snapshots of the units merged so far to a callback. The final result is the same
 never decrease and whose records are a prefix of the final ones; a cancel returns the merged prefix.
 Snapshots are forced after the first chunks (snapshot_after_chunks, fixed chunk_units): no verdict
 depends on timing."""
+import threading
+
 import numpy as np
 import pytest
 
@@ -129,6 +131,35 @@ def test_cancel_mid_way_returns_the_merged_prefix():
     n = len(part.escapes["weight"])
     assert 0 < n < len(full.escapes["weight"])
     assert np.array_equal(part.escapes["weight"], full.escapes["weight"][:n])
+
+
+@pytest.mark.slow
+def test_clock_snapshots_are_made_in_their_own_thread_while_the_run_goes_on():
+    scene, rig = fluorescent_endoscope()
+    made, caller = threading.Event(), threading.get_ident()
+    snaps = []
+
+    def on_snapshot(result):
+        snaps.append((threading.get_ident(), result.photons))
+        made.set()
+
+    def progress(done, total):  # the merging thread waits, after its second chunk, for the first snapshot
+        if done == 2 * 5 * 64:
+            assert made.wait(60.0)
+
+    final = ep.run_live(
+        scene,
+        rig,
+        photons=3000,
+        seed=4,
+        threads=1,
+        on_snapshot=on_snapshot,
+        every_s=1e-6,
+        chunk_units=5,
+        progress=progress,
+    )
+    assert snaps[0] == (snaps[0][0], 5 * 64) and snaps[0][0] != caller
+    assert_same_result(ep.run(scene, rig, photons=3000, seed=4, threads=1), final)
 
 
 def test_progress_false_stops_and_progress_counts_packets():

@@ -348,8 +348,15 @@ def _records(result, n_batches, P, T):
     )
 
 
-def _accumulate(acc, key, index, weights, size):
-    acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
+def _accumulate(acc, key, index, weights, size, lo=0, hi=None):
+    """``acc[key]`` (``size`` float64 sums, made on first use) += the ``weights`` summed by ``index``,
+    every index in [lo, hi) (default: the whole array): a pixel chunk's sums touch only its own slice,
+    so only that slice is counted and added (a full-size bincount per chunk cost O(pixels) each)."""
+    hi = size if hi is None else hi
+    total = acc.get(key)
+    if total is None:
+        total = acc[key] = np.zeros(size)
+    total[lo:hi] += np.bincount(index - lo, weights=weights, minlength=hi - lo)[: hi - lo]
 
 
 def kernel_candidates(positions, directions, camera_position, kernel_radius: float, kernel_angle_deg: float):
@@ -402,22 +409,24 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         k = pk[p] * norm
         pb = p * B + rec["batch"][j]
         rb = preg[p] * B + rec["batch"][j]
+        nb = rec["nbins"]
+        span = (p0 * B, p1 * B)  # the chunk's slice of the pixel-by-batch sums
         for name, e in rec["energy"].items():
             w = e[j] * k
-            _accumulate(acc, name + "_pix_batch", pb, w, n_pix * B)
-            _accumulate(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, n_pix * B)
+            _accumulate(acc, name + "_pix_batch", pb, w, n_pix * B, *span)
+            _accumulate(acc, name + "_half_pix_batch", pb[half], e[j][half] * pk[p][half] * norm_h, n_pix * B, *span)
             for c in range(3):
                 wc = w * rec["cmf"][j, c]
-                _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix)
+                _accumulate(acc, f"{name}_xyz{c}_pix", p, wc, n_pix, p0, p1)
                 _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate(acc, f"{name}_xyz{c}_pix_batch", pb, wc, n_pix * B)
+                _accumulate(acc, f"{name}_xyz{c}_pix_batch", pb, wc, n_pix * B, *span)
             for c in range(2):
                 wc = w * rec["cam_rg"][j, c]
                 _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate(acc, f"{name}_cam{c}_pix_batch", pb, wc, n_pix * B)
+                _accumulate(acc, f"{name}_cam{c}_pix_batch", pb, wc, n_pix * B, *span)
             sb = rec["sbin"][j]
             ok = sb >= 0
-            _accumulate(acc, name + "_spec_pix", p[ok] * rec["nbins"] + sb[ok], w[ok], n_pix * rec["nbins"])
+            _accumulate(acc, name + "_spec_pix", p[ok] * nb + sb[ok], w[ok], n_pix * nb, p0 * nb, p1 * nb)
     return acc, keep.size
 
 
