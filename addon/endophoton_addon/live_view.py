@@ -28,6 +28,8 @@ OVERHEAD_SHARE = 0.05
 #: waits (up to WAIT_FOR_DISPLAY_S) until the main thread has shown it: a deterministic mid-run refresh.
 FORCE_AFTER_CHUNKS = 0
 WAIT_FOR_DISPLAY_S = 0.0
+#: The live images have 1/LIVE_SCALE of the camera's resolution each way (a quarter of the render's cost).
+LIVE_SCALE = 2
 LIVE_KEY = "endophoton_live"  # on a live Image: which image of the View it holds
 
 
@@ -46,6 +48,7 @@ class LiveView:
         self.threads = threads
         self.error = None  # why the live view stopped (e.g. a camera inside tissue); the run goes on
         self.shown = []  # packets of each snapshot shown, in order
+        self.kernel_radius = None  # scene units: the full-resolution image's kernel (_knobs)
         self._pending = None
         self._lock = threading.Lock()
         self._displayed = threading.Event()
@@ -65,15 +68,31 @@ class LiveView:
         if self.error is not None or escapes is None or len(escapes.get("weight", ())) == 0:
             return  # nothing to image yet (the next snapshot will have records)
         try:
-            view = self.ep.render_view(result, threads=1)  # the run's threads keep their cores
+            view = self.ep.render_view(result, threads=1, **self._knobs(result))  # the run's threads keep theirs
         except ValueError as exc:
             self.error = f"live view stopped: {exc}"
             return
+        self._keep_kernel(view)
         with self._lock:
             self._pending = view
             self._displayed.clear()
         if WAIT_FOR_DISPLAY_S > 0:
             self._displayed.wait(WAIT_FOR_DISPLAY_S)
+
+    def _knobs(self, result):
+        """render_view's knobs for a live image: half the camera's resolution with the full-resolution
+        kernel (half the half-resolution one, kept from the first snapshot: the median depth it comes from
+        is the camera's, not the records'), so a snapshot gathers about a quarter of the kernel pairs of
+        the final image; two batches (the live image shows no standard error)."""
+        width, height = (max(1, n // LIVE_SCALE) for n in result.source.camera_resolution)
+        knobs = {"width": width, "height": height, "n_batches": 2}
+        if self.kernel_radius is not None:
+            knobs["kernel_radius"] = self.kernel_radius
+        return knobs
+
+    def _keep_kernel(self, view):
+        if self.kernel_radius is None:
+            self.kernel_radius = float(view.kernel["radius"]) / LIVE_SCALE
 
     # --- main thread ----------------------------------------------------------
     def refresh(self):
