@@ -21,6 +21,8 @@ import bpy
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "addon"))
 OUT_DIR, GRID_DIR, ENGINE_FOLDER = sys.argv[sys.argv.index("--") + 1 :][:3]
+if ENGINE_FOLDER:
+    sys.path.insert(0, ENGINE_FOLDER)  # before any other endophoton installed on this machine
 PANELS = (
     "ENDOPHOTON_PT_object",
     "ENDOPHOTON_PT_endoscope",
@@ -252,6 +254,19 @@ def extra_step(index):
 
 
 def tick():
+    try:
+        return _tick()
+    except Exception:  # never leave a windowed Blender hanging: the listing says what failed
+        import traceback
+
+        state["shots"].append({"panel": "error", "error": traceback.format_exc()})
+        with open(os.path.join(OUT_DIR, "screenshots.json"), "w") as f:
+            json.dump(state["shots"], f, indent=1)
+        bpy.ops.wm.quit_blender()
+        return None
+
+
+def _tick():
     state["ticks"] += 1
     step = state["step"]
     if step == 0:
