@@ -21,6 +21,7 @@ size of its records). A run with grids writes each snapshot's grids to a scratch
 """
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import tempfile
@@ -171,8 +172,6 @@ def run_live(
     for name in ("client", "view"):
         if kwargs.get(name) not in (None, False):
             raise ValueError(f"{name} = {kwargs[name]!r}: a live run traces locally without the camera tally")
-    import inspect
-
     bound = inspect.signature(run).bind(scene, source, photons, progress=progress, cancel=cancel, **kwargs)
     bound.apply_defaults()
     opts, notes, native_scene, native_source = _prepare(SimpleNamespace(**bound.arguments), engine_check=False)

@@ -211,6 +211,16 @@ def live_shown_enough():
     return job is None or job.done or job.live is None or live["held_at"] is not None
 
 
+def fit_live_image():
+    """The Image Editor zooms the live image to its size (it shows it at 1:1, small, by default)."""
+    window = bpy.context.window_manager.windows[0]
+    area = max(window.screen.areas, key=lambda a: a.width * a.height)
+    if area.type == "IMAGE_EDITOR":
+        region = next(r for r in area.regions if r.type == "WINDOW")
+        with bpy.context.temp_override(window=window, area=area, region=region):
+            bpy.ops.image.view_all(fit_view=True)
+
+
 def capture_live():
     window = bpy.context.window_manager.windows[0]
     area = max(window.screen.areas, key=lambda a: a.width * a.height)
@@ -243,6 +253,7 @@ def extra_step(index):
     elif index == 4:
         if not live_shown_enough():
             return 0.5  # this step again
+        fit_live_image()
     elif index == 5:
         capture_live()
     elif operators.running_job() is not None:
