@@ -24,9 +24,12 @@ from . import endoscope_views
 EVERY_S = 3.0
 #: Most of a run's time its snapshots (the re-merge and the render) may take.
 OVERHEAD_SHARE = 0.05
-#: Tests: a snapshot after each of the first N merged chunks, whatever the clock says, and the worker
-#: waits (up to WAIT_FOR_DISPLAY_S) until the main thread has shown it: a deterministic mid-run refresh.
-FORCE_AFTER_CHUNKS = 0
+#: A snapshot after each of the first N merged chunks, whatever the clock says. One by default: the
+#: first chunk is one work unit, so its render finds the kernel radius (the costly auto-radius render,
+#: four times the pairs of the later ones) on a thousand packets' records. Tests raise it and set
+#: WAIT_FOR_DISPLAY_S: the worker then waits until the main thread has shown each forced snapshot
+#: (a deterministic mid-run refresh).
+FORCE_AFTER_CHUNKS = 1
 WAIT_FOR_DISPLAY_S = 0.0
 #: The live images have 1/LIVE_SCALE of the camera's resolution each way (a quarter of the render's cost).
 LIVE_SCALE = 2

@@ -12,11 +12,12 @@ partial run, ``cancelled`` True), handed to ``on_snapshot(result)`` (e.g. to ren
 ``ep.render_view`` and watch the noise fall). The snapshot and its callback run in a thread of
 their own, so the merge and the tracing go on meanwhile; one snapshot at a time.
 
-Cost: a snapshot re-merges every batch so far (the reducer cannot be finished twice), so its cost
-grows with the run. The next snapshot starts at least ``every_s`` after the last one ended; when
-the run's threads take every core (the snapshot then competes with them) also at least the time
-the last one took (``on_snapshot`` included) divided by ``overhead_share``, which bounds the
-snapshots' share of the run's time. The batches are kept in memory until the run ends (about the
+Cost: a snapshot re-merges every batch so far (the reducer cannot be finished twice) and the
+callback typically renders all the records so far, so its cost grows with the run. The next snapshot
+starts at least ``every_s`` after the last one ended; when the run's threads take every core (the
+snapshot then competes with them) also only while the snapshots' seconds so far, with this one's
+predicted from the last one's cost per merged unit, stay within ``overhead_share`` of the time since
+the run began. The batches are kept in memory until the run ends (about the
 size of its records). A run with grids writes each snapshot's grids to a scratch file (removed).
 """
 from __future__ import annotations
@@ -224,10 +225,10 @@ class _LiveRun:
             return False
         return not (self.reducer.stopped or self.reducer.merged_units >= self.n_units)
 
-    def _snapshot(self, live, batches: list) -> None:
-        """A snapshot of ``batches`` handed to ``on_snapshot`` (none once the run has ended); then
-        the time of the next one: ``every_s`` on, or ``took / share`` on when the run's threads
-        take every core (a snapshot then competes with them; else it has a core of its own)."""
+    def _snapshot(self, live, batches: list, units: int, learn: bool = True) -> None:
+        """A snapshot of ``batches`` (``units`` merged units) handed to ``on_snapshot`` (none once the run
+        has ended); its cost is kept for :meth:`_due` (its cost per unit only if ``learn``: a forced
+        snapshot of the first chunks is mostly the callback's fixed cost)."""
         t0 = time.perf_counter()
         try:
             raw = _snapshot_raw(self.native_scene, self.native_source, self.opts, batches, self.threads)
@@ -236,16 +237,33 @@ class _LiveRun:
         except BaseException as exc:  # raised by the merging thread
             self.snapshot_error = exc
         took = time.perf_counter() - t0
-        spacing = max(live.every_s, took / live.share) if self.threads >= (os.cpu_count() or 1) else live.every_s
-        self.next_snapshot = time.monotonic() + spacing
+        self.snapshot_seconds += took
+        if learn:
+            self.seconds_per_unit = took / max(1, units)
+        self.next_snapshot = time.monotonic() + live.every_s
+
+    def _due(self, live) -> bool:
+        """Whether a clock snapshot starts now: ``every_s`` after the last one ended, none under way and,
+        when the run's threads take every core (a snapshot then competes with them), the snapshots so far
+        and this one (its cost predicted from the last one's per merged unit: it re-merges and renders all
+        the records so far) within ``share`` of the time since the run began."""
+        now = time.monotonic()
+        if now < self.next_snapshot or self.snapshotting.is_alive():
+            return False
+        if self.threads < (os.cpu_count() or 1):
+            return True  # a core of its own
+        predicted = self.seconds_per_unit * self.reducer.merged_units
+        return self.snapshot_seconds + predicted <= live.share * (now - self.t_start)
 
     def _maybe_snapshot(self, live, merged_now: bool) -> None:
         """After a merge: a forced snapshot (the first ``live.forced`` chunks) in this thread, or a
         due one in the snapshot thread, which renders while the merge and the tracing go on."""
+        units = self.reducer.merged_units
         if merged_now and self.merged_chunks <= live.forced:
-            self._snapshot(live, list(self.batches))
-        elif merged_now and time.monotonic() >= self.next_snapshot and not self.snapshotting.is_alive():
-            self.snapshotting = threading.Thread(target=self._snapshot, args=(live, list(self.batches)), daemon=True)
+            self._snapshot(live, list(self.batches), units, learn=False)
+        elif merged_now and self._due(live):
+            args = (live, list(self.batches), units)
+            self.snapshotting = threading.Thread(target=self._snapshot, args=args, daemon=True)
             self.snapshotting.start()
         if self.snapshot_error is not None:
             raise self.snapshot_error
@@ -254,7 +272,9 @@ class _LiveRun:
         tracers = [threading.Thread(target=self.tracing.trace, daemon=True) for _ in range(self.threads)]
         for t in tracers:
             t.start()
-        self.merged_chunks, self.next_snapshot = 0, time.monotonic() + live.every_s
+        self.t_start = time.monotonic()
+        self.merged_chunks, self.next_snapshot = 0, self.t_start + live.every_s
+        self.snapshot_seconds, self.seconds_per_unit = 0.0, 0.0
         self.snapshotting, self.snapshot_error, self.ended = threading.Thread(), None, False
         try:
             going = True
