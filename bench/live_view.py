@@ -48,7 +48,8 @@ s.grid_dir = tempfile.mkdtemp(prefix="ep-live-bench-")
 from endophoton_addon import live_view  # noqa: E402
 
 EVERY_S = live_view.EVERY_S
-# "path": Live View on without snapshots (ep.run_live's unit path alone); "on": with them, every EVERY_S
+# "path": Live View on without clock snapshots (ep.run_live's unit path and the first-chunk snapshot);
+# "on": with them, every EVERY_S (as the share rule allows)
 MODES = {"off": (False, EVERY_S), "path": (True, 1e9), "on": (True, EVERY_S)}
 
 
