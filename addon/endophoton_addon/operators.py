@@ -16,6 +16,7 @@ from . import (
     export,
     guards,
     legend_render,
+    live_view,
     package_finder,
     properties,
     result_export,
@@ -356,6 +357,7 @@ def _wait_printing_progress(job):
 
     last = time.monotonic()
     while not job.wait(0.2):
+        live_view.refresh(job)
         if bpy.app.background and time.monotonic() - last >= PROGRESS_EVERY_S:
             last = time.monotonic()
             print(job.progress().text().replace(" · Esc to cancel", " · Ctrl-C to cancel"), flush=True)
@@ -452,6 +454,7 @@ class _JobOperator:
             # the rest of its work (grids, view), in the background: _drain discards what it leaves.
             job.cancel()
             self._cleanup(context)
+            live_view.end(context, job)
             _drain(job, self.job_module)
             self.report({"WARNING"}, "EndoPhoton: cancelled; nothing was added (the previous result stays)")
             _redraw_sidebars(context)
@@ -460,6 +463,7 @@ class _JobOperator:
             return {"PASS_THROUGH"}
         if not job.done:
             progress = job.progress()
+            live_view.refresh(job)
             context.window_manager.progress_update(int(1000 * progress.fraction))
             self._status(context, progress.text())
             _redraw_sidebars(context)
@@ -489,10 +493,12 @@ class _JobOperator:
         try:
             level, message = self.job_module.report_finished(context, job)
         except Exception as exc:  # engine failure or result import error
+            live_view.end(context, job)
             if job.error_traceback:
                 print(job.error_traceback)
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        live_view.end(context, job)  # the live images give way to the run's own
         self.report({level}, message)
         return {"FINISHED"} if level == "INFO" else {"CANCELLED"}
 

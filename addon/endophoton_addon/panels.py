@@ -179,6 +179,9 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         col.prop(s, "output_points")
         col.prop(s, "output_grids")
         col.prop(s, "output_views")
+        live = col.row()
+        live.active = s.output_views  # live images only when the view images are on
+        live.prop(s, "live_view")
         sub = col.column()
         sub.active = s.output_grids
         sub.prop(s, "voxel_size")

@@ -450,6 +450,13 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         "run's records (ep.render_view) as Image datablocks tagged with the run; needs the rig's camera",
         default=True,
     )
+    live_view: BoolProperty(
+        name="Live View",
+        description="While a run is in flight, refresh its endoscope-view images ('EP View white (live)', shown "
+        "in any Image Editor showing an endoscope view) from the records merged so far, at most every 3 s and "
+        "at most 5 % of the run's time; needs Endoscope View Images on and a local run (no Dask scheduler)",
+        default=True,
+    )
     voxel_size: FloatProperty(
         name="Voxel Size",
         description="Edge of one grid voxel (scene length units; at most 256³ voxels over the scene)",

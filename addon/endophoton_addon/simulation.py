@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, presets, rig, sweep_blend, volumes
+from . import export, guards, live_view, package_finder, preferences, presets, rig, sweep_blend, volumes
 from .errors import InputError
 
 _ACTIVE_JOBS = set()
@@ -51,6 +51,7 @@ class RunInputs:
     scale_length: float  # metres per Blender unit
     target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
     endoscope_view: bool = False  # render the rig camera's images from the records (ep.render_view)
+    live_view: bool = False  # ... and refresh them while the run is in flight (live_view.py)
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
@@ -178,6 +179,7 @@ def collect_inputs(context):
         scale_length=float(scale),
         target_error=target_error,
         endoscope_view=views,
+        live_view=bool(settings.live_view),
     )
     check_before_run(scene, inputs)
     return inputs
@@ -355,6 +357,7 @@ class SimulationJob(BackgroundJob):
         self.engine_scene, self.engine_rig, self.run_kwargs = build_engine_call(ep, inputs)
         self.scheduler = preferences.scheduler_address()  # read here: the worker thread has no bpy
         self.token = ep.CancelToken()
+        self.live = live_view.LiveView(ep, inputs.threads) if live_view.wanted(inputs, self.scheduler) else None
         self.result = None
         self.error = None
         self.error_traceback = None
@@ -431,7 +434,10 @@ class SimulationJob(BackgroundJob):
             client = cluster_client(stack, self.ep, self.scheduler)
             if client is not None:  # trace on the Dask cluster; cancel stops its tasks
                 kwargs["client"] = client
-            self.result = self.ep.run(
+            run = self.ep.run
+            if self.live is not None:  # the same bits, with snapshots shown while it runs
+                run, kwargs = self.ep.run_live, {**kwargs, **self.live.run_kwargs()}
+            self.result = run(
                 self.engine_scene,
                 self.engine_rig,
                 progress=self._on_progress,

@@ -12,6 +12,7 @@ from .spectra import EEM, FLUOROPHORE_DEFAULTS, Fluorophore, Spectrum
 from .units import UNIT_CM, unit_cm
 from . import _core
 from . import analysis, media, meshes, paper
+from .live import run_live
 from .sweep.driver import SweepResult, default_flat_scene, sweep
 from .report import write_report
 from .quality import QUALITY_PRESETS, Quality, quality_preset
@@ -34,6 +35,7 @@ __all__ = [
     "EndoscopeRig",
     "source_from_dict",
     "run",
+    "run_live",
     "check_run",
     "Result",
     "GridRequest",

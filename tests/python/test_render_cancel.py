@@ -1,5 +1,5 @@
 """render_view's cancel (issue 36: the add-on's Esc while the endoscope view of a finished run is
-rendered) and the block sums of its kernel gather (render._accumulate)."""
+rendered) and the block sums of its kernel gather (render._accumulate_sparse)."""
 
 import numpy as np
 import pytest
@@ -37,13 +37,13 @@ def test_cancel_must_be_a_token(records_result):
 
 
 def test_block_sums_equal_whole_size_bincounts():
-    """_accumulate adds only the span of indices a block touches: the bits of adding a whole-size
-    np.bincount per block (an independent recomputation), for blocks of spans anywhere in the array."""
+    """_accumulate_sparse adds only the bins a chunk touches: the bits of adding a whole-size
+    np.bincount per chunk (an independent recomputation), for chunks of spans anywhere in the array."""
     rng = np.random.default_rng(7)
     size, acc, ref = 5000, {}, np.zeros(5000)
     for lo, hi, n in ((0, 300, 1000), (4000, 5000, 50), (1200, 1201, 3), (0, 1, 0), (2500, 4100, 7000)):
         index = rng.integers(lo, hi, n)
         weights = rng.random(n) * 10.0 ** rng.integers(-8, 8, n)
-        render._accumulate(acc, "k", index, weights, size)
+        render._accumulate_sparse(acc, "k", render._bins(index), weights, size)
         ref = ref + np.bincount(index, weights=weights, minlength=size)[:size]
     assert acc["k"].dtype == ref.dtype and acc["k"].tobytes() == ref.tobytes()
