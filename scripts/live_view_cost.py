@@ -4,7 +4,7 @@ shows each snapshot as the modal timer does); the final view render after the ru
 both. Prints, per run, the wall time, packets/s, the
 process's CPU time and the snapshots shown, then the medians and the slowdown. No verdict.
 
-    blender -b --factory-startup blend_scenes/colon_polyp.blend --python bench/live_view.py -- \
+    blender -b --factory-startup blend_scenes/colon_polyp.blend --python scripts/live_view_cost.py -- \
         [PHOTONS [REPEATS [THREADS]]]
 
 ENDOPHOTON_PYTHONPATH names the package folder (default: this repository's python/).
