@@ -337,7 +337,7 @@ def test_cancel_keeps_previous_result(ep, tmp_path):
 
 
 class _EscAfterTheEngine:
-    """The engine module, but the job is cancelled right after ep.run returns a finished run (Esc while
+    """The engine module, but the job is cancelled right after ep.run (or run_live) returns a finished run (Esc while
     the worker reads the grids and renders the view: the 8-14 s of issue 36), and render_view is counted."""
 
     def __init__(self, ep, job):
@@ -348,6 +348,11 @@ class _EscAfterTheEngine:
 
     def run(self, *a, **kw):
         result = self._ep.run(*a, **kw)
+        self._job.cancel()
+        return result
+
+    def run_live(self, *a, **kw):  # the job's path with Live View on (the default)
+        result = self._ep.run_live(*a, **kw)
         self._job.cancel()
         return result
 
