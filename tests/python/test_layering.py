@@ -8,6 +8,7 @@ count as much as those at the top of a module.
 
 import ast
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -260,3 +261,15 @@ def test_bench_checks_see_a_planted_offender():
     planted = ast.parse("import sys, os\nsys.path.insert(0, os.path.join(ROOT, 'bench'))\nfrom perf import cli\n")
     assert _puts_bench_on_path(planted) and "perf" in _top_imports(planted) & set(_bench_graph())
     assert not _puts_bench_on_path(ast.parse("import sys\nsys.path.insert(0, PY)\n"))
+
+
+def test_performance_page_is_what_page_py_writes_from_the_stored_results(tmp_path):
+    """docs/performance.md is generated (bench/page.py from docs/perf/results.json and bench/frozen/):
+    a hand edit of the page is lost at the next regeneration, so the page must equal page.py's output.
+    page.py runs on a copy of bench/ and docs/perf/ (it writes the page beside them), as a subprocess."""
+    shutil.copytree(os.path.join(ROOT, "bench"), tmp_path / "bench")
+    shutil.copytree(os.path.join(ROOT, "docs", "perf"), tmp_path / "docs" / "perf")
+    subprocess.run([sys.executable, str(tmp_path / "bench" / "page.py")], check=True, capture_output=True)
+    with open(os.path.join(ROOT, "docs", "performance.md"), encoding="utf-8") as fh:
+        committed = fh.read()
+    assert (tmp_path / "docs" / "performance.md").read_text(encoding="utf-8") == committed
