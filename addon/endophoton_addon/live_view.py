@@ -81,7 +81,8 @@ class LiveView:
         try:
             view = self.ep.render_view(result, threads=1, **self._knobs(result))  # the run's threads keep theirs
         except ValueError as exc:
-            self.error = f"live view stopped: {exc}"
+            if part == self._part:  # not a late one of an earlier β
+                self.error = f"live view stopped: {exc}"
             return
         with self._lock:
             if part != self._part:
@@ -94,12 +95,13 @@ class LiveView:
 
     def on_beta_snapshot(self, index, beta, result):
         """The sweep's ``on_snapshot(i_beta, beta_deg, result)``. A new β starts afresh: its camera has
-        moved, so its kernel radius is found again from its own first snapshot."""
+        moved, so its kernel radius is found again from its own first snapshot, and a render refused at an
+        earlier β (e.g. its camera inside tissue) is tried again."""
         with self._lock:
             if index < self._part:
                 return  # a late snapshot of an earlier β
             if index > self._part:
-                self._part, self.kernel_radius = index, None
+                self._part, self.kernel_radius, self.error = index, None, None
         self.on_snapshot(result, part=index, label=f"β {beta:g}°")
 
     def _knobs(self, result):

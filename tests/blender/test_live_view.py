@@ -1,11 +1,12 @@
 # SPDX-License-Identifier: MIT
-"""Issue 36, "a live endoscope view": while a run is in flight its endoscope-view images refresh
-from the records merged so far (ep.run_live), through the Run operator; when it ends the live images
-give way to the run's own. Deterministic: snapshots are forced after the first merged chunks and the
+"""Issue 36, "a live endoscope view": while a run or a sweep's β is in flight its endoscope-view images
+refresh from the records merged so far (ep.run_live), through the Run and Sweep β operators; when it
+ends the live images give way to the run's own (a sweep's: its last kept β's). Deterministic: snapshots are forced after the first merged chunks and the
 worker waits until the main thread has shown each (live_view.FORCE_AFTER_CHUNKS, WAIT_FOR_DISPLAY_S);
 "mid-run" is read from the packets each shown image holds, never from a clock."""
 
 import importlib
+import types
 
 import bpy
 import numpy as np
@@ -132,3 +133,30 @@ def test_a_sweep_with_live_view_off_runs_plain(ep, tmp_path, monkeypatch):
     scene.endophoton.live_view = False
     assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
     assert calls == [] and not [im for im in bpy.data.images if live_view.LIVE_KEY in im]
+
+
+def test_a_late_snapshot_of_an_earlier_beta_is_not_shown_and_each_beta_finds_its_own_kernel():
+    """ep.run_live lets a snapshot under way when a β's run ends finish in the background: it must not
+    overwrite the next β's image, nor hand it its kernel radius (the camera has moved)."""
+    radii = []
+
+    def render_view(result, **knobs):
+        radii.append(knobs.get("kernel_radius"))
+        return types.SimpleNamespace(packets=result.packets, kernel={"radius": result.radius})
+
+    live = live_view.LiveView(types.SimpleNamespace(render_view=render_view), threads=1)
+    result = lambda packets, radius: types.SimpleNamespace(  # noqa: E731
+        escapes={"weight": [1.0]},
+        packets=packets,
+        radius=radius,
+        source=types.SimpleNamespace(camera_resolution=(8, 8)),
+    )
+    live.on_beta_snapshot(0, 0.0, result(100, 4.0))
+    assert live._pending[1] == "β 0°" and live.kernel_radius == 2.0
+    live.on_beta_snapshot(1, 20.0, result(200, 8.0))  # β 20°: found afresh
+    live.on_beta_snapshot(0, 0.0, result(300, 4.0))  # late, of β 0°: dropped
+    live.on_beta_snapshot(1, 20.0, result(400, 8.0))
+    live.on_snapshot(result(500, 1.0), part=0, label="β 0°")  # a render of β 0° under way at its end: dropped
+    view, label = live._pending
+    assert (view.packets, label, live.kernel_radius) == (400, "β 20°", 4.0)
+    assert radii == [None, None, 4.0, 4.0]  # β 20°'s first render finds its own radius; the next use it
