@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: MIT
-"""The live endoscope view (issue 36): while a run is in flight, its endoscope-view images
-("EP View white (live)", "EP View fluorescence (live)") and every Image Editor showing an
-endoscope view refresh every few seconds from the records merged so far, so the user watches the
-noise fall.
+"""The live endoscope view (issue 36): while a run or a sweep's β is in flight, its endoscope-view
+images ("EP View white (live)", "EP View fluorescence (live)"; during a sweep named with the β, e.g.
+"EP View white (live, β 20°)") and every Image Editor showing an endoscope view refresh every few
+seconds from the records merged so far, so the user watches the noise fall.
 
 The run goes through ``ep.run_live`` (the package's unit path: the final result is the bits of
 ``ep.run``); its snapshots are rendered with ``ep.render_view`` (kernel estimator) in the job's
@@ -10,7 +10,9 @@ worker thread, and the main thread copies the newest View into the Images (``ref
 job operator's timer and from the blocking run's wait loop). When the run ends the Image Editors
 showing a live image are handed the run's own view images and the live images are removed.
 Only a run with the endoscope-view images on, a camera on its rig, Live View on and no Dask
-scheduler takes this path; any other run is ``ep.run`` as before.
+scheduler takes this path; any other run is ``ep.run`` as before. A sweep (sweep_job.py) hands the
+same knobs to ``endophoton.sweep(live=...)``, which runs each β through ``ep.run_live``
+(:meth:`LiveView.sweep_kwargs`).
 """
 
 import threading
@@ -37,8 +39,8 @@ LIVE_KEY = "endophoton_live"  # on a live Image: which image of the View it hold
 
 
 def wanted(inputs, scheduler):
-    """Whether a run of ``inputs`` shows a live view: its view images are on (a camera on the rig),
-    Live View is on and it runs locally (the Dask path has no snapshots)."""
+    """Whether a run or a sweep of ``inputs`` shows a live view: its view images are on (a camera on the
+    rig), Live View is on and it runs locally (the Dask path has no snapshots)."""
     return bool(inputs.endoscope_view and inputs.live_view and not scheduler)
 
 
@@ -52,7 +54,8 @@ class LiveView:
         self.error = None  # why the live view stopped (e.g. a camera inside tissue); the run goes on
         self.shown = []  # packets of each snapshot shown, in order
         self.kernel_radius = None  # scene units: the full-resolution image's kernel (_knobs)
-        self._pending = None
+        self._part = 0  # a sweep's β index whose snapshots are shown (a run: 0 throughout)
+        self._pending = None  # (View, label) not shown yet
         self._lock = threading.Lock()
         self._displayed = threading.Event()
 
@@ -65,22 +68,41 @@ class LiveView:
             "snapshot_after_chunks": FORCE_AFTER_CHUNKS,
         }
 
+    def sweep_kwargs(self):
+        """``endophoton.sweep``'s ``live`` argument: the same knobs, each β's snapshots shown with its angle."""
+        return {"live": {**self.run_kwargs(), "on_snapshot": self.on_beta_snapshot}}
+
     # --- worker thread --------------------------------------------------------
-    def on_snapshot(self, result):
+    def on_snapshot(self, result, part=0, label=""):
+        """A run's snapshot (or β ``part``'s, named with ``label``): rendered, kept for ``refresh``."""
         escapes = getattr(result, "escapes", None)
         if self.error is not None or escapes is None or len(escapes.get("weight", ())) == 0:
             return  # nothing to image yet (the next snapshot will have records)
         try:
             view = self.ep.render_view(result, threads=1, **self._knobs(result))  # the run's threads keep theirs
         except ValueError as exc:
-            self.error = f"live view stopped: {exc}"
+            if part == self._part:  # not a late one of an earlier β
+                self.error = f"live view stopped: {exc}"
             return
-        self._keep_kernel(view)
         with self._lock:
-            self._pending = view
+            if part != self._part:
+                return  # an earlier β's, ended in the background after its run (ep.run_live): not shown
+            self._keep_kernel(view)
+            self._pending = (view, label)
             self._displayed.clear()
         if WAIT_FOR_DISPLAY_S > 0:
             self._displayed.wait(WAIT_FOR_DISPLAY_S)
+
+    def on_beta_snapshot(self, index, beta, result):
+        """The sweep's ``on_snapshot(i_beta, beta_deg, result)``. A new β starts afresh: its camera has
+        moved, so its kernel radius is found again from its own first snapshot, and a render refused at an
+        earlier β (e.g. its camera inside tissue) is tried again."""
+        with self._lock:
+            if index < self._part:
+                return  # a late snapshot of an earlier β
+            if index > self._part:
+                self._part, self.kernel_radius, self.error = index, None, None
+        self.on_snapshot(result, part=index, label=f"β {beta:g}°")
 
     def _knobs(self, result):
         """render_view's knobs for a live image: half the camera's resolution with the full-resolution
@@ -101,13 +123,14 @@ class LiveView:
     def refresh(self):
         """Shows the newest snapshot's View, if a new one came; returns whether one did."""
         with self._lock:
-            view, self._pending = self._pending, None
-        if view is None:
+            pending, self._pending = self._pending, None
+        if pending is None:
             return False
+        view, label = pending
         for name in endoscope_views.VIEW_IMAGES:
-            image = _live_image(name, view)
+            image = _live_image(name, view, label)
             image.pixels.foreach_set(endoscope_views.view_pixels(view, name).ravel())
-            image["endophoton_view_info"] = endoscope_views.view_info(view, name)
+            image["endophoton_view_info"] = dict(endoscope_views.view_info(view, name), live_label=label)
             image.update()
             _show_in_editors(image, name)
         self.shown.append(int(view.packets))
@@ -115,13 +138,16 @@ class LiveView:
         return True
 
 
-def _live_image(name, view):
-    """The live Image of view image ``name`` at the View's size (made or remade as needed)."""
-    title = f"EP View {name} (live)"
-    image = bpy.data.images.get(title)
+def _live_image(name, view, label=""):
+    """The live Image of view image ``name`` at the View's size (made or remade as needed), named with
+    ``label`` (a sweep's β): the same datablock from β to β, so the Image Editors showing it stay on it."""
+    title = f"EP View {name} (live, {label})" if label else f"EP View {name} (live)"
+    image = next((im for im in bpy.data.images if im.get(LIVE_KEY) == name), None)
     if image is not None and tuple(image.size) != (view.width, view.height):
         bpy.data.images.remove(image)
         image = None
+    if image is not None and image.name != title:
+        image.name = title
     if image is None:
         image = bpy.data.images.new(title, view.width, view.height, alpha=True, float_buffer=True)
         image.colorspace_settings.name = "Linear"
@@ -160,8 +186,7 @@ def end(context, job):
     own view image of that kind (if it made one) and the live images are removed."""
     if getattr(job, "live", None) is None:
         return
-    finished = job.error is None and job.result is not None and not getattr(job.result, "cancelled", False)
-    collection = context.scene.endophoton.result_collection if finished else None
+    collection = _finished_collection(context, job)
     own = endoscope_views.view_images(collection) if collection is not None else {}
     for image in [im for im in bpy.data.images if LIVE_KEY in im]:
         for area, space in _editors():
@@ -169,3 +194,13 @@ def end(context, job):
                 space.image = own.get(image[LIVE_KEY])
                 area.tag_redraw()
         bpy.data.images.remove(image)
+
+
+def _finished_collection(context, job):
+    """The results collection whose view images take the live images' place: a finished run's; a finished
+    sweep's last kept β (its ``collections``; none when it kept none); none after a failure or a cancel."""
+    if job.error is not None or job.result is None or getattr(job.result, "cancelled", False):
+        return None
+    if hasattr(job, "collections"):  # a sweep: the scene's result collection may be an older run's
+        return job.collections[-1] if job.collections else None
+    return context.scene.endophoton.result_collection

@@ -26,7 +26,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import export, guards, package_finder, preferences, rig, simulation, sweep_answer, sweep_blend
+from . import export, guards, live_view, package_finder, preferences, rig, simulation, sweep_answer, sweep_blend
 from .errors import InputError
 from .keys import SWEEP_PLOT_KEY
 
@@ -64,6 +64,7 @@ class SweepInputs:
     seed_per_beta: bool = True  # β k runs with its own seed (endophoton.sweep.schema.beta_seed)
     keep_runs: bool = False  # every β becomes a results collection (its records kept until the end)
     endoscope_view: bool = False  # ... with the rig camera's images (ep.render_view)
+    live_view: bool = False  # each β's images refresh while it runs (live_view.py), with endoscope_view
     timestamp: str = ""
     sweep_id: str = ""  # tags the sweep's β collections (SWEEP_ID_KEY); unique per sweep
     visibility: Optional[dict] = None  # endophoton.sweep's visibility request (sweep_answer.visibility_request)
@@ -194,6 +195,7 @@ def collect_sweep_inputs(context, ep):
         scale_length=float(scale),
         keep_runs=keeps_runs(settings.keep_runs, len(betas), int(settings.store)),
         endoscope_view=bool(scene.endophoton.output_views) and rig.has_camera(rig_obj),
+        live_view=bool(scene.endophoton.live_view),
         timestamp=time.strftime("%Y%m%d-%H%M%S"),
         sweep_id=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}",
         visibility=visibility,
@@ -261,6 +263,9 @@ class SweepJob(simulation.BackgroundJob):
         self.inputs = inputs
         self.engine_scene = engine_scene
         self.scheduler = preferences.scheduler_address()  # read here: the worker thread has no bpy
+        # the current β's view while it runs, as a Run's (the rig's camera, Live View on, no Dask)
+        self.live = live_view.LiveView(ep, inputs.threads) if live_view.wanted(inputs, self.scheduler) else None
+        self.collections = []  # the β collections finish_sweep made (main thread)
         self.token = ep.CancelToken()
         self.result = None
         self.paths = None
@@ -337,6 +342,8 @@ class SweepJob(simulation.BackgroundJob):
             client = simulation.cluster_client(stack, self.ep, self.scheduler)
             # on a cluster all β run at once and cancel cancels their tasks
             extra = {"client": client, "on_chunks": self._on_chunks} if client is not None else {}
+            if client is None and self.live is not None:  # each β through ep.run_live: the same bits
+                extra = self.live.sweep_kwargs()
             result = bs.sweep(
                 self.engine_scene,
                 progress=self._on_progress,
@@ -551,7 +558,7 @@ def finish_sweep(context, job):
         raise RuntimeError(f"EndoPhoton sweep failed: {type(job.error).__name__}: {job.error}")
     if job.cancelled or job.result is None:
         return None
-    collections = make_beta_collections(context, job)
+    collections = job.collections = make_beta_collections(context, job)
     images = load_plot_images(plot_paths(job.paths))
     scene = bpy.data.scenes.get(job.inputs.scene_name) or context.scene
     summary = {k: v for k, v in job.summary.items() if v is not None}  # ID properties hold no None

@@ -43,6 +43,7 @@ from .. import _core, meshes, placement
 from ..analysis import DEFAULT_BATCHES
 from ..callbacks import notification_done, progress_verdict
 from ..io import atomic_write_text, check_bool, check_int, check_output_files, check_path, check_real, jsonable
+from ..live import run_live
 from ..medium import Medium
 from ..paper import DISTANCE_CM, FLUOROPHORES, IMPORTANT_ANGLE_DEG, TISSUE
 from ..run import check_client, run
@@ -218,36 +219,23 @@ class _Progress:
             self.bar.close()
 
 
-def _sweep_meta(
-    scene_or_builder: Any,
-    static_scene: Any,
-    seed: int,
-    store: int,
-    threads: int,
-    n_batches: int,
-    fluorescent_only: bool,
-    fluorescence_rule: str,
-    max_angle_deg: float,
-    point,
-    normal,
-    tilt_axis,
-    rig_kwargs: Mapping[str, Any],
-) -> dict:
-    """The run settings recorded in ``SweepResult.meta``."""
+def _sweep_meta(a: dict, static_scene: Any) -> dict:
+    """The run settings recorded in ``SweepResult.meta``, from :func:`sweep`'s arguments ``a`` (by name)."""
+    rig_kwargs = dict(a["rig_kwargs"] or {})
     return {
-        "seed": int(seed),
-        "store": int(store),
-        "threads": int(threads),
-        "n_batches": int(n_batches),
-        "fluorescent_only": bool(fluorescent_only),
-        "fluorescence_rule": fluorescence_rule,
-        "max_angle_deg": float(max_angle_deg),
-        "point": list(map(float, point)),
-        "normal": list(map(float, normal)),
-        "tilt_axis": list(map(float, tilt_axis)),
+        "seed": int(a["seed"]),
+        "store": int(a["store"]),
+        "threads": int(a["threads"]),
+        "n_batches": int(a["n_batches"]),
+        "fluorescent_only": bool(a["fluorescent_only"]),
+        "fluorescence_rule": a["fluorescence_rule"],
+        "max_angle_deg": float(a["max_angle_deg"]),
+        "point": list(map(float, a["point"])),
+        "normal": list(map(float, a["normal"])),
+        "tilt_axis": list(map(float, a["tilt_axis"])),
         "rig_kwargs": {k: v for k, v in rig_kwargs.items() if isinstance(v, (int, float, str, tuple, list))},
         "scene": "default_flat_scene(unit='cm', polyp='dome')"
-        if scene_or_builder is None
+        if a["scene_or_builder"] is None
         else ("builder" if static_scene is None else "user scene"),
         "engine_version": _core.__version__,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -283,6 +271,10 @@ def _checked_betas(betas: Iterable[float], store: int, n_batches: int) -> list[f
 
 # ep.run's keyword arguments (all but scene and source), the keys run_kwargs may hold.
 _RUN_KEYWORDS = tuple(inspect.signature(run).parameters)[2:]
+# ep.run_live's own keyword arguments (those ep.run lacks), the keys ``live`` may hold.
+_LIVE_KEYWORDS = tuple(
+    p for p in inspect.signature(run_live).parameters if p not in ("scene", "source", "kwargs", *_RUN_KEYWORDS)
+)
 
 
 def _keywords_of(name: str, value, accepted: Iterable[str], of: str) -> dict:
@@ -323,6 +315,28 @@ def _check_sweep_arguments(a: dict) -> None:
     run_kwargs = _keywords_of("run_kwargs", a["run_kwargs"], _RUN_KEYWORDS, "ep.run")
     check_client("client", a["client"])
     check_client("run_kwargs['client']", run_kwargs.get("client"))
+    _check_live(a["live"], a["client"], run_kwargs)
+
+
+def _check_live(live, client, run_kwargs: dict) -> None:
+    """:func:`sweep`'s ``live``: None, or ep.run_live's own keywords with a callable ``on_snapshot``; only
+    for a local sweep (the Dask path and the camera tally have no snapshots: ep.run_live refuses them)."""
+    live = _keywords_of("live", live, _LIVE_KEYWORDS, "ep.run_live")
+    if not live:
+        return
+    if not callable(live.get("on_snapshot")):
+        raise ValueError(
+            f"live['on_snapshot'] = {live.get('on_snapshot')!r} must be a callable "
+            "on_snapshot(i_beta, beta_deg, result)"
+        )
+    for name, value in (("client", client), ("run_kwargs['client']", run_kwargs.get("client"))):
+        if value is not None:
+            raise ValueError(
+                f"live with {name} = {value!r}: a live sweep runs each β on this machine through ep.run_live "
+                "(the unit path carries no Dask client); give live or a client, not both"
+            )
+    if run_kwargs.get("view") not in (None, False):
+        raise ValueError(f"live with run_kwargs['view'] = {run_kwargs['view']!r}: a live run has no camera tally")
 
 
 def _contrast_target(target, visibility):
@@ -478,11 +492,25 @@ def check_placements(
     _check_placements([float(b) for b in betas], setup)
 
 
+def _run_beta(scene, rig, kw: dict, live: Mapping[str, Any] | None, chunk_units: int, i: int, beta: float):
+    """Beta ``i``'s run on this machine: ``ep.run``, or with ``live`` ``ep.run_live`` (the same bits;
+    ``chunk_units`` units per traced chunk, 0: its own choice) handing each snapshot to
+    ``live['on_snapshot'](i, beta, result)``."""
+    if not live:
+        return run(scene, rig, **kw)
+    user = live["on_snapshot"]
+
+    def on_snapshot(result):
+        return user(i, beta, result)
+
+    return run_live(scene, rig, **kw, **dict(live, on_snapshot=on_snapshot, chunk_units=chunk_units))
+
+
 def _sweep_locally(
-    betas, seeds, setup: Callable, kw: dict, outcome: Callable, rows: _Rows, bar: _Progress, cancel
+    betas, seeds, setup: Callable, kw: dict, outcome: Callable, rows: _Rows, bar: _Progress, cancel, live=None, chunks=0
 ) -> None:
-    """One beta after the other on this machine (beta i with seeds[i]); a cancel ends the sweep at
-    the cancelled run."""
+    """One beta after the other on this machine (beta i with seeds[i]; through ep.run_live with
+    ``live``, ``chunks`` units per chunk); a cancel ends the sweep at the cancelled run."""
     for i, beta in enumerate(betas):
         if cancel is not None and getattr(cancel, "cancelled", False):
             rows.stop_at(i)  # cancelled between two runs: nothing to analyse
@@ -490,7 +518,7 @@ def _sweep_locally(
         bar.start(i, beta)
         scene, unit, rig = setup(beta)
         t0 = time.perf_counter()
-        res = run(scene, rig, **dict(kw, seed=seeds[i]))
+        res = _run_beta(scene, rig, dict(kw, seed=seeds[i]), live, chunks, i, beta)
         seconds = float(getattr(res, "seconds", time.perf_counter() - t0))
         if not rows.accept(i, outcome(i, res, seconds, beta, rig, unit)):
             break
@@ -648,6 +676,7 @@ def sweep(
     on_run: Callable | None = None,
     seed_per_beta: bool = True,
     target: Any = None,
+    live: Mapping[str, Any] | None = None,
 ) -> SweepResult:
     """Run the seed's beta sweep and analyse every run; returns a :class:`SweepResult`
     (rows in the order of ``betas``).
@@ -676,8 +705,11 @@ def sweep(
         (records, totals, rig; also a cancelled one) before it is analysed. The sweep keeps
         only the reduced rows; a caller that wants every beta's records (the add-on's per-beta
         collections) keeps them here, at about 100 bytes per record.
+    live : None, or ``ep.run_live``'s own keywords (docs/sweep.md): each beta runs through ``ep.run_live``
+        (the same bits) and ``on_snapshot(i_beta, beta_deg, result)`` gets its snapshots. Not with ``client``.
     """
-    _check_sweep_arguments(dict(locals()))
+    arguments = dict(locals())
+    _check_sweep_arguments(arguments)
     betas = _checked_betas(betas, store, n_batches)
     contrast_target = _contrast_target(target, visibility)
     seeds = [beta_seed(seed, k, seed_per_beta) for k in range(len(betas))]
@@ -690,21 +722,7 @@ def sweep(
     )
     static_scene = _static_scene(scene_or_builder)
     kw = _engine_kwargs(store, fluorescent_only, fluorescence_rule, seed, threads, bar.engine, cancel, run_kwargs)
-    meta = _sweep_meta(
-        scene_or_builder,
-        static_scene,
-        seed,
-        store,
-        threads,
-        n_batches,
-        fluorescent_only,
-        fluorescence_rule,
-        max_angle_deg,
-        point,
-        normal,
-        tilt_axis,
-        rig_kwargs,
-    )
+    meta = _sweep_meta(arguments, static_scene)
     _view_meta(meta, seed_per_beta, rig_kwargs, visibility, contrast_target)
     setup = _setup_of(static_scene, scene_or_builder, distance, point, normal, tilt_axis, rig_kwargs, rig_builder, meta)
     analyse = functools.partial(
@@ -731,7 +749,7 @@ def sweep(
         if client is not None:
             _sweep_on_cluster(client, chunk_units, betas, seeds, setup, kw, outcome, rows, bar, on_chunks, cancel)
         else:
-            _sweep_locally(betas, seeds, setup, kw, outcome, rows, bar, cancel)
+            _sweep_locally(betas, seeds, setup, kw, outcome, rows, bar, cancel, live, chunk_units)
     finally:
         bar.close()
     result = rows.result()
