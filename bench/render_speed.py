@@ -44,7 +44,7 @@ def measure(photons: int, sizes=(64, 128, 256), factors=(1, 2, 4)) -> tuple[list
         for factor in factors:
             t0 = time.perf_counter()
             view = render_view(res, None, n, n, kernel_radius=factor * footprint, **BUDGET)
-            best = time.perf_counter() - t0
+            seconds = time.perf_counter() - t0
             tracemalloc.start()  # a second pass, for the peak of numpy's allocations
             view = render_view(res, None, n, n, kernel_radius=factor * footprint, **BUDGET)
             peak = tracemalloc.get_traced_memory()[1]
@@ -62,7 +62,7 @@ def measure(photons: int, sizes=(64, 128, 256), factors=(1, 2, 4)) -> tuple[list
                     pixels=n,
                     factor=factor,
                     radius_mm=view.kernel["radius"] * scene.unit_cm * 10,
-                    seconds=best,
+                    seconds=seconds,
                     peak_mib=peak / 2**20,
                     median_rel_se=float(rel),
                     lit=float(lit.mean()),
@@ -73,7 +73,7 @@ def measure(photons: int, sizes=(64, 128, 256), factors=(1, 2, 4)) -> tuple[list
                 )
             )
             print(
-                f"{n:4d}^2  r = {factor} px ({rows[-1]['radius_mm']:.3f} mm): {best:6.2f} s  {peak / 2**20:.0f} MiB  "
+                f"{n:4d}^2  r = {factor} px ({rows[-1]['radius_mm']:.3f} mm): {seconds:6.2f} s  {peak / 2**20:.0f} MiB  "
                 f"lit {lit.mean():.2f}  median rel. se {rel:.3f}  polyp rel. se {rows[-1]['polyp_rel_se']:.4f}  "
                 f"polyp bias {z:+.2f} sigma",
                 flush=True,

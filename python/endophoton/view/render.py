@@ -356,6 +356,8 @@ def _cancelled(cancel):
 
 
 def _accumulate(acc, key, index, weights, size):
+    """acc[key] (float64, ``size``) += the sums of ``weights`` by ``index``: a whole-size bincount, for sums
+    that are small (per region and batch) or made once (the aperture image)."""
     acc[key] = acc.get(key, 0) + np.bincount(index, weights=weights, minlength=size)[:size]
 
 
@@ -405,10 +407,11 @@ def _pixel_chunks(cum):
 
 
 def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit, cancel=None):
-    """Sums over the kernel of each hit pixel (see the module docstring). Returns a dict of arrays.
-    ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
-    View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy. Returns (None, 0) once
-    ``cancel`` (a CancelToken or None) is cancelled: it is checked before and in the middle of every chunk."""
+    """Sums over the kernel of each hit pixel (see the module docstring): (a dict of arrays, the candidate
+    count). ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
+    View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy.
+    Returns (None, 0) once ``cancel`` (a CancelToken or None) is cancelled: it is checked before and in the
+    middle of every chunk."""
     from scipy.spatial import cKDTree
 
     B = rec["Pb"].size
