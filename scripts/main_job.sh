@@ -39,16 +39,14 @@ echo "== colon_polyp.blend, blue light (405 nm, photodynamic diagnosis), long-pa
 /usr/bin/python3 -m endophoton sweep --blend blend_scenes/colon_polyp.blend --out "$OUT/colon_polyp_blue" \
   --light blue "${COLON[@]}"
 LIGHTS=("white=$OUT/colon_polyp" "blue=$OUT/colon_polyp_blue")
-# ---- LEAD: the spectral colon (issue 35, branch `media`). When `ep.media` lands with
-# blend_scenes/colon_polyp_spectral.blend (wall: colon mucosa, polyp: adenomatous polyp), the colon is swept
-# with the spectral tissue too, under white light; its answer joins the comparison. SPECTRAL=0 skips it.
+# The spectral colon (issue 35, `ep.media`: wall of colon mucosa, polyp of adenomatous polyp) is swept too,
+# under white light; its answer joins the comparison. SPECTRAL=0 skips it.
 if [ "${SPECTRAL:-1}" = 1 ] && [ -f blend_scenes/colon_polyp_spectral.blend ]; then
   echo "== colon_polyp_spectral.blend (spectral mucosa and polyp), white light"
   /usr/bin/python3 -m endophoton sweep --blend blend_scenes/colon_polyp_spectral.blend \
     --out "$OUT/colon_polyp_spectral" "${COLON[@]}"
   LIGHTS+=("spectral tissue, white=$OUT/colon_polyp_spectral")
 fi
-# ---- end of the spectral colon
 test -f "$OUT/colon_polyp/views_contact_sheet.png" && test -f "$OUT/colon_polyp/visibility.png"
 test -f "$OUT/colon_polyp/surround_vs_region.png" && test -f "$OUT/colon_polyp_blue/visibility.png"
 /usr/bin/python3 scripts/main_job_answer.py "$OUT" "${LIGHTS[@]}" > /dev/null
