@@ -189,7 +189,7 @@ def test_polyp_box_bias_is_measured_and_bounded():
 def test_colon_bias_is_measured_and_bounded():
     """The colon view (bench/colon_scene.py, rig at beta = 20 deg, 16 x 16): the k-nearest region means
     against the next-event estimate's (independent runs). The polyp agrees within noise (the fixed kernel's is
-    1.9x too bright); the colon wall is high, measured 1.27 +- 0.10 of the next-event mean (at 16 x 16 the
+    1.9x too bright); the colon wall is high, measured 1.27 +- 0.11 of the next-event mean (at 16 x 16 the
     kernels are 8x wider in position than at 128 x 128, and the wall curves and folds within them), and is
     bounded here at its K_SIGMA range."""
     import test_render_nee
@@ -201,7 +201,7 @@ def test_colon_bias_is_measured_and_bounded():
     z, _ = _region_z(knn, nee, "polyp", "white")
     assert abs(z) < K_SIGMA, z
     z, ratio = _region_z(knn, nee, "colon", "white")
-    assert 0.8 < ratio < 1.75, (ratio, z)
+    assert 0.77 < ratio < 1.76, (ratio, z)
 
 
 # ---------------------------------------------------------------- the command line
@@ -254,3 +254,17 @@ def test_kernel_summary_names_k_and_the_median_scale():
     assert summary["knn_k"] == 8
     assert summary["knn_median_scale"] == pytest.approx(np.median(view.knn["scale"]["white"]))
     assert "knn_k" not in render_view(res, cam, 4, 4, estimator="kernel", kernel_radius=0.1).kernel_summary()
+
+
+def test_a_cancelled_token_ends_the_knn_render_with_none():
+    """The scales' search checks the token too: a cancelled one ends the render with None, an uncancelled one
+    gives the same image as none."""
+    n = 5000
+    res = RecordsResult(_plane_scene(), lambertian_records(n), n)
+    cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30)
+    token = ep.CancelToken()
+    token.cancel()
+    assert render_view(res, cam, 6, 6, estimator="knn", cancel=token) is None
+    a = render_view(res, cam, 6, 6, estimator="knn", cancel=ep.CancelToken())
+    b = render_view(res, cam, 6, 6, estimator="knn")
+    assert np.array_equal(a.images["white"]["radiance"], b.images["white"]["radiance"])
