@@ -59,6 +59,23 @@ def test_scales_and_radiance_match_a_brute_force_recomputation():
     assert not view.images["fluorescence"]["radiance"].any()  # no fluorescent record: scale 0, radiance 0
 
 
+@pytest.mark.parametrize("share", [0.1, 0.9])
+def test_fluorescence_scale_comes_from_the_fluorescent_records(share):
+    """The fluorescence image's scale is the k-th nearest fluorescent record's (brute force over them), whether
+    the fluorescent records are a small set (a search of their own) or most of the records (one shared search)."""
+    n, k = 4000, 6
+    esc = lambertian_records(n)
+    esc["fluorescent"] = (np.random.default_rng(3).random(n) < share).astype(np.uint8)
+    cam = Camera.look_at((0.1, 0.05, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    view = render_view(RecordsResult(_plane_scene(), esc, n), cam, 5, 4, estimator="knn", knn_k=k, kernel_radius=0.1)
+    fl = esc["fluorescent"] > 0
+    scale, L = _brute_force(view, {key: v[fl] for key, v in esc.items()}, n, k, 0.1, 15.0)
+    np.testing.assert_allclose(view.knn["scale"]["fluorescence"], scale, rtol=1e-6)
+    np.testing.assert_allclose(view.images["fluorescence"]["radiance"], L, rtol=1e-6)
+    white, _ = _brute_force(view, esc, n, k, 0.1, 15.0)
+    np.testing.assert_allclose(view.knn["scale"]["white"], white, rtol=1e-6)
+
+
 def test_lambertian_radiance_is_estimated_without_bias():
     """Uniform Lambertian records: L = n / (P A pi); (k - 1) / V_k is unbiased for a uniform density, and the
     kernels stay far inside the 2 cm square (no edge)."""

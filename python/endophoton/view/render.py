@@ -64,6 +64,8 @@ _CHUNK_PIXELS = 4096
 #: "k-nearest estimate"), and its largest allowed value.
 KNN_K = 32
 MAX_KNN_K = 4096
+#: The most pixel-record pairs one block of the k-nearest search holds (~80 bytes each: ~40 MiB).
+_KNN_BLOCK_PAIRS = 2**19
 
 
 # --------------------------------------------------------------------------
@@ -461,8 +463,29 @@ def _knn_scales(pos, dirs, masks, px, pw, k, r0, c0, threads, cancel):
     """Per pixel (px, pw: (n, 3)) and per record set (``masks``: boolean (N,) over the records pos, dirs), the
     k-th smallest :func:`_knn_distance` to the set's records: the scale s_p of the pixel's product kernel
     (0 for an empty set; k is min(k, the set's size)). A list of (n,) arrays, or None once ``cancel`` is
-    cancelled. One tree of all the records, metric the 6-D Euclidean one of (x / r0, w / c0), E <= sqrt 2 D:
-    the m Euclidean-nearest records hold every record with D <= d_k when sqrt 2 d_k < E_m (else m grows 4x)."""
+    cancelled. Sets of at least 3/4 of the records share one search over all of them; a smaller set (the
+    fluorescent records under blue light) gets its own, so that no search has to reach past many records of
+    other sets."""
+    out = [None] * len(masks)
+    shared = [i for i, m in enumerate(masks) if 4 * int(m.sum()) >= 3 * m.size]
+    groups = [(pos, dirs, [masks[i] for i in shared], shared)] if shared else []
+    groups += [
+        (pos[m], dirs[m], [np.ones(int(m.sum()), dtype=bool)], [i]) for i, m in enumerate(masks) if i not in shared
+    ]
+    for gpos, gdirs, gmasks, index in groups:
+        found = _knn_search(gpos, gdirs, gmasks, px, pw, k, r0, c0, threads, cancel)
+        if found is None:
+            return None
+        for i, f in zip(index, found):
+            out[i] = f
+    return out
+
+
+def _knn_search(pos, dirs, masks, px, pw, k, r0, c0, threads, cancel):
+    """:func:`_knn_scales` of record sets (``masks``) within one cKDTree of ``pos``, ``dirs``, in the 6-D Euclidean
+    metric of (x / r0, w / c0), E <= sqrt 2 D: the m Euclidean-nearest records hold every record with D <= d_k
+    when sqrt 2 d_k < E_m, else the pixel is searched again with 4m (m = 4k first). Pixels are searched in blocks
+    of at most _KNN_BLOCK_PAIRS pixel-record pairs (~80 bytes each), so a large k or m cannot exhaust memory."""
     from scipy.spatial import cKDTree
 
     n, out = pos.shape[0], [np.zeros(px.shape[0]) for _ in masks]
@@ -471,11 +494,14 @@ def _knn_scales(pos, dirs, masks, px, pw, k, r0, c0, threads, cancel):
         return out
     tree = cKDTree(np.hstack([pos / r0, dirs / c0]))
     query = np.hstack([px / r0, pw / c0])
-    for p0 in range(0, px.shape[0], _CHUNK_PIXELS):
-        rows, m = np.arange(p0, min(px.shape[0], p0 + _CHUNK_PIXELS)), min(n, 4 * k)
-        while rows.size:
+    pending = [(np.arange(px.shape[0]), min(n, 4 * k))]
+    while pending:
+        rows_all, m = pending.pop()
+        again = []
+        for b in range(0, rows_all.size, max(1, _KNN_BLOCK_PAIRS // m)):
             if _cancelled(cancel):
                 return None
+            rows = rows_all[b : b + max(1, _KNN_BLOCK_PAIRS // m)]
             e, j = tree.query(query[rows], k=m, workers=threads or -1)
             e, j = e.reshape(rows.size, m), j.reshape(rows.size, m)
             d = _knn_distance(pos[j] - px[rows, None], dirs[j] - pw[rows, None], r0, c0)
@@ -489,7 +515,9 @@ def _knn_scales(pos, dirs, masks, px, pw, k, r0, c0, threads, cancel):
                 dks.append(dk)
             for o, dk in zip(out, dks):
                 o[rows[ok]] = dk[ok]
-            rows, m = rows[~ok], min(n, 4 * m)
+            again.append(rows[~ok])
+        if sum(a.size for a in again):
+            pending.append((np.concatenate(again), min(n, 4 * m)))
     return out
 
 
