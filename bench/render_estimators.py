@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark (not a test): the camera estimators side by side on the colon view (issue 34).
 
-    /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1]
+    /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1] [--estimators kernel,nee]
 
 The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its 128 x 128 camera. Two runs with the
 same seed: one records the escapes and renders them with the kernel estimate (estimator="kernel"), one
@@ -10,6 +10,8 @@ seconds of run + render (process time, all threads), the polyp's red/green contr
 with its batch-means stderr, the figure of merit FOM = 1 / (stderr^2 x CPU s), the share of tissue
 pixels whose white radiance has a relative stderr <= 20 % and the share left at exactly 0, and the
 run's packets per CPU second. A third run (no records, no camera) gives the throughput without either.
+``--estimators kernel,knn,nee``: knn (the k-nearest estimate) renders the kernel run's records, so its CPU
+seconds are that run's plus its own render.
 """
 from __future__ import annotations
 
@@ -39,14 +41,18 @@ def pixel_shares(view) -> dict:
     return dict(tissue_pixels=int(tissue.sum()), within_20=float(ok.mean()), zero=float((L == 0).mean()))
 
 
-def measure(photons: int, threads: int = 0, seed: int = 1) -> dict:
+def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel", "nee")) -> dict:
     """The figures of one side-by-side comparison, as a dict per estimator."""
     scene, rig = colon_scene(beta_deg=20.0)
-    out = {}
-    for name, kw in (("kernel", dict(record_escapes=True)), ("nee", dict(record_escapes=False, view=True))):
+    out, runs = {}, {}
+    for name in estimators:
+        kw = dict(record_escapes=False, view=True) if name == "nee" else dict(record_escapes=True)
         c0, w0 = time.process_time(), time.perf_counter()
-        res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
-        c1 = time.process_time()
+        if name == "nee" or "records" not in runs:  # kernel and knn render the same run's records
+            res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
+            runs["nee" if name == "nee" else "records"] = (res, time.process_time() - c0)
+        res, run_cpu = runs["nee" if name == "nee" else "records"]
+        c0, c1 = time.process_time() - run_cpu, time.process_time()
         view = ep.render_view(res, estimator=name, threads=threads)
         c2, w2 = time.process_time(), time.perf_counter()
         con = view.contrast("polyp", "colon")
@@ -76,17 +82,17 @@ def table(m: dict, photons: int) -> str:
         "tissue px at 0 | packets / CPU s |",
         "|---|---|---|---|---|---|---|",
     ]
-    for name in ("kernel", "nee"):
+    for name in (k for k in ("kernel", "knn", "nee") if k in m):
         r = m[name]
         rows.append(
             f"| {name} | {r['run_cpu_s']:.1f} + {r['render_cpu_s']:.1f} | {r['red_green']:.3f} ± "
             f"{r['red_green_stderr']:.3f} | {r['fom']:.1f} | {100 * r['within_20']:.1f} % | "
             f"{100 * r['zero']:.1f} % | {r['packets_per_cpu_s']:,.0f} |"
         )
-    ratio = m["nee"]["fom"] / m["kernel"]["fom"]
+    ratios = ", ".join(f"{k} / kernel = {m[k]['fom'] / m['kernel']['fom']:.1f}" for k in ("knn", "nee") if k in m)
     rows.append("")
     rows.append(
-        f"FOM ratio nee / kernel = {ratio:.1f}; packets / CPU s without records or camera: "
+        f"FOM ratio {ratios}; packets / CPU s without records or camera: "
         f"{m['plain_packets_per_cpu_s']:,.0f} ({photons:,} packets, {_dt.date.today().isoformat()})"
     )
     return "\n".join(rows)
@@ -97,10 +103,12 @@ def main(argv=None) -> int:
     ap.add_argument("--photons", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--estimators", default="kernel,nee", help="comma-separated: kernel, knn, nee (kernel first)")
     a = ap.parse_args(argv)
-    m = measure(a.photons, a.threads, a.seed)
+    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")))
     print(table(m, a.photons))
-    print("nee counters:", m["nee"]["nee"])
+    if "nee" in m:
+        print("nee counters:", m["nee"]["nee"])
     return 0
 
 

@@ -109,8 +109,8 @@ def test_request_errors_name_the_field():
     plain = ep.run(_slab(), _disk(), photons=2000, spectral=True, seed=1)
     with pytest.raises(ValueError, match="the run has no camera tally; run it with ep.run"):
         render_view(plain, cam, 8, 8, estimator="nee")
-    with pytest.raises(ValueError, match="estimator = 'knn' must be one of"):
-        render_view(plain, cam, 8, 8, estimator="knn")
+    with pytest.raises(ValueError, match="estimator = 'photon_map' must be one of"):
+        render_view(plain, cam, 8, 8, estimator="photon_map")
 
 
 def test_image_is_bit_identical_on_any_thread_count():

@@ -1,7 +1,7 @@
 """The endoscope's view: camera images from a run's surface photon map.
 
 ``render_view(result, camera=None, width=None, height=None, ...)`` returns a
-:class:`View`. Two estimators of the radiance each pixel records:
+:class:`View`. Estimators of the radiance each pixel records:
 
 **Kernel estimate (default).** A primary ray per pixel centre (Embree, through
 ``_core.first_surfaces``) finds the surface point x_p the pixel sees, its
@@ -22,6 +22,12 @@ ball of radius sqrt 2 holds the product kernel; the exact kernel is then
 applied). The kernel is the speed/accuracy knob: its bias is reported by
 halving both sizes in the same pass (bias ~ c r^2 + c' theta^2 for a smooth
 radiance, so bias(h) ~ 4/3 (L_h - L_{h/2})).
+
+**k-nearest estimate** (``estimator="knn"``). The same sum with a kernel of each pixel's own size: in the
+6-D metric D = max(|x - x_p| / r_k, chord(w, w_p) / chord(theta_k)) the k-th nearest record (k = ``knn_k``)
+at D = s_p sets the product kernel (radius s_p r_k, chord s_p chord(theta_k)), and the k - 1 records inside
+it are summed over its exact volume, (k - 1) / V_k being the unbiased k-NN density for a uniform density.
+Each image's scale comes from its own records; the scale is fixed across the batches.
 
 **Aperture image (unbiased).** With ``camera.aperture_radius`` > 0, records
 whose exit ray passes, unoccluded, through the lens disk are imaged through a
@@ -54,6 +60,12 @@ from ..spectra import Spectrum
 __all__ = ["render_view", "View", "excitation_spectrum", "emission_filter_function", "kernel_candidates"]
 
 _CHUNK_PIXELS = 4096
+#: The k-nearest estimate's default k (render_view's ``knn_k``), chosen by measurement (docs/render.md,
+#: "k-nearest estimate"), and its largest allowed value.
+KNN_K = 32
+MAX_KNN_K = 4096
+#: The most pixel-record pairs one block of the k-nearest search holds (~80 bytes each: ~40 MiB).
+_KNN_BLOCK_PAIRS = 2**19
 
 
 # --------------------------------------------------------------------------
@@ -130,7 +142,8 @@ class View:
 
     Attributes: ``width``, ``height``, ``camera`` (:class:`Camera`), ``region_names``, ``region_map``
     (int32, region index each pixel sees, -1 none), ``depth`` (distance to the surface, scene units,
-    0 where none), ``packets``, ``packets_per_batch``, ``kernel`` (radius, angle_deg),
+    0 where none), ``packets``, ``packets_per_batch``, ``kernel`` (radius, angle_deg), ``knn`` (the k-nearest
+    estimate's k and per-image (H, W) scale maps, :func:`_knn_info`; None for the other estimators),
     ``images[name]`` for name in ("white", "fluorescence") with keys ``radiance``, ``radiance_stderr``,
     ``bias``, ``bias_stderr``, ``xyz``, ``rgb`` (linear sRGB, white balanced, unclipped), ``srgb8``,
     ``exposure``, ``spectrum`` (H, W, bins); ``aperture`` (same radiance/rgb keys, or None without an
@@ -175,7 +188,9 @@ class View:
 
     def kernel_summary(self) -> dict:
         """The kernel (radius in scene units, angle_deg) and its estimated bias in each region's mean radiance:
-        bias = 4/3 (L(r, theta) - L(r/2, theta/2)), with its batch-means stderr, per image."""
+        bias = 4/3 (L(r, theta) - L(r/2, theta/2)), with its batch-means stderr, per image. The k-nearest
+        estimate adds ``knn_k`` and ``knn_median_scale`` (the white image's median scale s over the pixels that
+        see tissue: its kernels' radius is s x radius, their chord s x chord(angle))."""
         Pb = self.packets_per_batch
         bias = {}
         for i, name in enumerate(self.region_names):
@@ -188,7 +203,11 @@ class View:
                 d[key + "_bias"] = float(b.sum() / Pb.sum())
                 d[key + "_bias_stderr"] = float(np.std(b / Pb, ddof=1) / math.sqrt(Pb.size))
             bias[name] = d
-        return {"radius": self.kernel["radius"], "angle_deg": self.kernel["angle_deg"], "bias": bias}
+        out = {"radius": self.kernel["radius"], "angle_deg": self.kernel["angle_deg"], "bias": bias}
+        if getattr(self, "knn", None) is not None:  # the k-nearest estimate: k, and the median scale of its kernels
+            s = self.knn["scale"]["white"][self.region_map >= 0]
+            out.update(knn_k=self.knn["k"], knn_median_scale=float(np.median(s)) if s.size else None)
+        return out
 
     def contrast(self, target: str, background: str | None, channels: str = "srgb", surround_px=None) -> dict:
         """:func:`endophoton.view.visibility.contrast` of this view."""
@@ -312,8 +331,10 @@ def check_kernel(kernel_radius, kernel_angle_deg, unit_cm=None, names=("kernel_r
             )
 
 
-def _check_knobs(kernel_radius, kernel_angle_deg, n_batches):
+def _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k=KNN_K):
     check_kernel(kernel_radius, kernel_angle_deg)
+    if isinstance(knn_k, bool) or not isinstance(knn_k, int) or not 2 <= knn_k <= MAX_KNN_K:
+        raise ValueError(f"knn_k = {knn_k!r} must be an integer in [2, {MAX_KNN_K}] (records)")
     if isinstance(n_batches, bool) or not isinstance(n_batches, int) or not 2 <= n_batches <= 1000:
         raise ValueError(f"n_batches = {n_batches!r} must be an integer in [2, 1000]")
 
@@ -406,10 +427,147 @@ def _pixel_chunks(cum):
         p0 = p1
 
 
-def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit, cancel=None):
+def _fixed_kernel_rule(rec, px, pw, pk, r, theta, unit_cm):
+    """The kernel estimate's pair rule: a record is in pixel p's kernel when it left within ``r`` (scene units)
+    of x_p, in a direction within ``theta`` (radians) of w_p; the half kernel halves both. ``rule(p, j)`` of
+    the candidate pairs returns (p, j, weight factor per image, half mask, half factors per image): the pair's
+    sum is e_j x factor, its half-kernel sum e_j x f1 x f2."""
+    cos_t, cos_h = math.cos(theta), math.cos(theta / 2)
+    norm = 1.0 / (math.pi * (r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_t))
+    norm_h = 1.0 / (math.pi * (0.5 * r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_h))
+
+    def rule(p, j):
+        d2 = np.sum((rec["pos"][j] - px[p]) ** 2, axis=1)
+        cw = np.einsum("ij,ij->i", rec["dir"][j], pw[p])
+        inside = (d2 <= r * r) & (cw >= cos_t)
+        half = inside & (d2 <= 0.25 * r * r) & (cw >= cos_h)
+        p, j, half = p[inside], j[inside], half[inside]
+        k, kh = pk[p] * norm, pk[p][half]
+        return p, j, {name: k for name in rec["energy"]}, half, {name: (kh, norm_h) for name in rec["energy"]}
+
+    return rule
+
+
+def _knn_distance(dp, dw, r0, c0):
+    """The k-nearest estimate's distance of position and direction differences dp, dw (..., 3):
+    D = max(|dp| / r0, |dw| / c0), r0 in scene units, c0 a chord of the unit sphere. The product kernel of
+    scale s (position radius s r0, direction chord s c0) holds exactly the records with D <= s. Written per
+    component, so that a pair has the same bits wherever it is computed (the k-th record is then excluded
+    exactly: D < s)."""
+    a = np.sqrt(dp[..., 0] * dp[..., 0] + dp[..., 1] * dp[..., 1] + dp[..., 2] * dp[..., 2]) / r0
+    b = np.sqrt(dw[..., 0] * dw[..., 0] + dw[..., 1] * dw[..., 1] + dw[..., 2] * dw[..., 2]) / c0
+    return np.maximum(a, b)
+
+
+def _knn_scales(pos, dirs, masks, px, pw, k, r0, c0, threads, cancel):
+    """Per pixel (px, pw: (n, 3)) and per record set (``masks``: boolean (N,) over the records pos, dirs), the
+    k-th smallest :func:`_knn_distance` to the set's records: the scale s_p of the pixel's product kernel
+    (0 for an empty set; k is min(k, the set's size)). A list of (n,) arrays, or None once ``cancel`` is
+    cancelled. Sets of at least 3/4 of the records share one search over all of them; a smaller set (the
+    fluorescent records under blue light) gets its own, so that no search has to reach past many records of
+    other sets."""
+    out = [None] * len(masks)
+    shared = [i for i, m in enumerate(masks) if 4 * int(m.sum()) >= 3 * m.size]
+    groups = [(pos, dirs, [masks[i] for i in shared], shared)] if shared else []
+    groups += [
+        (pos[m], dirs[m], [np.ones(int(m.sum()), dtype=bool)], [i]) for i, m in enumerate(masks) if i not in shared
+    ]
+    for gpos, gdirs, gmasks, index in groups:
+        found = _knn_search(gpos, gdirs, gmasks, px, pw, k, r0, c0, threads, cancel)
+        if found is None:
+            return None
+        for i, f in zip(index, found):
+            out[i] = f
+    return out
+
+
+def _knn_search(pos, dirs, masks, px, pw, k, r0, c0, threads, cancel):
+    """:func:`_knn_scales` of record sets (``masks``) within one cKDTree of ``pos``, ``dirs``, in the 6-D Euclidean
+    metric of (x / r0, w / c0), E <= sqrt 2 D: the m Euclidean-nearest records hold every record with D <= d_k
+    when sqrt 2 d_k < E_m, else the pixel is searched again with 4m (m = 4k first). Pixels are searched in blocks
+    of at most _KNN_BLOCK_PAIRS pixel-record pairs (~80 bytes each), so a large k or m cannot exhaust memory."""
+    from scipy.spatial import cKDTree
+
+    n, out = pos.shape[0], [np.zeros(px.shape[0]) for _ in masks]
+    sizes = [int(m.sum()) for m in masks]
+    if max(sizes, default=0) == 0:
+        return out
+    tree = cKDTree(np.hstack([pos / r0, dirs / c0]))
+    query = np.hstack([px / r0, pw / c0])
+    pending = [(np.arange(px.shape[0]), min(n, 4 * k))]
+    while pending:
+        rows_all, m = pending.pop()
+        again = []
+        for b in range(0, rows_all.size, max(1, _KNN_BLOCK_PAIRS // m)):
+            if _cancelled(cancel):
+                return None
+            rows = rows_all[b : b + max(1, _KNN_BLOCK_PAIRS // m)]
+            e, j = tree.query(query[rows], k=m, workers=threads or -1)
+            e, j = e.reshape(rows.size, m), j.reshape(rows.size, m)
+            d = _knn_distance(pos[j] - px[rows, None], dirs[j] - pw[rows, None], r0, c0)
+            ok, dks = np.ones(rows.size, dtype=bool), []
+            for mask, size in zip(masks, sizes):
+                ki = min(int(k), size)
+                dk = (
+                    np.partition(np.where(mask[j], d, np.inf), ki - 1, axis=1)[:, ki - 1] if ki else np.zeros(rows.size)
+                )
+                ok &= (m >= n) | (math.sqrt(2.0) * (1 + 1e-9) * dk < e[:, -1])
+                dks.append(dk)
+            for o, dk in zip(out, dks):
+                o[rows[ok]] = dk[ok]
+            again.append(rows[~ok])
+        if sum(a.size for a in again):
+            pending.append((np.concatenate(again), min(n, 4 * m)))
+    return out
+
+
+def _knn_rule(rec, px, pw, pk, r0, c0, unit_cm, scales):
+    """The k-nearest estimate's pair rule (as :func:`_fixed_kernel_rule`'s): a record is in pixel p's kernel
+    of image m when D < s_m(p) (:func:`_knn_distance`; the k-th record itself, at D = s, is left out), with
+    the product kernel's exact volume V = pi (s r0)^2 [cm^2] x pi min(s c0, 2)^2 [sr] (a cap of chord c has
+    solid angle pi c^2); the half kernel is the scale s / 2. ``scales``: {image: s (pixels,)}."""
+
+    def norm(s):
+        v = math.pi * (s * r0 * unit_cm) ** 2 * math.pi * np.minimum(s * c0, 2.0) ** 2
+        return np.where(v > 0, 1.0 / np.where(v > 0, v, 1.0), 0.0)
+
+    norms = {name: (norm(s), norm(0.5 * s)) for name, s in scales.items()}
+
+    def rule(p, j):
+        d = _knn_distance(rec["pos"][j] - px[p], rec["dir"][j] - pw[p], r0, c0)
+        ins = {name: d < s[p] for name, s in scales.items()}
+        inside = np.logical_or.reduce(list(ins.values()))
+        p, j, d = p[inside], j[inside], d[inside]
+        hs = {name: d < 0.5 * s[p] for name, s in scales.items()}
+        half = np.logical_or.reduce(list(hs.values()))
+        k = {name: pk[p] * norms[name][0][p] * ins[name][inside] for name in scales}
+        kh = {name: (pk[p][half], (norms[name][1][p] * hs[name])[half]) for name in scales}
+        return p, j, k, half, kh
+
+    return rule
+
+
+def _knn_setup(rec, px, pw, pk, r0, c0, k, unit_cm, threads, cancel):
+    """The k-nearest estimate's records (those with energy in some image), the pixels' ball radii in the
+    tree's metric (sqrt 2 x the largest scale) and its pair rule; the scales per image go into rec["knn_scale"].
+    Each image's scale comes from its own records (e > 0: the fluorescence image's are the fluorescent ones).
+    None once ``cancel`` is cancelled."""
+    keep = np.flatnonzero(np.logical_or.reduce([e > 0 for e in rec["energy"].values()]))
+    masks = [e[keep] > 0 for e in rec["energy"].values()]
+    found = _knn_scales(rec["pos"][keep], rec["dir"][keep], masks, px, pw, k, r0, c0, threads, cancel)
+    if found is None:
+        return None
+    scales = rec["knn_scale"] = dict(zip(rec["energy"], found))
+    ball = math.sqrt(2.0) * (1 + 1e-9) * np.maximum.reduce(found)
+    return keep, ball, _knn_rule(rec, px, pw, pk, r0, c0, unit_cm, scales)
+
+
+def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit, cancel=None, knn_k=None):
     """Sums over the kernel of each hit pixel (see the module docstring): (a dict of arrays, the candidate
     count). ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
     View.pixel_colour_sums holds them, (image pixels, channels, B), so the View takes them without a copy.
+    ``knn_k``: None (the fixed kernel of radius ``r``, angle ``theta_deg``) or k (the k-nearest estimate: r and
+    theta set the metric's scales, the k-th nearest record each pixel's size; :func:`_knn_rule`).
     Returns (None, 0) once ``cancel`` (a CancelToken or None) is cancelled: it is checked before and in the
     middle of every chunk."""
     from scipy.spatial import cKDTree
@@ -418,37 +576,36 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     image_pixel, n_image = np.flatnonzero(hit), hit.size
     theta = math.radians(theta_deg)
     chord = 2.0 * math.sin(theta / 2.0)
-    keep = np.flatnonzero(kernel_candidates(rec["pos"], rec["dir"], rec["cam"], r, theta_deg))
     n_pix = px.shape[0]
+    if knn_k is None:
+        keep = np.flatnonzero(kernel_candidates(rec["pos"], rec["dir"], rec["cam"], r, theta_deg))
+        ball, rule = math.sqrt(2.0) * (1 + 1e-9), _fixed_kernel_rule(rec, px, pw, pk, r, theta, unit_cm)
+    else:
+        setup = _knn_setup(rec, px, pw, pk, r, chord, knn_k, unit_cm, threads, cancel)
+        if setup is None:
+            return None, 0
+        keep, ball, rule = setup
     acc = {}
     if keep.size == 0 or n_pix == 0:
         return acc, keep.size
     tree = cKDTree(np.hstack([rec["pos"][keep] / r, rec["dir"][keep] / chord]))
     query = np.hstack([px / r, pw / chord])
-    cos_t, cos_h = math.cos(theta), math.cos(theta / 2)
-    norm = 1.0 / (math.pi * (r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_t))
-    norm_h = 1.0 / (math.pi * (0.5 * r * unit_cm) ** 2 * 2 * math.pi * (1 - cos_h))
-    ball = math.sqrt(2.0) * (1 + 1e-9)
     # the pairs each pixel's ball holds, counted first: chunks of _CHUNK_PIXELS pixels, split where they would
     # hold more than MAX_PAIRS_PER_CHUNK pairs (a pixel's own pairs are at most the records)
     n_ball = tree.query_ball_point(query, ball, workers=threads or -1, return_length=True)
     for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
         if _cancelled(cancel):
             return None, 0
-        lists = tree.query_ball_point(query[p0:p1], ball, workers=threads or -1, return_sorted=False)
+        lists = tree.query_ball_point(
+            query[p0:p1], ball if np.isscalar(ball) else ball[p0:p1], workers=threads or -1, return_sorted=False
+        )
         if _cancelled(cancel):  # again before the chunk's sums (half its time)
             return None, 0
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
         j = keep[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
-        p = np.repeat(np.arange(p0, p1), counts)
-        d2 = np.sum((rec["pos"][j] - px[p]) ** 2, axis=1)
-        cw = np.einsum("ij,ij->i", rec["dir"][j], pw[p])
-        inside = (d2 <= r * r) & (cw >= cos_t)
-        half = inside & (d2 <= 0.25 * r * r) & (cw >= cos_h)
-        p, j, half = p[inside], j[inside], half[inside]
+        p, j, k, half, kh = rule(np.repeat(np.arange(p0, p1), counts), j)
         if p.size == 0:
             continue
-        k = pk[p] * norm
         pb = p * B + rec["batch"][j]
         rb = preg[p] * B + rec["batch"][j]
         # Only the bins the chunk's pairs reach are touched (a dense block per chunk cost the image's size).
@@ -459,9 +616,9 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
         # (image pixel, channel, batch) of channel 0 of the XYZ (3 channels) and camera R, G (2) sums
         g_xyz, g_cam = (_bins(image_pixel[p] * (n * B) + rec["batch"][j]) for n in (3, 2))
         for name, e in rec["energy"].items():
-            w = e[j] * k
+            w = e[j] * k[name]
             _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
-            _accumulate_sparse(acc, name + "_half_pix_batch", g_half, e[j][half] * pk[p][half] * norm_h, n_pix * B)
+            _accumulate_sparse(acc, name + "_half_pix_batch", g_half, e[j][half] * kh[name][0] * kh[name][1], n_pix * B)
             for c in range(3):
                 wc = w * rec["cmf"][j, c]
                 _accumulate_sparse(acc, f"{name}_xyz{c}_pix", g_p, wc, n_pix)
@@ -535,6 +692,7 @@ def render_view(
     n_batches: int = 20,
     threads: int = 0,
     estimator: str = "auto",
+    knn_k: int = KNN_K,
     memory_budget_bytes: float | None = None,
     cancel=None,
 ) -> View | None:
@@ -556,14 +714,20 @@ def render_view(
     threads : for the primary rays and the gather (0 = all cores)
     estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased, the
         most efficient: docs/render.md), "kernel" (the kernel estimate over the escape records) or "auto"
-        (nee when the run has a camera tally, else kernel)
+        (nee when the run has a camera tally, else kernel) or "knn" (the k-nearest estimate over the escape
+        records: each pixel's kernel grows until it holds ``knn_k`` records, so every pixel that sees tissue
+        gets a nonzero white radiance; docs/render.md, "k-nearest estimate")
+    knn_k : with estimator "knn", the number of nearest records (in the 6-D metric of position / kernel_radius
+        and direction / chord(kernel_angle_deg)) that sets each pixel's kernel: the k-th sets its size, the
+        k - 1 inside it are summed ((k - 1) / V_k: unbiased for a uniform density). Larger k: less noise
+        (relative stderr ~ 1 / sqrt(k - 1)), larger kernels and more bias. Default ``KNN_K`` (32)
     memory_budget_bytes : the most memory the render may need (None: ``view.budget.RENDER_MEMORY_BUDGET_BYTES``,
         4 GiB); a size that needs more (:func:`endophoton.view.budget.render_memory_bytes`) is refused before
         anything is allocated, with a ValueError naming width and height
     cancel : None or an ``ep.CancelToken``: once cancelled, render_view stops at its next check (twice per
         block of pixels of the kernel gather, and between the steps after it) and returns None (the add-on's Esc)
     """
-    _check_knobs(kernel_radius, kernel_angle_deg, n_batches)
+    _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k)
     if estimator not in ESTIMATORS:
         raise ValueError(f"estimator = {estimator!r} must be one of {', '.join(map(repr, ESTIMATORS))}")
     if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
@@ -637,7 +801,7 @@ def render_view(
         # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
         rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
         gather = (px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads))
-        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit, cancel)
+        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit, cancel, knn_k if estimator == "knn" else None)
     if acc is None or _cancelled(cancel):  # also between the steps after the gather (~0.5 s each)
         return None
     Pb = rec["Pb"]
@@ -667,6 +831,7 @@ def render_view(
         packets=P,
         packets_per_batch=Pb,
         kernel=dict(radius=float(kernel_radius), angle_deg=float(kernel_angle_deg)),
+        knn=_knn_info(rec, knn_k, hit, (H, W)) if estimator == "knn" else None,
         candidates=int(n_candidates),
         estimator=estimator,
         nee=nee_counters,
@@ -685,7 +850,18 @@ def render_view(
     )
 
 
-ESTIMATORS = ("auto", "nee", "kernel")
+ESTIMATORS = ("auto", "nee", "kernel", "knn")
+
+
+def _knn_info(rec, k, hit, shape):
+    """The k-nearest estimate's size: {k, scale: {image: (H, W) scale s of each pixel's product kernel (radius
+    s x kernel_radius, chord s x chord(kernel_angle_deg)), 0 where no surface}}."""
+    scale = {}
+    for name, s in rec["knn_scale"].items():
+        full = np.zeros(hit.size)
+        full[hit] = s
+        scale[name] = full.reshape(shape)
+    return dict(k=int(k), scale=scale)
 
 
 def _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes):

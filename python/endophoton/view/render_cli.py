@@ -52,10 +52,18 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--estimator",
-        choices=("nee", "kernel"),
+        choices=("nee", "kernel", "knn"),
         default="nee",
-        help="nee (default: next-event estimation toward the camera during the run, unbiased, the most "
-        "efficient; docs/render.md) or kernel (kernel estimate over the escape records)",
+        help="nee (default: next-event estimation toward the camera during the run, unbiased; docs/render.md), "
+        "kernel (kernel estimate over the escape records) or knn (k-nearest estimate over the escape records: "
+        "each pixel's kernel grows to hold --knn-k records)",
+    )
+    p.add_argument(
+        "--knn-k",
+        type=int,
+        default=None,
+        metavar="K",
+        help="with --estimator knn: the nearest records that set each pixel's kernel (default 32)",
     )
     return p
 
@@ -132,6 +140,19 @@ def _check_before_the_run(args, scene, source, camera) -> int | None:
     return budget
 
 
+def _check_knn_k(args):
+    """--knn-k: only with --estimator knn, an integer in [2, render.MAX_KNN_K] (checked before the run)."""
+    from .render import MAX_KNN_K
+
+    k = getattr(args, "knn_k", None)
+    if k is None:
+        return
+    if getattr(args, "estimator", None) != "knn":
+        raise ValueError(f"--knn-k = {k}: give --estimator knn too (the other estimators have no k)")
+    if not 2 <= k <= MAX_KNN_K:
+        raise ValueError(f"--knn-k = {k} must be an integer in [2, {MAX_KNN_K}] (records)")
+
+
 _BUDGET_NAMES = ("--width", "--height", "--memory-budget-gib")
 
 
@@ -156,6 +177,7 @@ def render_main(args) -> int:
 
     for name, lo in (("photons", 1), ("seed", 0), ("threads", 0), ("width", 1), ("height", 1)):
         _check_int(name, getattr(args, name), lo)
+    _check_knn_k(args)
     surround = getattr(args, "surround", None)
     if args.target is not None and args.background is None and surround is None:
         raise ValueError(f"--target = {args.target!r}: give --background REGION or --surround PIXELS")
@@ -188,6 +210,7 @@ def render_main(args) -> int:
             memory_budget_bytes=budget,
         )
     res = run(scene, source, photons=photons, record_escapes=True, spectral=True, **kwargs)
+    knn = {} if getattr(args, "knn_k", None) is None else {"knn_k": args.knn_k}
     view = render_view(
         res,
         camera,
@@ -199,6 +222,7 @@ def render_main(args) -> int:
         emission_filter=emission_filter,
         estimator=estimator,
         memory_budget_bytes=budget,
+        **knn,
     )
     out = {
         "width": view.width,
