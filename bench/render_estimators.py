@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark (not a test): the camera estimators side by side on the colon view (issue 34).
 
-    /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1]
+    /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1] [--tau-cut 3]
 
 The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its 128 x 128 camera. Two runs with the
 same seed: one records the escapes and renders them with the kernel estimate (estimator="kernel"), one
@@ -39,11 +39,13 @@ def pixel_shares(view) -> dict:
     return dict(tissue_pixels=int(tissue.sum()), within_20=float(ok.mean()), zero=float((L == 0).mean()))
 
 
-def measure(photons: int, threads: int = 0, seed: int = 1) -> dict:
-    """The figures of one side-by-side comparison, as a dict per estimator."""
+def measure(photons: int, threads: int = 0, seed: int = 1, tau_cut: float = 3.0) -> dict:
+    """The figures of one side-by-side comparison, as a dict per estimator (tau_cut: the next-event
+    estimate's depth roulette, an optical depth)."""
     scene, rig = colon_scene(beta_deg=20.0)
     out = {}
-    for name, kw in (("kernel", dict(record_escapes=True)), ("nee", dict(record_escapes=False, view=True))):
+    nee_kw = dict(record_escapes=False, view=dict(tau_cut=tau_cut))
+    for name, kw in (("kernel", dict(record_escapes=True)), ("nee", nee_kw)):
         c0, w0 = time.process_time(), time.perf_counter()
         res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
         c1 = time.process_time()
@@ -62,6 +64,7 @@ def measure(photons: int, threads: int = 0, seed: int = 1) -> dict:
             fom=1.0 / (se * se * cpu) if se else float("inf"),
             packets_per_cpu_s=photons / (c1 - c0),
             nee=view.nee,
+            bounded=(res.camera_image or {}).get("bounded"),
             **pixel_shares(view),
         )
     c0 = time.process_time()
@@ -97,10 +100,11 @@ def main(argv=None) -> int:
     ap.add_argument("--photons", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--tau-cut", type=float, default=3.0)
     a = ap.parse_args(argv)
-    m = measure(a.photons, a.threads, a.seed)
+    m = measure(a.photons, a.threads, a.seed, a.tau_cut)
     print(table(m, a.photons))
-    print("nee counters:", m["nee"]["nee"])
+    print(f"nee counters (tau_cut {a.tau_cut}):", m["nee"]["nee"], "thinned with no query:", m["nee"]["bounded"])
     return 0
 
 
