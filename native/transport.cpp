@@ -998,12 +998,14 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::camera_event(const
     const PacketState& st = st_;
     const CameraView& view = *cfg_.camera_view;
     const double u = camera_rng_.uniform();
-    // The clearance from the cube's cache: the interior steps' own (its ball
-    // holds p), else the cube p is in, if it is built.
+    // The clearance from the cache of the cube p is in (built if it is not
+    // yet): its content is a function of the cube alone, so the bound, and
+    // with it the counters, are the same on any thread count. (The cache the
+    // thread used last would depend on the thread's history; past the
+    // store's budget a cube has no cache and its events are solved.)
     auto clearance = [&] {
-        const TriangleCache* cache = local_.cell;
-        if (!cache || !cache->covers(p, p)) cache = scene_.built_cell_cache(p);
-        return cache ? surface_clearance(*cache, p) : Float(0);
+        const TriangleCache* cache = scene_.built_cell_cache(p);
+        return surface_clearance(cache ? *cache : scene_.cell_cache(p), p);
     };
     if (!camera_prefilter(view, p, u, st.med.mut * unit_cm_, clearance, out_.camera.counters)) return;
     CameraEvent e;

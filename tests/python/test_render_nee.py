@@ -114,7 +114,7 @@ def test_request_errors_name_the_field():
 
 
 def test_image_is_bit_identical_on_any_thread_count():
-    """The scores are added in unit order: 1 and 2 threads give the same bits; 'auto' picks nee."""
+    """The scores are added in unit order: 1 and 2 threads give the same bits and counters; 'auto' picks nee."""
     cam = Camera.look_at((0.2, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30)
     runs = [
         ep.run(
@@ -132,6 +132,9 @@ def test_image_is_bit_identical_on_any_thread_count():
     a, b = (r.camera_image for r in runs)
     assert np.array_equal(a["sums"], b["sums"]) and np.array_equal(a["spectrum"], b["spectrum"])
     assert a["scored"] > 0
+    # the depth bound reads the cache of the event's own cube: the counters are the same too
+    for k in ("events", "thinned", "bounded", "scored", "occluded", "unresolved", "crossing"):
+        assert a[k] == b[k], k
     v = render_view(runs[0], cam, 6, 6)
     assert v.estimator == "nee"
     assert np.all(np.isfinite(v.images["white"]["radiance"]))
