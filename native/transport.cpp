@@ -1000,9 +1000,10 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::camera_event(const
     const double u = camera_rng_.uniform();
     // The clearance from the cache of the cube p is in (built if it is not
     // yet): its content is a function of the cube alone, so the bound, and
-    // with it the counters, are the same on any thread count. (The cache the
-    // thread used last would depend on the thread's history; past the
-    // store's budget a cube has no cache and its events are solved.)
+    // with it the counters, are the same on any thread count (the cache the
+    // thread used last would depend on the thread's history). Past the
+    // store's budget a cube not built yet has no cache and its events are
+    // solved: the scores stay the same, the counters may then differ.
     auto clearance = [&] {
         const TriangleCache* cache = scene_.built_cell_cache(p);
         return surface_clearance(cache ? *cache : scene_.cell_cache(p), p);
