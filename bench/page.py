@@ -276,6 +276,7 @@ def sections(R):
         "after a 2 000-packet warm-up, and the per-cube cache store that run built.\n\n" + mesh_t
         + "\n## 11. Grids: speed and memory (frozen)\n\n" + frozen("grids")
         + "\n## 12. Camera estimators side by side (issue 34; frozen, 2026-12-05)\n\n" + frozen("camera_estimators")
+        + "\n## 13. The next-event estimate's cost and noise (issue 34; frozen, 2026-12-06)\n\n" + frozen("nee_cost")
         + "\n## 14. k-nearest estimate beside kernel and NEE (issue 34; frozen, 2026-12-06)\n\n" + frozen("knn_kernel")
     )  # fmt: skip
 

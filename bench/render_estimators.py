@@ -2,6 +2,7 @@
 """Benchmark (not a test): the camera estimators side by side on the colon view (issue 34).
 
     /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1] [--estimators kernel,nee]
+        [--tau-cut 3]
 
 The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its 128 x 128 camera. Two runs with the
 same seed: one records the escapes and renders them with the kernel estimate (estimator="kernel"), one
@@ -41,12 +42,13 @@ def pixel_shares(view) -> dict:
     return dict(tissue_pixels=int(tissue.sum()), within_20=float(ok.mean()), zero=float((L == 0).mean()))
 
 
-def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel", "nee")) -> dict:
-    """The figures of one side-by-side comparison, as a dict per estimator."""
+def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel", "nee"), tau_cut: float = 3.0) -> dict:
+    """The figures of one side-by-side comparison, as a dict per estimator (tau_cut: the next-event
+    estimate's depth roulette, an optical depth)."""
     scene, rig = colon_scene(beta_deg=20.0)
     out, runs = {}, {}
     for name in estimators:
-        kw = dict(record_escapes=False, view=True) if name == "nee" else dict(record_escapes=True)
+        kw = dict(record_escapes=False, view=dict(tau_cut=tau_cut)) if name == "nee" else dict(record_escapes=True)
         c0, w0 = time.process_time(), time.perf_counter()
         if name == "nee" or "records" not in runs:  # kernel and knn render the same run's records
             res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
@@ -68,6 +70,7 @@ def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel",
             fom=1.0 / (se * se * cpu) if se else float("inf"),
             packets_per_cpu_s=photons / (c1 - c0),
             nee=view.nee,
+            bounded=(res.camera_image or {}).get("bounded"),
             **pixel_shares(view),
         )
     c0 = time.process_time()
@@ -104,11 +107,12 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--estimators", default="kernel,nee", help="comma-separated: kernel, knn, nee (kernel first)")
+    ap.add_argument("--tau-cut", type=float, default=3.0)
     a = ap.parse_args(argv)
-    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")))
+    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")), a.tau_cut)
     print(table(m, a.photons))
     if "nee" in m:
-        print("nee counters:", m["nee"]["nee"])
+        print(f"nee counters (tau_cut {a.tau_cut}):", m["nee"]["nee"], "thinned with no query:", m["nee"]["bounded"])
     return 0
 
 

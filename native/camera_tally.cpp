@@ -7,7 +7,6 @@
 
 #include "fresnel.h"
 #include "phase.h"
-#include "rng.h"
 
 namespace ep {
 
@@ -63,9 +62,19 @@ bool CameraView::near_view(const Vec3& x, Float margin) const {
            std::fabs(dot(rel, up)) < (1 + margin) * tan_y * z;
 }
 
-namespace {
+Float surface_clearance(const TriangleCache& cache, const Vec3& p) {
+    const Vec3 dp = p - cache.center();
+    Float d = cache.radius() - std::sqrt(dot(dp, dp));
+    // Every triangle of a plane lies within `reach` of it (triangle_cache.h),
+    // so |n.p - off| - reach is at most the distance to each of them; the
+    // second rounding allowance covers this expression's own rounding.
+    const Float rounding = cache.rounding();
+    for (const TriangleCache::Plane& q : cache.planes())
+        d = std::min(d, std::fabs(dot(q.n, p) - q.off) - q.reach - rounding);
+    return d > 0 ? d : 0;
+}
 
-constexpr Float kViewMargin = 0.1;
+namespace {
 
 // Attenuation coefficient (cm^-1) of unscattered light in region r at lambda_nm.
 Float extinction(const Scene& scene, int r, Float lambda_nm) {
@@ -172,14 +181,9 @@ Refraction refraction_point(const Vec3& p, const Vec3& c, const Vec3& x0, const 
 
 }  // namespace
 
-void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e, Rng& rng, std::vector<Hit>& hits,
+void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e, double u, std::vector<Hit>& hits,
                 CameraScores& out) {
     CameraCounters& k = out.counters;
-    ++k.events;
-    // Events far outside the image cannot exit into it: the exit point lies
-    // within a few mean free paths of the event (the margin, 10 % of the
-    // image's half-extents, is 6 pixels at 128 x 128; docs/render.md).
-    if (!view.near_view(e.p, kViewMargin)) return;
     const Vec3& C = view.position;
     const Vec3 v = C - e.p;
     const Float dist = length(v);
@@ -233,11 +237,11 @@ void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e
     if (pixel < 0) return;
     // Depth roulette (unbiased): beyond tau_cut a score survives with chance
     // exp(tau_cut - tau) and counts 1/chance, so no score carries more than
-    // exp(-tau_cut) of attenuation: deep events cost one path query, not two,
-    // and add no heavy tail.
+    // exp(-tau_cut) of attenuation and adds no heavy tail. (Most deep events
+    // never get here: camera_prefilter thins them with the same u.)
     if (tau > view.tau_cut) {
         q = std::exp(view.tau_cut - tau);
-        if (!(rng.uniform() < q)) {
+        if (!(u < q)) {
             ++k.thinned;
             return;
         }

@@ -14,16 +14,16 @@
 // strictly in unit order, so the image is bit-identical on any thread count.
 // A run without a CameraView pays one branch per interaction.
 #pragma once
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <vector>
 
 #include "scene.h"
+#include "triangle_cache.h"
 #include "vecmath.h"
 
 namespace ep {
-
-class Rng;
 
 // What the camera tally needs: the pinhole, the image, its batches and the
 // colour channels every score is split into (tables over wavelength).
@@ -35,6 +35,14 @@ struct CameraView {
     int batches = 20;                       // contiguous packet-index blocks (analysis.batch_index)
     uint64_t packets = 0;                   // packets of the run (the batches' denominator)
     double tau_cut = 3.0;                   // optical depth beyond which scores are thinned by roulette
+    // Decide the depth roulette from a lower bound of the optical depth before
+    // any ray query where it can (camera_prefilter). false: solve every event's
+    // path first (the reference the tests compare the bits against).
+    bool depth_bound = true;
+    // Events whose position projects outside the image widened by this share
+    // of its half-extents are not scored (their exit lies within a few mean
+    // free paths; 6 pixels at 128 x 128; docs/render.md).
+    static constexpr Float kViewMargin = 0.1;
     // Channel tables on the wavelength grid lambda0_nm + i dlambda_nm (nearest
     // entry; clamped at the ends): channel k of a score is value * table[i K + k],
     // counted for fluorescent packets only where fluorescent_only[k].
@@ -74,6 +82,7 @@ struct CameraScore {
 struct CameraCounters {
     uint64_t events = 0;      // scattering events offered to the estimator
     uint64_t thinned = 0;     // dropped by the depth roulette (unbiased)
+    uint64_t bounded = 0;     // of those, dropped before any ray query (its lower bound of the depth)
     uint64_t scored = 0;      // scores made
     uint64_t occluded = 0;    // exit point hidden from the pinhole
     uint64_t unresolved = 0;  // path to the exit point not solved (excluded: bias, docs/render.md)
@@ -81,6 +90,7 @@ struct CameraCounters {
     void add(const CameraCounters& o) {
         events += o.events;
         thinned += o.thinned;
+        bounded += o.bounded;
         scored += o.scored;
         occluded += o.occluded;
         unresolved += o.unresolved;
@@ -105,9 +115,42 @@ struct CameraEvent {
     Float g = 0, n = 1;  // of the event's region
 };
 
-// Scores `e` into `out`. `rng` draws the depth roulette (a stream of its own,
-// so the packet's transport does not change); `hits` is scratch.
-void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e, Rng& rng, std::vector<Hit>& hits,
+// A lower bound (scene units) of the distance from p to every triangle of
+// the scene, from a cube's cache (triangle_cache.h), which holds every
+// triangle meeting its ball: the smallest of p's distance to the ball's
+// surface and to each cached plane less that plane's reach (the farthest its
+// triangles lie from it, with the rounding allowance) and one more rounding
+// allowance. 0 when p is not inside the ball. Up to 16 planes, no ray query.
+Float surface_clearance(const TriangleCache& cache, const Vec3& p);
+
+// The part of an event's estimate that needs no ray query (issue 34): counts
+// the event and says whether it may score (then next_event solves it with the
+// same u). False when it lies outside the view's margin, or when the depth
+// roulette thins it whatever its path: the path to any exit first crosses
+// clearance_units of the event's region, so its optical depth is
+// tau >= tau_lb = mut_per_unit x clearance_units, and its chance to survive,
+// exp(tau_cut - tau) (1 beneath tau_cut), is at most exp(tau_cut - tau_lb).
+// u >= that bound is u >= the exact chance: the event is thinned as the solved
+// path would thin it, with the same u, so the scores are the same bits. A
+// relative 1e-9 off tau_lb covers the rounding of the hits' distances.
+// clearance_units is called only for events in view (it reads the planes).
+template <class Clearance>
+inline bool camera_prefilter(const CameraView& view, const Vec3& p, double u, Float mut_per_unit,
+                             Clearance&& clearance_units, CameraCounters& k) {
+    ++k.events;
+    if (!view.near_view(p, CameraView::kViewMargin)) return false;
+    if (!view.depth_bound) return true;
+    const Float tau_lb = mut_per_unit * clearance_units() * (1 - 1e-9);
+    if (!(tau_lb > view.tau_cut) || u < std::exp(view.tau_cut - tau_lb)) return true;
+    ++k.thinned;
+    ++k.bounded;
+    return false;
+}
+
+// Scores `e`, which camera_prefilter passed, into `out`. `u` (uniform in
+// [0, 1), from a stream of the camera's own, so the packet's transport does
+// not change) decides the depth roulette; `hits` is scratch.
+void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e, double u, std::vector<Hit>& hits,
                 CameraScores& out);
 
 // The run's image: per pixel, per batch, per channel sums of the scores, and

@@ -119,6 +119,8 @@ class PacketWalk {
     // How zone_steps ended: the packet ended, its next step needs the general
     // loop, or it fluoresced where the zone holds it clear and goes on there.
     enum class ZoneExit { kEnded, kGeneral, kAgain };
+    // kCamera: the run has a camera tally, offered every interaction (spectral runs only).
+    template <bool kCamera>
     ZoneExit zone_steps(ClearSteps& zone);
     // fluoresce()'s trials for the interior steps (loop_trials()).
     struct LoopTrials {
@@ -159,6 +161,7 @@ class PacketWalk {
     void fluoresce();
     void fluoresce_with(const FluorophoreRef& f);
     void offer_camera();
+    void camera_event(const Vec3& p, const Vec3& d, Float W);
     void escape();
     // The memo of the packet's light when it emits one ray only, else null.
     LaunchMemo* launch_memo() {
@@ -285,8 +288,7 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_ready() const {
     const PacketState& st = st_;
-    // The camera tally scores every interaction, which interact() offers it.
-    if (cfg_.camera_view || !local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
+    if (!local_.enabled || !local_.cell || st.reuse_hits || st.med.region < 0 || !(st.med.mut > 0)) return false;
     // Spectral: the loop holds at most LoopTrials::kMax fluorophores.
     if constexpr (kSpectral) return scene_.region(size_t(st.med.region)).fluorophores.size() <= LoopTrials::kMax;
     return true;
@@ -359,7 +361,16 @@ bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     if (!enter_zone(zone, *local_.cell, st_.p) && !(zone.beyond_ball(st_.p) && hop_zone(zone, st_.p, st_.p)))
         return true;
     ZoneExit exit;
-    do exit = zone_steps(zone);
+    // The camera tally's loop is a copy of its own: runs without one keep
+    // the loop as it was.
+    if constexpr (kSpectral) {
+        if (cfg_.camera_view) {
+            do exit = zone_steps<true>(zone);
+            while (exit == ZoneExit::kAgain);
+            return exit == ZoneExit::kGeneral;
+        }
+    }
+    do exit = zone_steps<false>(zone);
     while (exit == ZoneExit::kAgain);
     return exit == ZoneExit::kGeneral;
 }
@@ -377,8 +388,10 @@ bool PacketWalk<kSpectral, kGrids>::interior_steps() {
 // the registers (seed tissue: 418 against 428 instructions per interaction
 // inlined).
 template <bool kSpectral, bool kGrids>
+template <bool kCamera>
 __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit PacketWalk<kSpectral, kGrids>::zone_steps(
     ClearSteps& zone) {
+    static_assert(kSpectral || !kCamera, "the camera tally needs a spectral run");
     PacketState& st = st_;
     const Float mut_cm = st.med.mut * unit_cm_, loss = st.med.mua / st.med.mut;
     const HenyeyGreenstein hg(st.med.g);
@@ -488,6 +501,9 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 if (path_cap) path_cm += s * unit_cm;
                 store();
                 fluoresce_with(scene_.region(size_t(st.med.region)).fluorophores[size_t(k)]);
+                // interact()'s order: the camera is offered the event after the fluorescence.
+                if constexpr (kCamera)
+                    if (st.med.mus > 0 && st.W > 0) offer_camera();
                 // The packet stays at p, which the zone holds clear, so the
                 // steps go on in it at the new wavelength: zone_steps again,
                 // with the coefficients fluoresce_with loaded, instead of a
@@ -497,6 +513,10 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 return scatter_and_survive() ? ZoneExit::kAgain : ZoneExit::kEnded;
             }
         }
+        // interact()'s camera offer, after the capture and the fluorescence
+        // trials, before the scattering (mus > 0: the zone's region scatters).
+        if constexpr (kCamera)
+            if (W > 0) camera_event(to_vec3(p), frame.dir(), W);
         // The common case, laid out on the straight path to the next step.
         if (__builtin_expect(W >= fast_min && steps < room, 1)) {
             hg.scatter(rng.next_u64(), ++scatterings, &frame);
@@ -964,20 +984,43 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
 // Not inlined: runs without a camera keep interact() as it was.
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::offer_camera() {
+    camera_event(st_.p, st_.d, st_.W);
+}
+
+// An event at p with direction d and weight W (the interior steps hold p, d
+// and W in registers; the rest of the packet's state is st_'s). Every event
+// draws one number of the camera's stream, in event order, whether or not a
+// bound decides it: the interior steps and the general loop, and the bound
+// on or off, give each event the same u, so the same scores.
+template <bool kSpectral, bool kGrids>
+__attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::camera_event(const Vec3& p, const Vec3& d, Float W) {
     thread_local std::vector<Hit> hits;
     const PacketState& st = st_;
+    const CameraView& view = *cfg_.camera_view;
+    const double u = camera_rng_.uniform();
+    // The clearance from the cache of the cube p is in (built if it is not
+    // yet): its content is a function of the cube alone, so the bound, and
+    // with it the counters, are the same on any thread count (the cache the
+    // thread used last would depend on the thread's history). Past the
+    // store's budget a cube not built yet has no cache and its events are
+    // solved: the scores stay the same, the counters may then differ.
+    auto clearance = [&] {
+        const TriangleCache* cache = scene_.built_cell_cache(p);
+        return surface_clearance(cache ? *cache : scene_.cell_cache(p), p);
+    };
+    if (!camera_prefilter(view, p, u, st.med.mut * unit_cm_, clearance, out_.camera.counters)) return;
     CameraEvent e;
-    e.p = st.p;
-    e.d = st.d;
+    e.p = p;
+    e.d = d;
     e.set = st.set;
     e.region = st.med.region;
-    e.weight_energy = st.W * st.energy_per_weight;
+    e.weight_energy = W * st.energy_per_weight;
     e.lambda_nm = st.lambda;
     e.fluorescent = st.fluorescent;
     e.packet = st.index;
     e.g = st.med.g;
     e.n = st.med.n;
-    next_event(scene_, *cfg_.camera_view, e, camera_rng_, hits, out_.camera);
+    next_event(scene_, view, e, u, hits, out_.camera);
 }
 
 // The grids' deposits of an interaction at p: the weight dW it absorbed (the

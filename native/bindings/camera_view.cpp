@@ -34,6 +34,7 @@ std::shared_ptr<CameraView> camera_view_from(const py::kwargs& kw) {
     v->batches = need("batches").cast<int>();
     v->packets = need("packets").cast<uint64_t>();
     if (kw.contains("tau_cut")) v->tau_cut = kw["tau_cut"].cast<double>();
+    if (kw.contains("depth_bound")) v->depth_bound = kw["depth_bound"].cast<bool>();
     v->lambda0_nm = need("lambda0_nm").cast<double>();
     v->dlambda_nm = need("dlambda_nm").cast<double>();
     auto table = need("table").cast<py::array_t<double, py::array::c_style | py::array::forcecast>>();
@@ -60,6 +61,7 @@ py::object camera_image_dict(const std::shared_ptr<CameraImage>& img) {
     const CameraCounters& c = img->counters;
     d["events"] = c.events;
     d["thinned"] = c.thinned;
+    d["bounded"] = c.bounded;
     d["scored"] = c.scored;
     d["occluded"] = c.occluded;
     d["unresolved"] = c.unresolved;
@@ -75,7 +77,9 @@ void bind_camera_view(py::module_& m) {
         .def_readonly("height", &CameraView::height)
         .def_readonly("batches", &CameraView::batches)
         .def_readonly("packets", &CameraView::packets)
-        .def_readonly("channels", &CameraView::channels);
+        .def_readonly("channels", &CameraView::channels)
+        // false: every event's path is solved before its depth roulette (the tests' reference).
+        .def_readwrite("depth_bound", &CameraView::depth_bound);
 }
 
 }  // namespace ep::bind

@@ -109,10 +109,9 @@ CameraEvent slab_event(const Vec3& p, const Vec3& d) {
 }
 
 double score_of(const Scene& s, const CameraView& v, const CameraEvent& e) {
-    Rng rng(1, 2);
     std::vector<Hit> hits;
     CameraScores out;
-    next_event(s, v, e, rng, hits, out);
+    next_event(s, v, e, 0.0, hits, out);
     return out.scores.empty() ? 0.0 : out.scores[0].value;
 }
 
@@ -150,10 +149,9 @@ TEST(CameraTally, OccludedExitScoresNothing) {
     auto scene = slab(true);
     const CameraView v = view_at(Vec3(0, 0, 2));
     const CameraEvent e = slab_event(Vec3(0.05, 0.05, -0.05), Vec3(0, 0, 1));
-    Rng rng(1, 2);
     std::vector<Hit> hits;
     CameraScores out;
-    next_event(*scene, v, e, rng, hits, out);
+    next_event(*scene, v, e, 0.0, hits, out);
     EXPECT_TRUE(out.scores.empty());
     EXPECT_EQ(out.counters.occluded, 1u);
 }
@@ -181,7 +179,7 @@ TEST(CameraTally, DepthRouletteIsUnbiased) {
     const int n = 20000;
     for (int i = 0; i < n; ++i) {
         Rng rng(3, uint64_t(i));
-        next_event(*scene, v, e, rng, hits, out);
+        next_event(*scene, v, e, rng.uniform(), hits, out);
     }
     double sum = 0, sum2 = 0;
     for (const CameraScore& s : out.scores) {
@@ -191,4 +189,61 @@ TEST(CameraTally, DepthRouletteIsUnbiased) {
     const double mean = sum / n, se = std::sqrt((sum2 / n - mean * mean) / (n - 1));
     EXPECT_GT(out.counters.thinned, 0u);
     EXPECT_LT(std::fabs(mean - exact), 4 * se);
+}
+
+TEST(CameraTally, SurfaceClearanceIsALowerBoundOfTheDistance) {
+    // The exact distance to the slab's faces (Embree's point query) bounds
+    // the cube cache's clearance from above at points all through the slab;
+    // near the top face the bound is that face's distance (one plane).
+    auto scene = slab(false);
+    Rng rng(5, 0);
+    int positive = 0, tight = 0;
+    for (int i = 0; i < 2000; ++i) {
+        const Vec3 p(4 * rng.uniform() - 2, 4 * rng.uniform() - 2, -rng.uniform());
+        const double exact = scene->distance_to_surface(p, 10);
+        const double got = surface_clearance(scene->cell_cache(p), p);
+        ASSERT_GE(got, 0) << i;
+        ASSERT_LE(got, exact) << i;
+        positive += got > 0;
+        tight += got > exact - 1e-6;
+    }
+    EXPECT_GT(positive, 1000);
+    EXPECT_GT(tight, 100);
+    EXPECT_EQ(surface_clearance(scene->cell_cache(Vec3(0, 0, -0.5)), Vec3(3, 3, 3)), 0);  // outside the ball
+}
+
+TEST(CameraTally, PrefilterThinsOnlyEventsTheSolvedPathThins) {
+    // Events all through the slab, each with its roulette number u: where
+    // camera_prefilter's bound drops one, next_event with the same u scores
+    // nothing either (thinned), and where it passes one, the score is
+    // next_event's. With depth_bound off every event in view is passed.
+    auto scene = slab(false);
+    CameraView v = view_at(Vec3(0.1, -0.2, 2));
+    v.tau_cut = 3;
+    Rng rng(7, 0);
+    CameraCounters bound, exact;
+    int dropped_and_thinned = 0;
+    std::vector<Hit> hits;
+    for (int i = 0; i < 4000; ++i) {
+        const Vec3 p(2 * rng.uniform() - 1, 2 * rng.uniform() - 1, -0.5 * rng.uniform());
+        const CameraEvent e = slab_event(p, Vec3(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5));
+        const double u = rng.uniform();
+        const double mut = 32;  // tissue(): mua + mus, cm^-1 (unit_cm = 1)
+        auto clearance = [&] { return surface_clearance(scene->cell_cache(p), p); };
+        const bool pass = camera_prefilter(v, p, u, mut, clearance, bound);
+        v.depth_bound = false;
+        ASSERT_TRUE(camera_prefilter(v, p, u, mut, clearance, exact)) << i;
+        v.depth_bound = true;
+        CameraScores solved;
+        next_event(*scene, v, e, u, hits, solved);
+        if (!pass) {
+            ASSERT_TRUE(solved.scores.empty()) << i;
+            ASSERT_EQ(solved.counters.thinned, 1u) << i;
+            ++dropped_and_thinned;
+        }
+    }
+    EXPECT_EQ(bound.events, 4000u);
+    EXPECT_EQ(bound.bounded, uint64_t(dropped_and_thinned));
+    EXPECT_GT(dropped_and_thinned, 1000);
+    EXPECT_EQ(exact.bounded, 0u);
 }

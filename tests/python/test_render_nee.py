@@ -114,7 +114,7 @@ def test_request_errors_name_the_field():
 
 
 def test_image_is_bit_identical_on_any_thread_count():
-    """The scores are added in unit order: 1 and 2 threads give the same bits; 'auto' picks nee."""
+    """The scores are added in unit order: 1 and 2 threads give the same bits and counters; 'auto' picks nee."""
     cam = Camera.look_at((0.2, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30)
     runs = [
         ep.run(
@@ -132,9 +132,49 @@ def test_image_is_bit_identical_on_any_thread_count():
     a, b = (r.camera_image for r in runs)
     assert np.array_equal(a["sums"], b["sums"]) and np.array_equal(a["spectrum"], b["spectrum"])
     assert a["scored"] > 0
+    # the depth bound reads the cache of the event's own cube: the counters are the same too
+    for k in ("events", "thinned", "bounded", "scored", "occluded", "unresolved", "crossing"):
+        assert a[k] == b[k], k
     v = render_view(runs[0], cam, 6, 6)
     assert v.estimator == "nee"
     assert np.all(np.isfinite(v.images["white"]["radiance"]))
+
+
+def test_depth_bound_keeps_the_bits(monkeypatch):
+    """The depth roulette decided before any ray query (a lower bound of the optical depth from the cube
+    caches' clearance, docs/render.md) drops only events the solved path would thin with the same number:
+    the image is bit-identical to the one that solves every event's path first, while many events are
+    dropped with no query."""
+    from endophoton.view import nee
+
+    cam = Camera.look_at((0.6, 0.3, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.0)
+    make = nee.camera_view
+    images = {}
+    for bound in (True, False):
+
+        def camera_view(*args, _bound=bound, **kwargs):
+            cv, desc = make(*args, **kwargs)
+            cv.depth_bound = _bound
+            return cv, desc
+
+        monkeypatch.setattr(nee, "camera_view", camera_view)
+        res = ep.run(
+            polyp_box_scene(),
+            src,
+            photons=3000,
+            seed=5,
+            spectral=True,
+            threads=2,
+            unit_size=64,
+            record_escapes=False,
+            view=dict(camera=cam, width=8, height=8, tau_cut=1.0),
+        )
+        images[bound] = res.camera_image
+    a, b = images[True], images[False]
+    assert np.array_equal(a["sums"], b["sums"]) and np.array_equal(a["spectrum"], b["spectrum"])
+    assert a["scored"] == b["scored"] > 0 and a["events"] == b["events"]
+    assert b["bounded"] == 0 and a["bounded"] > 0.2 * a["thinned"], (a["bounded"], a["thinned"])
 
 
 # ---------------------------------------------------------------- cross-checks
