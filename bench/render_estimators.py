@@ -67,7 +67,7 @@ def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel",
             wall_s=w2 - w0,
             red_green=con["red_green"],
             red_green_stderr=se,
-            fom=1.0 / (se * se * cpu) if se else float("inf"),
+            fom=1.0 / (se * se * cpu) if se else None,
             packets_per_cpu_s=photons / (c1 - c0),
             nee=view.nee,
             bounded=(res.camera_image or {}).get("bounded"),
@@ -79,6 +79,11 @@ def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel",
     return out
 
 
+def _num(x, digits: int) -> str:
+    """x with `digits` decimals, or "n/a" where a contrast (too few records) has none."""
+    return "n/a" if x is None else f"{x:.{digits}f}"
+
+
 def table(m: dict, photons: int) -> str:
     rows = [
         "| estimator | CPU s (run + render) | red/green contrast | FOM (s^-1) | tissue px within 20 % | "
@@ -88,11 +93,16 @@ def table(m: dict, photons: int) -> str:
     for name in (k for k in ("kernel", "knn", "nee") if k in m):
         r = m[name]
         rows.append(
-            f"| {name} | {r['run_cpu_s']:.1f} + {r['render_cpu_s']:.1f} | {r['red_green']:.3f} ± "
-            f"{r['red_green_stderr']:.3f} | {r['fom']:.1f} | {100 * r['within_20']:.1f} % | "
+            f"| {name} | {r['run_cpu_s']:.1f} + {r['render_cpu_s']:.1f} | {_num(r['red_green'], 3)} ± "
+            f"{_num(r['red_green_stderr'], 3)} | {_num(r['fom'], 1)} | {100 * r['within_20']:.1f} % | "
             f"{100 * r['zero']:.1f} % | {r['packets_per_cpu_s']:,.0f} |"
         )
-    ratios = ", ".join(f"{k} / kernel = {m[k]['fom'] / m['kernel']['fom']:.1f}" for k in ("knn", "nee") if k in m)
+    foms = {k: m[k]["fom"] for k in ("kernel", "knn", "nee") if k in m}
+    ratios = ", ".join(
+        f"{k} / kernel = {_num(f / foms['kernel'] if f and foms.get('kernel') else None, 1)}"
+        for k, f in foms.items()
+        if k != "kernel"
+    )
     rows.append("")
     rows.append(
         f"FOM ratio {ratios}; packets / CPU s without records or camera: "
