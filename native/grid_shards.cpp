@@ -11,7 +11,7 @@ namespace {
 // Entries a thread's shard bucket keeps between adds: a worker's staging set
 // (512 packets, engine.cpp) puts a few hundred voxels in each bucket
 // (colon_polyp at 0.2 mm: ~100 per 150 packets), so this keeps every
-// staging set's buckets in memory, and at most 64 x 4096 x 40 bytes = 10 MB
+// staging set's buckets in memory, and at most 64 x 4096 x 32 bytes = 8 MB
 // per thread.
 constexpr size_t kKeptBucketEntries = 4096;
 }  // namespace
@@ -55,7 +55,7 @@ void SharedGridSet::add(const GridSet& g) {
     for (size_t k = 0; k < g.grid_count(); ++k) {
         const VoxelAccumulator& src = g.grid(k);
         for (auto& b : buckets) b.clear();
-        src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& v) {
+        src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed128& v) {
             buckets[shard_of(c)].push_back(VoxelAccumulator::Entry{c, v});
         });
         for (size_t s = 0; s < kShards; ++s) {

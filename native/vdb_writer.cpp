@@ -146,7 +146,7 @@ void fill_part(const GridOutput& g, const VoxelAccumulator& part, FloatTree& tre
     bool bad = false, twice = false;
     VoxelAccumulator::Coord bad_c{};
     double bad_v = 0;
-    part.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& f) {
+    part.for_each([&](const VoxelAccumulator::Coord& c, const Fixed128& f) {
         const double v = f.to_double() * g.scale;
         if (!(std::fabs(v) <= double(FLT_MAX))) {
             if (!bad || c < bad_c) bad_c = c, bad_v = v;
@@ -215,11 +215,11 @@ openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree
     }
 
     uint64_t dropped = 0;
-    Fixed192 dropped_value;
+    Fixed128 dropped_value;
     for (const VoxelAccumulator* p : g.parts()) {
         dropped += p->dropped();
         if (!dropped_value.add(p->dropped_value_fixed()))
-            throw std::overflow_error("grid '" + g.name + "': the dropped deposits of its parts sum beyond 2^67");
+            throw std::overflow_error("grid '" + g.name + "': the dropped deposits of its parts sum to 2^47 or more");
     }
     grid->insertMeta("meaning", openvdb::StringMetadata(g.meaning));
     grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(VoxelAccumulator::sum(g.parts()) * g.scale));

@@ -48,7 +48,7 @@ double shared_value(const SharedGridSet& shared, size_t k, const Coord& c) {
     const auto parts = shared.parts(k);
     const size_t home = SharedGridSet::shard_of(c);
     for (size_t s = 0; s < parts.size(); ++s)
-        if (s != home) EXPECT_EQ(parts[s]->fixed(c), ep::Fixed192()) << "voxel in a foreign shard " << s;
+        if (s != home) EXPECT_EQ(parts[s]->fixed(c), ep::Fixed128()) << "voxel in a foreign shard " << s;
     return parts[home]->value(c);
 }
 
@@ -67,8 +67,8 @@ TEST(AddEntries, MatchesIntegerReferenceThroughGrowth) {
             const Coord c = random_voxel(rng);
             if (!in_batch.insert(c).second) continue;
             const int64_t q = quanta(rng);
-            ep::Fixed192 f;
-            ASSERT_TRUE(ep::Fixed192::from_double(double(q) * kQuantum, f));
+            ep::Fixed128 f;
+            ASSERT_TRUE(ep::Fixed128::from_double(double(q) * kQuantum, f));
             entries.push_back({c, f});
             ref[c] += q;
         }
