@@ -276,6 +276,7 @@ def sections(R):
         "after a 2 000-packet warm-up, and the per-cube cache store that run built.\n\n" + mesh_t
         + "\n## 11. Grids: speed and memory (frozen)\n\n" + frozen("grids")
         + "\n## 12. Camera estimators side by side (issue 34; frozen, 2026-12-05)\n\n" + frozen("camera_estimators")
+        + "\n## 15. Grids in 128-bit sums: speed and memory (issue 39; frozen, 2026-12-06)\n\n" + frozen("grids_tables")
     )  # fmt: skip
 
 
