@@ -89,6 +89,21 @@ class Fixed128 {
     // Rounds the two's-complement number of `n` (1 to 4) 64-bit words (least
     // significant first, last bit worth 2^-kFracBits) to the nearest double.
     static double words_to_double(const uint64_t* w, int n);
+    // total += this, in three words (the value sign-extended): exact for the
+    // sum of up to 2^64 values (|value| <= 2^47 = 2^127 last bits < 2^191).
+    void add_to_wide(uint64_t total[3]) const {
+        const uint64_t w[3] = {w_[0], w_[1], int64_t(w_[1]) < 0 ? ~uint64_t(0) : 0};
+        add_wide(total, w);
+    }
+    // total += w, two three-word two's-complement numbers (wide sums).
+    static void add_wide(uint64_t total[3], const uint64_t w[3]) {
+        uint64_t carry = 0;
+        for (int k = 0; k < 3; ++k) {
+            const uint64_t t = total[k] + carry, c1 = t < carry;
+            total[k] = t + w[k];
+            carry = c1 + (total[k] < w[k]);
+        }
+    }
 
   private:
     __int128 get() const { return __int128((static_cast<unsigned __int128>(w_[1]) << 64) | w_[0]); }

@@ -5,6 +5,10 @@
 #include <sstream>
 #include <stdexcept>
 
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
+
 namespace ep {
 
 namespace {
@@ -89,8 +93,15 @@ size_t SharedGridSet::voxel_count(size_t k) const {
     return n;
 }
 
-void SharedGridSet::release(size_t k) {
-    for (const auto& s : shards_) s->grids.grid(k).clear();
+void SharedGridSet::release(size_t k, size_t shard) {
+    shards_.at(shard)->grids.grid(k).clear();
+#ifdef __GLIBC__
+    // The tables were allocated by the worker threads, in their malloc
+    // arenas, and the writer's tree nodes come from another: the freed tables
+    // would stay in the process, unused, while the tree grows. malloc_trim
+    // hands their pages back to the system.
+    malloc_trim(0);
+#endif
 }
 
 }  // namespace ep

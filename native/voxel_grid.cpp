@@ -218,23 +218,11 @@ double VoxelAccumulator::sum(const std::vector<const VoxelAccumulator*>& parts) 
 
 void VoxelAccumulator::add_sum_to(uint64_t total[3]) const {
     // Exact: the voxels' fixed-point values added in a third word of headroom
-    // (at most 2^64 voxels of |value| <= 2^47 cannot leave 192 bits), rounded
-    // once by the caller. Tallies mix voxels near the source (large values)
-    // with a long tail of tiny ones; none of the tail is lost, and no order
-    // enters.
-    for (const Slot& s : slots_) {
-        if (!s.used) continue;
-        const uint64_t* w = s.value.words();
-        const uint64_t ext = int64_t(w[1]) < 0 ? ~uint64_t(0) : 0;  // sign extension into word 2
-        uint64_t carry = 0;
-        for (int k = 0; k < 3; ++k) {
-            const uint64_t b = k < 2 ? w[k] : ext;
-            const uint64_t t = total[k] + carry;
-            const uint64_t c1 = t < carry;
-            total[k] = t + b;
-            carry = c1 + (total[k] < b);
-        }
-    }
+    // (Fixed128::add_to_wide), rounded once by the caller. Tallies mix voxels
+    // near the source (large values) with a long tail of tiny ones; none of
+    // the tail is lost, and no order enters.
+    for (const Slot& s : slots_)
+        if (s.used) s.value.add_to_wide(total);
 }
 
 size_t VoxelAccumulator::memory_bytes() const { return sizeof(*this) + slots_.capacity() * sizeof(Slot); }

@@ -161,6 +161,9 @@ class VoxelAccumulator {
     // The same over several accumulators (the parts of one grid), still
     // rounded once, so it equals sum() of their merge.
     static double sum(const std::vector<const VoxelAccumulator*>& parts);
+    // total += the exact sum of the voxels, in three words (Fixed128::add_to_wide):
+    // Fixed128::words_to_double(total, 3) rounds it.
+    void add_sum_to(uint64_t total[3]) const;
 
     // All voxels sorted by (x, y, z) ascending, values rounded to doubles.
     std::vector<std::pair<Coord, double>> sorted() const;
@@ -265,7 +268,6 @@ class VoxelAccumulator {
             if (same(s.key, c)) return i;
         }
     }
-    void add_sum_to(uint64_t total[3]) const;  // total += the exact voxel sum, in 192 bits
     size_t find(const Coord& c) const;
     void grow();
     void drop(double value);  // counts it; sums it too if it converts
