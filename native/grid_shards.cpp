@@ -99,8 +99,9 @@ void SharedGridSet::release(size_t k, size_t shard) {
     // The tables were allocated by the worker threads, in their malloc
     // arenas, and the writer's tree nodes come from another: the freed tables
     // would stay in the process, unused, while the tree grows. malloc_trim
-    // hands their pages back to the system.
-    malloc_trim(0);
+    // hands their pages back to the system, once per 8 shards (an eighth of a
+    // grid's tables), as each call walks every arena's free chunks.
+    if (shard % 8 == 7 || shard + 1 == kShards) malloc_trim(0);
 #endif
 }
 

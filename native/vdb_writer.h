@@ -32,7 +32,7 @@ struct GridOutput {
     // voxels are in the grid's tree and its sums are taken, on the thread that
     // filled it: the part is not read again, and the caller may free it. A run
     // frees its voxel tables shard by shard, so the tree grows while the
-    // tables it is made from shrink (colon at 0.2 mm: peak 298 -> 275 MB,
+    // tables it is made from shrink (colon at 0.2 mm: peak 298 -> 279 MB,
     // docs/performance.md §15). Any failure may leave parts released.
     std::function<void(size_t part)> release_part = nullptr;
 
