@@ -28,11 +28,28 @@ def sample():
 path = os.path.join(tempfile.mkdtemp(), "g.vdb")
 threading.Thread(target=sample, daemon=True).start()
 t0 = time.monotonic()
-last_progress = [0.0, 0]
+import ctypes
+
+
+class MallInfo2(ctypes.Structure):
+    _fields_ = [
+        (f, ctypes.c_size_t)
+        for f in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()
+    ]
+
+
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = MallInfo2
+last_progress = [0.0, 0, None]
 
 
 def progress(done, total):
-    last_progress[:] = [time.monotonic(), done]
+    mi = libc.mallinfo2()
+    last_progress[:] = [
+        time.monotonic(),
+        done,
+        {f: round(getattr(mi, f) / 2**20, 1) for f in ("arena", "hblkhd", "fordblks")},
+    ]
 
 
 r = ep.run(
@@ -49,19 +66,9 @@ peak_t, peak = max(samples, key=lambda s: s[1])
 print(f"run {time.monotonic() - t0:.1f} s; peak RSS {peak:.0f} MB at {peak_t - t0:.1f} s; file written at the end")
 for t, m in samples[:: max(1, len(samples) // 25)] + [s for s in samples if s[0] > samples[-1][0] - 1.0][::5]:
     print(f"{t - t0:6.2f} s {m:6.0f} MB")
-import ctypes
-
-
-class MallInfo2(ctypes.Structure):
-    _fields_ = [
-        (f, ctypes.c_size_t)
-        for f in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()
-    ]
-
-
-libc = ctypes.CDLL("libc.so.6")
-libc.mallinfo2.restype = MallInfo2
 mi = libc.mallinfo2()
 print({f: round(getattr(mi, f) / 2**20, 1) for f in ("arena", "hblkhd", "uordblks", "fordblks")}, "MB")
 print(f"last {samples[-1][0] - t0:.2f} s {samples[-1][1]:.0f} MB")
-print(f"last progress call at {last_progress[0] - t0:.2f} s, {last_progress[1]} packets done")
+print(
+    f"last progress call at {last_progress[0] - t0:.2f} s, {last_progress[1]} packets done, malloc MB {last_progress[2]}"
+)
