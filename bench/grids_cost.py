@@ -1,5 +1,6 @@
 """Colon scene (bench/colon_scene.py) with grids: packets/s (engine seconds and CPU seconds) and peak RSS
-(VmHWM) in a fresh process. argv: worktree threads voxel_m [photons]."""
+(VmHWM) in a fresh process. argv: worktree threads voxel_m [photons [cache_store_mb]] (voxel_m 0: no grids;
+cache_store_mb: the per-cube triangle caches' budget, Scene(cache_store_mb=), default the engine's)."""
 import json, os, resource, sys, time, tempfile
 
 sys.path.insert(0, sys.argv[1] + "/python")
@@ -11,6 +12,8 @@ threads = int(sys.argv[2])
 voxel = float(sys.argv[3])
 n = int(sys.argv[4]) if len(sys.argv) > 4 else 150000
 scene, rig = colon_scene()
+if len(sys.argv) > 5:
+    scene.cache_store_mb = float(sys.argv[5])
 
 
 def hwm():
@@ -38,6 +41,7 @@ print(
             base_mb=round(base),
             peak_mb=round(hwm()),
             vdb_mb=round(os.path.getsize(path) / 1e6, 2) if grids else 0,
+            cache_mb=round(scene.to_native().cache_store_bytes / 2**20),
         )
     )
 )

@@ -188,12 +188,14 @@ void write_grids(SharedGridSet& grids, const Scene& scene, const RunConfig& cfg,
     // Grid k of the set (GridSet::grid numbering) with its name and meaning.
     const auto output = [&](size_t k, std::string name, std::string meaning) {
         const std::vector<const VoxelAccumulator*> parts = grids.parts(k);
-        // Its voxel tables are freed once its tree is built (the write then
-        // holds the tables of the grids still to build and one or two trees).
-        outs.push_back(
-            {std::move(name), std::move(meaning), parts.front(), s, {parts.begin() + 1, parts.end()}, [&grids, k] {
-                 grids.release(k);
-             }});
+        // Each shard's voxel table is freed once its voxels are in the tree
+        // (the write then holds the tables not yet read and one or two trees).
+        outs.push_back({std::move(name),
+                        std::move(meaning),
+                        parts.front(),
+                        s,
+                        {parts.begin() + 1, parts.end()},
+                        [&grids, k](size_t shard) { grids.release(k, shard); }});
     };
     // Names and meanings: docs/design.md, "Grids" (endophoton.vdb.GRID_QUANTITIES says the same to readers).
     output(0, "absorbed",

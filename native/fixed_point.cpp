@@ -18,9 +18,9 @@ void negate(uint64_t* w, int n) {
 
 }  // namespace
 
-bool Fixed192::from_double_general(double v, Fixed192& out) {
-    if (!std::isfinite(v) || std::fabs(v) >= 0x1p64) return false;
-    uint64_t w[3] = {0, 0, 0};
+bool Fixed128::from_double_general(double v, Fixed128& out) {
+    if (!std::isfinite(v) || std::fabs(v) >= 0x1p47) return false;
+    uint64_t w[2] = {0, 0};
     if (v != 0) {
         // |v| = m 2^e with m in [0.5, 1): |v| = mant 2^(e - 53) with the
         // integer mant = m 2^53 (exact, subnormals included), which is
@@ -30,30 +30,28 @@ bool Fixed192::from_double_general(double v, Fixed192& out) {
         const uint64_t mant = uint64_t(std::ldexp(m, 53));
         const int s = e - 53 + kFracBits;
         if (s >= 0) {
-            // |v| < 2^64 gives s <= 135: word s / 64 <= 2, and in word 2 the
-            // shifted significand stays below 2^61 (no bit lost, sign clear).
-            const unsigned __int128 t = static_cast<unsigned __int128>(mant) << (s % 64);
-            const int q = s / 64;
-            w[q] = uint64_t(t);
-            if (q < 2) w[q + 1] = uint64_t(t >> 64);
+            // |v| < 2^47 gives e <= 47, s <= 74: the shifted significand
+            // stays below 2^127 (no bit lost, sign clear).
+            const unsigned __int128 t = static_cast<unsigned __int128>(mant) << s;
+            w[0] = uint64_t(t);
+            w[1] = uint64_t(t >> 64);
         } else if (-s < 64) {
-            // Below 2^-72: round mant 2^s to an integer, to nearest, ties to even.
+            // Below 2^-28: round mant 2^s to an integer, to nearest, ties to even.
             const int k = -s;
             const uint64_t q = mant >> k, rem = mant & ((uint64_t(1) << k) - 1), half = uint64_t(1) << (k - 1);
             w[0] = q + uint64_t(rem > half || (rem == half && (q & 1)));
         }
         // -s >= 64: mant < 2^53 makes |v| < 2^-11 of the last bit: rounds to 0.
-        if (v < 0) negate(w, 3);
+        if (v < 0) negate(w, 2);
     }
     out.w_[0] = w[0];
     out.w_[1] = w[1];
-    out.w_[2] = w[2];
     return true;
 }
 
-double Fixed192::words_to_double(const uint64_t* w_in, int n) {
+double Fixed128::words_to_double(const uint64_t* w_in, int n) {
     uint64_t w[4];
-    if (n < 1 || n > 4) return 0;  // not reached: callers pass 3 or 4 words
+    if (n < 1 || n > 4) return 0;  // not reached: callers pass 2 or 3 words
     for (int i = 0; i < n; ++i) w[i] = w_in[i];
     const bool neg = int64_t(w[n - 1]) < 0;
     if (neg) negate(w, n);  // the magnitude, read as unsigned (covers -2^(64 n - 1))
@@ -80,7 +78,7 @@ double Fixed192::words_to_double(const uint64_t* w_in, int n) {
     }
     // head | sticky lies in [2^62, 2^63): the conversion to double rounds it
     // once, and the scale 2^(low - kFracBits), with low - kFracBits in
-    // [-186, 132), keeps it a normal double, so multiplying by that power of
+    // [-142, 114) (lead < 256), keeps it a normal double, so multiplying by that power of
     // two is exact, as ldexp would be, without the library call (the writer
     // converts every voxel of a run's grids).
     const uint64_t scale_bits = uint64_t(1023 + low - kFracBits) << 52;

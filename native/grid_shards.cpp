@@ -5,13 +5,17 @@
 #include <sstream>
 #include <stdexcept>
 
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
+
 namespace ep {
 
 namespace {
 // Entries a thread's shard bucket keeps between adds: a worker's staging set
 // (512 packets, engine.cpp) puts a few hundred voxels in each bucket
 // (colon_polyp at 0.2 mm: ~100 per 150 packets), so this keeps every
-// staging set's buckets in memory, and at most 64 x 4096 x 40 bytes = 10 MB
+// staging set's buckets in memory, and at most 64 x 4096 x 32 bytes = 8 MB
 // per thread.
 constexpr size_t kKeptBucketEntries = 4096;
 }  // namespace
@@ -55,7 +59,7 @@ void SharedGridSet::add(const GridSet& g) {
     for (size_t k = 0; k < g.grid_count(); ++k) {
         const VoxelAccumulator& src = g.grid(k);
         for (auto& b : buckets) b.clear();
-        src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& v) {
+        src.for_each([&](const VoxelAccumulator::Coord& c, const Fixed128& v) {
             buckets[shard_of(c)].push_back(VoxelAccumulator::Entry{c, v});
         });
         for (size_t s = 0; s < kShards; ++s) {
@@ -89,8 +93,16 @@ size_t SharedGridSet::voxel_count(size_t k) const {
     return n;
 }
 
-void SharedGridSet::release(size_t k) {
-    for (const auto& s : shards_) s->grids.grid(k).clear();
+void SharedGridSet::release(size_t k, size_t shard) {
+    shards_.at(shard)->grids.grid(k).clear();
+#ifdef __GLIBC__
+    // The tables were allocated by the worker threads, in their malloc
+    // arenas, and the writer's tree nodes come from another: the freed tables
+    // would stay in the process, unused, while the tree grows. malloc_trim
+    // hands their pages back to the system, once per 8 shards (an eighth of a
+    // grid's tables), as each call walks every arena's free chunks.
+    if (shard % 8 == 7 || shard + 1 == kShards) malloc_trim(0);
+#endif
 }
 
 }  // namespace ep

@@ -57,10 +57,11 @@ class SharedGridSet {
     std::vector<const VoxelAccumulator*> parts(size_t k) const;
     uint64_t packets() const { return shards_.front()->grids.packets; }
     size_t voxel_count(size_t k) const;
-    // Frees grid k's voxel tables in every shard (its voxels, dropped
-    // counters and memory): once the grid is written, the run needs them no
-    // more. Not safe while another thread adds or reads grid k.
-    void release(size_t k);
+    // Frees grid k's voxel table in shard `shard` (parts(k)[shard]: its
+    // voxels, dropped counters and memory): once they are in the file, the
+    // run needs them no more. Not safe while another thread adds, or reads
+    // that part.
+    void release(size_t k, size_t shard);
 
   private:
     struct Shard {

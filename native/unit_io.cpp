@@ -13,7 +13,7 @@ namespace {
 
 // Bumped whenever the layout below changes; a worker with another build is
 // then refused by name instead of producing garbage.
-constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '4'};
+constexpr char kMagic[8] = {'E', 'P', 'U', 'N', 'I', 'T', '0', '5'};
 
 enum class GridPlace { kUnit, kChunk };
 
@@ -81,7 +81,7 @@ class Writer {
         field(uint8_t(g != nullptr));
         if (g) grid_set_fields(*this, *g);
     }
-    // A voxel travels as its index and its exact fixed-point value (three
+    // A voxel travels as its index and its exact fixed-point value (two
     // 64-bit words), so the receiver adds exactly what the sender summed.
     void grid(const VoxelAccumulator& g) {
         const auto voxels = g.sorted_fixed();  // sorted: the bytes do not depend on the hash layout
@@ -100,8 +100,8 @@ class Writer {
     std::string take() { return std::move(out_); }
 
   private:
-    void fixed(const Fixed192& f) {
-        for (int k = 0; k < 3; ++k) field(f.words()[k]);
+    void fixed(const Fixed128& f) {
+        for (int k = 0; k < 2; ++k) field(f.words()[k]);
     }
     std::string out_;
 };
@@ -188,9 +188,9 @@ class Reader {
         field(v);
         return v;
     }
-    Fixed192 fixed() {
-        const uint64_t w0 = get<uint64_t>(), w1 = get<uint64_t>(), w2 = get<uint64_t>();
-        return Fixed192::from_words(w0, w1, w2);
+    Fixed128 fixed() {
+        const uint64_t w0 = get<uint64_t>(), w1 = get<uint64_t>();
+        return Fixed128::from_words(w0, w1);
     }
     void need(size_t n) const {
         if (n > s_.size() - pos_) fail();

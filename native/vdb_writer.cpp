@@ -146,7 +146,7 @@ void fill_part(const GridOutput& g, const VoxelAccumulator& part, FloatTree& tre
     bool bad = false, twice = false;
     VoxelAccumulator::Coord bad_c{};
     double bad_v = 0;
-    part.for_each([&](const VoxelAccumulator::Coord& c, const Fixed192& f) {
+    part.for_each([&](const VoxelAccumulator::Coord& c, const Fixed128& f) {
         const double v = f.to_double() * g.scale;
         if (!(std::fabs(v) <= double(FLT_MAX))) {
             if (!bad || c < bad_c) bad_c = c, bad_v = v;
@@ -193,9 +193,30 @@ void move_leaves(FloatTree& from, FloatTree& into, const GridOutput& g) {
     }
 }
 
+// The exact totals of a part (or, added up, of a grid), taken before the
+// part is released: the grid's metadata is written from them.
+struct PartTotals {
+    uint64_t sum[3] = {0, 0, 0};  // the voxels' sum (Fixed128::add_to_wide)
+    uint64_t dropped = 0;
+    Fixed128 dropped_value;
+
+    explicit PartTotals(const VoxelAccumulator* part = nullptr) {
+        if (!part) return;
+        part->add_sum_to(sum);
+        dropped = part->dropped();
+        dropped_value = part->dropped_value_fixed();
+    }
+    void add(const PartTotals& o, const GridOutput& g) {
+        Fixed128::add_wide(sum, o.sum);
+        dropped += o.dropped;
+        if (!dropped_value.add(o.dropped_value))
+            throw std::overflow_error("grid '" + g.name + "': the dropped deposits of its parts sum to 2^47 or more");
+    }
+};
+
 // The grid of `g` from its threads' trees (null where a thread filled none
-// of its parts), with its metadata.
-openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree::Ptr> trees,
+// of its parts) and its parts' totals, with its metadata.
+openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree::Ptr> trees, const PartTotals& totals,
                                       const std::map<std::string, std::string>& metadata) {
     auto grid = openvdb::FloatGrid::create(/*background=*/0.0f);
     grid->setName(g.name);
@@ -214,17 +235,11 @@ openvdb::FloatGrid::Ptr assemble_grid(const GridOutput& g, std::vector<FloatTree
         t.reset();
     }
 
-    uint64_t dropped = 0;
-    Fixed192 dropped_value;
-    for (const VoxelAccumulator* p : g.parts()) {
-        dropped += p->dropped();
-        if (!dropped_value.add(p->dropped_value_fixed()))
-            throw std::overflow_error("grid '" + g.name + "': the dropped deposits of its parts sum beyond 2^67");
-    }
     grid->insertMeta("meaning", openvdb::StringMetadata(g.meaning));
-    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(VoxelAccumulator::sum(g.parts()) * g.scale));
-    grid->insertMeta("dropped_deposits", openvdb::Int64Metadata(static_cast<int64_t>(dropped)));
-    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(dropped_value.to_double() * g.scale));
+    const double sum = Fixed128::words_to_double(totals.sum, 3);
+    grid->insertMeta("accumulator_sum", openvdb::DoubleMetadata(sum * g.scale));
+    grid->insertMeta("dropped_deposits", openvdb::Int64Metadata(static_cast<int64_t>(totals.dropped)));
+    grid->insertMeta("dropped_value", openvdb::DoubleMetadata(totals.dropped_value.to_double() * g.scale));
 #ifdef ENDOPHOTON_VERSION
     grid->setCreator("EndoPhoton " ENDOPHOTON_VERSION);
 #else
@@ -254,10 +269,12 @@ class GridBuilder {
           built_(grids.size()),
           grid_errors_(grids.size()) {
         for (size_t k = 0; k < grids.size(); ++k) {
-            for (const VoxelAccumulator* p : grids[k].parts()) parts_.emplace_back(k, p);
-            remaining_[k].store(grids[k].parts().size());
+            const auto parts = grids[k].parts();
+            for (size_t j = 0; j < parts.size(); ++j) parts_.push_back({k, j, parts[j]});
+            remaining_[k].store(parts.size());
         }
         fill_errors_.resize(parts_.size());
+        totals_.resize(parts_.size());
         const size_t count = std::max<size_t>(1, std::min(parts_.size(), size_t(std::max(threads, 1))));
         trees_.assign(count, std::vector<FloatTree::Ptr>(grids.size()));
         try {
@@ -302,30 +319,35 @@ class GridBuilder {
     bool fill_next(size_t t) {
         const size_t i = next_.fetch_add(1);
         if (i >= parts_.size()) return false;
-        const size_t k = parts_[i].first;
+        const Part& part = parts_[i];
+        const size_t k = part.grid;
         try {
             FloatTree::Ptr& tree = trees_[t][k];
             if (!tree) tree = std::make_shared<FloatTree>(/*background=*/0.0f);
-            fill_part(grids_[k], *parts_[i].second, *tree, budget_);
+            fill_part(grids_[k], *part.data, *tree, budget_);
+            totals_[i] = PartTotals(part.data);
+            if (grids_[k].release_part) grids_[k].release_part(part.index);
         } catch (...) {
             fill_errors_[i] = std::current_exception();
         }
         if (remaining_[k].fetch_sub(1, std::memory_order_acq_rel) == 1) assemble(k);
         return true;
     }
-    // Joins grid k's trees, once its last part is filled, and hands its parts
-    // back (GridOutput::release_parts): no thread reads them any more.
+    // Joins grid k's trees and adds its parts' totals, once its last part is
+    // filled (each part was handed back, GridOutput::release_part, as it was).
     void assemble(size_t k) {
         openvdb::FloatGrid::Ptr grid;
         std::exception_ptr error;
         for (size_t i = 0; i < parts_.size() && !error; ++i)
-            if (parts_[i].first == k && fill_errors_[i]) error = fill_errors_[i];
+            if (parts_[i].grid == k && fill_errors_[i]) error = fill_errors_[i];
         if (!error) {
             try {
+                PartTotals totals;
+                for (size_t i = 0; i < parts_.size(); ++i)
+                    if (parts_[i].grid == k) totals.add(totals_[i], grids_[k]);
                 std::vector<FloatTree::Ptr> own;
                 for (auto& per_thread : trees_) own.push_back(std::move(per_thread[k]));
-                grid = assemble_grid(grids_[k], std::move(own), metadata_);
-                if (grids_[k].release_parts) grids_[k].release_parts();
+                grid = assemble_grid(grids_[k], std::move(own), totals, metadata_);
             } catch (...) {
                 error = std::current_exception();
             }
@@ -342,10 +364,15 @@ class GridBuilder {
     TreeBudget budget_;
     const std::vector<GridOutput>& grids_;
     const std::map<std::string, std::string>& metadata_;
-    std::vector<std::pair<size_t, const VoxelAccumulator*>> parts_;  // (grid, part), grid-major
-    std::vector<std::atomic<size_t>> remaining_;                     // parts of grid k not yet filled
-    std::vector<std::vector<FloatTree::Ptr>> trees_;                 // [thread][grid]
-    std::vector<std::exception_ptr> fill_errors_;                    // per part
+    struct Part {
+        size_t grid, index;  // grid k's part `index` (GridOutput::parts order)
+        const VoxelAccumulator* data;
+    };
+    std::vector<Part> parts_;                         // grid-major
+    std::vector<PartTotals> totals_;                  // per part, once filled
+    std::vector<std::atomic<size_t>> remaining_;      // parts of grid k not yet filled
+    std::vector<std::vector<FloatTree::Ptr>> trees_;  // [thread][grid]
+    std::vector<std::exception_ptr> fill_errors_;     // per part
     std::atomic<size_t> next_{0};
     std::mutex mu_;
     std::condition_variable cv_;

@@ -29,7 +29,7 @@ size_t VoxelAccumulator::find_or_insert(const Coord& c) { return find_or_insert(
 
 void VoxelAccumulator::grow() {
     const size_t new_cap = slots_.empty() ? kInitialCapacity : slots_.size() * 2;
-    std::vector<Slot> old(new_cap, Slot{{0, 0, 0}, 0, Fixed192()});
+    std::vector<Slot> old(new_cap, Slot{{0, 0, 0}, 0, Fixed128()});
     old.swap(slots_);
     const size_t mask = new_cap - 1;
     for (const Slot& s : old) {
@@ -45,34 +45,34 @@ void VoxelAccumulator::grow() {
 void VoxelAccumulator::overflow(const Coord& c) {
     std::ostringstream msg;
     msg << "grids: voxel (" << c[0] << ", " << c[1] << ", " << c[2]
-        << ") sums to more than 2^67 in magnitude, beyond the exact fixed-point range of a grid voxel "
+        << ") sums to 2^47 or more in magnitude, beyond the exact fixed-point range of a grid voxel "
            "(docs/numerics.md, \"Grid sums\")";
     throw std::overflow_error(msg.str());
 }
 
 void VoxelAccumulator::drop(double value) {
-    Fixed192 f;
-    if (Fixed192::from_double(value, f))
+    Fixed128 f;
+    if (Fixed128::from_double(value, f))
         drop(f);
     else
-        ++dropped_;  // not finite or |value| >= 2^64: counted only
+        ++dropped_;  // not finite or |value| >= 2^47: counted only
 }
 
-void VoxelAccumulator::drop(const Fixed192& value) { add_dropped(1, value); }
+void VoxelAccumulator::drop(const Fixed128& value) { add_dropped(1, value); }
 
-void VoxelAccumulator::add_dropped(uint64_t count, const Fixed192& value) {
+void VoxelAccumulator::add_dropped(uint64_t count, const Fixed128& value) {
     dropped_ += count;
     if (!dropped_value_.add(value))
         throw std::overflow_error(
-            "grids: the dropped deposits sum to more than 2^67 in magnitude, beyond the exact fixed-point "
+            "grids: the dropped deposits sum to 2^47 or more in magnitude, beyond the exact fixed-point "
             "range (docs/numerics.md, \"Grid sums\")");
 }
 
 void VoxelAccumulator::add_general(double x, double y, double z, double value) {
     if (value == 0.0) return;
-    Fixed192 f;
+    Fixed128 f;
     Coord c;
-    if (!Fixed192::from_double(value, f)) {
+    if (!Fixed128::from_double(value, f)) {
         drop(value);
         return;
     }
@@ -83,7 +83,7 @@ void VoxelAccumulator::add_general(double x, double y, double z, double value) {
     add_at(c, f);
 }
 
-void VoxelAccumulator::add_at(const Coord& c, const Fixed192& value) {
+void VoxelAccumulator::add_at(const Coord& c, const Fixed128& value) {
     const size_t i = find_or_insert(c);
     add_to(slots_[i], value);
     last_slot_ = i;
@@ -91,8 +91,8 @@ void VoxelAccumulator::add_at(const Coord& c, const Fixed192& value) {
 
 void VoxelAccumulator::add_index(const Coord& c, double value) {
     if (value == 0.0) return;
-    Fixed192 f;
-    if (!Fixed192::from_double(value, f)) {
+    Fixed128 f;
+    if (!Fixed128::from_double(value, f)) {
         drop(value);
         return;
     }
@@ -105,7 +105,7 @@ void VoxelAccumulator::add_index(const Coord& c, double value) {
     add_at(c, f);
 }
 
-void VoxelAccumulator::add_fixed(const Coord& c, const Fixed192& value) {
+void VoxelAccumulator::add_fixed(const Coord& c, const Fixed128& value) {
     for (int a = 0; a < 3; ++a) {
         if (c[a] < -kMaxIndex || c[a] > kMaxIndex) {
             drop(value);
@@ -131,8 +131,8 @@ void VoxelAccumulator::merge_from(const VoxelAccumulator& other) {
         // Self-merge doubles every value; done explicitly because inserting
         // while iterating our own table would be unsafe.
         for (Slot& s : slots_)
-            if (s.used) add_to(s, Fixed192(s.value));
-        add_dropped(dropped_, Fixed192(dropped_value_));
+            if (s.used) add_to(s, Fixed128(s.value));
+        add_dropped(dropped_, Fixed128(dropped_value_));
         return;
     }
     // Fixed-point addition is exact, so a new voxel and an existing one are
@@ -162,8 +162,8 @@ void VoxelAccumulator::add_entries(const Entry* e, size_t n) {
     const auto prefetch = [&](size_t j) {
         hash[j % kAhead] = hash_coord(e[j].key);
         if (slots_.empty()) return;
-        // A 40-byte slot straddles two cache lines at half of the offsets
-        // (its value then lies partly in the second): fetch both.
+        // A 32-byte slot straddles two cache lines at half of the offsets
+        // (the table is 16-byte aligned, voxel_grid.h): fetch both.
         const char* slot = reinterpret_cast<const char*>(&slots_[hash[j % kAhead] & (slots_.size() - 1)]);
         __builtin_prefetch(slot, 1);
         __builtin_prefetch(slot + sizeof(Slot) - 1, 1);
@@ -179,9 +179,9 @@ void VoxelAccumulator::add_entries(const Entry* e, size_t n) {
 
 double VoxelAccumulator::value(const Coord& c) const { return fixed(c).to_double(); }
 
-Fixed192 VoxelAccumulator::fixed(const Coord& c) const {
+Fixed128 VoxelAccumulator::fixed(const Coord& c) const {
     const size_t i = find(c);
-    return i == kNoSlot ? Fixed192() : slots_[i].value;
+    return i == kNoSlot ? Fixed128() : slots_[i].value;
 }
 
 std::vector<size_t> VoxelAccumulator::sorted_slots() const {
@@ -194,8 +194,8 @@ std::vector<size_t> VoxelAccumulator::sorted_slots() const {
     return order;
 }
 
-std::vector<std::pair<VoxelAccumulator::Coord, Fixed192>> VoxelAccumulator::sorted_fixed() const {
-    std::vector<std::pair<Coord, Fixed192>> out;
+std::vector<std::pair<VoxelAccumulator::Coord, Fixed128>> VoxelAccumulator::sorted_fixed() const {
+    std::vector<std::pair<Coord, Fixed128>> out;
     out.reserve(size_);
     for (size_t i : sorted_slots()) out.emplace_back(slots_[i].key, slots_[i].value);
     return out;
@@ -211,30 +211,18 @@ std::vector<std::pair<VoxelAccumulator::Coord, double>> VoxelAccumulator::sorted
 double VoxelAccumulator::sum() const { return sum({this}); }
 
 double VoxelAccumulator::sum(const std::vector<const VoxelAccumulator*>& parts) {
-    uint64_t total[4] = {0, 0, 0, 0};
+    uint64_t total[3] = {0, 0, 0};
     for (const VoxelAccumulator* p : parts) p->add_sum_to(total);
-    return Fixed192::words_to_double(total, 4);
+    return Fixed128::words_to_double(total, 3);
 }
 
-void VoxelAccumulator::add_sum_to(uint64_t total[4]) const {
-    // Exact: the voxels' fixed-point values added in a fourth word of headroom
-    // (at most 2^64 voxels of |value| < 2^67 cannot leave 256 bits), rounded
-    // once by the caller. Tallies mix voxels near the source (large values)
-    // with a long tail of tiny ones; none of the tail is lost, and no order
-    // enters.
-    for (const Slot& s : slots_) {
-        if (!s.used) continue;
-        const uint64_t* w = s.value.words();
-        const uint64_t ext = int64_t(w[2]) < 0 ? ~uint64_t(0) : 0;  // sign extension into word 3
-        uint64_t carry = 0;
-        for (int k = 0; k < 4; ++k) {
-            const uint64_t b = k < 3 ? w[k] : ext;
-            const uint64_t t = total[k] + carry;
-            const uint64_t c1 = t < carry;
-            total[k] = t + b;
-            carry = c1 + (total[k] < b);
-        }
-    }
+void VoxelAccumulator::add_sum_to(uint64_t total[3]) const {
+    // Exact: the voxels' fixed-point values added in a third word of headroom
+    // (Fixed128::add_to_wide), rounded once by the caller. Tallies mix voxels
+    // near the source (large values) with a long tail of tiny ones; none of
+    // the tail is lost, and no order enters.
+    for (const Slot& s : slots_)
+        if (s.used) s.value.add_to_wide(total);
 }
 
 size_t VoxelAccumulator::memory_bytes() const { return sizeof(*this) + slots_.capacity() * sizeof(Slot); }
@@ -244,7 +232,7 @@ void VoxelAccumulator::clear() {
     size_ = 0;
     last_slot_ = kNoSlot;
     dropped_ = 0;
-    dropped_value_ = Fixed192();
+    dropped_value_ = Fixed128();
 }
 
 void VoxelAccumulator::clear_keep_capacity() {
@@ -252,7 +240,7 @@ void VoxelAccumulator::clear_keep_capacity() {
     size_ = 0;
     last_slot_ = kNoSlot;
     dropped_ = 0;
-    dropped_value_ = Fixed192();
+    dropped_value_ = Fixed128();
 }
 
 void GridSet::clear_keep_capacity() {

@@ -56,10 +56,10 @@ class VoxelAccumulator {
     // below .5), so a linear transform of scale h maps index (i, j, k) back to
     // the voxel centre.
     // The value is added exactly in fixed point (fixed_point.h: exact for
-    // 2^-72 <= |value| < 2^64, rounded to a multiple of 2^-124 below).
+    // 2^-28 <= |value| < 2^47, rounded to a multiple of 2^-80 below).
     // A deposit is dropped (counted by dropped(), its value summed into
     // dropped_value() if it converts) when the position is not finite, the
-    // index is beyond kMaxIndex, or the value is not finite or |value| >= 2^64:
+    // index is beyond kMaxIndex, or the value is not finite or |value| >= 2^47:
     // NaN never enters the map. A deposit of exactly zero is a no-op and
     // creates no voxel. A voxel total leaving the fixed-point range throws
     // std::overflow_error naming the voxel (never a silent wrap).
@@ -67,15 +67,15 @@ class VoxelAccumulator {
         Coord c;
         const bool in_range = index_of(x, y, z, c);
         unsigned __int128 low;
-        const bool fast = Fixed192::fast_low(value, low);
+        const bool fast = Fixed128::fast_low(value, low);
         add_resolved(x, y, z, c, in_range, value, fast, low);
     }
 
     // add(x, y, z, value) with the voxel index already computed by
     // index_of(x, y, z, c) (returning `in_range`) and `value` converted by
-    // Fixed192::fast_low (returning `fast`, `low`): several grids of one
+    // Fixed128::fast_low (returning `fast`, `low`): several grids of one
     // voxel size that take a deposit at the same point (GridSet::deposit)
-    // share these steps. The common deposit (2^-72 <= value < 8) stays in
+    // share these steps. The common deposit (2^-28 <= value < 2^47) stays in
     // registers; every other value (zero included) takes add_general.
     void add_resolved(double x, double y, double z, const Coord& c, bool in_range, double value, bool fast,
                       unsigned __int128 low) {
@@ -93,7 +93,7 @@ class VoxelAccumulator {
     // Adds the exact fixed-point `value` to voxel `c` (restoring an
     // accumulator from its byte form, unit_io.cpp); a zero value still
     // creates the voxel, as the deposits that summed to it did.
-    void add_fixed(const Coord& c, const Fixed192& value);
+    void add_fixed(const Coord& c, const Fixed128& value);
 
     // this[v] += other[v] for every voxel of `other` (a voxel missing here is
     // copied), exactly: merging A into B or B into A, or three accumulators
@@ -107,7 +107,7 @@ class VoxelAccumulator {
     // and of the writer's gathered voxel lists.
     struct Entry {
         Coord key;
-        Fixed192 value;
+        Fixed128 value;
     };
     // this[e.key] += e.value for the n entries (keys from an accumulator of
     // this voxel size, so in range), exactly, like merge_from. Each entry's
@@ -115,7 +115,7 @@ class VoxelAccumulator {
     // run does not fit the cache, and the independent inserts then overlap
     // their memory latency instead of paying it one after the other.
     void add_entries(const Entry* e, size_t n);
-    // Calls f(const Coord&, const Fixed192&) for every voxel, in table order
+    // Calls f(const Coord&, const Fixed128&) for every voxel, in table order
     // (which depends on the hash layout: only for order-free uses).
     template <class F>
     void for_each(F&& f) const {
@@ -153,7 +153,7 @@ class VoxelAccumulator {
     // was never touched).
     double value(const Coord& c) const;
     // The exact fixed-point value of voxel c (0 if never touched).
-    Fixed192 fixed(const Coord& c) const;
+    Fixed128 fixed(const Coord& c) const;
 
     // Sum of all voxel values, computed exactly and rounded once to the
     // nearest double.
@@ -161,11 +161,14 @@ class VoxelAccumulator {
     // The same over several accumulators (the parts of one grid), still
     // rounded once, so it equals sum() of their merge.
     static double sum(const std::vector<const VoxelAccumulator*>& parts);
+    // total += the exact sum of the voxels, in three words (Fixed128::add_to_wide):
+    // Fixed128::words_to_double(total, 3) rounds it.
+    void add_sum_to(uint64_t total[3]) const;
 
     // All voxels sorted by (x, y, z) ascending, values rounded to doubles.
     std::vector<std::pair<Coord, double>> sorted() const;
     // The same with the exact values (the byte form of unit_io.cpp).
-    std::vector<std::pair<Coord, Fixed192>> sorted_fixed() const;
+    std::vector<std::pair<Coord, Fixed128>> sorted_fixed() const;
 
     // Calls f(const Coord&, double) for every voxel in sorted order, with
     // the value rounded to a double (only the slot order is copied).
@@ -178,10 +181,10 @@ class VoxelAccumulator {
     double voxel_size() const { return voxel_size_; }
     uint64_t dropped() const { return dropped_; }
     // Sum of the dropped deposits whose value converts to fixed point (a
-    // position out of range); non-finite values and |value| >= 2^64 are only
+    // position out of range); non-finite values and |value| >= 2^47 are only
     // counted. Exact, so it too is independent of the merge order.
     double dropped_value() const { return dropped_value_.to_double(); }
-    const Fixed192& dropped_value_fixed() const { return dropped_value_; }
+    const Fixed128& dropped_value_fixed() const { return dropped_value_; }
 
     // Approximate heap + object footprint in bytes.
     size_t memory_bytes() const;
@@ -194,14 +197,19 @@ class VoxelAccumulator {
 
     // Adds to the dropped counters (restoring an accumulator from its byte
     // form, unit_io.cpp, keeps them exact).
-    void add_dropped(uint64_t count, const Fixed192& value);
+    void add_dropped(uint64_t count, const Fixed128& value);
 
   private:
+    // 32 bytes. Not alignas(32): glibc's aligned allocations of the grown
+    // tables fragmented the heap (colon at 0.2 mm: peak 343 MB against 300 MB
+    // unaligned), so with malloc's 16-byte alignment half of the slots
+    // straddle two cache lines.
     struct Slot {
         Coord key;
         uint32_t used;  // 0 = empty; a flag instead of a sentinel key keeps every coordinate legal
-        Fixed192 value;
+        Fixed128 value;
     };
+    static_assert(sizeof(Slot) == 32, "a voxel slot is 12 + 4 + 16 bytes");
     static constexpr size_t kNoSlot = ~size_t(0);
 
     // std::array's operator== lowers to a memcmp call; three integer
@@ -218,8 +226,8 @@ class VoxelAccumulator {
     }
     std::vector<size_t> sorted_slots() const;  // used slots by ascending key
     void add_general(double x, double y, double z, double value);
-    void add_at(const Coord& c, const Fixed192& value);
-    void add_to(Slot& s, const Fixed192& value) {
+    void add_at(const Coord& c, const Fixed128& value);
+    void add_to(Slot& s, const Fixed128& value) {
         if (!s.value.add(value)) overflow(s.key);
     }
     [[noreturn]] static void overflow(const Coord& c);
@@ -237,8 +245,8 @@ class VoxelAccumulator {
         return h;
     }
     // The table doubles past this fill. Three quarters keeps linear-probe chains
-    // short (about 2.5 probes to find a voxel) while a 40-byte slot table stays
-    // within 1.3-2.7 times the voxels' own bytes; most deposits hit the cached
+    // short (about 2.5 probes to find a voxel) while the table holds 4/3 to 8/3
+    // slots of 32 bytes a voxel; most deposits hit the cached
     // last slot and probe nothing.
     static constexpr size_t kMaxLoadNum = 3, kMaxLoadDen = 4;
     static constexpr size_t kInitialCapacity = 64;
@@ -253,25 +261,24 @@ class VoxelAccumulator {
             if (!s.used) {
                 s.key = c;
                 s.used = 1;
-                s.value = Fixed192();
+                s.value = Fixed128();
                 ++size_;
                 return i;
             }
             if (same(s.key, c)) return i;
         }
     }
-    void add_sum_to(uint64_t total[4]) const;  // total += the exact voxel sum, in 256 bits
     size_t find(const Coord& c) const;
     void grow();
     void drop(double value);  // counts it; sums it too if it converts
-    void drop(const Fixed192& value);
+    void drop(const Fixed128& value);
 
     double voxel_size_;
     std::vector<Slot> slots_;  // capacity is zero or a power of two
     size_t size_ = 0;
     size_t last_slot_ = kNoSlot;
     uint64_t dropped_ = 0;
-    Fixed192 dropped_value_;
+    Fixed128 dropped_value_;
 };
 
 // The volume grids of a run, or of a part of it whose deposits are summed
@@ -302,10 +309,10 @@ struct GridSet {
         VoxelAccumulator::Coord c;
         const bool in_range = absorbed.index_of(x, y, z, c);
         unsigned __int128 low;
-        bool fast = Fixed192::fast_low(absorbed_value, low);
+        bool fast = Fixed128::fast_low(absorbed_value, low);
         absorbed.add_resolved(x, y, z, c, in_range, absorbed_value, fast, low);
         if (!fluorescent) return;
-        fast = Fixed192::fast_low(weight, low);
+        fast = Fixed128::fast_low(weight, low);
         fluorescence.add_resolved(x, y, z, c, in_range, weight, fast, low);
         if (!per_fluorophore.empty())
             per_fluorophore[fluorophore].add_resolved(x, y, z, c, in_range, weight, fast, low);

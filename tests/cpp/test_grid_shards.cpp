@@ -48,7 +48,7 @@ double shared_value(const SharedGridSet& shared, size_t k, const Coord& c) {
     const auto parts = shared.parts(k);
     const size_t home = SharedGridSet::shard_of(c);
     for (size_t s = 0; s < parts.size(); ++s)
-        if (s != home) EXPECT_EQ(parts[s]->fixed(c), ep::Fixed192()) << "voxel in a foreign shard " << s;
+        if (s != home) EXPECT_EQ(parts[s]->fixed(c), ep::Fixed128()) << "voxel in a foreign shard " << s;
     return parts[home]->value(c);
 }
 
@@ -67,8 +67,8 @@ TEST(AddEntries, MatchesIntegerReferenceThroughGrowth) {
             const Coord c = random_voxel(rng);
             if (!in_batch.insert(c).second) continue;
             const int64_t q = quanta(rng);
-            ep::Fixed192 f;
-            ASSERT_TRUE(ep::Fixed192::from_double(double(q) * kQuantum, f));
+            ep::Fixed128 f;
+            ASSERT_TRUE(ep::Fixed128::from_double(double(q) * kQuantum, f));
             entries.push_back({c, f});
             ref[c] += q;
         }
@@ -163,8 +163,8 @@ TEST(SharedGridSet, RejectsAnotherShapeOrVoxelSize) {
     }
 }
 
-// release(k) frees grid k's voxels in every shard and leaves the others.
-TEST(SharedGridSet, ReleaseFreesOneGridInEveryShard) {
+// release(k, s) frees grid k's voxels in shard s and leaves the others.
+TEST(SharedGridSet, ReleaseFreesOneShardOfOneGrid) {
     GridSet g(0.5, 0, 1);
     std::mt19937_64 rng(4);
     for (int n = 0; n < 5000; ++n) {
@@ -176,7 +176,15 @@ TEST(SharedGridSet, ReleaseFreesOneGridInEveryShard) {
     SharedGridSet shared(0.5, 0, 0, 1);
     shared.add(g);
     const size_t voxels = shared.voxel_count(0);
-    shared.release(0);
+    // Shard by shard, as the writer hands them back: a released shard is
+    // empty and frees its table; the others and the other grids keep theirs.
+    const auto parts = shared.parts(0);
+    const size_t first = parts[0]->voxel_count();
+    ASSERT_GT(first, 0u);
+    shared.release(0, 0);
+    EXPECT_EQ(shared.voxel_count(0), voxels - first);
+    EXPECT_EQ(parts[0]->memory_bytes(), sizeof(*parts[0]));
+    for (size_t s = 1; s < parts.size(); ++s) shared.release(0, s);
     EXPECT_EQ(shared.voxel_count(0), 0u);
     EXPECT_EQ(shared.voxel_count(1), voxels);
     EXPECT_EQ(shared.voxel_count(2), voxels);

@@ -346,10 +346,11 @@ TEST_F(VdbWriterTest, GridFromDisjointPartsHoldsTheirUnionOnAnyThreadCount) {
     }
 }
 
-// A grid's parts are handed back (release_parts) once its tree is built,
-// once per grid on any thread count: a caller that frees them there (the
-// engine frees its voxel tables) still gets every voxel and the exact sums.
-TEST_F(VdbWriterTest, PartsAreReleasedOnceEachGridIsBuilt) {
+// Each part is handed back (release_part) once its voxels are in the tree,
+// exactly once, on any thread count: a caller that frees it there (the engine
+// frees its voxel tables shard by shard) still gets every voxel and the exact
+// sums and dropped counters.
+TEST_F(VdbWriterTest, EachPartIsReleasedOnceItIsRead) {
     const double h = 0.5;
     for (int threads : {1, 2, 3}) {
         std::vector<VoxelAccumulator> a(2, VoxelAccumulator(h)), b(2, VoxelAccumulator(h));
@@ -357,11 +358,12 @@ TEST_F(VdbWriterTest, PartsAreReleasedOnceEachGridIsBuilt) {
             a[size_t(i % 2)].add_index({i, 0, 0}, 0.25);
             b[size_t(i % 2)].add_index({0, i, 1}, 0.5);
         }
-        std::atomic<int> released_a{0}, released_b{0};
-        const auto free_parts = [](std::vector<VoxelAccumulator>& parts, std::atomic<int>& count) {
-            return [&parts, &count] {
-                for (auto& p : parts) p.clear();
-                ++count;
+        a[1].add_index({VoxelAccumulator::kMaxIndex + 1, 0, 0}, 3.0);  // dropped, in the part released second
+        std::atomic<int> released_a[2] = {{0}, {0}}, released_b[2] = {{0}, {0}};
+        const auto free_parts = [](std::vector<VoxelAccumulator>& parts, std::atomic<int>* count) {
+            return [&parts, count](size_t i) {
+                parts.at(i).clear();
+                ++count[i];
             };
         };
         const std::string out = path("released" + std::to_string(threads) + ".vdb");
@@ -369,11 +371,15 @@ TEST_F(VdbWriterTest, PartsAreReleasedOnceEachGridIsBuilt) {
                                                        {{"a", "", &a[0], 1.0, {&a[1]}, free_parts(a, released_a)},
                                                         {"b", "", &b[0], 2.0, {&b[1]}, free_parts(b, released_b)}},
                                                        {}, threads);
-        EXPECT_EQ(released_a.load(), 1) << threads << " threads";
-        EXPECT_EQ(released_b.load(), 1) << threads << " threads";
+        for (int i : {0, 1}) {
+            EXPECT_EQ(released_a[i].load(), 1) << threads << " threads, part " << i;
+            EXPECT_EQ(released_b[i].load(), 1) << threads << " threads, part " << i;
+        }
         EXPECT_EQ(a[0].voxel_count() + a[1].voxel_count() + b[0].voxel_count() + b[1].voxel_count(), 0u);
         EXPECT_EQ(sums, (std::vector<double>{75.0, 300.0}));
         EXPECT_EQ(read_float_grid(out, "a")->activeVoxelCount(), 300u);
+        EXPECT_EQ(read_float_grid(out, "a")->metaValue<int64_t>("dropped_deposits"), 1);
+        EXPECT_EQ(read_float_grid(out, "a")->metaValue<double>("dropped_value"), 3.0);
         EXPECT_EQ(read_float_grid(out, "b")->activeVoxelCount(), 300u);
     }
 }

@@ -230,7 +230,7 @@ TEST(VoxelAccumulator, MergeOrderDoesNotChangeBits) {
         ASSERT_EQ(r1[i].second, r2[i].second);
         ASSERT_EQ(r1[i].second, r3[i].second);
         ASSERT_EQ(r1[i].second, r4[i].second);
-        ep::Fixed192 sum = a.fixed(r1[i].first);
+        ep::Fixed128 sum = a.fixed(r1[i].first);
         ASSERT_TRUE(sum.add(b.fixed(r1[i].first)));
         ASSERT_EQ(r1[i].second, sum);
     }
@@ -269,14 +269,14 @@ TEST(VoxelAccumulator, AnySplitOfTheDepositsMergesToTheSameBits) {
 
 TEST(VoxelAccumulator, OverflowOfAVoxelIsANamedError) {
     VoxelAccumulator acc(1.0);
-    const double big = std::ldexp(1.0, 63);  // below the deposit limit 2^64; 16 of them reach 2^67
+    const double big = std::ldexp(1.0, 43);  // below the deposit limit 2^47; 16 of them reach 2^47
     try {
         for (int n = 0; n < 16; ++n) acc.add(2, -3, 4, big);
-        FAIL() << "a voxel total of 2^67 was accepted";
+        FAIL() << "a voxel total of 2^47 was accepted";
     } catch (const std::overflow_error& e) {
         const std::string msg = e.what();
         EXPECT_NE(msg.find("voxel (2, -3, 4)"), std::string::npos) << msg;
-        EXPECT_NE(msg.find("2^67"), std::string::npos) << msg;
+        EXPECT_NE(msg.find("2^47"), std::string::npos) << msg;
     }
     // The failed addition left the voxel as it was: 15 deposits.
     EXPECT_EQ(acc.value({2, -3, 4}), 15 * big);
@@ -317,7 +317,7 @@ TEST(VoxelAccumulator, UnusableDepositsAreDroppedAndCounted) {
     acc.add(1e300, 0.0, 0.0, 16.0);  // finite but beyond the int32 index range
     acc.add(0.0, 0.0, 0.0, nan);     // position fine, value unusable
     acc.add(0.0, 0.0, 0.0, inf);
-    acc.add(0.0, 0.0, 0.0, 0x1p64);  // beyond the fixed-point range of one deposit: counted only
+    acc.add(0.0, 0.0, 0.0, 0x1p47);  // beyond the fixed-point range of one deposit: counted only
     acc.add_index({VoxelAccumulator::kMaxIndex + 1, 0, 0}, 32.0);
     EXPECT_EQ(acc.dropped(), 8u);
     EXPECT_EQ(acc.dropped_value(), 2.0 + 4.0 + 8.0 + 16.0 + 32.0);
@@ -348,7 +348,7 @@ TEST(VoxelAccumulator, MemoryGrowsWithVoxelsAndClearReleasesIt) {
     for (int i = 0; i < 10000; ++i) acc.add(i, 0, 0, 1.0);
     const size_t full = acc.memory_bytes();
     // At least the key and value of every voxel must be accounted for.
-    EXPECT_GE(full - empty, 10000u * (3 * sizeof(int32_t) + sizeof(ep::Fixed192)));
+    EXPECT_GE(full - empty, 10000u * (3 * sizeof(int32_t) + sizeof(ep::Fixed128)));
     acc.clear();
     EXPECT_EQ(acc.voxel_count(), 0u);
     EXPECT_EQ(acc.memory_bytes(), empty);
