@@ -2,9 +2,10 @@
 """Benchmark (not a test): the camera estimators side by side on the colon view (issue 34).
 
     /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1] [--estimators kernel,nee]
-        [--tau-cut 3]
+        [--tau-cut 3] [--size 128]
 
-The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its 128 x 128 camera. Two runs with the
+The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its camera at --size x --size pixels (default
+128, issue 34's view; the rig camera's own is 256 x 256, which the frozen sections 12-14 used). Two runs with the
 same seed: one records the escapes and renders them with the kernel estimate (estimator="kernel"), one
 tallies the camera by next-event estimation (view=True, estimator="nee"). For each it prints the CPU
 seconds of run + render (process time, all threads), the polyp's red/green contrast against the colon
@@ -42,20 +43,23 @@ def pixel_shares(view) -> dict:
     return dict(tissue_pixels=int(tissue.sum()), within_20=float(ok.mean()), zero=float((L == 0).mean()))
 
 
-def measure(photons: int, threads: int = 0, seed: int = 1, estimators=("kernel", "nee"), tau_cut: float = 3.0) -> dict:
+def measure(
+    photons: int, threads: int = 0, seed: int = 1, estimators=("kernel", "nee"), tau_cut: float = 3.0, size: int = 128
+) -> dict:
     """The figures of one side-by-side comparison, as a dict per estimator (tau_cut: the next-event
     estimate's depth roulette, an optical depth)."""
     scene, rig = colon_scene(beta_deg=20.0)
     out, runs = {}, {}
     for name in estimators:
-        kw = dict(record_escapes=False, view=dict(tau_cut=tau_cut)) if name == "nee" else dict(record_escapes=True)
+        nee_view = dict(tau_cut=tau_cut, width=size, height=size)
+        kw = dict(record_escapes=False, view=nee_view) if name == "nee" else dict(record_escapes=True)
         c0, w0 = time.process_time(), time.perf_counter()
         if name == "nee" or "records" not in runs:  # kernel and knn render the same run's records
             res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
             runs["nee" if name == "nee" else "records"] = (res, time.process_time() - c0)
         res, run_cpu = runs["nee" if name == "nee" else "records"]
         c0, c1 = time.process_time() - run_cpu, time.process_time()
-        view = ep.render_view(res, estimator=name, threads=threads)
+        view = ep.render_view(res, estimator=name, threads=threads, width=size, height=size)
         c2, w2 = time.process_time(), time.perf_counter()
         con = view.contrast("polyp", "colon")
         se = con["red_green_stderr"]
@@ -118,8 +122,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--estimators", default="kernel,nee", help="comma-separated: kernel, knn, nee (kernel first)")
     ap.add_argument("--tau-cut", type=float, default=3.0)
+    ap.add_argument("--size", type=int, default=128, help="image width = height in pixels")
     a = ap.parse_args(argv)
-    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")), a.tau_cut)
+    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")), a.tau_cut, a.size)
     print(table(m, a.photons))
     if "nee" in m:
         print(f"nee counters (tau_cut {a.tau_cut}):", m["nee"]["nee"], "thinned with no query:", m["nee"]["bounded"])
