@@ -10,8 +10,7 @@ import os
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 PKG_DIR = os.path.join(ROOT, "python", "endophoton")
 MAX_LINES = 120
-# Being rewritten by its owner (the view helper, issue 37: render.py); the lead removes this exemption.
-EXEMPT = {("view/render.py", "render_view")}
+EXEMPT: set = set()
 
 
 def _functions():

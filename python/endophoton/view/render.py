@@ -712,11 +712,10 @@ def render_view(
     exposure : "auto" (99th percentile of the largest linear channel -> 0.5, per image) or a fixed factor
     n_batches : packet-index blocks for the batch-means standard errors
     threads : for the primary rays and the gather (0 = all cores)
-    estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased, the
-        most efficient: docs/render.md), "kernel" (the kernel estimate over the escape records) or "auto"
-        (nee when the run has a camera tally, else kernel) or "knn" (the k-nearest estimate over the escape
-        records: each pixel's kernel grows until it holds ``knn_k`` records, so every pixel that sees tissue
-        gets a nonzero white radiance; docs/render.md, "k-nearest estimate")
+    estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased:
+        docs/render.md), "kernel" (the kernel estimate over the escape records), "knn" (the k-nearest estimate
+        over them: each pixel's kernel grows until it holds ``knn_k`` records, so every pixel that sees tissue
+        is nonzero; docs/render.md) or "auto" (nee when the run has a camera tally, else kernel)
     knn_k : with estimator "knn", the number of nearest records (in the 6-D metric of position / kernel_radius
         and direction / chord(kernel_angle_deg)) that sets each pixel's kernel: the k-th sets its size, the
         k - 1 inside it are summed ((k - 1) / V_k: unbiased for a uniform density). Larger k: less noise
@@ -728,17 +727,7 @@ def render_view(
         block of pixels of the kernel gather, and between the steps after it) and returns None (the add-on's Esc)
     """
     _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k)
-    if estimator not in ESTIMATORS:
-        raise ValueError(f"estimator = {estimator!r} must be one of {', '.join(map(repr, ESTIMATORS))}")
-    if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
-        raise ValueError(
-            f"result = {shown(result)}: render_view's first argument must be an ep.Result "
-            "(from ep.run(..., record_escapes=True))"
-        )
-    check_int("threads", threads, 0, MAX_THREADS)  # the rule of ep.run
-    if cancel is not None and not hasattr(cancel, "cancelled"):
-        raise ValueError(f"cancel = {shown(cancel)} must be None or an endophoton.CancelToken")
-    check_spectral(result)
+    _check_call(result, estimator, threads, cancel)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
     camera, W, H = _resolve_camera(result.source, camera, width, height)
@@ -746,45 +735,11 @@ def render_view(
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
     T, filter_desc = emission_filter_function(emission_filter, light)
     gains = _gains(white_balance, light)
-    if not (
-        exposure == "auto"
-        or (
-            isinstance(exposure, (int, float))
-            and not isinstance(exposure, bool)
-            and math.isfinite(exposure)
-            and exposure > 0
-        )
-    ):
-        raise ValueError(f"exposure = {exposure!r} must be 'auto' or a positive number")
+    _check_exposure(exposure)
     scene = result.scene
     native = scene.to_native()
-    dirs = camera.primary_rays(W, H)
-    origins = np.broadcast_to(camera.position, dirs.shape)
-    t, region, _, normal = _core.first_surfaces(native, origins, dirs, None, 0.0, int(threads))
-    if np.any(region == -2):
-        raise ValueError(
-            f"camera.position = {camera.position.tolist()} lies inside a region: put the camera in "
-            "the ambient medium"
-        )
-    hit = region >= 0
-    px = camera.position + t[hit, None] * dirs[hit]
-    pw = -dirs[hit]
-    pk = 1.0 / np.clip(np.einsum("ij,ij->i", pw, normal[hit]), 1e-3, 1.0)
-    fr = camera.frame(W, H)
-    depth = np.zeros(H * W)
-    depth[hit] = t[hit] * (dirs[hit] @ fr["forward"])
-    if kernel_radius is None:
-        med = float(np.median(depth[hit])) if hit.any() else 1.0
-        default = 2.0 * (2.0 * fr["tan_x"] / W) * med
-        try:
-            check_kernel(default, kernel_angle_deg, scene.unit_cm)
-        except ValueError as e:  # name what the user gave: the field of view and the width
-            raise ValueError(
-                f"camera.fov_deg = {camera.fov_deg!r} with width = {W}: the default kernel_radius (2 pixel "
-                f"footprints, {default:.3g} scene units) is unusable ({e}); give kernel_radius"
-            ) from None
-        kernel_radius = default
-    check_kernel(kernel_radius, kernel_angle_deg, scene.unit_cm)
+    region, hit, px, pw, pk, depth = _surface_pixels(native, camera, W, H, threads)
+    kernel_radius = _kernel_radius(kernel_radius, kernel_angle_deg, camera, W, H, depth, hit, scene.unit_cm)
     P = _packets(result)
     n_regions = len(scene.regions)
     preg = region[hit].astype(np.int64)
@@ -796,10 +751,7 @@ def render_view(
         rec = dict(nbins=spectrum.shape[2], energy={}, Pb=Pb)
         n_candidates = int(nee_counters["scored"])
     else:
-        rec = _records(result, n_batches, P, T)
-        rec["cam"] = camera.position
-        # Camera-like R and G sensitivities: the linear-sRGB channels of each record, negative parts clipped.
-        rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
+        rec = _camera_records(result, n_batches, P, T, camera, gains)
         gather = (px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads))
         acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit, cancel, knn_k if estimator == "knn" else None)
     if acc is None or _cancelled(cancel):  # also between the steps after the gather (~0.5 s each)
@@ -815,12 +767,9 @@ def render_view(
     region_batches = _region_batches(acc, preg, region_pixels, Pb.size, gains)
     aperture = None
     if camera.aperture_radius > 0 and (estimator == "kernel" or result.escapes is not None):
-        if estimator == "nee":
-            rec = _records(result, n_batches, P, T)
+        rec = _records(result, n_batches, P, T) if estimator == "nee" else rec
         focus = camera.focus_distance or _autofocus(depth, hit, W, H)
-        aperture = _aperture_images(
-            native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm, int(threads)
-        )
+        aperture = _aperture_images(native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm, threads)
     return View(
         width=W,
         height=H,
@@ -848,6 +797,79 @@ def render_view(
         gains=gains,
         spectrum_bin_edges_nm=colour.spectrum_bins(),
     )
+
+
+def _camera_records(result, n_batches, P, T, camera, gains) -> dict:
+    """The escape records as the kernel and k-nearest gathers read them (:func:`_records`), with the camera's
+    position and the camera-like R and G sensitivities: each record's linear-sRGB channels, negative parts
+    clipped (docs/render.md, "Visibility")."""
+    rec = _records(result, n_batches, P, T)
+    rec["cam"] = camera.position
+    rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
+    return rec
+
+
+def _check_call(result, estimator, threads, cancel) -> None:
+    """render_view's checks of its result, estimator, threads and cancel token (named ValueErrors)."""
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"estimator = {estimator!r} must be one of {', '.join(map(repr, ESTIMATORS))}")
+    if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
+        raise ValueError(
+            f"result = {shown(result)}: render_view's first argument must be an ep.Result "
+            "(from ep.run(..., record_escapes=True))"
+        )
+    check_int("threads", threads, 0, MAX_THREADS)  # the rule of ep.run
+    if cancel is not None and not hasattr(cancel, "cancelled"):
+        raise ValueError(f"cancel = {shown(cancel)} must be None or an endophoton.CancelToken")
+    check_spectral(result)
+
+
+def _check_exposure(exposure) -> None:
+    """exposure is "auto" or a finite positive number (not a bool), else a ValueError naming it."""
+    number = isinstance(exposure, (int, float)) and not isinstance(exposure, bool)
+    if not (exposure == "auto" or (number and math.isfinite(exposure) and exposure > 0)):
+        raise ValueError(f"exposure = {exposure!r} must be 'auto' or a positive number")
+
+
+def _surface_pixels(native, camera, W, H, threads):
+    """The surface each pixel sees (one primary ray per pixel centre, docs/render.md): per pixel the region
+    (-1: none) and whether it sees tissue (``hit``, (H W,)); per hit pixel its surface point px, the unit
+    direction pw toward the camera and 1 / cos of the view angle to the normal pk (cos clamped at 1e-3); and the
+    depth along the camera's forward axis per pixel (0 where no tissue), scene units."""
+    dirs = camera.primary_rays(W, H)
+    origins = np.broadcast_to(camera.position, dirs.shape)
+    t, region, _, normal = _core.first_surfaces(native, origins, dirs, None, 0.0, int(threads))
+    if np.any(region == -2):
+        raise ValueError(
+            f"camera.position = {camera.position.tolist()} lies inside a region: put the camera in "
+            "the ambient medium"
+        )
+    hit = region >= 0
+    px = camera.position + t[hit, None] * dirs[hit]
+    pw = -dirs[hit]
+    pk = 1.0 / np.clip(np.einsum("ij,ij->i", pw, normal[hit]), 1e-3, 1.0)
+    depth = np.zeros(H * W)
+    depth[hit] = t[hit] * (dirs[hit] @ camera.frame(W, H)["forward"])
+    return region, hit, px, pw, pk, depth
+
+
+def _kernel_radius(kernel_radius, kernel_angle_deg, camera, W, H, depth, hit, unit_cm) -> float:
+    """The kernel radius in scene units: the one given, or 2 pixel footprints at the median surface depth
+    (docs/render.md, "The kernel is the speed/accuracy knob"); checked by check_kernel, with the default's
+    error naming the field of view and the width that made it."""
+    if kernel_radius is None:
+        med = float(np.median(depth[hit])) if hit.any() else 1.0
+        default = 2.0 * (2.0 * camera.frame(W, H)["tan_x"] / W) * med
+        try:
+            check_kernel(default, kernel_angle_deg, unit_cm)
+        except ValueError as e:  # name what the user gave: the field of view and the width
+            raise ValueError(
+                f"camera.fov_deg = {camera.fov_deg!r} with width = {W}: the default kernel_radius (2 pixel "
+                f"footprints, {default:.3g} scene units) is unusable ({e}); give kernel_radius"
+            ) from None
+        kernel_radius = default
+    check_kernel(kernel_radius, kernel_angle_deg, unit_cm)
+    return kernel_radius
 
 
 ESTIMATORS = ("auto", "nee", "kernel", "knn")
@@ -1011,7 +1033,7 @@ def _autofocus(depth, hit, W, H):
 
 def _aperture_images(native, camera, focus, rec, P, hit, shape, gains, exposure, unit_cm, threads):
     """The physical camera: records through the lens disk, imaged by a thin lens focused at ``focus``."""
-    H, W = shape
+    H, W, threads = shape[0], shape[1], int(threads)
     fr = camera.frame(W, H)
     c, f = camera.position, fr["forward"]
     pos, d = rec["pos"], rec["dir"]
