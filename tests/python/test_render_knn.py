@@ -129,6 +129,17 @@ def test_bad_knn_k_is_named(k):
         render_view(res, cam, 4, 4, estimator="knn", knn_k=k)
 
 
+def test_numpy_integer_knobs_render_as_python_ints():
+    """A sweep script's np.int64 knn_k and n_batches (from np.arange, a CSV) give the same image as ints."""
+    res = RecordsResult(_plane_scene(), lambertian_records(3000), 3000)
+    cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30)
+    a = render_view(res, cam, 6, 6, estimator="knn", knn_k=8, n_batches=10)
+    b = render_view(res, cam, 6, 6, estimator="knn", knn_k=np.int64(8), n_batches=np.int32(10))
+    assert np.any(a.images["white"]["radiance"] > 0)
+    for key in ("radiance", "radiance_stderr"):
+        assert np.array_equal(a.images["white"][key], b.images["white"][key]), key
+
+
 # ---------------------------------------------------------------- against the unbiased references
 
 

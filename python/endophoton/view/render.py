@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import io
 import math
+import numbers
 import os
 
 import numpy as np
@@ -331,12 +332,22 @@ def check_kernel(kernel_radius, kernel_angle_deg, unit_cm=None, names=("kernel_r
             )
 
 
+def _whole(v, lo: int, hi: int):
+    """``v`` as an int when it is an integer (a Python or numpy one, not a bool) in [lo, hi], else None."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Integral) or not lo <= int(v) <= hi:
+        return None
+    return int(v)
+
+
 def _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k=KNN_K):
+    """The render's knobs checked; returns (n_batches, knn_k) as ints (a sweep script's np.int64 is fine)."""
     check_kernel(kernel_radius, kernel_angle_deg)
-    if isinstance(knn_k, bool) or not isinstance(knn_k, int) or not 2 <= knn_k <= MAX_KNN_K:
+    k, b = _whole(knn_k, 2, MAX_KNN_K), _whole(n_batches, 2, 1000)
+    if k is None:
         raise ValueError(f"knn_k = {knn_k!r} must be an integer in [2, {MAX_KNN_K}] (records)")
-    if isinstance(n_batches, bool) or not isinstance(n_batches, int) or not 2 <= n_batches <= 1000:
+    if b is None:
         raise ValueError(f"n_batches = {n_batches!r} must be an integer in [2, 1000]")
+    return b, k
 
 
 def _packets(result) -> int:
@@ -726,7 +737,7 @@ def render_view(
     cancel : None or an ``ep.CancelToken``: once cancelled, render_view stops at its next check (twice per
         block of pixels of the kernel gather, and between the steps after it) and returns None (the add-on's Esc)
     """
-    _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k)
+    n_batches, knn_k = _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k)
     _check_call(result, estimator, threads, cancel)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
