@@ -59,6 +59,40 @@ def test_scales_and_radiance_match_a_brute_force_recomputation():
     assert not view.images["fluorescence"]["radiance"].any()  # no fluorescent record: scale 0, radiance 0
 
 
+def test_kernels_wider_than_the_direction_cone_match_a_brute_force_recomputation(monkeypatch):
+    """Few records (400 on 4 cm^2, kernel_radius 0.01 cm): every kernel outgrows the direction cone (s c0 > 2,
+    the whole sphere, solid angle pi 2^2), and the position-nearest first pass decides the scales; they and
+    the radiance match a brute-force recomputation over all records."""
+    from endophoton.view import render as render_mod
+
+    first = render_mod._knn_by_position
+    decided = []
+
+    def spy(*args, **kwargs):
+        out = first(*args, **kwargs)
+        decided.extend(float(np.mean(~np.isnan(o))) for o in out)
+        return out
+
+    monkeypatch.setattr(render_mod, "_knn_by_position", spy)
+    n, k, r0 = 400, 8, 0.01
+    esc = lambertian_records(n)
+    cam = Camera.look_at((0.1, 0.05, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    view = render_view(RecordsResult(_plane_scene(), esc, n), cam, 6, 5, estimator="knn", knn_k=k, kernel_radius=r0)
+    c0 = 2 * math.sin(math.radians(15.0) / 2)
+    dirs = cam.primary_rays(6, 5)
+    pos, d = (np.asarray(esc[key], dtype=np.float64) for key in ("position", "direction"))
+    scale, L = np.zeros(30), np.zeros(30)
+    for i in range(30):
+        x, w = cam.position - cam.position[2] / dirs[i, 2] * dirs[i], -dirs[i]
+        D = np.maximum(np.linalg.norm(pos - x, axis=1) / r0, np.linalg.norm(d - w, axis=1) / c0)
+        scale[i] = s = np.sort(D)[k - 1]
+        sr = math.pi * min(s * c0, 2.0) ** 2
+        L[i] = esc["energy"][D < s].sum() / (n * math.pi * (s * r0) ** 2 * sr * w[2])
+    assert np.all(scale * c0 > 2) and decided and min(decided) == 1.0, (scale.min() * c0, decided)
+    np.testing.assert_allclose(view.knn["scale"]["white"].ravel(), scale, rtol=1e-6)
+    np.testing.assert_allclose(view.images["white"]["radiance"].ravel(), L, rtol=1e-6)
+
+
 @pytest.mark.parametrize("share", [0.1, 0.9])
 def test_fluorescence_scale_comes_from_the_fluorescent_records(share):
     """The fluorescence image's scale is the k-th nearest fluorescent record's (brute force over them), whether
