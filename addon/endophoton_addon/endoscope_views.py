@@ -33,6 +33,7 @@ def view_info(view, name):
         "width": int(view.width),
         "height": int(view.height),
         "packets": int(view.packets),
+        "estimator": str(view.estimator),
         "kernel_radius_m": float(view.kernel["radius"]),
         "kernel_angle_deg": float(view.kernel["angle_deg"]),
         "emission_filter": str(view.emission_filter),

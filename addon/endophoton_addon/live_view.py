@@ -40,8 +40,10 @@ LIVE_KEY = "endophoton_live"  # on a live Image: which image of the View it hold
 
 def wanted(inputs, scheduler):
     """Whether a run or a sweep of ``inputs`` shows a live view: its view images are on (a camera on the
-    rig), Live View is on and it runs locally (the Dask path has no snapshots)."""
-    return bool(inputs.endoscope_view and inputs.live_view and not scheduler)
+    rig), Live View is on and it runs locally (the Dask path has no snapshots), and its images come from
+    the records (a next-event run's camera tally is not carried by ep.run_live's snapshots)."""
+    nee = getattr(inputs, "view_estimator", "kernel") == "nee"
+    return bool(inputs.endoscope_view and inputs.live_view and not scheduler and not nee)
 
 
 class LiveView:

@@ -179,8 +179,12 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         col.prop(s, "output_points")
         col.prop(s, "output_grids")
         col.prop(s, "output_views")
+        est = col.row()
+        est.active = s.output_views
+        est.prop(s, "view_estimator", text="Estimator")
         live = col.row()
-        live.active = s.output_views  # live images only when the view images are on
+        # live images only when the view images are on and come from the records (not the camera tally)
+        live.active = s.output_views and s.view_estimator != "NEE"
         live.prop(s, "live_view")
         sub = col.column()
         sub.active = s.output_grids

@@ -450,6 +450,34 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         "run's records (ep.render_view) as Image datablocks tagged with the run; needs the rig's camera",
         default=True,
     )
+    view_estimator: EnumProperty(
+        name="View Estimator",
+        description="How a run's endoscope-view images are estimated (ep.render_view's estimator, "
+        "docs/render.md); a sweep renders with the kernel estimate",
+        items=[
+            (
+                "KERNEL",
+                "Kernel",
+                "The records that leave within 15° of the camera direction and two pixel "
+                "footprints of the point: the fastest; pixels without such a record stay black, and the kernel's "
+                "size biases small bright features (the seed paper's method)",
+            ),
+            (
+                "KNN",
+                "k-Nearest",
+                "Each pixel's kernel grows until it holds 32 records: no tissue pixel is left "
+                "black; biased where the light changes within the kernel (docs/performance.md §14)",
+            ),
+            (
+                "NEE",
+                "Next Event",
+                "The run scores every scattering event into the camera (next-event estimation): "
+                "unbiased, about 5× the run's time; needs a Photons count, a local run (no Dask scheduler) and "
+                "shows no live images",
+            ),
+        ],
+        default="KERNEL",
+    )
     live_view: BoolProperty(
         name="Live View",
         description="While a run is in flight, refresh its endoscope-view images ('EP View white (live)', shown "

@@ -52,6 +52,7 @@ class RunInputs:
     target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
     endoscope_view: bool = False  # render the rig camera's images from the records (ep.render_view)
     live_view: bool = False  # ... and refresh them while the run is in flight (live_view.py)
+    view_estimator: str = "kernel"  # ep.render_view's estimator: "kernel", "knn" or "nee" (the run tallies the camera)
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
@@ -150,6 +151,7 @@ def collect_inputs(context):
             "or the endoscope-view images (the rig needs a camera)"
         )
 
+    estimator = view_estimator(settings, who, kind, views)
     voxel_m = grid_path = None
     if settings.output_grids:
         voxel = settings.voxel_size
@@ -180,9 +182,30 @@ def collect_inputs(context):
         target_error=target_error,
         endoscope_view=views,
         live_view=bool(settings.live_view),
+        view_estimator=estimator,
     )
     check_before_run(scene, inputs)
     return inputs
+
+
+def view_estimator(settings, who, kind, views):
+    """simulation.view_estimator as ep.render_view's estimator name; the next-event camera tally is
+    refused, naming the field, where the engine cannot make it (it needs a fixed packet count and a
+    local run: the Dask unit path does not carry it)."""
+    estimator = str(settings.view_estimator).lower()
+    if estimator != "nee" or not views:
+        return estimator
+    if kind != "photons":
+        raise InputError(
+            f"{who}: simulation.view_estimator = 'NEE' needs a fixed packet count (Mode: Photons, "
+            f"Quality: Custom), not a {kind} run; or choose the Kernel or k-Nearest estimator"
+        )
+    if preferences.scheduler_address():
+        raise InputError(
+            f"{who}: simulation.view_estimator = 'NEE' runs locally only: clear the add-on preferences' "
+            "Dask scheduler or choose the Kernel or k-Nearest estimator"
+        )
+    return estimator
 
 
 def last_rate(scene):
@@ -214,8 +237,10 @@ def build_engine_scene(ep, regions):
 
 def needs_records(inputs):
     """Whether the run needs the engine's escape records: the point cloud, the endoscope-view
-    images and a "store N" run use them; a grids-only run does not pay for them."""
-    return inputs.kind == "store" or inputs.output_points or inputs.endoscope_view
+    images and a "store N" run use them; a grids-only run does not pay for them, nor do images of the
+    next-event estimate, which the run tallies itself."""
+    view_records = inputs.endoscope_view and inputs.view_estimator != "nee"
+    return inputs.kind == "store" or inputs.output_points or view_records
 
 
 # ep.run's keywords that are fields of the scene's simulation settings (simulation.<name>).
@@ -250,6 +275,8 @@ def build_engine_call(ep, inputs):
             "threads": inputs.threads,
             "record_escapes": needs_records(inputs),
         }
+        if inputs.endoscope_view and inputs.view_estimator == "nee":
+            kwargs["view"] = True  # the camera tally: the rig's camera, ep.render_view(estimator="nee")
         if inputs.grid_path is not None:
             kwargs["grids"] = ep.GridRequest(
                 voxel_size=inputs.grid_voxel_m,
@@ -477,11 +504,12 @@ def endoscope_view(ep, inputs, result, cancel=None):
     (None, None) once ``cancel`` (the job's CancelToken) is cancelled."""
     if not inputs.endoscope_view or result is None or getattr(result, "cancelled", False):
         return None, None
+    estimator = inputs.view_estimator
     escapes = getattr(result, "escapes", None)
-    if escapes is None or len(escapes.get("weight", ())) == 0:
+    if estimator != "nee" and (escapes is None or len(escapes.get("weight", ())) == 0):
         return None, "the run left no escape records to image"
     try:
-        return ep.render_view(result, threads=inputs.threads, cancel=cancel), None
+        return ep.render_view(result, threads=inputs.threads, cancel=cancel, estimator=estimator), None
     except ValueError as exc:  # e.g. the camera inside tissue: keep the run, say why there is no view
         return None, f"endoscope view not rendered: {exc}"
 

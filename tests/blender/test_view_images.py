@@ -112,3 +112,50 @@ def test_all_outputs_off_is_a_named_error(ep, tmp_path):
         assert "simulation outputs are all off" in str(exc) and "endoscope-view images" in str(exc)
     else:
         raise AssertionError("a run with every output off was accepted")
+
+
+def _lit_share(image, view):
+    """Share of the pixels that see tissue (the package's region map) with a nonzero channel in ``image``."""
+    tissue = view.region_map[::-1] >= 0  # Blender's rows run bottom-up
+    assert tissue.mean() > 0.5  # the flat tissue fills most of the rig camera's view
+    return float((_pixels(image)[..., :3].max(axis=2) > 0)[tissue].mean())
+
+
+def test_each_view_estimator_makes_the_packages_image(ep, tmp_path):
+    """simulation.view_estimator picks ep.render_view's estimator: the Image holds the package's image
+    of the same run, says which estimator made it, and a next-event run tallies the camera itself
+    (view=True) and asks for no records when nothing else reads them."""
+    shares = {}
+    for choice in ("KERNEL", "KNN", "NEE"):
+        _scene, job, collection = _run("flat_tissue.blend", tmp_path, output_points=False, view_estimator=choice)
+        estimator = choice.lower()
+        assert job.inputs.view_estimator == estimator
+        assert job.run_kwargs.get("view") is (True if estimator == "nee" else None)
+        assert job.run_kwargs["record_escapes"] is (estimator != "nee")
+        assert (job.result.camera_image is not None) is (estimator == "nee")
+        view = ep.render_view(job.result, threads=job.inputs.threads, estimator=estimator)
+        image = endoscope_views.view_images(collection)["white"]
+        info = image["endophoton_view_info"]
+        assert info["estimator"] == estimator and info["exposure"] == view.images["white"]["exposure"]
+        expected = view.images["white"]["rgb"] * view.images["white"]["exposure"]
+        np.testing.assert_allclose(_pixels(image)[::-1][..., :3], expected, rtol=1e-6, atol=1e-9)
+        shares[estimator] = _lit_share(image, view)
+    # the k-nearest estimate leaves no pixel that sees tissue black; the kernel's records leave most
+    # of them black at 20,000 packets
+    assert shares["knn"] == 1.0 and shares["kernel"] < 0.5, shares
+
+
+def test_next_event_needs_a_photon_count(ep, tmp_path):
+    scene = open_blend("flat_tissue.blend", tmp_path)
+    s = scene.endophoton
+    s.quality, s.mode, s.store, s.view_estimator = "CUSTOM", "STORE", 1000, "NEE"
+    collections_before = set(bpy.data.collections.keys())
+    try:
+        simulation.collect_inputs(bpy.context)
+    except simulation.InputError as exc:
+        assert "simulation.view_estimator = 'NEE'" in str(exc) and "store run" in str(exc), str(exc)
+    else:
+        raise AssertionError("a next-event view of a store run was accepted")
+    assert set(bpy.data.collections.keys()) == collections_before  # the scene is left as it was
+    s.output_views = False  # no view asked for: the estimator does not matter
+    assert simulation.collect_inputs(bpy.context).view_estimator == "nee"
