@@ -467,7 +467,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     while (true) {
         const Float s = tau / mut_cm;
         const Lanes4 b = p + frame.n * s;
-        if (__builtin_expect(!zone.clear(to_vec3(b), s), 0)) {
+        if (__builtin_expect(!zone.clear(b, s), 0)) {
             if (hopped || !zone.beyond_ball(to_vec3(b)) || !hop_zone(zone, to_vec3(p), to_vec3(b))) break;
             hopped = true;
             continue;

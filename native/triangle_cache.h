@@ -246,14 +246,19 @@ class ClearSteps {
         return true;
     }
     // The step from the last clear point to b, s long: true only when b is
-    // clear (the step is in the ball and crosses no cached plane).
-    bool clear(const Vec3& b, Float s) {
+    // clear (the step is in the ball and crosses no cached plane). b in lanes
+    // (vecmath.h's Lanes4), as the interior steps hold it: its components are
+    // taken out only when the budget runs out, so the steps the budget clears
+    // (87 % on seed tissue) do not unpack it (callgrind, seed tissue: 206.4 ->
+    // 204.1 instructions per interaction, the same bits).
+    bool clear(const Vec3& b, Float s) { return clear(to_lanes(b), s); }
+    bool clear(const Lanes4& b, Float s) {
         const Float left = budget_ - (s + slack_);
         if (left > 0) {
             budget_ = left;
             return true;
         }
-        return renew(b);
+        return renew(to_vec3(b));
     }
 
     // True when x lies outside the ball start() took (less the look-behind):
