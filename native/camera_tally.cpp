@@ -79,21 +79,13 @@ Float surface_clearance(const TriangleCache& cache, const Vec3& p) {
     return d > 0 ? d : 0;
 }
 
-bool segment_clear(const TriangleCache& cache, const Vec3& a, const Vec3& b) {
-    if (cache.plane_count() > ClearSteps::kMaxPlanes) return false;
-    const Float rounding = cache.rounding();
-    // The ball less a rounding allowance of the coordinates (as ClearSteps' inner radius).
-    const Float inner = cache.radius() - 1e-13 * (max_abs_component(cache.center()) + cache.radius());
-    if (!(inner > 0)) return false;
-    const Vec3 da = a - cache.center(), db = b - cache.center();
-    const Float r2 = inner * inner;
-    if (!(dot(da, da) < r2 && dot(db, db) < r2)) return false;
-    for (const TriangleCache::Plane& q : cache.planes()) {
-        const Float lo = q.reach + rounding;
-        const Float ea = dot(q.n, a) - q.off, eb = dot(q.n, b) - q.off;
-        if (!((ea > lo && eb > lo) || (ea < -lo && eb < -lo))) return false;
-    }
-    return true;
+bool segment_clear(const Scene& scene, const TriangleCache& cache, const Vec3& p, const Vec3& w, Float back, Float s) {
+    thread_local std::vector<Hit> hits;
+    if (cache.covers(p - w * back, p + w * s))
+        cache.intersect(p, w, -back, s, hits);
+    else
+        scene.intersect_all(p, w, -back, s, hits);
+    return hits.empty();
 }
 
 Vec3 camera_axis_inside(const TriangleCache& cache, const Vec3& p, const Vec3& c, Float n) {

@@ -141,15 +141,17 @@ struct CameraEvent {
 // allowance. 0 when p is not inside the ball. Up to 16 planes, no ray query.
 Float surface_clearance(const TriangleCache& cache, const Vec3& p);
 
-// Whether the segment from a to b certainly meets no triangle of the scene,
-// by the cache (of the cube of the segment's start) alone: both ends inside
-// its ball (convex: so is the segment, and every triangle meeting the ball is
-// cached) and, for every cached plane, both ends on one side of it beyond its
-// reach and rounding allowance (the plane's triangles lie within reach of it).
-// Conservative, and a function of (cache, a, b) alone: the look-back decides
-// with it, for the virtual and for the real event alike, whether a free
-// flight was clear (the same predicate on both sides keeps the estimate exact).
-bool segment_clear(const TriangleCache& cache, const Vec3& a, const Vec3& b);
+// Whether the flight from p along the unit w, from -back to s (the
+// transport's look-behind `back`), meets no triangle of the scene: by the
+// cache of the cube it starts in where the flight stays inside the cache's
+// ball (convex, and every triangle meeting it is cached; its crossings by
+// TriangleCache::intersect, the same answers as the transport's queries),
+// else by the scene's all-hits query (a flight leaving the ball, a cube
+// without a cache). A function of (cache, p, w, back, s) alone: the
+// look-back decides with it, for the virtual and the real flight alike,
+// whether a flight was clear (the same predicate on both sides keeps the
+// estimate exact).
+bool segment_clear(const Scene& scene, const TriangleCache& cache, const Vec3& p, const Vec3& w, Float back, Float s);
 
 // An approximation of the direction, inside the tissue at p (index ratio
 // n = n_tissue / n_ambient), in which light leaves toward the pinhole c:

@@ -1110,7 +1110,7 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::look_back_event(co
     st.lb_origin = p;
     st.lb_cache = cache;
     const Float back = ray_offset(p, extent_);  // the look-behind of the transport's queries
-    if (!segment_clear(*cache, p - v.w * back, p + v.w * s)) return;
+    if (!segment_clear(scene_, *cache, p, v.w, back, s)) return;
     const Float ratio = view.look_back_ratio ? v.ratio : 1;
     const Float w_virtual = W * (1 - st.med.mua / st.med.mut) * ratio * no_fluorescence_chance();
     if (!(w_virtual > 0)) return;
@@ -1126,7 +1126,7 @@ bool PacketWalk<kSpectral, kGrids>::look_back_covers(const Vec3& d, Float s) {
     PacketState& st = st_;
     st.lb_armed = false;
     const Float back = ray_offset(st.lb_origin, extent_);
-    return segment_clear(*st.lb_cache, st.lb_origin - d * back, st.lb_origin + d * s);
+    return segment_clear(scene_, *st.lb_cache, st.lb_origin, d, back, s);
 }
 
 // The grids' deposits of an interaction at p: the weight dW it absorbed (the

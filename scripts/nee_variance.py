@@ -19,9 +19,11 @@ at the end of next_event in native/camera_tally.cpp, just before the score is pu
 
 The look-back (docs/performance.md §17): `--look-back ALPHA:G_B` (or `off`) runs it at 128 x 128 (the rig camera's
 256 x 256 otherwise) and reads records of 11 doubles: the 9 above, then the look-back's weight ratio
-p_HG / q of the virtual event being scored (1 for a real one) and 1 for a virtual event (two thread-locals
-the scratch patch sets in look_back_event around its camera_event call). The p_HG groups then hold
-p_HG x ratio, and two more groups split the virtual events from the real ones.
+p_HG / q of the virtual event being scored (1 for a real one) and its kind: 1 a virtual event, 2 a real
+fluorescence event, 3 a real event whose flight from an armed scattering was not clear, 0 a real event with
+nothing armed (two thread-locals the scratch patch sets around the camera_event / offer_camera calls in
+look_back_event, interact() and zone_steps()). The p_HG groups then hold p_HG x ratio, and four more groups
+split the scores by kind.
 
 Linearised, ln(1 + C) = ln R_p - ln G_p - ln R_c + ln G_c, so each score adds R/R_p - G/G_p (polyp pixels)
 or G/G_c - R/R_c (colon pixels) to its packet's influence; the contrast's relative variance is the variance
@@ -90,7 +92,8 @@ def main(photons: int, reuse: bool, dump: str = "/tmp/nee_dump.bin", look_back: 
     ]
     groups += [("polyp pixels", reg == ip), ("colon pixels", reg == ic)]
     if cols == 11:
-        groups += [("virtual events (look-back)", virtual > 0), ("real events", virtual == 0)]
+        groups += [("virtual events (look-back)", virtual == 1), ("real: nothing armed", virtual == 0),
+                   ("real: fluorescence event", virtual == 2), ("real: flight not clear", virtual == 3)]  # fmt: skip
     groups += [(f"emission {b}", (lam >= lo) & (lam < hi) & (fl > 0)) for b, lo, hi in
                [("< 540 nm", 0, 540), ("540-600 nm", 540, 600), ("> 600 nm", 600, 2000)]]  # fmt: skip
     print("| scores | share of scores | share of the variance | share of polyp R | share of polyp G |")

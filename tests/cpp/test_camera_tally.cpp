@@ -280,8 +280,8 @@ TEST(CameraTally, LookBackMixtureWeightsAreUnbiasedAndBounded) {
 }
 
 TEST(CameraTally, SegmentClearMeansNoTriangleOnTheSegment) {
-    // Random segments through the slab from points in their cube's ball: where
-    // segment_clear says clear, Embree finds no crossing between the ends.
+    // Random segments through the slab, many longer than their cube's ball:
+    // segment_clear says clear exactly when Embree finds no crossing.
     auto scene = slab(false);
     Rng rng(13, 0);
     int clear = 0, blocked = 0;
@@ -289,19 +289,21 @@ TEST(CameraTally, SegmentClearMeansNoTriangleOnTheSegment) {
     for (int i = 0; i < 4000; ++i) {
         const Vec3 a(4 * rng.uniform() - 2, 4 * rng.uniform() - 2, -1.2 * rng.uniform() + 0.1);
         const Vec3 w = normalize(Vec3(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5));
-        const double len = 0.3 * rng.uniform();
-        const Vec3 b = a + w * len;
-        if (!segment_clear(scene->cell_cache(a), a, b)) {
+        const double len = 0.6 * rng.uniform();
+        const bool clear_here = segment_clear(*scene, scene->cell_cache(a), a, w, 0, len);
+        scene->intersect_all(a, w, 0, len, hits);
+        ASSERT_EQ(clear_here, hits.empty()) << i;
+        if (!clear_here) {
             ++blocked;
             continue;
         }
         ++clear;
-        scene->intersect_all(a, w, 0, len, hits);
         ASSERT_TRUE(hits.empty()) << i;
     }
     EXPECT_GT(clear, 500);
     EXPECT_GT(blocked, 500);
-    EXPECT_FALSE(segment_clear(scene->cell_cache(Vec3(0, 0, -0.01)), Vec3(0, 0, -0.01), Vec3(0, 0, 0.01)));
+    EXPECT_FALSE(
+        segment_clear(*scene, scene->cell_cache(Vec3(0, 0, -0.01)), Vec3(0, 0, -0.01), Vec3(0, 0, 1), 0, 0.02));
 }
 
 TEST(CameraTally, CameraAxisInsideObeysSnell) {
