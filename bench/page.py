@@ -280,6 +280,7 @@ def sections(R):
         + "\n## 14. k-nearest estimate beside kernel and NEE (issue 34; frozen, 2026-12-06)\n\n" + frozen("knn_kernel")
         + "\n## 15. Grids in 128-bit sums: speed and memory (issue 39; frozen, 2026-12-06)\n\n" + frozen("grids_tables")
         + "\n## 16. The three estimators at 128 × 128 (issue 34; frozen, 2026-12-06)\n\n" + frozen("estimators_128")
+        + "\n## 17. Look-back next event (issue 34; frozen, 2026-12-06)\n\n" + frozen("lookback")
         + "\n## 18. Packets in vector lanes (issue 39; frozen, 2026-12-06)\n\n" + frozen("lanes")
     )  # fmt: skip
 

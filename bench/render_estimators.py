@@ -2,7 +2,7 @@
 """Benchmark (not a test): the camera estimators side by side on the colon view (issue 34).
 
     /usr/bin/python3 bench/render_estimators.py [--photons 1000000] [--threads 0] [--seed 1] [--estimators kernel,nee]
-        [--tau-cut 3] [--size 128]
+        [--tau-cut 3] [--size 128] [--alpha 0.5] [--g-b 0.9]
 
 The colon scene of bench/colon_scene.py, rig at beta = 20 deg, its camera at --size x --size pixels (default
 128, issue 34's view; the rig camera's own is 256 x 256, which the frozen sections 12-14 used). Two runs with the
@@ -13,7 +13,8 @@ with its batch-means stderr, the figure of merit FOM = 1 / (stderr^2 x CPU s), t
 pixels whose white radiance has a relative stderr <= 20 % and the share left at exactly 0, and the
 run's packets per CPU second. A third run (no records, no camera) gives the throughput without either.
 ``--estimators kernel,knn,nee``: knn (the k-nearest estimate) renders the kernel run's records, so its CPU
-seconds are that run's plus its own render.
+seconds are that run's plus its own render. ``nee-lookback``: the next-event estimate with the look-back
+(docs/render.md "Look-back next event"; its proposal's share --alpha aimed at the camera, that lobe's HG --g-b).
 """
 from __future__ import annotations
 
@@ -44,22 +45,35 @@ def pixel_shares(view) -> dict:
 
 
 def measure(
-    photons: int, threads: int = 0, seed: int = 1, estimators=("kernel", "nee"), tau_cut: float = 3.0, size: int = 128
+    photons: int,
+    threads: int = 0,
+    seed: int = 1,
+    estimators=("kernel", "nee"),
+    tau_cut: float = 3.0,
+    size: int = 128,
+    alpha: float = 0.5,
+    g_b: float = 0.9,
+    plain: bool = True,
 ) -> dict:
     """The figures of one side-by-side comparison, as a dict per estimator (tau_cut: the next-event
-    estimate's depth roulette, an optical depth)."""
+    estimate's depth roulette, an optical depth; alpha, g_b: nee-lookback's proposal; plain: also time a run
+    without records or camera)."""
     scene, rig = colon_scene(beta_deg=20.0)
     out, runs = {}, {}
     for name in estimators:
+        tally = name.startswith("nee")
         nee_view = dict(tau_cut=tau_cut, width=size, height=size)
-        kw = dict(record_escapes=False, view=nee_view) if name == "nee" else dict(record_escapes=True)
+        if name == "nee-lookback":
+            nee_view.update(look_back=True, look_back_alpha=alpha, look_back_g=g_b)
+        kw = dict(record_escapes=False, view=nee_view) if tally else dict(record_escapes=True)
+        key = name if tally else "records"  # kernel and knn render the same run's records
         c0, w0 = time.process_time(), time.perf_counter()
-        if name == "nee" or "records" not in runs:  # kernel and knn render the same run's records
+        if key not in runs:
             res = ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, **kw)
-            runs["nee" if name == "nee" else "records"] = (res, time.process_time() - c0)
-        res, run_cpu = runs["nee" if name == "nee" else "records"]
+            runs[key] = (res, time.process_time() - c0)
+        res, run_cpu = runs[key]
         c0, c1 = time.process_time() - run_cpu, time.process_time()
-        view = ep.render_view(res, estimator=name, threads=threads, width=size, height=size)
+        view = ep.render_view(res, estimator="nee" if tally else name, threads=threads, width=size, height=size)
         c2, w2 = time.process_time(), time.perf_counter()
         con = view.contrast("polyp", "colon")
         se = con["red_green_stderr"]
@@ -77,10 +91,14 @@ def measure(
             bounded=(res.camera_image or {}).get("bounded"),
             **pixel_shares(view),
         )
-    c0 = time.process_time()
-    ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, record_escapes=False)
-    out["plain_packets_per_cpu_s"] = photons / (time.process_time() - c0)
+    if plain:
+        c0 = time.process_time()
+        ep.run(scene, rig, photons, seed=seed, threads=threads, spectral=True, record_escapes=False)
+        out["plain_packets_per_cpu_s"] = photons / (time.process_time() - c0)
     return out
+
+
+NAMES = ("kernel", "knn", "nee", "nee-lookback")
 
 
 def _num(x, digits: int) -> str:
@@ -94,14 +112,14 @@ def table(m: dict, photons: int) -> str:
         "tissue px at 0 | packets / CPU s |",
         "|---|---|---|---|---|---|---|",
     ]
-    for name in (k for k in ("kernel", "knn", "nee") if k in m):
+    for name in (k for k in NAMES if k in m):
         r = m[name]
         rows.append(
             f"| {name} | {r['run_cpu_s']:.1f} + {r['render_cpu_s']:.1f} | {_num(r['red_green'], 3)} ± "
             f"{_num(r['red_green_stderr'], 3)} | {_num(r['fom'], 1)} | {100 * r['within_20']:.1f} % | "
             f"{100 * r['zero']:.1f} % | {r['packets_per_cpu_s']:,.0f} |"
         )
-    foms = {k: m[k]["fom"] for k in ("kernel", "knn", "nee") if k in m}
+    foms = {k: m[k]["fom"] for k in NAMES if k in m}
     ratios = ", ".join(
         f"{k} / kernel = {_num(f / foms['kernel'] if f and foms.get('kernel') else None, 1)}"
         for k, f in foms.items()
@@ -120,14 +138,19 @@ def main(argv=None) -> int:
     ap.add_argument("--photons", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--estimators", default="kernel,nee", help="comma-separated: kernel, knn, nee (kernel first)")
+    ap.add_argument(
+        "--estimators", default="kernel,nee", help="comma-separated: kernel, knn, nee, nee-lookback (kernel first)"
+    )
     ap.add_argument("--tau-cut", type=float, default=3.0)
     ap.add_argument("--size", type=int, default=128, help="image width = height in pixels")
+    ap.add_argument("--alpha", type=float, default=0.5, help="nee-lookback: proposal share aimed at the camera")
+    ap.add_argument("--g-b", type=float, default=0.9, help="nee-lookback: that lobe's HG asymmetry")
     a = ap.parse_args(argv)
-    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")), a.tau_cut, a.size)
+    m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")), a.tau_cut, a.size, a.alpha, a.g_b)
     print(table(m, a.photons))
-    if "nee" in m:
-        print(f"nee counters (tau_cut {a.tau_cut}):", m["nee"]["nee"], "thinned with no query:", m["nee"]["bounded"])
+    for k in ("nee", "nee-lookback"):
+        if k in m:
+            print(f"{k} counters (tau_cut {a.tau_cut}):", m[k]["nee"], "thinned with no query:", m[k]["bounded"])
     return 0
 
 

@@ -7,6 +7,7 @@
 
 #include "fresnel.h"
 #include "phase.h"
+#include "triangle_cache.h"
 
 namespace ep {
 
@@ -22,6 +23,10 @@ void CameraView::check() const {
     if (batches < 2) fail("batches = " + std::to_string(batches) + " must be >= 2");
     if (packets < uint64_t(batches)) fail("packets must be >= batches (a fixed photon count)");
     if (!(tau_cut >= 0 && std::isfinite(tau_cut))) fail("tau_cut must be a finite number >= 0");
+    if (!(look_back_alpha >= 0 && look_back_alpha < 1))
+        fail("look_back_alpha = " + std::to_string(look_back_alpha) + " must be a finite number in [0, 1)");
+    if (!(look_back_g > -1 && look_back_g < 1))
+        fail("look_back_g = " + std::to_string(look_back_g) + " must be a finite number in (-1, 1)");
     if (channels < 1 || spectrum_bin.empty() || table.size() != lambdas() * size_t(channels) ||
         fluorescent_only.size() != size_t(channels) || spectrum_fluorescent_weight.size() != lambdas())
         fail("channel tables have inconsistent sizes");
@@ -72,6 +77,51 @@ Float surface_clearance(const TriangleCache& cache, const Vec3& p) {
     for (const TriangleCache::Plane& q : cache.planes())
         d = std::min(d, std::fabs(dot(q.n, p) - q.off) - q.reach - rounding);
     return d > 0 ? d : 0;
+}
+
+bool segment_clear(const Scene& scene, const TriangleCache& cache, const Vec3& p, const Vec3& w, Float back, Float s) {
+    thread_local std::vector<Hit> hits;
+    if (cache.covers(p - w * back, p + w * s))
+        cache.intersect(p, w, -back, s, hits);
+    else
+        scene.intersect_all(p, w, -back, s, hits);
+    return hits.empty();
+}
+
+Vec3 camera_axis_inside(const TriangleCache& cache, const Vec3& p, const Vec3& c, Float n) {
+    const Vec3 out = normalize(c - p);
+    const TriangleCache::Plane* near = nullptr;
+    Float best = kInf;
+    for (const TriangleCache::Plane& q : cache.planes()) {
+        const Float dist = std::fabs(dot(q.n, p) - q.off);
+        if (dist < best) {
+            best = dist;
+            near = &q;
+        }
+    }
+    if (!near) return out;
+    const Vec3 N = dot(near->n, out) >= 0 ? near->n : -near->n;
+    // Snell, n sin(t1) = sin(t0): the inside direction whose refraction is `out`
+    // (pbrt-v4's refract, run backwards): w = (out - cos0 N) / n + cos1 N.
+    const Float cos0 = dot(out, N), sin0_2 = std::max(Float(0), 1 - cos0 * cos0);
+    const Float cos1 = std::sqrt(std::max(Float(0), 1 - sin0_2 / (n * n)));
+    const Vec3 w = (out - N * cos0) / n + N * cos1;
+    const Float len = length(w);
+    return len > 0 ? w / len : out;
+}
+
+LookBackDraw sample_look_back(const Vec3& d, const Vec3& axis, Float g, Float alpha, Float gb, double u0, double u1,
+                              double u2) {
+    const HenyeyGreenstein hg(g), hb(gb);
+    const Float phi = 2 * kPi * u2;
+    LookBackDraw out;
+    out.w = (u0 < alpha ? hb : hg).sample_p(u0 < alpha ? axis : d, u1, std::sin(phi), std::cos(phi));
+    // q(w) = (1 - alpha) p_g(d.w) + alpha p_gb(axis.w): the balance heuristic's
+    // one-sample mixture (Veach 1997, eq. 9.13), so p_g / q <= 1 / (1 - alpha).
+    const Float p = hg.p(dot(d, out.w));
+    const Float q = (1 - alpha) * p + alpha * hb.p(dot(axis, out.w));
+    out.ratio = q > 0 ? p / q : 0;
+    return out;
 }
 
 namespace {

@@ -39,10 +39,24 @@ struct CameraView {
     // any ray query where it can (camera_prefilter). false: solve every event's
     // path first (the reference the tests compare the bits against).
     bool depth_bound = true;
+    // Look-back next event (docs/render.md "Look-back next event"): an event
+    // reached from the last one by a free flight that stays clear of every
+    // triangle is scored by a virtual event drawn there instead, from the
+    // camera's stream: a direction from the mixture (1 - alpha) p_HG(g) about
+    // the packet's direction + alpha p_HG(look_back_g) about the camera's
+    // direction, a free path, and the weight ratio p_HG / mixture <= 1/(1 - alpha).
+    bool look_back = false;
+    double look_back_alpha = 0.5;  // share of the proposal aimed at the camera, [0, 1)
+    double look_back_g = 0.9;      // asymmetry of that share's HG lobe, (-1, 1)
+    // Tests only: false drops the weight ratio (a deliberately biased image the cross-checks must see).
+    bool look_back_ratio = true;
     // Events whose position projects outside the image widened by this share
     // of its half-extents are not scored (their exit lies within a few mean
     // free paths; 6 pixels at 128 x 128; docs/render.md).
     static constexpr Float kViewMargin = 0.1;
+    // The look-back arms no virtual event at a scattering whose depth bound
+    // (mu_t x clearance) exceeds tau_cut by more than this (docs/render.md).
+    static constexpr Float kLookBackDepth = 2;
     // Channel tables on the wavelength grid lambda0_nm + i dlambda_nm (nearest
     // entry; clamped at the ends): channel k of a score is value * table[i K + k],
     // counted for fluorescent packets only where fluorescent_only[k].
@@ -80,13 +94,15 @@ struct CameraScore {
 
 // Counts of what the scattering events did (per unit, summed in the image).
 struct CameraCounters {
-    uint64_t events = 0;      // scattering events offered to the estimator
-    uint64_t thinned = 0;     // dropped by the depth roulette (unbiased)
-    uint64_t bounded = 0;     // of those, dropped before any ray query (its lower bound of the depth)
-    uint64_t scored = 0;      // scores made
-    uint64_t occluded = 0;    // exit point hidden from the pinhole
-    uint64_t unresolved = 0;  // path to the exit point not solved (excluded: bias, docs/render.md)
-    uint64_t crossing = 0;    // path crosses an interface of another refractive index (excluded)
+    uint64_t events = 0;       // scattering events offered to the estimator
+    uint64_t thinned = 0;      // dropped by the depth roulette (unbiased)
+    uint64_t bounded = 0;      // of those, dropped before any ray query (its lower bound of the depth)
+    uint64_t scored = 0;       // scores made
+    uint64_t occluded = 0;     // exit point hidden from the pinhole
+    uint64_t unresolved = 0;   // path to the exit point not solved (excluded: bias, docs/render.md)
+    uint64_t crossing = 0;     // path crosses an interface of another refractive index (excluded)
+    uint64_t looked_back = 0;  // virtual events offered (look-back; also counted in events)
+    uint64_t covered = 0;      // real events left unscored: a virtual event stands for them
     void add(const CameraCounters& o) {
         events += o.events;
         thinned += o.thinned;
@@ -95,6 +111,8 @@ struct CameraCounters {
         occluded += o.occluded;
         unresolved += o.unresolved;
         crossing += o.crossing;
+        looked_back += o.looked_back;
+        covered += o.covered;
     }
 };
 
@@ -122,6 +140,36 @@ struct CameraEvent {
 // triangles lie from it, with the rounding allowance) and one more rounding
 // allowance. 0 when p is not inside the ball. Up to 16 planes, no ray query.
 Float surface_clearance(const TriangleCache& cache, const Vec3& p);
+
+// Whether the flight from p along the unit w, from -back to s (the
+// transport's look-behind `back`), meets no triangle of the scene: by the
+// cache of the cube it starts in where the flight stays inside the cache's
+// ball (convex, and every triangle meeting it is cached; its crossings by
+// TriangleCache::intersect, the same answers as the transport's queries),
+// else by the scene's all-hits query (a flight leaving the ball, a cube
+// without a cache). A function of (cache, p, w, back, s) alone: the
+// look-back decides with it, for the virtual and the real flight alike,
+// whether a flight was clear (the same predicate on both sides keeps the
+// estimate exact).
+bool segment_clear(const Scene& scene, const TriangleCache& cache, const Vec3& p, const Vec3& w, Float back, Float s);
+
+// An approximation of the direction, inside the tissue at p (index ratio
+// n = n_tissue / n_ambient), in which light leaves toward the pinhole c:
+// the straight direction to c refracted (Snell) through the plane of the
+// cache nearest to p, its normal turned toward c; the straight direction
+// where the cache has no plane. Only the look-back's proposal uses it, so
+// its error costs variance, never bias.
+Vec3 camera_axis_inside(const TriangleCache& cache, const Vec3& p, const Vec3& c, Float n);
+
+// A direction from the look-back's mixture q(w) = (1 - alpha) p_HG,g(d.w) +
+// alpha p_HG,gb(axis.w) (u0 picks the lobe, u1 its cosine, u2 its azimuth)
+// and the weight ratio p_HG,g(d.w) / q(w), at most 1 / (1 - alpha).
+struct LookBackDraw {
+    Vec3 w;
+    Float ratio = 0;
+};
+LookBackDraw sample_look_back(const Vec3& d, const Vec3& axis, Float g, Float alpha, Float gb, double u0, double u1,
+                              double u2);
 
 // The part of an event's estimate that needs no ray query (issue 34): counts
 // the event and says whether it may score (then next_event solves it with the

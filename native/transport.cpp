@@ -64,6 +64,14 @@ struct PacketState {
     Float tau = 0;  // remaining dimensionless step (MCML's carried step)
     bool need_tau = true;
     bool reuse_hits = false;  // the hits in the buffer are this step's (no new query)
+    // The look-back (camera_tally.h, docs/render.md "Look-back next event"):
+    // armed when the last scattering drew a virtual event for the free flight
+    // that follows it, from lb_origin, cleared by the next event and by every
+    // boundary; lb_cache is the cube cache segment_clear decided the virtual's
+    // flight with, and decides the real one's.
+    bool lb_armed = false;
+    Vec3 lb_origin;
+    const TriangleCache* lb_cache = nullptr;
 };
 
 // The local triangle caches (triangle_cache.h) are the scene's, one per small
@@ -158,10 +166,13 @@ class PacketWalk {
     bool interact(Float s);
     void deposit_grids(const Vec3& p, Float dW, Float W);
     bool scatter_and_survive();
-    void fluoresce();
+    bool fluoresce();
     void fluoresce_with(const FluorophoreRef& f);
     void offer_camera();
     void camera_event(const Vec3& p, const Vec3& d, Float W);
+    void look_back_event(const Vec3& p, const Vec3& d, Float W);
+    bool look_back_covers(const Vec3& d, Float s);
+    Float no_fluorescence_chance() const;
     void escape();
     // The memo of the packet's light when it emits one ray only, else null.
     LaunchMemo* launch_memo() {
@@ -424,6 +435,7 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
     // store(); nothing else adds to it in the loop), and the packet's energy
     // per weight, fixed here (a fluorescence event ends the loop).
     Float energy_absorbed = 0, energy_per_weight = 0;
+    const bool look_back = kCamera && cfg_.camera_view->look_back;
     if constexpr (kSpectral) {
         trials = loop_trials();
         energy_absorbed = out_.tally.energy[kEnergyAbsorbed];
@@ -475,6 +487,11 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
         hopped = false;
         // interact(s), its steps in the same order.
         ++steps;
+        // The look-back: whether the virtual event drawn at the last
+        // scattering stands for this one (its flight was clear).
+        bool covered = false;
+        if constexpr (kCamera)
+            if (st.lb_armed) covered = look_back_covers(frame.dir(), s);
         p = b;  // = p + d * s, bit for bit
         need_tau = true;
         // The depth goes to st_ directly: a local would hold registers in
@@ -502,6 +519,8 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 store();
                 fluoresce_with(scene_.region(size_t(st.med.region)).fluorophores[size_t(k)]);
                 // interact()'s order: the camera is offered the event after the fluorescence.
+                // A fluorescent event scores itself, covered or not (the virtual
+                // stood for the branch without fluorescence only).
                 if constexpr (kCamera)
                     if (st.med.mus > 0 && st.W > 0) offer_camera();
                 // The packet stays at p, which the zone holds clear, so the
@@ -510,13 +529,24 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 // step of the general loop that would find the same nothing
                 // to cross (~1 a packet on colon_polyp, where nearly every
                 // packet fluoresces once).
-                return scatter_and_survive() ? ZoneExit::kAgain : ZoneExit::kEnded;
+                const Vec3 d_in = st.d;
+                if (!scatter_and_survive()) return ZoneExit::kEnded;
+                if (look_back) look_back_event(st.p, d_in, st.W);
+                return ZoneExit::kAgain;
             }
         }
         // interact()'s camera offer, after the capture and the fluorescence
         // trials, before the scattering (mus > 0: the zone's region scatters).
-        if constexpr (kCamera)
-            if (W > 0) camera_event(to_vec3(p), frame.dir(), W);
+        Vec3 d_in;
+        if constexpr (kCamera) {
+            d_in = frame.dir();
+            if (W > 0) {
+                if (covered)
+                    ++out_.camera.counters.covered;
+                else
+                    camera_event(to_vec3(p), d_in, W);
+            }
+        }
         // The common case, laid out on the straight path to the next step.
         if (__builtin_expect(W >= fast_min && steps < room, 1)) {
             hg.scatter(rng.next_u64(), ++scatterings, &frame);
@@ -537,6 +567,10 @@ __attribute__((noinline)) typename PacketWalk<kSpectral, kGrids>::ZoneExit Packe
                 if constexpr (kSpectral) energy_absorbed = out_.tally.energy[kEnergyAbsorbed];
             }
         }
+        // The look-back's virtual event for the flight ahead, from the state
+        // the packet goes on with (after the scattering, roulette and caps).
+        if constexpr (kCamera)
+            if (look_back) look_back_event(to_vec3(p), d_in, W);
         draw_tau();
     }
     store();
@@ -763,6 +797,7 @@ template <bool kSpectral, bool kGrids>
 Crossing PacketWalk<kSpectral, kGrids>::cross_interface(const Interface& f) {
     PacketState& st = st_;
     const int new_top = f.new_top;
+    st.lb_armed = false;  // the flight met a boundary: the next event scores itself
     if (st.med.region >= 0 && st.med.mus == 0 && st.med.mua > 0) attenuate_clear(f.t0);
     st.p += st.d * f.t0;
     st.path_cm += f.t0 * unit_cm_;
@@ -966,6 +1001,11 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     st.need_tau = true;
     ++st.events;
     update_depth();
+    // The look-back: whether the virtual event drawn at the last scattering
+    // stands for this one (its flight was clear); lb_armed is set only with a camera.
+    bool covered = false;
+    if constexpr (kSpectral)
+        if (st.lb_armed) covered = look_back_covers(st.d, s);
 
     // Implicit capture, seed eq. (3): W -= W mua/(mua+mus).
     const Float dW = st.W * (st.med.mua / st.med.mut);
@@ -973,9 +1013,23 @@ bool PacketWalk<kSpectral, kGrids>::interact(Float s) {
     st.absorbed += dW;
     if constexpr (kSpectral) out_.tally.energy[kEnergyAbsorbed] += dW * st.energy_per_weight;
     if constexpr (kGrids) deposit_grids(st.p, dW, st.W);
-    if constexpr (kSpectral) fluoresce();
-    if constexpr (kSpectral)
-        if (cfg_.camera_view && st.med.mus > 0 && st.W > 0) offer_camera();
+    if constexpr (kSpectral) {
+        const bool fluoresced = fluoresce();
+        if (cfg_.camera_view) {
+            if (st.med.mus > 0 && st.W > 0) {
+                if (covered && !fluoresced)  // a fluorescent event scores itself, covered or not
+                    ++out_.camera.counters.covered;
+                else
+                    offer_camera();
+            }
+            if (cfg_.camera_view->look_back) {
+                const Vec3 d_in = st.d;
+                if (!scatter_and_survive()) return false;
+                look_back_event(st.p, d_in, st.W);
+                return true;
+            }
+        }
+    }
     return scatter_and_survive();
 }
 
@@ -1023,6 +1077,58 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::camera_event(const
     next_event(scene_, view, e, u, hits, out_.camera);
 }
 
+// The look-back's virtual event (docs/render.md "Look-back next event"), drawn
+// after the scattering at p (direction d before it) from the state the packet
+// goes on with, weight W: it stands for the next event's score where the
+// flight there is clear of every triangle (segment_clear, by the cache of p's
+// cube). From the camera's stream: a direction w from the mixture q about d
+// and about the camera's direction inside (camera_axis_inside), and a free
+// path s ~ mu_t exp(-mu_t s) in the same region. A clear flight scores, at
+// p + s w with incoming direction w, the weight the next event would have
+// after its capture, W (1 - mu_a / mu_t), times p_HG(d.w) / q(w) and the
+// chance of no fluorescence there (a fluorescent event scores itself). Out of
+// view (twice the image's margin) or deep nothing is armed: the next event
+// scores itself, as without the look-back.
+template <bool kSpectral, bool kGrids>
+__attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::look_back_event(const Vec3& p, const Vec3& d, Float W) {
+    PacketState& st = st_;
+    const CameraView& view = *cfg_.camera_view;
+    st.lb_armed = false;
+    if (!(W > 0) || !view.near_view(p, 2 * CameraView::kViewMargin)) return;
+    const TriangleCache* cache = scene_.built_cell_cache(p);
+    if (!cache) cache = &scene_.cell_cache(p);
+    // Deep: the flight starts more than kLookBackDepth optical depths beyond
+    // tau_cut from every surface, where the next event's score is almost
+    // always thinned anyway; not armed, it scores itself (the cheaper way).
+    const Float mut_per_unit = st.med.mut * unit_cm_;
+    if (mut_per_unit * surface_clearance(*cache, p) > view.tau_cut + CameraView::kLookBackDepth) return;
+    const Vec3 axis = camera_axis_inside(*cache, p, view.position, st.med.n / scene_.ambient_n());
+    const double u0 = camera_rng_.uniform(), u1 = camera_rng_.uniform(), u2 = camera_rng_.uniform();
+    const LookBackDraw v = sample_look_back(d, axis, st.med.g, view.look_back_alpha, view.look_back_g, u0, u1, u2);
+    const Float s = neg_log_lattice(camera_rng_.lattice_open_low()) / mut_per_unit;  // seed eq. (2)
+    st.lb_armed = true;
+    st.lb_origin = p;
+    st.lb_cache = cache;
+    const Float back = ray_offset(p, extent_);  // the look-behind of the transport's queries
+    if (!segment_clear(scene_, *cache, p, v.w, back, s)) return;
+    const Float ratio = view.look_back_ratio ? v.ratio : 1;
+    const Float w_virtual = W * (1 - st.med.mua / st.med.mut) * ratio * no_fluorescence_chance();
+    if (!(w_virtual > 0)) return;
+    ++out_.camera.counters.looked_back;
+    camera_event(p + v.w * s, v.w, w_virtual);
+}
+
+// Whether the armed virtual event stands for this one, reached from
+// lb_origin along d after a flight of s: segment_clear of that flight, by the
+// same cache and expressions as the virtual's. Disarms.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::look_back_covers(const Vec3& d, Float s) {
+    PacketState& st = st_;
+    st.lb_armed = false;
+    const Float back = ray_offset(st.lb_origin, extent_);
+    return segment_clear(scene_, *st.lb_cache, st.lb_origin, d, back, s);
+}
+
 // The grids' deposits of an interaction at p: the weight dW it absorbed (the
 // absorbed grid holds energy, = weight when the run is not spectral) and, for
 // a fluorescent packet, its weight W after the capture. interact() and the
@@ -1062,18 +1168,33 @@ inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::scatte
 // d and c (rule "paper"), or d scaled by the EEM's relative excitation
 // efficiency at the packet's wavelength (rule "eem").
 template <bool kSpectral, bool kGrids>
-void PacketWalk<kSpectral, kGrids>::fluoresce() {
+bool PacketWalk<kSpectral, kGrids>::fluoresce() {
     PacketState& st = st_;
     const auto& fl = scene_.region(size_t(st.med.region)).fluorophores;
-    if (!may_fluoresce() || st.W <= 0) return;
+    if (!may_fluoresce() || st.W <= 0) return false;
     for (const FluorophoreRef& f : fl) {
         out_.tally.scalar[kFluorescenceTrials] += 1;
         const Float u1 = rng_.uniform(), u2 = rng_.uniform();
         if (u1 < trial_d(f) && u2 < f.c) {
             fluoresce_with(f);
-            break;
+            return true;
         }
     }
+    return false;
+}
+
+// The chance that fluoresce() makes no fluorescence event at the packet's
+// present wavelength and region: its trials are independent, fluorophore j
+// fires with chance min(d_j, 1) min(c_j, 1) (u1 < d_j and u2 < c_j, u
+// uniform in [0, 1)), and none fires with the product of 1 - that. 1 where
+// fluoresce() makes no trial.
+template <bool kSpectral, bool kGrids>
+Float PacketWalk<kSpectral, kGrids>::no_fluorescence_chance() const {
+    if (!may_fluoresce()) return 1;
+    Float none = 1;
+    for (const FluorophoreRef& f : scene_.region(size_t(st_.med.region)).fluorophores)
+        none *= 1 - std::clamp(trial_d(f), Float(0), Float(1)) * std::clamp(f.c, Float(0), Float(1));
+    return none;
 }
 
 // A fluorescence event of fluorophore f: the emission wavelength, the Stokes

@@ -17,6 +17,14 @@ at the end of next_event in native/camera_tally.cpp, just before the score is pu
     /usr/bin/python3 scripts/nee_variance.py 30000            # run, dump, analyse
     /usr/bin/python3 scripts/nee_variance.py 30000 --reuse    # analyse the dump of an earlier run
 
+The look-back (docs/performance.md §17): `--look-back ALPHA:G_B` (or `off`) runs it at 128 x 128 (the rig camera's
+256 x 256 otherwise) and reads records of 11 doubles: the 9 above, then the look-back's weight ratio
+p_HG / q of the virtual event being scored (1 for a real one) and its kind: 1 a virtual event, 2 a real
+fluorescence event, 3 a real event whose flight from an armed scattering was not clear, 0 a real event with
+nothing armed (two thread-locals the scratch patch sets around the camera_event / offer_camera calls in
+look_back_event, interact() and zone_steps()). The p_HG groups then hold p_HG x ratio, and four more groups
+split the scores by kind.
+
 Linearised, ln(1 + C) = ln R_p - ln G_p - ln R_c + ln G_c, so each score adds R/R_p - G/G_p (polyp pixels)
 or G/G_c - R/R_c (colon pixels) to its packet's influence; the contrast's relative variance is the variance
 of the packets' influences over N. A group of scores (by p_HG, by optical depth, by emission band) is
@@ -38,19 +46,28 @@ from endophoton.view.render import _gains, emission_filter_function  # noqa: E40
 from colon_scene import colon_scene  # noqa: E402
 
 
-def main(photons: int, reuse: bool, dump: str = "/tmp/nee_dump.bin") -> None:
+def main(photons: int, reuse: bool, dump: str = "/tmp/nee_dump.bin", look_back: str | None = None) -> None:
     scene, rig = colon_scene(beta_deg=20.0)
+    view, size, cols = True, {}, 9
+    if look_back:  # "off": plain next-event at 128 x 128, records of 11 doubles
+        size, cols = dict(width=128, height=128), 11
+        view = dict(**size)
+        if look_back != "off":
+            a, g = map(float, look_back.split(":"))
+            view.update(look_back=True, look_back_alpha=a, look_back_g=g)
     if not reuse:
         for f in glob.glob(dump + ".*"):
             os.remove(f)
         os.environ["EP_NEE_DUMP"] = dump
     # (with --reuse a short run, for the view's region map only)
     n = 2000 if reuse else photons
-    res = ep.run(scene, rig, n, seed=1, threads=1, spectral=True, record_escapes=False, view=True)
+    res = ep.run(scene, rig, n, seed=1, threads=1, spectral=True, record_escapes=False, view=view)
     os.environ.pop("EP_NEE_DUMP", None)
-    view = ep.render_view(res, estimator="nee", threads=1)
-    d = np.concatenate([np.fromfile(f).reshape(-1, 9) for f in glob.glob(dump + ".*")])
+    view = ep.render_view(res, estimator="nee", threads=1, **size)
+    d = np.concatenate([np.fromfile(f).reshape(-1, cols) for f in glob.glob(dump + ".*")])
     pk, px, fl, lam, val, phg, tau = d[:, :7].T
+    ratio, virtual = (d[:, 9], d[:, 10]) if cols == 11 else (np.ones(len(d)), np.zeros(len(d)))
+    phg = phg * ratio
     pk = pk.astype(int)
     reg = view.region_map.ravel()[px.astype(int)]
     light = getattr(rig, "spectrum", None)
@@ -74,6 +91,9 @@ def main(photons: int, reuse: bool, dump: str = "/tmp/nee_dump.bin") -> None:
         (f"tau in [{lo}, {hi})", (tau >= lo) & (tau < hi)) for lo, hi in [(0, 0.5), (0.5, 1.5), (1.5, 3), (3, 99)]
     ]
     groups += [("polyp pixels", reg == ip), ("colon pixels", reg == ic)]
+    if cols == 11:
+        groups += [("virtual events (look-back)", virtual == 1), ("real: nothing armed", virtual == 0),
+                   ("real: fluorescence event", virtual == 2), ("real: flight not clear", virtual == 3)]  # fmt: skip
     groups += [(f"emission {b}", (lam >= lo) & (lam < hi) & (fl > 0)) for b, lo, hi in
                [("< 540 nm", 0, 540), ("540-600 nm", 540, 600), ("> 600 nm", 600, 2000)]]  # fmt: skip
     print("| scores | share of scores | share of the variance | share of polyp R | share of polyp G |")
@@ -88,4 +108,5 @@ def main(photons: int, reuse: bool, dump: str = "/tmp/nee_dump.bin") -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 30000, "--reuse" in sys.argv)
+    lb = sys.argv[sys.argv.index("--look-back") + 1] if "--look-back" in sys.argv else None
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 30000, "--reuse" in sys.argv, look_back=lb)

@@ -35,6 +35,9 @@ std::shared_ptr<CameraView> camera_view_from(const py::kwargs& kw) {
     v->packets = need("packets").cast<uint64_t>();
     if (kw.contains("tau_cut")) v->tau_cut = kw["tau_cut"].cast<double>();
     if (kw.contains("depth_bound")) v->depth_bound = kw["depth_bound"].cast<bool>();
+    if (kw.contains("look_back")) v->look_back = kw["look_back"].cast<bool>();
+    if (kw.contains("look_back_alpha")) v->look_back_alpha = kw["look_back_alpha"].cast<double>();
+    if (kw.contains("look_back_g")) v->look_back_g = kw["look_back_g"].cast<double>();
     v->lambda0_nm = need("lambda0_nm").cast<double>();
     v->dlambda_nm = need("dlambda_nm").cast<double>();
     auto table = need("table").cast<py::array_t<double, py::array::c_style | py::array::forcecast>>();
@@ -66,6 +69,8 @@ py::object camera_image_dict(const std::shared_ptr<CameraImage>& img) {
     d["occluded"] = c.occluded;
     d["unresolved"] = c.unresolved;
     d["crossing"] = c.crossing;
+    d["looked_back"] = c.looked_back;
+    d["covered"] = c.covered;
     return d;
 }
 
@@ -79,7 +84,12 @@ void bind_camera_view(py::module_& m) {
         .def_readonly("packets", &CameraView::packets)
         .def_readonly("channels", &CameraView::channels)
         // false: every event's path is solved before its depth roulette (the tests' reference).
-        .def_readwrite("depth_bound", &CameraView::depth_bound);
+        .def_readwrite("depth_bound", &CameraView::depth_bound)
+        .def_readonly("look_back", &CameraView::look_back)
+        .def_readonly("look_back_alpha", &CameraView::look_back_alpha)
+        .def_readonly("look_back_g", &CameraView::look_back_g)
+        // false: the look-back drops its weight ratio (a deliberately biased image, for the tests).
+        .def_readwrite("look_back_ratio", &CameraView::look_back_ratio);
 }
 
 }  // namespace ep::bind

@@ -247,3 +247,74 @@ TEST(CameraTally, PrefilterThinsOnlyEventsTheSolvedPathThins) {
     EXPECT_GT(dropped_and_thinned, 1000);
     EXPECT_EQ(exact.bounded, 0u);
 }
+
+TEST(CameraTally, LookBackMixtureWeightsAreUnbiasedAndBounded) {
+    // The look-back's direction w ~ q = (1 - alpha) p_HG,g(d.w) + alpha p_HG,gb(a.w)
+    // with weight p_HG,g / q: E[weight f(w)] = E_HG[f], so E[weight] = 1 and
+    // E[weight d.w] = g (the HG mean cosine), and every weight <= 1 / (1 - alpha).
+    const Vec3 d = normalize(Vec3(0.3, -0.2, 1)), axis = normalize(Vec3(-1, 0.5, 0.4));
+    const double g = 0.9, alpha = 0.5, gb = 0.8;
+    Rng rng(11, 0);
+    const int n = 200000;
+    double s1 = 0, s1q = 0, sc = 0, scq = 0, worst = 0;
+    for (int i = 0; i < n; ++i) {
+        const LookBackDraw v = sample_look_back(d, axis, g, alpha, gb, rng.uniform(), rng.uniform(), rng.uniform());
+        ASSERT_NEAR(length(v.w), 1.0, 1e-12);
+        const double c = v.ratio * dot(d, v.w);
+        s1 += v.ratio;
+        s1q += v.ratio * v.ratio;
+        sc += c;
+        scq += c * c;
+        worst = std::max(worst, v.ratio);
+    }
+    const double m1 = s1 / n, mc = sc / n;
+    const double se1 = std::sqrt((s1q / n - m1 * m1) / n), sec = std::sqrt((scq / n - mc * mc) / n);
+    EXPECT_LT(std::fabs(m1 - 1), 4 * se1) << m1 << " +- " << se1;
+    EXPECT_LT(std::fabs(mc - g), 4 * sec) << mc << " +- " << sec;
+    EXPECT_LE(worst, 1 / (1 - alpha) * (1 + 1e-12));
+    // A wrong weight (the ratio dropped) is seen by the same test: E[d.w] under q is not g.
+    double wrong = 0;
+    for (int i = 0; i < 20000; ++i)
+        wrong += dot(d, sample_look_back(d, axis, g, alpha, gb, rng.uniform(), rng.uniform(), rng.uniform()).w);
+    EXPECT_GT(std::fabs(wrong / 20000 - g), 10 * sec * std::sqrt(10.0));
+}
+
+TEST(CameraTally, SegmentClearMeansNoTriangleOnTheSegment) {
+    // Random segments through the slab, many longer than their cube's ball:
+    // segment_clear says clear exactly when Embree finds no crossing.
+    auto scene = slab(false);
+    Rng rng(13, 0);
+    int clear = 0, blocked = 0;
+    std::vector<Hit> hits;
+    for (int i = 0; i < 4000; ++i) {
+        const Vec3 a(4 * rng.uniform() - 2, 4 * rng.uniform() - 2, -1.2 * rng.uniform() + 0.1);
+        const Vec3 w = normalize(Vec3(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5));
+        const double len = 0.6 * rng.uniform();
+        const bool clear_here = segment_clear(*scene, scene->cell_cache(a), a, w, 0, len);
+        scene->intersect_all(a, w, 0, len, hits);
+        ASSERT_EQ(clear_here, hits.empty()) << i;
+        if (!clear_here) {
+            ++blocked;
+            continue;
+        }
+        ++clear;
+        ASSERT_TRUE(hits.empty()) << i;
+    }
+    EXPECT_GT(clear, 500);
+    EXPECT_GT(blocked, 500);
+    EXPECT_FALSE(
+        segment_clear(*scene, scene->cell_cache(Vec3(0, 0, -0.01)), Vec3(0, 0, -0.01), Vec3(0, 0, 1), 0, 0.02));
+}
+
+TEST(CameraTally, CameraAxisInsideObeysSnell) {
+    // Under the slab's top face (normal +z, n = 1.4): the axis refracts into
+    // the straight direction to the camera, n sin(t1) = sin(t0), in its plane.
+    auto scene = slab(false);
+    const Vec3 p(0.1, 0.05, -0.05), c(1.0, -0.3, 0.8);
+    const Vec3 w = camera_axis_inside(scene->cell_cache(p), p, c, 1.4);
+    const Vec3 out = normalize(c - p);
+    const double sin1 = std::sqrt(1 - w.z * w.z), sin0 = std::sqrt(1 - out.z * out.z);
+    EXPECT_NEAR(1.4 * sin1, sin0, 1e-12);
+    EXPECT_GT(w.z, 0);
+    EXPECT_NEAR(dot(cross(w, out), Vec3(0, 0, 1)), 0, 1e-12);  // the same plane of incidence
+}

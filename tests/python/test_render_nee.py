@@ -8,6 +8,7 @@ refusal of a non-spectral run, and bit-identical images on any thread count.
 import importlib.util
 import math
 import os
+import re
 
 import numpy as np
 import pytest
@@ -103,6 +104,10 @@ def test_request_errors_name_the_field():
     inside = Camera.look_at((0, 0, -1), (0, 0, -2), up=(0, 1, 0), fov_deg=20)
     with pytest.raises(ValueError, match="camera.position = .* lies inside a region"):
         ep.run(_slab(), _disk(), photons=2000, spectral=True, view=dict(camera=inside, width=8, height=8))
+    for key, bad in (("look_back_alpha", 1.0), ("look_back_alpha", -0.1), ("look_back_alpha", float("nan")),
+                     ("look_back_g", 1.0), ("look_back_g", -1.5), ("look_back_g", "0.9"), ("look_back", 1)):  # fmt: skip
+        with pytest.raises(ValueError, match=rf"view {key} = {re.escape(repr(bad))} must be"):
+            ep.run(_slab(), _disk(), photons=2000, spectral=True, view=dict(view, **{key: bad}))
     res = ep.run(_slab(), _disk(), photons=2000, spectral=True, seed=1, view=view)
     with pytest.raises(ValueError, match=r"width = 16 differs from the run's camera tally \(8\)"):
         render_view(res, cam, 16, 8, estimator="nee")
@@ -113,8 +118,10 @@ def test_request_errors_name_the_field():
         render_view(plain, cam, 8, 8, estimator="photon_map")
 
 
-def test_image_is_bit_identical_on_any_thread_count():
-    """The scores are added in unit order: 1 and 2 threads give the same bits and counters; 'auto' picks nee."""
+@pytest.mark.parametrize("look_back", [False, True])
+def test_image_is_bit_identical_on_any_thread_count(look_back):
+    """The scores are added in unit order: 1 and 2 threads give the same bits and counters; 'auto' picks nee.
+    With the look-back too (its virtual events come from the camera's stream, per packet)."""
     cam = Camera.look_at((0.2, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30)
     runs = [
         ep.run(
@@ -125,7 +132,7 @@ def test_image_is_bit_identical_on_any_thread_count():
             spectral=True,
             threads=t,
             unit_size=64,
-            view=dict(camera=cam, width=6, height=6),
+            view=dict(camera=cam, width=6, height=6, look_back=look_back),
         )
         for t in (1, 2)
     ]
@@ -133,8 +140,9 @@ def test_image_is_bit_identical_on_any_thread_count():
     assert np.array_equal(a["sums"], b["sums"]) and np.array_equal(a["spectrum"], b["spectrum"])
     assert a["scored"] > 0
     # the depth bound reads the cache of the event's own cube: the counters are the same too
-    for k in ("events", "thinned", "bounded", "scored", "occluded", "unresolved", "crossing"):
+    for k in ("events", "thinned", "bounded", "scored", "occluded", "unresolved", "crossing", "looked_back", "covered"):
         assert a[k] == b[k], k
+    assert (a["looked_back"] > 0 and a["covered"] > 0) == look_back
     v = render_view(runs[0], cam, 6, 6)
     assert v.estimator == "nee"
     assert np.all(np.isfinite(v.images["white"]["radiance"]))
@@ -177,11 +185,89 @@ def test_depth_bound_keeps_the_bits(monkeypatch):
     assert b["bounded"] == 0 and a["bounded"] > 0.2 * a["thinned"], (a["bounded"], a["thinned"])
 
 
+def _polyp_box_run(seed, threads=2, photons=3000, **view):
+    """A next-event run of the polyp box (oblique camera, 8 x 8, records kept) and its camera."""
+    cam = Camera.look_at((0.6, 0.3, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.0)
+    res = ep.run(
+        polyp_box_scene(),
+        src,
+        photons=photons,
+        seed=seed,
+        spectral=True,
+        threads=threads,
+        unit_size=64,
+        view=dict(camera=cam, width=8, height=8, **view),
+    )
+    return res, cam
+
+
+def test_look_back_keeps_the_transport_bits():
+    """The look-back draws only from the camera's stream: every other tally (the fractions, the absorbed
+    weight by region, the exit records) is bit-identical with it on and off, while the camera image changes."""
+    off, _ = _polyp_box_run(7)
+    on, _ = _polyp_box_run(7, look_back=True, look_back_alpha=0.6, look_back_g=0.8)
+    for k in ("absorbed", "diffuse_reflectance", "transmittance", "specular_reflectance", "roulette", "cut",
+              "fluorescent_escaped", "escaped_energy", "interactions", "fluorescence_events"):  # fmt: skip
+        assert getattr(on, k) == getattr(off, k), k
+    assert on.absorbed_by_region == off.absorbed_by_region
+    assert set(on.escapes) == set(off.escapes) and on.escapes["weight"].size > 0
+    for k in on.escapes:
+        assert np.array_equal(on.escapes[k], off.escapes[k]), k
+    assert on.camera_image["covered"] > 0 and not np.array_equal(on.camera_image["sums"], off.camera_image["sums"])
+
+
+def _look_back_chi2(photons, **look_back):
+    """Pixel and region chi-square of a look-back image against a plain next-event image of another seed."""
+    plain, cam = _polyp_box_run(1, photons=photons)
+    lb, _ = _polyp_box_run(2, photons=photons, look_back=True, **look_back)
+    a, b = render_view(plain, cam, 8, 8), render_view(lb, cam, 8, 8)
+    out = []
+    for image in ("white", "fluorescence"):
+        x, y = a.images[image], b.images[image]
+        out.append(_pixel_chi2(x["radiance"], x["radiance_stderr"], y["radiance"], y["radiance_stderr"]))
+    out.append(_region_chi2(a, b))
+    return out
+
+
+def test_look_back_without_the_camera_lobe_agrees_with_plain_nee():
+    """alpha = 0: the virtual direction is HG's own and its weight ratio 1, so the look-back image estimates
+    the plain one's expectation: pixels and regions (white, fluorescence) agree within the chi-square limit."""
+    for chi, dof in _look_back_chi2(10_000, look_back_alpha=0.0):
+        assert dof >= 4 and chi < chi2_limit(dof), (chi, dof)
+
+
+def test_look_back_default_agrees_with_plain_nee():
+    """The default mixture (half of the virtual directions aimed at the camera, weighted by p_HG / q) agrees
+    with plain NEE over pixels and regions."""
+    for chi, dof in _look_back_chi2(10_000):
+        assert dof >= 4 and chi < chi2_limit(dof), (chi, dof)
+
+
+@pytest.mark.slow
+def test_look_back_with_a_dropped_ratio_is_seen(monkeypatch):
+    """The same comparison sees a deliberately wrong look-back: the mixture's directions counted at full
+    weight (the ratio p_HG / q dropped; alpha = 0.8), by far more than the chi-square limit."""
+    from endophoton.view import nee
+
+    make = nee.camera_view
+
+    def camera_view(*args, **kwargs):
+        cv, desc = make(*args, **kwargs)
+        cv.look_back_ratio = False
+        return cv, desc
+
+    monkeypatch.setattr(nee, "camera_view", camera_view)
+    chi, dof = _look_back_chi2(60_000, look_back_alpha=0.8)[2]
+    assert dof == 4 and chi > 3 * chi2_limit(dof), (chi, dof)
+
+
 # ---------------------------------------------------------------- cross-checks
 
 
 @pytest.mark.slow
-def test_flat_field_agrees_with_aperture_and_kernel():
+@pytest.mark.parametrize("look_back", [False, True])
+def test_flat_field_agrees_with_aperture_and_kernel(look_back):
     """Uniform slab (n 1.4, g 0.8: refraction at the surface) under a 0.4 cm beam, seen obliquely: the
     next-event image of one run and the aperture and kernel images of another (seed) agree pixel by pixel
     (the kernel's estimated bias added to its noise), and a 20 % scale error would be seen."""
@@ -195,7 +281,7 @@ def test_flat_field_agrees_with_aperture_and_kernel():
         seed=1,
         spectral=True,
         record_escapes=False,
-        view=dict(camera=cam, width=6, height=6),
+        view=dict(camera=cam, width=6, height=6, look_back=look_back),
     )
     nee = render_view(run, cam, 6, 6)
     assert nee.estimator == "nee" and nee.aperture is None  # no records: no aperture image
@@ -227,7 +313,8 @@ def _aperture_region_chi2(nee, other, regions, keys=("white", "fluorescence")):
 
 
 @pytest.mark.slow
-def test_polyp_scene_agrees_with_aperture():
+@pytest.mark.parametrize("look_back", [False, True])
+def test_polyp_scene_agrees_with_aperture(look_back):
     """Collagen wall with a photofrin polyp (tests/_synth.polyp_box_scene), oblique camera: next-event and
     aperture images (independent runs) agree over pixels, and the regions' white and fluorescence radiances
     agree (chi-square)."""
@@ -240,7 +327,7 @@ def test_polyp_scene_agrees_with_aperture():
         seed=1,
         spectral=True,
         record_escapes=False,
-        view=dict(camera=cam, width=8, height=8),
+        view=dict(camera=cam, width=8, height=8, look_back=look_back),
     )
     nee = render_view(run, cam, 8, 8)
     other = render_view(
@@ -252,7 +339,8 @@ def test_polyp_scene_agrees_with_aperture():
 
 
 @pytest.mark.slow
-def test_colon_agrees_with_aperture():
+@pytest.mark.parametrize("look_back", [False, True])
+def test_colon_agrees_with_aperture(look_back):
     """The colon view (bench/colon_scene.py, rig at beta = 20 deg, 16 x 16): next-event regions (polyp,
     colon; white and fluorescence) and pixels agree with the aperture image (2 mm lens) of an independent
     run. (The kernel estimate does not converge on the polyp: its mean there is 1.9x the aperture's;
@@ -260,7 +348,13 @@ def test_colon_agrees_with_aperture():
     scene, rig = _colon()
     cam = Camera.from_rig(rig, aperture_radius=0.002)
     run = ep.run(
-        scene, rig, 50_000, seed=1, spectral=True, record_escapes=False, view=dict(camera=cam, width=16, height=16)
+        scene,
+        rig,
+        50_000,
+        seed=1,
+        spectral=True,
+        record_escapes=False,
+        view=dict(camera=cam, width=16, height=16, look_back=look_back),
     )
     nee = render_view(run, cam, 16, 16)
     other = render_view(ep.run(scene, rig, 300_000, seed=2, spectral=True), cam, 16, 16, estimator="kernel")

@@ -33,8 +33,16 @@ _KEYS = {
     "white_balance",
     "tau_cut",
     "memory_budget_bytes",
+    "look_back",
+    "look_back_alpha",
+    "look_back_g",
 }
 DEFAULT_TAU_CUT = 3.0
+#: The look-back next event (docs/render.md "Look-back next event"): off by default; its proposal's share aimed
+#: at the camera and that lobe's HG asymmetry (chosen by docs/performance.md §17).
+DEFAULT_LOOK_BACK = False
+DEFAULT_LOOK_BACK_ALPHA = 0.5
+DEFAULT_LOOK_BACK_G = 0.9
 
 
 def view_request(
@@ -47,6 +55,9 @@ def view_request(
     white_balance="white",
     tau_cut: float = DEFAULT_TAU_CUT,
     memory_budget_bytes: float | None = None,
+    look_back: bool = DEFAULT_LOOK_BACK,
+    look_back_alpha: float = DEFAULT_LOOK_BACK_ALPHA,
+    look_back_g: float = DEFAULT_LOOK_BACK_G,
 ) -> dict:
     """The keys of ``ep.run(..., view=dict(...))``; the same names and defaults as :func:`render_view`'s.
 
@@ -55,7 +66,11 @@ def view_request(
     emission_filter, white_balance : as render_view's (they set the colour channels); tau_cut : optical
     depth (mu_t x path to the exit point) beyond which scores are thinned by an unbiased roulette;
     memory_budget_bytes : the most memory the tally and its render may need (None: 4 GiB,
-    ``view.budget.RENDER_MEMORY_BUDGET_BYTES``): a larger image is refused before the run.
+    ``view.budget.RENDER_MEMORY_BUDGET_BYTES``): a larger image is refused before the run; look_back : score an
+    event reached by a clear free flight by a virtual event drawn at the scattering before it (docs/render.md
+    "Look-back next event"), whose direction comes from the mixture (1 - look_back_alpha) p_HG(g) about the
+    packet's direction + look_back_alpha p_HG(look_back_g) about the camera's (look_back_alpha in [0, 1),
+    look_back_g in (-1, 1)).
     """
     return dict(
         camera=camera,
@@ -67,6 +82,9 @@ def view_request(
         white_balance=white_balance,
         tau_cut=tau_cut,
         memory_budget_bytes=memory_budget_bytes,
+        look_back=look_back,
+        look_back_alpha=look_back_alpha,
+        look_back_g=look_back_g,
     )
 
 
@@ -125,6 +143,7 @@ def camera_view(scene, source, photons, view):
     tau = req["tau_cut"]
     if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not (math.isfinite(tau) and tau >= 0):
         raise ValueError(f"view tau_cut = {tau!r} must be a finite number >= 0 (optical depth)")
+    look_back = _look_back(req)
     light = (
         excitation_spectrum(req["excitation"]) if req["excitation"] is not None else getattr(source, "spectrum", None)
     )
@@ -146,6 +165,7 @@ def camera_view(scene, source, photons, view):
         batches=B,
         packets=int(photons),
         tau_cut=float(tau),
+        **look_back,
         lambda0_nm=_LAMBDA0_NM,
         dlambda_nm=_DLAMBDA_NM,
         table=table,
@@ -162,8 +182,23 @@ def camera_view(scene, source, photons, view):
         emission_filter=filter_desc,
         white_balance=req["white_balance"],
         tau_cut=float(tau),
+        **look_back,
     )
     return cv, desc
+
+
+def _look_back(req) -> dict:
+    """The look-back's switch and parameters, checked (ValueError naming the field and the value)."""
+    on, alpha, g = req["look_back"], req["look_back_alpha"], req["look_back_g"]
+    if not isinstance(on, bool):
+        raise ValueError(f"view look_back = {on!r} must be True or False")
+    for name, x, lo, ok in (
+        ("look_back_alpha", alpha, "[0, 1)", lambda v: 0 <= v < 1),
+        ("look_back_g", g, "(-1, 1)", lambda v: -1 < v < 1),
+    ):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and ok(x)):
+            raise ValueError(f"view {name} = {x!r} must be a finite number in {lo}")
+    return dict(look_back=on, look_back_alpha=float(alpha), look_back_g=float(g))
 
 
 def _check_camera_outside(scene, camera):

@@ -987,7 +987,10 @@ def _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance):
                 f"{k} = {v!r} differs from the run's camera tally ({desc[k]!r}): render with the run's "
                 f"view settings or run again with view=dict({k}=...)"
             )
-    counters = {k: int(img[k]) for k in ("events", "thinned", "scored", "occluded", "unresolved", "crossing")}
+    counters = {
+        k: int(img[k])
+        for k in ("events", "thinned", "scored", "occluded", "unresolved", "crossing", "looked_back", "covered")
+    }
     return img["sums"], img["spectrum"], counters
 
 
