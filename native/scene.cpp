@@ -689,6 +689,20 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     return *expected;
 }
 
+const TriangleCache& Scene::cube_cache(const Vec3& p, TriangleCache& scratch) const {
+    if (const TriangleCache* built = built_cell_cache(p)) return *built;
+    const TriangleCache& cache = cell_cache(p);
+    if (&cache != no_cache_.get()) return cache;
+    size_t cell;
+    int cube;
+    Vec3 c;
+    if (!grid_.cube_of<kCellSplit>(p, &cell, &cube, &c)) return *no_cache_;
+    // The store is full: cell_cache's build, kept in the caller's scratch.
+    const Float side = grid_.cell_size() / kCellSplit;
+    if (gather_triangles(c, side, kCellMaxTriangles, scratch) && scratch.size() == 0) widen_empty(c, side, scratch);
+    return scratch;
+}
+
 void Scene::widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const {
     // No triangle meets the ball of one side: the first wider ball that
     // none meets either (the same gather, stopped at its first triangle by a

@@ -148,6 +148,14 @@ class Scene {
     // outside the grid or more than kCellMaxTriangles meet the ball (the
     // caller then asks Embree).
     const TriangleCache& cell_cache(const Vec3& p) const;
+    // cell_cache's cache also past the store's budget: a cube the full store
+    // does not keep is gathered into `scratch` the way cell_cache builds it
+    // (the same planes and triangles: a function of the cube alone). For
+    // callers whose answers read a cache's content, not only its crossings
+    // (the camera tally's depth bound and look-back): which cubes the store
+    // kept depends on the threads' timing once it is full, their content
+    // never does, so these answers stay the same on any thread count.
+    const TriangleCache& cube_cache(const Vec3& p, TriangleCache& scratch) const;
     // The cube store's size and budget in bytes (cell slot blocks and cache
     // blocks together). Once the store holds the budget, a cube not built
     // yet gets no cache: its steps take the full query, which gives the same

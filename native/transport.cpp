@@ -1053,14 +1053,14 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::camera_event(const
     const CameraView& view = *cfg_.camera_view;
     const double u = camera_rng_.uniform();
     // The clearance from the cache of the cube p is in (built if it is not
-    // yet): its content is a function of the cube alone, so the bound, and
-    // with it the counters, are the same on any thread count (the cache the
-    // thread used last would depend on the thread's history). Past the
-    // store's budget a cube not built yet has no cache and its events are
-    // solved: the scores stay the same, the counters may then differ.
+    // yet, or gathered into a scratch once the store is full): its content
+    // is a function of the cube alone, so the bound, and with it the
+    // counters, are the same on any thread count (the cache the thread used
+    // last would depend on the thread's history, and which cubes a full
+    // store kept on the threads' timing).
     auto clearance = [&] {
-        const TriangleCache* cache = scene_.built_cell_cache(p);
-        return surface_clearance(cache ? *cache : scene_.cell_cache(p), p);
+        thread_local TriangleCache scratch;  // a cube the full store does not keep (Scene::cube_cache)
+        return surface_clearance(scene_.cube_cache(p, scratch), p);
     };
     if (!camera_prefilter(view, p, u, st.med.mut * unit_cm_, clearance, out_.camera.counters)) return;
     CameraEvent e;
@@ -1095,8 +1095,11 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::look_back_event(co
     const CameraView& view = *cfg_.camera_view;
     st.lb_armed = false;
     if (!(W > 0) || !view.near_view(p, 2 * CameraView::kViewMargin)) return;
-    const TriangleCache* cache = scene_.built_cell_cache(p);
-    if (!cache) cache = &scene_.cell_cache(p);
+    // The look-back's own scratch (Scene::cube_cache): st.lb_cache points to it
+    // until look_back_covers reads it at the next event, and nothing else
+    // gathers into it in between (camera_event's clearance has its own).
+    thread_local TriangleCache scratch;
+    const TriangleCache* cache = &scene_.cube_cache(p, scratch);
     // Deep: the flight starts more than kLookBackDepth optical depths beyond
     // tau_cut from every surface, where the next event's score is almost
     // always thinned anyway; not armed, it scores itself (the cheaper way).

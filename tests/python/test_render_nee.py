@@ -382,3 +382,38 @@ def test_pixel_colour_sums_add_up_to_the_region_sums(estimator):
             assert np.abs(by_region[key]).max() > 0, (name, key)
             np.testing.assert_allclose(by_pixels[key], by_region[key], rtol=1e-12, atol=0, err_msg=f"{name} {key}")
     assert v.contrast("polyp", None, surround_px=3)["red_green"] is not None
+
+
+@pytest.mark.slow
+def test_camera_bits_past_the_cache_budget():
+    """Once the cube store holds its budget, which cubes it kept depends on the threads' timing; the depth
+    bound and the look-back read a cube's cache content (a scratch gathered the same way for a cube the full
+    store does not keep, Scene::cube_cache), so a colon run on a store capped at 256 kB, at 2 threads, gives
+    the image and counters of an uncapped run at 1 thread, bit for bit."""
+    cam = None
+    images, stores = [], []
+    for cap_mb, threads in ((None, 1), (0.25, 2)):
+        ep.forget_native_scenes()
+        scene, rig = _colon()
+        scene.cache_store_mb = cap_mb
+        cam = Camera.from_rig(rig)
+        run = ep.run(
+            scene,
+            rig,
+            4000,
+            seed=3,
+            spectral=True,
+            threads=threads,
+            unit_size=64,
+            record_escapes=False,
+            view=dict(camera=cam, width=12, height=12, look_back=True),
+        )
+        images.append(run.camera_image)
+        stores.append(scene.to_native().cache_store_bytes)
+    ep.forget_native_scenes()
+    free, capped = images
+    assert stores[0] > 8 * 256 * 1024 and stores[1] <= 256 * 1024 + 2 * 65536, stores  # the cap held: teeth
+    assert free["scored"] > 0 and free["looked_back"] > 0
+    assert np.array_equal(free["sums"], capped["sums"]) and np.array_equal(free["spectrum"], capped["spectrum"])
+    for k in ("events", "thinned", "bounded", "scored", "occluded", "unresolved", "crossing", "looked_back", "covered"):
+        assert free[k] == capped[k], k
