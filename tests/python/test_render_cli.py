@@ -196,20 +196,21 @@ def test_view_save_checks_every_path_before_writing_any(tmp_path):
 
 @pytest.mark.slow
 def test_look_back_is_a_way_of_the_next_event_estimate(tmp_path):
-    """--look-back draws virtual events (the JSON's nee counters say how many); without --estimator nee it
-    exits 2 naming the flag, before the run."""
+    """The next-event estimate draws look-back virtual events by default (the JSON's nee counters say how
+    many), none with --no-look-back; --no-look-back without --estimator nee exits 2 naming the flag, before
+    the run."""
     scene = copy.deepcopy(SCENE)
     for r in scene["regions"]:
         r["medium"]["g"] = 0.9  # the look-back's mixture leans on forward scattering
     common = ("--photons", "3000", "--width", "6", "--height", "6", "--threads", "1")
     counts = {}
-    for flag in ((), ("--look-back",)):
+    for flag in (("--no-look-back",), ()):
         p = _render(tmp_path, scene, *common, "--out", str(tmp_path / f"o{len(flag)}"), *flag)
         assert p.returncode == 0, p.stderr
         d = json.loads(p.stdout)
         assert d["estimator"] == "nee" and d["nee"]["scored"] > 0
-        counts[bool(flag)] = d["nee"]["looked_back"]
+        counts[not flag] = d["nee"]["looked_back"]
     assert counts == {False: 0, True: counts[True]} and counts[True] > 0, counts
-    p = _render(tmp_path, scene, *common, "--estimator", "kernel", "--look-back", "--out", str(tmp_path / "k"))
-    assert p.returncode == 2 and "--look-back: give --estimator nee" in p.stderr, p.stderr
+    p = _render(tmp_path, scene, *common, "--estimator", "kernel", "--no-look-back", "--out", str(tmp_path / "k"))
+    assert p.returncode == 2 and "--no-look-back: give --estimator nee" in p.stderr, p.stderr
     assert not (tmp_path / "k").exists()

@@ -205,7 +205,7 @@ def _polyp_box_run(seed, threads=2, photons=3000, **view):
 def test_look_back_keeps_the_transport_bits():
     """The look-back draws only from the camera's stream: every other tally (the fractions, the absorbed
     weight by region, the exit records) is bit-identical with it on and off, while the camera image changes."""
-    off, _ = _polyp_box_run(7)
+    off, _ = _polyp_box_run(7, look_back=False)
     on, _ = _polyp_box_run(7, look_back=True, look_back_alpha=0.6, look_back_g=0.8)
     for k in ("absorbed", "diffuse_reflectance", "transmittance", "specular_reflectance", "roulette", "cut",
               "fluorescent_escaped", "escaped_energy", "interactions", "fluorescence_events"):  # fmt: skip
@@ -219,7 +219,7 @@ def test_look_back_keeps_the_transport_bits():
 
 def _look_back_chi2(photons, **look_back):
     """Pixel and region chi-square of a look-back image against a plain next-event image of another seed."""
-    plain, cam = _polyp_box_run(1, photons=photons)
+    plain, cam = _polyp_box_run(1, photons=photons, look_back=False)
     lb, _ = _polyp_box_run(2, photons=photons, look_back=True, **look_back)
     a, b = render_view(plain, cam, 8, 8), render_view(lb, cam, 8, 8)
     out = []

@@ -38,9 +38,10 @@ _KEYS = {
     "look_back_g",
 }
 DEFAULT_TAU_CUT = 3.0
-#: The look-back next event (docs/render.md "Look-back next event"): off by default; its proposal's share aimed
-#: at the camera and that lobe's HG asymmetry (chosen by docs/performance.md §17).
-DEFAULT_LOOK_BACK = False
+#: The look-back next event (docs/render.md "Look-back next event"): on by default (more efficient than plain
+#: next-event estimation on every measured seed, equally unbiased); its proposal's share aimed at the camera and
+#: that lobe's HG asymmetry (chosen by docs/performance.md §17).
+DEFAULT_LOOK_BACK = True
 DEFAULT_LOOK_BACK_ALPHA = 0.5
 DEFAULT_LOOK_BACK_G = 0.9
 
