@@ -472,7 +472,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
                 "NEE",
                 "Next Event",
                 "The run scores every scattering event into the camera (next-event estimation): "
-                "unbiased, about 5× the run's time; needs a Photons count, a local run (no Dask scheduler) and "
+                "unbiased (the look-back next event), about 6× the run's time; needs a Photons count, a local run (no Dask scheduler) and "
                 "shows no live images",
             ),
         ],
