@@ -326,6 +326,25 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
         min=8,
         max=1024,
     )
+    view_estimator: EnumProperty(
+        name="View Estimator",
+        description="How the endoscope view of every β is estimated (the command line's --estimator, " "docs/sweep.md)",
+        items=[
+            (
+                "KERNEL",
+                "Kernel",
+                "From each β's records: the records that leave within 15° of the camera direction and two pixel "
+                "footprints of the point (fast; the kernel's size biases small bright features)",
+            ),
+            (
+                "NEE",
+                "Next Event",
+                "From runs of each β's own that score every scattering event into the camera (the look-back "
+                "next event): unbiased, as many packets as the store run, about 6× their time",
+            ),
+        ],
+        default="KERNEL",
+    )
     keep_runs: EnumProperty(
         name="Per-β Results",
         description="Make every β a results collection (its point cloud and, with a rig camera, its "
@@ -453,7 +472,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
     view_estimator: EnumProperty(
         name="View Estimator",
         description="How a run's endoscope-view images are estimated (ep.render_view's estimator, "
-        "docs/render.md); a sweep renders with the kernel estimate",
+        "docs/render.md); a sweep has its own (Sweep β > Visibility)",
         items=[
             (
                 "KERNEL",

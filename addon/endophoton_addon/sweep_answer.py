@@ -1,7 +1,7 @@
 # SPDX-License-Identifier: MIT
 """The Sweep β panel's question, "at which β is the target most visible?": what the sweep is asked
 (the ``visibility`` request of ``endophoton.sweep``, the command line's ``--target/--background
---view-size``) and the answer it gives (the package's visibility fit and report words).
+--view-size --estimator``) and the answer it gives (the package's visibility fit and report words).
 
 One place to extend: a new option of the visibility sweep (e.g. a surround region, a target
 accuracy) is a property of ``EndoPhotonSweepSettings``, its name in :data:`VISIBILITY_FIELDS` (the
@@ -14,9 +14,14 @@ import math
 from .errors import InputError
 
 # Sweep settings the panel draws in its Visibility box, in order (see the module docstring).
-VISIBILITY_FIELDS = ("target_region", "background_region", "view_size")
+VISIBILITY_FIELDS = ("target_region", "background_region", "view_size", "view_estimator")
 # Labels that fit the default sidebar width beside their field ("" = the property's own name).
-SHORT_LABELS = {"target_region": "Target", "background_region": "vs", "view_size": "View px"}
+SHORT_LABELS = {
+    "target_region": "Target",
+    "background_region": "vs",
+    "view_size": "View px",
+    "view_estimator": "Estimator",
+}
 ROLE_ORDER = {"target": ("POLYP", "TISSUE"), "background": ("TISSUE", "POLYP")}
 _ITEMS = {}  # Blender needs a dynamic enum's strings kept alive
 
@@ -51,7 +56,9 @@ def visibility_request(settings, region_names, who):
         raise InputError(f"{who}: sweep.target_region = sweep.background_region = '{target}'; pick two regions")
     if settings.view_size < 8:
         raise InputError(f"{who}: sweep.view_size = {settings.view_size} must be >= 8 pixels")
-    return {"target": target, "background": background, "width": settings.view_size, "height": settings.view_size}
+    size = settings.view_size
+    estimator = str(settings.view_estimator).lower()
+    return {"target": target, "background": background, "width": size, "height": size, "estimator": estimator}
 
 
 def _answer_paragraph(view_sweep, result, vis):

@@ -89,3 +89,34 @@ def test_rows_wrap_instead_of_being_cut():
     panels.draw_rows(col, rows)
     assert all(len(line) <= panels.SIDEBAR_CHARS for line in col.lines)
     assert " ".join(col.lines).split() == "Energy max β (sum): 55.0 ± 5.3° at range edge deg-6 fit Time: 3.2 s".split()
+
+
+def test_estimator_goes_into_the_visibility_request(tmp_path):
+    """The Visibility box's Estimator is the sweep's --estimator: kernel by default, nee on request."""
+    scene, s = _setup(tmp_path)
+    names = ["Polyp", "Tissue"]
+    assert s.view_estimator == "KERNEL"
+    assert sweep_answer.visibility_request(s, names, "test")["estimator"] == "kernel"
+    s.view_estimator = "NEE"
+    req = sweep_answer.visibility_request(s, names, "test")
+    assert req == {"target": "Polyp", "background": "Tissue", "width": 32, "height": 32, "estimator": "nee"}
+
+
+@pytest.mark.slow
+def test_next_event_sweep_answers_from_its_own_tallies(ep, tmp_path):
+    """Estimator = Next Event: every β's view comes from runs with the camera tally (no white pass), the
+    report says so, and the panel's answer is there."""
+    scene, s = _setup(tmp_path)
+    s.betas, s.view_size, s.view_estimator = "0,30", 16, "NEE"
+    assert bpy.ops.endophoton.sweep_beta() == {"FINISHED"}
+    summary = scene[sweep_job.SUMMARY_KEY].to_dict()
+    assert summary["visibility_answer"]
+    with open(os.path.join(s.output_dir, "report.md"), encoding="utf-8") as f:
+        report = f.read()
+    assert "`nee` estimator's own tallies" in report and "white pass" not in report
+    with open(os.path.join(s.output_dir, "sweep.csv"), encoding="utf-8") as f:
+        header, *lines = f.read().splitlines()
+    cols = header.split(",")
+    for line in lines:
+        row = dict(zip(cols, line.split(",")))
+        assert row["white_packets"] == row["view_packets"] == row["packets_traced"]

@@ -120,9 +120,10 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     parser.add_argument(
         "--estimator",
         default=None,
-        choices=("kernel",),
-        help="the view's camera estimator: kernel (the records' kernel estimate, the only one a store-N sweep "
-        "can use; the camera tally 'nee' is the render command's)",
+        choices=("kernel", "nee"),
+        help="the view's camera estimator: kernel (default: the records' kernel estimate) or nee (the "
+        "next-event estimate, unbiased: each beta's view from runs of its own with the camera tally, "
+        "as many packets as the store run, topped up by --target-contrast; about 6x their time)",
     )
     parser.add_argument("--view-size", type=int, default=128, help="view width = height in pixels (default 128)")
     parser.add_argument(

@@ -345,11 +345,11 @@ def _contrast_target(target, visibility):
 
     checked = contrast_target(target, "target")
     estimator = (visibility or {}).get("estimator")
-    if estimator not in (None, "kernel", "auto"):
+    if estimator not in (None, "kernel", "auto", "nee"):
         raise ValueError(
-            f"visibility['estimator'] = {estimator!r}: a sweep renders each β from its records (the kernel "
-            "estimate); the camera tally ('nee') needs a fixed-count run of its own (ep.run(..., view=True), "
-            "the render command), which a store-N sweep does not make"
+            f"visibility['estimator'] = {estimator!r}: a sweep renders each β with the kernel estimate "
+            "('kernel', from its records; 'auto' is the same there) or the next-event estimate ('nee', from "
+            "runs of its own with the camera tally)"
         )
     if checked is not None and visibility is None:
         raise ValueError(f"target = {target!r} needs a view: give visibility={{'target': ..., 'background': ...}}")

@@ -9,6 +9,12 @@
   fluorescent records: never the same records, by construction. A run that kept every exit
   (``--all-photons``) gives both images itself (the white image all its records, the fluorescence image its
   fluorescent ones). An estimator that tallies all the light itself (``estimator="nee"``) needs no pass.
+* **The next-event estimate in a sweep** (``estimator="nee"``): a store run has no camera tally (the tally
+  needs a fixed packet count), so each β's view comes from runs of its own with ``ep.run(..., view=...)``:
+  a first run of ``white_packets`` packets (default: as many as the store run traced), then the top-ups. Their
+  tallies are added batch by batch (:class:`_Tally`): batch b of the sum holds batch b of every run, so the
+  batches stay independent and equal within a packet, and both images (white and fluorescence) come from
+  the same tally of all the light.
 * **Sweeps to a target accuracy on the answer** (:class:`ContrastTarget`, ``ep.sweep(target=("red_green",
   0.05))``): after the store run, the image the criterion reads is topped up with runs of its own seed
   (:func:`piece_seed`; packet indices continue after the packets before them, so the batches stay contiguous
@@ -26,8 +32,10 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from ..analysis.batches import batch_index
 from ..io import check_int, check_real, no_nan
-from ..view.render import kernel_candidates, render_view
+from ..view.nee import view_request
+from ..view.render import _resolve_camera, kernel_candidates, render_view
 from ..view.visibility import SURROUND_PX, contrast
 
 __all__ = [
@@ -176,22 +184,75 @@ class _Records:
         self.cancelled = self.cancelled or bool(getattr(res, "cancelled", False))
 
 
+class _Tally:
+    """The camera tallies behind one image of the next-event estimate, as ``render_view`` reads a result: the
+    runs' per-pixel, per-batch sums, spectra and counters added, with the packets of each batch
+    (``camera_packets_per_batch``: batch b holds batch b of every run). An aperture camera's records (its
+    reference images) are appended as :class:`_Records` appends them."""
+
+    _ARRAYS = ("sums", "spectrum")
+
+    def __init__(self, res):
+        self.scene, self.source, self.options = res.scene, res.source, getattr(res, "options", {})
+        self.spectral, self.view_request = getattr(res, "spectral", True), res.view_request
+        self.camera_image = {k: (np.array(v) if k in self._ARRAYS else int(v)) for k, v in res.camera_image.items()}
+        self.escapes = None if res.escapes is None else {k: np.asarray(v) for k, v in res.escapes.items()}
+        self.packets_traced = self.photons = _packets_of(res)
+        self.camera_packets_per_batch = self._batches(res)
+        self.cancelled = bool(getattr(res, "cancelled", False))
+
+    def _batches(self, res) -> np.ndarray:
+        return batch_index(np.zeros(0, dtype=np.int64), self.view_request["n_batches"], _packets_of(res))[1]
+
+    def add(self, res, keep=None) -> None:
+        for k, v in res.camera_image.items():
+            if k in self._ARRAYS:
+                self.camera_image[k] += v
+            else:
+                self.camera_image[k] += int(v)
+        if self.escapes is not None:
+            esc = {k: np.asarray(v) for k, v in res.escapes.items()}
+            esc["packet"] = esc["packet"].astype(np.uint64) + np.uint64(self.packets_traced)
+            self.escapes = {k: np.concatenate([self.escapes[k], esc[k]]) for k in self.escapes}
+        self.camera_packets_per_batch = self.camera_packets_per_batch + self._batches(res)
+        self.packets_traced = self.photons = self.packets_traced + _packets_of(res)
+        self.cancelled = self.cancelled or bool(getattr(res, "cancelled", False))
+
+
+def _nee_request(source, render_kwargs: Mapping) -> tuple[dict, bool]:
+    """The ``view=`` request of a next-event run that ``render_view(**render_kwargs)`` can render (the camera,
+    size, batches, light and filter it names), and whether the run must record escapes (an aperture camera's
+    reference images read them)."""
+    keys = ("camera", "width", "height", "n_batches", "excitation", "emission_filter", "white_balance")
+    req = view_request(**{k: render_kwargs[k] for k in keys if k in render_kwargs})
+    if "memory_budget_bytes" in render_kwargs:
+        req["memory_budget_bytes"] = render_kwargs["memory_budget_bytes"]
+    camera, _, _ = _resolve_camera(source, req["camera"], req["width"], req["height"])
+    return req, camera.aperture_radius > 0
+
+
 def _packets_of(res) -> int:
     p = int(getattr(res, "packets_traced", 0) or 0)
     return p if p > 0 else int(res.photons)
 
 
 def _records_estimator(render_kwargs: Mapping) -> bool:
-    """Whether the view's estimator makes its images from the run's records (the kernel estimate)."""
-    return render_kwargs.get("estimator", "kernel") in ("kernel", None)
+    """Whether the view's estimator makes its images from the run's records (the kernel estimate; "auto" is it
+    in a sweep, whose store runs have no camera tally)."""
+    return render_kwargs.get("estimator", "kernel") in ("kernel", "auto", None)
+
+
+def _nee_estimator(render_kwargs: Mapping) -> bool:
+    """Whether the view's estimator is the next-event camera tally (runs of its own, :class:`_Tally`)."""
+    return render_kwargs.get("estimator") == "nee"
 
 
 class _Image:
     """One image's records, its view, and the extra runs that grow it."""
 
-    def __init__(self, name, records, render_kwargs, run_more, seed):
+    def __init__(self, name, records, render_kwargs, run_more, seed, pieces=0, nee=None):
         self.name, self.records, self.kw, self.run_more, self.seed = name, records, dict(render_kwargs), run_more, seed
-        self.pieces = 0
+        self.pieces, self.nee = pieces, nee  # nee: the next-event runs' (view request, record_escapes)
         self.view = render_view(records, **self.kw)
         self.keep = None
         if _records_estimator(self.kw) and self.view.aperture is None:
@@ -205,7 +266,11 @@ class _Image:
         left = int(packets)
         while left > 0 and not self.records.cancelled:
             n = min(left, PIECE_PACKETS)
-            res = self.run_more(n, piece_seed(self.seed, self.name, self.pieces), fluorescent_only)
+            seed = piece_seed(self.seed, self.name, self.pieces)
+            if self.nee is not None:
+                res = self.run_more(n, seed, False, view=self.nee[0], record_escapes=self.nee[1])
+            else:
+                res = self.run_more(n, seed, fluorescent_only)
             self.pieces += 1
             if self.keep is not None and self.pieces == 1:
                 self.records.keep(self.keep(self.records.escapes))
@@ -274,9 +339,13 @@ def view_of_beta(
     **render_kwargs,
 ) -> tuple[dict, Any]:
     """The visibility columns of one β's run ``result`` and the view to save (its white image from the
-    white-light records). ``run_more(packets, seed, fluorescent_only)`` runs the same scene and rig again
-    (the white pass, the top-ups). Returns ``(columns, view)``; columns None where undefined."""
-    fl = _Image("fluorescence", _Records(result), render_kwargs, run_more, seed)
+    white-light records). ``run_more(packets, seed, fluorescent_only, view=None, record_escapes=True)`` runs the
+    same scene and rig again (the white pass, the next-event runs, the top-ups). Returns ``(columns, view)``; columns None where undefined.
+    """
+    if _nee_estimator(render_kwargs):
+        fl = _nee_image(result, render_kwargs, run_more, seed, white_packets)
+    else:
+        fl = _Image("fluorescence", _Records(result), render_kwargs, run_more, seed)
     cols = {"target_pixels": fl.view.pixels_of(target, "target"), "view_packets": fl.records.packets_traced}
     if background is not None:
         fl.view.pixels_of(background, "background")  # an unknown region is an error, out of view is not
@@ -311,6 +380,15 @@ def view_of_beta(
         cols["view_packets"], cols["white_packets"] = fl.records.packets_traced, wh.records.packets_traced
     cols["cancelled"] = int(fl.records.cancelled or wh.records.cancelled)
     return no_nan(cols), _saved_view(fl, wh)
+
+
+def _nee_image(result, render_kwargs, run_more, seed, white_packets) -> _Image:
+    """The next-event image of one β: a run of ``white_packets`` packets (None: as many as ``result``, the
+    store run, traced) with the camera tally, the first piece of the fluorescence image's stream."""
+    req, with_records = _nee_request(result.source, render_kwargs)
+    n = _packets_of(result) if white_packets is None else int(white_packets)
+    first = run_more(n, piece_seed(seed, "fluorescence", 0), False, view=req, record_escapes=with_records)
+    return _Image("fluorescence", _Tally(first), render_kwargs, run_more, seed, pieces=1, nee=(req, with_records))
 
 
 def _saved_view(fl: _Image, wh: _Image):

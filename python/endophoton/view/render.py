@@ -799,7 +799,7 @@ def render_view(
     nee_counters = None
     if estimator == "nee":
         sums, spectrum, nee_counters = _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance)
-        _, Pb = batch_index(np.zeros(0, dtype=np.int64), n_batches, P)
+        Pb = _nee_packets_per_batch(result, n_batches, P)
         acc = _nee_acc(sums, spectrum, hit, preg, n_regions)
         rec = dict(nbins=spectrum.shape[2], energy={}, Pb=Pb)
         n_candidates = int(nee_counters["scored"])
@@ -992,6 +992,21 @@ def _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance):
         for k in ("events", "thinned", "scored", "occluded", "unresolved", "crossing", "looked_back", "covered")
     }
     return img["sums"], img["spectrum"], counters
+
+
+def _nee_packets_per_batch(result, n_batches, P) -> np.ndarray:
+    """The packets of each of the camera tally's batches: a run's contiguous blocks (``batch_index``), or,
+    for tallies of several runs added batch by batch (a sweep's next-event view), their own
+    ``camera_packets_per_batch``."""
+    Pb = getattr(result, "camera_packets_per_batch", None)
+    if Pb is None:
+        return batch_index(np.zeros(0, dtype=np.int64), n_batches, P)[1]
+    Pb = np.asarray(Pb, dtype=np.int64)
+    if Pb.shape != (n_batches,) or int(Pb.sum()) != P:
+        raise ValueError(
+            f"result.camera_packets_per_batch = {Pb.tolist()} must hold n_batches = {n_batches} counts summing to {P}"
+        )
+    return Pb
 
 
 def _nee_acc(sums, spectrum, hit, preg, n_regions):
