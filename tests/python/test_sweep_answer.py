@@ -280,3 +280,24 @@ def test_report_words_the_seeds_and_the_records():
     text = visibility_report(betas, rows, "Polyp", "Colon", seed_per_beta=True, surround_px=8, meta={})
     assert "every β ran with a seed of its own" in text and "ring of 8 pixels" in text and "white pass" in text
     assert "flat within ±" in text
+
+
+def test_answer_reads_the_criterion_the_sweep_ran_to():
+    """The report's answer uses the target's colour criterion (camera channels here), also under blue light,
+    where the sRGB red/green contrast is undefined; without a target under white light it stays sRGB."""
+    betas = [0.0, 10.0, 20.0, 30.0, 40.0, 50.0]
+    peaked = [1 - ((b - 30) / 30) ** 2 for b in betas]
+    rows = [
+        {"red_green_camera_contrast": y, "red_green_camera_contrast_stderr": 0.01, "red_green_contrast": None}
+        for y in peaked
+    ]
+    meta = {"contrast_target": {"criterion": "red_green_camera", "stderr": 0.05, "max_packets": 10**6}}
+    text = visibility_report(betas, rows, "Polyp", "Colon", meta=meta)
+    assert (
+        "**Answer.** By the red/green contrast in the camera's channels" in text and "most visible at β = 30." in text
+    )
+    blue = visibility_report(betas, rows, "Polyp", "Colon", meta={"light": "blue405"})
+    assert "By the red/green contrast in the camera's channels" in blue
+    white = visibility_report(betas, rows, "Polyp", "Colon", meta={})
+    assert "Too few β values with a defined red/green contrast to locate a maximum." in white
+    assert "packets per β n/a" in text

@@ -304,13 +304,23 @@ def _peak_sentence(f, label: str) -> str:
     )
 
 
-def _answer(fits) -> str:
-    """The report's answer: from the red/green contrast when it varies with beta; else it says so,
-    and the other criteria that do vary answer in its place."""
-    rg = fits["red_green_contrast"]
+#: The answer's words for the colour criteria (the table's names for the others).
+_ANSWER_LABELS = {
+    "red_green_contrast": "red/green contrast (photofrin's red fluorescence against the wall)",
+    "red_green_camera_contrast": "red/green contrast in the camera's channels (photofrin's red fluorescence "
+    "against the wall)",
+}
+
+
+def _answer(fits, meta=None) -> str:
+    """The report's answer: from the sweep's colour criterion (:func:`_light_criterion`: the one a target sweep
+    ran to, else the camera channels under blue light and sRGB under white) when it varies with beta; else it
+    says so, and the Weber contrasts that do vary answer in its place."""
+    key, name = _light_criterion(meta)
+    rg = fits[key]
     if rg["x_peak"] is None:
-        return "Too few β values with a defined red/green contrast to locate a maximum."
-    label = "red/green contrast (photofrin's red fluorescence against the wall)"
+        return f"Too few β values with a defined {name} to locate a maximum."
+    label = _ANSWER_LABELS.get(key, name)
     if _varies(rg):
         return "**Answer.** " + _peak_sentence(rg, label)
     text = (
@@ -319,9 +329,9 @@ def _answer(fits) -> str:
         f"{ALPHA:g}), so its largest value, at β = {rg['x_max']:g}°, is noise, and it can neither confirm "
         "nor rule out the paper's 34°."
     )
-    for key, other in _CRITERIA[2:4]:
-        f = fits[key]
-        if f["x_peak"] is not None and _varies(f):
+    for other_key, other in _CRITERIA[2:4]:
+        f = fits[other_key]
+        if other_key != key and f["x_peak"] is not None and _varies(f):
             text += " " + _peak_sentence(f, other)
     return text
 
@@ -358,20 +368,16 @@ def _target_words(rows, meta) -> str:
     t = (meta or {}).get("contrast_target")
     if not t:
         return ""
-    key = {
-        "red_green": "red_green_contrast",
-        "red_green_camera": "red_green_camera_contrast",
-        "fluorescence": "fluorescence_contrast",
-        "white": "white_contrast",
-    }[t["criterion"]]
+    key = view_runs.CRITERIA[t["criterion"]][0]
     se = _column(rows, key + "_stderr")
     reached = sum(1 for r in rows if r.get("target_reached") == 1)
     packets = _column(rows, "view_packets" if t["criterion"] != "white" else "white_packets")
     worst = f"{np.nanmax(se):.3g}" if np.isfinite(se).any() else "n/a"
+    spread = f"{np.nanmin(packets):,.0f}–{np.nanmax(packets):,.0f}" if np.isfinite(packets).any() else "n/a"
     return (
         f"Target: each β ran until the {t['criterion']} contrast's standard error was ≤ {t['stderr']:g} or "
         f"{t['max_packets']:,} packets were behind its image; {reached} of {len(rows)} β reached it (largest "
-        f"stderr {worst}; packets per β {np.nanmin(packets):,.0f}–{np.nanmax(packets):,.0f})."
+        f"stderr {worst}; packets per β {spread})."
     )
 
 
@@ -418,7 +424,7 @@ def visibility_report(
             f"| {label} | {criterion_answer(f, rows, key, betas)} | {_fmt(f['x_peak'])}° | "
             f"{_fmt(f['x_peak_stderr'])}° | {_fmt(f['x_peak_lo'])}–{_fmt(f['x_peak_hi'])}° | {varies} | {worst} |"
         )
-    lines += ["", _answer(fits)]
+    lines += ["", _answer(fits, meta)]
     if surround_px is not None and np.isfinite(_column(rows, "region_red_green_contrast")).any():
         lines += ["", _surround_words(betas, rows, background, surround_px)]
     return "\n".join(lines) + "\n"
