@@ -328,7 +328,7 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
     )
     view_estimator: EnumProperty(
         name="View Estimator",
-        description="How the endoscope view of every β is estimated (the command line's --estimator, " "docs/sweep.md)",
+        description="How the endoscope view of every β is estimated (the command line's --estimator, docs/sweep.md)",
         items=[
             (
                 "KERNEL",

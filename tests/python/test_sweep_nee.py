@@ -155,3 +155,20 @@ def test_lights_report_names_each_estimator_and_compares_only_like_with_like():
     assert "shows the polyp more clearly" not in mixed
     assert "white pass" in _records_words({"visibility": {"estimator": "auto"}})
     assert "`nee` estimator's own tallies" in _records_words({"visibility": {"estimator": "nee"}})
+
+
+@pytest.mark.parametrize("estimator", ["kernel", "nee"])
+@pytest.mark.parametrize("bad", [float("nan"), -5, 3, "x", True])
+def test_white_packets_is_checked_by_name_before_any_run(estimator, bad, monkeypatch):
+    """visibility['white_packets'] (the white pass's or the first next-event run's packets) must be an integer
+    of at least the view's batches (20 by default); else a ValueError naming it, before the store run."""
+    vis = {"target": "polyp", "background": "tissue", "estimator": estimator, "white_packets": bad}
+    monkeypatch.setattr(sw, "run", lambda *a, **k: pytest.fail("the store run started"))
+    with pytest.raises(ValueError, match=r"visibility\['white_packets'\] = .* must be"):
+        sw.sweep(
+            ep.default_flat_scene(),
+            betas=[0],
+            store=100,
+            progress=False,
+            visibility=vis,
+        )

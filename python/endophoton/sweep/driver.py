@@ -340,10 +340,17 @@ def _check_live(live, client, run_kwargs: dict) -> None:
 
 
 def _contrast_target(target, visibility):
-    """:func:`sweep`'s ``target`` as a ``view_runs.ContrastTarget`` (None without one); a target needs a view."""
+    """:func:`sweep`'s ``target`` as a ``view_runs.ContrastTarget`` (None without one); a target needs a view.
+    Checks the view's estimator and ``white_packets`` (a count of at least the view's batches) before any run."""
+    from ..view.render import DEFAULT_VIEW_BATCHES
     from .view_runs import contrast_target
 
     checked = contrast_target(target, "target")
+    white_packets = (visibility or {}).get("white_packets")
+    if white_packets is not None:
+        batches = (visibility or {}).get("n_batches", DEFAULT_VIEW_BATCHES)
+        lo = batches if isinstance(batches, int) and not isinstance(batches, bool) and batches > 0 else 1
+        check_int("visibility['white_packets']", white_packets, lo, 2**62)
     estimator = (visibility or {}).get("estimator")
     if estimator not in (None, "kernel", "auto", "nee"):
         raise ValueError(

@@ -340,8 +340,8 @@ def view_of_beta(
 ) -> tuple[dict, Any]:
     """The visibility columns of one β's run ``result`` and the view to save (its white image from the
     white-light records). ``run_more(packets, seed, fluorescent_only, view=None, record_escapes=True)`` runs the
-    same scene and rig again (the white pass, the next-event runs, the top-ups). Returns ``(columns, view)``; columns None where undefined.
-    """
+    same scene and rig again (the white pass, the next-event runs, the top-ups). Returns ``(columns, view)``;
+    columns None where undefined."""
     if _nee_estimator(render_kwargs):
         fl = _nee_image(result, render_kwargs, run_more, seed, white_packets)
     else:

@@ -338,15 +338,13 @@ def _answer(fits, meta=None) -> str:
 
 def _estimator(meta) -> str:
     """The sweep's camera estimator: "nee", or "kernel" (also for "auto": a store run has no camera tally)."""
-    vis = dict((meta or {}).get("visibility") or {})
-    return "nee" if vis.get("estimator") == "nee" else "kernel"
+    return "nee" if view_runs._nee_estimator(dict((meta or {}).get("visibility") or {})) else "kernel"
 
 
 def _records_words(meta) -> str:
     """Which records make each image (the report says so)."""
     if _estimator(meta) == "nee":
-        vis = dict((meta or {}).get("visibility") or {})
-        return f"Both images come from the `{vis['estimator']}` estimator's own tallies of all the light and of the fluorescent light."
+        return "Both images come from the `nee` estimator's own tallies of all the light and of the fluorescent light."
     if (meta or {}).get("fluorescent_only", True):
         return (
             "The fluorescence image (and the red/green contrast) is made of the store run's fluorescent records; "

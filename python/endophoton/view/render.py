@@ -64,6 +64,8 @@ _CHUNK_PIXELS = 4096
 #: The k-nearest estimate's default k (render_view's ``knn_k``), chosen by measurement (docs/render.md,
 #: "k-nearest estimate"), and its largest allowed value.
 KNN_K = 32
+#: Batches of the view's batch-means standard errors unless a call names n_batches.
+DEFAULT_VIEW_BATCHES = 20
 MAX_KNN_K = 4096
 #: The most pixel-record pairs one block of the k-nearest search holds (~80 bytes each: ~40 MiB).
 _KNN_BLOCK_PAIRS = 2**19
@@ -742,7 +744,7 @@ def render_view(
     emission_filter="auto",
     white_balance="white",
     exposure="auto",
-    n_batches: int = 20,
+    n_batches: int = DEFAULT_VIEW_BATCHES,
     threads: int = 0,
     estimator: str = "auto",
     knn_k: int = KNN_K,
