@@ -283,6 +283,7 @@ def sections(R):
         + "\n## 17. Look-back next event (issue 34; frozen, 2026-12-06)\n\n" + frozen("lookback")
         + "\n## 18. Packets in vector lanes (issue 39; frozen, 2026-12-06)\n\n" + frozen("lanes")
         + "\n## 19. The colon sweep by estimator (issue 34; frozen, 2026-12-06)\n\n" + frozen("sweep_estimators")
+        + "\n## 20. The exitance estimate (issue 34; frozen, 2026-12-06)\n\n" + frozen("exitance")
     )  # fmt: skip
 
 

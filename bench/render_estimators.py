@@ -12,8 +12,8 @@ seconds of run + render (process time, all threads), the polyp's red/green contr
 with its batch-means stderr, the figure of merit FOM = 1 / (stderr^2 x CPU s), the share of tissue
 pixels whose white radiance has a relative stderr <= 20 % and the share left at exactly 0, and the
 run's packets per CPU second. A third run (no records, no camera) gives the throughput without either.
-``--estimators kernel,knn,nee``: knn (the k-nearest estimate) renders the kernel run's records, so its CPU
-seconds are that run's plus its own render. ``nee-lookback``: the next-event estimate with the look-back
+``--estimators kernel,knn,exitance,nee``: knn (the k-nearest estimate) and exitance (the exitance estimate)
+render the kernel run's records, so their CPU seconds are that run's plus their own render. ``nee-lookback``: the next-event estimate with the look-back
 (docs/render.md "Look-back next event"; its proposal's share --alpha aimed at the camera, that lobe's HG --g-b).
 """
 from __future__ import annotations
@@ -98,7 +98,7 @@ def measure(
     return out
 
 
-NAMES = ("kernel", "knn", "nee", "nee-lookback")
+NAMES = ("kernel", "knn", "exitance", "nee", "nee-lookback")
 
 
 def _num(x, digits: int) -> str:
@@ -139,7 +139,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument(
-        "--estimators", default="kernel,nee", help="comma-separated: kernel, knn, nee, nee-lookback (kernel first)"
+        "--estimators",
+        default="kernel,nee",
+        help="comma-separated: kernel, knn, exitance, nee, nee-lookback (kernel first)",
     )
     ap.add_argument("--tau-cut", type=float, default=3.0)
     ap.add_argument("--size", type=int, default=128, help="image width = height in pixels")

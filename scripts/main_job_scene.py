@@ -6,7 +6,8 @@ Run inside Blender on blend_scenes/flat_tissue.blend:
 
 It sets the rig's beta, runs the engine through the add-on (surface point cloud
 and volume grids), saves DIR/scene_beta<B>.blend, renders DIR/render_beta<B>.png
-with Cycles and appends what it made, with the run's totals, to DIR/report.md.
+with Cycles and appends what it made, with the run's totals, to DIR/report.md
+(--section FILE: writes that section to FILE instead, for a caller that appends it later).
 """
 import argparse
 import math
@@ -25,6 +26,7 @@ def main(argv):
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--voxel", type=float, default=0.0004, help="voxel size in metres")
     ap.add_argument("--samples", type=int, default=32)
+    ap.add_argument("--section", default=None, help="write the report's section to this file (default: append)")
     args = ap.parse_args(argv)
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
@@ -89,11 +91,14 @@ def main(argv):
             lines.append(f"- {k}: {getattr(result, k):.5f} +- {getattr(result, k + '_stderr'):.5f}")
         if result.grid_path:
             lines.append(f"- Volume grids: `{os.path.basename(result.grid_path)}` ({', '.join(result.grid_names)})")
-    report = os.path.join(out, "report.md")
-    text = open(report, encoding="utf-8").read() if os.path.exists(report) else "# EndoPhoton main job\n"
     from endophoton.io import atomic_write_text  # the package the add-on runs (found by enable_addon)
 
-    atomic_write_text(report, text.rstrip("\n") + "\n" + "\n".join(lines) + "\n")
+    if args.section is not None:
+        atomic_write_text(args.section, "\n".join(lines) + "\n")
+    else:
+        report = os.path.join(out, "report.md")
+        text = open(report, encoding="utf-8").read() if os.path.exists(report) else "# EndoPhoton main job\n"
+        atomic_write_text(report, text.rstrip("\n") + "\n" + "\n".join(lines) + "\n")
     print(f"main job scene: {blend_path}, {render.filepath}")
 
 

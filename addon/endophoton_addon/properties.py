@@ -337,6 +337,13 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
                 "footprints of the point (fast; the kernel's size biases small bright features)",
             ),
             (
+                "EXITANCE",
+                "Exitance",
+                "From each β's records: every record that leaves near the point, times its region's angular "
+                "share toward the camera, calibrated by the records that go there: no more packets, 4–6× "
+                "the kernel's efficiency on the colour contrast, agrees with the unbiased estimates within noise",
+            ),
+            (
                 "NEE",
                 "Next Event",
                 "From runs of each β's own that score every scattering event into the camera (the look-back "
@@ -486,6 +493,13 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
                 "k-Nearest",
                 "Each pixel's kernel grows until it holds 32 records: no tissue pixel is left "
                 "black; biased where the light changes within the kernel (docs/performance.md §14)",
+            ),
+            (
+                "EXITANCE",
+                "Exitance",
+                "Every record that leaves near the point, times its region's angular share toward the camera, "
+                "calibrated by the records that go there: no tissue pixel left black, most pixels within 20 %; "
+                "agrees with the unbiased estimates within noise (docs/render.md, docs/performance.md §20)",
             ),
             (
                 "NEE",

@@ -437,7 +437,7 @@ def test_render_cli_sizes_and_targets_give_json_or_exit_2_before_the_run(
     if target is not None:
         argv += ["--target", target, "--background", "polyp"]
     valid = size.lstrip("-").isdigit() and 1 <= int(size) <= 8192 and target != "nope"
-    if valid and int(size) == 8192:  # 8192 x 128 with the run's camera tally: beyond the 4 GiB budget
+    if valid and int(size) == 8192:  # 8192 x 128: beyond the 4 GiB budget (view.budget)
         code, out, err = _cli_outcome(argv, capsys)
         assert code == 2 and "more than the memory budget" in err, (argv, code, err)
         return

@@ -65,21 +65,27 @@ def test_the_runs_camera_tally_is_refused_before_the_run(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "n_batches,aperture",
-    [pytest.param(2, False, marks=pytest.mark.slow), (20, True), pytest.param(50, False, marks=pytest.mark.slow)],
+    "n_batches,aperture,estimator",
+    [
+        pytest.param(2, False, "kernel", marks=pytest.mark.slow),
+        (20, True, "kernel"),
+        pytest.param(50, False, "kernel", marks=pytest.mark.slow),
+        (20, False, "exitance"),
+    ],
 )
-def test_the_estimate_bounds_the_measured_peak(n_batches, aperture):
+def test_the_estimate_bounds_the_measured_peak(n_batches, aperture, estimator):
     """The stated estimate is an upper bound of the render's peak memory (tracemalloc), and not a loose one.
     Many records per pixel here (10,000 on 4 cm^2, radius 0.1 cm): the pairs in flight are bounded too."""
     res = _plane_result(10_000)
     cam = Camera.look_at((0, 0, 2), (0, 0, 0), up=(0, 1, 0), fov_deg=30, aperture_radius=0.2 if aperture else 0.0)
     tracemalloc.start()
     try:
-        render_view(res, cam, 96, 64, kernel_radius=0.1, n_batches=n_batches)
+        render_view(res, cam, 96, 64, kernel_radius=0.1, n_batches=n_batches, estimator=estimator)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    need = budget.render_memory_bytes(96, 64, n_batches, records=len(res.escapes["weight"]), aperture=aperture)
+    records = len(res.escapes["weight"])
+    need = budget.render_memory_bytes(96, 64, n_batches, records, aperture, exitance=estimator == "exitance")
     assert peak <= need, (peak, need)
     assert need < 3.0 * peak, (peak, need)  # the pairs' term is a bound (16 MiB) the records here do not reach
 

@@ -87,6 +87,7 @@ def test_render_cli_writes_images_arrays_and_json(tmp_path):
     assert p.stdout.strip().count("\n") == 0
     d = json.loads(p.stdout)
     assert (d["width"], d["height"]) == (20, 14)
+    assert d["estimator"] == "exitance"  # the default: the most efficient estimate that passes the cross-checks
     assert set(d["regions"]) == {"wall", "polyp"}
     for r in d["regions"].values():
         assert REGION_KEYS <= set(r)
@@ -202,7 +203,7 @@ def test_look_back_is_a_way_of_the_next_event_estimate(tmp_path):
     scene = copy.deepcopy(SCENE)
     for r in scene["regions"]:
         r["medium"]["g"] = 0.9  # the look-back's mixture leans on forward scattering
-    common = ("--photons", "3000", "--width", "6", "--height", "6", "--threads", "1")
+    common = ("--photons", "3000", "--width", "6", "--height", "6", "--threads", "1", "--estimator", "nee")
     counts = {}
     for flag in (("--no-look-back",), ()):
         p = _render(tmp_path, scene, *common, "--out", str(tmp_path / f"o{len(flag)}"), *flag)

@@ -5,9 +5,6 @@ aperture camera and the kernel estimate, each from an independent run (another s
 a flat field (uniform slab), the polyp scene and the colon. Fast checks: the request's errors, the
 refusal of a non-spectral run, and bit-identical images on any thread count.
 """
-import importlib.util
-import math
-import os
 import re
 
 import numpy as np
@@ -20,8 +17,7 @@ from endophoton.view.render import render_view
 from physics_helpers import K_SIGMA, chi2_limit
 
 from _synth import polyp_box_scene
-
-HERE = os.path.dirname(os.path.abspath(__file__))
+from _view_checks import aperture_region_chi2, colon_scene, pixel_chi2
 
 
 def _slab(mua=1.0, mus=10.0, g=0.0, n=1.0):
@@ -32,21 +28,6 @@ def _slab(mua=1.0, mus=10.0, g=0.0, n=1.0):
 
 def _disk(radius=3.0):
     return ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=radius)
-
-
-def _colon():
-    spec = importlib.util.spec_from_file_location(
-        "colon_scene", os.path.join(HERE, "..", "..", "bench", "colon_scene.py")
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.colon_scene(beta_deg=20.0)
-
-
-def _pixel_chi2(a, sa, b, sb, rel=0.25):
-    """Chi-square of two images over the pixels where both have converged to ``rel`` relative error."""
-    ok = (sa < rel * a) & (sb < rel * b)
-    return float(np.sum((a - b)[ok] ** 2 / (sa[ok] ** 2 + sb[ok] ** 2))), int(ok.sum())
 
 
 def _region_chi2(va, vb, keys=("white", "fluorescence")):
@@ -68,13 +49,13 @@ def _assert_agree(nee, other, image="white", min_pixels=20, power=True):
     chi-square over pixels, and over regions, within the suite's per-comparison limit."""
     img = other.aperture[image] if other.aperture is not None else other.images[image]
     n = nee.images[image]
-    chi, dof = _pixel_chi2(n["radiance"], n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
+    chi, dof = pixel_chi2(n["radiance"], n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
     assert dof >= min_pixels, dof
     assert chi < chi2_limit(dof), (chi, dof)
     if not power:
         return
     # power: a 20 % scale error is seen
-    bad, dof_bad = _pixel_chi2(1.2 * n["radiance"], 1.2 * n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
+    bad, dof_bad = pixel_chi2(1.2 * n["radiance"], 1.2 * n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
     assert bad > chi2_limit(dof_bad), (bad, dof_bad)
 
 
@@ -225,7 +206,7 @@ def _look_back_chi2(photons, **look_back):
     out = []
     for image in ("white", "fluorescence"):
         x, y = a.images[image], b.images[image]
-        out.append(_pixel_chi2(x["radiance"], x["radiance_stderr"], y["radiance"], y["radiance_stderr"]))
+        out.append(pixel_chi2(x["radiance"], x["radiance_stderr"], y["radiance"], y["radiance_stderr"]))
     out.append(_region_chi2(a, b))
     return out
 
@@ -288,28 +269,13 @@ def test_flat_field_agrees_with_aperture_and_kernel(look_back):
     other = render_view(ep.run(scene, src, photons=300_000, seed=2, spectral=True), cam, 6, 6, estimator="kernel")
     _assert_agree(nee, other)
     k = other.images["white"]
-    chi, dof = _pixel_chi2(
+    chi, dof = pixel_chi2(
         nee.images["white"]["radiance"],
         nee.images["white"]["radiance_stderr"],
         k["radiance"],
         np.hypot(k["radiance_stderr"], np.abs(k["bias"])),
     )
     assert dof >= 20 and chi < chi2_limit(dof), (chi, dof)
-
-
-def _aperture_region_chi2(nee, other, regions, keys=("white", "fluorescence")):
-    """Chi-square of the next-event regions' mean radiances against the aperture image's (the mean of its
-    pixels in the region; its stderr from the pixels' stderrs, independent pixels)."""
-    ra = nee.regions()
-    chi, dof = 0.0, 0
-    for name in regions:
-        m = other.region_map == other.region_names.index(name)
-        for key in keys:
-            L, S = other.aperture[key]["radiance"][m], other.aperture[key]["radiance_stderr"][m]
-            sm = math.sqrt(float(np.sum(S**2))) / L.size
-            chi += (ra[name][key + "_radiance"] - L.mean()) ** 2 / (ra[name][key + "_radiance_stderr"] ** 2 + sm**2)
-            dof += 1
-    return chi, dof
 
 
 @pytest.mark.slow
@@ -334,7 +300,7 @@ def test_polyp_scene_agrees_with_aperture(look_back):
         ep.run(polyp_box_scene(), src, photons=300_000, seed=2, spectral=True), cam, 8, 8, estimator="kernel"
     )
     _assert_agree(nee, other)
-    chi, dof = _aperture_region_chi2(nee, other, ("wall", "polyp"))
+    chi, dof = aperture_region_chi2(nee, other, ("wall", "polyp"))
     assert chi < chi2_limit(dof), (chi, dof)
 
 
@@ -345,7 +311,7 @@ def test_colon_agrees_with_aperture(look_back):
     colon; white and fluorescence) and pixels agree with the aperture image (2 mm lens) of an independent
     run. (The kernel estimate does not converge on the polyp: its mean there is 1.9x the aperture's;
     docs/render.md.)"""
-    scene, rig = _colon()
+    scene, rig = colon_scene()
     cam = Camera.from_rig(rig, aperture_radius=0.002)
     run = ep.run(
         scene,
@@ -359,7 +325,7 @@ def test_colon_agrees_with_aperture(look_back):
     nee = render_view(run, cam, 16, 16)
     other = render_view(ep.run(scene, rig, 300_000, seed=2, spectral=True), cam, 16, 16, estimator="kernel")
     _assert_agree(nee, other, min_pixels=10, power=False)  # few converged aperture pixels: the regions test below
-    chi, dof = _aperture_region_chi2(nee, other, ("polyp", "colon"))
+    chi, dof = aperture_region_chi2(nee, other, ("polyp", "colon"))
     assert chi < chi2_limit(dof), (chi, dof)
 
 
@@ -394,7 +360,7 @@ def test_camera_bits_past_the_cache_budget():
     images, stores = [], []
     for cap_mb, threads in ((None, 1), (0.25, 2)):
         ep.forget_native_scenes()
-        scene, rig = _colon()
+        scene, rig = colon_scene()
         scene.cache_store_mb = cap_mb
         cam = Camera.from_rig(rig)
         run = ep.run(

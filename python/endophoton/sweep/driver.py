@@ -352,11 +352,11 @@ def _contrast_target(target, visibility):
         lo = batches if isinstance(batches, int) and not isinstance(batches, bool) and batches > 0 else 1
         check_int("visibility['white_packets']", white_packets, lo, 2**62)
     estimator = (visibility or {}).get("estimator")
-    if estimator not in (None, "kernel", "auto", "nee"):
+    if estimator not in (None, "kernel", "auto", "nee", "exitance"):
         raise ValueError(
             f"visibility['estimator'] = {estimator!r}: a sweep renders each β with the kernel estimate "
-            "('kernel', from its records; 'auto' is the same there) or the next-event estimate ('nee', from "
-            "runs of its own with the camera tally)"
+            "('kernel', from its records; 'auto' is the same there), the exitance estimate ('exitance', from "
+            "its records) or the next-event estimate ('nee', from runs of its own with the camera tally)"
         )
     if checked is not None and visibility is None:
         raise ValueError(f"target = {target!r} needs a view: give visibility={{'target': ..., 'background': ...}}")

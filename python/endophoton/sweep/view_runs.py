@@ -237,9 +237,10 @@ def _packets_of(res) -> int:
 
 
 def _records_estimator(render_kwargs: Mapping) -> bool:
-    """Whether the view's estimator makes its images from the run's records (the kernel estimate; "auto" is it
+    """Whether the view's estimator makes its images from the run's records (the kernel or the exitance
+    estimate; "auto" is the kernel
     in a sweep, whose store runs have no camera tally)."""
-    return render_kwargs.get("estimator", "kernel") in ("kernel", "auto", None)
+    return render_kwargs.get("estimator", "kernel") in ("kernel", "auto", None, "exitance")
 
 
 def _nee_estimator(render_kwargs: Mapping) -> bool:
@@ -255,7 +256,7 @@ class _Image:
         self.pieces, self.nee = pieces, nee  # nee: the next-event runs' (view request, record_escapes)
         self.view = render_view(records, **self.kw)
         self.keep = None
-        if _records_estimator(self.kw) and self.view.aperture is None:
+        if self.kw.get("estimator", "kernel") in ("kernel", "auto", None) and self.view.aperture is None:
             # fix the kernel (its default depends on the geometry only) and keep what it can use
             self.kw.setdefault("kernel_radius", self.view.kernel["radius"])
             r, a, cam = self.view.kernel["radius"], self.view.kernel["angle_deg"], self.view.camera.position

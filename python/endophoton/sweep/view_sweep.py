@@ -337,8 +337,12 @@ def _answer(fits, meta=None) -> str:
 
 
 def _estimator(meta) -> str:
-    """The sweep's camera estimator: "nee", or "kernel" (also for "auto": a store run has no camera tally)."""
-    return "nee" if view_runs._nee_estimator(dict((meta or {}).get("visibility") or {})) else "kernel"
+    """The sweep's camera estimator: "nee", "exitance", or "kernel" (also for "auto": a store run has no camera
+    tally)."""
+    vis = dict((meta or {}).get("visibility") or {})
+    if view_runs._nee_estimator(vis):
+        return "nee"
+    return "exitance" if vis.get("estimator") == "exitance" else "kernel"
 
 
 def _records_words(meta) -> str:

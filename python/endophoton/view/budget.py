@@ -27,6 +27,9 @@ RENDER_MEMORY_BUDGET_BYTES = 4 * 2**30
 _PER_BATCH, _PER_BIN, _PER_PIXEL = 20, 2.5, 110
 _APERTURE_PER_BATCH, _APERTURE_PER_BIN = 2, 1
 _PER_RECORD = 32  # doubles per escape record: positions, directions, colour tables, batch, filters
+# The exitance estimate's extra doubles per record (normals, regions, bands, its angular tables' Legendre rows and
+# calibration sums): measured 35 a record in all at 1.4 M records (tracemalloc, colon, 128^2), the kernel's 23.
+_EXITANCE_PER_RECORD = 8
 #: The most pixel-record pairs the kernel gather holds at once (render._pixel_chunks splits a chunk of pixels
 #: below it), so the pairs in flight take at most MAX_PAIRS_PER_CHUNK x _PAIR_BYTES whatever the kernel's size
 #: or the records' density.
@@ -35,13 +38,11 @@ _PAIR_BYTES = 256
 _TALLY_CHANNELS = 12  # the run's camera tally: (pixels, batches, 12) sums and (pixels, 2, bins) spectra
 
 
-def render_memory_bytes(
-    width: int, height: int, n_batches: int = 20, records: int = 0, aperture: bool = False, tally: bool = False
-) -> int:
+def render_memory_bytes(width, height, n_batches=20, records=0, aperture=False, tally=False, exitance=False) -> int:
     """Bytes a render of ``width`` x ``height`` pixels with ``n_batches`` batches will need at its peak,
-    over ``records`` escape records (0 when not yet known), with an ``aperture`` image, and with
-    ``tally`` the run's next-event camera tally (ep.run(..., view=...)) it reads. An upper bound of the
-    measured peak, not counting the run's own photon records."""
+    over ``records`` escape records (0 when not yet known), with an ``aperture`` image, with ``tally`` the
+    run's next-event camera tally (ep.run(..., view=...)) it reads, and with ``exitance`` the exitance
+    estimate. An upper bound of the measured peak, not counting the run's own photon records."""
     pixels = int(width) * int(height)
     B = int(n_batches)
     nbins = colour.spectrum_bins().size - 1
@@ -51,7 +52,8 @@ def render_memory_bytes(
     if tally:
         per_pixel += _TALLY_CHANNELS * B + 2 * nbins
     pairs = min(MAX_PAIRS_PER_CHUNK, pixels * int(records))
-    return int(math.ceil(8 * (pixels * per_pixel + int(records) * _PER_RECORD) + pairs * _PAIR_BYTES))
+    per_record = _PER_RECORD + (_EXITANCE_PER_RECORD if exitance else 0)
+    return int(math.ceil(8 * (pixels * per_pixel + int(records) * per_record) + pairs * _PAIR_BYTES))
 
 
 def check_render_memory(
@@ -63,6 +65,7 @@ def check_render_memory(
     tally: bool = False,
     memory_budget_bytes=None,
     names=("width", "height", "memory_budget_bytes"),
+    exitance: bool = False,
 ) -> int:
     """ValueError naming width and height (``names``: the API's or the command line's spelling) when
     :func:`render_memory_bytes` exceeds the budget (``memory_budget_bytes``, None: RENDER_MEMORY_BUDGET_BYTES);
@@ -71,7 +74,7 @@ def check_render_memory(
     budget = RENDER_MEMORY_BUDGET_BYTES if memory_budget_bytes is None else memory_budget_bytes
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not (math.isfinite(budget) and budget > 0):
         raise ValueError(f"{bn} = {memory_budget_bytes!r} must be a positive number of bytes")
-    need = render_memory_bytes(width, height, n_batches, records, aperture, tally)
+    need = render_memory_bytes(width, height, n_batches, records, aperture, tally, exitance)
     if need > budget:
         raise ValueError(
             f"{wn} = {width}, {hn} = {height}: the render needs about {need / 2**30:.3g} GiB ({n_batches} batches"

@@ -50,7 +50,7 @@ import numpy as np
 
 from .. import _core
 
-from . import colour
+from . import colour, exitance
 from ..analysis import batch_index
 from .budget import MAX_PAIRS_PER_CHUNK, check_render_memory
 from .camera import Camera
@@ -341,15 +341,18 @@ def _whole(v, lo: int, hi: int):
     return int(v)
 
 
-def _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k=KNN_K):
-    """The render's knobs checked; returns (n_batches, knn_k) as ints (a sweep script's np.int64 is fine)."""
+def _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k=KNN_K, exit_k=exitance.EXIT_K):
+    """The render's knobs checked; returns (n_batches, knn_k, exit_k) as ints (a sweep script's np.int64 is
+    fine)."""
     check_kernel(kernel_radius, kernel_angle_deg)
-    k, b = _whole(knn_k, 2, MAX_KNN_K), _whole(n_batches, 2, 1000)
+    k, b, x = _whole(knn_k, 2, MAX_KNN_K), _whole(n_batches, 2, 1000), _whole(exit_k, 2, MAX_KNN_K)
     if k is None:
         raise ValueError(f"knn_k = {knn_k!r} must be an integer in [2, {MAX_KNN_K}] (records)")
+    if x is None:
+        raise ValueError(f"exit_k = {exit_k!r} must be an integer in [2, {MAX_KNN_K}] (records)")
     if b is None:
         raise ValueError(f"n_batches = {n_batches!r} must be an integer in [2, 1000]")
-    return b, k
+    return b, k, x
 
 
 def _packets(result) -> int:
@@ -374,6 +377,9 @@ def _records(result, n_batches, P, T):
     return dict(
         pos=np.asarray(esc["position"], dtype=np.float64),
         dir=np.asarray(esc["direction"], dtype=np.float64),
+        normal=np.asarray(esc["normal"], dtype=np.float64),
+        region=np.asarray(esc["region"], dtype=np.int64),
+        band=exitance.bands(wl),
         batch=batch,
         Pb=Pb,
         wl=wl,
@@ -396,7 +402,14 @@ def _accumulate(acc, key, index, weights, size):
 
 
 def _bins(index):
-    """The distinct bins of ``index`` and each entry's place among them: what :func:`_accumulate_sparse` adds by."""
+    """The bins of ``index`` and each entry's place among them: what :func:`_accumulate_sparse` adds by. The
+    distinct bins (a sort), or, where the entries outnumber the span of their bins (the exitance estimate's
+    millions of pairs a chunk), every bin of the span (no sort; the bins no entry reaches receive +0)."""
+    if index.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    lo, hi = int(index.min()), int(index.max()) + 1
+    if hi - lo <= index.size:
+        return np.arange(lo, hi), index - lo
     return np.unique(index, return_inverse=True)
 
 
@@ -617,6 +630,41 @@ def _knn_setup(rec, px, pw, pk, r0, c0, k, unit_cm, threads, cancel):
     return keep, ball, _knn_rule(rec, px, pw, pk, r0, c0, unit_cm, scales)
 
 
+def _add_pairs(acc, rec, p, j, k, half, kh, names, preg, hit, n_regions):
+    """Adds the pixel-record pairs (p, j) of one chunk into the gather's sums ``acc``, for the images ``names``:
+    pair weight e_j x k[name] (per pair), the half kernel's e_j x kh[name][0] x kh[name][1] over the pairs
+    ``half``. The sums are those :func:`_image_from_sums`, :func:`_region_batches` and the View read (pixels are
+    the hit pixels, in order; image pixels are the (H W,) indices of ``hit``)."""
+    if p.size == 0:
+        return
+    B, n_pix = rec["Pb"].size, int(hit.sum())
+    image_pixel, n_image = np.flatnonzero(hit), hit.size
+    pb = p * B + rec["batch"][j]
+    rb = preg[p] * B + rec["batch"][j]
+    # Only the bins the chunk's pairs reach are touched (a dense block per chunk cost the image's size).
+    nb = rec["nbins"]
+    sb = rec["sbin"][j]
+    ok = sb >= 0
+    g_p, g_pb, g_half, g_spec = _bins(p), _bins(pb), _bins(pb[half]), _bins(p[ok] * nb + sb[ok])
+    # (image pixel, channel, batch) of channel 0 of the XYZ (3 channels) and camera R, G (2) sums
+    g_xyz, g_cam = (_bins(image_pixel[p] * (n * B) + rec["batch"][j]) for n in (3, 2))
+    for name in names:
+        e = rec["energy"][name]
+        w = e[j] * k[name]
+        _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
+        _accumulate_sparse(acc, name + "_half_pix_batch", g_half, e[j][half] * kh[name][0] * kh[name][1], n_pix * B)
+        for c in range(3):
+            wc = w * rec["cmf"][j, c]
+            _accumulate_sparse(acc, f"{name}_xyz{c}_pix", g_p, wc, n_pix)
+            _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
+            _accumulate_sparse(acc, f"{name}_xyz_image", (g_xyz[0] + c * B, g_xyz[1]), wc, n_image * 3 * B)
+        for c in range(2):
+            wc = w * rec["cam_rg"][j, c]
+            _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
+            _accumulate_sparse(acc, f"{name}_cam_image", (g_cam[0] + c * B, g_cam[1]), wc, n_image * 2 * B)
+        _accumulate_sparse(acc, name + "_spec_pix", g_spec, w[ok], n_pix * nb)
+
+
 def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit_cm, hit, cancel=None, knn_k=None):
     """Sums over the kernel of each hit pixel (see the module docstring): (a dict of arrays, the candidate
     count). ``hit`` (image pixels,): the pixels that see a surface (``px``'s); the colour sums are laid out as
@@ -627,8 +675,6 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
     middle of every chunk."""
     from scipy.spatial import cKDTree
 
-    B = rec["Pb"].size
-    image_pixel, n_image = np.flatnonzero(hit), hit.size
     theta = math.radians(theta_deg)
     chord = 2.0 * math.sin(theta / 2.0)
     n_pix = px.shape[0]
@@ -658,33 +704,59 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
             return None, 0
         counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=p1 - p0)
         j = keep[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
-        p, j, k, half, kh = rule(np.repeat(np.arange(p0, p1), counts), j)
-        if p.size == 0:
-            continue
-        pb = p * B + rec["batch"][j]
-        rb = preg[p] * B + rec["batch"][j]
-        # Only the bins the chunk's pairs reach are touched (a dense block per chunk cost the image's size).
-        nb = rec["nbins"]
-        sb = rec["sbin"][j]
-        ok = sb >= 0
-        g_p, g_pb, g_half, g_spec = _bins(p), _bins(pb), _bins(pb[half]), _bins(p[ok] * nb + sb[ok])
-        # (image pixel, channel, batch) of channel 0 of the XYZ (3 channels) and camera R, G (2) sums
-        g_xyz, g_cam = (_bins(image_pixel[p] * (n * B) + rec["batch"][j]) for n in (3, 2))
-        for name, e in rec["energy"].items():
-            w = e[j] * k[name]
-            _accumulate_sparse(acc, name + "_pix_batch", g_pb, w, n_pix * B)
-            _accumulate_sparse(acc, name + "_half_pix_batch", g_half, e[j][half] * kh[name][0] * kh[name][1], n_pix * B)
-            for c in range(3):
-                wc = w * rec["cmf"][j, c]
-                _accumulate_sparse(acc, f"{name}_xyz{c}_pix", g_p, wc, n_pix)
-                _accumulate(acc, f"{name}_xyz{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate_sparse(acc, f"{name}_xyz_image", (g_xyz[0] + c * B, g_xyz[1]), wc, n_image * 3 * B)
-            for c in range(2):
-                wc = w * rec["cam_rg"][j, c]
-                _accumulate(acc, f"{name}_cam{c}_reg_batch", rb, wc, n_regions * B)
-                _accumulate_sparse(acc, f"{name}_cam_image", (g_cam[0] + c * B, g_cam[1]), wc, n_image * 2 * B)
-            _accumulate_sparse(acc, name + "_spec_pix", g_spec, w[ok], n_pix * nb)
+        _add_pairs(acc, rec, *rule(np.repeat(np.arange(p0, p1), counts), j), rec["energy"], preg, hit, n_regions)
     return acc, keep.size
+
+
+def _exitance_gather(px, pk, preg, n_regions, rec, r0, theta_deg, threads, unit_cm, hit, cancel, k):
+    """:func:`_kernel_gather`'s sums for the exitance estimate (:mod:`endophoton.view.exitance`): each pixel's
+    ball over its own region's records, radius r_p = max(r0, d_k) per image, each pair weighted by the angular
+    table of the record's batch, region and band at the pixel's view cosine and by the calibration. One search
+    per region at the larger of the images' radii. Returns (acc, the records used, {image: (pixels,) ball
+    radii}), or (None, 0, None) once cancelled."""
+    from scipy.spatial import cKDTree
+
+    mu_rows = exitance.legendre_rows(np.clip(1.0 / pk, 0.0, 1.0))
+    mu = np.clip(np.abs(np.einsum("ij,ij->i", rec["normal"], rec["dir"])), 0.0, 1.0)
+    B, names = rec["Pb"].size, list(rec["energy"])
+    setup = {}
+    for name, e in rec["energy"].items():
+        coef = exitance.angular_tables(mu, rec["region"], rec["band"], rec["batch"], e, n_regions, B)
+        cal = exitance.calibration(rec, e, coef, px, preg, n_regions, theta_deg, 8.0 * float(np.median(r0)))
+        r_p, grown = exitance.pixel_radii(rec["pos"], rec["region"], e, px, preg, n_regions, r0, k, threads)
+        base = pk / (2.0 * math.pi * math.pi * (r_p * unit_cm) ** 2)  # 1 / (2 pi mu_p A_p): 0 where r_p is inf
+        setup[name] = (coef, cal * base[:, None], r_p, grown)
+    ball = np.max([np.where(np.isfinite(v[2]), v[2], 0.0) for v in setup.values()], axis=0)
+    acc, used = {}, 0
+    anything = np.logical_or.reduce([e > 0 for e in rec["energy"].values()])
+    for g in range(n_regions):
+        pix = np.flatnonzero((preg == g) & (ball > 0))
+        sel = np.flatnonzero((rec["region"] == g) & anything)
+        if pix.size == 0 or sel.size == 0:
+            continue
+        used += sel.size
+        tree = cKDTree(rec["pos"][sel])
+        n_ball = tree.query_ball_point(px[pix], ball[pix], workers=threads or -1, return_length=True)
+        for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
+            if _cancelled(cancel):
+                return None, 0, None
+            rows = pix[p0:p1]
+            lists = tree.query_ball_point(px[rows], ball[rows], workers=threads or -1, return_sorted=False)
+            counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=rows.size)
+            p = np.repeat(rows, counts)
+            j = sel[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
+            d = np.sqrt(np.sum((rec["pos"][j] - px[p]) ** 2, axis=1))
+            b, band, rows_p = rec["batch"][j], rec["band"][j], mu_rows[p]
+            f, halves = {}, []
+            for name in names:  # the pair's h_{b, g, band}(mu_p) c_{p, b} / (2 pi mu_p A_p)
+                coef, scale, r_p, grown = setup[name]
+                inside = (d <= r_p[p]) & (~grown[p] | (d < r_p[p]))  # a grown ball: the k - 1 strictly inside
+                f[name] = np.where(inside, exitance.density(coef[b, g, band], rows_p) * scale[p, b], 0.0)
+                halves.append(d < 0.5 * r_p[p])
+            half = np.logical_or.reduce(halves)
+            kh = {name: (4.0 * f[name][half] * h[half], 1.0) for name, h in zip(names, halves)}
+            _add_pairs(acc, rec, p, j, f, half, kh, names, preg, hit, n_regions)
+    return acc, used, {name: v[2] for name, v in setup.items()}
 
 
 def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefix=""):
@@ -748,6 +820,7 @@ def render_view(
     threads: int = 0,
     estimator: str = "auto",
     knn_k: int = KNN_K,
+    exit_k: int = exitance.EXIT_K,
     memory_budget_bytes: float | None = None,
     cancel=None,
 ) -> View | None:
@@ -770,18 +843,20 @@ def render_view(
     estimator : "nee" (the run's next-event camera tally, from ``ep.run(..., view=...)``; unbiased:
         docs/render.md), "kernel" (the kernel estimate over the escape records), "knn" (the k-nearest estimate
         over them: each pixel's kernel grows until it holds ``knn_k`` records, so every pixel that sees tissue
-        is nonzero; docs/render.md) or "auto" (nee when the run has a camera tally, else kernel)
+        is nonzero; docs/render.md), "exitance" (every record near the pixel times its region's calibrated angular
+        share toward the camera: :mod:`endophoton.view.exitance`) or "auto" (nee with a camera tally, else kernel)
     knn_k : with estimator "knn", the number of nearest records (in the 6-D metric of position / kernel_radius
         and direction / chord(kernel_angle_deg)) that sets each pixel's kernel: the k-th sets its size, the
         k - 1 inside it are summed ((k - 1) / V_k: unbiased for a uniform density). Larger k: less noise
         (relative stderr ~ 1 / sqrt(k - 1)), larger kernels and more bias. Default ``KNN_K`` (32)
+    exit_k : estimator "exitance": the records of its region each pixel's ball holds at least (default 256)
     memory_budget_bytes : the most memory the render may need (None: ``view.budget.RENDER_MEMORY_BUDGET_BYTES``,
         4 GiB); a size that needs more (:func:`endophoton.view.budget.render_memory_bytes`) is refused before
         anything is allocated, with a ValueError naming width and height
     cancel : None or an ``ep.CancelToken``: once cancelled, render_view stops at its next check (twice per
         block of pixels of the kernel gather, and between the steps after it) and returns None (the add-on's Esc)
     """
-    n_batches, knn_k = _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k)
+    n_batches, knn_k, exit_k = _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k, exit_k)
     _check_call(result, estimator, threads, cancel)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
@@ -794,21 +869,23 @@ def render_view(
     scene = result.scene
     native = scene.to_native()
     region, hit, px, pw, pk, depth = _surface_pixels(native, camera, W, H, threads)
+    radius_given = kernel_radius
     kernel_radius = _kernel_radius(kernel_radius, kernel_angle_deg, camera, W, H, depth, hit, scene.unit_cm)
     P = _packets(result)
     n_regions = len(scene.regions)
     preg = region[hit].astype(np.int64)
-    nee_counters = None
+    nee_counters, exit_radii = None, None
     if estimator == "nee":
-        sums, spectrum, nee_counters = _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance)
-        Pb = _nee_packets_per_batch(result, n_batches, P)
-        acc = _nee_acc(sums, spectrum, hit, preg, n_regions)
-        rec = dict(nbins=spectrum.shape[2], energy={}, Pb=Pb)
+        acc, rec, nee_counters = _nee_estimate(result, camera, W, H, n_batches, filter_desc, white_balance, P)
+        acc = _nee_acc(*acc, hit, preg, n_regions)
         n_candidates = int(nee_counters["scored"])
     else:
         rec = _camera_records(result, n_batches, P, T, camera, gains)
-        gather = (px, pw, pk, preg, n_regions, rec, float(kernel_radius), float(kernel_angle_deg), int(threads))
-        acc, n_candidates = _kernel_gather(*gather, scene.unit_cm, hit, cancel, knn_k if estimator == "knn" else None)
+        surface = (px, pw, pk, preg, n_regions, hit)
+        kernel = (radius_given, float(kernel_radius), float(kernel_angle_deg))
+        acc, n_candidates, exit_radii = _records_estimate(
+            estimator, rec, surface, camera, (W, H), kernel, int(threads), scene.unit_cm, cancel, knn_k, exit_k
+        )
     if acc is None or _cancelled(cancel):  # also between the steps after the gather (~0.5 s each)
         return None
     Pb = rec["Pb"]
@@ -820,11 +897,8 @@ def render_view(
         return None
     region_pixels = np.bincount(preg, minlength=n_regions)[:n_regions]
     region_batches = _region_batches(acc, preg, region_pixels, Pb.size, gains)
-    aperture = None
-    if camera.aperture_radius > 0 and (estimator == "kernel" or result.escapes is not None):
-        rec = _records(result, n_batches, P, T) if estimator == "nee" else rec
-        focus = camera.focus_distance or _autofocus(depth, hit, W, H)
-        aperture = _aperture_images(native, camera, focus, rec, P, hit, (H, W), gains, exposure, scene.unit_cm, threads)
+    knobs = (W, H, n_batches, P, T, gains, exposure)
+    aperture = _aperture(result, estimator, rec, native, camera, depth, hit, knobs, threads)
     return View(
         width=W,
         height=H,
@@ -836,6 +910,7 @@ def render_view(
         packets_per_batch=Pb,
         kernel=dict(radius=float(kernel_radius), angle_deg=float(kernel_angle_deg)),
         knn=_knn_info(rec, knn_k, hit, (H, W)) if estimator == "knn" else None,
+        exitance=_exitance_info(exit_radii, exit_k, hit, (H, W)) if estimator == "exitance" else None,
         candidates=int(n_candidates),
         estimator=estimator,
         nee=nee_counters,
@@ -845,13 +920,52 @@ def render_view(
         aperture=aperture,
         region_pixels=region_pixels,
         region_batches=region_batches,
-        pixel_batches={name: _pixel_batches(acc, name, hit, (H, W), Pb) for name in ("white", "fluorescence")},
-        pixel_colour_sums={
-            name: _pixel_colour_sums(acc, name, hit, (H, W), Pb.size) for name in ("white", "fluorescence")
-        },
+        **_pixel_arrays(acc, hit, (H, W), Pb),
         gains=gains,
         spectrum_bin_edges_nm=colour.spectrum_bins(),
     )
+
+
+def _aperture(result, estimator, rec, native, camera, depth, hit, knobs, threads):
+    """The aperture images (None without a lens, or for a next-event run without records). ``knobs``:
+    (W, H, n_batches, P, T, gains, exposure)."""
+    W, H, n_batches, P, T, gains, exposure = knobs
+    if not (camera.aperture_radius > 0 and (estimator != "nee" or result.escapes is not None)):
+        return None
+    rec = _records(result, n_batches, P, T) if estimator == "nee" else rec
+    focus = camera.focus_distance or _autofocus(depth, hit, W, H)
+    return _aperture_images(native, camera, focus, rec, P, hit, (H, W), gains, exposure, result.scene.unit_cm, threads)
+
+
+def _pixel_arrays(acc, hit, shape, Pb) -> dict:
+    """The View's ``pixel_batches`` and ``pixel_colour_sums`` of both images, taken out of ``acc``."""
+    names = ("white", "fluorescence")
+    return dict(
+        pixel_batches={name: _pixel_batches(acc, name, hit, shape, Pb) for name in names},
+        pixel_colour_sums={name: _pixel_colour_sums(acc, name, hit, shape, Pb.size) for name in names},
+    )
+
+
+def _nee_estimate(result, camera, W, H, n_batches, filter_desc, white_balance, P):
+    """The run's camera tally as render_view reads it: ((sums, spectrum), the records' stand-in {nbins, energy,
+    Pb}, the counters); ValueErrors as :func:`_nee_sums` and :func:`_nee_packets_per_batch`."""
+    sums, spectrum, counters = _nee_sums(result, camera, W, H, n_batches, filter_desc, white_balance)
+    Pb = _nee_packets_per_batch(result, n_batches, P)
+    return (sums, spectrum), dict(nbins=spectrum.shape[2], energy={}, Pb=Pb), counters
+
+
+def _records_estimate(estimator, rec, surface, camera, size, kernel, threads, unit_cm, cancel, knn_k, exit_k):
+    """The kernel, k-nearest or exitance estimate's sums from the records ``rec``: (acc, candidates, the exitance
+    estimate's ball radii or None). ``surface``: (px, pw, pk, preg, n_regions, hit) of the pixels; ``kernel``:
+    (the kernel_radius given or None, the radius used, the angle in degrees)."""
+    px, pw, pk, preg, n_regions, hit = surface
+    given, r, angle = kernel
+    if estimator == "exitance":
+        r0 = _exitance_radius(camera, *size, px, pk, hit, r) if given is None else r
+        return _exitance_gather(px, pk, preg, n_regions, rec, r0, angle, threads, unit_cm, hit, cancel, exit_k)
+    gather = (px, pw, pk, preg, n_regions, rec, r, angle, threads, unit_cm, hit, cancel)
+    acc, n = _kernel_gather(*gather, knn_k if estimator == "knn" else None)
+    return acc, n, None
 
 
 def _camera_records(result, n_batches, P, T, camera, gains) -> dict:
@@ -927,7 +1041,28 @@ def _kernel_radius(kernel_radius, kernel_angle_deg, camera, W, H, depth, hit, un
     return kernel_radius
 
 
-ESTIMATORS = ("auto", "nee", "kernel", "knn")
+ESTIMATORS = ("auto", "nee", "kernel", "knn", "exitance")
+
+
+def _exitance_radius(camera, W, H, px, pk, hit, cap) -> np.ndarray:
+    """The exitance estimate's smallest ball radius per hit pixel, scene units: the radius of the disc of the
+    pixel's own footprint area on the surface, Omega_pixel t^2 / cos theta_p (t the distance from the pinhole),
+    so that the ball averages the light over what the pixel sees; at most ``cap`` (the kernel's default radius,
+    where grazing views stretch the footprint)."""
+    omega = camera.pixel_solid_angles(W, H)[hit]
+    t2 = np.sum((px - camera.position) ** 2, axis=1)
+    return np.minimum(np.sqrt(omega * t2 * pk / math.pi), cap)
+
+
+def _exitance_info(radii, k, hit, shape):
+    """The exitance estimate's size: {k, radius: {image: (H, W) ball radius r_p in scene units, 0 where no
+    surface, inf where the region has too few records}}."""
+    out = {}
+    for name, r in radii.items():
+        full = np.zeros(hit.size)
+        full[hit] = r
+        out[name] = full.reshape(shape)
+    return dict(k=int(k), radius=out)
 
 
 def _knn_info(rec, k, hit, shape):
@@ -952,6 +1087,7 @@ def _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_byte
         records=len(esc["weight"]) if isinstance(esc, dict) and "weight" in esc else 0,
         aperture=camera.aperture_radius > 0 and (estimator == "kernel" or esc is not None),
         memory_budget_bytes=memory_budget_bytes,
+        exitance=estimator == "exitance",
     )
 
 

@@ -52,11 +52,13 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--estimator",
-        choices=("nee", "kernel", "knn"),
-        default="nee",
-        help="nee (default: next-event estimation toward the camera during the run, unbiased; docs/render.md), "
-        "kernel (kernel estimate over the escape records) or knn (k-nearest estimate over the escape records: "
-        "each pixel's kernel grows to hold --knn-k records)",
+        choices=("exitance", "nee", "kernel", "knn"),
+        default="exitance",
+        help="exitance (default: every escape record near the pixel times its region's calibrated angular "
+        "share toward the camera, the most efficient estimate that passes the cross-checks; docs/render.md), "
+        "nee (next-event estimation toward the camera during the run, unbiased), kernel (kernel estimate over "
+        "the escape records) or knn (k-nearest estimate over the escape records: each pixel's kernel grows to "
+        "hold --knn-k records)",
     )
     p.add_argument(
         "--no-look-back",
@@ -138,7 +140,7 @@ def _check_before_the_run(args, scene, source, camera) -> int | None:
         raise ValueError(f"--memory-budget-gib = {gib!r} must be a positive number of GiB")
     budget = None if gib is None else gib * 2**30
     cam, W, H = _resolve_camera(source, camera, args.width, args.height)
-    nee = getattr(args, "estimator", "kernel") == "nee"
+    nee = getattr(args, "estimator", "exitance") == "nee"
     aperture = camera is not None and camera.aperture_radius > 0
     check_render_memory(W, H, tally=nee, aperture=aperture, memory_budget_bytes=budget, names=_BUDGET_NAMES)
     if not nee:
@@ -211,7 +213,7 @@ def render_main(args) -> int:
         kwargs["seed"] = args.seed
     if args.threads is not None:
         kwargs["threads"] = args.threads
-    estimator = getattr(args, "estimator", "kernel")
+    estimator = getattr(args, "estimator", "exitance")
     emission_filter = "auto" if args.emission_filter is None else args.emission_filter
     if estimator == "nee":
         kwargs["view"] = dict(

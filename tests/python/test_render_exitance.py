@@ -1,0 +1,257 @@
+"""The exitance estimate of the camera's radiance (issue 34; python/endophoton/view/exitance.py).
+
+Its parts against independent references: the Legendre tables against densities known in closed form, the
+whole sum against the exact radiance M / pi of a Lambertian plane (synthetic records, numpy), the calibration
+against 1 where exits are azimuthally symmetric. Cross-checks (chi-square over pixels and regions at the
+reported standard errors) against the unbiased aperture camera of an independent run, on the flat field, the
+polyp box and the colon (the same three scenes as the next-event estimate's, tests/python/test_render_nee.py).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton.sweep import driver as sw
+from endophoton.sweep.view_sweep import visibility_columns
+from endophoton.view import exitance
+from endophoton.view import render as R
+from endophoton.view.camera import Camera
+from endophoton.view.render import render_view
+from physics_helpers import K_SIGMA, chi2_limit
+
+from _synth import polyp_box_scene
+from _view_checks import aperture_region_chi2, colon_scene, pixel_chi2
+
+B = 20
+
+
+def _batch_means(values):
+    """Mean and batch-means stderr of per-batch estimates (B, ...)."""
+    v = np.asarray(values, dtype=np.float64)
+    return v.mean(axis=0), v.std(axis=0, ddof=1) / math.sqrt(v.shape[0])
+
+
+# ---------------------------------------------------------------- the parts
+
+
+@pytest.mark.parametrize(
+    "name, sample, pdf",
+    [
+        ("lambertian", lambda u: np.sqrt(u), lambda mu: 2.0 * mu),  # P(mu <= x) = x^2
+        ("uniform", lambda u: u, lambda mu: np.ones_like(mu)),
+        ("cubic", lambda u: u ** (1.0 / 4.0), lambda mu: 4.0 * mu**3),  # P(mu <= x) = x^4
+    ],
+)
+def test_angular_tables_recover_a_known_density(name, sample, pdf):
+    """Records whose mu follows a density known in closed form (degree <= 3, within the series' 5 terms): the
+    tables' density at 9 cosines agrees with it, batch by batch, within the batch-means error."""
+    rng = np.random.default_rng(7)
+    n = 40_000
+    mu = sample(rng.random(n))
+    batch = np.repeat(np.arange(B), n // B)
+    coef = exitance.angular_tables(mu, np.zeros(n, int), np.zeros(n, int), batch, np.ones(n), 1, B)
+    grid = np.linspace(0.05, 0.95, 9)
+    rows = exitance.legendre_rows(grid)
+    per_batch = np.stack([np.maximum(rows @ coef[b, 0, 0], 0.0) for b in range(B)])
+    mean, se = _batch_means(per_batch)
+    assert np.all(np.abs(mean - pdf(grid)) < K_SIGMA * se + 1e-12), (name, mean, pdf(grid), se)
+
+
+def test_legendre_rows_are_the_legendre_polynomials():
+    """Bonnet's recursion against numpy's Legendre module at t = 2 mu - 1."""
+    mu = np.linspace(0.0, 1.0, 11)
+    rows = exitance.legendre_rows(mu, 6)
+    for l in range(6):
+        ref = np.polynomial.legendre.legval(2 * mu - 1, np.eye(6)[l])
+        assert np.allclose(rows[:, l], ref, rtol=0, atol=1e-14)
+
+
+def _lambertian_plane(n, rng, half=1.0, cam=(0.3, -0.2, 2.0), tilt=0.0):
+    """Synthetic records: n exits uniform on the square |x|, |y| < half of the plane z = 0 (normal +z), unit
+    weight, directions Lambertian about the normal (tilt > 0: every direction's azimuth pushed toward +x, an
+    asymmetric exit), 20 batches, one band; the record dict the exitance gather reads."""
+    pos = np.column_stack([rng.uniform(-half, half, n), rng.uniform(-half, half, n), np.zeros(n)])
+    mu = np.sqrt(rng.random(n))
+    phi = 2 * math.pi * rng.random(n)
+    if tilt:
+        phi = np.where(rng.random(n) < tilt, 0.5 * phi - 0.5 * math.pi, phi)  # half of them toward +x
+    s = np.sqrt(1 - mu * mu)
+    d = np.column_stack([s * np.cos(phi), s * np.sin(phi), mu])
+    batch = np.repeat(np.arange(B), n // B)
+    wl = np.full(n, 550.0)
+    return dict(
+        pos=pos,
+        dir=d,
+        normal=np.tile([0.0, 0.0, 1.0], (n, 1)),
+        region=np.zeros(n, dtype=np.int64),
+        band=exitance.bands(wl),
+        batch=batch,
+        Pb=np.full(B, n // B),
+        wl=wl,
+        cmf=np.ones((n, 3)),
+        cam_rg=np.ones((n, 2)),
+        energy={"white": np.ones(n)},
+        sbin=np.zeros(n, dtype=np.int64),
+        nbins=1,
+        cam=np.asarray(cam, dtype=np.float64),
+    )
+
+
+def _gather_plane(rec, px, r0=0.05, k=64):
+    cam = rec["cam"]
+    to_cam = cam - px
+    pk = np.linalg.norm(to_cam, axis=1) / to_cam[:, 2]  # 1 / cos(view angle)
+    preg = np.zeros(px.shape[0], dtype=np.int64)
+    hit = np.ones(px.shape[0], dtype=bool)
+    acc, used, radii = R._exitance_gather(px, pk, preg, 1, rec, r0, 15.0, 1, 1.0, hit, None, k)
+    return acc["white_pix_batch"].reshape(px.shape[0], B), radii["white"]
+
+
+def test_lambertian_plane_gives_its_exact_radiance():
+    """Uniform exitance M (records per area) leaving a plane with Lambertian directions has radiance M / pi in
+    every direction. The exitance estimate of 6 points seen from a camera at 1-50 deg off the normal agrees
+    with it at the batch-means error (chi-square), and a 10 % scale error would be seen."""
+    rng = np.random.default_rng(11)
+    n = 400_000
+    rec = _lambertian_plane(n, rng)
+    px = np.array([[0, 0, 0], [0.3, 0.2, 0], [-0.4, 0.1, 0], [0.2, -0.5, 0], [-0.3, -0.3, 0], [0.5, 0.5, 0]], float)
+    sums, radii = _gather_plane(rec, px, r0=0.15)
+    per_batch = sums / rec["Pb"]  # per "packet": one record each
+    mean, se = _batch_means(per_batch.T)
+    exact = (1.0 / 4.0) / math.pi  # M = 1 record per packet over an area of 4
+    chi = float(np.sum(((mean - exact) / se) ** 2))
+    assert chi < chi2_limit(px.shape[0]), (mean, exact, se)
+    assert float(np.sum(((mean - 1.1 * exact) / se) ** 2)) > chi2_limit(px.shape[0])
+    assert np.all(radii == 0.15)  # dense: the smallest radius, no growth
+
+
+def test_calibration_is_one_for_symmetric_exits_and_corrects_asymmetric_ones():
+    """Azimuthally symmetric (Lambertian) exits: the calibration c is 1 within its error. Exits pushed toward
+    one azimuth (away from the camera's side) leave less light toward the camera than the table says: c < 1,
+    and the calibrated estimate agrees with the records' own in-cone count (the kernel's directional
+    measurement) over the same area."""
+    rng = np.random.default_rng(3)
+    px = np.array([[0.0, 0.0, 0.0], [0.2, 0.1, 0.0]])
+    pk = np.ones(2)
+    preg = np.zeros(2, dtype=np.int64)
+    for tilt, expect_one in ((0.0, True), (0.8, False)):
+        rec = _lambertian_plane(100_000, rng, cam=(-1.0, 0.0, 1.0), tilt=tilt)
+        mu = np.abs(rec["dir"][:, 2])
+        coef = exitance.angular_tables(mu, rec["region"], rec["band"], rec["batch"], rec["energy"]["white"], 1, B)
+        c = exitance.calibration(rec, rec["energy"]["white"], coef, px, preg, 1, 15.0, 0.05)
+        mean, se = _batch_means(c.T)
+        if expect_one:
+            assert np.all(np.abs(mean - 1.0) < K_SIGMA * se), (mean, se)
+        else:
+            assert np.all(mean + K_SIGMA * se < 0.9), (mean, se)
+    del pk
+
+
+def test_bad_exit_k_is_refused_by_name():
+    res = ep.run(ep.default_flat_scene(), ep.EndoscopeRig.from_beta(20.0, 1.0), photons=300, seed=1, threads=1)
+    for bad in (1, 0, "x", True, 2.5, 10**6):
+        with pytest.raises(ValueError, match="exit_k"):
+            render_view(res, estimator="exitance", exit_k=bad, width=8, height=8)
+
+
+# ---------------------------------------------------------------- the estimate on scenes
+
+
+def test_exitance_view_is_bit_identical_on_any_thread_count():
+    """The same run rendered with 1 and with 2 threads: the same bits in every image and error."""
+    res = ep.run(ep.default_flat_scene(), ep.EndoscopeRig.from_beta(20.0, 1.0), photons=4000, seed=3, threads=2)
+    a = render_view(res, estimator="exitance", width=24, height=24, threads=1)
+    b = render_view(res, estimator="exitance", width=24, height=24, threads=2)
+    for name in ("white", "fluorescence"):
+        for key in ("radiance", "radiance_stderr", "bias", "rgb"):
+            assert np.array_equal(a.images[name][key], b.images[name][key]), (name, key)
+    assert a.estimator == "exitance" and a.exitance["k"] == exitance.EXIT_K
+
+
+def test_no_tissue_pixel_is_zero_and_most_converge():
+    """The polyp box at 32 x 32 from 60,000 packets: no pixel that sees tissue is left at 0 by sparsity (each
+    ball grows to hold k records of its region), and over half reach a relative error of 20 %, where the
+    kernel estimate of the same records leaves pixels at 0."""
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.0)
+    cam = Camera.look_at((0.6, 0.3, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    res = ep.run(polyp_box_scene(), src, photons=60_000, seed=4, spectral=True)
+    v = render_view(res, cam, 32, 32, estimator="exitance")
+    tissue = v.region_map >= 0
+    L, se = v.images["white"]["radiance"][tissue], v.images["white"]["radiance_stderr"][tissue]
+    assert np.all(L > 0)
+    assert np.mean(se <= 0.2 * L) > 0.5
+    k = render_view(res, cam, 32, 32, estimator="kernel")
+    assert np.any(k.images["white"]["radiance"][tissue] == 0)
+
+
+def _cross_check(scene, source, cam, size, regions, photons, min_pixels):
+    """The exitance image of one run against the aperture image of an independent one (300,000 packets):
+    pixels and regions within the suite's chi-square limit."""
+    view = render_view(ep.run(scene, source, photons, seed=1, spectral=True), cam, size, size, estimator="exitance")
+    other = render_view(ep.run(scene, source, 300_000, seed=2, spectral=True), cam, size, size, estimator="kernel")
+    for image in ("white", "fluorescence"):
+        a, b = view.images[image], other.aperture[image]
+        chi, dof = pixel_chi2(a["radiance"], a["radiance_stderr"], b["radiance"], b["radiance_stderr"])
+        if image == "white":
+            assert dof >= min_pixels, dof
+        assert dof == 0 or chi < chi2_limit(dof), (image, chi, dof)
+    chi, dof = aperture_region_chi2(view, other, regions)
+    assert dof >= len(regions) and chi < chi2_limit(dof), (chi, dof)
+    return view, other
+
+
+@pytest.mark.slow
+def test_flat_field_agrees_with_aperture():
+    """Uniform slab (n 1.4, g 0.8: refraction at the surface) under a 0.4 cm beam, seen obliquely (6 x 6): the
+    exitance image agrees with the aperture camera pixel by pixel and over the region, and a 20 % scale error
+    would be seen."""
+    scene = ep.Scene(unit="cm")
+    scene.add_box("tissue", (-5, -5, -2), (5, 5, 0), ep.Medium(mua=1.0, mus=30.0, g=0.8, n=1.4))
+    src = ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=0.4)
+    cam = Camera.look_at((0.3, 0, 2.0), (0, 0, 0), up=(0, 1, 0), fov_deg=20, aperture_radius=0.4)
+    view, other = _cross_check(scene, src, cam, 6, ("tissue",), 150_000, 20)
+    a, b = view.images["white"], other.aperture["white"]
+    bad, dof = pixel_chi2(1.2 * a["radiance"], 1.2 * a["radiance_stderr"], b["radiance"], b["radiance_stderr"])
+    assert bad > chi2_limit(dof), (bad, dof)
+
+
+@pytest.mark.slow
+def test_polyp_scene_agrees_with_aperture():
+    """Collagen wall with a photofrin polyp (tests/_synth.polyp_box_scene), oblique camera, 8 x 8: exitance
+    and aperture images (independent runs) agree over pixels, and the regions' white and fluorescence
+    radiances agree (chi-square)."""
+    src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.0)
+    cam = Camera.look_at((0.6, 0.3, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=40, aperture_radius=0.3)
+    _cross_check(polyp_box_scene(), src, cam, 8, ("wall", "polyp"), 30_000, 20)
+
+
+@pytest.mark.slow
+def test_colon_agrees_with_aperture():
+    """The colon view (bench/colon_scene.py, rig at beta = 20 deg, 16 x 16): the exitance regions (polyp, colon;
+    white and fluorescence) and pixels agree with the aperture image (2 mm lens) of an independent run."""
+    scene, rig = colon_scene()
+    cam = Camera.from_rig(rig, aperture_radius=0.002)
+    _cross_check(scene, rig, cam, 16, ("polyp", "colon"), 50_000, 10)
+
+
+# ---------------------------------------------------------------- in a sweep
+
+
+def test_sweep_renders_each_beta_with_the_exitance_estimate():
+    """visibility estimator 'exitance': a β's columns are those of its store run's records rendered by hand
+    with the exitance estimate (the same bits); the sweep's argument check and the CLI accept the name."""
+    scene, rig = ep.default_flat_scene(), ep.EndoscopeRig.from_beta(20.0, 1.0)
+    res = ep.run(scene, rig, store=800, seed=5, threads=1)
+    size = dict(width=16, height=16)
+    cols = visibility_columns(res, "polyp", "tissue", estimator="exitance", **size)
+    from endophoton.view.visibility import contrast
+
+    c = contrast(render_view(res, estimator="exitance", **size), "polyp", "tissue")
+    for key in ("white", "fluorescence"):
+        assert cols[f"{key}_contrast"] == c[key] and cols[f"{key}_contrast_stderr"] == c[f"{key}_stderr"]
+    assert sw._contrast_target(None, {"target": "polyp", "background": "tissue", "estimator": "exitance"}) is None
+    with pytest.raises(ValueError, match="exitance"):
+        sw._contrast_target(None, {"target": "polyp", "background": "tissue", "estimator": "exit"})
