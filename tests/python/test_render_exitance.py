@@ -157,6 +157,26 @@ def test_bad_exit_k_is_refused_by_name():
             render_view(res, estimator="exitance", exit_k=bad, width=8, height=8)
 
 
+@pytest.mark.parametrize("estimator", ["exitance", "kernel"])
+def test_one_image_is_the_same_as_both_and_leaves_the_other_at_zero(estimator):
+    """render_view(images=(name,)) computes only that image: its radiance is the render of both images' to
+    rounding (the white one bit for bit: its gather is the same), the image left out is all zeros, and a
+    name outside the two is refused by name."""
+    res = ep.run(ep.default_flat_scene(), ep.EndoscopeRig.from_beta(20.0, 1.0), photons=4000, seed=3, threads=2)
+    size = dict(width=16, height=16, estimator=estimator)
+    both = render_view(res, **size)
+    for name, other in (("white", "fluorescence"), ("fluorescence", "white")):
+        one = render_view(res, images=(name,), **size)
+        a, b = one.images[name]["radiance"], both.images[name]["radiance"]
+        assert np.any(b > 0) and np.allclose(a, b, rtol=1e-12, atol=0.0), name
+        assert not np.any(one.images[other]["radiance"]), other
+    white = render_view(res, images="white", **size).images["white"]
+    assert np.array_equal(white["radiance"], both.images["white"]["radiance"])
+    for bad in ((), ("white", "red"), 3, None):
+        with pytest.raises(ValueError, match="images = "):
+            render_view(res, images=bad, **size)
+
+
 # ---------------------------------------------------------------- the estimate on scenes
 
 

@@ -343,19 +343,22 @@ def view_of_beta(
     white-light records). ``run_more(packets, seed, fluorescent_only, view=None, record_escapes=True)`` runs the
     same scene and rig again (the white pass, the next-event runs, the top-ups). Returns ``(columns, view)``;
     columns None where undefined."""
+    fluorescent_only = bool(dict(getattr(result, "options", {}) or {}).get("fluorescent_only", False))
+    # a white pass of its own: each run's records are rendered for the one image read from them
+    white_pass = fluorescent_only and _records_estimator(render_kwargs)
     if _nee_estimator(render_kwargs):
         fl = _nee_image(result, render_kwargs, run_more, seed, white_packets)
     else:
-        fl = _Image("fluorescence", _Records(result), render_kwargs, run_more, seed)
+        kw = dict(render_kwargs, images=("fluorescence",)) if white_pass else render_kwargs
+        fl = _Image("fluorescence", _Records(result), kw, run_more, seed)
     cols = {"target_pixels": fl.view.pixels_of(target, "target"), "view_packets": fl.records.packets_traced}
     if background is not None:
         fl.view.pixels_of(background, "background")  # an unknown region is an error, out of view is not
-    fluorescent_only = bool(dict(getattr(result, "options", {}) or {}).get("fluorescent_only", False))
     wh = fl
-    if fluorescent_only and _records_estimator(render_kwargs):
+    if white_pass:
         n = _packets_of(result) if white_packets is None else int(white_packets)
         white = run_more(n, piece_seed(seed, "white", 0), False)
-        wh = _Image("white", _Records(white), render_kwargs, run_more, seed)
+        wh = _Image("white", _Records(white), dict(render_kwargs, images=("white",)), run_more, seed)
         wh.pieces = 1
     cols["white_packets"] = wh.records.packets_traced
     if not (_in_view(fl.view, target, background, surround_px) and _in_view(wh.view, target, background, surround_px)):
@@ -393,7 +396,9 @@ def _nee_image(result, render_kwargs, run_more, seed, white_packets) -> _Image:
 
 
 def _saved_view(fl: _Image, wh: _Image):
-    """The fluorescence image's view with the white image of the white-light records (for View.save)."""
+    """The fluorescence image's view with the white image of the white-light records, for View.save (which
+    writes the images; the view's region and pixel batches stay the fluorescence run's, whose white image a
+    sweep with a white pass does not compute)."""
     view = fl.view
     if wh is not fl:
         view.images = dict(view.images, white=wh.view.images["white"])

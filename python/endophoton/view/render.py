@@ -66,6 +66,9 @@ _CHUNK_PIXELS = 4096
 KNN_K = 32
 #: Batches of the view's batch-means standard errors unless a call names n_batches.
 DEFAULT_VIEW_BATCHES = 20
+
+#: The two images of a view: all the light that leaves, and the fluorescence through the emission filter.
+VIEW_IMAGES = ("white", "fluorescence")
 MAX_KNN_K = 4096
 #: The most pixel-record pairs one block of the k-nearest search holds (~80 bytes each: ~40 MiB).
 _KNN_BLOCK_PAIRS = 2**19
@@ -823,6 +826,7 @@ def render_view(
     exit_k: int = exitance.EXIT_K,
     memory_budget_bytes: float | None = None,
     cancel=None,
+    images=VIEW_IMAGES,
 ) -> View | None:
     """Render the image the camera records from ``result``'s escape records (surface photon map).
 
@@ -855,9 +859,11 @@ def render_view(
         anything is allocated, with a ValueError naming width and height
     cancel : None or an ``ep.CancelToken``: once cancelled, render_view stops at its next check (twice per
         block of pixels of the kernel gather, and between the steps after it) and returns None (the add-on's Esc)
+    images : the images the records' estimators compute (default both); one left out is all zeros and costs
+        nothing (a sweep reads one image of each of its two runs). The next-event tally keeps both.
     """
     n_batches, knn_k, exit_k = _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k, exit_k)
-    _check_call(result, estimator, threads, cancel)
+    wanted = _check_call(result, estimator, threads, cancel, images)
     if estimator == "auto":
         estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
     camera, W, H = _resolve_camera(result.source, camera, width, height)
@@ -880,7 +886,7 @@ def render_view(
         acc = _nee_acc(*acc, hit, preg, n_regions)
         n_candidates = int(nee_counters["scored"])
     else:
-        rec = _camera_records(result, n_batches, P, T, camera, gains)
+        rec = _camera_records(result, n_batches, P, T, camera, gains, wanted)
         surface = (px, pw, pk, preg, n_regions, hit)
         kernel = (radius_given, float(kernel_radius), float(kernel_angle_deg))
         acc, n_candidates, exit_radii = _records_estimate(
@@ -888,11 +894,8 @@ def render_view(
         )
     if acc is None or _cancelled(cancel):  # also between the steps after the gather (~0.5 s each)
         return None
-    Pb = rec["Pb"]
-    images = {
-        name: _image_from_sums(acc, name, P, Pb, hit, (H, W), rec["nbins"], gains, exposure)
-        for name in ("white", "fluorescence")
-    }
+    Pb, shape, nbins = rec["Pb"], (H, W), rec["nbins"]
+    images = {name: _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure) for name in VIEW_IMAGES}
     if _cancelled(cancel):
         return None
     region_pixels = np.bincount(preg, minlength=n_regions)[:n_regions]
@@ -968,18 +971,20 @@ def _records_estimate(estimator, rec, surface, camera, size, kernel, threads, un
     return acc, n, None
 
 
-def _camera_records(result, n_batches, P, T, camera, gains) -> dict:
+def _camera_records(result, n_batches, P, T, camera, gains, images=VIEW_IMAGES) -> dict:
     """The escape records as the kernel and k-nearest gathers read them (:func:`_records`), with the camera's
     position and the camera-like R and G sensitivities: each record's linear-sRGB channels, negative parts
-    clipped (docs/render.md, "Visibility")."""
+    clipped (docs/render.md, "Visibility"); their energies for ``images`` only (the gathers compute those)."""
     rec = _records(result, n_batches, P, T)
+    rec["energy"] = {name: e for name, e in rec["energy"].items() if name in images}
     rec["cam"] = camera.position
     rec["cam_rg"] = np.maximum(colour.xyz_to_linear_srgb(rec["cmf"], gains)[:, :2], 0.0)
     return rec
 
 
-def _check_call(result, estimator, threads, cancel) -> None:
-    """render_view's checks of its result, estimator, threads and cancel token (named ValueErrors)."""
+def _check_call(result, estimator, threads, cancel, images=VIEW_IMAGES) -> tuple:
+    """render_view's checks of its result, estimator, threads, cancel token and images (named ValueErrors);
+    returns the images' names."""
     if estimator not in ESTIMATORS:
         raise ValueError(f"estimator = {estimator!r} must be one of {', '.join(map(repr, ESTIMATORS))}")
     if not all(hasattr(result, k) for k in ("scene", "escapes", "source", "photons")):
@@ -991,6 +996,20 @@ def _check_call(result, estimator, threads, cancel) -> None:
     if cancel is not None and not hasattr(cancel, "cancelled"):
         raise ValueError(f"cancel = {shown(cancel)} must be None or an endophoton.CancelToken")
     check_spectral(result)
+    return _check_images(images)
+
+
+def _check_images(images) -> tuple:
+    """render_view's ``images``: a non-empty subset of :data:`VIEW_IMAGES` (a str is one name), else a ValueError
+    naming it."""
+    names = (images,) if isinstance(images, str) else images
+    try:
+        names = tuple(names)
+    except TypeError:
+        names = None
+    if not names or not all(isinstance(n, str) and n in VIEW_IMAGES for n in names):
+        raise ValueError(f"images = {shown(images)} must be a non-empty subset of {VIEW_IMAGES}")
+    return names
 
 
 def _check_exposure(exposure) -> None:
