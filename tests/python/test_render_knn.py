@@ -254,9 +254,9 @@ def test_colon_bias_is_measured_and_bounded():
     1.9x too bright); the colon wall is high, measured 1.27 +- 0.11 of the next-event mean (at 16 x 16 the
     kernels are 8x wider in position than at 128 x 128, and the wall curves and folds within them), and is
     bounded here at its K_SIGMA range."""
-    import test_render_nee
+    from _view_checks import colon_scene
 
-    scene, rig = test_render_nee._colon()
+    scene, rig = colon_scene()
     cam = Camera.from_rig(rig)
     nee = _nee_view(scene, rig, cam, 16, 50_000)
     knn = render_view(ep.run(scene, rig, 300_000, seed=2, spectral=True), cam, 16, 16, estimator="knn")
