@@ -13,8 +13,9 @@ with its batch-means stderr, the figure of merit FOM = 1 / (stderr^2 x CPU s), t
 pixels whose white radiance has a relative stderr <= 20 % and the share left at exactly 0, and the
 run's packets per CPU second. A third run (no records, no camera) gives the throughput without either.
 ``--estimators kernel,knn,exitance,nee``: knn (the k-nearest estimate) and exitance (the exitance estimate)
-render the kernel run's records, so their CPU seconds are that run's plus their own render. ``nee-lookback``: the next-event estimate with the look-back
-(docs/render.md "Look-back next event"; its proposal's share --alpha aimed at the camera, that lobe's HG --g-b).
+render the kernel run's records, so their CPU seconds are that run's plus their own render. ``nee-lookback``:
+the next-event estimate with the look-back (docs/render.md "Look-back next event"; its proposal's share --alpha
+aimed at the camera, that lobe's HG --g-b).
 """
 from __future__ import annotations
 

@@ -24,6 +24,9 @@ def main(argv) -> int:
     extra = ""
     if "--append" in argv:
         i = argv.index("--append")
+        if i + 1 >= len(argv):
+            print("main_job_answer.py: --append needs a FILE", file=sys.stderr)
+            return 2
         with open(argv[i + 1], encoding="utf-8") as fh:
             extra = fh.read()
         argv = argv[:i] + argv[i + 2 :]

@@ -70,7 +70,7 @@ def test_the_runs_camera_tally_is_refused_before_the_run(monkeypatch):
         pytest.param(2, False, "kernel", marks=pytest.mark.slow),
         (20, True, "kernel"),
         pytest.param(50, False, "kernel", marks=pytest.mark.slow),
-        (20, False, "exitance"),
+        pytest.param(20, False, "exitance", marks=pytest.mark.slow),
     ],
 )
 def test_the_estimate_bounds_the_measured_peak(n_batches, aperture, estimator):

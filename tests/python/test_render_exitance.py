@@ -115,7 +115,7 @@ def test_lambertian_plane_gives_its_exact_radiance():
     every direction. The exitance estimate of 6 points seen from a camera at 1-50 deg off the normal agrees
     with it at the batch-means error (chi-square), and a 10 % scale error would be seen."""
     rng = np.random.default_rng(11)
-    n = 400_000
+    n = 200_000
     rec = _lambertian_plane(n, rng)
     px = np.array([[0, 0, 0], [0.3, 0.2, 0], [-0.4, 0.1, 0], [0.2, -0.5, 0], [-0.3, -0.3, 0], [0.5, 0.5, 0]], float)
     sums, radii = _gather_plane(rec, px, r0=0.15)

@@ -19,7 +19,7 @@ from ..analysis import DEFAULT_BATCHES
 from .driver import default_flat_scene, sweep, write_outputs
 from ..io import check_output_files
 from .schema import beta_text, output_file_names, parse_betas
-from .view_runs import contrast_target
+from .view_runs import SWEEP_ESTIMATORS, contrast_target
 from ..view.visibility import SURROUND_PX
 
 __all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", "scheduler_client"]
@@ -120,7 +120,7 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     parser.add_argument(
         "--estimator",
         default=None,
-        choices=("kernel", "exitance", "nee"),
+        choices=SWEEP_ESTIMATORS,
         help="the view's camera estimator: kernel (default: the records' kernel estimate), exitance (every "
         "record near each pixel times its region's calibrated angular share toward the camera: no more "
         "packets, 4-6x the kernel's efficiency on the colour contrast; docs/render.md) or nee (the "

@@ -343,7 +343,7 @@ def _contrast_target(target, visibility):
     """:func:`sweep`'s ``target`` as a ``view_runs.ContrastTarget`` (None without one); a target needs a view.
     Checks the view's estimator and ``white_packets`` (a count of at least the view's batches) before any run."""
     from ..view.render import DEFAULT_VIEW_BATCHES
-    from .view_runs import contrast_target
+    from .view_runs import SWEEP_ESTIMATORS, contrast_target
 
     checked = contrast_target(target, "target")
     white_packets = (visibility or {}).get("white_packets")
@@ -352,7 +352,7 @@ def _contrast_target(target, visibility):
         lo = batches if isinstance(batches, int) and not isinstance(batches, bool) and batches > 0 else 1
         check_int("visibility['white_packets']", white_packets, lo, 2**62)
     estimator = (visibility or {}).get("estimator")
-    if estimator not in (None, "kernel", "auto", "nee", "exitance"):
+    if estimator not in (None, "auto") + SWEEP_ESTIMATORS:
         raise ValueError(
             f"visibility['estimator'] = {estimator!r}: a sweep renders each β with the kernel estimate "
             "('kernel', from its records; 'auto' is the same there), the exitance estimate ('exitance', from "

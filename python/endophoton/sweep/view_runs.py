@@ -236,11 +236,20 @@ def _packets_of(res) -> int:
     return p if p > 0 else int(res.photons)
 
 
+#: The camera estimators a sweep renders each β with (``visibility["estimator"]``, ``sweep --estimator``; "auto"
+#: and None are the kernel): from its records, or from next-event runs of its own.
+SWEEP_ESTIMATORS = ("kernel", "exitance", "nee")
+
+
+def _kernel_estimator(render_kwargs: Mapping) -> bool:
+    """Whether the view's estimator is the kernel estimate ("auto" is it in a sweep, whose store runs have no
+    camera tally)."""
+    return render_kwargs.get("estimator", "kernel") in ("kernel", "auto", None)
+
+
 def _records_estimator(render_kwargs: Mapping) -> bool:
-    """Whether the view's estimator makes its images from the run's records (the kernel or the exitance
-    estimate; "auto" is the kernel
-    in a sweep, whose store runs have no camera tally)."""
-    return render_kwargs.get("estimator", "kernel") in ("kernel", "auto", None, "exitance")
+    """Whether the view's estimator makes its images from the run's records: the kernel or the exitance estimate."""
+    return _kernel_estimator(render_kwargs) or render_kwargs.get("estimator") == "exitance"
 
 
 def _nee_estimator(render_kwargs: Mapping) -> bool:
@@ -256,7 +265,7 @@ class _Image:
         self.pieces, self.nee = pieces, nee  # nee: the next-event runs' (view request, record_escapes)
         self.view = render_view(records, **self.kw)
         self.keep = None
-        if self.kw.get("estimator", "kernel") in ("kernel", "auto", None) and self.view.aperture is None:
+        if _kernel_estimator(self.kw) and self.view.aperture is None:
             # fix the kernel (its default depends on the geometry only) and keep what it can use
             self.kw.setdefault("kernel_radius", self.view.kernel["radius"])
             r, a, cam = self.view.kernel["radius"], self.view.kernel["angle_deg"], self.view.camera.position

@@ -145,9 +145,9 @@ def calibration(rec, e, coef, px, preg, n_regions: int, theta_deg: float, s0: fl
 
 
 def pixel_radii(pos, region, e, px, preg, n_regions: int, r0: float, k: int, threads: int):
-    """Per pixel, its ball's radius r_p = max(r0 (a number or one per pixel), d_k) over the records of its own region with energy (d_k the
-    distance to the k-th nearest, or the farthest where the region has fewer than k; infinite, so no estimate,
-    where it has fewer than 2) and whether d_k set it."""
+    """Per pixel, its ball's radius r_p = max(r0 (a number, or one per pixel), d_k) over the records of its own
+    region with energy (d_k the distance to the k-th nearest, or the farthest where the region has fewer than k;
+    infinite, so no estimate, where it has fewer than 2), and whether d_k set it."""
     from scipy.spatial import cKDTree
 
     r0 = np.broadcast_to(np.asarray(r0, dtype=np.float64), (px.shape[0],))

@@ -64,12 +64,11 @@ _CHUNK_PIXELS = 4096
 #: The k-nearest estimate's default k (render_view's ``knn_k``), chosen by measurement (docs/render.md,
 #: "k-nearest estimate"), and its largest allowed value.
 KNN_K = 32
+MAX_KNN_K = 4096
 #: Batches of the view's batch-means standard errors unless a call names n_batches.
 DEFAULT_VIEW_BATCHES = 20
-
 #: The two images of a view: all the light that leaves, and the fluorescence through the emission filter.
 VIEW_IMAGES = ("white", "fluorescence")
-MAX_KNN_K = 4096
 #: The most pixel-record pairs one block of the k-nearest search holds (~80 bytes each: ~40 MiB).
 _KNN_BLOCK_PAIRS = 2**19
 
@@ -185,7 +184,7 @@ class View:
             if self.region_pixels[i] == 0:
                 continue
             d = {"pixels": int(self.region_pixels[i])}
-            for key in ("white", "fluorescence"):
+            for key in VIEW_IMAGES:
                 per_batch = self.region_batches[key + "_radiance"][i] / Pb
                 d[key + "_radiance"] = float(self.region_batches[key + "_radiance"][i].sum() / Pb.sum())
                 d[key + "_radiance_stderr"] = float(np.std(per_batch, ddof=1) / math.sqrt(Pb.size))
@@ -203,7 +202,7 @@ class View:
             if self.region_pixels[i] == 0:
                 continue
             d = {}
-            for key in ("white", "fluorescence"):
+            for key in VIEW_IMAGES:
                 rb = self.region_batches
                 b = 4.0 / 3.0 * (rb[key + "_radiance"][i] - rb[key + "_half_radiance"][i])
                 d[key + "_bias"] = float(b.sum() / Pb.sum())
@@ -942,10 +941,9 @@ def _aperture(result, estimator, rec, native, camera, depth, hit, knobs, threads
 
 def _pixel_arrays(acc, hit, shape, Pb) -> dict:
     """The View's ``pixel_batches`` and ``pixel_colour_sums`` of both images, taken out of ``acc``."""
-    names = ("white", "fluorescence")
     return dict(
-        pixel_batches={name: _pixel_batches(acc, name, hit, shape, Pb) for name in names},
-        pixel_colour_sums={name: _pixel_colour_sums(acc, name, hit, shape, Pb.size) for name in names},
+        pixel_batches={name: _pixel_batches(acc, name, hit, shape, Pb) for name in VIEW_IMAGES},
+        pixel_colour_sums={name: _pixel_colour_sums(acc, name, hit, shape, Pb.size) for name in VIEW_IMAGES},
     )
 
 
@@ -1174,7 +1172,7 @@ def _nee_acc(sums, spectrum, hit, preg, n_regions):
     s = sums[hp]  # (n_hit, B, 12)
     B = s.shape[1]
     acc = {}
-    for j, name in enumerate(("white", "fluorescence")):
+    for j, name in enumerate(VIEW_IMAGES):
         o = 6 * j
         acc[name + "_pix_batch"] = s[:, :, o].ravel()
         acc[name + "_half_pix_batch"] = acc[name + "_pix_batch"]
@@ -1225,7 +1223,7 @@ def _region_batches(acc, preg, region_pixels, B, gains):
     n_hit = preg.size
     inv = np.where(region_pixels > 0, 1.0 / np.maximum(region_pixels, 1), 0.0)
     out = {}
-    for name in ("white", "fluorescence"):
+    for name in VIEW_IMAGES:
         pb = acc.get(name + "_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)
         out[name + "_radiance"] = _region_sums(preg, pb, n_regions) * inv[:, None]
         half = acc.pop(name + "_half_pix_batch", np.zeros(n_hit * B)).reshape(n_hit, B)  # its last use
@@ -1302,7 +1300,7 @@ def _aperture_images(native, camera, focus, rec, P, hit, shape, gains, exposure,
         _accumulate(acc, f"ap_{name}_spec_pix", pix[okb] * rec["nbins"] + sb[okb], w[okb], n * rec["nbins"])
     out = {
         name: _image_from_sums(acc, name, P, rec["Pb"], allpix, shape, rec["nbins"], gains, exposure, prefix="ap_")
-        for name in ("white", "fluorescence")
+        for name in VIEW_IMAGES
     }
     for img in out.values():
         img["focus_distance"] = np.float64(focus)

@@ -11,6 +11,11 @@ import math
 import os
 
 
+#: The render command's camera estimator unless --estimator names one: the most efficient estimate that passes
+#: the cross-checks (issue 34; docs/render.md, "Exitance estimate").
+DEFAULT_ESTIMATOR = "exitance"
+
+
 def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument(
         "scene",
@@ -53,7 +58,7 @@ def add_render_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument(
         "--estimator",
         choices=("exitance", "nee", "kernel", "knn"),
-        default="exitance",
+        default=DEFAULT_ESTIMATOR,
         help="exitance (default: every escape record near the pixel times its region's calibrated angular "
         "share toward the camera, the most efficient estimate that passes the cross-checks; docs/render.md), "
         "nee (next-event estimation toward the camera during the run, unbiased), kernel (kernel estimate over "
@@ -140,7 +145,7 @@ def _check_before_the_run(args, scene, source, camera) -> int | None:
         raise ValueError(f"--memory-budget-gib = {gib!r} must be a positive number of GiB")
     budget = None if gib is None else gib * 2**30
     cam, W, H = _resolve_camera(source, camera, args.width, args.height)
-    nee = getattr(args, "estimator", "exitance") == "nee"
+    nee = getattr(args, "estimator", DEFAULT_ESTIMATOR) == "nee"
     aperture = camera is not None and camera.aperture_radius > 0
     check_render_memory(W, H, tally=nee, aperture=aperture, memory_budget_bytes=budget, names=_BUDGET_NAMES)
     if not nee:
@@ -213,7 +218,7 @@ def render_main(args) -> int:
         kwargs["seed"] = args.seed
     if args.threads is not None:
         kwargs["threads"] = args.threads
-    estimator = getattr(args, "estimator", "exitance")
+    estimator = getattr(args, "estimator", DEFAULT_ESTIMATOR)
     emission_filter = "auto" if args.emission_filter is None else args.emission_filter
     if estimator == "nee":
         kwargs["view"] = dict(
