@@ -284,6 +284,8 @@ def sections(R):
         + "\n## 18. Packets in vector lanes (issue 39; frozen, 2026-12-06)\n\n" + frozen("lanes")
         + "\n## 19. The colon sweep by estimator (issue 34; frozen, 2026-12-06)\n\n" + frozen("sweep_estimators")
         + "\n## 20. The exitance estimate (issue 34; frozen, 2026-12-06)\n\n" + frozen("exitance")
+        + "\n## 21. The exitance estimate's edges and spread; blue light to the target (issue 34; frozen, 2026-12-06)\n\n"
+        + frozen("blue_target")
     )  # fmt: skip
 
 

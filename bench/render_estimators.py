@@ -16,11 +16,16 @@ run's packets per CPU second. A third run (no records, no camera) gives the thro
 render the kernel run's records, so their CPU seconds are that run's plus their own render. ``nee-lookback``:
 the next-event estimate with the look-back (docs/render.md "Look-back next event"; its proposal's share --alpha
 aimed at the camera, that lobe's HG --g-b).
+``--seeds N``: N independent runs (seeds --seed, --seed + 1, ...) instead of one; prints each estimator's
+contrast over the seeds, the standard deviation of those contrasts beside the root mean square of the reported
+(jackknife) standard errors, and the FOM from each: the spread over seeds is the error the estimate really has,
+so it tests the reported one.
 """
 from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import math
 import os
 import sys
 import time
@@ -134,6 +139,42 @@ def table(m: dict, photons: int) -> str:
     return "\n".join(rows)
 
 
+def seed_spread(rows: list) -> str:
+    """Per estimator over the seeds' ``measure`` dicts: mean contrast, its standard deviation over the seeds
+    (with a 68 % chi-square interval), the rms of the reported stderrs, mean CPU s, and the FOM from each."""
+    from scipy.stats import chi2
+
+    out = [
+        "| estimator | seeds | mean red/green | sd over seeds (68 %) | rms reported stderr | sd / stderr | "
+        "CPU s | FOM (sd) | FOM (stderr) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    fom = {}
+    for name in (k for k in NAMES if k in rows[0]):
+        c = np.array([r[name]["red_green"] for r in rows], dtype=float)
+        se = np.array([r[name]["red_green_stderr"] for r in rows], dtype=float)
+        cpu = float(np.mean([r[name]["cpu_s"] for r in rows]))
+        n = c.size
+        sd, rms = float(c.std(ddof=1)), float(np.sqrt(np.mean(se**2)))
+        lo, hi = (sd * math.sqrt((n - 1) / chi2.ppf(q, n - 1)) for q in (0.84, 0.16))
+        fom[name] = (1 / (sd**2 * cpu), 1 / (rms**2 * cpu))
+        out.append(
+            f"| {name} | {n} | {c.mean():.3f} | {sd:.4f} ({lo:.4f}–{hi:.4f}) | {rms:.4f} | {sd / rms:.2f} | "
+            f"{cpu:.1f} | {fom[name][0]:.1f} | {fom[name][1]:.1f} |"
+        )
+    if "kernel" in fom:
+        out.append("")
+        out.append(
+            "FOM / kernel's: "
+            + ", ".join(
+                f"{k} {f[0] / fom['kernel'][0]:.1f} (sd), {f[1] / fom['kernel'][1]:.1f} (stderr)"
+                for k, f in fom.items()
+                if k != "kernel"
+            )
+        )
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--photons", type=int, default=1_000_000)
@@ -148,7 +189,16 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=128, help="image width = height in pixels")
     ap.add_argument("--alpha", type=float, default=0.5, help="nee-lookback: proposal share aimed at the camera")
     ap.add_argument("--g-b", type=float, default=0.9, help="nee-lookback: that lobe's HG asymmetry")
+    ap.add_argument("--seeds", type=int, default=1, help="independent runs: report the spread over them")
     a = ap.parse_args(argv)
+    if a.seeds > 1:
+        est = tuple(a.estimators.split(","))
+        rows = [
+            measure(a.photons, a.threads, a.seed + i, est, a.tau_cut, a.size, a.alpha, a.g_b, plain=False)
+            for i in range(a.seeds)
+        ]
+        print(seed_spread(rows))
+        return 0
     m = measure(a.photons, a.threads, a.seed, tuple(a.estimators.split(",")), a.tau_cut, a.size, a.alpha, a.g_b)
     print(table(m, a.photons))
     for k in ("nee", "nee-lookback"):

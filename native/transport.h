@@ -36,7 +36,7 @@ namespace ep {
 struct UnitOutput {
     UnitTally tally;
     EscapeRecords records;
-    CameraScores camera;  // next-event scores (runs with a camera_view only)
+    CameraScores camera;       // next-event scores (runs with a camera_view only)
     GridSet* grids = nullptr;  // where the deposits go; null without grids
     // Members of *grids, kept as pointers for the deposit calls of transport.cpp.
     VoxelAccumulator* absorbed_grid = nullptr;      // absorbed weight

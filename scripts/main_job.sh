@@ -15,11 +15,12 @@
 # on the colon under each light, its errors and the paper's 34 deg (scripts/main_job_answer.py).
 # The colon sweeps' views come from the exitance estimate (every record near a pixel times its region's
 # calibrated angular share toward the camera; docs/render.md), which agrees with the unbiased next-event
-# estimate within noise. White light reaches ERR at every beta from the store run and a top-up or two, every
-# 5 deg (COLON_BETAS, up to CAP packets); the spectral tissue too, every 10 deg (SPECTRAL_BETAS, SPECTRAL_CAP);
-# under blue light the long-pass image holds too few records to reach ERR at an affordable cap, so it runs every
-# 10 deg (BLUE_BETAS) up to BLUE_CAP (docs/performance.md section 20). The colon sweeps and the Blender scene
-# run beside the flat sweep (their logs in OUT/), and the whole job stays within 10 minutes on 2 idle cores.
+# estimate within noise. All three run every 10 deg (COLON_BETAS, SPECTRAL_BETAS, BLUE_BETAS). White light and
+# the spectral tissue reach ERR at every beta from the store run and a top-up or two (caps CAP, SPECTRAL_CAP);
+# blue light needs about 10^7 packets a beta for ERR (its long-pass image's green is dark), so it runs up to
+# BLUE_CAP (6 x 10^6: ERR at 5 of the 6 beta; docs/performance.md section 21). The colon sweeps and the
+# Blender scene run beside the flat sweep (their logs in OUT/), and the whole job stays within 10 minutes on 2
+# idle cores.
 # STORE (default 250000 fluorescent photons per beta) sets the paper's store N; BETAS the flat scene's angles;
 # ERR and CAP the white colon's target; ESTIMATOR the flat scene's camera estimator (empty: the kernel
 # estimate, the paper's), COLON_ESTIMATOR the colon sweeps' (default exitance).
@@ -32,10 +33,10 @@ BETAS="${BETAS:-0:60:5}"
 ERR="${ERR:-0.05}"
 CAP="${CAP:-4000000}"
 SPECTRAL_CAP="${SPECTRAL_CAP:-750000}"
-BLUE_CAP="${BLUE_CAP:-500000}"
+BLUE_CAP="${BLUE_CAP:-6000000}"
 BLUE_BETAS="${BLUE_BETAS:-0:60:10}"
 SPECTRAL_BETAS="${SPECTRAL_BETAS:-0:60:10}"
-COLON_BETAS="${COLON_BETAS:-0:60:5}"
+COLON_BETAS="${COLON_BETAS:-0:60:10}"
 ESTIMATOR="${ESTIMATOR:-}"
 COLON_ESTIMATOR="${COLON_ESTIMATOR:-exitance}"
 export ENDOPHOTON_ADDON_PATH="$PWD/addon"

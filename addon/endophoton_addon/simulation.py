@@ -52,7 +52,7 @@ class RunInputs:
     target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
     endoscope_view: bool = False  # render the rig camera's images from the records (ep.render_view)
     live_view: bool = False  # ... and refresh them while the run is in flight (live_view.py)
-    view_estimator: str = "kernel"  # ep.render_view's estimator: "kernel", "knn" or "nee" (the run tallies the camera)
+    view_estimator: str = "exitance"  # ep.render_view's: "exitance", "kernel", "knn" or "nee" (the run tallies the camera)
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
@@ -198,12 +198,12 @@ def view_estimator(settings, who, kind, views):
     if kind != "photons":
         raise InputError(
             f"{who}: simulation.view_estimator = 'NEE' needs a fixed packet count (Mode: Photons, "
-            f"Quality: Custom), not a {kind} run; or choose the Kernel or k-Nearest estimator"
+            f"Quality: Custom), not a {kind} run; or choose the Exitance, Kernel or k-Nearest estimator"
         )
     if preferences.scheduler_address():
         raise InputError(
             f"{who}: simulation.view_estimator = 'NEE' runs locally only: clear the add-on preferences' "
-            "Dask scheduler or choose the Kernel or k-Nearest estimator"
+            "Dask scheduler or choose the Exitance, Kernel or k-Nearest estimator"
         )
     return estimator
 

@@ -126,7 +126,9 @@ def test_each_view_estimator_makes_the_packages_image(ep, tmp_path):
     of the same run, says which estimator made it, and a next-event run tallies the camera itself
     (view=True) and asks for no records when nothing else reads them."""
     shares = {}
-    for choice in ("KERNEL", "KNN", "NEE"):
+    rna = bpy.context.scene.endophoton.bl_rna.properties["view_estimator"]
+    assert rna.default == "EXITANCE"  # the default, as render_view's "auto" without a camera tally
+    for choice in ("KERNEL", "KNN", "EXITANCE", "NEE"):
         _scene, job, collection = _run("flat_tissue.blend", tmp_path, output_points=False, view_estimator=choice)
         estimator = choice.lower()
         assert job.inputs.view_estimator == estimator
@@ -140,9 +142,9 @@ def test_each_view_estimator_makes_the_packages_image(ep, tmp_path):
         expected = view.images["white"]["rgb"] * view.images["white"]["exposure"]
         np.testing.assert_allclose(_pixels(image)[::-1][..., :3], expected, rtol=1e-6, atol=1e-9)
         shares[estimator] = _lit_share(image, view)
-    # the k-nearest estimate leaves no pixel that sees tissue black; the kernel's records leave most
-    # of them black at 20,000 packets
-    assert shares["knn"] == 1.0 and shares["kernel"] < 0.5, shares
+    # the k-nearest and exitance estimates leave no pixel that sees tissue black; the kernel's records leave
+    # most of them black at 20,000 packets
+    assert shares["knn"] == 1.0 and shares["exitance"] == 1.0 and shares["kernel"] < 0.5, shares
 
 
 def test_next_event_needs_a_photon_count(ep, tmp_path):

@@ -255,7 +255,7 @@ def _polyp_view(polyp_preset):
     light = ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=2.0)
     res = ep.run(scene, light, photons=POLYP_PACKETS, seed=1, spectral=True, threads=2)
     camera = Camera.look_at((0, 0, 3), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
-    return ep.render_view(res, camera, 32, 32, kernel_radius=0.15, kernel_angle_deg=45, threads=2)
+    return ep.render_view(res, camera, 32, 32, kernel_radius=0.15, kernel_angle_deg=45, threads=2, estimator="kernel")
 
 
 def _darker_redder(view):

@@ -301,6 +301,7 @@ def test_empty_kernels_give_zeros_and_undefined_contrast_is_none():
         8,
         8,
         kernel_radius=0.1,
+        estimator="kernel",
     )
     for img in view.images.values():
         for key, v in img.items():

@@ -128,6 +128,40 @@ def test_lambertian_plane_gives_its_exact_radiance():
     assert np.all(radii == 0.15)  # dense: the smallest radius, no growth
 
 
+def _two_region_plane(rec, px):
+    """The Lambertian plane cut at x = 0 into regions 0 (x < 0) and 1: records and pixels take their side's."""
+    rec = dict(rec, region=(rec["pos"][:, 0] >= 0).astype(np.int64))
+    return rec, (px[:, 0] >= 0).astype(np.int64)
+
+
+def test_pixels_at_a_region_edge_read_the_plane_radiance(monkeypatch):
+    """The plane cut into two regions of the same uniform exitance: a pixel 0.01-0.09 from the cut gathers only
+    its own side's records, so its ball is partly empty; the region share f_p (from a grid of pixels around it) restores M / pi (chi-square at the batch-means errors). Without it (f_p = 1) the same pixels
+    read 17-48 % dark, which the same test sees."""
+    rng = np.random.default_rng(12)
+    rec = _lambertian_plane(200_000, rng)
+    xs = np.linspace(-0.59, 0.59, 60)  # the camera's pixels: footprints 0.02 wide, none across the cut
+    grid = np.array([[x, y, 0.0] for x in xs for y in np.linspace(-0.3, 0.3, 31)])
+    probe = np.array([[0.01, 0.0, 0], [-0.03, 0.1, 0], [0.05, -0.1, 0], [-0.09, 0.05, 0], [0.03, 0.2, 0.0]])
+    px = np.vstack([probe, grid])
+    rec2, preg = _two_region_plane(rec, px)
+    cam = rec["cam"]
+    pk = np.linalg.norm(cam - px, axis=1) / (cam - px)[:, 2]
+    hit = np.ones(px.shape[0], dtype=bool)
+    exact = (1.0 / 4.0) / math.pi
+
+    def chi(rec_, preg_):
+        acc, _, radii = R._exitance_gather(px, pk, preg_, 2, rec_, 0.15, 15.0, 1, 1.0, hit, None, 64)
+        mean, se = _batch_means((acc["white_pix_batch"].reshape(px.shape[0], B) / rec["Pb"]).T)
+        return float(np.sum(((mean[:5] - exact) / se[:5]) ** 2)), mean[:5]
+
+    c, mean = chi(rec2, preg)
+    assert c < chi2_limit(5), (mean, exact)
+    monkeypatch.setattr(exitance, "region_share", lambda px, preg, radius, threads: np.ones(px.shape[0]))
+    c1, dark = chi(rec2, preg)
+    assert c1 > chi2_limit(5) and np.all(dark < 0.9 * exact), (dark, exact)
+
+
 def test_calibration_is_one_for_symmetric_exits_and_corrects_asymmetric_ones():
     """Azimuthally symmetric (Lambertian) exits: the calibration c is 1 within its error. Exits pushed toward
     one azimuth (away from the camera's side) leave less light toward the camera than the table says: c < 1,

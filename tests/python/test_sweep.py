@@ -744,3 +744,26 @@ def test_a_tiny_store_writes_its_report_without_numpy_warnings(tmp_path):
         trends = compute_trends(res)
     assert "n/a" in Path(paths["report"]).read_text(encoding="utf-8")
     assert trends["energy_total_peak"] is None or math.isfinite(trends["energy_total_peak"])
+
+
+def test_sweep_blend_without_the_addon_says_so_in_one_line(tmp_path, monkeypatch):
+    """No add-on where Blender looks: the script Blender runs prints one line naming
+    $ENDOPHOTON_ADDON_PATH and exits 2, never a traceback of the import (run here by plain Python, which has
+    no endophoton_addon either)."""
+    import subprocess
+    import sys
+
+    blend = tmp_path / "scene.blend"
+    blend.write_bytes(b"BLENDER")
+    calls = []
+    monkeypatch.setattr(sweep_cli, "addon_folder", lambda: None)
+    monkeypatch.setattr(sweep_cli, "_blender", lambda: "blender")
+    monkeypatch.setattr(sweep_cli.subprocess, "call", lambda cmd, env: calls.append(cmd) or 0)
+    args = argparse.Namespace(blend=str(blend), out=str(tmp_path / "out"), betas="0")
+    monkeypatch.setattr(sweep_cli, "forward_argv", lambda a: ["--betas", "0"])
+    assert sweep_cli.run_in_blender(args) == 0
+    expr = calls[0][calls[0].index("--python-expr") + 1]
+    done = subprocess.run([sys.executable, "-I", "-c", expr], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    assert "the EndoPhoton add-on is not found" in done.stderr and "ENDOPHOTON_ADDON_PATH" in done.stderr

@@ -27,6 +27,12 @@ __all__ = ["add_sweep_arguments", "sweep_main", "sweep_kwargs", "addon_folder", 
 #: Environment variable naming the folder that holds the ``endophoton_addon`` package.
 ADDON_PATH_VAR = "ENDOPHOTON_ADDON_PATH"
 
+#: What Blender prints when it cannot import the add-on (%s: the ImportError).
+NO_ADDON = (
+    "sweep --blend: the EndoPhoton add-on is not found (%s); set $ENDOPHOTON_ADDON_PATH to the folder that holds "
+    "endophoton_addon (the source tree's addon/), or install the add-on in Blender"
+)
+
 
 def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``sweep`` subcommand's arguments to ``parser``."""
@@ -286,9 +292,13 @@ def run_in_blender(args: argparse.Namespace) -> int:
     """Start ``blender -b FILE`` and run ``endophoton_addon.sweep_blend.main`` inside it."""
     blender = _blender()
     paths = [_package_parent()] + [p for p in (addon_folder(),) if p]
+    # Without the add-on (no addon/ beside the package, no $ENDOPHOTON_ADDON_PATH, none installed in Blender)
+    # Blender says so in one line and exits 2, instead of a traceback of the import.
     expr = (
-        "import sys; sys.path[:0] = %r; from endophoton_addon import sweep_blend; "
-        "sys.exit(sweep_blend.main(%r))" % (paths, forward_argv(args))
+        "import sys; sys.path[:0] = %r\n"
+        "try:\n    from endophoton_addon import sweep_blend\n"
+        "except ImportError as e:\n    print(%r %% e, file=sys.stderr); sys.exit(2)\n"
+        "sys.exit(sweep_blend.main(%r))" % (paths, NO_ADDON, forward_argv(args))
     )
     # blender opens the .blend itself; sweep_blend.main registers the add-on first
     cmd = [blender, "-b", os.fspath(args.blend), "--python-exit-code", "1", "--python-expr", expr]

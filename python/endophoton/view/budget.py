@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 from . import colour
+from .camera import DEFAULT_VIEW_BATCHES
 
 __all__ = ["RENDER_MEMORY_BUDGET_BYTES", "render_memory_bytes", "check_render_memory"]
 
@@ -38,7 +39,9 @@ _PAIR_BYTES = 256
 _TALLY_CHANNELS = 12  # the run's camera tally: (pixels, batches, 12) sums and (pixels, 2, bins) spectra
 
 
-def render_memory_bytes(width, height, n_batches=20, records=0, aperture=False, tally=False, exitance=False) -> int:
+def render_memory_bytes(
+    width, height, n_batches=DEFAULT_VIEW_BATCHES, records=0, aperture=False, tally=False, exitance=False
+) -> int:
     """Bytes a render of ``width`` x ``height`` pixels with ``n_batches`` batches will need at its peak,
     over ``records`` escape records (0 when not yet known), with an ``aperture`` image, with ``tally`` the
     run's next-event camera tally (ep.run(..., view=...)) it reads, and with ``exitance`` the exitance
@@ -59,7 +62,7 @@ def render_memory_bytes(width, height, n_batches=20, records=0, aperture=False, 
 def check_render_memory(
     width: int,
     height: int,
-    n_batches: int = 20,
+    n_batches: int = DEFAULT_VIEW_BATCHES,
     records: int = 0,
     aperture: bool = False,
     tally: bool = False,

@@ -17,6 +17,11 @@ from ..scene_schema import MAX_COORDINATE
 from ..sources import _vec3
 
 
+#: Batches of the view's batch-means standard errors unless a call names n_batches (one owner: render, nee and
+#: budget read it).
+DEFAULT_VIEW_BATCHES = 20
+
+
 @dataclass
 class Camera:
     """A pinhole camera at ``position`` looking along ``forward``.

@@ -7,8 +7,13 @@ from the region's angular distribution of exits, calibrated locally by the recor
     L_p = (1 / P) sum_{j in ball_p} e_j h_{b, g, band(j)}(mu_p) c_{p, b} / (2 pi mu_p A_p)       [per cm^2 per sr]
 
 - ball_p: the records of the pixel's region g within r_p of its surface point x_p, r_p = max(r0, the distance
-  to the k-th nearest such record); A_p = pi r_p^2 in cm^2. Where the k-th record sets r_p only the k - 1
-  records strictly inside count (the k-nearest density (k - 1) / V, unbiased for a uniform density).
+  to the k-th nearest such record); A_p = f_p pi r_p^2 in cm^2, the part of the ball's disc that is region g's
+  surface: f_p is the share of region g in the surface the camera's pixels see within r_p of x_p
+  (:func:`region_share`). Near a region's edge the ball is partly another
+  region's, whose records it does not gather; without f_p those pixels read dark (a 1.2 cm polyp seen through
+  0.15 cm balls: its white-light Weber contrast -0.26 against the next-event estimate's -0.19). Where the k-th
+  record sets r_p only the k - 1 records strictly inside count (the k-nearest density (k - 1) / V, unbiased for
+  a uniform density).
 - h_{b, g, band}(mu): the density of mu = cos(exit direction, normal) over [0, 1] of the exits of region g in a
   20 nm band, per batch b, as a Legendre series of ``LEGENDRE_TERMS`` terms (an orthogonal-series density
   estimate: coefficient (2l + 1) E[P_l(2 mu - 1)]); mu_p the cosine of the camera direction at x_p. With
@@ -165,3 +170,23 @@ def pixel_radii(pos, region, e, px, preg, n_regions: int, r0: float, k: int, thr
         grown[pix] = dk > r0[pix]
         radius[pix] = np.maximum(r0[pix], dk)
     return radius, grown
+
+
+def region_share(px, preg, radius, threads: int) -> np.ndarray:
+    """f_p (pixels,): the share of pixel p's own region in the surface the camera's pixels see within
+    ``radius[p]`` of its surface point px[p]: the pixels q there with preg[q] == preg[p] over all of them (p
+    itself among them, so f_p > 0; each pixel counts once: footprints within a ball are alike); 1 where the
+    radius is not finite (no estimate there)."""
+    from scipy.spatial import cKDTree
+
+    share = np.ones(px.shape[0])
+    ok = np.isfinite(radius) & (radius > 0)
+    if not ok.any():
+        return share
+    everyone = cKDTree(px)
+    for g in np.unique(preg[ok]):
+        pix = np.flatnonzero(ok & (preg == g))
+        own = cKDTree(px[preg == g]).query_ball_point(px[pix], radius[pix], workers=threads or -1, return_length=True)
+        total = everyone.query_ball_point(px[pix], radius[pix], workers=threads or -1, return_length=True)
+        share[pix] = own / np.maximum(total, 1)
+    return share

@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from . import colour
+from .camera import DEFAULT_VIEW_BATCHES
 
 __all__ = ["view_request", "camera_view", "CHANNELS"]
 
@@ -50,7 +51,7 @@ def view_request(
     camera=None,
     width: int | None = None,
     height: int | None = None,
-    n_batches: int = 20,
+    n_batches: int = DEFAULT_VIEW_BATCHES,
     excitation=None,
     emission_filter="auto",
     white_balance="white",

@@ -3,7 +3,8 @@
 ``render_view(result, camera=None, width=None, height=None, ...)`` returns a
 :class:`View`. Estimators of the radiance each pixel records:
 
-**Kernel estimate (default).** A primary ray per pixel centre (Embree, through
+**Kernel estimate** (the seed paper's; ``render_view``'s default is the exitance estimate,
+:mod:`endophoton.view.exitance`). A primary ray per pixel centre (Embree, through
 ``_core.first_surfaces``) finds the surface point x_p the pixel sees, its
 region and outward normal n_p; w_p is the unit direction from x_p to the
 camera. The escape records r that left within ``kernel_radius`` of x_p
@@ -53,7 +54,7 @@ from .. import _core
 from . import colour, exitance
 from ..analysis import batch_index
 from .budget import MAX_PAIRS_PER_CHUNK, check_render_memory
-from .camera import Camera
+from .camera import DEFAULT_VIEW_BATCHES, Camera
 from ..io import MAX_THREADS, check_int, shown
 from ..sources import MAX_IMAGE_SIDE, is_image_side
 from ..spectra import Spectrum
@@ -65,8 +66,6 @@ _CHUNK_PIXELS = 4096
 #: "k-nearest estimate"), and its largest allowed value.
 KNN_K = 32
 MAX_KNN_K = 4096
-#: Batches of the view's batch-means standard errors unless a call names n_batches.
-DEFAULT_VIEW_BATCHES = 20
 #: The two images of a view: all the light that leaves, and the fluorescence through the emission filter.
 VIEW_IMAGES = ("white", "fluorescence")
 #: The most pixel-record pairs one block of the k-nearest search holds (~80 bytes each: ~40 MiB).
@@ -721,12 +720,14 @@ def _exitance_gather(px, pk, preg, n_regions, rec, r0, theta_deg, threads, unit_
     mu_rows = exitance.legendre_rows(np.clip(1.0 / pk, 0.0, 1.0))
     mu = np.clip(np.abs(np.einsum("ij,ij->i", rec["normal"], rec["dir"])), 0.0, 1.0)
     B, names = rec["Pb"].size, list(rec["energy"])
+    s0 = 8.0 * float(np.median(r0)) if np.size(r0) else 0.0  # no pixel sees a surface: no cell is made
     setup = {}
     for name, e in rec["energy"].items():
         coef = exitance.angular_tables(mu, rec["region"], rec["band"], rec["batch"], e, n_regions, B)
-        cal = exitance.calibration(rec, e, coef, px, preg, n_regions, theta_deg, 8.0 * float(np.median(r0)))
+        cal = exitance.calibration(rec, e, coef, px, preg, n_regions, theta_deg, s0)
         r_p, grown = exitance.pixel_radii(rec["pos"], rec["region"], e, px, preg, n_regions, r0, k, threads)
-        base = pk / (2.0 * math.pi * math.pi * (r_p * unit_cm) ** 2)  # 1 / (2 pi mu_p A_p): 0 where r_p is inf
+        f_p = exitance.region_share(px, preg, r_p, threads)  # A_p = f_p pi r_p^2: the ball's own-region part
+        base = pk / (2.0 * math.pi * math.pi * f_p * (r_p * unit_cm) ** 2)  # 1 / (2 pi mu_p A_p): 0 where r_p is inf
         setup[name] = (coef, cal * base[:, None], r_p, grown)
     ball = np.max([np.where(np.isfinite(v[2]), v[2], 0.0) for v in setup.values()], axis=0)
     acc, used = {}, 0
@@ -847,7 +848,7 @@ def render_view(
         docs/render.md), "kernel" (the kernel estimate over the escape records), "knn" (the k-nearest estimate
         over them: each pixel's kernel grows until it holds ``knn_k`` records, so every pixel that sees tissue
         is nonzero; docs/render.md), "exitance" (every record near the pixel times its region's calibrated angular
-        share toward the camera: :mod:`endophoton.view.exitance`) or "auto" (nee with a camera tally, else kernel)
+        share toward the camera: :mod:`endophoton.view.exitance`) or "auto" (nee with a tally, else exitance)
     knn_k : with estimator "knn", the number of nearest records (in the 6-D metric of position / kernel_radius
         and direction / chord(kernel_angle_deg)) that sets each pixel's kernel: the k-th sets its size, the
         k - 1 inside it are summed ((k - 1) / V_k: unbiased for a uniform density). Larger k: less noise
@@ -864,7 +865,7 @@ def render_view(
     n_batches, knn_k, exit_k = _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k, exit_k)
     wanted = _check_call(result, estimator, threads, cancel, images)
     if estimator == "auto":
-        estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
+        estimator = "nee" if getattr(result, "camera_image", None) is not None else "exitance"
     camera, W, H = _resolve_camera(result.source, camera, width, height)
     _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes)
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
