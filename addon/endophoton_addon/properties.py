@@ -509,7 +509,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
                 "shows no live images",
             ),
         ],
-        default="EXITANCE",
+        default="KERNEL",
     )
     live_view: BoolProperty(
         name="Live View",

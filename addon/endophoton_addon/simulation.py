@@ -52,7 +52,9 @@ class RunInputs:
     target_error: Optional[float] = None  # "target" runs: relative stderr goal of the diffuse reflectance
     endoscope_view: bool = False  # render the rig camera's images from the records (ep.render_view)
     live_view: bool = False  # ... and refresh them while the run is in flight (live_view.py)
-    view_estimator: str = "exitance"  # ep.render_view's: "exitance", "kernel", "knn" or "nee" (the run tallies the camera)
+    view_estimator: str = (
+        "kernel"  # ep.render_view's: "kernel", "knn", "exitance" or "nee" (the run tallies the camera)
+    )
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 
 
