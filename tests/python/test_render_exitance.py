@@ -134,6 +134,7 @@ def _two_region_plane(rec, px):
     return rec, (px[:, 0] >= 0).astype(np.int64)
 
 
+@pytest.mark.slow
 def test_pixels_at_a_region_edge_read_the_plane_radiance(monkeypatch):
     """The plane cut into two regions of the same uniform exitance: a pixel 0.01-0.09 from the cut gathers only
     its own side's records, so its ball is partly empty; the region share f_p (from a grid of pixels around it) restores M / pi (chi-square at the batch-means errors). Without it (f_p = 1) the same pixels

@@ -352,7 +352,7 @@ def view_of_beta(
     white-light records). ``run_more(packets, seed, fluorescent_only, view=None, record_escapes=True)`` runs the
     same scene and rig again (the white pass, the next-event runs, the top-ups). Returns ``(columns, view)``;
     columns None where undefined."""
-    if render_kwargs.get("estimator") in (None, "auto"):  # a sweep's default: the kernel estimate (the paper's)
+    if _kernel_estimator(render_kwargs):  # named, so render_view's own "auto" rule cannot change a sweep's estimator
         render_kwargs["estimator"] = "kernel"
     fluorescent_only = bool(dict(getattr(result, "options", {}) or {}).get("fluorescent_only", False))
     # a white pass of its own: each run's records are rendered for the one image read from them
