@@ -52,6 +52,7 @@ void bind_run(py::module_& m);             // run.cpp: CancelToken, RunConfig, r
 void bind_mesh_check(py::module_& m);      // mesh_check.cpp: check_mesh
 void bind_spectrum_check(py::module_& m);  // spectrum_check.cpp: check_spectrum, check_eem
 void bind_surface_hits(py::module_& m);    // surface_hits.cpp: first_surfaces (endoscope view rays)
+void bind_exit_gather(py::module_& m);      // exit_gather.cpp: ExitIndex (the exitance estimate)
 void bind_distributed(py::module_& m);     // distributed.cpp: unit_plan, trace_units, UnitReducer
 void bind_testing(py::module_& m);         // testing.cpp: the _testing submodule (test-only hooks)
 

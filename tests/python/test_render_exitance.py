@@ -163,6 +163,143 @@ def test_pixels_at_a_region_edge_read_the_plane_radiance(monkeypatch):
     assert c1 > chi2_limit(5) and np.all(dark < 0.9 * exact), (dark, exact)
 
 
+def _gather_inputs(rng, n=400, p=30, M=2, B=4, G=2, nb=7):
+    """Random inputs of the native gather (``_core.exit_gather``): records and pixels in two regions on a
+    0.6 cm square, balls of 0.05-0.3 cm, some grown and some infinite, records outside the spectrum bins."""
+    pos = np.column_stack([rng.uniform(0, 0.6, (n, 2)), np.zeros(n)])
+    rec = dict(
+        rec_batch=rng.integers(0, B, n).astype(np.int32),
+        rec_band=rng.integers(0, exitance.N_BANDS, n).astype(np.int32),
+        rec_sbin=rng.integers(-1, nb, n).astype(np.int32),
+        rec_cmf=rng.random((n, 3)),
+        rec_cam=rng.random((n, 2)),
+        energy=rng.random((M, n)) * (rng.random((M, n)) < 0.8),
+        coef=rng.normal(0.5, 1.0, (M, B, G, exitance.N_BANDS, exitance.LEGENDRE_TERMS)),
+    )
+    radius = rng.uniform(0.05, 0.3, (M, p))
+    radius[0, :3] = np.inf
+    pix = dict(
+        px=np.column_stack([rng.uniform(0, 0.6, (p, 2)), np.zeros(p)]),
+        preg=rng.integers(0, G, p).astype(np.int32),
+        mu_rows=exitance.legendre_rows(rng.random(p)),
+        radius=radius,
+        grown=(rng.random((M, p)) < 0.5).astype(np.uint8),
+        scale=rng.random((M, p, B)),
+        image_index=np.sort(rng.choice(2 * p, p, replace=False)).astype(np.int64),
+        image_size=2 * p,
+        spectrum_bins=nb,
+    )
+    records = dict(pos=pos, region=rng.integers(0, G, n).astype(np.int32))
+    return records, rec, pix
+
+
+def _gather_pairs_numpy(records, rec, pix):
+    """The native gather's sums from every (pixel, record) pair, in numpy: the reference."""
+    M, B = rec["coef"].shape[:2]
+    p, nb, size = pix["px"].shape[0], pix["spectrum_bins"], pix["image_size"]
+    W, Wh, SPEC = np.zeros((M, p, B)), np.zeros((M, p, B)), np.zeros((M, p, nb))
+    XYZ, CAM = np.zeros((M, size, 3, B)), np.zeros((M, size, 2, B))
+    d = np.linalg.norm(pix["px"][:, None, :] - records["pos"][None, :, :], axis=2)  # (p, n)
+    for m in range(M):
+        for q in range(p):
+            r, g = pix["radius"][m, q], pix["preg"][q]
+            inside = (records["region"] == g) & (d[q] <= r) & ((pix["grown"][m, q] == 0) | (d[q] < r))
+            inside &= np.isfinite(r)
+            j = np.flatnonzero(inside)
+            b, band = rec["rec_batch"][j], rec["rec_band"][j]
+            h = np.maximum(rec["coef"][m, b, g, band] @ pix["mu_rows"][q], 0.0)
+            w = rec["energy"][m, j] * h * pix["scale"][m, q, b]
+            np.add.at(W[m, q], b, w)
+            np.add.at(Wh[m, q], b[d[q, j] < 0.5 * r], 4.0 * w[d[q, j] < 0.5 * r])
+            i = pix["image_index"][q]
+            for c in range(3):
+                np.add.at(XYZ[m, i, c], b, w * rec["rec_cmf"][j, c])
+            for c in range(2):
+                np.add.at(CAM[m, i, c], b, w * rec["rec_cam"][j, c])
+            ok = rec["rec_sbin"][j] >= 0
+            np.add.at(SPEC[m, q], rec["rec_sbin"][j][ok], w[ok])
+    return W, Wh, XYZ, CAM, SPEC
+
+
+def _index(records, keep=None):
+    from endophoton import _core
+
+    keep = np.ones(records["pos"].shape[0], dtype=np.uint8) if keep is None else keep
+    return _core.ExitIndex(records["pos"], records["region"], keep, 2)
+
+
+def test_native_gather_equals_the_pairs_summed_in_numpy():
+    """The native exitance gather against every (pixel, record) pair summed in numpy (grown and plain balls,
+    infinite radii, records of another region, zero energies, records outside the spectrum bins); and the same
+    bits on 1 and 2 threads."""
+    records, rec, pix = _gather_inputs(np.random.default_rng(11))
+    ref = _gather_pairs_numpy(records, rec, pix)
+    index = _index(records)
+    one = index.gather(**rec, **pix, threads=1)
+    two = index.gather(**rec, **pix, threads=2)
+    for name, a, b, c in zip(("W", "W_half", "XYZ", "CAM", "SPEC"), ref, one, two):
+        assert np.abs(a).sum() > 0, name
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-14, err_msg=name)
+        assert np.array_equal(b, c), name
+
+
+def _kth_numpy(records, use, px, preg, k):
+    """The k-th nearest marked record of each pixel's region by sorting every distance (the reference)."""
+    d = np.linalg.norm(px[:, None, :] - records["pos"][None, :, :], axis=2)
+    ref = np.full(px.shape[0], np.inf)
+    for q in range(px.shape[0]):
+        dq = np.sort(d[q][(records["region"] == preg[q]) & (use > 0)])
+        if dq.size >= 2:
+            ref[q] = dq[min(k, dq.size) - 1]
+    return ref
+
+
+def test_native_kth_distance_is_the_exact_kth_nearest():
+    """ExitIndex.kth_distance against sorting every distance in numpy: per pixel the k-th nearest record of its
+    region among those marked (bit for bit: both take |y - x| in double), the farthest where the region has fewer
+    than k, inf where it has fewer than 2; the same on 1 and 2 threads, pixels in image order and shuffled."""
+    rng = np.random.default_rng(13)
+    records, _, pix = _gather_inputs(rng, n=3000, p=400)
+    use = (rng.random(records["pos"].shape[0]) < 0.7).astype(np.uint8)
+    in_1 = np.flatnonzero((records["region"] == 1) & (use > 0))
+    use[in_1[30:]] = 0  # region 1 keeps 30 marked records: fewer than k = 64
+    px, preg = pix["px"], pix["preg"]
+    index = _index(records)
+    order = np.lexsort((px[:, 0], np.floor(px[:, 1] / 0.05)))  # rows of neighbours, as an image's
+    for k in (1, 5, 64):
+        ref = _kth_numpy(records, use, px, preg, k)
+        assert np.isfinite(ref).all()
+        for threads in (1, 2):
+            assert np.array_equal(index.kth_distance(use, px, preg, k, threads=threads), ref), (k, threads)
+            assert np.array_equal(index.kth_distance(use, px[order], preg[order], k, threads=threads), ref[order])
+    far = _kth_numpy(records, use, px, preg, 64)[preg == 1]
+    assert np.array_equal(far, _kth_numpy(records, use, px, preg, 30)[preg == 1])  # the farthest of the 30
+    use[in_1[1:]] = 0  # one marked record left in region 1: no estimate there
+    got = index.kth_distance(use, px, preg, 5, threads=2)
+    assert np.isinf(got[preg == 1]).all() and np.isfinite(got[preg == 0]).all()
+
+
+def test_native_gather_names_a_bad_input():
+    """Shapes that do not match, a batch or band out of range and an image index outside the image: a
+    ValueError that names the argument, no crash."""
+    records, rec, pix = _gather_inputs(np.random.default_rng(12))
+    index = _index(records)
+    with pytest.raises(ValueError, match="scale has shape"):
+        index.gather(**rec, **{**pix, "scale": pix["scale"][:, :, :2]})
+    with pytest.raises(ValueError, match="record 0 has batch 99"):
+        batch = rec["rec_batch"].copy()
+        batch[0] = 99
+        index.gather(**{**rec, "rec_batch": batch}, **pix)
+    with pytest.raises(ValueError, match=r"image_index\[0\] = -1"):
+        index_ = pix["image_index"].copy()
+        index_[0] = -1
+        index.gather(**rec, **{**pix, "image_index": index_})
+    with pytest.raises(ValueError, match="k = 0"):
+        index.kth_distance(np.ones(records["pos"].shape[0], np.uint8), pix["px"], pix["preg"], 0)
+    with pytest.raises(ValueError, match="use has shape"):
+        index.kth_distance(np.ones(3, np.uint8), pix["px"], pix["preg"], 4)
+
+
 def test_calibration_is_one_for_symmetric_exits_and_corrects_asymmetric_ones():
     """Azimuthally symmetric (Lambertian) exits: the calibration c is 1 within its error. Exits pushed toward
     one azimuth (away from the camera's side) leave less light toward the camera than the table says: c < 1,

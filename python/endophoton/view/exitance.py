@@ -149,27 +149,25 @@ def calibration(rec, e, coef, px, preg, n_regions: int, theta_deg: float, s0: fl
     return c
 
 
-def pixel_radii(pos, region, e, px, preg, n_regions: int, r0: float, k: int, threads: int):
+def pixel_radii(index, e, px, preg, r0: float, k: int, threads: int, cancel=None):
     """Per pixel, its ball's radius r_p = max(r0 (a number, or one per pixel), d_k) over the records of its own
-    region with energy (d_k the distance to the k-th nearest, or the farthest where the region has fewer than k;
-    infinite, so no estimate, where it has fewer than 2), and whether d_k set it."""
-    from scipy.spatial import cKDTree
+    region with energy e > 0 (d_k the distance to the k-th nearest, or the farthest where the region has fewer
+    than k; infinite, so no estimate, where it has fewer than 2), and whether d_k set it. ``index``: the render's
+    ``_core.ExitIndex`` of the records (d_k exact, the same on any thread count). None once ``cancel`` is set."""
+    from .. import _core
 
     r0 = np.broadcast_to(np.asarray(r0, dtype=np.float64), (px.shape[0],))
-    radius, grown = r0.copy(), np.zeros(px.shape[0], dtype=bool)
-    for g in range(n_regions):
-        pix = np.flatnonzero(preg == g)
-        sel = np.flatnonzero((region == g) & (e > 0))
-        if pix.size == 0:
-            continue
-        if sel.size < 2:
-            radius[pix], grown[pix] = np.inf, True
-            continue
-        d, _ = cKDTree(pos[sel]).query(px[pix], k=[min(k, sel.size)], workers=threads or -1)
-        dk = d[:, 0]
-        grown[pix] = dk > r0[pix]
-        radius[pix] = np.maximum(r0[pix], dk)
-    return radius, grown
+    dk = index.kth_distance(
+        (np.asarray(e) > 0).astype(np.uint8),
+        px,
+        np.asarray(preg, dtype=np.int32),
+        int(k),
+        threads=int(threads),
+        cancel=cancel if isinstance(cancel, _core.CancelToken) else None,
+    )
+    if dk is None:
+        return None
+    return np.maximum(r0, dk), dk > r0
 
 
 def region_share(px, preg, radius, threads: int) -> np.ndarray:
@@ -186,6 +184,14 @@ def region_share(px, preg, radius, threads: int) -> np.ndarray:
     everyone = cKDTree(px)
     for g in np.unique(preg[ok]):
         pix = np.flatnonzero(ok & (preg == g))
+        others = px[preg != g]
+        if others.shape[0] == 0:
+            continue
+        # a ball that reaches no pixel of another region is all its own (f_p = 1): only the rest are counted
+        near, _ = cKDTree(others).query(px[pix], k=1, workers=threads or -1)
+        pix = pix[near <= radius[pix]]
+        if pix.size == 0:
+            continue
         own = cKDTree(px[preg == g]).query_ball_point(px[pix], radius[pix], workers=threads or -1, return_length=True)
         total = everyone.query_ball_point(px[pix], radius[pix], workers=threads or -1, return_length=True)
         share[pix] = own / np.maximum(total, 1)

@@ -711,54 +711,85 @@ def _kernel_gather(px, pw, pk, preg, n_regions, rec, r, theta_deg, threads, unit
 def _exitance_gather(px, pk, preg, n_regions, rec, r0, theta_deg, threads, unit_cm, hit, cancel, k):
     """:func:`_kernel_gather`'s sums for the exitance estimate (:mod:`endophoton.view.exitance`): each pixel's
     ball over its own region's records, radius r_p = max(r0, d_k) per image, each pair weighted by the angular
-    table of the record's batch, region and band at the pixel's view cosine and by the calibration. One search
-    per region at the larger of the images' radii. Returns (acc, the records used, {image: (pixels,) ball
-    radii}), or (None, 0, None) once cancelled."""
-    from scipy.spatial import cKDTree
-
+    table of the record's batch, region and band at the pixel's view cosine and by the calibration. The pairs
+    are searched and summed natively (``_core.ExitIndex``: one search per pixel at the larger of the images'
+    radii).
+    Returns (acc, the records used, {image: (pixels,) ball radii}), or (None, 0, None) once cancelled."""
     mu_rows = exitance.legendre_rows(np.clip(1.0 / pk, 0.0, 1.0))
     mu = np.clip(np.abs(np.einsum("ij,ij->i", rec["normal"], rec["dir"])), 0.0, 1.0)
     B, names = rec["Pb"].size, list(rec["energy"])
     s0 = 8.0 * float(np.median(r0)) if np.size(r0) else 0.0  # no pixel sees a surface: no cell is made
+    anything = np.logical_or.reduce([e > 0 for e in rec["energy"].values()])
+    index = _core.ExitIndex(rec["pos"], rec["region"].astype(np.int32), anything.astype(np.uint8), n_regions)
     setup = {}
     for name, e in rec["energy"].items():
+        if _cancelled(cancel):
+            return None, 0, None
         coef = exitance.angular_tables(mu, rec["region"], rec["band"], rec["batch"], e, n_regions, B)
         cal = exitance.calibration(rec, e, coef, px, preg, n_regions, theta_deg, s0)
-        r_p, grown = exitance.pixel_radii(rec["pos"], rec["region"], e, px, preg, n_regions, r0, k, threads)
+        radii = exitance.pixel_radii(index, e, px, preg, r0, k, threads, cancel)
+        if radii is None:
+            return None, 0, None
+        r_p, grown = radii
         f_p = exitance.region_share(px, preg, r_p, threads)  # A_p = f_p pi r_p^2: the ball's own-region part
         base = pk / (2.0 * math.pi * math.pi * f_p * (r_p * unit_cm) ** 2)  # 1 / (2 pi mu_p A_p): 0 where r_p is inf
         setup[name] = (coef, cal * base[:, None], r_p, grown)
-    ball = np.max([np.where(np.isfinite(v[2]), v[2], 0.0) for v in setup.values()], axis=0)
-    acc, used = {}, 0
-    anything = np.logical_or.reduce([e > 0 for e in rec["energy"].values()])
-    for g in range(n_regions):
-        pix = np.flatnonzero((preg == g) & (ball > 0))
-        sel = np.flatnonzero((rec["region"] == g) & anything)
-        if pix.size == 0 or sel.size == 0:
-            continue
-        used += sel.size
-        tree = cKDTree(rec["pos"][sel])
-        n_ball = tree.query_ball_point(px[pix], ball[pix], workers=threads or -1, return_length=True)
-        for p0, p1 in _pixel_chunks(np.concatenate([[0], np.cumsum(n_ball)])):
-            if _cancelled(cancel):
-                return None, 0, None
-            rows = pix[p0:p1]
-            lists = tree.query_ball_point(px[rows], ball[rows], workers=threads or -1, return_sorted=False)
-            counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=rows.size)
-            p = np.repeat(rows, counts)
-            j = sel[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
-            d = np.sqrt(np.sum((rec["pos"][j] - px[p]) ** 2, axis=1))
-            b, band, rows_p = rec["batch"][j], rec["band"][j], mu_rows[p]
-            f, halves = {}, []
-            for name in names:  # the pair's h_{b, g, band}(mu_p) c_{p, b} / (2 pi mu_p A_p)
-                coef, scale, r_p, grown = setup[name]
-                inside = (d <= r_p[p]) & (~grown[p] | (d < r_p[p]))  # a grown ball: the k - 1 strictly inside
-                f[name] = np.where(inside, exitance.density(coef[b, g, band], rows_p) * scale[p, b], 0.0)
-                halves.append(d < 0.5 * r_p[p])
-            half = np.logical_or.reduce(halves)
-            kh = {name: (4.0 * f[name][half] * h[half], 1.0) for name, h in zip(names, halves)}
-            _add_pairs(acc, rec, p, j, f, half, kh, names, preg, hit, n_regions)
+    if _cancelled(cancel):
+        return None, 0, None
+    token = cancel if isinstance(cancel, _core.CancelToken) else None
+    sums = _exitance_sums(index, rec, [setup[name] for name in names], px, preg, mu_rows, hit, threads, token)
+    if sums is None or _cancelled(cancel):
+        return None, 0, None
+    acc = _exitance_acc(sums, names, preg, n_regions, hit)
+    seen = np.unique(preg[np.max([np.where(np.isfinite(v[2]), v[2], 0.0) for v in setup.values()], axis=0) > 0])
+    used = int(np.count_nonzero(anything & np.isin(rec["region"], seen)))
     return acc, used, {name: v[2] for name, v in setup.items()}
+
+
+def _exitance_sums(index, rec, setups, px, preg, mu_rows, hit, threads, cancel):
+    """``index.gather`` (``_core.ExitIndex``) of the images whose (coef, scale, r_p, grown) are ``setups``, in the
+    order of ``rec["energy"]``: the native sums, or None once ``cancel`` (a CancelToken or None) is set."""
+    return index.gather(
+        rec["batch"].astype(np.int32),
+        rec["band"].astype(np.int32),
+        rec["sbin"].astype(np.int32),
+        rec["cmf"],
+        rec["cam_rg"],
+        np.stack(list(rec["energy"].values())),
+        np.stack([v[0] for v in setups]),
+        px,
+        preg.astype(np.int32),
+        mu_rows,
+        np.stack([v[2] for v in setups]),
+        np.stack([v[3] for v in setups]).astype(np.uint8),
+        np.stack([v[1] for v in setups]),
+        np.flatnonzero(hit),
+        hit.size,
+        spectrum_bins=int(rec["nbins"]),
+        threads=int(threads),
+        cancel=cancel,
+    )
+
+
+def _exitance_acc(sums, names, preg, n_regions, hit) -> dict:
+    """The native exitance sums (W, W_half (images, pixels, B), XYZ (images, image pixels, 3, B), CAM (images,
+    image pixels, 2, B), SPEC (images, pixels, bins)) laid out as :func:`_add_pairs` leaves the gathers' (``acc``),
+    without copies of the per-batch colour sums."""
+    W, Wh, XYZ, CAM, SPEC = sums
+    image_pixel = np.flatnonzero(hit)
+    acc = {}
+    for m, name in enumerate(names):
+        acc[name + "_pix_batch"] = W[m].reshape(-1)
+        acc[name + "_half_pix_batch"] = Wh[m].reshape(-1)
+        acc[name + "_spec_pix"] = SPEC[m].reshape(-1)
+        for tag, a in (("xyz", XYZ[m]), ("cam", CAM[m])):
+            acc[f"{name}_{tag}_image"] = a.reshape(-1)
+            for c in range(a.shape[1]):
+                per_batch = a[image_pixel, c, :]
+                acc[f"{name}_{tag}{c}_reg_batch"] = _region_sums(preg, per_batch, n_regions).reshape(-1)
+                if tag == "xyz":
+                    acc[f"{name}_xyz{c}_pix"] = per_batch.sum(axis=1)
+    return acc
 
 
 def _image_from_sums(acc, name, P, Pb, hit, shape, nbins, gains, exposure, prefix=""):
