@@ -286,6 +286,8 @@ def sections(R):
         + "\n## 20. The exitance estimate (issue 34; frozen, 2026-12-06)\n\n" + frozen("exitance")
         + "\n## 21. The exitance estimate's edges and spread; blue light to the target (issue 34; frozen, 2026-12-06)\n\n"
         + frozen("blue_target")
+        + "\n## 22. The exitance estimate made native; the default again (issue 34; frozen, 2026-12-07)\n\n"
+        + frozen("exitance_native")
     )  # fmt: skip
 
 

@@ -183,6 +183,7 @@ bool ExitIndex::kth_distance(const uint8_t* use, const ExitPixels& pix, int k, i
                 s.d.push_back(std::sqrt(dx * dx + dy * dy + dz * dz));
             }
             if (s.d.size() >= want) break;
+            if (!std::isfinite(4.0 * r * r)) return;  // distances beyond double's range: no estimate (inf)
         }
         std::nth_element(s.d.begin(), s.d.begin() + (want - 1), s.d.end());
         dk[q] = s.d[want - 1];

@@ -509,7 +509,7 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
                 "shows no live images",
             ),
         ],
-        default="KERNEL",
+        default="EXITANCE",
     )
     live_view: BoolProperty(
         name="Live View",

@@ -53,7 +53,7 @@ class RunInputs:
     endoscope_view: bool = False  # render the rig camera's images from the records (ep.render_view)
     live_view: bool = False  # ... and refresh them while the run is in flight (live_view.py)
     view_estimator: str = (
-        "kernel"  # ep.render_view's: "kernel", "knn", "exitance" or "nee" (the run tallies the camera)
+        "exitance"  # ep.render_view's: "exitance", "kernel", "knn" or "nee" (the run tallies the camera)
     )
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
 

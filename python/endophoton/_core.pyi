@@ -159,6 +159,51 @@ def first_surfaces(
     """(t, region, triangle, normal) of the first entry into tissue along each ray (region -1: none,
     -2: the ray starts inside a region)."""
 
+class ExitIndex:
+    """The records of each region that ``keep`` marks, one kd-tree per region (native/exit_gather.h): the
+    exitance estimate's searches and sums. Keeps the position and region arrays alive."""
+
+    def __init__(
+        self,
+        rec_pos: npt.NDArray[np.float64],
+        rec_region: npt.NDArray[np.int32],
+        keep: npt.NDArray[np.uint8],
+        regions: int,
+    ) -> None: ...
+    def kth_distance(
+        self,
+        use: npt.NDArray[np.uint8],
+        px: npt.NDArray[np.float64],
+        preg: npt.NDArray[np.int32],
+        k: int,
+        threads: int = 0,
+        cancel: CancelToken | None = None,
+    ) -> np.ndarray | None:
+        """Per pixel, the distance to the k-th nearest marked record of its region (the farthest where fewer
+        than k, inf where fewer than 2); None once cancelled."""
+    def gather(
+        self,
+        rec_batch: npt.NDArray[np.int32],
+        rec_band: npt.NDArray[np.int32],
+        rec_sbin: npt.NDArray[np.int32],
+        rec_cmf: npt.NDArray[np.float64],
+        rec_cam: npt.NDArray[np.float64],
+        energy: npt.NDArray[np.float64],
+        coef: npt.NDArray[np.float64],
+        px: npt.NDArray[np.float64],
+        preg: npt.NDArray[np.int32],
+        mu_rows: npt.NDArray[np.float64],
+        radius: npt.NDArray[np.float64],
+        grown: npt.NDArray[np.uint8],
+        scale: npt.NDArray[np.float64],
+        image_index: npt.NDArray[np.int64],
+        image_size: int,
+        spectrum_bins: int,
+        threads: int = 0,
+        cancel: CancelToken | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """(W, W_half, XYZ, CAM, SPEC): the exitance estimate's sums; None once cancelled."""
+
 def unit_plan(scene: Scene, source: Source, options: RunConfig) -> tuple[int, int]:
     """(unit_size, n_units_max) of a request; validates it as run() does."""
 

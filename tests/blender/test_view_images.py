@@ -127,7 +127,7 @@ def test_each_view_estimator_makes_the_packages_image(ep, tmp_path):
     (view=True) and asks for no records when nothing else reads them."""
     shares = {}
     rna = bpy.context.scene.endophoton.bl_rna.properties["view_estimator"]
-    assert rna.default == "KERNEL"  # the default, as render_view's "auto" without a camera tally
+    assert rna.default == "EXITANCE"  # the default, as render_view's "auto" without a camera tally
     for choice in ("KERNEL", "KNN", "EXITANCE", "NEE"):
         _scene, job, collection = _run("flat_tissue.blend", tmp_path, output_points=False, view_estimator=choice)
         estimator = choice.lower()

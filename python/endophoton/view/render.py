@@ -3,7 +3,8 @@
 ``render_view(result, camera=None, width=None, height=None, ...)`` returns a
 :class:`View`. Estimators of the radiance each pixel records:
 
-**Kernel estimate (default).** A primary ray per pixel centre (Embree, through
+**Kernel estimate** (the seed paper's; ``render_view``'s default is the exitance estimate,
+:mod:`endophoton.view.exitance`). A primary ray per pixel centre (Embree, through
 ``_core.first_surfaces``) finds the surface point x_p the pixel sees, its
 region and outward normal n_p; w_p is the unit direction from x_p to the
 camera. The escape records r that left within ``kernel_radius`` of x_p
@@ -878,7 +879,7 @@ def render_view(
         docs/render.md), "kernel" (the kernel estimate over the escape records), "knn" (the k-nearest estimate
         over them: each pixel's kernel grows until it holds ``knn_k`` records, so every pixel that sees tissue
         is nonzero; docs/render.md), "exitance" (every record near the pixel times its region's calibrated angular
-        share toward the camera: :mod:`endophoton.view.exitance`) or "auto" (nee with a tally, else kernel)
+        share toward the camera: :mod:`endophoton.view.exitance`) or "auto" (nee with a tally, else exitance)
     knn_k : with estimator "knn", the number of nearest records (in the 6-D metric of position / kernel_radius
         and direction / chord(kernel_angle_deg)) that sets each pixel's kernel: the k-th sets its size, the
         k - 1 inside it are summed ((k - 1) / V_k: unbiased for a uniform density). Larger k: less noise
@@ -895,7 +896,7 @@ def render_view(
     n_batches, knn_k, exit_k = _check_knobs(kernel_radius, kernel_angle_deg, n_batches, knn_k, exit_k)
     wanted = _check_call(result, estimator, threads, cancel, images)
     if estimator == "auto":
-        estimator = "nee" if getattr(result, "camera_image", None) is not None else "kernel"
+        estimator = "nee" if getattr(result, "camera_image", None) is not None else "exitance"
     camera, W, H = _resolve_camera(result.source, camera, width, height)
     _check_memory(result, camera, W, H, n_batches, estimator, memory_budget_bytes)
     light = excitation_spectrum(excitation) if excitation is not None else getattr(result.source, "spectrum", None)
