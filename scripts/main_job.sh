@@ -17,8 +17,8 @@
 # calibrated angular share toward the camera; docs/render.md), which agrees with the unbiased next-event
 # estimate within noise. All three run every 10 deg (COLON_BETAS, SPECTRAL_BETAS, BLUE_BETAS). White light and
 # the spectral tissue reach ERR at every beta from the store run and a top-up or two (caps CAP, SPECTRAL_CAP);
-# blue light needs about 10^7 packets a beta for ERR (its long-pass image's green is dark), so it runs up to
-# BLUE_CAP (6 x 10^6: ERR at 5 of the 6 beta; docs/performance.md section 21). The colon sweeps and the
+# blue light needs up to about 10^7 packets a beta for ERR (its long-pass image's green is dark), so it runs up
+# to BLUE_CAP (1.2 x 10^7: ERR at all 6 beta, 3.4-9.0 x 10^6 packets; docs/performance.md section 22). The colon sweeps and the
 # Blender scene run beside the flat sweep (their logs in OUT/), and the whole job stays within 10 minutes on 2
 # idle cores.
 # STORE (default 250000 fluorescent photons per beta) sets the paper's store N; BETAS the flat scene's angles;
@@ -33,7 +33,7 @@ BETAS="${BETAS:-0:60:5}"
 ERR="${ERR:-0.05}"
 CAP="${CAP:-4000000}"
 SPECTRAL_CAP="${SPECTRAL_CAP:-750000}"
-BLUE_CAP="${BLUE_CAP:-6000000}"
+BLUE_CAP="${BLUE_CAP:-12000000}"
 BLUE_BETAS="${BLUE_BETAS:-0:60:10}"
 SPECTRAL_BETAS="${SPECTRAL_BETAS:-0:60:10}"
 COLON_BETAS="${COLON_BETAS:-0:60:10}"
