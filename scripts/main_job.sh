@@ -22,8 +22,9 @@
 # Blender scene run beside the flat sweep (their logs in OUT/), and the whole job stays within 10 minutes on 2
 # idle cores.
 # STORE (default 250000 fluorescent photons per beta) sets the paper's store N; BETAS the flat scene's angles;
-# ERR and CAP the white colon's target; ESTIMATOR the flat scene's camera estimator (empty: the kernel
-# estimate, the paper's), COLON_ESTIMATOR the colon sweeps' (default exitance).
+# ERR and CAP the white colon's target; ESTIMATOR the flat scene's camera estimator (default kernel: the
+# paper's estimate, as its report compares with the paper), COLON_ESTIMATOR the colon sweeps' (default exitance,
+# as a sweep's own default).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -37,7 +38,7 @@ BLUE_CAP="${BLUE_CAP:-12000000}"
 BLUE_BETAS="${BLUE_BETAS:-0:60:10}"
 SPECTRAL_BETAS="${SPECTRAL_BETAS:-0:60:10}"
 COLON_BETAS="${COLON_BETAS:-0:60:10}"
-ESTIMATOR="${ESTIMATOR:-}"
+ESTIMATOR="${ESTIMATOR:-kernel}"
 COLON_ESTIMATOR="${COLON_ESTIMATOR:-exitance}"
 export ENDOPHOTON_ADDON_PATH="$PWD/addon"
 mkdir -p "$OUT"

@@ -350,7 +350,7 @@ class EndoPhotonSweepSettings(bpy.types.PropertyGroup):
                 "next event): unbiased, as many packets as the store run, about 6× their time",
             ),
         ],
-        default="KERNEL",
+        default="EXITANCE",
     )
     keep_runs: EnumProperty(
         name="Per-β Results",

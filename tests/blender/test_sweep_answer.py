@@ -92,10 +92,13 @@ def test_rows_wrap_instead_of_being_cut():
 
 
 def test_estimator_goes_into_the_visibility_request(tmp_path):
-    """The Visibility box's Estimator is the sweep's --estimator: kernel by default, nee on request."""
+    """The Visibility box's Estimator is the sweep's --estimator: exitance by default (as the command line's),
+    kernel and nee on request."""
     scene, s = _setup(tmp_path)
     names = ["Polyp", "Tissue"]
-    assert s.view_estimator == "KERNEL"
+    assert s.view_estimator == "EXITANCE"
+    assert sweep_answer.visibility_request(s, names, "test")["estimator"] == "exitance"
+    s.view_estimator = "KERNEL"
     assert sweep_answer.visibility_request(s, names, "test")["estimator"] == "kernel"
     s.view_estimator = "NEE"
     req = sweep_answer.visibility_request(s, names, "test")

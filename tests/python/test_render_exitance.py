@@ -279,6 +279,26 @@ def test_native_kth_distance_is_the_exact_kth_nearest():
     assert np.isinf(got[preg == 1]).all() and np.isfinite(got[preg == 0]).all()
 
 
+def test_native_searches_stop_at_a_cancelled_token():
+    """A set token stops the native k-th distance and the sums at their first block of pixels: None, as
+    render_view then returns (the add-on's Esc during the view after a run); an unset one changes nothing."""
+    records, rec, pix = _gather_inputs(np.random.default_rng(14))
+    index = _index(records)
+    use = np.ones(records["pos"].shape[0], np.uint8)
+    token = ep.CancelToken()
+    token.cancel()
+    assert index.kth_distance(use, pix["px"], pix["preg"], 8, cancel=token) is None
+    assert index.gather(**rec, **pix, cancel=token) is None
+    free = ep.CancelToken()
+    assert np.array_equal(
+        index.kth_distance(use, pix["px"], pix["preg"], 8, cancel=free),
+        index.kth_distance(use, pix["px"], pix["preg"], 8),
+    )
+    assert all(
+        np.array_equal(a, b) for a, b in zip(index.gather(**rec, **pix, cancel=free), index.gather(**rec, **pix))
+    )
+
+
 def test_native_gather_names_a_bad_input():
     """Shapes that do not match, a batch or band out of range and an image index outside the image: a
     ValueError that names the argument, no crash."""

@@ -147,12 +147,14 @@ def test_lights_report_names_each_estimator_and_compares_only_like_with_like():
     assert "| white | nee | red/green contrast, camera channels |" in same
     assert "σ apart): blue light shows the polyp more clearly." in same
     mixed = lights_report([("white", _sweep_of(0.4, "nee")), ("blue", _sweep_of(1.5, "auto", "blue405"))])
-    assert "| blue | kernel |" in mixed
+    assert "| blue | exitance |" in mixed  # a sweep's "auto" is the exitance estimate
     assert (
-        "not compared, since the white light's views come from the nee estimate and the blue light's from the kernel"
-        in mixed
+        "not compared, since the white light's views come from the nee estimate and the blue light's from the "
+        "exitance" in mixed
     )
     assert "shows the polyp more clearly" not in mixed
+    kernel = lights_report([("white", _sweep_of(0.4, "nee")), ("blue", _sweep_of(1.5, "kernel", "blue405"))])
+    assert "| blue | kernel |" in kernel and "the blue light's from the kernel" in kernel
     assert "white pass" in _records_words({"visibility": {"estimator": "auto"}})
     assert "`nee` estimator's own tallies" in _records_words({"visibility": {"estimator": "nee"}})
 

@@ -127,9 +127,10 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
         "--estimator",
         default=None,
         choices=SWEEP_ESTIMATORS,
-        help="the view's camera estimator: kernel (default: the records' kernel estimate), exitance (every "
-        "record near each pixel times its region's calibrated angular share toward the camera: no more "
-        "packets, 4-6x the kernel's efficiency on the colour contrast; docs/render.md) or nee (the "
+        help="the view's camera estimator: exitance (default: every record near each pixel times its region's "
+        "calibrated angular share toward the camera: no more packets, about 6x the kernel's efficiency on the "
+        "colour contrast; docs/render.md), kernel (the records' kernel estimate, the paper's: its colour "
+        "contrast reads about 22 %% low on the colon) or nee (the "
         "next-event estimate, unbiased: each beta's view from runs of its own with the camera tally, "
         "as many packets as the store run, topped up by --target-contrast; about 6x their time)",
     )

@@ -354,9 +354,9 @@ def _contrast_target(target, visibility):
     estimator = (visibility or {}).get("estimator")
     if estimator not in (None, "auto") + SWEEP_ESTIMATORS:
         raise ValueError(
-            f"visibility['estimator'] = {estimator!r}: a sweep renders each β with the kernel estimate "
-            "('kernel', from its records; 'auto' is the same there), the exitance estimate ('exitance', from "
-            "its records) or the next-event estimate ('nee', from runs of its own with the camera tally)"
+            f"visibility['estimator'] = {estimator!r}: a sweep renders each β with the exitance estimate "
+            "('exitance', from its records; 'auto' is the same there), the kernel estimate ('kernel', from its "
+            "records) or the next-event estimate ('nee', from runs of its own with the camera tally)"
         )
     if checked is not None and visibility is None:
         raise ValueError(f"target = {target!r} needs a view: give visibility={{'target': ..., 'background': ...}}")

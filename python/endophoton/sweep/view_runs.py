@@ -1,8 +1,8 @@
 """The endoscope's view of one β of a sweep: which records make each image, and how many packets.
 
 * **The white-light image holds all the light.** A fluorescent-only run (the paper's store N) keeps only
-  the fluorescent exits, so with a record-based estimator (the kernel estimate, ``estimator`` "kernel" or
-  none given) its white image would be made of the very records of its fluorescence image. The sweep then
+  the fluorescent exits, so with a record-based estimator (the exitance estimate, ``estimator``
+  "exitance", "auto" or none given, or the kernel estimate, "kernel") its white image would be made of the very records of its fluorescence image. The sweep then
   runs a **white pass**: a run of the same scene and rig that records every exit (``fluorescent_only=False``),
   with a seed of its own (:func:`piece_seed`), ``white_packets`` packets (default: as many as the store run
   traced). ``white_*`` comes from the white pass's records, ``fluorescence_*`` and ``red_green_*`` from the
@@ -20,9 +20,10 @@
   (:func:`piece_seed`; packet indices continue after the packets before them, so the batches stay contiguous
   packet blocks) until the contrast's standard error is at most the requested error, or the cap
   ``max_packets`` is reached. :func:`next_packets` is the stopping rule.
-* Records the kernel estimate cannot use are dropped from the top-ups as they arrive
+* With the kernel estimate, records it cannot use are dropped from the top-ups as they arrive
   (``render.kernel_candidates``, the kernel's own pre-filter), so a β of millions of packets keeps only the
-  records that head for the camera.
+  records that head for the camera. The exitance estimate uses every record of a region, so its top-ups keep
+  them all (about 300 bytes a record while the β runs).
 """
 from __future__ import annotations
 
@@ -237,19 +238,19 @@ def _packets_of(res) -> int:
 
 
 #: The camera estimators a sweep renders each β with (``visibility["estimator"]``, ``sweep --estimator``; "auto"
-#: and None are the kernel): from its records, or from next-event runs of its own.
+#: and None are the exitance estimate): from its records, or from next-event runs of its own.
 SWEEP_ESTIMATORS = ("kernel", "exitance", "nee")
 
 
 def _kernel_estimator(render_kwargs: Mapping) -> bool:
-    """Whether the view's estimator is the kernel estimate ("auto" is it in a sweep, whose store runs have no
-    camera tally)."""
-    return render_kwargs.get("estimator", "kernel") in ("kernel", "auto", None)
+    """Whether the view's estimator is the kernel estimate (asked for by name)."""
+    return render_kwargs.get("estimator") == "kernel"
 
 
 def _records_estimator(render_kwargs: Mapping) -> bool:
-    """Whether the view's estimator makes its images from the run's records: the kernel or the exitance estimate."""
-    return _kernel_estimator(render_kwargs) or render_kwargs.get("estimator") == "exitance"
+    """Whether the view's estimator makes its images from the run's records: the kernel or the exitance estimate
+    (also "auto" and none given: the exitance estimate in a sweep, whose store runs have no camera tally)."""
+    return render_kwargs.get("estimator") in ("kernel", "exitance", "auto", None)
 
 
 def _nee_estimator(render_kwargs: Mapping) -> bool:
@@ -352,8 +353,8 @@ def view_of_beta(
     white-light records). ``run_more(packets, seed, fluorescent_only, view=None, record_escapes=True)`` runs the
     same scene and rig again (the white pass, the next-event runs, the top-ups). Returns ``(columns, view)``;
     columns None where undefined."""
-    if _kernel_estimator(render_kwargs):  # named, so render_view's own "auto" rule cannot change a sweep's estimator
-        render_kwargs["estimator"] = "kernel"
+    if render_kwargs.get("estimator") in ("auto", None):  # named: render_view's "auto" rule cannot change it
+        render_kwargs["estimator"] = "exitance"
     fluorescent_only = bool(dict(getattr(result, "options", {}) or {}).get("fluorescent_only", False))
     # a white pass of its own: each run's records are rendered for the one image read from them
     white_pass = fluorescent_only and _records_estimator(render_kwargs)

@@ -337,12 +337,12 @@ def _answer(fits, meta=None) -> str:
 
 
 def _estimator(meta) -> str:
-    """The sweep's camera estimator: "nee", "exitance", or "kernel" (also for "auto": a store run has no camera
-    tally)."""
+    """The sweep's camera estimator: "nee", "kernel", or "exitance" (also for "auto" and none given: a store run
+    has no camera tally)."""
     vis = dict((meta or {}).get("visibility") or {})
     if view_runs._nee_estimator(vis):
         return "nee"
-    return "exitance" if vis.get("estimator") == "exitance" else "kernel"
+    return "kernel" if view_runs._kernel_estimator(vis) else "exitance"
 
 
 def _records_words(meta) -> str:
