@@ -299,6 +299,7 @@ class Progress:
     eta: Optional[float]  # seconds, None when unknown
     target_error: Optional[float] = None  # a quality preset: the diffuse reflectance's relative error goal
     cap: int = 0  # ... and its packet cap
+    stage: Optional[str] = None  # after the tracing: what the worker does now (the endoscope view's render)
 
     @property
     def fraction(self):
@@ -314,6 +315,8 @@ class Progress:
         return f"until Rd ±{100 * self.target_error:g} % (≤ {self.cap:,} packets{bound})"
 
     def text(self):
+        if self.stage is not None:  # the packets are traced; the worker renders (seconds), Esc still stops it
+            return f"EndoPhoton: {self.done:,} packets traced · {self.stage} · Esc to cancel"
         if self.total <= 0:
             return f"EndoPhoton: {self.done:,} packets · {self.rate:,.0f} packets/s · {self.goal()} · Esc to cancel"
         eta = "--" if self.eta is None else format_seconds(self.eta)
@@ -397,6 +400,7 @@ class SimulationJob(BackgroundJob):
         self.created_folders = []  # folders this run made for its files, deepest first
         self._lock = threading.Lock()
         self._progress = (0, inputs.count if inputs.kind == "photons" else 0)
+        self._stage = None  # Progress.stage: set by the worker once the tracing is done
         self._t0 = None
         self._finished = threading.Event()
         self._thread = None
@@ -410,17 +414,20 @@ class SimulationJob(BackgroundJob):
 
     def progress(self):
         with self._lock:
-            done, total = self._progress
+            done, total, stage = *self._progress, self._stage
         elapsed = time.monotonic() - self._t0 if self._t0 else 0.0
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (total - done) / rate if rate > 0 and total >= done > 0 else None
         target = self.inputs.target_error if self.inputs.kind == "target" else None
         total = 0 if target is not None else total  # a preset's count is a cap, not a total
-        return Progress(done, total, elapsed, rate, None if target is not None else eta, target, self.inputs.count)
+        eta = None if target is not None else eta
+        return Progress(done, total, elapsed, rate, eta, target, self.inputs.count, stage)
 
     def panel_lines(self):
         """Lines for the sidebar's progress box (the panel wraps them to its width)."""
         progress = self.progress()
+        if progress.stage is not None:
+            return [f"Traced: {progress.done:,} packets", progress.stage[0].upper() + progress.stage[1:]]
         lines = [f"Running: {progress.done:,} packets"]
         if progress.total > 0:
             eta = "--" if progress.eta is None else format_seconds(progress.eta)
@@ -480,6 +487,9 @@ class SimulationJob(BackgroundJob):
             self.grid_info = read_grid_info(grid_path)
             self.render_grids = volumes.write_render_grids(grid_path)
         if not self.cancelled:
+            if self.inputs.endoscope_view:
+                with self._lock:
+                    self._stage = f"rendering the endoscope view ({self.inputs.view_estimator} estimate)"
             self.view, self.view_error = endoscope_view(self.ep, self.inputs, self.result, self.token)
 
 

@@ -55,6 +55,12 @@ def test_progress_text():
         " · Esc to cancel"
     )
     assert "store N" not in preset.text()
+    # After the tracing the worker renders the endoscope view (seconds with the exitance estimate): the status
+    # says so instead of a finished count with ETA 0s.
+    view = simulation.Progress(
+        done=200_000, total=200_000, elapsed=3.0, rate=66_000.0, eta=0.0, stage="rendering the endoscope view"
+    )
+    assert view.text() == "EndoPhoton: 200,000 packets traced · rendering the endoscope view · Esc to cancel"
 
 
 def test_interactive_threads_leave_a_core():

@@ -3,6 +3,7 @@
 as Image datablocks beside their run and go with it."""
 
 import os
+import re
 
 import bpy
 import numpy as np
@@ -161,3 +162,30 @@ def test_next_event_needs_a_photon_count(ep, tmp_path):
     assert set(bpy.data.collections.keys()) == collections_before  # the scene is left as it was
     s.output_views = False  # no view asked for: the estimator does not matter
     assert simulation.collect_inputs(bpy.context).view_estimator == "nee"
+
+
+def test_the_status_says_the_view_is_rendering(ep, tmp_path, monkeypatch):
+    """Once the packets are traced the worker renders the view (seconds with the exitance estimate): the status
+    line and the sidebar say so, naming the estimator, instead of a finished count with ETA 0s."""
+    seen = {}
+    render = simulation.endoscope_view
+
+    def watched(ep_, inputs, result, cancel=None):
+        seen["text"], seen["lines"] = job.progress().text(), job.panel_lines()
+        return render(ep_, inputs, result, cancel)
+
+    monkeypatch.setattr(simulation, "endoscope_view", watched)
+    scene = open_blend("flat_tissue.blend", tmp_path)
+    s = scene.endophoton
+    s.quality, s.photons, s.output_grids = "CUSTOM", 20_000, False
+    job = simulation.prepare_job(bpy.context)
+    job.start()
+    job.wait()
+    assert simulation.finish_job(bpy.context, job) is not None
+    # the count is the last progress report's (the engine reports about every 0.1 s)
+    assert re.fullmatch(
+        r"EndoPhoton: [\d,]+ packets traced · rendering the endoscope view \(exitance estimate\) · Esc to cancel",
+        seen["text"],
+    ), seen["text"]
+    assert seen["lines"][0].startswith("Traced: ")
+    assert seen["lines"][1:] == ["Rendering the endoscope view (exitance estimate)"]

@@ -23,7 +23,7 @@
 * With the kernel estimate, records it cannot use are dropped from the top-ups as they arrive
   (``render.kernel_candidates``, the kernel's own pre-filter), so a β of millions of packets keeps only the
   records that head for the camera. The exitance estimate uses every record of a region, so its top-ups keep
-  them all (about 300 bytes a record while the β runs).
+  them all.
 """
 from __future__ import annotations
 
