@@ -2,7 +2,7 @@
 # Builds EndoPhoton and runs its tests: C++ (ctest), Python (pytest) and the
 # Blender add-on tests inside `blender -b`.
 #
-#   bash scripts/test.sh          everything: before a commit lands (about 7 minutes on 2 idle cores)
+#   bash scripts/test.sh          everything: before a commit lands (about 12 minutes on 2 idle cores)
 #   bash scripts/test.sh --fast   the fast tier, while you work (under 2 minutes): ctest, the Python
 #                                 tests not marked slow (`pytest -m "not slow"`) and one Blender smoke test
 set -euo pipefail

@@ -239,7 +239,7 @@ def _packets_of(res) -> int:
 
 #: The camera estimators a sweep renders each β with (``visibility["estimator"]``, ``sweep --estimator``; "auto"
 #: and None are the exitance estimate): from its records, or from next-event runs of its own.
-SWEEP_ESTIMATORS = ("kernel", "exitance", "nee")
+SWEEP_ESTIMATORS = ("exitance", "kernel", "nee")
 
 
 def _kernel_estimator(render_kwargs: Mapping) -> bool:
