@@ -21,7 +21,12 @@ def test_modal_operator_in_window(ep, tmp_path):
 
     # Run 1: invoked as a modal operator, progress shown, finishes into a collection.
     assert report["invoke_1"] == ["RUNNING_MODAL"]
-    assert report["run1_texts"] and all("packets/s" in t and "ETA" in t for t in report["run1_texts"])
+    # each status line says the tracing's progress, or, once the packets are traced, that the view renders
+    # (which of the two the last lines caught depends on the timer, so either is accepted)
+    assert report["run1_texts"] and all(
+        ("packets/s" in t and "ETA" in t) or "packets traced · rendering the endoscope view" in t
+        for t in report["run1_texts"]
+    ), report["run1_texts"]
     assert report["run1_collection"].startswith("EP β=+0.0° ")
     # points + absorbed + fluorescent_light + an emission grid per fluorophore (collagen, photofrin)
     assert len(report["run1_objects"]) == 5, report["run1_objects"]
