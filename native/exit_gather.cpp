@@ -30,15 +30,15 @@ using RegionTree =
     nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, RegionCloud>, RegionCloud, 3, uint32_t>;
 
 // Runs body(q, scratch) for every pixel on `threads` threads (0 = all cores), blocks of kBlock pixels taken in
-// turn, each worker with its own Scratch; false once *cancel is set (checked per block). Each pixel's outputs
+// turn, each worker with its own State; false once *cancel is set (checked per block). Each pixel's outputs
 // are its own: any split, the same bits.
-template <class Scratch, class Body>
+template <class State, class Body>
 bool for_pixels(size_t p, int threads, const std::atomic<bool>* cancel, Body body) {
     constexpr size_t kBlock = 256;
     std::atomic<size_t> next{0};
     std::atomic<bool> stopped{false};
     auto work = [&]() {
-        Scratch scratch;
+        State scratch;
         for (size_t lo; (lo = next.fetch_add(kBlock)) < p;) {
             if (cancel && cancel->load()) {
                 stopped = true;

@@ -35,7 +35,7 @@ struct ExitPixels {
     const double* radius = nullptr;   // (images, p) ball radius r_p; not finite: no estimate
     const uint8_t* grown = nullptr;   // (images, p) 1 where the k-th record set r_p (it counts only if strictly inside)
     const double* scale = nullptr;    // (images, p, batches) c_{p,b} / (2 pi mu_p A_p)
-    const int64_t* image_index = nullptr;  // (p) the pixel's index in the image, [0, image_size)
+    const int64_t* image_index = nullptr;  // (p) the pixel's index in the image, [0, image_size), increasing
     size_t image_size = 0;                 // pixels of the whole image (those that see no surface too)
 };
 

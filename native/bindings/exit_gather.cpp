@@ -111,11 +111,16 @@ py::object gather(const Index& ix, const GatherArgs& a, int threads, std::shared
     require_shape(a.grown, {M, P}, "grown");
     require_shape(a.scale, {M, P, B}, "scale");
     require_shape(a.image_index, {P}, "image_index");
-    for (py::ssize_t q = 0; q < P; ++q)
-        if (a.image_index.data()[q] < 0 || a.image_index.data()[q] >= a.image_size)
-            throw std::invalid_argument("image_index[" + std::to_string(q) +
-                                        "] = " + std::to_string(a.image_index.data()[q]) + " is outside the image of " +
-                                        std::to_string(a.image_size) + " pixels");
+    const int64_t* ii = a.image_index.data();
+    for (py::ssize_t q = 0; q < P; ++q) {
+        if (ii[q] < 0 || ii[q] >= a.image_size)
+            throw std::invalid_argument("image_index[" + std::to_string(q) + "] = " + std::to_string(ii[q]) +
+                                        " is outside the image of " + std::to_string(a.image_size) + " pixels");
+        // one pixel per image index: the workers write each pixel's colour sums without a lock
+        if (q > 0 && ii[q] <= ii[q - 1])
+            throw std::invalid_argument("image_index[" + std::to_string(q) + "] = " + std::to_string(ii[q]) +
+                                        " must be greater than image_index[" + std::to_string(q - 1) + "]");
+    }
     ExitRecords rec = ix.records();
     rec.batch = a.batch.data(), rec.band = a.band.data(), rec.sbin = a.sbin.data();
     rec.cmf = a.cmf.data(), rec.cam = a.cam.data(), rec.energy = a.energy.data();

@@ -314,6 +314,10 @@ def test_native_gather_names_a_bad_input():
         index_ = pix["image_index"].copy()
         index_[0] = -1
         index.gather(**rec, **{**pix, "image_index": index_})
+    with pytest.raises(ValueError, match=r"image_index\[1\] = .* must be greater than image_index\[0\]"):
+        index_ = pix["image_index"].copy()
+        index_[1] = index_[0]  # two pixels on one image pixel: the workers would race on its sums
+        index.gather(**rec, **{**pix, "image_index": index_})
     with pytest.raises(ValueError, match="k = 0"):
         index.kth_distance(np.ones(records["pos"].shape[0], np.uint8), pix["px"], pix["preg"], 0)
     with pytest.raises(ValueError, match="use has shape"):

@@ -2,8 +2,8 @@
 
 * **The white-light image holds all the light.** A fluorescent-only run (the paper's store N) keeps only
   the fluorescent exits, so with a record-based estimator (the exitance estimate, ``estimator``
-  "exitance", "auto" or none given, or the kernel estimate, "kernel") its white image would be made of the very records of its fluorescence image. The sweep then
-  runs a **white pass**: a run of the same scene and rig that records every exit (``fluorescent_only=False``),
+  "exitance", "auto" or none given, or the kernel estimate, "kernel") its white image would be made of the
+  very records of its fluorescence image. The sweep then runs a **white pass**: a run of the same scene and rig that records every exit (``fluorescent_only=False``),
   with a seed of its own (:func:`piece_seed`), ``white_packets`` packets (default: as many as the store run
   traced). ``white_*`` comes from the white pass's records, ``fluorescence_*`` and ``red_green_*`` from the
   fluorescent records: never the same records, by construction. A run that kept every exit

@@ -153,9 +153,8 @@ def pixel_radii(index, e, px, preg, r0: float, k: int, threads: int, cancel=None
     """Per pixel, its ball's radius r_p = max(r0 (a number, or one per pixel), d_k) over the records of its own
     region with energy e > 0 (d_k the distance to the k-th nearest, or the farthest where the region has fewer
     than k; infinite, so no estimate, where it has fewer than 2), and whether d_k set it. ``index``: the render's
-    ``_core.ExitIndex`` of the records (d_k exact, the same on any thread count). None once ``cancel`` is set."""
-    from .. import _core
-
+    ``_core.ExitIndex`` of the records (d_k exact, the same on any thread count). None once ``cancel`` (a
+    ``_core.CancelToken`` or None) is set."""
     r0 = np.broadcast_to(np.asarray(r0, dtype=np.float64), (px.shape[0],))
     dk = index.kth_distance(
         (np.asarray(e) > 0).astype(np.uint8),
@@ -163,7 +162,7 @@ def pixel_radii(index, e, px, preg, r0: float, k: int, threads: int, cancel=None
         np.asarray(preg, dtype=np.int32),
         int(k),
         threads=int(threads),
-        cancel=cancel if isinstance(cancel, _core.CancelToken) else None,
+        cancel=cancel,
     )
     if dk is None:
         return None

@@ -722,13 +722,14 @@ def _exitance_gather(px, pk, preg, n_regions, rec, r0, theta_deg, threads, unit_
     s0 = 8.0 * float(np.median(r0)) if np.size(r0) else 0.0  # no pixel sees a surface: no cell is made
     anything = np.logical_or.reduce([e > 0 for e in rec["energy"].values()])
     index = _core.ExitIndex(rec["pos"], rec["region"].astype(np.int32), anything.astype(np.uint8), n_regions)
+    token = cancel if isinstance(cancel, _core.CancelToken) else None  # what the native searches poll
     setup = {}
     for name, e in rec["energy"].items():
         if _cancelled(cancel):
             return None, 0, None
         coef = exitance.angular_tables(mu, rec["region"], rec["band"], rec["batch"], e, n_regions, B)
         cal = exitance.calibration(rec, e, coef, px, preg, n_regions, theta_deg, s0)
-        radii = exitance.pixel_radii(index, e, px, preg, r0, k, threads, cancel)
+        radii = exitance.pixel_radii(index, e, px, preg, r0, k, threads, token)
         if radii is None:
             return None, 0, None
         r_p, grown = radii
@@ -737,7 +738,6 @@ def _exitance_gather(px, pk, preg, n_regions, rec, r0, theta_deg, threads, unit_
         setup[name] = (coef, cal * base[:, None], r_p, grown)
     if _cancelled(cancel):
         return None, 0, None
-    token = cancel if isinstance(cancel, _core.CancelToken) else None
     sums = _exitance_sums(index, rec, [setup[name] for name in names], px, preg, mu_rows, hit, threads, token)
     if sums is None or _cancelled(cancel):
         return None, 0, None
