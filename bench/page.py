@@ -288,6 +288,8 @@ def sections(R):
         + frozen("blue_target")
         + "\n## 22. The exitance estimate made native; the default again (issue 34; frozen, 2026-12-07)\n\n"
         + frozen("exitance_native")
+        + "\n## 23. The triangle caches' store halved (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("cache_store")
     )  # fmt: skip
 
 

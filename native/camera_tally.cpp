@@ -82,7 +82,7 @@ Float surface_clearance(const TriangleCache& cache, const Vec3& p) {
 bool segment_clear(const Scene& scene, const TriangleCache& cache, const Vec3& p, const Vec3& w, Float back, Float s) {
     thread_local std::vector<Hit> hits;
     if (cache.covers(p - w * back, p + w * s))
-        cache.intersect(p, w, -back, s, hits);
+        cache.intersect(scene, p, w, -back, s, hits);
     else
         scene.intersect_all(p, w, -back, s, hits);
     return hits.empty();

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <new>
+#include <type_traits>
 
 #include "triangle_cache.h"
 
@@ -70,13 +71,11 @@ void* CellCacheStore::allocate(size_t bytes, Cursor& cursor) const {
 }
 
 void CellCacheStore::release() {
+    // The frozen caches and the cells' blocks live in the chunks and need no
+    // destructor: freeing the chunks frees them.
+    static_assert(std::is_trivially_destructible<TriangleCache>::value, "frozen caches are not destroyed");
+    static_assert(std::is_trivially_destructible<CellBlock>::value, "cell blocks are not destroyed");
     if (!cell_blocks_) return;
-    for (size_t i = 0; i < cells_; ++i)
-        if (CellBlock* b = cell_blocks_[i].load()) {
-            for (auto& c : b->cube)
-                if (TriangleCache* t = c.load()) t->~TriangleCache();  // its block is the store's
-            b->~CellBlock();                                           // so is the cell's
-        }
     cell_blocks_ = nullptr;
     cell_block_bytes_.reset();
     chunks_.clear();

@@ -42,14 +42,16 @@ class EntryPlanes {
         enabled_ = false;
         size_t count = 0;
         for (size_t r = 0; r < scene.region_count(); ++r) count += scene.region(r).normals.size();
-        TriangleCache all;
+        TriangleCacheBuilder all;
         // A ball that holds every triangle (the gather only reads its triangles).
         if (count == 0 || count > kMaxTriangles || !scene.gather_triangles_bvh(Vec3(0, 0, 0), 1e30, kMaxTriangles, all))
             return;
         scale_ = 0;
-        for (const TriangleCache::Triangle& t : all.triangles()) {
-            scale_ = std::max({scale_, max_abs_component(t.v0), max_abs_component(t.v1), max_abs_component(t.v2)});
-            const Float c = std::min({dot(t.n, t.v0), dot(t.n, t.v1), dot(t.n, t.v2)});
+        for (const TriangleCache::Triangle& cached : all.triangles()) {
+            const Scene::EdgePlanes& t = scene.triangle(cached.id);
+            const Vec3 v0 = t.p0, v1 = t.v1(), v2 = t.v2();
+            scale_ = std::max({scale_, max_abs_component(v0), max_abs_component(v1), max_abs_component(v2)});
+            const Float c = std::min({dot(t.n, v0), dot(t.n, v1), dot(t.n, v2)});
             // Triangles with bit-identical normals (coplanar or parallel) share
             // one test against the smallest offset, which holds for each of them.
             bool joined = false;

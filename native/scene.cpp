@@ -199,12 +199,12 @@ struct GatherData {
     Vec3 c;
     Float r, r2;
     Float c_max;  // max_abs_component(c), for the rounding room below
-    TriangleCache* cache;
+    TriangleCacheBuilder* cache;
     size_t max_count;
     bool overflow = false;
 
     GatherData(const Scene::EdgePlanes* edge_planes_, const uint32_t* base_, const Vec3& c_, Float r_,
-               TriangleCache* cache_, size_t max_count_)
+               TriangleCacheBuilder* cache_, size_t max_count_)
         : edge_planes(edge_planes_),
           base(base_),
           c(c_),
@@ -246,7 +246,7 @@ struct GatherData {
             overflow = true;
             return;
         }
-        cache->add(e.p0, p1, p2, e.n, region, prim);
+        cache->add(id, e.p0, p1, p2, e.n, region, prim);
     }
 };
 
@@ -633,11 +633,11 @@ Float Scene::distance_to_surface(const Vec3& p, Float radius) const {
     return std::min(radius, std::sqrt(data.best2));
 }
 
-bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+bool Scene::gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCacheBuilder& cache) const {
     cache.reset(c, radius);
     // A triangle spanning several cells is listed in each: the mailbox passes
     // its first listing only.
-    TriangleCache::Mailbox box = cache.mailbox(grid_.triangle_count());
+    TriangleCacheBuilder::Mailbox box = cache.mailbox(grid_.triangle_count());
     const Float r = padded_radius(c, radius, 1e-9);
     GatherData data(edge_planes_.data(), region_base_.data(), c, r, &cache, max_count);
     grid_.visit(c - Vec3(r, r, r), c + Vec3(r, r, r), [&](const TriangleGrid::Ref& t) {
@@ -669,7 +669,7 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     // short list of the candidates offered, searched for every candidate,
     // cost ~400 of a build's ~2.8k instructions on colon_polyp; callgrind.)
     struct Builder {
-        TriangleCache scratch;
+        TriangleCacheBuilder scratch;
         CellCacheStore::Cursor cursor;
     };
     thread_local Builder builder;
@@ -679,17 +679,17 @@ const TriangleCache& Scene::cell_cache(const Vec3& p) const {
     if (const TriangleCache* built = slot.load(std::memory_order_acquire)) return *built;
     if (cells_.full()) return *no_cache_;  // the same answers through the full query
     const Float side = grid_.cell_size() / kCellSplit;
-    TriangleCache& scratch = builder.scratch;
+    TriangleCacheBuilder& scratch = builder.scratch;
     if (gather_triangles(c, side, kCellMaxTriangles, scratch) && scratch.size() == 0) widen_empty(c, side, scratch);
     void* bytes = cells_.allocate(TriangleCache::frozen_size(scratch), builder.cursor);
     TriangleCache* built = TriangleCache::freeze(scratch, bytes);
     TriangleCache* expected = nullptr;
     if (slot.compare_exchange_strong(expected, built, std::memory_order_acq_rel)) return *built;
-    built->~TriangleCache();  // another thread was first (the same content); the block stays unused
+    // Another thread was first (the same content): the block stays unused.
     return *expected;
 }
 
-const TriangleCache& Scene::cube_cache(const Vec3& p, TriangleCache& scratch) const {
+const TriangleCache& Scene::cube_cache(const Vec3& p, TriangleCacheBuilder& scratch) const {
     if (const TriangleCache* built = built_cell_cache(p)) return *built;
     const TriangleCache& cache = cell_cache(p);
     if (&cache != no_cache_.get()) return cache;
@@ -703,7 +703,7 @@ const TriangleCache& Scene::cube_cache(const Vec3& p, TriangleCache& scratch) co
     return scratch;
 }
 
-void Scene::widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const {
+void Scene::widen_empty(const Vec3& c, Float side, TriangleCacheBuilder& scratch) const {
     // No triangle meets the ball of one side: the first wider ball that
     // none meets either (the same gather, stopped at its first triangle by a
     // limit of none) is the cube's. Any step inside a ball no triangle
@@ -721,7 +721,7 @@ void Scene::widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const
     scratch.reset(c, side);  // known empty at one side
 }
 
-bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const {
+bool Scene::gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCacheBuilder& cache) const {
     cache.reset(c, radius);
     const Float r = padded_radius(c, radius, 1e-6);
     RTCPointQuery q;

@@ -22,6 +22,7 @@ namespace ep {
 
 class EEM;
 class TriangleCache;
+class TriangleCacheBuilder;
 
 // A fluorophore of a region: the seed's d (probability of interaction) and
 // c (concentration), and the scene-wide id of its EEM.
@@ -132,10 +133,10 @@ class Scene {
     // steps that stay inside it (triangle_cache.h). False, and an empty cache
     // that covers nothing, when more than max_count triangles meet the ball.
     // Through the uniform grid (triangle_grid.h): O(local) per gather.
-    bool gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
+    bool gather_triangles(const Vec3& c, Float radius, size_t max_count, TriangleCacheBuilder& cache) const;
     // The same gather through Embree's BVH (rtcPointQuery): the reference the
     // grid is tested against, and the cost it is measured against.
-    bool gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCache& cache) const;
+    bool gather_triangles_bvh(const Vec3& c, Float radius, size_t max_count, TriangleCacheBuilder& cache) const;
     const TriangleGrid& grid() const { return grid_; }
     // The local triangle cache of the cube around p (issue 11): every grid
     // cell is split into kCellSplit^3 cubes, and each cube's cache holds the
@@ -155,7 +156,7 @@ class Scene {
     // (the camera tally's depth bound and look-back): which cubes the store
     // kept depends on the threads' timing once it is full, their content
     // never does, so these answers stay the same on any thread count.
-    const TriangleCache& cube_cache(const Vec3& p, TriangleCache& scratch) const;
+    const TriangleCache& cube_cache(const Vec3& p, TriangleCacheBuilder& scratch) const;
     // The cube store's size and budget in bytes (cell slot blocks and cache
     // blocks together). Once the store holds the budget, a cube not built
     // yet gets no cache: its steps take the full query, which gives the same
@@ -200,6 +201,9 @@ class Scene {
         Vec3 v1() const { return Vec3(p1[0], p1[1], p1[2]); }
         Vec3 v2() const { return Vec3(p2[0], p2[1], p2[2]); }
     };
+    // Scene-wide triangle `id` (region_base + primitive): its normal,
+    // vertices and edge planes (TriangleCache's triangles name it).
+    const EdgePlanes& triangle(size_t id) const { return edge_planes_[id]; }
     static constexpr int kCellSplit = CellCacheStore::kCellSplit;
     // The radii (in cube sides, widest first) an empty cube's ball tries
     // (cell_cache): the widest that no triangle meets is its ball.
@@ -224,7 +228,7 @@ class Scene {
     CellCacheStore cells_;                     // cell_cache's caches
     std::unique_ptr<TriangleCache> no_cache_;  // covers nothing
     // Widens the ball of the empty cache `scratch` (centre c, radius side).
-    void widen_empty(const Vec3& c, Float side, TriangleCache& scratch) const;
+    void widen_empty(const Vec3& c, Float side, TriangleCacheBuilder& scratch) const;
     std::vector<Vec3> corners_;  // vertices 3T..3T+2 of scene-wide triangle T in double
     std::vector<EdgePlanes> edge_planes_;
     void compute_edge_planes();

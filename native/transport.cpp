@@ -703,7 +703,7 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
         local_.cell = cache;
     }
     EP_STAT(cache_hits);
-    cache->intersect(st.p, st.d, -back, s, hits_);
+    cache->intersect(scene_, st.p, st.d, -back, s, hits_);
     return true;
 }
 
@@ -1059,7 +1059,7 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::camera_event(const
     // last would depend on the thread's history, and which cubes a full
     // store kept on the threads' timing).
     auto clearance = [&] {
-        thread_local TriangleCache scratch;  // a cube the full store does not keep (Scene::cube_cache)
+        thread_local TriangleCacheBuilder scratch;  // a cube the full store does not keep (Scene::cube_cache)
         return surface_clearance(scene_.cube_cache(p, scratch), p);
     };
     if (!camera_prefilter(view, p, u, st.med.mut * unit_cm_, clearance, out_.camera.counters)) return;
@@ -1098,7 +1098,7 @@ __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::look_back_event(co
     // The look-back's own scratch (Scene::cube_cache): st.lb_cache points to it
     // until look_back_covers reads it at the next event, and nothing else
     // gathers into it in between (camera_event's clearance has its own).
-    thread_local TriangleCache scratch;
+    thread_local TriangleCacheBuilder scratch;
     const TriangleCache* cache = &scene_.cube_cache(p, scratch);
     // Deep: the flight starts more than kLookBackDepth optical depths beyond
     // tau_cut from every surface, where the next event's score is almost

@@ -4,19 +4,19 @@
 #include <cmath>
 #include <memory>
 #include <new>
+#include <type_traits>
 
 #include "scene.h"
 
 namespace ep {
 
-TriangleCache& TriangleCache::operator=(const TriangleCache& o) {
+TriangleCacheBuilder& TriangleCacheBuilder::operator=(const TriangleCacheBuilder& o) {
     if (this == &o) return *this;
     center_ = o.center_;
     radius_ = o.radius_;
     eps_ = o.eps_;
-    Store& s = own();
-    s.tris.assign(o.tris_view_, o.tris_view_ + o.n_tris_);
-    s.planes.assign(o.planes_view_, o.planes_view_ + o.n_planes_);
+    tris_ = o.tris_;
+    planes_ = o.planes_;
     sync();
     return *this;
 }
@@ -26,8 +26,8 @@ namespace {
 // Byte offsets of a frozen copy's planes and triangles in its block.
 size_t planes_offset() {
     static_assert(alignof(TriangleCache::Plane) <= alignof(TriangleCache), "plane alignment");
-    static_assert(sizeof(TriangleCache) - sizeof(void*) == TriangleCache::kFrozenAlign,
-                  "a frozen cache's members but own_ are one line");
+    static_assert(sizeof(TriangleCache) == TriangleCache::kFrozenAlign, "a frozen cache's members are one line");
+    static_assert(std::is_trivially_destructible<TriangleCache>::value, "a frozen cache needs no destructor");
     return sizeof(TriangleCache);
 }
 size_t triangles_offset(size_t n_planes) {
@@ -37,6 +37,8 @@ size_t triangles_offset(size_t n_planes) {
 }
 
 }  // namespace
+
+static_assert(sizeof(TriangleCache::Triangle) == 16, "a cached triangle: four 32-bit numbers");
 
 size_t TriangleCache::frozen_size(const TriangleCache& src) {
     return triangles_offset(src.n_planes_) + src.n_tris_ * sizeof(Triangle);
@@ -59,31 +61,30 @@ TriangleCache* TriangleCache::freeze(const TriangleCache& src, void* bytes) {
     return c;
 }
 
-void TriangleCache::reset(const Vec3& center, Float radius) {
-    Store& s = own();
-    s.tris.clear();
-    s.planes.clear();
+void TriangleCacheBuilder::reset(const Vec3& center, Float radius) {
+    tris_.clear();
+    planes_.clear();
     sync();
     center_ = center;
     radius_ = radius;
     // Rounding allowance of the plane distances in intersect(): a few ulps of
     // the magnitudes involved, bounded over the ball (|x| <= |c| + r there).
     eps_ = 1e-13 * (2 * (max_abs_component(center) + radius) + radius);
-    if (++s.stamp == 0) {  // the stamps wrapped: forget every old one
-        std::fill(s.seen.begin(), s.seen.end(), 0u);
-        s.stamp = 1;
+    if (++stamp_ == 0) {  // the stamps wrapped: forget every old one
+        std::fill(seen_.begin(), seen_.end(), 0u);
+        stamp_ = 1;
     }
 }
 
-void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim) {
+void TriangleCacheBuilder::add(uint32_t id, const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n,
+                               uint32_t region, uint32_t prim) {
     // Join the plane of an earlier triangle when this one lies in it (the two
     // triangles of a quad, a flat face): vertices within a relative 1e-9 of
     // the plane. The margin records how far they really are, so the plane
     // test stays conservative for every member. (The tolerance is worked out
     // only for a plane of the same normal: most triangles of a cube's cache
     // have none; callgrind, colon_polyp.)
-    Store& s = own();
-    std::vector<Plane>& planes = s.planes;
+    std::vector<Plane>& planes = planes_;
     uint32_t plane = uint32_t(planes.size());
     for (uint32_t k = 0; k < planes.size(); ++k) {
         Plane& p = planes[k];
@@ -104,12 +105,12 @@ void TriangleCache::add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Ve
         const Float e = std::max(std::fabs(dot(n, v1) - off), std::fabs(dot(n, v2) - off));
         planes.push_back(Plane{n, off, e, e + eps_});
     }
-    s.tris.push_back(Triangle{v0, v1, v2, n, region, prim, plane});
+    tris_.push_back(Triangle{id, region, prim, plane});
     sync();
 }
 
-void TriangleCache::intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
-                                   std::vector<Hit>& out) const {
+void TriangleCache::intersect_open(const Scene& scene, const Vec3& org, const Vec3& d, Float back, Float t_end,
+                                   uint64_t open, std::vector<Hit>& out) const {
     out.clear();
     for (const Triangle& tri : triangles()) {
         if (!((open >> std::min<uint32_t>(tri.plane, 63)) & 1)) continue;
@@ -117,14 +118,15 @@ void TriangleCache::intersect_open(const Vec3& org, const Vec3& d, Float back, F
         // an edge shared by two triangles gives exactly opposite values in
         // both (cross(b, c) = -cross(c, b) bit for bit), so a ray through the
         // edge is inside at least one of them, never neither.
-        const Vec3 a = tri.v0 - org, b = tri.v1 - org, c = tri.v2 - org;
+        const Scene::EdgePlanes& e = scene.triangle(tri.id);
+        const Vec3 a = e.p0 - org, b = e.v1() - org, c = e.v2() - org;
         const Float e0 = dot(d, cross(b, c)), e1 = dot(d, cross(c, a)), e2 = dot(d, cross(a, b));
         const bool inside = (e0 >= 0 && e1 >= 0 && e2 >= 0) || (e0 <= 0 && e1 <= 0 && e2 <= 0);
         if (!inside || (e0 == 0 && e1 == 0 && e2 == 0)) continue;
-        const Float cos_dn = dot(d, tri.n);
+        const Float cos_dn = dot(d, e.n);
         if (cos_dn == 0) continue;
         // Distance along the ray to the triangle's plane, as collect_filter refines it.
-        const Float t = dot(a, tri.n) / cos_dn;
+        const Float t = dot(a, e.n) / cos_dn;
         if (!(t >= 0 && t <= t_end)) continue;
         out.push_back(Hit{t - back, tri.region, tri.prim, cos_dn});
     }

@@ -10,7 +10,6 @@
 // and the distance is the same double-precision plane refinement.
 #pragma once
 #include <cstdint>
-#include <memory>
 #include <vector>
 
 #include "scene.h"
@@ -33,9 +32,14 @@ struct ConstSpan {
 
 class TriangleCache {
   public:
+    // A cached triangle names the scene-wide triangle `id`, whose vertices
+    // (float mesh data, exactly as Embree sees them) and outward unit normal
+    // (Region::normals) the scene holds once (Scene::triangle): 16 bytes a
+    // triangle in each cube that meets it, instead of 112 for a copy of its
+    // vertices and normal (the colon's store held about one triangle a built
+    // cube; issue 39, docs/performance.md §23).
     struct Triangle {
-        Vec3 v0, v1, v2;  // vertices (float mesh data, exactly as Embree sees them)
-        Vec3 n;           // outward unit normal (Region::normals)
+        uint32_t id;  // the scene-wide triangle (Scene::triangle)
         uint32_t region, prim;
         uint32_t plane;  // index into planes()
     };
@@ -47,42 +51,9 @@ class TriangleCache {
         Float reach;  // margin + the rounding allowance of the plane test
     };
 
+    // Empty and covering nothing (the scene's answer where no cache is).
     TriangleCache() = default;
-    // A copy holds the content in its own vectors (not the mailbox).
-    TriangleCache(const TriangleCache& o) { *this = o; }
-    TriangleCache& operator=(const TriangleCache& o);
     ~TriangleCache() = default;
-
-    // Empty and covering nothing.
-    void clear() {
-        Store& s = own();
-        s.tris.clear();
-        s.planes.clear();
-        radius_ = 0;
-        sync();
-    }
-    // Starts a gather around `center`: every triangle meeting the ball of
-    // `radius` must then be added (Scene::gather_triangles does this).
-    void reset(const Vec3& center, Float radius);
-    void add(const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region, uint32_t prim);
-    // Mailbox of a gather through the triangle grid, where a triangle spanning
-    // several cells is offered once per cell, for scene-wide triangle ids below
-    // n_ids: first_offer(id) is true the first time `id` is offered since
-    // reset() (valid until the next reset()).
-    struct Mailbox {
-        uint32_t* seen;
-        uint32_t stamp;
-        bool first_offer(uint32_t id) {
-            if (seen[id] == stamp) return false;
-            seen[id] = stamp;
-            return true;
-        }
-    };
-    Mailbox mailbox(size_t n_ids) {
-        Store& s = own();
-        if (s.seen.size() < n_ids) s.seen.resize(n_ids, 0);
-        return Mailbox{s.seen.data(), s.stamp};
-    }
 
     // True when the segment from a to b lies inside the ball (a ball is convex:
     // both ends inside suffices).
@@ -95,8 +66,9 @@ class TriangleCache {
     // a segment that covers() accepts ([o + tnear d, o + tfar d], tnear <= 0).
     // Inline (always: with more callers GCC kept it out of line): the plane
     // test, which answers almost every step by itself.
-    __attribute__((always_inline)) void intersect(const Vec3& o, const Vec3& d, Float tnear, Float tfar,
-                                                  std::vector<Hit>& out) const {
+    // `scene` is the one whose triangles the cache was gathered from.
+    __attribute__((always_inline)) void intersect(const Scene& scene, const Vec3& o, const Vec3& d, Float tnear,
+                                                  Float tfar, std::vector<Hit>& out) const {
         // The same ray as Scene::intersect_all: a negative tnear backs the
         // origin up, and distances are measured from there and shifted back at
         // the end, so the refined distances are bit-identical to the full query's.
@@ -118,7 +90,7 @@ class TriangleCache {
             open |= uint64_t(!apart | (k >= 63)) << std::min<size_t>(k, 63);
         }
         if (open)
-            intersect_open(org, d, back, t_end, open, out);
+            intersect_open(scene, org, d, back, t_end, open, out);
         else
             out.clear();
     }
@@ -132,15 +104,13 @@ class TriangleCache {
     // A frozen copy for the scene's per-cube store (Scene::cell_cache): the
     // object, its planes and its triangles in one block of frozen_size(src)
     // bytes at `bytes` (aligned for TriangleCache), so a cube costs one bump
-    // of the store's arena instead of three allocations. Destroy it with
-    // ~TriangleCache (its vectors are empty); the block is the caller's.
-    // The block starts a cache line (kFrozenAlign), whose first
-    // kFrozenAlign bytes of the object hold all that ClearSteps::start reads
-    // but the planes, which follow the object: a hop to the cube reads that
-    // line and those of its planes. (With the rounding allowance computed
-    // instead of stored, the whole object fits one line and colon costs
-    // ~0.6% less, but the seed tissue and the slab ~5 instructions a packet
-    // more; callgrind.)
+    // of the store's arena instead of three allocations. The block is the
+    // caller's (the object is trivially destructible). It starts a cache
+    // line (kFrozenAlign), which the object fills exactly: a hop to the cube
+    // reads that line and those of its planes. (The builder's vectors live in
+    // TriangleCacheBuilder, not here: with their pointer the object took 72
+    // bytes, so an empty cube -- 61% of the cubes the colon builds -- took two
+    // lines of the store instead of one; issue 39, docs/performance.md §23.)
     static constexpr size_t kFrozenAlign = 64;
     static size_t frozen_size(const TriangleCache& src);
     static TriangleCache* freeze(const TriangleCache& src, void* bytes);
@@ -150,40 +120,80 @@ class TriangleCache {
     // (transport.cpp's interior steps).
     Float rounding() const { return eps_; }
 
-  private:
-    // The triangle tests of the planes in `open` (bit k = plane k).
-    void intersect_open(const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
-                        std::vector<Hit>& out) const;
+  protected:
+    // A view copies the views, not the content: only the builder and
+    // freeze() copy (a copied builder would point into the other's vectors).
+    TriangleCache(const TriangleCache&) = default;
+    TriangleCache& operator=(const TriangleCache&) = default;
 
-    // Points the views at the vectors (after every change of a builder).
-    void sync() {
-        const Store& s = own();
-        tris_view_ = s.tris.data();
-        n_tris_ = uint32_t(s.tris.size());
-        planes_view_ = s.planes.data();
-        n_planes_ = uint32_t(s.planes.size());
-    }
-
-    // The members a hop reads first (one line of a frozen copy), own_ last.
+    // The members a hop reads (one line of a frozen copy).
     Vec3 center_;
     Float radius_ = 0, eps_ = 0;
-    // What every reader uses: the vectors' content, or a frozen copy's.
+    // What every reader uses: a builder's vectors, or a frozen copy's block.
     const Triangle* tris_view_ = nullptr;
     const Plane* planes_view_ = nullptr;
     uint32_t n_tris_ = 0, n_planes_ = 0;
-    // A builder's content and its gathers' mailbox, made on first use; none
-    // in a frozen copy, which then holds only the views' header (72 bytes).
-    struct Store {
-        std::vector<Triangle> tris;
-        std::vector<Plane> planes;
-        std::vector<uint32_t> seen;  // the mailbox's stamps, one per scene triangle
-        uint32_t stamp = 0;
-    };
-    Store& own() {
-        if (!own_) own_ = std::make_unique<Store>();
-        return *own_;
+
+  private:
+    // The triangle tests of the planes in `open` (bit k = plane k).
+    void intersect_open(const Scene& scene, const Vec3& org, const Vec3& d, Float back, Float t_end, uint64_t open,
+                        std::vector<Hit>& out) const;
+};
+
+// A TriangleCache that is gathered into (Scene::gather_triangles): its
+// triangles and planes in its own vectors, which keep their capacity from
+// gather to gather, and the gathers' mailbox. Scene::cell_cache freezes a
+// gathered one into the store.
+class TriangleCacheBuilder : public TriangleCache {
+  public:
+    TriangleCacheBuilder() = default;
+    // A copy holds the content in its own vectors (not the mailbox).
+    TriangleCacheBuilder(const TriangleCacheBuilder& o) : TriangleCache() { *this = o; }
+    TriangleCacheBuilder& operator=(const TriangleCacheBuilder& o);
+
+    // Empty and covering nothing.
+    void clear() {
+        tris_.clear();
+        planes_.clear();
+        radius_ = 0;
+        sync();
     }
-    std::unique_ptr<Store> own_;
+    // Starts a gather around `center`: every triangle meeting the ball of
+    // `radius` must then be added (Scene::gather_triangles does this).
+    void reset(const Vec3& center, Float radius);
+    // Adds the scene-wide triangle `id` (vertices v0..v2, normal n).
+    void add(uint32_t id, const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n, uint32_t region,
+             uint32_t prim);
+    // Mailbox of a gather through the triangle grid, where a triangle spanning
+    // several cells is offered once per cell, for scene-wide triangle ids below
+    // n_ids: first_offer(id) is true the first time `id` is offered since
+    // reset() (valid until the next reset()).
+    struct Mailbox {
+        uint32_t* seen;
+        uint32_t stamp;
+        bool first_offer(uint32_t id) {
+            if (seen[id] == stamp) return false;
+            seen[id] = stamp;
+            return true;
+        }
+    };
+    Mailbox mailbox(size_t n_ids) {
+        if (seen_.size() < n_ids) seen_.resize(n_ids, 0);
+        return Mailbox{seen_.data(), stamp_};
+    }
+
+  private:
+    // Points the views at the vectors (after every change).
+    void sync() {
+        tris_view_ = tris_.data();
+        n_tris_ = uint32_t(tris_.size());
+        planes_view_ = planes_.data();
+        n_planes_ = uint32_t(planes_.size());
+    }
+    std::vector<Triangle> tris_;
+    std::vector<Plane> planes_;
+    std::vector<uint32_t> seen_;  // the mailbox's stamps, one per scene triangle
+    uint32_t stamp_ = 0;
 };
 
 // Conservative forms of TriangleCache::covers() and of intersect()'s plane

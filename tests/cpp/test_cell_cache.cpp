@@ -57,10 +57,15 @@ TEST(CellCache, HoldsItsCubeAndEveryTriangleMeetingItsBall) {
         // Exactly the grid gather's cache about its centre: the same
         // triangles in the same order, hence the same planes (the cube's
         // gather goes through its cell's candidates instead of the cells).
-        TriangleCache same;
+        TriangleCacheBuilder same;
         ASSERT_TRUE(sc.s.gather_triangles(c.center(), c.radius(), Scene::kCellMaxTriangles, same));
         ASSERT_EQ(c.size(), same.size());
         for (size_t i = 0; i < c.size(); ++i) {
+            const TriangleCache::Triangle& t = c.triangles()[i];
+            EXPECT_EQ(t.id, same.triangles()[i].id);
+            // The id names the scene's triangle of that region and primitive.
+            EXPECT_EQ(t.region, sc.s.grid().region_of(t.id));
+            EXPECT_EQ(t.prim, sc.s.grid().prim_of(t.id, t.region));
             EXPECT_EQ(c.triangles()[i].region, same.triangles()[i].region);
             EXPECT_EQ(c.triangles()[i].prim, same.triangles()[i].prim);
             EXPECT_EQ(c.triangles()[i].plane, same.triangles()[i].plane);
@@ -87,7 +92,7 @@ TEST(CellCache, HoldsItsCubeAndEveryTriangleMeetingItsBall) {
                       reinterpret_cast<const char*>(&c) + sizeof(TriangleCache));
         // The same triangles as the grid gather about its centre (itself
         // checked against brute force in test_triangle_cache).
-        TriangleCache ref;
+        TriangleCacheBuilder ref;
         ASSERT_TRUE(sc.s.gather_triangles(c.center(), c.radius(), 1 << 20, ref));
         std::set<std::pair<uint32_t, uint32_t>> got, want;
         for (const auto& t : c.triangles()) got.emplace(t.region, t.prim);
@@ -115,7 +120,7 @@ TEST(CellCache, SameCrossingsAsFullQuery) {
         if (!c.covers(o - d * back, o + d * L)) continue;
         ++covered;
         sc.s.intersect_all(o, d, -back, L, full);
-        c.intersect(o, d, -back, L, cached);
+        c.intersect(sc.s, o, d, -back, L, cached);
         // Embree's float ambiguities (grazing hits, crossings at an edge where
         // either triangle may be listed) are left out.
         bool ambiguous = false;

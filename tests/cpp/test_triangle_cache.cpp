@@ -151,7 +151,7 @@ Vec3 random_unit(std::mt19937_64& rng) {
 int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> U(0, 1);
-    TriangleCache cache;
+    TriangleCacheBuilder cache;
     std::vector<Hit> full, cached;
     int crossed = 0, covered = 0, compared = 0;
     for (int k = 0; k < n; ++k) {
@@ -166,7 +166,7 @@ int compare(const Scene& s, const std::vector<Mesh>& meshes, int n, uint64_t see
         if (!cache.covers(o - d * back, o + d * L)) continue;
         ++covered;
         s.intersect_all(o, d, -back, L, full);
-        cache.intersect(o, d, -back, L, cached);
+        cache.intersect(s, o, d, -back, L, cached);
         // Float-precision ambiguities of Embree itself are left out: a grazing
         // hit (|cos| < 1e-2), or two crossings closer than 1e-4 but not one
         // crossing (a near-tangent touch, where float rounding decides whether
@@ -238,13 +238,13 @@ TEST(TriangleCache, CoplanarTrianglesShareOnePlaneAndFarBallIsEmpty) {
     box(-5, -5, -10, 5, 5, 0, v, t);
     s.add_region("tissue", v.data(), 8, t.data(), 12, m, 0);
     s.commit();
-    TriangleCache cache;
+    TriangleCacheBuilder cache;
     // Near the top face only, by its diagonal: its two triangles, one plane.
     ASSERT_TRUE(s.gather_triangles(Vec3(0.01, 0.0, -0.01), 0.05, 48, cache));
     EXPECT_EQ(cache.size(), 2u);
     EXPECT_EQ(cache.plane_count(), 1u);
     std::vector<Hit> hits;
-    cache.intersect(Vec3(0.01, 0.0, -0.01), Vec3(0, 0, 1), -1e-9, 0.02, hits);
+    cache.intersect(s, Vec3(0.01, 0.0, -0.01), Vec3(0, 0, 1), -1e-9, 0.02, hits);
     ASSERT_EQ(hits.size(), 1u);  // the ray meets the top face at one of its two triangles
     EXPECT_NEAR(hits[0].t, 0.01, 1e-15);
     EXPECT_GT(hits[0].cos_dn, 0);  // leaving
@@ -313,7 +313,7 @@ double mesh_triangle_distance(const Vec3& p, const Mesh& mesh, size_t i) {
 int same_gathers(const Scene& s, const std::vector<Mesh>& meshes, Float size, int n, uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> U(0, 1);
-    TriangleCache grid_cache, bvh_cache;
+    TriangleCacheBuilder grid_cache, bvh_cache;
     int nonempty = 0, bvh_short = 0;
     for (int k = 0; k < n; ++k) {
         int kind;
@@ -360,7 +360,7 @@ TEST(TriangleCache, StepsEndingAtAFaceCrossItInEveryQuery) {
         box_pair(s, meshes, float(off));
         std::mt19937_64 rng(21);
         std::uniform_real_distribution<double> U(0, 1);
-        TriangleCache cache;
+        TriangleCacheBuilder cache;
         std::vector<Hit> full, cached;
         int past = 0;
         for (int k = 0; k < 4000; ++k) {
@@ -377,7 +377,7 @@ TEST(TriangleCache, StepsEndingAtAFaceCrossItInEveryQuery) {
             ASSERT_TRUE(s.gather_triangles(o, 0.3, 4096, cache));
             ASSERT_TRUE(cache.covers(o - d * back, o + d * s_end));
             s.intersect_all(o, d, -back, s_end, full);
-            cache.intersect(o, d, -back, s_end, cached);
+            cache.intersect(s, o, d, -back, s_end, cached);
             ASSERT_EQ(full.size(), cached.size()) << "k " << k << " rel " << rel * sign;
             for (size_t i = 0; i < full.size(); ++i) {
                 EXPECT_EQ(full[i].t, cached[i].t);
@@ -429,7 +429,7 @@ void keeps_triangles_at_the_padded_radius(const Scene& s, const std::vector<Mesh
                                           uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> U(0, 1);
-    TriangleCache cache;
+    TriangleCacheBuilder cache;
     int tested = 0;
     for (int k = 0; k < n; ++k) {
         int kind;
@@ -485,7 +485,7 @@ TEST(TriangleGrid, GatherLeavesOutASliverFarInItsPlane) {
         const std::vector<uint32_t> t = {0, 2, 1, 0, 1, 3, 1, 2, 3, 2, 0, 3};
         s.add_region("flat", v.data(), 4, t.data(), 4, plain_medium(), 0);
         s.commit();
-        TriangleCache cache;
+        TriangleCacheBuilder cache;
         for (const double x : {-4.0, 5.0}) {  // on the line AB, 4 beyond A or B
             const Vec3 c(x, 0, z0);
             ASSERT_TRUE(s.gather_triangles(c, 0.5, 1 << 20, cache));
@@ -674,7 +674,7 @@ TEST(SingleHit, SharedFaceTrianglesHaveNoClearance) {
 static int clear_steps_agree(const Scene& s, const std::vector<Mesh>& meshes, int chains, uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> U(0, 1);
-    TriangleCache cache;
+    TriangleCacheBuilder cache;
     std::vector<Hit> hits;
     int cleared = 0;
     for (int c = 0; c < chains; ++c) {
@@ -696,7 +696,7 @@ static int clear_steps_agree(const Scene& s, const std::vector<Mesh>& meshes, in
             const double back = 4e-7 * (max_abs_component(p) + 1e-3 * s.extent());
             EXPECT_LE(back, max_back);
             EXPECT_TRUE(cache.covers(p - d * back, b)) << "chain " << c << " step " << k;
-            cache.intersect(p, d, -back, len, hits);
+            cache.intersect(s, p, d, -back, len, hits);
             EXPECT_TRUE(hits.empty()) << "chain " << c << " step " << k << " kind " << kind;
             p = b;
         }

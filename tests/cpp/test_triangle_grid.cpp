@@ -82,21 +82,25 @@ TEST(TriangleGrid, GatherKeepsTheMeshVerticesExactly) {
     Scene s(1.0, 1.0);
     s.add_region("box", v.data(), v.size() / 3, t.data(), t.size() / 3, plain_medium(), 0);
     s.commit();
-    TriangleCache cache;
+    TriangleCacheBuilder cache;
     ASSERT_TRUE(s.gather_triangles(Vec3(0.1, 0.2, 0.3), 0.05, 64, cache));
     ASSERT_GT(cache.size(), 0u);
     const Float xs[2] = {0.1f, 0.7f}, ys[2] = {0.2f, 0.9f}, zs[2] = {0.3f, 1.3f};
     auto is_corner = [&](const Vec3& p) {
         return (p.x == xs[0] || p.x == xs[1]) && (p.y == ys[0] || p.y == ys[1]) && (p.z == zs[0] || p.z == zs[1]);
     };
-    for (const TriangleCache::Triangle& tri : cache.triangles()) {
-        EXPECT_TRUE(is_corner(tri.v0));
-        EXPECT_TRUE(is_corner(tri.v1));
-        EXPECT_TRUE(is_corner(tri.v2));
+    for (const TriangleCache::Triangle& cached : cache.triangles()) {
+        // A cached triangle names the scene's triangle (one region: id = prim).
+        EXPECT_EQ(cached.id, cached.prim);
+        const Scene::EdgePlanes& tri = s.triangle(cached.id);
+        EXPECT_TRUE(is_corner(tri.p0));
+        EXPECT_TRUE(is_corner(tri.v1()));
+        EXPECT_TRUE(is_corner(tri.v2()));
         // The same vertices, in the same order, as the mesh lists them.
-        const uint32_t* k = &t[3 * size_t(tri.prim)];
-        EXPECT_EQ(tri.v1.x, Float(v[3 * k[1]]));
-        EXPECT_EQ(tri.v1.y, Float(v[3 * k[1] + 1]));
-        EXPECT_EQ(tri.v2.z, Float(v[3 * k[2] + 2]));
+        const uint32_t* k = &t[3 * size_t(cached.prim)];
+        EXPECT_EQ(tri.p0.x, Float(v[3 * k[0]]));
+        EXPECT_EQ(tri.v1().x, Float(v[3 * k[1]]));
+        EXPECT_EQ(tri.v1().y, Float(v[3 * k[1] + 1]));
+        EXPECT_EQ(tri.v2().z, Float(v[3 * k[2] + 2]));
     }
 }
