@@ -32,7 +32,8 @@ class CMakeBuild(build_ext):
             f"-DENDOPHOTON_MODULE_OUTPUT_DIR={out_dir}",
         ])
         jobs = str(os.cpu_count() or 2)
-        subprocess.check_call(["cmake", "--build", build_dir, "--target", "_core", "-j", jobs])
+        # The module and the .vdb writer library it loads on first use (native/vdb_library.h), side by side.
+        subprocess.check_call(["cmake", "--build", build_dir, "--target", "_core", "endophoton_vdb", "-j", jobs])
 
 
 class BuildPyWithData(build_py):

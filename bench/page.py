@@ -290,6 +290,8 @@ def sections(R):
         + frozen("exitance_native")
         + "\n## 23. The triangle caches' store halved (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("cache_store")
+        + "\n## 24. OpenVDB loaded only to write grids (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("vdb_library")
     )  # fmt: skip
 
 

@@ -1,9 +1,12 @@
 // OpenVDB output of voxel tallies.
 //
-// This is the only place (with its tests) that includes OpenVDB; it lives in
-// the core library, which keeps default symbol visibility, because
-// openvdb::initialize() crashes when OpenVDB headers are compiled with
-// -fvisibility=hidden as in the pybind11 module.
+// The functions that need OpenVDB (write_vdb, vdb_grid_names,
+// ensure_openvdb_initialized) are implemented in
+// vdb_writer.cpp, the only place that includes OpenVDB, which is built as a
+// library of its own with default symbol visibility (openvdb::initialize()
+// crashes when OpenVDB headers are compiled with -fvisibility=hidden, as in
+// the pybind11 module); the engine loads it on their first call
+// (vdb_library.h). The path and memory checks (vdb_files.cpp) need no OpenVDB.
 #pragma once
 
 #include <cstdint>
@@ -83,8 +86,9 @@ std::vector<double> write_vdb(const std::string& path, const std::vector<GridOut
 uint64_t tree_memory_limit();
 
 // Whether OpenVDB can scale its index space to voxels of `voxel_size` (its
-// linear transform refuses a scale whose cube is within 1e-15 of zero, so
-// voxels below ~1e-5 scene units cannot be written).
+// linear transform refuses a scale whose cube is below 3e-15, so voxels
+// below ~1.44e-5 scene units cannot be written): OpenVDB's rule, computed
+// here without OpenVDB (vdb_files.cpp).
 bool vdb_voxel_size_supported(double voxel_size);
 // Throws std::invalid_argument naming grids.voxel_size unless it is supported
 // (the engine checks it before a run, write_vdb before a write).

@@ -1,5 +1,6 @@
 // Unit tests for ep::write_vdb: what is written is read back by OpenVDB itself
 // (io::File), not by our own reader, so the file is checked against the format.
+#include "vdb_library.h"
 #include "vdb_writer.h"
 
 #include <openvdb/io/File.h>
@@ -16,6 +17,7 @@
 #include <atomic>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <random>
 #include <sstream>
@@ -461,4 +463,30 @@ TEST_F(VdbWriterTest, VoxelBelowOpenVdbScaleIsRefusedByName) {
     expect_rejected(path("tiny.vdb"), {{"absorbed", "", &tiny}}, {}, "grids.voxel_size = 1e-05");
     EXPECT_TRUE(list_dir().empty());
     EXPECT_GT(ep::tree_memory_limit(), uint64_t(0));
+}
+
+// The engine checks a run's voxel size with OpenVDB's rule computed without
+// OpenVDB (vdb_files.cpp), so that a run loads the writer library only to
+// write: the rule gives OpenVDB's own answer (the library's, vdb_api) at every
+// size about its threshold (the cube root of 3e-15, ~1.442e-5), at the
+// doubles next to it, and far from it.
+TEST(VdbVoxelSize, RuleAgreesWithOpenVdbAboutTheThreshold) {
+    const ep::VdbApi& api = ep::vdb_api();
+    std::vector<double> sizes = {1e-300, 1e-20, 1e-6, 1e-5, 1.4e-5, 1.44e-5, 1.45e-5, 2e-5, 1.0, 1e100, 1e300};
+    double at = std::cbrt(3e-15);
+    for (int k = 0; k < 64; ++k) at = std::nextafter(at, 0.0);
+    for (int k = 0; k < 128; ++k, at = std::nextafter(at, 1.0)) sizes.push_back(at);
+    for (int k = -200; k <= 200; ++k) sizes.push_back(std::cbrt(3e-15) * (1 + k * 1e-4));
+    int refused = 0, accepted = 0;
+    for (double s : sizes) {
+        const bool openvdb = api.voxel_size_supported(s);
+        EXPECT_EQ(ep::vdb_voxel_size_supported(s), openvdb) << "voxel size " << s;
+        (openvdb ? accepted : refused) += 1;
+    }
+    // Both answers occur among the doubles next to the threshold.
+    EXPECT_GT(refused, 64);
+    EXPECT_GT(accepted, 64);
+    EXPECT_FALSE(ep::vdb_voxel_size_supported(-1.0));
+    EXPECT_FALSE(ep::vdb_voxel_size_supported(std::numeric_limits<double>::infinity()));
+    EXPECT_FALSE(ep::vdb_voxel_size_supported(std::nan("")));
 }
