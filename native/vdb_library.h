@@ -2,7 +2,7 @@
 // took 26 MB of a process's memory and most of the dynamic linker's
 // relocations when `import endophoton` loaded it), and only a run that writes
 // grids uses it. So the writer (vdb_writer.cpp, OpenVDB's one user) is a
-// library of its own, libendophoton_vdb.so, installed beside the engine's
+// library of its own, libendophoton_vdb.so.1, installed beside the engine's
 // module, and the engine loads it the first time it needs it: write_vdb,
 // vdb_grid_names and ensure_openvdb_initialized (vdb_writer.h) call through
 // vdb_api(). A process that writes no grids never loads OpenVDB, and a run
@@ -36,7 +36,7 @@ struct VdbApi {
 };
 
 // The library's file name, and the name of its entry point.
-constexpr const char* kVdbLibrary = "libendophoton_vdb.so";
+constexpr const char* kVdbLibrary = "libendophoton_vdb.so.1";
 constexpr const char* kVdbEntry = "endophoton_vdb_api";
 
 // The writer, loaded on the first call (thread-safe): from the process when

@@ -1,20 +1,12 @@
 // The .vdb writer: the engine's one user of OpenVDB, built as a library of
-// its own (libendophoton_vdb.so) that the engine loads the first time a run
+// its own (libendophoton_vdb.so.1) that the engine loads the first time a run
 // writes grids (vdb_library.h), so a process that writes none never loads
 // OpenVDB. Default symbol visibility: openvdb::initialize() crashes when
 // OpenVDB headers are compiled with -fvisibility=hidden.
 #include <openvdb/io/File.h>
-
-#include <openvdb/io/File.h>
 #include <openvdb/io/GridDescriptor.h>
 #include <openvdb/io/io.h>
 #include <openvdb/openvdb.h>
-
-#include <fcntl.h>
-#include <sys/resource.h>
-#include <sys/stat.h>
-#include <sys/statvfs.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <array>
