@@ -4,7 +4,6 @@
 #include <cmath>
 #include <memory>
 #include <new>
-#include <type_traits>
 
 #include "scene.h"
 
@@ -27,7 +26,6 @@ namespace {
 size_t planes_offset() {
     static_assert(alignof(TriangleCache::Plane) <= alignof(TriangleCache), "plane alignment");
     static_assert(sizeof(TriangleCache) == TriangleCache::kFrozenAlign, "a frozen cache's members are one line");
-    static_assert(std::is_trivially_destructible<TriangleCache>::value, "a frozen cache needs no destructor");
     return sizeof(TriangleCache);
 }
 size_t triangles_offset(size_t n_planes) {

@@ -40,6 +40,8 @@ class TriangleCache {
     // cube; issue 39, docs/performance.md §23).
     struct Triangle {
         uint32_t id;  // the scene-wide triangle (Scene::triangle)
+        // Derivable from id, but kept: every hit needs them, and the id's
+        // region is a search (TriangleGrid::region_of).
         uint32_t region, prim;
         uint32_t plane;  // index into planes()
     };

@@ -2,8 +2,6 @@
 
 #include <dlfcn.h>
 
-#include <atomic>
-#include <cmath>
 #include <exception>
 #include <mutex>
 #include <stdexcept>
@@ -11,8 +9,6 @@
 namespace ep {
 
 namespace {
-
-std::atomic<bool> g_loaded{false};
 
 using Entry = const VdbApi* (*)();
 
@@ -58,7 +54,6 @@ const VdbApi& vdb_api() {
     std::call_once(once, [] {
         try {
             api = load();
-            g_loaded.store(true);
         } catch (...) {
             error = std::current_exception();
         }
@@ -66,8 +61,6 @@ const VdbApi& vdb_api() {
     if (error) std::rethrow_exception(error);
     return *api;
 }
-
-bool vdb_api_loaded() { return g_loaded.load(); }
 
 std::vector<double> write_vdb(const std::string& path, const std::vector<GridOutput>& grids,
                               const std::map<std::string, std::string>& metadata, int threads,

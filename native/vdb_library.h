@@ -45,8 +45,6 @@ constexpr const char* kVdbEntry = "endophoton_vdb_api";
 // Throws std::runtime_error naming the library's path if it cannot be loaded
 // or was built from other sources; every later call throws the same.
 const VdbApi& vdb_api();
-// Whether vdb_api() has loaded the writer in this process.
-bool vdb_api_loaded();
 
 }  // namespace ep
 

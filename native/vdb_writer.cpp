@@ -9,11 +9,9 @@
 #include <openvdb/openvdb.h>
 
 #include <algorithm>
-#include <array>
 #include <atomic>
 #include <cerrno>
 #include <cfloat>
-#include <climits>
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
