@@ -292,6 +292,8 @@ def sections(R):
         + frozen("cache_store")
         + "\n## 24. OpenVDB loaded only to write grids (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("vdb_library")
+        + "\n## 25. Only the grids asked for (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("grid_quantities")
     )  # fmt: skip
 
 

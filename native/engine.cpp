@@ -117,6 +117,20 @@ StopReason StopRule::after_merge(const UnitTally& unit, size_t k, uint64_t recor
 
 namespace {
 
+// The grids' quantities: at least one grid to write, and per-fluorophore
+// grids only beside the fluorescent_light grid they split.
+void check_grid_quantities(const RunConfig& c, const Scene& scene) {
+    if (!c.grid_absorbed && !c.grid_fluorescent_light && !c.grid_emission)
+        throw std::invalid_argument(
+            "grids.absorbed, grids.fluorescent_light and grids.emission are all False: no grid to write");
+    if (c.grid_per_fluorophore && !c.grid_fluorescent_light)
+        throw std::invalid_argument(
+            "grids.per_fluorophore = True needs grids.fluorescent_light = True (its grids split that one)");
+    if (!c.grid_absorbed && !c.grid_fluorescent_light && !scene.has_fluorophores())
+        throw std::invalid_argument(
+            "grids.emission is the only grid asked for, and the scene has no fluorophore: no grid to write");
+}
+
 // `grid_file`: whether this process writes the grid file (not a Dask worker,
 // whose file system need not hold the client's directory).
 void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
@@ -144,6 +158,7 @@ void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
     if (!(c.grid_voxel_size >= 0) || !std::isfinite(c.grid_voxel_size))
         bad("grids.voxel_size", c.grid_voxel_size, "must be a positive finite number");
     if (c.grid_voxel_size > 0 && c.grid_path.empty()) throw std::invalid_argument("grids.path is empty");
+    if (c.grid_voxel_size > 0) check_grid_quantities(c, scene);
     // Checked before the run, which the file could not be written after.
     if (c.grid_voxel_size > 0) check_vdb_voxel_size(c.grid_voxel_size);
     if (c.grid_voxel_size > 0 && grid_file) check_vdb_path(c.grid_path);
@@ -198,19 +213,22 @@ void write_grids(SharedGridSet& grids, const Scene& scene, const RunConfig& cfg,
                         [&grids, k](size_t shard) { grids.release(k, shard); }});
     };
     // Names and meanings: docs/design.md, "Grids" (endophoton.vdb.GRID_QUANTITIES says the same to readers).
-    output(0, "absorbed",
-           "energy absorbed in the voxel (packet weight x 500 nm / wavelength; weight when the run is not spectral), "
-           "per launched packet; dimensionless, per voxel");
-    output(1, "fluorescent_light",
-           "weight of fluorescent packets summed over their interaction sites in the voxel (collision density of "
-           "fluorescence light), per launched packet; dimensionless, per voxel");
+    // Only the grids the run was asked for (the others took no deposit).
+    if (cfg.grid_absorbed)
+        output(0, "absorbed",
+               "energy absorbed in the voxel (packet weight x 500 nm / wavelength; weight when the run is not "
+               "spectral), per launched packet; dimensionless, per voxel");
+    if (cfg.grid_fluorescent_light)
+        output(1, "fluorescent_light",
+               "weight of fluorescent packets summed over their interaction sites in the voxel (collision density "
+               "of fluorescence light), per launched packet; dimensionless, per voxel");
     const size_t per_fl = grids.grid_count() - 2 - scene.fluorophore_count();
     for (size_t f = 0; f < per_fl; ++f)
         output(f + 2, "fluorescent_light_" + scene.fluorophore_name(int(f)),
                "weight of packets that fluoresced by " + scene.fluorophore_name(int(f)) +
                    ", summed over their interaction sites in the voxel (where its light goes, not where it is), "
                    "per launched packet; dimensionless, per voxel");
-    for (size_t f = 0; f < scene.fluorophore_count(); ++f)
+    for (size_t f = 0; f < (cfg.grid_emission ? scene.fluorophore_count() : 0); ++f)
         output(2 + per_fl + f, "emission_" + scene.fluorophore_name(int(f)),
                "packet weight " + scene.fluorophore_name(int(f)) +
                    " converted into fluorescence at its conversion points in the voxel (fluorescence photons "
@@ -222,8 +240,9 @@ void write_grids(SharedGridSet& grids, const Scene& scene, const RunConfig& cfg,
     meta["engine"] = "endophoton " + engine_version();
     meta["voxel_size"] = std::to_string(cfg.grid_voxel_size);
     // The writer sums each grid exactly (its "accumulator_sum"); the absorbed
-    // grid's is the result's grid_absorbed_sum.
-    result.grid_absorbed_sum = write_vdb(cfg.grid_path, outs, meta, threads, cfg.grid_max_tree_bytes).front();
+    // grid's is the result's grid_absorbed_sum (0 when it was not asked for).
+    const std::vector<double> sums = write_vdb(cfg.grid_path, outs, meta, threads, cfg.grid_max_tree_bytes);
+    result.grid_absorbed_sum = cfg.grid_absorbed ? sums.front() : 0.0;
     result.grid_path = cfg.grid_path;
     for (const auto& o : outs) result.grid_names.push_back(o.name);
 }

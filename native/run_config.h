@@ -27,6 +27,12 @@ struct RunConfig {
     // Grids (none unless voxel_size > 0).
     double grid_voxel_size = 0;  // scene units
     bool grid_per_fluorophore = false;
+    // The grids' quantities (docs/design.md, "Grids"): a run deposits and
+    // writes only those asked for, and a run with neither absorbed nor
+    // fluorescent_light traces without per-interaction deposits at all.
+    bool grid_absorbed = true;           // "absorbed"
+    bool grid_fluorescent_light = true;  // "fluorescent_light" (and its per-fluorophore grids)
+    bool grid_emission = true;           // "emission_<fluorophore>"
     std::string grid_path;
     // The most the .vdb writer's OpenVDB trees may take (write_vdb); 0: three
     // quarters of the memory available when the file is written.

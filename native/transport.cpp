@@ -1143,7 +1143,8 @@ bool PacketWalk<kSpectral, kGrids>::look_back_covers(const Vec3& d, Float s) {
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) void PacketWalk<kSpectral, kGrids>::deposit_grids(const Vec3& p, Float dW, Float W) {
     const PacketState& st = st_;
-    out_.grids->deposit(p.x, p.y, p.z, dW * st.energy_per_weight, st.fluorescent, size_t(st.fluorophore), W);
+    out_.grids->deposit(p.x, p.y, p.z, cfg_.grid_absorbed, dW * st.energy_per_weight,
+                        st.fluorescent && cfg_.grid_fluorescent_light, size_t(st.fluorophore), W);
 }
 
 // The rest of an interaction after capture and fluorescence: scattering,
@@ -1207,7 +1208,9 @@ void PacketWalk<kSpectral, kGrids>::fluoresce_with(const FluorophoreRef& f) {
     PacketState& st = st_;
     // The weight f converts, where it converts it (tally and emission grid).
     out_.tally.emitted_by_fluorophore[size_t(f.id)] += st.W;
-    if constexpr (kGrids) out_.grids->emit(st.p.x, st.p.y, st.p.z, size_t(f.id), st.W);
+    // Any run with grids (a run asking for emission grids alone traces
+    // without per-interaction deposits: Tracer, grids_).
+    if (out_.grids && cfg_.grid_emission) out_.grids->emit(st.p.x, st.p.y, st.p.z, size_t(f.id), st.W);
     st.lambda = scene_.eem(f.id).sample_emission(st.lambda, rng_.uniform(), rng_.uniform());
     // Stokes loss: the weight (photon count) is kept, the energy per
     // photon drops from 500/lambda_ex to 500/lambda_em.
@@ -1314,7 +1317,7 @@ void PacketWalk<kSpectral, kGrids>::attenuate_clear(Float t) {
     PacketState& st = st_;
     if (t <= 0 || st.W <= 0) return;
     const Float dW = -st.W * std::expm1(-st.med.mua * t * unit_cm_);
-    if constexpr (kGrids) {
+    if (kGrids && cfg_.grid_absorbed) {
         const Float h = cfg_.grid_voxel_size;
         cuts_.clear();
         cuts_.push_back(0);
@@ -1411,7 +1414,9 @@ bool in_closed_pocket(const Scene& scene, const Light& l, std::vector<Hit>& hits
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
     : scene_(scene), source_(source), halton_(halton), cfg_(cfg) {
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
-    grids_ = cfg.grid_voxel_size > 0;
+    // The walk with per-interaction deposits only for the grids that take
+    // them: a run asking for emission grids alone pays nothing per step.
+    grids_ = cfg.grid_voxel_size > 0 && (cfg.grid_absorbed || cfg.grid_fluorescent_light);
     hits_.reserve(64);
     // The local triangle caches serve every scene: each is gathered once
     // through the uniform grid (triangle_grid.h), O(local) whatever the

@@ -297,20 +297,25 @@ struct GridSet {
     // engine checks that the run's grids hold exactly its merged packets.
     uint64_t packets = 0;
 
-    // The deposits of one interaction at world position (x, y, z):
-    // `absorbed_value` into the absorbed grid and, for a fluorescent packet,
+    // The deposits of one interaction at world position (x, y, z): with
+    // `with_absorbed`, `absorbed_value` into the absorbed grid and, when
+    // `fluorescent` (a fluorescent packet whose light the run's grids hold),
     // `weight` into the fluorescence grid and, if there are per-fluorophore
     // grids, into that of its fluorophore `fluorophore`. The same bits and
     // counters as calling add(x, y, z, ...) on each of those grids; the grids
     // share one voxel size, so the voxel index is computed once, and the
     // weight converted to fixed point once.
-    __attribute__((always_inline)) void deposit(double x, double y, double z, double absorbed_value, bool fluorescent,
-                                                size_t fluorophore, double weight) {
+    __attribute__((always_inline)) void deposit(double x, double y, double z, bool with_absorbed, double absorbed_value,
+                                                bool fluorescent, size_t fluorophore, double weight) {
+        if (!with_absorbed && !fluorescent) return;
         VoxelAccumulator::Coord c;
         const bool in_range = absorbed.index_of(x, y, z, c);
         unsigned __int128 low;
-        bool fast = Fixed128::fast_low(absorbed_value, low);
-        absorbed.add_resolved(x, y, z, c, in_range, absorbed_value, fast, low);
+        bool fast;
+        if (with_absorbed) {
+            fast = Fixed128::fast_low(absorbed_value, low);
+            absorbed.add_resolved(x, y, z, c, in_range, absorbed_value, fast, low);
+        }
         if (!fluorescent) return;
         fast = Fixed128::fast_low(weight, low);
         fluorescence.add_resolved(x, y, z, c, in_range, weight, fast, low);

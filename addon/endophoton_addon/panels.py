@@ -189,7 +189,13 @@ class ENDOPHOTON_PT_simulation(_EndoPhotonPanel, bpy.types.Panel):
         sub = col.column()
         sub.active = s.output_grids
         sub.prop(s, "voxel_size")
-        sub.prop(s, "grid_per_fluorophore")
+        quantities = sub.column(heading="Tally", align=True)
+        quantities.prop(s, "grid_absorbed")
+        quantities.prop(s, "grid_fluorescent_light")
+        quantities.prop(s, "grid_emission")
+        per = sub.row()
+        per.active = s.grid_fluorescent_light
+        per.prop(s, "grid_per_fluorophore")
         sub.prop(s, "grid_dir", text="Folder")
         col = layout.column(heading="Guards")
         col.prop(s, "allow_unusual_scale")

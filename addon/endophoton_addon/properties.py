@@ -527,8 +527,27 @@ class EndoPhotonSceneSettings(bpy.types.PropertyGroup):
         min=0.0,
         precision=5,
     )
+    grid_absorbed: BoolProperty(
+        name="Absorbed",
+        description="Tally the absorbed energy grid ('absorbed': where light is absorbed)",
+        default=True,
+    )
+    grid_fluorescent_light: BoolProperty(
+        name="Fluorescent Light",
+        description="Tally the fluorescent-light grid ('fluorescent_light': where fluorescence light travels)",
+        default=True,
+    )
+    grid_emission: BoolProperty(
+        name="Emission",
+        description="Tally one emission grid per fluorophore ('emission_<name>': where it converts light into "
+        "fluorescence). Alone, the run deposits nothing at its interactions and runs at the speed of a run "
+        "without grids",
+        default=True,
+    )
     grid_per_fluorophore: BoolProperty(
-        name="Grid per Fluorophore", description="Also one fluorescence grid per fluorophore", default=False
+        name="Grid per Fluorophore",
+        description="Also one fluorescent-light grid per fluorophore (needs Fluorescent Light)",
+        default=False,
     )
     grid_dir: StringProperty(
         name="Grid Folder",

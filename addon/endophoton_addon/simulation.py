@@ -56,6 +56,10 @@ class RunInputs:
         "exitance"  # ep.render_view's: "exitance", "kernel", "knn" or "nee" (the run tallies the camera)
     )
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
+    # The grids' quantities (ep.GridRequest's switches of the same names): all three unless turned off.
+    grid_quantities: dict = field(
+        default_factory=lambda: {"absorbed": True, "fluorescent_light": True, "emission": True}
+    )
 
 
 def grid_folder(settings, who="Scene"):
@@ -155,11 +159,13 @@ def collect_inputs(context):
 
     estimator = view_estimator(settings, who, kind, views)
     voxel_m = grid_path = None
+    grid_quantities = {}
     if settings.output_grids:
         voxel = settings.voxel_size
         if not math.isfinite(voxel) or voxel <= 0.0:
             raise InputError(f"{who}: simulation.voxel_size = {voxel:g} must be a finite number > 0")
         voxel_m = voxel * scale
+        grid_quantities = check_grid_quantities(settings, who, regions)
         inputs_stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")
         grid_path = os.path.join(grid_folder(settings, who), f"endophoton_{inputs_stamp}.vdb")
 
@@ -186,8 +192,34 @@ def collect_inputs(context):
         live_view=bool(settings.live_view),
         view_estimator=estimator,
     )
+    if grid_quantities:
+        inputs.grid_quantities = grid_quantities
     check_before_run(scene, inputs)
     return inputs
+
+
+def check_grid_quantities(settings, who, regions):
+    """The grids' quantities of the panel (simulation.grid_absorbed, grid_fluorescent_light,
+    grid_emission) as ep.GridRequest's switches; refused, naming the fields, when none is on, when
+    the per-fluorophore grids lack the fluorescent-light grid they split, or when the emission grids
+    alone are on and no exported region has a fluorophore (no grid to write)."""
+    asked = {q: bool(getattr(settings, f"grid_{q}")) for q in ("absorbed", "fluorescent_light", "emission")}
+    if not any(asked.values()):
+        raise InputError(
+            f"{who}: simulation.grid_absorbed, grid_fluorescent_light and grid_emission are all off; "
+            "turn one on, or turn Volume Grids off"
+        )
+    if settings.grid_per_fluorophore and not asked["fluorescent_light"]:
+        raise InputError(
+            f"{who}: simulation.grid_per_fluorophore needs simulation.grid_fluorescent_light on "
+            "(its grids split that one)"
+        )
+    if not asked["absorbed"] and not asked["fluorescent_light"] and not any(r.fluorophores for r in regions):
+        raise InputError(
+            f"{who}: simulation.grid_emission is the only grid on, and no object has a fluorophore: "
+            "no grid to write; turn on Absorbed or Fluorescent Light"
+        )
+    return asked
 
 
 def view_estimator(settings, who, kind, views):
@@ -284,6 +316,7 @@ def build_engine_call(ep, inputs):
                 voxel_size=inputs.grid_voxel_m,
                 path=inputs.grid_path,
                 per_fluorophore=inputs.grid_per_fluorophore,
+                **inputs.grid_quantities,
             )
     except ValueError as exc:
         raise engine_rejected(exc) from exc

@@ -109,6 +109,9 @@ class RunConfig:
     force_spectral: bool
     grid_voxel_size: float
     grid_per_fluorophore: bool
+    grid_absorbed: bool
+    grid_fluorescent_light: bool
+    grid_emission: bool
     grid_path: str
     grid_max_tree_bytes: int
     target_rel_error: float

@@ -28,16 +28,25 @@ MAX_PACKETS = int(_core.MAX_PACKET_REQUEST)
 DEFAULT_TARGET_MAX_PHOTONS = int(_core.DEFAULT_TARGET_MAX_PACKETS)
 
 
+#: GridRequest's switches of the quantities it tallies (RunConfig's ``grid_<name>``).
+GRID_QUANTITY_FIELDS = ("absorbed", "fluorescent_light", "emission")
+
+
 @dataclass
 class GridRequest:
     """Volume grids to accumulate and write as one OpenVDB file.
 
     voxel_size : edge of a voxel in scene units
     path : the .vdb file to write (atomically)
+    absorbed, fluorescent_light, emission : which quantities to tally (all three by default): the
+        ``absorbed`` grid, the ``fluorescent_light`` grid, and one ``emission_<name>`` grid per
+        fluorophore of a scene that has any (where and how much it converts into fluorescence).
+        What each grid holds, with its unit: ``endophoton.vdb.GRID_QUANTITIES``. A grid not asked
+        for costs nothing: a run without ``absorbed`` and ``fluorescent_light`` deposits nothing at
+        its interactions (only at its fluorescence events), and traces at the speed of a run
+        without grids.
     per_fluorophore : also one ``fluorescent_light_<name>`` grid per fluorophore (where its light
-        goes). Every run with grids whose scene has fluorophores also writes one ``emission_<name>``
-        grid per fluorophore (where and how much it converts into fluorescence). What each grid
-        holds, with its unit: ``endophoton.vdb.GRID_QUANTITIES``.
+        goes); needs ``fluorescent_light``.
     max_memory_mb : the most memory (MiB) the run's voxel tables may take, and
         again the most the file's OpenVDB trees may take while it is written; None:
         three quarters of the memory available when the run starts (the tables) and
@@ -51,11 +60,23 @@ class GridRequest:
     path: str
     per_fluorophore: bool = False
     max_memory_mb: float | None = None
+    absorbed: bool = True
+    fluorescent_light: bool = True
+    emission: bool = True
 
     def __post_init__(self):
         check_real("grids.voxel_size", self.voxel_size, 0.0, math.inf, lo_open=True)
         check_path("grids.path", self.path)
-        check_bool("grids.per_fluorophore", self.per_fluorophore)
+        for name in ("per_fluorophore",) + GRID_QUANTITY_FIELDS:
+            check_bool(f"grids.{name}", getattr(self, name))
+        if not any(getattr(self, name) for name in GRID_QUANTITY_FIELDS):
+            raise ValueError(
+                "grids.absorbed, grids.fluorescent_light and grids.emission are all False: no grid to write"
+            )
+        if self.per_fluorophore and not self.fluorescent_light:
+            raise ValueError(
+                "grids.per_fluorophore = True needs grids.fluorescent_light = True (its grids split that one)"
+            )
         if self.max_memory_mb is not None:
             self.max_memory_mb = check_real("grids.max_memory_mb", self.max_memory_mb, 1.0, 2.0**40)
 
@@ -308,6 +329,8 @@ def _native_options(a: SimpleNamespace) -> dict:
         opts["grid_voxel_size"] = float(a.grids.voxel_size)
         opts["grid_path"] = os.fspath(a.grids.path)
         opts["grid_per_fluorophore"] = bool(a.grids.per_fluorophore)
+        for name in GRID_QUANTITY_FIELDS:
+            opts[f"grid_{name}"] = bool(getattr(a.grids, name))
         if a.grids.max_memory_mb is not None:
             opts["grid_max_tree_bytes"] = int(a.grids.max_memory_mb * 2**20)
     return opts

@@ -6,6 +6,7 @@ the worker thread, poll its progress, finish on the main thread), or through
 the operator's blocking ``execute``.
 """
 
+import importlib
 import math
 import os
 import time
@@ -403,6 +404,22 @@ def test_colon_polyp_scene_runs(ep, tmp_path):
     assert res.absorbed_by_region["Polyp"] > 0.1  # the rig looks at the polyp
     assert res.missed < 0.05  # the lights hit the colon wall
     assert len(_points_object(collection).data.vertices) == len(res.escapes["weight"])
+
+
+def test_a_run_imports_only_the_grids_asked_for(ep, tmp_path):
+    """The panel's grid switches reach ep.GridRequest: emission grids alone on the colon polyp
+    scene (collagen in the wall, photofrin in the polyp) give one Volume object per fluorophore
+    and no absorbed or fluorescent-light grid, in the file or in the scene."""
+    importlib.import_module(ep.__name__ + ".vdb")  # ep.vdb: the reader, not imported by the package
+    scene = open_blend("colon_polyp.blend", tmp_path)
+    settings = scene.endophoton
+    settings.quality, settings.photons, settings.output_points = "CUSTOM", 3_000, False
+    settings.output_grids, settings.grid_absorbed, settings.grid_fluorescent_light = True, False, False
+    job, collection, _ = _run_job(bpy.context)
+    names = job.result.grid_names
+    assert names and all(n.startswith("emission_") for n in names), names
+    assert sorted(o["endophoton_grid"] for o in _volumes(collection)) == sorted(names)
+    assert sorted(ep.vdb.read_grid_summary(job.inputs.grid_path)["grids"]) == sorted(names)
 
 
 def test_preview_preset_runs_to_its_target_accuracy(ep, tmp_path):

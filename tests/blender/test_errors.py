@@ -168,6 +168,36 @@ def test_nan_voxel_size():
 
 
 @pytest.mark.parametrize(
+    "switches, pattern",
+    [
+        (
+            dict(grid_absorbed=False, grid_fluorescent_light=False, grid_emission=False),
+            r"simulation\.grid_absorbed, grid_fluorescent_light and grid_emission are all off",
+        ),
+        (
+            dict(grid_fluorescent_light=False, grid_per_fluorophore=True),
+            r"simulation\.grid_per_fluorophore needs simulation\.grid_fluorescent_light on",
+        ),
+    ],
+)
+def test_grid_quantities_that_write_nothing_are_refused(switches, pattern):
+    _valid_scene()
+    s = bpy.context.scene.endophoton
+    s.output_grids = True
+    for name, value in switches.items():
+        setattr(s, name, value)
+    _assert_rejected(r"Scene 'Scene': " + pattern)
+
+
+def test_emission_grids_alone_need_a_fluorophore():
+    tissue, _root = _valid_scene()
+    tissue.endophoton.fluorophores.clear()
+    s = bpy.context.scene.endophoton
+    s.output_grids, s.grid_absorbed, s.grid_fluorescent_light = True, False, False
+    _assert_rejected(r"Scene 'Scene': simulation\.grid_emission is the only grid on, and no object has a fluorophore")
+
+
+@pytest.mark.parametrize(
     "field, limits",
     [
         ("point_radius", ">= 0"),

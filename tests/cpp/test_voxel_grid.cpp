@@ -361,12 +361,12 @@ TEST(VoxelAccumulator, MemoryGrowsWithVoxelsAndClearReleasesIt) {
 TEST(GridSet, DepositEqualsAddIntoEachGrid) {
     const double nan = std::numeric_limits<double>::quiet_NaN();
     ep::GridSet g(0.5, 2);
-    g.deposit(0.2, 0.3, -0.2, 0.25, false, 0, 8.0);  // not fluorescent: absorbed only
-    g.deposit(0.7, 0.3, -0.2, 0.5, true, 1, 0.75);   // voxel (1, 1, 0)
-    g.deposit(0.6, 0.3, -0.2, 0.0, true, 1, 0.125);  // zero absorbed: no voxel, no drop
-    g.deposit(0.6, 0.3, -0.2, -1.0, true, 0, 16.0);  // negative and >= 8: add_general
-    g.deposit(1e300, 0.0, 0.0, 2.0, true, 0, 4.0);   // out of range: dropped with value
-    g.deposit(nan, 0.0, 0.0, 0.5, true, 1, nan);     // bad position; NaN weight counted only
+    g.deposit(0.2, 0.3, -0.2, true, 0.25, false, 0, 8.0);  // not fluorescent: absorbed only
+    g.deposit(0.7, 0.3, -0.2, true, 0.5, true, 1, 0.75);   // voxel (1, 1, 0)
+    g.deposit(0.6, 0.3, -0.2, true, 0.0, true, 1, 0.125);  // zero absorbed: no voxel, no drop
+    g.deposit(0.6, 0.3, -0.2, true, -1.0, true, 0, 16.0);  // negative and >= 8: add_general
+    g.deposit(1e300, 0.0, 0.0, true, 2.0, true, 0, 4.0);   // out of range: dropped with value
+    g.deposit(nan, 0.0, 0.0, true, 0.5, true, 1, nan);     // bad position; NaN weight counted only
     EXPECT_EQ(g.absorbed.sorted(), (std::vector<std::pair<Coord, double>>{{{0, 1, 0}, 0.25}, {{1, 1, 0}, -0.5}}));
     EXPECT_EQ(g.fluorescence.sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 16.875}}));
     EXPECT_EQ(g.per_fluorophore[0].sorted(), (std::vector<std::pair<Coord, double>>{{{1, 1, 0}, 16.0}}));
@@ -380,6 +380,32 @@ TEST(GridSet, DepositEqualsAddIntoEachGrid) {
     EXPECT_EQ(g.per_fluorophore[1].dropped_value(), 0.0);
 }
 
+// A run that asks for some of the grids only (RunConfig::grid_absorbed,
+// grid_fluorescent_light) deposits into those only: the others stay empty,
+// with no voxel and no dropped counter, and the asked-for ones get what a
+// deposit into every grid gives them.
+TEST(GridSet, DepositIntoTheAskedForGridsOnly) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    for (const bool with_absorbed : {false, true})
+        for (const bool with_fluorescence : {false, true}) {
+            ep::GridSet all(0.5, 2), some(0.5, 2);
+            const double at[3][3] = {{0.2, 0.3, -0.2}, {0.7, 0.3, -0.2}, {nan, 0.0, 0.0}};
+            for (const auto& p : at) {
+                all.deposit(p[0], p[1], p[2], true, 0.25, true, 1, 0.75);
+                some.deposit(p[0], p[1], p[2], with_absorbed, 0.25, with_fluorescence, 1, 0.75);
+            }
+            const auto expect = [](const VoxelAccumulator& got, const VoxelAccumulator& ref, bool asked) {
+                using Voxels = std::vector<std::pair<Coord, double>>;
+                EXPECT_EQ(got.sorted(), asked ? ref.sorted() : Voxels());
+                EXPECT_EQ(got.dropped(), asked ? ref.dropped() : 0u);
+            };
+            expect(some.absorbed, all.absorbed, with_absorbed);
+            expect(some.fluorescence, all.fluorescence, with_fluorescence);
+            expect(some.per_fluorophore[1], all.per_fluorophore[1], with_fluorescence);
+            EXPECT_EQ(all.absorbed.voxel_count(), 2u);
+        }
+}
+
 // The emission grids (one per fluorophore) take emit()'s weight at the
 // conversion point only; deposit() never reaches them. They follow the
 // per-fluorophore grids in the numbering, and merge and clear with the set.
@@ -389,7 +415,7 @@ TEST(GridSet, EmissionGridsTakeOnlyEmitAndMergeWithTheSet) {
     EXPECT_EQ(&g.grid(2), &g.per_fluorophore[0]);
     EXPECT_EQ(&g.grid(3), &g.emission[0]);
     EXPECT_EQ(&g.grid(4), &g.emission[1]);
-    g.deposit(0.2, 0.3, -0.2, 0.25, true, 0, 0.5);
+    g.deposit(0.2, 0.3, -0.2, true, 0.25, true, 0, 0.5);
     g.emit(0.7, 0.3, -0.2, 1, 0.75);
     g.emit(0.6, 0.3, -0.2, 1, 0.125);
     EXPECT_EQ(g.emission[0].voxel_count(), 0u);

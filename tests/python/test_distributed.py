@@ -112,6 +112,34 @@ def test_fixed_count_with_grids_and_records_is_bit_identical(client, tmp_path):
 
 
 @pytest.mark.slow
+def test_grids_asked_for_by_quantity_are_the_same_bits_on_the_cluster(client, tmp_path):
+    """Workers get the run's grid switches with its options: a run asking for the emission grids
+    alone (no per-interaction deposits) and one asking for the absorbed grid alone write the local
+    run's grids, and only those."""
+    scene, rig = fluorescent_endoscope()
+    for label, asked, names in (
+        ("emission", dict(absorbed=False, fluorescent_light=False), ["emission_collagen", "emission_photofrin"]),
+        ("absorbed", dict(fluorescent_light=False, emission=False), ["absorbed"]),
+    ):
+        runs = [
+            ep.run(
+                scene,
+                rig,
+                photons=2000,
+                seed=8,
+                grids=ep.GridRequest(0.05, str(tmp_path / f"{label}{k}.vdb"), **asked),
+                **how,
+            )
+            for k, how in enumerate((dict(client=client, chunk_units=5), dict(threads=2)))
+        ]
+        dist, local = runs
+        assert_same_result(dist, local)
+        assert dist.grid_names == local.grid_names == names
+        for name in names:
+            assert np.array_equal(grid_to_numpy(dist.grid_path, name)[0], grid_to_numpy(local.grid_path, name)[0]), name
+
+
+@pytest.mark.slow
 def test_store_n_is_bit_identical_and_stops_where_the_local_run_stops(client, tmp_path):
     """A store run keeps grids per unit: the units past its stop point are discarded with
     their deposits, on the cluster (chunks of 3 units: the stop falls inside a chunk) as on

@@ -14,7 +14,7 @@ H = 0.05  # voxel size, cm
 LESION_MIN, LESION_MAX = (-0.3, -0.3, -0.4), (0.3, 0.3, 0.0)  # cm: the only region holding photofrin
 
 
-def _lesion_scene():
+def lesion_scene():
     """A collagen tissue box (cm) with a lesion box (higher priority) that also holds photofrin."""
     s = ep.Scene(unit="cm")
     tissue = ep.Medium(20, 200, 0.9, 1.1)
@@ -35,7 +35,7 @@ def _run(tmp_path, name, threads=1, photons=3000):
     src = ep.PencilSource((0.3, 0.0, 1.0), (0, 0, -1))
     path = tmp_path / f"{name}.vdb"
     grids = ep.GridRequest(voxel_size=H, path=str(path), per_fluorophore=True)
-    return ep.run(_lesion_scene(), src, photons=photons, seed=3, threads=threads, grids=grids, record_escapes=False)
+    return ep.run(lesion_scene(), src, photons=photons, seed=3, threads=threads, grids=grids, record_escapes=False)
 
 
 def _voxel_centres(path, name):
