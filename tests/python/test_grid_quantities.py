@@ -69,6 +69,23 @@ def test_a_run_writes_only_the_grids_asked_for_with_the_same_voxels(tmp_path, as
             assert part.emitted_by_fluorophore[fl] > 0
 
 
+def test_a_store_run_keeps_only_the_asked_for_grids_of_the_units_it_merges(tmp_path):
+    """A "store N" run keeps grids per unit and discards those past its stop point (engine.cpp,
+    grids_per_unit): asked for alone, its emission grids are those of a store run that writes all."""
+    src = ep.PencilSource((0.3, 0.0, 1.0), (0, 0, -1))
+    runs = []
+    for label, asked in (("all", {}), ("emission", dict(absorbed=False, fluorescent_light=False))):
+        grids = ep.GridRequest(voxel_size=H, path=str(tmp_path / f"{label}.vdb"), **asked)
+        runs.append(ep.run(lesion_scene(), src, store=300, fluorescent_only=True, seed=2, threads=2, grids=grids))
+    full, part = runs
+    assert part.stop_reason == full.stop_reason == "store" and part.packets_traced == full.packets_traced
+    assert part.grid_names == EMISSION
+    for name in EMISSION:
+        a, oa, ha = vdb.grid_to_numpy(part.grid_path, name)
+        b, ob, hb = vdb.grid_to_numpy(full.grid_path, name)
+        assert oa == ob and ha == hb and np.array_equal(a, b) and a.size > 0, name
+
+
 def test_emission_alone_needs_a_fluorophore_and_is_refused_before_the_run(tmp_path):
     s = ep.Scene(unit="cm")
     s.add_box("slab", (-1, -1, -1), (1, 1, 0), ep.Medium(20, 200, 0.9, 1.1))
