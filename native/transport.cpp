@@ -1208,8 +1208,9 @@ void PacketWalk<kSpectral, kGrids>::fluoresce_with(const FluorophoreRef& f) {
     PacketState& st = st_;
     // The weight f converts, where it converts it (tally and emission grid).
     out_.tally.emitted_by_fluorophore[size_t(f.id)] += st.W;
-    // Any run with grids (a run asking for emission grids alone traces
-    // without per-interaction deposits: Tracer, grids_).
+    // In any run with grids, whichever walk it takes: a run that asks for the
+    // emission grids alone takes the one without per-interaction deposits
+    // (Tracer, grids_).
     if (out_.grids && cfg_.grid_emission) out_.grids->emit(st.p.x, st.p.y, st.p.z, size_t(f.id), st.W);
     st.lambda = scene_.eem(f.id).sample_emission(st.lambda, rng_.uniform(), rng_.uniform());
     // Stokes loss: the weight (photon count) is kept, the energy per

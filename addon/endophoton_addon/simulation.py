@@ -56,10 +56,8 @@ class RunInputs:
         "exitance"  # ep.render_view's: "exitance", "kernel", "knn" or "nee" (the run tallies the camera)
     )
     timestamp: str = field(default_factory=lambda: datetime.now().strftime("%Y%m%d-%H%M%S"))
-    # The grids' quantities (ep.GridRequest's switches of the same names): all three unless turned off.
-    grid_quantities: dict = field(
-        default_factory=lambda: {"absorbed": True, "fluorescent_light": True, "emission": True}
-    )
+    # The grids' quantities, ep.GridRequest's switches of the same names (check_grid_quantities); empty without grids.
+    grid_quantities: dict = field(default_factory=dict)
 
 
 def grid_folder(settings, who="Scene"):
@@ -191,9 +189,8 @@ def collect_inputs(context):
         endoscope_view=views,
         live_view=bool(settings.live_view),
         view_estimator=estimator,
+        grid_quantities=grid_quantities,
     )
-    if grid_quantities:
-        inputs.grid_quantities = grid_quantities
     check_before_run(scene, inputs)
     return inputs
 
