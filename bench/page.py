@@ -241,6 +241,14 @@ def _from(text, start):
     return text[i + 1 :] if i >= 0 else text
 
 
+#: The full preset's arguments of bench/render_speed.py (bench/perf.py), and what its run shows.
+RENDER_FULL = ["--photons", "150000", "--sizes", "128,256,512,1024", "--factors", "2"]
+RENDER_NOTE = (
+    f"The full preset runs it with `{' '.join(RENDER_FULL)}` (issue 38: time and memory linear in the pixels; the "
+    "memory budget that refuses larger images by default: docs/render.md, \"Memory and time\").\n"
+)
+
+
 def sections(R):
     lumen = R.get("lumen")
     if lumen:
@@ -267,6 +275,7 @@ def sections(R):
         "\n## 5. Instructions per step (callgrind)\n\n" + frozen("callgrind")
         + "\n## 6. Light crosses the lumen on colon_polyp (issue 9)\n\n" + lumen_t
         + "\n## 7. Endoscope view: seconds per image\n\n" + _from(R.get("render"), "`bench/render_speed.py`")
+        + ("" if R["preset"] == "quick" or not R.get("render") else RENDER_NOTE)
         + "\n## 8. Distributed runs (Dask)\n\n`/usr/bin/python3 bench/dask_cluster.py" + (" --quick" if R["preset"] == "quick" else "")
         + "` (what it measures: its docstring; the set-up: `docs/distributed.md`). Its output, as printed:\n\n"
         + (R.get("dask") or missing("dask"))
@@ -294,6 +303,8 @@ def sections(R):
         + frozen("vdb_library")
         + "\n## 25. Only the grids asked for (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("grid_quantities")
+        + "\n## 26. Where the colon's time goes (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("colon_time")
     )  # fmt: skip
 
 

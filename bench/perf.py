@@ -23,6 +23,8 @@ import sys
 import tempfile
 import time
 
+from page import RENDER_FULL
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 PYTHON = sys.executable
@@ -263,7 +265,9 @@ SECTIONS = {
     "targets": bench_targets,
     "stop_rule": bench_stop_rule,
     "lumen": lambda q: script("lumen_colon.py", "--photons", "20000" if q else "100000"),
-    "render": lambda q: script("render_speed.py", "--photons", "20000" if q else "150000", parse_json=False),
+    # The full preset: page.RENDER_FULL (image sides up to 1024², issue 38); the quick one: the kernel
+    # radii at small images.
+    "render": lambda q: script("render_speed.py", *(["--photons", "20000"] if q else RENDER_FULL), parse_json=False),
     "dask": lambda q: script("dask_cluster.py", *(["--quick"] if q else []), parse_json=False),
     "mesh_size": lambda q: script("mesh_size.py", *(["--quick", "--photons", "5000"] if q else [])),
 }
