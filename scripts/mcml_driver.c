@@ -23,19 +23,40 @@ int main(int argc, char* argv[]) {
         fprintf(stderr, "usage: %s PHOTONS MUA MUS G N THICKNESS_CM\n", argv[0]);
         return 2;
     }
+    // Each argument's range (MCML's loop counts down to zero after each photon: a count below 1 would run
+    // almost forever).
+    const char* names[7] = {0, "PHOTONS", "MUA", "MUS", "G", "N", "THICKNESS_CM"};
+    const double lo[7] = {0, 1, 0, 0, -1, 1, 0}, hi[7] = {0, 9e18, 1e9, 1e9, 1, 10, 1e9};
+    const int open_lo[7] = {0, 0, 0, 0, 1, 0, 1}, open_hi[7] = {0, 0, 0, 0, 1, 0, 0};
+    double v[7];
+    for (int k = 1; k < 7; ++k) {
+        char* end;
+        v[k] = strtod(argv[k], &end);
+        const int below = open_lo[k] ? !(v[k] > lo[k]) : !(v[k] >= lo[k]);
+        const int above = open_hi[k] ? !(v[k] < hi[k]) : !(v[k] <= hi[k]);
+        if (*end != '\0' || end == argv[k] || below || above) {
+            fprintf(stderr, "%s = %s: need a number in %c%g, %g%c\n", names[k], argv[k], open_lo[k] ? '(' : '[', lo[k],
+                    hi[k], open_hi[k] ? ')' : ']');
+            return 2;
+        }
+    }
+    if (v[2] + v[3] <= 0) {
+        fprintf(stderr, "MUA + MUS = %g: need a turbid layer (> 0)\n", v[2] + v[3]);
+        return 2;
+    }
     LayerStruct layers[3] = {{0}};
     layers[0].n = 1.0;
     layers[2].n = 1.0;
-    layers[1].mua = atof(argv[2]);
-    layers[1].mus = atof(argv[3]);
-    layers[1].g = atof(argv[4]);
-    layers[1].n = atof(argv[5]);
+    layers[1].mua = v[2];
+    layers[1].mus = v[3];
+    layers[1].g = v[4];
+    layers[1].n = v[5];
     layers[1].z0 = 0;
-    layers[1].z1 = atof(argv[6]);
+    layers[1].z1 = v[6];
     layers[1].cos_crit0 = cos_crit(layers[1].n, layers[0].n);
     layers[1].cos_crit1 = cos_crit(layers[1].n, layers[2].n);
     InputStruct in = {{0}};
-    in.num_photons = atol(argv[1]);
+    in.num_photons = (long)v[1];
     in.Wth = WEIGHT;
     in.dz = 0.1;
     in.dr = 0.1;

@@ -9,9 +9,10 @@ MCML's source is not in this repository. Build its transport with the driver bes
 Each pair runs MCML and `python3 -m endophoton run examples/seed_tissue.json --threads 1 --stats` (its order
 alternating from pair to pair). CPU time is user + system time of the whole process (os.wait4), for both; the
 engine's process includes Python's start-up and import, so the engine's own figure (`run_cpu_seconds`: the run,
-scene build included) is printed beside it. The seed tissue is n = 1.1 in air, mua = 20, mus = 200 cm⁻¹,
-g = 0.9, 10 cm thick (the engine: a box 10 cm deep and 10 cm wide). MCML seeds itself from the clock, so its runs
-are independent; the engine's use seeds 1, 2, ... Prints a line per pair and the medians as JSON.
+scene build included) is printed beside it. MCML's layer is the region of examples/seed_tissue.json (its medium,
+and its box's depth as the thickness; the box is 10 cm wide, MCML's layer unbounded). MCML seeds itself from the
+clock, so its runs are independent; the engine's use seeds 1, 2, ... Prints a line per pair and the medians as
+JSON (at least 2 pairs: the MCML Rd's standard error comes from their spread).
 """
 from __future__ import annotations
 
@@ -22,7 +23,19 @@ import subprocess
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TISSUE = ("20", "200", "0.9", "1.1", "10")  # mua, mus (cm^-1), g, n, thickness (cm)
+SCENE = os.path.join(ROOT, "examples", "seed_tissue.json")
+
+
+def mcml_layer():
+    """The driver's layer arguments (mua, mus in cm^-1, g, n, thickness in cm) from the engine's scene file, so
+    that both programs trace the one tissue."""
+    with open(SCENE, encoding="utf-8") as fh:
+        doc = json.load(fh)
+    (region,) = doc["regions"]
+    if doc["unit"] != "cm" or doc.get("ambient_n", 1.0) != 1.0:
+        raise SystemExit(f"{SCENE}: the driver takes a layer in cm between ambient media of n = 1")
+    m, box = region["medium"], region["box"]
+    return tuple(str(v) for v in (m["mua"], m["mus"], m["g"], m["n"], box["max"][2] - box["min"][2]))
 
 
 def timed(cmd, env=None):
@@ -37,18 +50,16 @@ def timed(cmd, env=None):
     return out, usage.ru_utime + usage.ru_stime
 
 
-def mcml(binary, photons):
-    out, cpu = timed([binary, str(photons), *TISSUE])
+def mcml(binary, photons, layer):
+    out, cpu = timed([binary, str(photons), *layer])
     return json.loads(out), cpu
 
 
 def engine(photons, seed):
-    cmd = [sys.executable, "-m", "endophoton", "run", os.path.join(ROOT, "examples", "seed_tissue.json"),
-           "--photons", str(photons), "--threads", "1", "--seed", str(seed), "--stats"]  # fmt: skip
-    env = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"))
-    out, cpu = timed(cmd, env)
-    r = json.loads(out)
-    return r, cpu
+    cmd = [sys.executable, "-m", "endophoton", "run", SCENE, "--photons", str(photons), "--threads", "1",
+           "--seed", str(seed), "--stats"]  # fmt: skip
+    out, cpu = timed(cmd, dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python")))
+    return json.loads(out), cpu
 
 
 def main(argv):
@@ -57,11 +68,14 @@ def main(argv):
     binary = argv[1]
     pairs = int(argv[2]) if len(argv) > 2 else 7
     photons = int(argv[3]) if len(argv) > 3 else 1_000_000
+    if pairs < 2 or photons < 1:
+        raise SystemExit(f"pairs must be >= 2 (got {pairs}) and photons >= 1 (got {photons})")
+    layer = mcml_layer()
     rows = []
     for k in range(pairs):
         runs = {}
         for who in ("mcml", "engine") if k % 2 == 0 else ("engine", "mcml"):
-            runs[who] = mcml(binary, photons) if who == "mcml" else engine(photons, k + 1)
+            runs[who] = mcml(binary, photons, layer) if who == "mcml" else engine(photons, k + 1)
         (m, m_cpu), (e, e_cpu) = runs["mcml"], runs["engine"]
         e_run = e["stats"]["process"]["run_cpu_seconds"]
         rows.append(dict(mcml_cpu_s=m_cpu, engine_cpu_s=e_cpu, engine_run_cpu_s=e_run, ratio=m_cpu / e_cpu,
@@ -73,7 +87,7 @@ def main(argv):
               f"{r['ratio_run']:.2f}x; Rd {r['mcml_rd']:.5f} / {r['engine_rd']:.5f}; load {r['load']:.1f}",
               flush=True)  # fmt: skip
     rd = [r["mcml_rd"] for r in rows]
-    mcml_rd, mcml_se = statistics.mean(rd), statistics.stdev(rd) / len(rd) ** 0.5 if len(rd) > 1 else float("nan")
+    mcml_rd, mcml_se = statistics.mean(rd), statistics.stdev(rd) / len(rd) ** 0.5
     eng_rd = statistics.mean(r["engine_rd"] for r in rows)
     eng_se = statistics.mean(r["engine_rd_se"] for r in rows) / len(rows) ** 0.5
     summary = dict(
