@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "det_math.h"
 #include "fresnel.h"
 #include "phase.h"
 #include "triangle_cache.h"
@@ -113,9 +114,10 @@ Vec3 camera_axis_inside(const TriangleCache& cache, const Vec3& p, const Vec3& c
 LookBackDraw sample_look_back(const Vec3& d, const Vec3& axis, Float g, Float alpha, Float gb, double u0, double u1,
                               double u2) {
     const HenyeyGreenstein hg(g), hb(gb);
-    const Float phi = 2 * kPi * u2;
+    Float sin_phi, cos_phi;
+    det_sincos(2 * kPi * u2, &sin_phi, &cos_phi);
     LookBackDraw out;
-    out.w = (u0 < alpha ? hb : hg).sample_p(u0 < alpha ? axis : d, u1, std::sin(phi), std::cos(phi));
+    out.w = (u0 < alpha ? hb : hg).sample_p(u0 < alpha ? axis : d, u1, sin_phi, cos_phi);
     // q(w) = (1 - alpha) p_g(d.w) + alpha p_gb(axis.w): the balance heuristic's
     // one-sample mixture (Veach 1997, eq. 9.13), so p_g / q <= 1 / (1 - alpha).
     const Float p = hg.p(dot(d, out.w));
@@ -290,7 +292,7 @@ void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e
     // exp(-tau_cut) of attenuation and adds no heavy tail. (Most deep events
     // never get here: camera_prefilter thins them with the same u.)
     if (tau > view.tau_cut) {
-        q = std::exp(view.tau_cut - tau);
+        q = det_exp(view.tau_cut - tau);
         if (!(u < q)) {
             ++k.thinned;
             return;
@@ -312,7 +314,7 @@ void next_event(const Scene& scene, const CameraView& view, const CameraEvent& e
     // (docs/render.md): 1 / ((l1 + n l2)(l1 cos0 / cos1 + n l2 cos1 / cos0)).
     const Float L1 = rf.l1 * unit_cm, L2 = rf.l2 * unit_cm;
     const Float G = 1 / ((L1 + n * L2) * (L1 * rf.cos0 / rf.cos1 + n * L2 * rf.cos1 / rf.cos0));
-    const Float value = e.weight_energy * p_hg * std::exp(-tau) * T * G / view.pixel_solid_angle[size_t(pixel)] / q;
+    const Float value = e.weight_energy * p_hg * det_exp(-tau) * T * G / view.pixel_solid_angle[size_t(pixel)] / q;
     if (!(value > 0 && std::isfinite(value))) return;
     out.scores.push_back(CameraScore{e.packet, uint32_t(pixel), e.fluorescent ? 1u : 0u, e.lambda_nm, value});
     ++k.scored;

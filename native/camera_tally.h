@@ -19,6 +19,7 @@
 #include <memory>
 #include <vector>
 
+#include "det_math.h"
 #include "scene.h"
 #include "triangle_cache.h"
 #include "vecmath.h"
@@ -189,7 +190,7 @@ inline bool camera_prefilter(const CameraView& view, const Vec3& p, double u, Fl
     if (!view.near_view(p, CameraView::kViewMargin)) return false;
     if (!view.depth_bound) return true;
     const Float tau_lb = mut_per_unit * clearance_units() * (1 - 1e-9);
-    if (!(tau_lb > view.tau_cut) || u < std::exp(view.tau_cut - tau_lb)) return true;
+    if (!(tau_lb > view.tau_cut) || u < det_exp(view.tau_cut - tau_lb)) return true;
     ++k.thinned;
     ++k.bounded;
     return false;

@@ -12,6 +12,8 @@
 
 #include <embree3/rtcore.h>
 
+#include "embree_device.h"
+
 namespace ep {
 
 namespace {
@@ -107,8 +109,8 @@ void check_self_intersection(const std::string& owner, const float* v, const uin
     mesh.idx.resize(nt);
     for (size_t t = 0; t < nt; ++t)
         for (int k = 0; k < 3; ++k) mesh.idx[t][k] = canon[tri[3 * t + k]];
-    struct Embree {                                // released on every path out, a throw included
-        RTCDevice device = rtcNewDevice(nullptr);  // every core: offer() is thread-safe
+    struct Embree {                                                  // released on every path out, a throw included
+        RTCDevice device = rtcNewDevice(embree_config("").c_str());  // every core: offer() is thread-safe
         RTCScene scene = device ? rtcNewScene(device) : nullptr;
         ~Embree() {
             if (scene) rtcReleaseScene(scene);

@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "eem.h"
+#include "embree_device.h"
 #include "triangle_cache.h"
 
 namespace ep {
@@ -278,8 +279,7 @@ Scene::Scene(Float unit_cm, Float ambient_n) : unit_cm_(unit_cm), ambient_n_(amb
         os << "scene.ambient_n = " << ambient_n << " must be a finite number >= 1";
         throw std::invalid_argument(os.str());
     }
-    device_ = rtcNewDevice("threads=1");
-    if (!device_) throw std::runtime_error("Embree: rtcNewDevice failed");
+    device_ = new_embree_device("threads=1");
     scene_ = rtcNewScene(device_);
     rtcSetSceneFlags(scene_, RTCSceneFlags(RTC_SCENE_FLAG_ROBUST | RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION));
     rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_MEDIUM);

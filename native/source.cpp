@@ -3,6 +3,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "det_math.h"
 #include "spectrum.h"
 
 namespace ep {
@@ -109,7 +110,7 @@ Source::Source(std::vector<Light> lights, const RigBody* body) : lights_(std::mo
         orthonormal_basis(l.axis, &u, &v);
         u_.push_back(u);
         v_.push_back(v);
-        cos_half_.push_back(std::cos(l.half_angle));
+        cos_half_.push_back(det_cos(l.half_angle));
     }
 }
 
@@ -124,14 +125,16 @@ Emission Source::emit(const Halton& h, uint64_t index, bool spectral) const {
     if (l.radius > 0) {
         // Uniform on the disk: r = R sqrt(u) keeps the area density constant.
         const Float r = l.radius * std::sqrt(h.sample(k, 0));
-        const Float phi = 2 * kPi * h.sample(k, 1);
-        e.position += u_[li] * (r * std::cos(phi)) + v_[li] * (r * std::sin(phi));
+        Float sin_phi, cos_phi;
+        det_sincos(2 * kPi * h.sample(k, 1), &sin_phi, &cos_phi);
+        e.position += u_[li] * (r * cos_phi) + v_[li] * (r * sin_phi);
     }
     e.direction = l.axis;
     if (l.half_angle > 0) {
         const Float cos_t = 1 - h.sample(k, 2) * (1 - cos_half_[li]);
-        const Float phi = 2 * kPi * h.sample(k, 3);
-        e.direction = spherical_about(l.axis, cos_t, std::sin(phi), std::cos(phi));
+        Float sin_phi, cos_phi;
+        det_sincos(2 * kPi * h.sample(k, 3), &sin_phi, &cos_phi);
+        e.direction = spherical_about(l.axis, cos_t, sin_phi, cos_phi);
     }
     if (spectral) {
         const Float u = h.sample(k, 4);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "det_math.h"
 #include "eem.h"
 #include "fast_log.h"
 #include "fresnel.h"
@@ -1317,7 +1318,7 @@ template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::attenuate_clear(Float t) {
     PacketState& st = st_;
     if (t <= 0 || st.W <= 0) return;
-    const Float dW = -st.W * std::expm1(-st.med.mua * t * unit_cm_);
+    const Float dW = -st.W * det_expm1(-st.med.mua * t * unit_cm_);
     if (kGrids && cfg_.grid_absorbed) {
         const Float h = cfg_.grid_voxel_size;
         cuts_.clear();
@@ -1336,7 +1337,7 @@ void PacketWalk<kSpectral, kGrids>::attenuate_clear(Float t) {
         for (size_t k = 0; k + 1 < cuts_.size(); ++k) {
             const Float a = std::clamp(cuts_[k], Float(0), t), b = std::clamp(cuts_[k + 1], Float(0), t);
             if (b <= a) continue;
-            const Float piece = -w * std::expm1(-st.med.mua * (b - a) * unit_cm_);
+            const Float piece = -w * det_expm1(-st.med.mua * (b - a) * unit_cm_);
             const Vec3 mid = st.p + st.d * (Float(0.5) * (a + b));
             out_.absorbed_grid->add(mid.x, mid.y, mid.z, piece * st.energy_per_weight);
             w -= piece;
@@ -1403,8 +1404,9 @@ bool in_closed_pocket(const Scene& scene, const Light& l, std::vector<Hit>& hits
     for (int k = 0; k < kProbes; ++k) {
         const Float z = 1 - (2 * k + 1) / Float(kProbes);
         const Float r = std::sqrt(std::max(Float(0), 1 - z * z));
-        const Float phi = k * kPi * (3 - std::sqrt(Float(5)));
-        scene.intersect_all(l.center, Vec3(r * std::cos(phi), r * std::sin(phi), z), 0, kInf, hits);
+        Float sin_phi, cos_phi;
+        det_sincos(k * kPi * (3 - std::sqrt(Float(5))), &sin_phi, &cos_phi);
+        scene.intersect_all(l.center, Vec3(r * cos_phi, r * sin_phi, z), 0, kInf, hits);
         if (!some_first_crossing(hits, /*leaving=*/false)) return false;
     }
     return true;

@@ -54,7 +54,10 @@ void TriangleGrid::build(const std::vector<std::vector<float>>& vertices,
     // Rounding room scaled to the coordinates' magnitude (pbrt-v4 practice),
     // so far-away scenes (1e6 cm offsets) keep a conservative superset.
     margin_ = 1e-9 * (std::max(max_abs_component(lo), max_abs_component(hi)) + side) + 1e-300;
-    const int n = std::clamp(int(std::ceil(3 * std::cbrt(Float(triangle_count_)))), 1, kMaxRes);
+    // ceil(3 cbrt(count)) cells a side, in integers: the least n with n^3 >= 27 count (no libm, whose
+    // cbrt may round a perfect cube's root either way: det_math.h).
+    int n = 1;
+    while (n < kMaxRes && uint64_t(n) * uint64_t(n) * uint64_t(n) < 27 * uint64_t(triangle_count_)) ++n;
     cell_ = side > 0 ? (side + 2 * margin_) / n : 1;
     inv_cell_ = 1 / cell_;
     origin_ = lo - Vec3(margin_, margin_, margin_);

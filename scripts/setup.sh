@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 SUDO=""
 if [ "$(id -u)" != "0" ]; then SUDO="sudo"; fi
 PKGS="blender pybind11-dev python3-dev python3-pip python3-setuptools python3-wheel libembree-dev libopenvdb-dev
-libboost-iostreams-dev libtbb-dev libnanoflann-dev python3-numpy python3-pytest python3-openvdb python3-matplotlib
+libboost-iostreams-dev libtbb-dev libnanoflann-dev libsleef-dev python3-numpy python3-pytest python3-openvdb python3-matplotlib
 libgtest-dev python3-tqdm python3-scipy python3-hypothesis python3-jsonschema python3-distributed xvfb xauth cmake g++ make black clang-format"
 missing=""
 for p in $PKGS; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done

@@ -1,0 +1,125 @@
+// det_exp, det_expm1, det_sincos and det_cos (native/det_math.h) against long
+// double references (glibc's x87 expl, expm1l, sinl, cosl: 64-bit
+// significands, far finer than the double being checked): within SLEEF's
+// bound of 1.0 unit in the last place over the ranges the engine feeds them,
+// and their exact values at the special points. That they give the same bits
+// on every machine is tests/python/test_isa_bits.py's to show.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <random>
+
+#include "det_math.h"
+
+using ep::det_cos;
+using ep::det_exp;
+using ep::det_expm1;
+using ep::det_sincos;
+
+namespace {
+
+// |got - ref| in units of the last place of the double nearest ref.
+double ulps(double got, long double ref) {
+    const double r = double(ref);
+    const double ulp = std::nextafter(std::fabs(r), std::numeric_limits<double>::infinity()) - std::fabs(r);
+    return double(std::fabs((long double)got - ref) / (long double)ulp);
+}
+
+template <class F, class R>
+double worst_ulps(F f, R ref, double lo, double hi, int n, uint64_t seed) {
+    std::mt19937_64 gen(seed);
+    std::uniform_real_distribution<double> u(lo, hi);
+    double worst = 0;
+    for (int i = 0; i < n; ++i) {
+        const double x = u(gen);
+        worst = std::max(worst, ulps(f(x), ref(x)));
+    }
+    return worst;
+}
+
+double sin_of(double x) {
+    double s, c;
+    det_sincos(x, &s, &c);
+    return s;
+}
+
+double cos_of(double x) {
+    double s, c;
+    det_sincos(x, &s, &c);
+    return c;
+}
+
+}  // namespace
+
+// The camera's attenuation exp(-tau) and depth roulette exp(tau_cut - tau):
+// tau from 0 to where exp underflows.
+TEST(DetMath, ExpWithinOneUlp) {
+    const auto ref = [](double x) { return std::exp((long double)x); };
+    EXPECT_LE(worst_ulps(det_exp, ref, -1.0, 0.0, 200000, 1), 1.0);
+    EXPECT_LE(worst_ulps(det_exp, ref, -700.0, 0.0, 200000, 2), 1.0);
+    EXPECT_LE(worst_ulps(det_exp, ref, 0.0, 700.0, 50000, 3), 1.0);
+}
+
+TEST(DetMath, ExpSpecialValues) {
+    EXPECT_EQ(det_exp(0.0), 1.0);
+    EXPECT_EQ(det_exp(-0.0), 1.0);
+    EXPECT_EQ(det_exp(-std::numeric_limits<double>::infinity()), 0.0);
+    EXPECT_EQ(det_exp(-800.0), 0.0);  // below the smallest subnormal
+    EXPECT_EQ(det_exp(800.0), std::numeric_limits<double>::infinity());
+    EXPECT_TRUE(std::isnan(det_exp(std::numeric_limits<double>::quiet_NaN())));
+}
+
+// A clear region's absorbed part -expm1(-mua t): tiny to total.
+TEST(DetMath, Expm1WithinOneUlp) {
+    const auto ref = [](double x) { return std::expm1((long double)x); };
+    EXPECT_LE(worst_ulps(det_expm1, ref, -1e-6, 0.0, 100000, 4), 1.0);
+    EXPECT_LE(worst_ulps(det_expm1, ref, -1.0, 0.0, 200000, 5), 1.0);
+    EXPECT_LE(worst_ulps(det_expm1, ref, -60.0, 0.0, 100000, 6), 1.0);
+}
+
+TEST(DetMath, Expm1SpecialValues) {
+    EXPECT_EQ(det_expm1(0.0), 0.0);
+    EXPECT_TRUE(std::signbit(det_expm1(-0.0)));
+    EXPECT_EQ(det_expm1(-1e-300), -1e-300);  // expm1(x) = x below half an ulp of x^2/2
+    EXPECT_EQ(det_expm1(-std::numeric_limits<double>::infinity()), -1.0);
+    EXPECT_EQ(det_expm1(-800.0), -1.0);
+    EXPECT_TRUE(std::isnan(det_expm1(std::numeric_limits<double>::quiet_NaN())));
+}
+
+// Azimuths 2 pi u of the sources and the camera's look-back, and the probe
+// rays' golden-angle azimuths (up to 64 turns).
+TEST(DetMath, SinCosWithinOneUlp) {
+    const auto sin_ref = [](double x) { return std::sin((long double)x); };
+    const auto cos_ref = [](double x) { return std::cos((long double)x); };
+    const double two_pi = 6.283185307179586;
+    EXPECT_LE(worst_ulps(sin_of, sin_ref, 0.0, two_pi, 200000, 7), 1.0);
+    EXPECT_LE(worst_ulps(cos_of, cos_ref, 0.0, two_pi, 200000, 8), 1.0);
+    EXPECT_LE(worst_ulps(sin_of, sin_ref, 0.0, 64 * two_pi, 100000, 9), 1.0);
+    EXPECT_LE(worst_ulps(cos_of, cos_ref, 0.0, 64 * two_pi, 100000, 10), 1.0);
+    // A cone's half angle in [0, pi/2].
+    EXPECT_LE(worst_ulps(det_cos, cos_ref, 0.0, 1.5707963267948966, 100000, 11), 1.0);
+}
+
+TEST(DetMath, SinCosSpecialValues) {
+    double s, c;
+    det_sincos(0.0, &s, &c);
+    EXPECT_EQ(s, 0.0);
+    EXPECT_EQ(c, 1.0);
+    EXPECT_EQ(det_cos(0.0), 1.0);
+    det_sincos(-0.0, &s, &c);
+    EXPECT_TRUE(s == 0.0 && std::signbit(s));
+    det_sincos(1e-300, &s, &c);  // sin x = x, cos x = 1 for tiny x
+    EXPECT_EQ(s, 1e-300);
+    EXPECT_EQ(c, 1.0);
+    det_sincos(std::numeric_limits<double>::infinity(), &s, &c);
+    EXPECT_TRUE(std::isnan(s) && std::isnan(c));
+    // Quarter and half turns, to within an ulp of the rounded pi.
+    det_sincos(1.5707963267948966, &s, &c);
+    EXPECT_EQ(s, 1.0);
+    EXPECT_LE(std::fabs(c), 1e-16);
+    det_sincos(3.141592653589793, &s, &c);
+    EXPECT_LE(std::fabs(s), 1e-15);
+    EXPECT_EQ(c, -1.0);
+}
