@@ -305,6 +305,8 @@ def sections(R):
         + frozen("grid_quantities")
         + "\n## 26. Where the colon's time goes (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("colon_time")
+        + "\n## 27. Where the grids' time goes (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("grids_time")
     )  # fmt: skip
 
 
