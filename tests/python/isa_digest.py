@@ -86,6 +86,16 @@ def _scene_file(*path: str):
     return ep.Scene.from_dict(data, base_dir=os.path.dirname(path)), source_from_dict(data["source"])
 
 
+def cone_over_clear_layer():
+    """A wide disk-and-cone source (two sin/cos pairs a packet) onto a clear layer (mus = 0: its
+    absorption is -expm1(-mua t)) over the seed tissue: (scene, source)."""
+    clear = ep.layered_slab(
+        [(ep.Medium(mua=2.0, mus=0.0, g=0.0, n=1.4), 0.05), (ep.Medium(mua=20, mus=200, g=0.9, n=1.1), 1.0)]
+    )
+    cone = ep.ConeSource(position=(0, 0, 0.5), direction=(0, 0, -1), half_angle_deg=30.0, radius=0.2)
+    return clear, cone
+
+
 def cases(out_dir: str):
     """(name, run) pairs; each run returns (result, grid path or None)."""
     seed, slab = _scene_file("examples", "seed_tissue.json"), _scene_file("examples", "mcml_slab.json")
@@ -100,14 +110,8 @@ def cases(out_dir: str):
         grids = ep.GridRequest(voxel_size=5e-4, path=path)
         return lambda: (ep.run(colon, rig, photons=3000, seed=7, threads=threads, grids=grids), path)
 
-    # A wide disk-and-cone source (two sin/cos pairs a packet) onto a clear layer (mus = 0: its
-    # absorption is -expm1(-mua t)) over the seed tissue, with the camera tally's exp.
-    clear = ep.layered_slab(
-        [(ep.Medium(mua=2.0, mus=0.0, g=0.0, n=1.4), 0.05), (ep.Medium(mua=20, mus=200, g=0.9, n=1.1), 1.0)]
-    )
-    cone = ep.ConeSource(position=(0, 0, 0.5), direction=(0, 0, -1), half_angle_deg=30.0, radius=0.2)
     return [
-        ("cone_over_clear_layer/2", plain((clear, cone), 20000, 2)),
+        ("cone_over_clear_layer/2", plain(cone_over_clear_layer(), 20000, 2)),
         ("seed_tissue/1", plain(seed, 20000, 1)),
         ("seed_tissue/2", plain(seed, 20000, 2)),
         ("mcml_slab/2", plain(slab, 50000, 2)),

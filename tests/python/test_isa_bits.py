@@ -17,7 +17,8 @@ threads, the colon's camera tally) with
 - the AVX-512 build (a newer machine's build),
 
 and asks for the same digests from all five: every tally and standard error, the exit records,
-the camera tally, and every voxel of every grid.
+the camera tally, and every voxel of every grid. Last, a Dask cluster whose one worker is the old
+machine traces runs that this process merges, and gets the bits of the same runs traced here.
 """
 from __future__ import annotations
 
@@ -28,6 +29,8 @@ import subprocess
 import sys
 
 import pytest
+
+import endophoton as ep
 
 pytestmark = pytest.mark.slow
 
@@ -157,3 +160,60 @@ def test_other_builds_give_the_same_bits(name, reference, tmp_path):
     if missing:
         pytest.skip(f"this processor lacks {', '.join(missing)}: the {name} build cannot run here")
     assert _digests(_build(name), v["env"], tmp_path, name) == reference
+
+
+@pytest.fixture
+def old_machine_worker(tmp_path):
+    """A Dask scheduler in this process and one worker process that is an old machine: the baseline
+    x86-64 build, glibc's pre-AVX libm and Embree's SSE2 kernels. Yields a client of that cluster."""
+    distributed = pytest.importorskip("distributed")
+    package_parent = _build("x86-64")
+    cluster = distributed.LocalCluster(n_workers=0, processes=True, dashboard_address=":0")
+    log = open(tmp_path / "worker.log", "w")
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_worker", cluster.scheduler_address]
+        + ["--nthreads", "1", "--no-nanny", "--no-dashboard"],
+        env=dict(os.environ, PYTHONPATH=package_parent, **OLD_MACHINE),
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        with distributed.Client(cluster) as client:
+            try:
+                client.wait_for_workers(1, timeout=120)
+            except TimeoutError:
+                raise AssertionError("the old machine's worker did not join:\n" + (tmp_path / "worker.log").read_text())
+            yield client, package_parent
+    finally:
+        worker.terminate()
+        worker.wait(timeout=60)
+        log.close()
+        cluster.close()
+
+
+def test_a_cluster_worker_on_an_old_machine_gives_the_same_bits(old_machine_worker, tmp_path):
+    """The promise itself (docs/distributed.md): this machine's client merges the chunks that an old
+    machine traced into the bits of a run on this machine alone. Two cases: the disk-and-cone source
+    over a clear layer (whose bits depended on glibc's variant before det_math.h), and the colon with
+    its four grids and records (the voxels arrive as exact fixed-point sums)."""
+    from isa_digest import _scene_file, cone_over_clear_layer, digest
+
+    client, package_parent = old_machine_worker
+
+    def who():
+        import os
+        import endophoton
+
+        return os.path.dirname(endophoton._core.__file__), os.environ.get("GLIBC_TUNABLES")
+
+    ((_, (worker_package, tunables)),) = client.run(who).items()
+    assert (worker_package, tunables) == (os.path.join(package_parent, "endophoton"), OLD_LIBM["GLIBC_TUNABLES"])
+    cases = {"cone": cone_over_clear_layer(), "colon": _scene_file("bench", "scenes", "colon.json")}
+    for name, (scene, source) in cases.items():
+        results = {}
+        for where, kw in (("here", {"threads": 2}), ("old", {"client": client, "chunk_units": 4})):
+            path = str(tmp_path / f"{name}_{where}.vdb")
+            grids = ep.GridRequest(voxel_size=5e-4, path=path) if name == "colon" else None
+            run = ep.run(scene, source, photons=3000 if name == "colon" else 20000, seed=7, grids=grids, **kw)
+            results[where] = digest(run, path if grids else None)
+        assert results["old"] == results["here"], name
