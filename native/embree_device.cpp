@@ -16,8 +16,9 @@ std::string embree_config(const std::string& base) {
 }
 
 RTCDevice new_embree_device(const std::string& base) {
-    RTCDevice device = rtcNewDevice(embree_config(base).c_str());
-    if (!device) throw std::runtime_error("Embree: rtcNewDevice failed (configuration '" + embree_config(base) + "')");
+    const std::string config = embree_config(base);
+    RTCDevice device = rtcNewDevice(config.c_str());
+    if (!device) throw std::runtime_error("Embree: rtcNewDevice failed (configuration '" + config + "')");
     return device;
 }
 

@@ -76,7 +76,7 @@ def digest(result, grid_path: str | None = None) -> str:
     return h.hexdigest()
 
 
-def _scene_file(*path: str):
+def scene_file(*path: str):
     """The scene and source of a SCENE.json file under the repository, as the CLI reads them."""
     from endophoton.sources import source_from_dict
 
@@ -98,8 +98,8 @@ def cone_over_clear_layer():
 
 def cases(out_dir: str):
     """(name, run) pairs; each run returns (result, grid path or None)."""
-    seed, slab = _scene_file("examples", "seed_tissue.json"), _scene_file("examples", "mcml_slab.json")
-    colon, rig = _scene_file("bench", "scenes", "colon.json")  # the paper's scene: rig at 20 degrees, fluorescence
+    seed, slab = scene_file("examples", "seed_tissue.json"), scene_file("examples", "mcml_slab.json")
+    colon, rig = scene_file("bench", "scenes", "colon.json")  # the paper's scene: rig at 20 degrees, fluorescence
 
     def plain(scene_source, n, threads):
         scene, source = scene_source

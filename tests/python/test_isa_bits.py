@@ -22,6 +22,7 @@ machine traces runs that this process merges, and gets the bits of the same runs
 """
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -67,9 +68,11 @@ def _cpu_flags() -> set:
     return set()
 
 
+@functools.lru_cache(maxsize=None)
 def _build(name: str) -> str:
     """The package of variant ``name``: a copy of python/endophoton whose native module and writer
-    library are built with the variant's flags (kept in build/isa/<name> between test runs)."""
+    library are built with the variant's flags (kept in build/isa/<name> between test runs; built
+    once per test session, for the variant's digests and the cluster's worker alike)."""
     v = VARIANTS[name]
     here = os.path.join(BUILDS, name)
     pkg = os.path.join(here, "python", "endophoton")
@@ -196,7 +199,7 @@ def test_a_cluster_worker_on_an_old_machine_gives_the_same_bits(old_machine_work
     machine traced into the bits of a run on this machine alone. Two cases: the disk-and-cone source
     over a clear layer (whose bits depended on glibc's variant before det_math.h), and the colon with
     its four grids and records (the voxels arrive as exact fixed-point sums)."""
-    from isa_digest import _scene_file, cone_over_clear_layer, digest
+    from isa_digest import cone_over_clear_layer, digest, scene_file
 
     client, package_parent = old_machine_worker
 
@@ -208,7 +211,7 @@ def test_a_cluster_worker_on_an_old_machine_gives_the_same_bits(old_machine_work
 
     ((_, (worker_package, tunables)),) = client.run(who).items()
     assert (worker_package, tunables) == (os.path.join(package_parent, "endophoton"), OLD_LIBM["GLIBC_TUNABLES"])
-    cases = {"cone": cone_over_clear_layer(), "colon": _scene_file("bench", "scenes", "colon.json")}
+    cases = {"cone": cone_over_clear_layer(), "colon": scene_file("bench", "scenes", "colon.json")}
     for name, (scene, source) in cases.items():
         results = {}
         for where, kw in (("here", {"threads": 2}), ("old", {"client": client, "chunk_units": 4})):
