@@ -307,6 +307,8 @@ def sections(R):
         + frozen("colon_time")
         + "\n## 27. Where the grids' time goes (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("grids_time")
+        + "\n## 28. Packets in float32 lanes (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("lanes_f32")
     )  # fmt: skip
 
 

@@ -17,42 +17,12 @@
 #include <cstring>
 #include <string>
 
-#include "fast_log.h"
-#include "phase.h"
-#include "rng.h"
-#include "vecmath.h"
+#include "lane_step_scalar.h"
 
 using namespace ep;
+using namespace lane_bench;
 
 namespace {
-
-// Seed tissue (examples/seed_tissue.json): mua 20, mus 200, g 0.9, cm.
-constexpr double kMua = 20, kMus = 200, kG = 0.9, kUnitCm = 1;
-constexpr double kLoss = kMua / (kMua + kMus), kMutCm = (kMua + kMus) * kUnitCm;
-constexpr double kSlack = 1e-13, kRefill = 1e-4;  // W below kRefill starts again at 1 (both paths alike)
-
-struct Scalar {
-    Rng rng{0, 0};
-    Lanes4 p{};
-    DirectionFrame frame;
-    double W = 1, tau = 0, absorbed = 0, depth = 0, budget = 1e300;
-    uint32_t scatterings = 0;
-};
-
-inline void scalar_step(Scalar& q, const HenyeyGreenstein& hg, const Vec3& entry_p, const Vec3& entry_in) {
-    const double s = q.tau / kMutCm;
-    const Lanes4 b = q.p + q.frame.n * s;
-    const double left = q.budget - (s + kSlack);
-    q.budget = left > 0 ? left : 1e300;  // renew() stands in: a fresh budget
-    q.p = b;
-    q.depth = std::max(q.depth, dot(to_vec3(q.p) - entry_p, entry_in) * kUnitCm);
-    const double dW = q.W * kLoss;
-    q.W -= dW;
-    q.absorbed += dW;
-    if (q.W < kRefill) q.W = 1;
-    hg.scatter(q.rng.next_u64(), ++q.scatterings, &q.frame);
-    q.tau = neg_log_lattice(q.rng.lattice_open_low());
-}
 
 // ---- four packets in the lanes of AVX2 registers ----
 struct Lanes {
@@ -72,19 +42,8 @@ inline __m256d gather(const double* base, __m256i idx) {
 }
 inline __m256d bc(double x) { return _mm256_set1_pd(x); }
 inline __m256i bci(uint64_t x) { return _mm256_set1_epi64x(int64_t(x)); }
-inline __m256i rotl(__m256i x, int k) { return _mm256_or_si256(_mm256_slli_epi64(x, k), _mm256_srli_epi64(x, 64 - k)); }
 // xoshiro256++ (rng.h), lane-wise.
-inline __m256i next_u64(Lanes& L) {
-    const __m256i out = _mm256_add_epi64(rotl(_mm256_add_epi64(L.s0, L.s3), 23), L.s0);
-    const __m256i t = _mm256_slli_epi64(L.s1, 17);
-    L.s2 = _mm256_xor_si256(L.s2, L.s0);
-    L.s3 = _mm256_xor_si256(L.s3, L.s1);
-    L.s1 = _mm256_xor_si256(L.s1, L.s2);
-    L.s0 = _mm256_xor_si256(L.s0, L.s3);
-    L.s2 = _mm256_xor_si256(L.s2, t);
-    L.s3 = rotl(L.s3, 45);
-    return out;
-}
+inline __m256i next_u64(Lanes& L) { return xoshiro_next<64, 23, 17, 45>(L.s0, L.s1, L.s2, L.s3); }
 // double(x) for 0 <= x < 2^52, exact: 2^52 + x has x's bits as its mantissa.
 inline __m256d small_to_double(__m256i x) {
     return _mm256_sub_pd(_mm256_castsi256_pd(_mm256_or_si256(x, bci(0x4330000000000000ULL))), bc(0x1.0p52));
@@ -189,9 +148,9 @@ inline void lanes_step(Lanes& L, const HenyeyGreenstein& hg, const Vec3& ep, con
     L.pz = _mm256_add_pd(L.pz, _mm256_mul_pd(L.nz, s));
     const __m256d left = _mm256_sub_pd(L.budget, _mm256_add_pd(s, bc(kSlack)));
     L.budget = _mm256_blendv_pd(bc(1e300), left, _mm256_cmp_pd(left, _mm256_setzero_pd(), _CMP_GT_OQ));
-    const __m256d v = _mm256_mul_pd(dot3(_mm256_sub_pd(L.px, bc(ep.x)), _mm256_sub_pd(L.py, bc(ep.y)),
-                                         _mm256_sub_pd(L.pz, bc(ep.z)), bc(ei.x), bc(ei.y), bc(ei.z)),
-                                    bc(kUnitCm));
+    // The seed tissue is in cm: the engine's depth * unit_cm is * 1, exact, so left out here as in scalar_step.
+    const __m256d v = dot3(_mm256_sub_pd(L.px, bc(ep.x)), _mm256_sub_pd(L.py, bc(ep.y)), _mm256_sub_pd(L.pz, bc(ep.z)),
+                           bc(ei.x), bc(ei.y), bc(ei.z));
     L.depth = _mm256_max_pd(v, L.depth);  // std::max(depth, v): depth < v ? v : depth
     const __m256d dW = _mm256_mul_pd(L.W, bc(kLoss));
     L.W = _mm256_sub_pd(L.W, dW);
@@ -216,13 +175,6 @@ void set_lane(V& v, int i, T x) {
     std::memcpy(&v, a, sizeof a);
 }
 
-Scalar start(uint64_t packet) {
-    Scalar q;
-    q.rng = Rng(1, packet);
-    q.frame = DirectionFrame(normalize(Vec3(0.3, -0.2, -1)));
-    q.tau = neg_log_lattice(q.rng.lattice_open_low());
-    return q;
-}
 void load(Lanes& L, int i, const Scalar& q) {
     uint64_t s[4];
     std::memcpy(s, &q.rng, sizeof s);  // the generator's state (Rng holds only s_[4])
