@@ -16,6 +16,10 @@
 // tests/python/test_isa_bits.py compares whole runs across builds and libm
 // variants. (The engine's hot paths need none of them: the free path's
 // logarithm is fast_log.h's, the scattering azimuth phase.h's table.)
+// The package computes some scene inputs in Python (an endoscope's pose from
+// beta, media's power laws, generated meshes) with sin, cos, log and pow: it
+// calls these through endophoton._core.det_* (endophoton.det), for the same
+// reason (tests/python/test_det_inputs.py).
 #pragma once
 
 namespace ep {
@@ -25,5 +29,10 @@ double det_expm1(double x);
 // sin x and cos x, together.
 void det_sincos(double x, double* s, double* c);
 double det_cos(double x);
+double det_sin(double x);
+// Natural logarithm; NaN below 0, -inf at 0.
+double det_log(double x);
+// x to the power y, with C99's special cases (pow(x, 0) = 1, pow(1, y) = 1, ...).
+double det_pow(double x, double y);
 
 }  // namespace ep

@@ -1,5 +1,6 @@
-// det_exp, det_expm1, det_sincos and det_cos (native/det_math.h) against long
-// double references (glibc's x87 expl, expm1l, sinl, cosl: 64-bit
+// det_exp, det_expm1, det_sincos, det_cos, det_sin, det_log and det_pow
+// (native/det_math.h) against long double references (glibc's x87 expl,
+// expm1l, sinl, cosl, logl, powl: 64-bit
 // significands, far finer than the double being checked): within SLEEF's
 // bound of 1.0 unit in the last place over the ranges the engine feeds them,
 // and their exact values at the special points. That they give the same bits
@@ -16,6 +17,9 @@
 using ep::det_cos;
 using ep::det_exp;
 using ep::det_expm1;
+using ep::det_log;
+using ep::det_pow;
+using ep::det_sin;
 using ep::det_sincos;
 
 namespace {
@@ -122,4 +126,49 @@ TEST(DetMath, SinCosSpecialValues) {
     det_sincos(3.141592653589793, &s, &c);
     EXPECT_LE(std::fabs(s), 1e-15);
     EXPECT_EQ(c, -1.0);
+}
+
+// The package's own uses (endophoton.det): an endoscope's pose from beta
+// (sin and cos of angles within a turn), generated meshes' rings.
+TEST(DetMath, SinWithinOneUlp) {
+    const auto ref = [](double x) { return std::sin((long double)x); };
+    EXPECT_LE(worst_ulps(det_sin, ref, 0.0, 6.283185307179586, 200000, 12), 1.0);
+    EXPECT_LE(worst_ulps(det_sin, ref, -1e-3, 1e-3, 100000, 13), 1.0);
+    EXPECT_EQ(det_sin(0.0), 0.0);
+    EXPECT_TRUE(std::signbit(det_sin(-0.0)));
+    EXPECT_EQ(det_sin(1e-300), 1e-300);
+    EXPECT_TRUE(std::isnan(det_sin(std::numeric_limits<double>::infinity())));
+}
+
+// Media's power laws: ln of wavelength and coefficient ratios, and ln 10.
+TEST(DetMath, LogWithinOneUlp) {
+    const auto ref = [](double x) { return std::log((long double)x); };
+    EXPECT_LE(worst_ulps(det_log, ref, 0.5, 2.0, 200000, 14), 1.0);  // near 1, where ln x is small
+    EXPECT_LE(worst_ulps(det_log, ref, 1e-3, 1e3, 200000, 15), 1.0);
+    EXPECT_LE(worst_ulps(det_log, ref, 1.0, 1e300, 100000, 16), 1.0);
+    EXPECT_EQ(det_log(1.0), 0.0);
+    EXPECT_EQ(det_log(0.0), -std::numeric_limits<double>::infinity());
+    EXPECT_EQ(det_log(std::numeric_limits<double>::infinity()), std::numeric_limits<double>::infinity());
+    EXPECT_TRUE(std::isnan(det_log(-1.0)));
+    EXPECT_TRUE(std::isnan(det_log(std::numeric_limits<double>::quiet_NaN())));
+}
+
+// mus'(lambda) = a (lambda / 500 nm)^-b: ratios over the wavelength range of a
+// Spectrum (1 nm to 1 mm, 0.002 to 2000), powers b in [0, 4] and their negatives.
+TEST(DetMath, PowWithinOneUlp) {
+    std::mt19937_64 gen(17);
+    std::uniform_real_distribution<double> base(0.002, 2000.0), power(-4.0, 4.0);
+    double worst = 0;
+    for (int i = 0; i < 200000; ++i) {
+        const double x = base(gen), y = power(gen);
+        worst = std::max(worst, ulps(det_pow(x, y), std::pow((long double)x, (long double)y)));
+    }
+    EXPECT_LE(worst, 1.0);
+    EXPECT_EQ(det_pow(2.0, 10.0), 1024.0);
+    EXPECT_EQ(det_pow(0.25, 0.5), 0.5);
+    EXPECT_EQ(det_pow(1.6, 0.0), 1.0);
+    EXPECT_EQ(det_pow(1.0, -3.7), 1.0);
+    EXPECT_EQ(det_pow(0.0, 1.5), 0.0);
+    EXPECT_EQ(det_pow(0.0, -1.5), std::numeric_limits<double>::infinity());
+    EXPECT_TRUE(std::isnan(det_pow(-2.0, 0.5)));
 }
