@@ -17,9 +17,10 @@
 // variants. (The engine's hot paths need none of them: the free path's
 // logarithm is fast_log.h's, the scattering azimuth phase.h's table.)
 // The package computes some scene inputs in Python (an endoscope's pose from
-// beta, media's power laws, generated meshes) with sin, cos, log and pow: it
-// calls these through endophoton._core.det_* (endophoton.det), for the same
-// reason (tests/python/test_det_inputs.py).
+// beta, media's power laws, generated meshes, the endoscope view's camera
+// request) with sin, cos, tan, atan, exp, log and pow: it calls these through
+// endophoton._core.det_* (endophoton.det), for the same reason
+// (tests/python/test_det_inputs.py).
 #pragma once
 
 namespace ep {
@@ -34,5 +35,9 @@ double det_sin(double x);
 double det_log(double x);
 // x to the power y, with C99's special cases (pow(x, 0) = 1, pow(1, y) = 1, ...).
 double det_pow(double x, double y);
+// tan x (x in radians): the camera's half field of view on the plane at depth 1.
+double det_tan(double x);
+// atan x in (-pi/2, pi/2): the pixels' solid angles.
+double det_atan(double x);
 
 }  // namespace ep

@@ -1,5 +1,5 @@
 // Binding of native/det_math.h's elementary functions for the package's own
-// scene inputs (endophoton.det): sin, cos, exp, log and pow with the same bits
+// scene inputs (endophoton.det): sin, cos, tan, atan, exp, log and pow with the same bits
 // on every x86-64 machine, where math.* and numpy's float64 loops are picked by
 // the processor. Each takes a float64 array of any shape (a scalar is a 0-d
 // array) and returns a new one of that shape, element by element in C++, so a
@@ -48,6 +48,10 @@ void bind_det_math(py::module_& m) {
           "sin x (x in radians), elementwise; SLEEF, 1 ulp, the same bits on every x86-64");
     m.def("det_cos", &unary<det_cos>, py::arg("x"),
           "cos x (x in radians), elementwise; SLEEF, 1 ulp, the same bits on every x86-64");
+    m.def("det_tan", &unary<det_tan>, py::arg("x"),
+          "tan x (x in radians), elementwise; SLEEF, 1 ulp, the same bits on every x86-64");
+    m.def("det_atan", &unary<det_atan>, py::arg("x"),
+          "atan x (radians, in (-pi/2, pi/2)), elementwise; SLEEF, 1 ulp, the same bits on every x86-64");
     m.def("det_exp", &unary<det_exp>, py::arg("x"), "e^x, elementwise; SLEEF, 1 ulp, the same bits on every x86-64");
     m.def("det_log", &unary<det_log>, py::arg("x"), "ln x, elementwise; SLEEF, 1 ulp, the same bits on every x86-64");
     m.def("det_pow", &power, py::arg("x"), py::arg("y"),

@@ -157,6 +157,12 @@ def det_sin(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
 def det_cos(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """cos x (radians), elementwise, SLEEF: the same bits on every x86-64 machine."""
 
+def det_tan(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """tan x (radians), elementwise, SLEEF: the same bits on every x86-64 machine."""
+
+def det_atan(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """atan x (radians, in (-pi/2, pi/2)), elementwise, SLEEF: the same bits on every x86-64 machine."""
+
 def det_exp(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """e^x, elementwise, SLEEF: the same bits on every x86-64 machine."""
 

@@ -5,15 +5,15 @@ instruction set"), needs its inputs to be the same bits too. Three things the pa
 compute them with pick their code by the processor they run on, and the variants round differently
 now and then (docs/numerics.md, "Elementary functions"):
 
-* ``math.sin``, ``math.cos``, ``math.exp``, ``math.log`` and ``**`` on floats call glibc's libm, which
-  runs its FMA variants on a machine with FMA and others without;
-* numpy's float64 ``np.sin``, ``np.cos``, ``np.exp``, ``np.log`` and ``np.power`` run AVX-512, AVX2 or
-  baseline kernels by the processor;
+* ``math.sin``, ``math.cos``, ``math.tan``, ``math.atan``, ``math.exp``, ``math.log`` and ``**`` on floats
+  call glibc's libm, which runs its FMA variants on a machine with FMA and others without;
+* numpy's float64 ``np.sin``, ``np.cos``, ``np.tan``, ``np.arctan``, ``np.exp``, ``np.log`` and ``np.power``
+  run AVX-512, AVX2 or baseline kernels by the processor;
 * ``@``, ``np.dot``, ``np.linalg.norm`` on float64 call the BLAS, and OpenBLAS picks its kernel (and
   with it the order of the sums and whether they are fused) by the processor.
 
-This module is the one owner of the rule "a scene input is computed with these": its sin, cos, exp,
-log and pow are SLEEF's deterministic functions (``native/det_math.h``, 1 ulp, through
+This module is the one owner of the rule "a scene input is computed with these": its sin, cos, tan,
+atan, exp, log and pow are SLEEF's deterministic functions (``native/det_math.h``, 1 ulp, through
 ``endophoton._core.det_*``, vectorised in C++), and its products of 3-vectors and small matrices are
 written as numpy elementwise products and sums in a fixed order. IEEE 754 rounds every elementwise
 ``+ - * /`` and ``np.sqrt`` correctly, so those are the same everywhere, whatever SIMD width numpy
@@ -29,7 +29,7 @@ import numpy as np
 
 from . import _core
 
-__all__ = ["sin", "cos", "exp", "log", "pow", "dot", "norm", "matmul", "matvec"]
+__all__ = ["sin", "cos", "tan", "atan", "exp", "log", "pow", "dot", "norm", "matmul", "matvec"]
 
 
 def _elementwise(native, x):
@@ -47,6 +47,16 @@ def sin(x):
 def cos(x):
     """cos x, x in radians (SLEEF, within 1 ulp)."""
     return _elementwise(_core.det_cos, x)
+
+
+def tan(x):
+    """tan x, x in radians (SLEEF, within 1 ulp)."""
+    return _elementwise(_core.det_tan, x)
+
+
+def atan(x):
+    """atan x in radians, in (-pi/2, pi/2) (SLEEF, within 1 ulp)."""
+    return _elementwise(_core.det_atan, x)
 
 
 def exp(x):

@@ -1,6 +1,6 @@
-// det_exp, det_expm1, det_sincos, det_cos, det_sin, det_log and det_pow
-// (native/det_math.h) against long double references (glibc's x87 expl,
-// expm1l, sinl, cosl, logl, powl: 64-bit
+// det_exp, det_expm1, det_sincos, det_cos, det_sin, det_log, det_pow, det_tan
+// and det_atan (native/det_math.h) against long double references (glibc's x87
+// expl, expm1l, sinl, cosl, logl, powl, tanl, atanl: 64-bit
 // significands, far finer than the double being checked): within SLEEF's
 // bound of 1.0 unit in the last place over the ranges the engine feeds them,
 // and their exact values at the special points. That they give the same bits
@@ -14,6 +14,7 @@
 
 #include "det_math.h"
 
+using ep::det_atan;
 using ep::det_cos;
 using ep::det_exp;
 using ep::det_expm1;
@@ -21,6 +22,7 @@ using ep::det_log;
 using ep::det_pow;
 using ep::det_sin;
 using ep::det_sincos;
+using ep::det_tan;
 
 namespace {
 
@@ -41,6 +43,16 @@ double worst_ulps(F f, R ref, double lo, double hi, int n, uint64_t seed) {
         worst = std::max(worst, ulps(f(x), ref(x)));
     }
     return worst;
+}
+
+// An odd function with f(x) = x + O(x^3) at 0 (sin, tan, atan): within 1 ulp
+// over [-1e-3, 1e-3], and exact at +0, -0 (its sign kept) and a tiny argument.
+template <class F, class R>
+void expect_odd_and_x_near_zero(F f, R ref, uint64_t seed) {
+    EXPECT_LE(worst_ulps(f, ref, -1e-3, 1e-3, 100000, seed), 1.0);
+    EXPECT_EQ(f(0.0), 0.0);
+    EXPECT_TRUE(std::signbit(f(-0.0)));
+    EXPECT_EQ(f(1e-300), 1e-300);
 }
 
 double sin_of(double x) {
@@ -133,10 +145,7 @@ TEST(DetMath, SinCosSpecialValues) {
 TEST(DetMath, SinWithinOneUlp) {
     const auto ref = [](double x) { return std::sin((long double)x); };
     EXPECT_LE(worst_ulps(det_sin, ref, 0.0, 6.283185307179586, 200000, 12), 1.0);
-    EXPECT_LE(worst_ulps(det_sin, ref, -1e-3, 1e-3, 100000, 13), 1.0);
-    EXPECT_EQ(det_sin(0.0), 0.0);
-    EXPECT_TRUE(std::signbit(det_sin(-0.0)));
-    EXPECT_EQ(det_sin(1e-300), 1e-300);
+    expect_odd_and_x_near_zero(det_sin, ref, 13);
     EXPECT_TRUE(std::isnan(det_sin(std::numeric_limits<double>::infinity())));
 }
 
@@ -171,4 +180,27 @@ TEST(DetMath, PowWithinOneUlp) {
     EXPECT_EQ(det_pow(0.0, 1.5), 0.0);
     EXPECT_EQ(det_pow(0.0, -1.5), std::numeric_limits<double>::infinity());
     EXPECT_TRUE(std::isnan(det_pow(-2.0, 0.5)));
+}
+
+// The endoscope view's camera: tan of half the field of view, which is in
+// (0, 179] degrees, so x in (0, 89.5 degrees].
+TEST(DetMath, TanWithinOneUlp) {
+    const auto ref = [](double x) { return std::tan((long double)x); };
+    EXPECT_LE(worst_ulps(det_tan, ref, 0.0, 1.5620696805349248, 200000, 18), 1.0);
+    expect_odd_and_x_near_zero(det_tan, ref, 19);
+    EXPECT_LE(ulps(det_tan(0.7853981633974483), std::tan((long double)0.7853981633974483)), 1.0);  // 45 degrees
+    EXPECT_TRUE(std::isnan(det_tan(std::numeric_limits<double>::infinity())));
+}
+
+// The pixels' solid angles: atan(x y / sqrt(1 + x^2 + y^2)) over the image
+// plane at depth 1, |x|, |y| <= tan 89.5 degrees (115), so |argument| < 115.
+TEST(DetMath, AtanWithinOneUlp) {
+    const auto ref = [](double x) { return std::atan((long double)x); };
+    EXPECT_LE(worst_ulps(det_atan, ref, -1.0, 1.0, 200000, 20), 1.0);
+    EXPECT_LE(worst_ulps(det_atan, ref, -120.0, 120.0, 200000, 21), 1.0);
+    expect_odd_and_x_near_zero(det_atan, ref, 22);
+    EXPECT_EQ(det_atan(1.0), 0.7853981633974483);  // pi/4, rounded
+    EXPECT_EQ(det_atan(std::numeric_limits<double>::infinity()), 1.5707963267948966);
+    EXPECT_EQ(det_atan(-std::numeric_limits<double>::infinity()), -1.5707963267948966);
+    EXPECT_TRUE(std::isnan(det_atan(std::numeric_limits<double>::quiet_NaN())));
 }

@@ -6,14 +6,13 @@ imports whichever ``endophoton`` PYTHONPATH names, builds the native inputs of t
 run: the bits the engine is given, not what it does with them) and prints one JSON object:
 ``inputs``, case name -> the sha-256 of everything that case hands the engine (each region's
 vertices, triangles, medium coefficients and spectra, fluorophores and EEMs; each light's position,
-direction, radius, half angle and spectrum; the endoscope head's body; the rig's transform, and the
-placement check's warnings); ``package``, the package it imported; ``guards``, the digests of the
-processor-dependent functions the package no longer uses for its inputs (numpy's float64 sin,
-glibc's exp through ``math``, a BLAS dot product) over fixed arguments; and ``blas``, the BLAS numpy
-runs (read from /proc/self/maps). A
-process that runs as an older machine (test_det_inputs.py's environment) must print other guards
-and the same inputs. Scenes are read as data (examples/, bench/scenes/*.json), never through
-bench/'s code.
+direction, radius, half angle and spectrum; the endoscope head's body; the rig's transform; the
+placement check's warnings; the camera tally's request of a run with ``view=``); ``package``, the
+package it imported; ``guards``, the digests of the processor-dependent functions the package no
+longer uses for its inputs (numpy's float64 sin, glibc's exp through ``math``, a BLAS dot product)
+over fixed arguments; and ``blas``, the BLAS numpy runs (read from /proc/self/maps). A process
+that runs as an older machine (test_det_inputs.py's environment) must print other guards and the
+same inputs. Scenes are read as data (examples/, bench/scenes/*.json), never through bench/'s code.
 """
 from __future__ import annotations
 
@@ -31,6 +30,7 @@ from bit_digest import sha256  # noqa: E402  (beside this file)
 from endophoton import media, meshes, placement  # noqa: E402
 from endophoton.sources import source_from_dict  # noqa: E402
 from endophoton.sweep import driver  # noqa: E402
+from endophoton.view import nee  # noqa: E402
 
 #: Tilts, degrees: the paper's sweep (0-55 every 5), a few awkward ones, and tilts whose sine (7.84,
 #: -24.78, 29.37) or cosine (47.56, -67.84, 82.24) glibc 2.36 rounds differently with and without FMA
@@ -132,6 +132,33 @@ def mesh_inputs() -> list:
     return out + [scene_inputs(s) for s in flats]
 
 
+def view_inputs(colon, colon_rig) -> list:
+    """What ep.run(..., view=...) hands the engine's camera tally (nee.camera_view_options: the
+    pinhole frame, tan of the half field, the pixels' solid angles, the channel tables) for the colon
+    scene: its rig's own camera at 256 x 256 (view=True), the rig's camera from the poses at
+    BETAS_DEG below 80 degrees (beyond, the lens lies in the colon's wall), and cameras from
+    SCENE.json's camera object with other fields, lights and filters."""
+    photons = 1000
+    out = [nee.camera_view_options(colon, colon_rig, photons, True)]
+    surface = dict(distance=0.01, point=(0.05, 0.0, -0.023), normal=(0, 0, 1), tilt_axis=(0, 1, 0))
+    for beta in (b for b in BETAS_DEG if abs(b) < 80.0):
+        rig = ep.EndoscopeRig.from_beta(beta, **surface)
+        out.append(nee.camera_view_options(colon, rig, photons, dict(width=24, height=17, n_batches=10)))
+    cameras = [
+        dict(position=(0.05, 0.01, 0.03), look_at=(0.05, 0.0, -0.023), up=(0, 1, 0), fov_deg=73.3),
+        dict(position=(0.2, -0.1, 0.4), look_at=(0.0, 0.02, -0.03), up=(0.1, 0.0, 1.0), fov_deg=17.0),
+        dict(position=(0.0, 0.0, 0.05), look_at=(0.01, 0.0, -0.02), up=(0, 1, 0), fov_deg=179.0),
+    ]
+    views = [
+        dict(width=33, height=21),
+        dict(width=16, height=40, excitation="blue", white_balance="excitation"),
+        dict(width=20, height=20, emission_filter=500.0, white_balance=None),
+    ]
+    for camera, view in zip(cameras, views):
+        out.append(nee.camera_view_options(colon, colon_rig, photons, dict(view, camera=camera)))
+    return out
+
+
 def input_cases() -> dict:
     """Case name -> the inputs the package computes for it."""
     seed, seed_source = scene_file("examples", "seed_tissue.json")
@@ -150,6 +177,7 @@ def input_cases() -> dict:
         sources=[source_inputs(s, 1.0) for s in sources],
         media=media_inputs(),
         meshes=mesh_inputs(),
+        colon_view=view_inputs(colon, colon_rig),
     )
 
 

@@ -5,7 +5,8 @@ det_inputs_digest.py builds the native inputs of a set of scenes (the seed tissu
 scene, bench/scenes/colon.json read as data; the spectral colon with its media presets; the
 endoscope's pose from beta at the paper's tilts and at tilts where glibc's sin or cos round
 differently by processor; cone, disk and pencil sources; media at 305 wavelengths; generated
-spheres, ellipsoids and the sweep's default flat scenes) in two processes:
+spheres, ellipsoids and the sweep's default flat scenes; the camera tally's request of runs on the
+colon with view=, from the rig's camera and from SCENE.json cameras) in two processes:
 
 - this machine as it is, and
 - an old machine (OLD_MACHINE below): glibc's libm without FMA and AVX (GLIBC_TUNABLES), numpy's
@@ -23,7 +24,9 @@ machine (LD_LIBRARY_PATH, the system left as it is), and otherwise has no BLAS w
 OPENBLAS_CORETYPE could change: it then checks the other two guards only. (With Debian's OpenBLAS
 0.3.21 unpacked beside the system and put first by LD_LIBRARY_PATH, the BLAS guard differed here,
 Cooperlake's kernel against Prescott's, and the inputs did not.) Before endophoton.det, the old
-machine's spectral colon, media and rig poses differed here.
+machine's spectral colon, media and rig poses differed here; before the view's camera used it, the
+colon view's pixel solid angles (np.arctan) and channel tables (np.exp in the colour-matching
+functions) did.
 """
 from __future__ import annotations
 
@@ -105,7 +108,7 @@ def test_inputs_have_the_same_bits_on_an_old_machine():
     assert here["blas"] == old["blas"]
     if here["blas"] == "openblas" and "avx2" in _cpu_flags():
         assert here["guards"]["blas_dot"] != old["guards"]["blas_dot"], "OPENBLAS_CORETYPE did not take effect"
-    assert len(here["inputs"]) == 7
+    assert len(here["inputs"]) == 8
     differ = sorted(k for k in here["inputs"] if here["inputs"][k] != old["inputs"][k])
     assert differ == [], f"inputs with other bits on the old machine: {differ}"
 
@@ -119,13 +122,15 @@ def test_det_functions_are_within_one_ulp_of_libm():
     """det's functions against glibc's (math: both within about half an ulp to 1 ulp of the true value;
     numpy's AVX-512 sin and cos are up to 3 ulp from SLEEF's, so glibc is the reference)."""
     x = np.random.default_rng(5).uniform(-10.0, 10.0, 2000)
-    for f, ref in ((det.sin, math.sin), (det.cos, math.cos), (det.exp, math.exp)):
+    pairs = ((det.sin, math.sin), (det.cos, math.cos), (det.tan, math.tan), (det.atan, math.atan), (det.exp, math.exp))
+    for f, ref in pairs:
         assert _within_one_ulp(f(x), [ref(v) for v in x.tolist()]), f.__name__
     w = np.linspace(250.0, 1000.0, 376) / 500.0  # lambda / 500 nm over Prahl's table
     assert _within_one_ulp(det.log(w), [math.log(v) for v in w.tolist()])
     assert _within_one_ulp(det.pow(w, -1.286), [v**-1.286 for v in w.tolist()])
     # Numbers in, floats out; arrays keep their shape; pow broadcasts.
     assert isinstance(det.sin(0.5), float) and det.sin(0.0) == 0.0 and det.cos(0.0) == 1.0
+    assert det.tan(0.0) == 0.0 and det.atan(1.0) == math.pi / 4 and det.atan(np.inf) == math.pi / 2
     assert det.log(10.0) == math.log(10.0)  # ln 10 correctly rounded by both
     assert det.pow(np.ones((2, 3)), np.array([0.5, 1.0, 2.0])).shape == (2, 3)
     assert _core.det_sin(np.zeros((4, 0))).shape == (4, 0)
