@@ -16,6 +16,11 @@
 // tests/python/test_isa_bits.py compares whole runs across builds and libm
 // variants. (The engine's hot paths need none of them: the free path's
 // logarithm is fast_log.h's, the scattering azimuth phase.h's table.)
+// The package computes some scene inputs in Python (an endoscope's pose from
+// beta, media's power laws, generated meshes, the endoscope view's camera
+// request) with sin, cos, tan, atan, exp, log and pow: it calls these through
+// endophoton._core.det_* (endophoton.det), for the same reason
+// (tests/python/test_det_inputs.py).
 #pragma once
 
 namespace ep {
@@ -25,5 +30,14 @@ double det_expm1(double x);
 // sin x and cos x, together.
 void det_sincos(double x, double* s, double* c);
 double det_cos(double x);
+double det_sin(double x);
+// Natural logarithm; NaN below 0, -inf at 0.
+double det_log(double x);
+// x to the power y, with C99's special cases (pow(x, 0) = 1, pow(1, y) = 1, ...).
+double det_pow(double x, double y);
+// tan x (x in radians): the camera's half field of view on the plane at depth 1.
+double det_tan(double x);
+// atan x in (-pi/2, pi/2): the pixels' solid angles.
+double det_atan(double x);
 
 }  // namespace ep

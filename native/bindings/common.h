@@ -54,6 +54,7 @@ void bind_spectrum_check(py::module_& m);  // spectrum_check.cpp: check_spectrum
 void bind_surface_hits(py::module_& m);    // surface_hits.cpp: first_surfaces (endoscope view rays)
 void bind_exit_gather(py::module_& m);      // exit_gather.cpp: ExitIndex (the exitance estimate)
 void bind_distributed(py::module_& m);     // distributed.cpp: unit_plan, trace_units, UnitReducer
+void bind_det_math(py::module_& m);        // det_math.cpp: det_sin, cos, tan, atan, exp, log, pow
 void bind_testing(py::module_& m);         // testing.cpp: the _testing submodule (test-only hooks)
 
 }  // namespace ep::bind

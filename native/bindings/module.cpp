@@ -3,7 +3,7 @@
 // columns back as numpy arrays that own their memory through capsules.
 // No physics lives here. One file per bound interface (Mitsuba 3 style):
 // scene.cpp, source.cpp, run.cpp, mesh_check.cpp, spectrum_check.cpp,
-// surface_hits.cpp, exit_gather.cpp, distributed.cpp; hooks that only tests use
+// surface_hits.cpp, exit_gather.cpp, distributed.cpp, det_math.cpp; hooks that only tests use
 // live in the submodule endophoton._core._testing (testing.cpp).
 #include <stdexcept>
 
@@ -52,6 +52,7 @@ PYBIND11_MODULE(_core, m) {
     ep::bind::bind_surface_hits(m);
     ep::bind::bind_exit_gather(m);
     ep::bind::bind_distributed(m);
+    ep::bind::bind_det_math(m);
     py::module_ testing = m.def_submodule("_testing", "Test-only hooks into the engine's samplers and scene queries");
     ep::bind::bind_testing(testing);
 }

@@ -151,6 +151,27 @@ def check_spectrum(name: str, wavelength_nm: npt.ArrayLike, values: npt.ArrayLik
 def check_eem(name: str, excitation_nm: npt.ArrayLike, emission_nm: npt.ArrayLike, values: npt.ArrayLike) -> None:
     """The excitation-emission matrix rules (native/spectrum_check.h); values of shape (n_ex, n_em)."""
 
+def det_sin(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """sin x (radians), elementwise, SLEEF (native/det_math.h): the same bits on every x86-64 machine."""
+
+def det_cos(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """cos x (radians), elementwise, SLEEF: the same bits on every x86-64 machine."""
+
+def det_tan(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """tan x (radians), elementwise, SLEEF: the same bits on every x86-64 machine."""
+
+def det_atan(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """atan x (radians, in (-pi/2, pi/2)), elementwise, SLEEF: the same bits on every x86-64 machine."""
+
+def det_exp(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """e^x, elementwise, SLEEF: the same bits on every x86-64 machine."""
+
+def det_log(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """ln x, elementwise, SLEEF: the same bits on every x86-64 machine."""
+
+def det_pow(x: npt.ArrayLike, y: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """x ** y, elementwise over two arrays of one shape, SLEEF: the same bits on every x86-64 machine."""
+
 def first_surfaces(
     scene: Scene,
     origins: npt.NDArray[np.float64],

@@ -13,17 +13,17 @@ grid; the engine interpolates linearly and takes a Spectrum as 0 outside its ran
 above 1000 nm a preset has mua = mua_background and mus = 0: light there is out of the model.
 
 ``preset(name)`` builds a named medium (:func:`preset_names`); ``tissue(...)`` builds any other. Every
-preset value and its source: docs/media.md. Pure numpy; no dependency on the native module.
+preset value and its source: docs/media.md. The logarithms and powers are endophoton.det's (SLEEF through the
+native module), so that a medium's coefficients have the same bits on every machine.
 """
 from __future__ import annotations
 
 import functools
-import math
 from pathlib import Path
 
 import numpy as np
 
-from . import paper
+from . import det, paper
 from .io import check_real, shown
 from .medium import Medium
 from .spectra import Spectrum
@@ -58,8 +58,8 @@ _TABLE_NAME = "haemoglobin_prahl.csv"
 def power_law_through(point1, point2) -> dict:
     """The (a_cm, b) of mus' = a (lambda / 500 nm)^(-b) through two (wavelength_nm, mus'_cm) points."""
     (l1, v1), (l2, v2) = point1, point2
-    b = math.log(v1 / v2) / math.log(l2 / l1)
-    return dict(a_cm=v2 * (l2 / REFERENCE_WAVELENGTH_NM) ** b, b=b)
+    b = det.log(v1 / v2) / det.log(l2 / l1)
+    return dict(a_cm=v2 * det.pow(l2 / REFERENCE_WAVELENGTH_NM, b), b=b)
 
 
 def blood_fraction_of(hb_umol_per_l) -> float:
@@ -159,14 +159,14 @@ def blood_mua(wavelength_nm, saturation) -> np.ndarray:
             f"wavelength_nm = {shown(wavelength_nm)} must lie in [{wl[0]:g}, {wl[-1]:g}] nm (the haemoglobin table)"
         )
     eps = s * np.interp(x, wl, hbo2) + (1.0 - s) * np.interp(x, wl, hb)
-    return math.log(10.0) * eps * (HB_GRAMS_PER_LITRE / HB_GRAMS_PER_MOLE)
+    return det.log(10.0) * eps * (HB_GRAMS_PER_LITRE / HB_GRAMS_PER_MOLE)
 
 
 def reduced_scattering(wavelength_nm, a_cm, b) -> np.ndarray:
     """mus'(lambda) = a_cm * (lambda / 500 nm)^(-b), cm^-1 (Jacques 2013, Eq. 1); wavelength_nm in nm."""
     a = check_real("a_cm", a_cm, 0.0, 1e4, lo_open=True)
     p = check_real("b", b, 0.0, 4.0)
-    return a * (_wavelengths(wavelength_nm) / REFERENCE_WAVELENGTH_NM) ** (-p)
+    return a * det.pow(_wavelengths(wavelength_nm) / REFERENCE_WAVELENGTH_NM, -p)
 
 
 def tissue(

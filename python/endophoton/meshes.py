@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import _core
+from . import _core, det
 
 __all__ = ["ellipsoid", "uv_sphere", "half_ellipsoid", "check_closed_mesh", "signed_volume"]
 
@@ -37,11 +37,13 @@ def _validate_axes(center: Sequence[float], radii: Sequence[float]) -> tuple[np.
 
 
 def _rings(thetas: np.ndarray, n_lon: int) -> np.ndarray:
-    """Unit-sphere points on latitude rings (polar angle theta from +z), shape (len(thetas)*n_lon, 3)."""
+    """Unit-sphere points on latitude rings (polar angle theta from +z), shape (len(thetas)*n_lon, 3).
+    sin and cos are endophoton.det's, not numpy's (whose kernels differ by processor): a mesh is a scene
+    input, the same bits on every machine."""
     phi = 2.0 * math.pi * np.arange(n_lon) / n_lon
-    st, ct = np.sin(thetas)[:, None], np.cos(thetas)[:, None]
+    st, ct = det.sin(thetas)[:, None], det.cos(thetas)[:, None]
     pts = np.stack(
-        [st * np.cos(phi)[None, :], st * np.sin(phi)[None, :], np.broadcast_to(ct, (thetas.size, n_lon))], axis=-1
+        [st * det.cos(phi)[None, :], st * det.sin(phi)[None, :], np.broadcast_to(ct, (thetas.size, n_lon))], axis=-1
     )
     return pts.reshape(-1, 3)
 

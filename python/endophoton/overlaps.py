@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import det
+
 __all__ = ["equal_priority_overlaps", "check_overlaps", "MAX_POINTS", "MAX_POINT_TRIANGLE_TESTS"]
 
 #: Most grid points tested per pair of regions (10 x 10 x 10).
@@ -25,7 +27,7 @@ MAX_POINTS = 1000
 #: Most point-triangle ray tests per pair (the grid shrinks for large meshes, at least 3 x 3 x 3).
 MAX_POINT_TRIANGLE_TESTS = 20_000_000
 _DIRECTION = np.array([0.5773502691896258, 0.5773869, 0.5773136])  # off every axis and diagonal
-_DIRECTION = _DIRECTION / np.linalg.norm(_DIRECTION)
+_DIRECTION = _DIRECTION / det.norm(_DIRECTION)  # endophoton.det: the same ray on every machine
 _OFFSETS = np.array([0.5 - 0.1180339887, 0.5 + 0.0729490169, 0.5 - 0.0450850160])  # golden-ratio fractions
 
 
@@ -34,17 +36,17 @@ def _inside(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> 
     tri = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
     v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     p = np.cross(_DIRECTION, e2)
-    det = np.einsum("ij,ij->i", e1, p)
-    ok = np.abs(det) > 1e-300
-    v0, e1, e2, p, inv = v0[ok], e1[ok], e2[ok], p[ok], 1.0 / det[ok]
+    d = det.dot(e1, p)
+    ok = np.abs(d) > 1e-300
+    v0, e1, e2, p, inv = v0[ok], e1[ok], e2[ok], p[ok], 1.0 / d[ok]
     counts = np.zeros(len(points), dtype=np.int64)
     step = max(1, MAX_POINT_TRIANGLE_TESTS // max(1, 8 * len(v0)))  # points per block (memory)
     for lo in range(0, len(points), step):
         s = points[lo : lo + step, None, :] - v0[None, :, :]
-        u = np.einsum("pij,ij->pi", s, p) * inv
+        u = det.dot(s, p) * inv
         q = np.cross(s, e1[None, :, :])
-        v = np.einsum("j,pij->pi", _DIRECTION, q) * inv
-        t = np.einsum("pij,ij->pi", q, e2) * inv
+        v = det.dot(q, _DIRECTION) * inv
+        t = det.dot(q, e2) * inv
         hit = (u > 0) & (v > 0) & (u + v < 1) & (t > 0)
         counts[lo : lo + step] = hit.sum(axis=1)
     return counts % 2 == 1
@@ -56,6 +58,16 @@ def _grid(lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
+def _grid_side(triangles: int) -> int:
+    """Points a side of the test grid: the most n with n^3 <= MAX_POINTS and n^3 x triangles <=
+    MAX_POINT_TRIANGLE_TESTS, at least 3. In integers: a cube root in floating point can round a
+    perfect cube's either way, and differently by processor."""
+    n = 3
+    while (n + 1) ** 3 <= MAX_POINTS and (n + 1) ** 3 * triangles <= MAX_POINT_TRIANGLE_TESTS:
+        n += 1
+    return n
+
+
 def _share_volume(a, b) -> bool:
     """Whether regions ``a`` and ``b`` (of one priority) hold a common grid point inside both."""
     va, vb = np.asarray(a.vertices, dtype=np.float64), np.asarray(b.vertices, dtype=np.float64)
@@ -63,9 +75,7 @@ def _share_volume(a, b) -> bool:
     size = float(np.max(np.maximum(va.max(axis=0), vb.max(axis=0)) - np.minimum(va.min(axis=0), vb.min(axis=0))))
     if np.any(hi - lo <= 1e-9 * size):
         return False  # bounding boxes apart or only touching
-    m = len(a.triangles) + len(b.triangles)
-    n = int(min(round(MAX_POINTS ** (1 / 3)), max(3, (MAX_POINT_TRIANGLE_TESTS / m) ** (1 / 3))))
-    pts = _grid(lo, hi, n)
+    pts = _grid(lo, hi, _grid_side(len(a.triangles) + len(b.triangles)))
     pts = pts[_inside(pts, va, a.triangles)]
     return bool(len(pts)) and bool(_inside(pts, vb, b.triangles).any())
 

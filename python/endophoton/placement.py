@@ -18,7 +18,8 @@ Two rules (docs/numerics.md, "The endoscope head at the extremes"):
   vertex inside the cylinder. A head beyond the engine's coordinate limit is left to the engine, which
   refuses it by name.
 
-Lengths in scene units.
+Lengths in scene units. Dot products, lengths, sines and cosines are endophoton.det's, so that the
+verdict and the warning are the same on every machine, as the run's bits are.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ import math
 
 import numpy as np
 
-from . import _core
+from . import _core, det
 from .io import shown
 from .scene import Scene
 from .scene_schema import MAX_COORDINATE
@@ -43,10 +44,10 @@ _PROBES = 64
 def _segment_distance2(p, q, c):
     """Squared distance from point c (3,) to the segments p-q (K,3) (a zero-length segment is a point)."""
     e = q - p
-    ee = np.einsum("ij,ij->i", e, e)
-    t = np.where(ee > 0, np.einsum("ij,ij->i", c - p, e) / np.where(ee > 0, ee, 1.0), 0.0)
+    ee = det.dot(e, e)
+    t = np.where(ee > 0, det.dot(c - p, e) / np.where(ee > 0, ee, 1.0), 0.0)
     d = p + np.clip(t, 0.0, 1.0)[:, None] * e - c
-    return np.einsum("ij,ij->i", d, d)
+    return det.dot(d, d)
 
 
 def face_contact(vertices, triangles, centre, normal, radius, tol) -> bool:
@@ -56,7 +57,7 @@ def face_contact(vertices, triangles, centre, normal, radius, tol) -> bool:
     c = np.asarray(centre, dtype=np.float64)
     f = np.asarray(normal, dtype=np.float64)
     v = np.asarray(vertices, dtype=np.float64)
-    s_v = (v - c) @ f
+    s_v = det.dot(v - c, f)
     s = s_v[triangles]
     cand = np.flatnonzero((s.min(axis=1) <= tol) & (s.max(axis=1) >= -tol))
     if cand.size == 0:
@@ -82,7 +83,7 @@ def face_contact(vertices, triangles, centre, normal, radius, tol) -> bool:
     flat = near.all(axis=1)  # lying in the plane: does the triangle cover the centre?
     if flat.any():
         p = proj[flat]
-        sides = [np.cross(p[:, (k + 1) % 3] - p[:, k], c - p[:, k]) @ f for k in range(3)]
+        sides = [det.dot(np.cross(p[:, (k + 1) % 3] - p[:, k], c - p[:, k]), f) for k in range(3)]
         inside = (np.minimum.reduce(sides) >= 0) | (np.maximum.reduce(sides) <= 0)
         if inside.any():
             return True
@@ -100,20 +101,20 @@ def _body_crossing(scene, rig: EndoscopeRig, radius: float, length: float) -> st
     f = rig.forward
     x, y = rig._R[:, 0], rig._R[:, 1]
     phi = 2.0 * math.pi * np.arange(_PROBES) / _PROBES
-    rim = rig.position + radius * (np.cos(phi)[:, None] * x + np.sin(phi)[:, None] * y)
+    rim = rig.position + radius * (det.cos(phi)[:, None] * x + det.sin(phi)[:, None] * y)
     back_rim = rim - length * f
     back = rig.position - length * f
     origins = np.vstack([rim, back_rim, np.broadcast_to(back, rim.shape)])
     ends = np.vstack([back_rim, np.roll(back_rim, -1, axis=0), back_rim])
     d = ends - origins
-    tfar = np.linalg.norm(d, axis=1)
+    tfar = det.norm(d)
     _, region, _, _ = _core.first_surfaces(scene.to_native(), origins, d / tfar[:, None], tfar, 0.0, 1)
     if np.any(region >= 0):
         return scene.regions[int(region[region >= 0][0])].name
     for r in scene.regions:
         rel = r.vertices.astype(np.float64) - rig.position
-        ax = rel @ f
-        rad = np.linalg.norm(rel - ax[:, None] * f, axis=1)
+        ax = det.dot(rel, f)
+        rad = det.norm(rel - ax[:, None] * f)
         if np.any((ax < 0) & (ax > -length) & (rad < radius)):
             return r.name
     return "" if np.any(region == -2) else None
@@ -144,7 +145,7 @@ def check_rig(scene, source) -> list[str]:
         return []  # the engine refuses such a head by name (its light positions); Embree could not take the probes
     lo = np.min([r.vertices.min(axis=0) for r in scene.regions], axis=0).astype(np.float64)
     hi = np.max([r.vertices.max(axis=0) for r in scene.regions], axis=0).astype(np.float64)
-    reach = float(np.linalg.norm(np.maximum(np.abs(lo - source.position), np.abs(hi - source.position))))
+    reach = det.norm(np.maximum(np.abs(lo - source.position), np.abs(hi - source.position)))
     name = _body_crossing(scene, source, body["radius"], min(body["length"], reach + body["radius"]))
     if name is None:
         return []

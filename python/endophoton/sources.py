@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import det
 from .spectra import Spectrum
 from .io import check_keys as _check_keys, float_array, real_or_none, shown
 from .scene_schema import MAX_COORDINATE
@@ -29,7 +30,7 @@ def _vec3(owner, field_name, v, unit_length=False):
         if not m > 0:
             raise ValueError(f"{owner}.{field_name} = {shown(v)} has zero length")
         a = a / m
-        a = a / float(np.linalg.norm(a))
+        a = a / det.norm(a)  # not np.linalg.norm: the BLAS's sum differs by processor (endophoton.det)
     return a
 
 
@@ -152,11 +153,12 @@ class ConeSource(_Source):
 
 
 def rotation_about(axis, angle_rad):
-    """Rotation matrix (3x3) about a unit axis by angle_rad (Rodrigues)."""
+    """Rotation matrix (3x3) about a unit axis by angle_rad (Rodrigues). Computed with endophoton.det,
+    so an endoscope's pose has the same bits on every machine."""
     a = np.asarray(axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
+    a = a / det.norm(a)
     K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(angle_rad) * K + (1 - math.cos(angle_rad)) * (K @ K)
+    return np.eye(3) + det.sin(angle_rad) * K + (1 - det.cos(angle_rad)) * det.matmul(K, K)
 
 
 # The largest image side (pixels) a view renders (render._resolve_camera's limit).
@@ -224,7 +226,7 @@ class EndoscopeRig(_Source):
         if M is None or M.shape != (4, 4) or not np.all(np.isfinite(M)):
             raise ValueError(f"rig.transform = {shown(self.transform)} must be a finite 4x4 matrix")
         R = M[:3, :3]
-        scales = np.linalg.norm(R, axis=0)
+        scales = det.norm(R.T)  # each column's length
         if np.any(scales < 1e-12):
             raise ValueError("rig.transform has a zero-length axis")
         self.transform = M
@@ -271,7 +273,7 @@ class EndoscopeRig(_Source):
         """World positions (scene units) of the two lights, shape (2, 3)."""
         ucm = scene_unit if isinstance(scene_unit, float) else _unit_cm(scene_unit)
         off = self.light_offset_mm * 0.1 / ucm
-        return np.array([self.position + self._R @ np.array([s * off, 0.0, 0.0]) for s in (+1.0, -1.0)])
+        return np.array([self.position + det.matvec(self._R, np.array([s * off, 0.0, 0.0])) for s in (+1.0, -1.0)])
 
     def camera(self, scene_unit: str | float = "cm") -> dict:
         return dict(
@@ -328,14 +330,15 @@ class EndoscopeRig(_Source):
             ref = np.array([0.0, 1.0, 0.0]) if abs(n[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
         else:
             ref = _vec3("rig", "tilt_axis", tilt_axis, unit_length=True)
-        axis = ref - np.dot(ref, n) * n
-        if np.linalg.norm(axis) < 1e-9:
+        # endophoton.det, not np.dot / @ / np.linalg.norm: the pose is a scene input (same bits everywhere)
+        axis = ref - det.dot(ref, n) * n
+        if det.norm(axis) < 1e-9:
             raise ValueError(f"rig.tilt_axis = {tilt_axis!r} is parallel to the normal")
-        axis /= np.linalg.norm(axis)
-        view = rotation_about(axis, math.radians(beta_deg)) @ n  # from the point to the head
+        axis /= det.norm(axis)
+        view = det.matvec(rotation_about(axis, math.radians(beta_deg)), n)  # from the point to the head
         z = view
-        x = np.cross(axis, z)
-        x /= np.linalg.norm(x)
+        x = np.cross(axis, z)  # elementwise products and differences: correctly rounded everywhere
+        x /= det.norm(x)
         y = np.cross(z, x)
         M = np.eye(4)
         M[:3, 0], M[:3, 1], M[:3, 2] = x, y, z

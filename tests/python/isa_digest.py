@@ -20,30 +20,11 @@ import numpy as np
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
 import endophoton as ep  # noqa: E402
+from bit_digest import feed  # noqa: E402  (beside this file)
 from endophoton import vdb  # noqa: E402
 
 # Fields that depend on the clock, the output path or the thread count, not on the arithmetic.
 NOT_ARITHMETIC = {"seconds", "grid_path", "threads"}
-
-
-def _feed(h, value) -> None:
-    """Feeds a canonical form of value to hash h: floats by their bits, arrays by dtype, shape
-    and bytes, mappings in key order."""
-    if isinstance(value, dict):
-        for k in sorted(value):
-            h.update(f"<{k}>".encode())
-            _feed(h, value[k])
-    elif isinstance(value, (list, tuple)):
-        h.update(f"[{len(value)}".encode())
-        for v in value:
-            _feed(h, v)
-    elif isinstance(value, np.ndarray):
-        h.update(f"{value.dtype.str}{value.shape}".encode())
-        h.update(np.ascontiguousarray(value).tobytes())
-    elif isinstance(value, float):
-        h.update(value.hex().encode())
-    else:
-        h.update(repr(value).encode())
 
 
 def _grid_voxels(path: str, name: str, metadata: dict) -> dict:
@@ -65,14 +46,14 @@ def _grid_voxels(path: str, name: str, metadata: dict) -> dict:
 def digest(result, grid_path: str | None = None) -> str:
     h = hashlib.sha256()
     raw = {k: v for k, v in result._raw.items() if k not in NOT_ARITHMETIC}
-    _feed(h, raw)
+    feed(h, raw)
     if result.camera_image is not None:
-        _feed(h, {"camera_view": result.camera_image})
+        feed(h, {"camera_view": result.camera_image})
     if grid_path is not None:
         summary = vdb.read_grid_summary(grid_path)
-        _feed(h, {"file": summary["metadata"]})
+        feed(h, {"file": summary["metadata"]})
         for name in result.grid_names:
-            _feed(h, {name: _grid_voxels(grid_path, name, summary["grids"][name]["metadata"])})
+            feed(h, {name: _grid_voxels(grid_path, name, summary["grids"][name]["metadata"])})
     return h.hexdigest()
 
 

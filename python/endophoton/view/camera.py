@@ -4,6 +4,10 @@ Conventions (:meth:`Camera.frame`, which ``analysis.important_mask`` uses too; B
 ``fov_deg`` is the full field of view across the larger image dimension;
 image x points along ``right = forward x up``, image y along the true up;
 pixel row 0 is the top row. Lengths are in scene units.
+
+The frame and the pixels' solid angles are part of what a run with ``view=`` hands the engine
+(view.nee.camera_view_options): they are computed with endophoton.det (tan, atan, dot, norm), never
+math's, numpy's dispatched loops or the BLAS, so that they have the same bits on every x86-64 machine.
 """
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import det
 from ..io import real_or_none, shown
 from ..scene_schema import MAX_COORDINATE
 from ..sources import _vec3
@@ -44,7 +49,7 @@ class Camera:
         self.position = _vec3("camera", "position", self.position)
         self.forward = _vec3("camera", "forward", self.forward, unit_length=True)
         self.up = _vec3("camera", "up", self.up, unit_length=True)
-        if abs(float(np.dot(self.forward, self.up))) > 1 - 1e-9:
+        if abs(det.dot(self.forward, self.up)) > 1 - 1e-9:
             raise ValueError(f"camera.up = {self.up.tolist()} is parallel to the viewing direction")
         self.fov_deg = _positive("fov_deg", self.fov_deg, 179.0)
         a = real_or_none(self.aperture_radius)
@@ -64,7 +69,7 @@ class Camera:
         """Camera at ``position`` looking at the point ``look_at`` (scene units)."""
         p = _vec3("camera", "position", position)
         t = _vec3("camera", "look_at", look_at)
-        if np.linalg.norm(t - p) < 1e-12 * (1 + np.linalg.norm(p)):
+        if det.norm(t - p) < 1e-12 * (1 + det.norm(p)):
             raise ValueError(f"camera.look_at = {list(look_at)!r} equals camera.position")
         return cls(p, t - p, up, fov_deg, aperture_radius, focus_distance)
 
@@ -93,11 +98,11 @@ class Camera:
         if isinstance(width, bool) or isinstance(height, bool) or int(width) <= 0 or int(height) <= 0:
             raise ValueError(f"camera.resolution = {(width, height)} must be (width, height) > 0")
         w, h = int(width), int(height)
-        f = self.forward / np.linalg.norm(self.forward)
-        r = np.cross(f, self.up)
-        r /= np.linalg.norm(r)
+        f = self.forward / det.norm(self.forward)
+        r = np.cross(f, self.up)  # elementwise products and differences: correctly rounded everywhere
+        r /= det.norm(r)
         u = np.cross(r, f)
-        t = math.tan(math.radians(self.fov_deg) / 2.0)
+        t = det.tan(math.radians(self.fov_deg) / 2.0)  # radians(): one correctly rounded product
         tx, ty = (t, t * h / w) if w >= h else (t * w / h, t)
         return dict(position=np.asarray(self.position, dtype=np.float64), forward=f, right=r, up=u, tan_x=tx, tan_y=ty)
 
@@ -133,7 +138,7 @@ class Camera:
         xe = (np.arange(width + 1) / width * 2.0 - 1.0) * fr["tan_x"]
         ye = (1.0 - np.arange(height + 1) / height * 2.0) * fr["tan_y"]
         X, Y = np.meshgrid(xe, ye)
-        F = np.arctan(X * Y / np.sqrt(1 + X**2 + Y**2))
+        F = det.atan(X * Y / np.sqrt(1 + X * X + Y * Y))
         om = F[1:, 1:] - F[1:, :-1] - F[:-1, 1:] + F[:-1, :-1]
         return np.abs(om).reshape(-1)
 

@@ -33,12 +33,20 @@ The rules, written down once (docs/render.md repeats them):
   little; the float arrays (``.npz``) keep the unclipped linear values.
 * **Encoding.** sRGB transfer function (12.92 c for c <= 0.0031308, else
   1.055 c^(1/2.4) - 0.055), then round to 8 bits.
+
+The colour-matching functions, the white point and the XYZ-to-sRGB products feed the channel tables
+a run with ``view=`` hands the engine (view.nee.channel_tables), so they are computed with
+endophoton.det (SLEEF's exp, products added in a fixed order) and exact rational arithmetic (the white
+point), not numpy's dispatched exp, the BLAS or LAPACK: the same bits on every x86-64 machine.
 """
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 
 import numpy as np
+
+from .. import det
 
 __all__ = [
     "cmf_xyz",
@@ -63,13 +71,35 @@ _LOBES = {
 
 #: IEC 61966-2-1: XYZ (D65) to linear sRGB.
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+
+
+def _solve3_exact(A, b) -> np.ndarray:
+    """x with A x = b for a 3x3 A, each entry the exact solution rounded once: Cramer's rule in
+    fractions.Fraction (exact rational arithmetic), not np.linalg.solve, whose LAPACK (OpenBLAS's)
+    picks its kernels by the processor."""
+    A = [[Fraction(v) for v in row] for row in np.asarray(A, dtype=np.float64).tolist()]
+    b = [Fraction(v) for v in np.asarray(b, dtype=np.float64).tolist()]
+
+    def det3(m):
+        return (
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        )
+
+    d = det3(A)
+    replaced = ([[b[r] if c == i else A[r][c] for c in range(3)] for r in range(3)] for i in range(3))
+    return np.array([float(det3(m) / d) for m in replaced])
+
+
 #: D65 white point, Y = 1 (the XYZ that the sRGB matrix maps to R = G = B = 1).
-WHITE_D65 = np.linalg.solve(XYZ_TO_SRGB, np.ones(3))
+WHITE_D65 = _solve3_exact(XYZ_TO_SRGB, np.ones(3))
 
 
 def _lobe(lam, mu, s1, s2):
     s = np.where(lam < mu, s1, s2)
-    return np.exp(-0.5 * ((lam - mu) / s) ** 2)
+    z = (lam - mu) / s
+    return det.exp(-0.5 * (z * z))
 
 
 def cmf_xyz(wavelength_nm) -> np.ndarray:
@@ -116,7 +146,7 @@ def xyz_to_linear_srgb(xyz, gains=None) -> np.ndarray:
     xyz = np.asarray(xyz, dtype=np.float64)
     if gains is not None:
         xyz = xyz * np.asarray(gains, dtype=np.float64)
-    return xyz @ XYZ_TO_SRGB.T
+    return det.matvec(XYZ_TO_SRGB, xyz)
 
 
 def srgb_encode(linear) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 from . import colour
 from .camera import DEFAULT_VIEW_BATCHES
 
-__all__ = ["view_request", "camera_view", "CHANNELS"]
+__all__ = ["view_request", "camera_view", "camera_view_options", "CHANNELS"]
 
 CHANNELS = ("energy", "x", "y", "z", "camera_r", "camera_g")
 _LAMBDA0_NM, _LAMBDA1_NM, _DLAMBDA_NM = 200.0, 1100.0, 0.1
@@ -121,6 +121,17 @@ def camera_view(scene, source, photons, view):
     """The engine's CameraView for ``ep.run(scene, source, photons, view=view)`` and its description
     (a dict :func:`render_view` checks its own arguments against). ValueError naming the field."""
     from .. import _core
+
+    options, desc = camera_view_options(scene, source, photons, view)
+    return _core.CameraView(**options), desc
+
+
+def camera_view_options(scene, source, photons, view):
+    """The keyword arguments of the engine's CameraView (everything the camera tally receives: the
+    pinhole frame, the pixels' solid angles in sr, the channel tables over the wavelength grid in nm)
+    and the view's description. Camera.frame, Camera.pixel_solid_angles and colour's tables compute
+    them with endophoton.det's arithmetic, so that they have the same bits on every x86-64 machine
+    (tests/python/test_det_inputs.py)."""
     from .render import _gains, _resolve_camera, emission_filter_function, excitation_spectrum
     from ..analysis.batches import _check_batches
     from .budget import check_render_memory
@@ -154,7 +165,7 @@ def camera_view(scene, source, photons, view):
     _check_camera_outside(scene, camera)
     fr = camera.frame(W, H)
     lam, table, fl_only, sbin, t, nbins = channel_tables(light, T, gains)
-    cv = _core.CameraView(
+    options = dict(
         position=fr["position"].tolist(),
         forward=fr["forward"].tolist(),
         right=fr["right"].tolist(),
@@ -186,7 +197,7 @@ def camera_view(scene, source, photons, view):
         tau_cut=float(tau),
         **look_back,
     )
-    return cv, desc
+    return options, desc
 
 
 def _look_back(req) -> dict:

@@ -49,7 +49,7 @@ import os
 
 import numpy as np
 
-from .. import _core
+from .. import _core, det
 
 from . import colour, exitance
 from ..analysis import batch_index
@@ -91,9 +91,11 @@ def excitation_spectrum(kind) -> Spectrum | None:
     if (isinstance(kind, str) and kind.lower() in ("blue", "405", "blue405")) or (
         isinstance(kind, (int, float)) and not isinstance(kind, bool) and float(kind) == 405.0
     ):
+        # endophoton.det's log and exp: the light shapes the channel tables a run with view= hands the engine
         lam = np.arange(385.0, 425.5, 1.0)
-        sigma = 10.0 / (2 * math.sqrt(2 * math.log(2)))
-        return Spectrum(lam, np.exp(-0.5 * ((lam - 405.0) / sigma) ** 2), name="blue405")
+        sigma = 10.0 / (2 * math.sqrt(2 * det.log(2.0)))
+        z = (lam - 405.0) / sigma
+        return Spectrum(lam, det.exp(-0.5 * (z * z)), name="blue405")
     if isinstance(kind, (tuple, list)) and len(kind) == 2:
         return Spectrum(kind[0], kind[1], name="excitation")
     raise ValueError(
