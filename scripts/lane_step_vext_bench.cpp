@@ -1,0 +1,257 @@
+// Issue 39, §28 of docs/performance.md continued: the float32 lane step of scripts/lane_step_f32_bench.cpp
+// written once with GCC's vector extensions, for any lane count, instead of AVX2 intrinsics. The lane engine
+// must give the same bits on every x86-64 machine (docs/distributed.md, "Any instruction set"), so it needs
+// one source that compiles to 4 lanes of SSE2 on an old machine, 8 of AVX2 here and 16 of AVX-512 where that
+// pays. This times one step at 4, 8 or 16 lanes (a lane count wider than the build's registers is slow), and
+// prints a digest of every packet's state after the steps: the digest must be the same in every build and at
+// every lane count. Throwaway measurement, not part of the build; with
+// FLAGS="-O3 -ffp-contract=off -Wno-psabi -std=c++17 -Inative":
+//   g++ $FLAGS -mavx2 scripts/lane_step_vext_bench.cpp -o /tmp/vext_avx2
+//   g++ $FLAGS -march=x86-64 scripts/lane_step_vext_bench.cpp -o /tmp/vext_sse2
+//   g++ $FLAGS -mavx512f -mavx512vl -mavx512dq -mprefer-vector-width=512 scripts/lane_step_vext_bench.cpp \
+//       -o /tmp/vext_avx512
+//   /tmp/vext_avx2 [steps] [4|8|16|scalar]
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
+#include <string>
+
+#include "lane_step_scalar.h"
+
+using namespace lane_bench;
+
+namespace {
+
+template <int W>
+struct V {
+    typedef float f __attribute__((vector_size(4 * W)));
+    typedef uint32_t u __attribute__((vector_size(4 * W)));
+    typedef int32_t i __attribute__((vector_size(4 * W)));
+};
+
+// W packets, one a lane: xoshiro128++ state, position, frame, weight, free path, absorbed weight, depth,
+// clearance budget, scatterings.
+template <int W>
+struct Packets {
+    using F = typename V<W>::f;
+    using U = typename V<W>::u;
+    U s0, s1, s2, s3, count;
+    F px, py, pz, tx, ty, tz, bx, by, bz, nx, ny, nz, w, tau, absorbed, depth, budget;
+};
+
+template <class U>
+inline U rotl(U x, int k) {
+    return (x << k) | (x >> (32 - k));
+}
+// xoshiro128++ 1.0 (Blackman & Vigna 2021), one 32-bit output a lane.
+template <int W>
+inline typename V<W>::u next_u32(Packets<W>& P) {
+    const auto out = rotl(P.s0 + P.s3, 7) + P.s0;
+    const auto t = P.s1 << 9;
+    P.s2 ^= P.s0;
+    P.s3 ^= P.s1;
+    P.s1 ^= P.s2;
+    P.s0 ^= P.s3;
+    P.s2 ^= t;
+    P.s3 = rotl(P.s3, 11);
+    return out;
+}
+
+template <class F>
+inline F splat(float x) {
+    return F{} + x;
+}
+// Lane-wise square root: GCC's vector extensions have none, so a loop the vectoriser turns into sqrtps.
+template <class F>
+inline F vsqrt(F x) {
+    F r;
+    for (unsigned k = 0; k < sizeof(F) / sizeof(float); ++k) r[k] = __builtin_sqrtf(x[k]);
+    return r;
+}
+template <class F>
+inline F vmin(F a, F b) {
+    return a < b ? a : b;
+}
+template <class F>
+inline F vmax(F a, F b) {
+    return a > b ? a : b;
+}
+
+// -ln u for u = (k + 1) 2^-24 from the top 24 bits (scripts/lane_step_f32_bench.cpp's neg_log_u24).
+template <int W>
+inline typename V<W>::f neg_log_u24(typename V<W>::u x) {
+    using F = typename V<W>::f;
+    using I = typename V<W>::i;
+    const F u = __builtin_convertvector(I((x >> 8) + 1), F) * 0x1.0p-24f;
+    const I bits = I(u);
+    const I e = (bits - 0x3F3504F3) >> 23;  // arithmetic: sqrt(1/2)'s bits
+    const F m = F(bits - (e << 23));
+    const F r = m - 1.0f, r2 = r * r;
+    F q = splat<F>(0.08787265419960022f);
+    const float c[] = {-0.1415964663028717f,  0.148347869515419f,  -0.16588488221168518f, 0.19972050189971924f,
+                       -0.25001147389411926f, 0.3333367109298706f, -0.4999999701976776f};
+    for (float k : c) q = q * r + k;
+    return 0.0f - (__builtin_convertvector(e, F) * 0.6931471805599453f + (r + r2 * q));
+}
+
+// (cos phi, sin phi) of phi = 2 pi x 2^-32 (scripts/lane_step_f32_bench.cpp's azimuth8).
+template <int W>
+inline void azimuth(typename V<W>::u x, typename V<W>::f* cos_phi, typename V<W>::f* sin_phi) {
+    using F = typename V<W>::f;
+    using I = typename V<W>::i;
+    const auto q = (x + (1u << 29)) >> 30;
+    const F a = __builtin_convertvector(I(x - (q << 30)), F) * float(2 * kPi * 0x1.0p-32);
+    const F a2 = a * a;
+    const F s = a + (a * a2) * (-1.0f / 6 + a2 * (1.0f / 120 + a2 * (-1.0f / 5040 + a2 * (1.0f / 362880))));
+    const F c = 1.0f + a2 * (-0.5f + a2 * (1.0f / 24 + a2 * (-1.0f / 720 + a2 * (1.0f / 40320))));
+    const I odd = I(q & 1) != 0;
+    const F cs = odd ? s : c, sn = odd ? c : s;
+    *cos_phi = ((q + 1) & 2) != 0 ? -cs : cs;
+    *sin_phi = (q & 2) != 0 ? -sn : sn;
+}
+
+template <class F>
+inline F dot3(F ax, F ay, F az, F bx, F by, F bz) {
+    return (ax * bx + ay * by) + az * bz;
+}
+
+// DirectionFrame::renormalize in the lanes where `due` (orthonormal_basis, Duff et al. 2017).
+template <int W>
+inline void renormalize(Packets<W>& P, typename V<W>::i due) {
+    using F = typename V<W>::f;
+    using I = typename V<W>::i;
+    const F k = 1.5f - 0.5f * dot3(P.nx, P.ny, P.nz, P.nx, P.ny, P.nz);
+    const F x = P.nx * k, y = P.ny * k, z = P.nz * k;
+    const F sign = F((I(z) & int32_t(0x80000000u)) | I(splat<F>(1.0f)));  // +-1 with z's sign
+    const F a = -1.0f / (sign + z);
+    const F c = x * y * a, sx = sign * x;
+    P.tx = due ? 1.0f + sx * x * a : P.tx;
+    P.ty = due ? sign * c : P.ty;
+    P.tz = due ? -sign * x : P.tz;
+    P.bx = due ? c : P.bx;
+    P.by = due ? sign + y * y * a : P.by;
+    P.bz = due ? -y : P.bz;
+    P.nx = due ? x : P.nx;
+    P.ny = due ? y : P.ny;
+    P.nz = due ? z : P.nz;
+}
+
+// One step of every lane: §28's float32 step (the HG form of MCML; one division).
+template <int W>
+inline void step(Packets<W>& P, const float hgc[4]) {
+    using F = typename V<W>::f;
+    using I = typename V<W>::i;
+    const F s = P.tau * float(1 / kMutCm);
+    P.px += P.nx * s;
+    P.py += P.ny * s;
+    P.pz += P.nz * s;
+    const F left = P.budget - (s + float(kSlack));
+    P.budget = left > 0.0f ? left : splat<F>(1e30f);
+    P.depth = vmax(-P.pz, P.depth);  // the entry (0, 0, 0) facing -z
+    const F dw = P.w * float(kLoss);
+    P.w -= dw;
+    P.absorbed += dw;
+    P.w = P.w < float(kRefill) ? splat<F>(1.0f) : P.w;
+    const F u = __builtin_convertvector(I(next_u32(P) >> 8), F) * 0x1.0p-24f;
+    const F sq = hgc[0] / (hgc[1] + u * hgc[2]);
+    const F ct = vmax(vmin((hgc[3] - sq * sq) * (1.0f / hgc[2]), splat<F>(1.0f)), splat<F>(-1.0f));
+    const F st = vsqrt((1.0f - ct) * (1.0f + ct));
+    F cp, sp;
+    azimuth<W>(next_u32(P), &cp, &sp);
+    const F e1x = P.tx * cp + P.bx * sp, e1y = P.ty * cp + P.by * sp, e1z = P.tz * cp + P.bz * sp;
+    P.bx = P.bx * cp - P.tx * sp;
+    P.by = P.by * cp - P.ty * sp;
+    P.bz = P.bz * cp - P.tz * sp;
+    P.tx = e1x * ct - P.nx * st;
+    P.ty = e1y * ct - P.ny * st;
+    P.tz = e1z * ct - P.nz * st;
+    P.nx = P.nx * ct + e1x * st;
+    P.ny = P.ny * ct + e1y * st;
+    P.nz = P.nz * ct + e1z * st;
+    P.count += 1;
+    const I due = I((P.count & (DirectionFrame::kRenormalizeEvery - 1)) == 0);
+    bool any = false;
+    for (int k = 0; k < W; ++k) any |= due[k] != 0;
+    if (__builtin_expect(any, 0)) renormalize<W>(P, due);
+    P.tau = neg_log_u24<W>(next_u32(P));
+}
+
+constexpr int kPackets = 16;  // every lane count traces the same 16 packets
+
+// Lanes [first, first + W) of the 16 packets: each stream from (seed 1, packet index), as in §28's bench.
+template <int W>
+Packets<W> start(int first) {
+    Packets<W> P;
+    std::memset(&P, 0, sizeof P);
+    const DirectionFrame f(normalize(Vec3(0.3, -0.2, -1)));
+    for (int k = 0; k < W; ++k) {
+        Rng seeder(1, uint64_t(first + k));
+        const uint64_t a = seeder.next_u64(), b = seeder.next_u64();
+        P.s0[k] = uint32_t(a), P.s1[k] = uint32_t(a >> 32), P.s2[k] = uint32_t(b), P.s3[k] = uint32_t(b >> 32) | 1;
+        P.tx[k] = float(f.t[0]), P.ty[k] = float(f.t[1]), P.tz[k] = float(f.t[2]);
+        P.bx[k] = float(f.b[0]), P.by[k] = float(f.b[1]), P.bz[k] = float(f.b[2]);
+        P.nx[k] = float(f.n[0]), P.ny[k] = float(f.n[1]), P.nz[k] = float(f.n[2]);
+        P.w[k] = 1, P.budget[k] = 1e30f;
+    }
+    P.tau = neg_log_u24<W>(next_u32(P));
+    return P;
+}
+
+// FNV-1a over packet k's state (lane k of P), the fields in a fixed order.
+template <int W>
+void digest_lane(const Packets<W>& P, int k, uint64_t& h) {
+    const float f[] = {P.px[k], P.py[k], P.pz[k], P.tx[k], P.ty[k],       P.tz[k],    P.bx[k],     P.by[k], P.bz[k],
+                       P.nx[k], P.ny[k], P.nz[k], P.w[k],  P.absorbed[k], P.depth[k], P.budget[k], P.tau[k]};
+    const uint32_t u[] = {P.s0[k], P.s1[k], P.s2[k], P.s3[k], P.count[k]};
+    auto feed = [&](const void* p, size_t n) {
+        for (size_t b = 0; b < n; ++b) h = (h ^ static_cast<const unsigned char*>(p)[b]) * 0x100000001B3ull;
+    };
+    feed(f, sizeof f);
+    feed(u, sizeof u);
+}
+
+double thread_ns() {
+    timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return 1e9 * double(t.tv_sec) + double(t.tv_nsec);
+}
+
+// The 16 packets as 16 / W groups of W lanes, `steps` steps each; prints ns per packet step and the digest.
+template <int W>
+void run(long steps, const float hgc[4]) {
+    Packets<W> P[kPackets / W];
+    for (int g = 0; g < kPackets / W; ++g) P[g] = start<W>(g * W);
+    const double t0 = thread_ns();
+    for (long n = 0; n < steps; ++n)
+        for (auto& p : P) step<W>(p, hgc);
+    const double t = thread_ns() - t0;
+    uint64_t h = 0xCBF29CE484222325ull;
+    for (int k = 0; k < kPackets; ++k) digest_lane<W>(P[k / W], k % W, h);
+    std::printf("%2d lanes  %.3f ns/packet-step  digest %016llx\n", W, t / (double(steps) * kPackets),
+                (unsigned long long)h);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    const long steps = argc > 1 ? std::atol(argv[1]) : 500000;
+    const std::string mode = argc > 2 ? argv[2] : "8";
+    const float hgc[4] = {float(1 - kG * kG), float(1 - kG), float(2 * kG), float(1 + kG * kG)};
+    if (mode == "8") run<8>(steps, hgc);
+    if (mode == "16") run<16>(steps, hgc);
+    if (mode == "4") run<4>(steps, hgc);
+    if (mode == "scalar") {  // the engine's scalar double step, for the ratio
+        const HenyeyGreenstein hg(kG);
+        Scalar q[kPackets];
+        for (int k = 0; k < kPackets; ++k) q[k] = start(uint64_t(k));
+        const double t0 = thread_ns();
+        for (long n = 0; n < steps; ++n)
+            for (Scalar& x : q) scalar_step(x, hg, Vec3(0, 0, 0), Vec3(0, 0, -1));
+        std::printf("scalar    %.3f ns/packet-step  (kept %.6g)\n", (thread_ns() - t0) / (double(steps) * kPackets),
+                    q[0].absorbed);
+    }
+    return 0;
+}
