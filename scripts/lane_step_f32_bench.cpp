@@ -42,7 +42,7 @@ struct Lanes8 {
     I s0, s1, s2, s3, count;                    // xoshiro128++ state, scatterings
     F px, py, pz;                               // positions (f32 mode)
     __m256d pxd[2], pyd[2], pzd[2], depthd[2];  // positions and depth in double (f32pos64 mode)
-    F tx, ty, tz, bx, by, bz, nx, ny, nz, W, tau, absorbed, depth, budget;
+    F tx, ty, tz, bx, by, bz, nx, ny, nz, w, tau, absorbed, depth, budget;
     F cx, cy, cz;  // the centre of the lane's zone (mode seed)
 };
 
@@ -194,10 +194,10 @@ inline void step8(Lanes8& L, const float hgc[4], const Vec3& ep, const Vec3& ei,
     }
     const F left = sub(L.budget, add(s, bc(float(kSlack))));
     L.budget = _mm256_blendv_ps(bc(1e30f), left, _mm256_cmp_ps(left, _mm256_setzero_ps(), _CMP_GT_OQ));
-    const F dW = mul(L.W, bc(float(kLoss)));
-    L.W = sub(L.W, dW);
+    const F dW = mul(L.w, bc(float(kLoss)));
+    L.w = sub(L.w, dW);
     L.absorbed = add(L.absorbed, dW);
-    L.W = _mm256_blendv_ps(L.W, bc(1.0f), _mm256_cmp_ps(L.W, bc(float(kRefill)), _CMP_LT_OQ));
+    L.w = _mm256_blendv_ps(L.w, bc(1.0f), _mm256_cmp_ps(L.w, bc(float(kRefill)), _CMP_LT_OQ));
     scatter8(L, hgc, out);
     L.tau = neg_log_u24(next_u32(L));
     out->tau = L.tau;
@@ -208,9 +208,9 @@ Lanes8 start8() {
     std::memset(&L, 0, sizeof L);
     uint32_t s[4][8];
     for (int i = 0; i < 8; ++i) {
-        Rng seeder(1, uint64_t(i));  // keyed (seed, packet) as the engine's streams
-        const uint64_t a = seeder.next_u64(), b = seeder.next_u64();
-        s[0][i] = uint32_t(a), s[1][i] = uint32_t(a >> 32), s[2][i] = uint32_t(b), s[3][i] = uint32_t(b >> 32) | 1;
+        uint32_t st[4];
+        stream_state(1, uint64_t(i), st);  // keyed (seed, packet) as the engine's streams
+        for (int w = 0; w < 4; ++w) s[w][i] = st[w];
     }
     L.s0 = _mm256_loadu_si256(reinterpret_cast<const I*>(s[0]));
     L.s1 = _mm256_loadu_si256(reinterpret_cast<const I*>(s[1]));
@@ -220,7 +220,7 @@ Lanes8 start8() {
     L.tx = bc(float(f.t[0])), L.ty = bc(float(f.t[1])), L.tz = bc(float(f.t[2]));
     L.bx = bc(float(f.b[0])), L.by = bc(float(f.b[1])), L.bz = bc(float(f.b[2]));
     L.nx = bc(float(f.n[0])), L.ny = bc(float(f.n[1])), L.nz = bc(float(f.n[2]));
-    L.W = bc(1.0f), L.budget = bc(1e30f);
+    L.w = bc(1.0f), L.budget = bc(1e30f);
     L.tau = neg_log_u24(next_u32(L));
     return L;
 }
@@ -282,7 +282,7 @@ void check(long n, const float hgc[4]) {
 // field by field, cost a store-to-load forwarding stall per field: 0.64-0.66 against 0.55-0.63 CPU-s for
 // the seed tissue's 10^6 packets.)
 #define FLOAT_FIELDS(X) \
-    X(px) X(py) X(pz) X(tx) X(ty) X(tz) X(bx) X(by) X(bz) X(nx) X(ny) X(nz) X(W) X(budget) X(cx) X(cy) X(cz)
+    X(px) X(py) X(pz) X(tx) X(ty) X(tz) X(bx) X(by) X(bz) X(nx) X(ny) X(nz) X(w) X(budget) X(cx) X(cy) X(cz)
 #define INT_FIELDS(X) X(s0) X(s1) X(s2) X(s3) X(count)
 struct Flat {
 #define DECLARE_F(name) alignas(32) float name[8];
@@ -303,23 +303,10 @@ inline void reload(const Flat& f, Lanes8& L) {
     INT_FIELDS(LOAD_I)
 }
 
-// The clearance budget stands in for the engine's (ClearSteps): a lane's zone is the ball of radius one
-// cube side about its cube's centre, as the engine's triangle caches have it (the seed tissue's box of 12
-// triangles: a grid of 7^3 cells of 10/7 cm, split 3 ways: cubes of 0.476 cm), and the budget is the
-// distance to the ball's edge or to the surface, whichever is nearer, less the steps taken. Only when it
-// runs out are the lanes renewed (in lanes); a lane that left its ball hops to its new cube (scalar), and
-// only a lane whose renewed budget is gone tests the surface. So the plane test is as rare as the engine's
-// general steps, and the renewals cost what the engine's do.
-constexpr double kRoulette = 1e-4, kSurvive = 0.1;
-constexpr float kSide = float(10.0 / 7 / 3), kInner = kSide * (1 - 1e-6f), kLo = 1e-6f;
-
-// The centre of the cube holding (x, y, z): the grid starts at the box's corner (-5, -5, 0), depth z >= 0.
-inline float cube_centre(float v, float lo) { return lo + (std::floor((v - lo) / kSide) + 0.5f) * kSide; }
-inline void hop(Flat& f, int i) {
-    f.cx[i] = cube_centre(f.px[i], -5.f);
-    f.cy[i] = cube_centre(f.py[i], -5.f);
-    f.cz[i] = cube_centre(f.pz[i], 0.f);
-}
+// The clearance budget (lane_step_scalar.h) is the distance to the ball's edge or to the surface, whichever
+// is nearer, less the steps taken. Only when it runs out are the lanes renewed (in lanes); a lane that left
+// its ball hops to its new cube (scalar), and only a lane whose renewed budget is gone tests the surface. So
+// the plane test is as rare as the engine's general steps, and the renewals cost what the engine's do.
 // The lanes' budgets at their points: min(the ball's inner radius less the distance to the centre, the
 // depth less the surface's allowance).
 inline F fresh_budget(const Lanes8& L) {
@@ -328,51 +315,8 @@ inline F fresh_budget(const Lanes8& L) {
     return _mm256_min_ps(ball, sub(L.pz, bc(kLo)));
 }
 
-// Unpolarised Fresnel reflectance from the tissue (n 1.1) into air at incidence cosine ci (MCML's RFresnel).
-double fresnel_out(double ci) {
-    const double si = std::sqrt(std::max(0.0, 1 - ci * ci)), st = kN * si;
-    if (st >= 1) return 1;
-    const double ct = std::sqrt(1 - st * st);
-    const double rs = (kN * ci - ct) / (kN * ci + ct), rp = (ci - kN * ct) / (ci + kN * ct);
-    return 0.5 * (rs * rs + rp * rp);
-}
-
-struct SeedRun {
-    double rd = 0, rd2 = 0, absorbed = 0;  // sums over packets (rd2: of squares, for the standard error)
-    uint64_t seed = 1;
-    long launched = 0, packets = 0, iterations = 0, renewals = 0, lanes_renewed = 0, hops = 0, tests = 0;
-};
-
 // The lane's generator as scalar xoshiro128++ (the same sequence as next_u32 in that lane).
-uint32_t lane_u32(Flat& f, int i) {
-    uint32_t s0 = f.s0[i], s1 = f.s1[i], s2 = f.s2[i], s3 = f.s3[i];
-    const uint32_t r = ((s0 + s3) << 7 | (s0 + s3) >> 25) + s0, t = s1 << 9;
-    s2 ^= s0, s3 ^= s1, s1 ^= s2, s0 ^= s3, s2 ^= t, s3 = s3 << 11 | s3 >> 21;
-    f.s0[i] = s0, f.s1[i] = s1, f.s2[i] = s2, f.s3[i] = s3;
-    return r;
-}
-
-// Lane i takes the next packet (or idles when all are launched): at the origin heading into the tissue,
-// weight 1 - Rsp, a fresh stream; its first free path is drawn by the lanes' next tau.
-void refill(Flat& f, int i, SeedRun& run, float* packet_absorbed, float* packet_rd) {
-    run.absorbed += packet_absorbed[i];
-    run.rd += packet_rd[i], run.rd2 += double(packet_rd[i]) * packet_rd[i];
-    packet_absorbed[i] = packet_rd[i] = 0;
-    const bool idle = run.launched == run.packets;
-    Rng seeder(run.seed, uint64_t(run.launched));
-    const uint64_t a = seeder.next_u64(), b = seeder.next_u64();
-    f.s0[i] = uint32_t(a), f.s1[i] = uint32_t(a >> 32), f.s2[i] = uint32_t(b), f.s3[i] = uint32_t(b >> 32) | 1;
-    f.count[i] = 0;
-    const double rsp = (kN - 1) * (kN - 1) / ((kN + 1) * (kN + 1));
-    f.px[i] = f.py[i] = f.pz[i] = 0;
-    f.tx[i] = 1, f.ty[i] = 0, f.tz[i] = 0;
-    f.bx[i] = 0, f.by[i] = 1, f.bz[i] = 0;
-    f.nx[i] = 0, f.ny[i] = 0, f.nz[i] = 1;  // z > 0 is the tissue
-    f.W[i] = idle ? 0.f : float(1 - rsp);
-    hop(f, i);
-    f.budget[i] = 0;  // at the surface: the first step renews
-    if (!idle) run.launched += 1;
-}
+uint32_t lane_u32(Flat& f, int i) { return xoshiro128_next(f.s0[i], f.s1[i], f.s2[i], f.s3[i]); }
 
 SeedRun seed_run(long packets, uint64_t seed, const float hgc[4]) {
     SeedRun run;
@@ -383,7 +327,7 @@ SeedRun seed_run(long packets, uint64_t seed, const float hgc[4]) {
     Flat f;
     alignas(32) float packet_absorbed[8] = {}, packet_rd[8] = {};
     spill(L, f);
-    for (int i = 0; i < 8; ++i) refill(f, i, run, packet_absorbed, packet_rd);
+    for (int i = 0; i < 8; ++i) refill_lane(f, i, run, packet_absorbed, packet_rd);
     reload(f, L);
     L.tau = neg_log_u24(next_u32(L));
     Samples smp;
@@ -406,7 +350,7 @@ SeedRun seed_run(long packets, uint64_t seed, const float hgc[4]) {
             int moved = _mm256_movemask_ps(_mm256_andnot_ps(_mm256_cmp_ps(L.pz, bc(kLo), _CMP_LT_OQ), gone));
             if (moved) {
                 spill(L, f);
-                for (; moved; moved &= moved - 1, ++run.hops) hop(f, __builtin_ctz(moved));
+                for (; moved; moved &= moved - 1, ++run.hops) hop_lane(f, __builtin_ctz(moved));
                 reload(f, L);
                 L.budget = _mm256_blendv_ps(L.budget, fresh_budget(L), gone);
             }
@@ -421,34 +365,34 @@ SeedRun seed_run(long packets, uint64_t seed, const float hgc[4]) {
                     f.pz[i] = -f.pz[i], f.nz[i] = -f.nz[i], f.tz[i] = -f.tz[i], f.bz[i] = -f.bz[i];
                     f.budget[i] = 0;
                 } else {
-                    packet_rd[i] += f.W[i];
-                    f.W[i] = 0;
+                    packet_rd[i] += f.w[i];
+                    f.w[i] = 0;
                 }
             }
             reload(f, L);
         }
-        const F dW = mul(L.W, loss);
-        L.W = sub(L.W, dW);
+        const F dW = mul(L.w, loss);
+        L.w = sub(L.w, dW);
         _mm256_store_ps(packet_absorbed, add(_mm256_load_ps(packet_absorbed), dW));
         scatter8(L, hgc, &smp);
-        int low = _mm256_movemask_ps(_mm256_cmp_ps(L.W, bc(float(kRoulette)), _CMP_LT_OQ));
+        int low = _mm256_movemask_ps(_mm256_cmp_ps(L.w, bc(float(kRoulette)), _CMP_LT_OQ));
         if (low) {  // the roulette, and new packets in the lanes whose packet ended
             spill(L, f);
             for (; low; low &= low - 1) {
                 const int i = __builtin_ctz(low);
-                if (f.W[i] > 0 && double(lane_u32(f, i)) * 0x1.0p-32 < kSurvive)
-                    f.W[i] = float(f.W[i] / kSurvive);
+                if (f.w[i] > 0 && double(lane_u32(f, i)) * 0x1.0p-32 < kSurvive)
+                    f.w[i] = float(f.w[i] / kSurvive);
                 else
-                    refill(f, i, run, packet_absorbed, packet_rd);
+                    refill_lane(f, i, run, packet_absorbed, packet_rd);
             }
             reload(f, L);
-            const bool busy = _mm256_movemask_ps(_mm256_cmp_ps(L.W, _mm256_setzero_ps(), _CMP_GT_OQ)) != 0;
+            const bool busy = _mm256_movemask_ps(_mm256_cmp_ps(L.w, _mm256_setzero_ps(), _CMP_GT_OQ)) != 0;
             if (!busy && run.launched == run.packets) break;
         }
         L.tau = neg_log_u24(next_u32(L));
     }
     spill(L, f);
-    for (int i = 0; i < 8; ++i) refill(f, i, run, packet_absorbed, packet_rd);  // flush the last packets
+    for (int i = 0; i < 8; ++i) refill_lane(f, i, run, packet_absorbed, packet_rd);  // flush the last packets
     return run;
 }
 }  // namespace
@@ -474,17 +418,7 @@ int main(int argc, char** argv) {
         const SeedRun r = seed_run(steps, argc > 3 ? std::strtoull(argv[3], nullptr, 10) : 1, hgc);
         clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &b);
         const double cpu = double(b.tv_sec - a.tv_sec) + 1e-9 * double(b.tv_nsec - a.tv_nsec);
-        const double n = double(r.packets), rd = r.rd / n, se = std::sqrt((r.rd2 / n - rd * rd) / n);
-        const double rsp = (kN - 1) * (kN - 1) / ((kN + 1) * (kN + 1));
-        std::printf(
-            "seed      %ld packets  %.3f CPU-s  %.0f packets per CPU-s  Rd %.6f +- %.6f  A %.6f  "
-            "Rsp + Rd + A %.6f\n",
-            r.packets, cpu, n / cpu, rd, se, r.absorbed / n, rsp + rd + r.absorbed / n);
-        const double it = double(r.iterations);
-        std::printf(
-            "          %.2f iterations a packet; renewals in %.1f %% of iterations, %.1f %% of lane-steps; "
-            "hops %.3f, surface tests %.3f a packet\n",
-            it / n, 100 * r.renewals / it, 100 * r.lanes_renewed / (8 * it), r.hops / n, r.tests / n);
+        print_seed_run(r, cpu, 8);
         return 0;
     }
     auto now = [] {  // thread CPU time (ns): the shared machine's other work is not counted

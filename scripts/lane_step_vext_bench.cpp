@@ -8,9 +8,12 @@
 // FLAGS="-O3 -ffp-contract=off -Wno-psabi -std=c++17 -Inative":
 //   g++ $FLAGS -mavx2 scripts/lane_step_vext_bench.cpp -o /tmp/vext_avx2
 //   g++ $FLAGS -march=x86-64 scripts/lane_step_vext_bench.cpp -o /tmp/vext_sse2
-//   g++ $FLAGS -mavx512f -mavx512vl -mavx512dq -mprefer-vector-width=512 scripts/lane_step_vext_bench.cpp \
-//       -o /tmp/vext_avx512
+//   g++ $FLAGS -mavx512f -mavx512vl -mavx512dq -mprefer-vector-width=512 -o /tmp/vext_avx512
+//       scripts/lane_step_vext_bench.cpp
 //   /tmp/vext_avx2 [steps] [4|8|16|scalar]
+//   /tmp/vext_avx2 [packets] seed [4|8|16] [seed]   (the seed tissue, whole, as lane_step_f32_bench.cpp's seed mode)
+#include <immintrin.h>
+
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -40,6 +43,7 @@ struct Packets {
     using U = typename V<W>::u;
     U s0, s1, s2, s3, count;
     F px, py, pz, tx, ty, tz, bx, by, bz, nx, ny, nz, w, tau, absorbed, depth, budget;
+    F cx, cy, cz;  // the centre of the lane's zone (mode seed)
 };
 
 template <class U>
@@ -64,12 +68,36 @@ template <class F>
 inline F splat(float x) {
     return F{} + x;
 }
-// Lane-wise square root: GCC's vector extensions have none, so a loop the vectoriser turns into sqrtps.
+// Lane-wise square root and "any lane set": GCC's vector extensions have neither, and its vectoriser made
+// element-by-element code of the loops (insertps, pextrd: a third of the seed run's time). So the register
+// width's instruction where the build has it (both are exact, so the bits do not depend on which runs), else
+// the loop.
 template <class F>
 inline F vsqrt(F x) {
-    F r;
+#if defined(__AVX512F__)
+    if constexpr (sizeof(F) == 64) return F(_mm512_sqrt_ps(__m512(x)));
+#endif
+#if defined(__AVX__)
+    if constexpr (sizeof(F) == 32) return F(_mm256_sqrt_ps(__m256(x)));
+#endif
+    if constexpr (sizeof(F) == 16) return F(_mm_sqrt_ps(__m128(x)));
+    F r = x;
     for (unsigned k = 0; k < sizeof(F) / sizeof(float); ++k) r[k] = __builtin_sqrtf(x[k]);
     return r;
+}
+// True when any lane of the mask m (lanes of 0 or -1) is set.
+template <class M>
+inline bool any(M m) {
+#if defined(__AVX512F__)
+    if constexpr (sizeof(M) == 64) return _mm512_cmpneq_epi32_mask(__m512i(m), _mm512_setzero_si512()) != 0;
+#endif
+#if defined(__AVX__)
+    if constexpr (sizeof(M) == 32) return !_mm256_testz_si256(__m256i(m), __m256i(m));
+#endif
+    if constexpr (sizeof(M) == 16) return _mm_movemask_ps(__m128(m)) != 0;
+    bool a = false;
+    for (unsigned k = 0; k < sizeof(M) / sizeof(m[0]); ++k) a |= m[k] != 0;
+    return a;
 }
 template <class F>
 inline F vmin(F a, F b) {
@@ -139,22 +167,12 @@ inline void renormalize(Packets<W>& P, typename V<W>::i due) {
     P.nz = due ? z : P.nz;
 }
 
-// One step of every lane: §28's float32 step (the HG form of MCML; one division).
+// The scattering of every lane: the HG cosine (MCML's form, one division), the azimuth, the frame's turn
+// and, every 16th scattering, its renormalisation.
 template <int W>
-inline void step(Packets<W>& P, const float hgc[4]) {
+inline void scatter(Packets<W>& P, const float hgc[4]) {
     using F = typename V<W>::f;
     using I = typename V<W>::i;
-    const F s = P.tau * float(1 / kMutCm);
-    P.px += P.nx * s;
-    P.py += P.ny * s;
-    P.pz += P.nz * s;
-    const F left = P.budget - (s + float(kSlack));
-    P.budget = left > 0.0f ? left : splat<F>(1e30f);
-    P.depth = vmax(-P.pz, P.depth);  // the entry (0, 0, 0) facing -z
-    const F dw = P.w * float(kLoss);
-    P.w -= dw;
-    P.absorbed += dw;
-    P.w = P.w < float(kRefill) ? splat<F>(1.0f) : P.w;
     const F u = __builtin_convertvector(I(next_u32(P) >> 8), F) * 0x1.0p-24f;
     const F sq = hgc[0] / (hgc[1] + u * hgc[2]);
     const F ct = vmax(vmin((hgc[3] - sq * sq) * (1.0f / hgc[2]), splat<F>(1.0f)), splat<F>(-1.0f));
@@ -173,9 +191,25 @@ inline void step(Packets<W>& P, const float hgc[4]) {
     P.nz = P.nz * ct + e1z * st;
     P.count += 1;
     const I due = I((P.count & (DirectionFrame::kRenormalizeEvery - 1)) == 0);
-    bool any = false;
-    for (int k = 0; k < W; ++k) any |= due[k] != 0;
-    if (__builtin_expect(any, 0)) renormalize<W>(P, due);
+    if (__builtin_expect(any(due), 0)) renormalize<W>(P, due);
+}
+
+// One step of every lane: §28's float32 step (the HG form of MCML; one division).
+template <int W>
+inline void step(Packets<W>& P, const float hgc[4]) {
+    using F = typename V<W>::f;
+    const F s = P.tau * float(1 / kMutCm);
+    P.px += P.nx * s;
+    P.py += P.ny * s;
+    P.pz += P.nz * s;
+    const F left = P.budget - (s + float(kSlack));
+    P.budget = left > 0.0f ? left : splat<F>(1e30f);
+    P.depth = vmax(-P.pz, P.depth);  // the entry (0, 0, 0) facing -z
+    const F dw = P.w * float(kLoss);
+    P.w -= dw;
+    P.absorbed += dw;
+    P.w = P.w < float(kRefill) ? splat<F>(1.0f) : P.w;
+    scatter<W>(P, hgc);
     P.tau = neg_log_u24<W>(next_u32(P));
 }
 
@@ -188,9 +222,9 @@ Packets<W> start(int first) {
     std::memset(&P, 0, sizeof P);
     const DirectionFrame f(normalize(Vec3(0.3, -0.2, -1)));
     for (int k = 0; k < W; ++k) {
-        Rng seeder(1, uint64_t(first + k));
-        const uint64_t a = seeder.next_u64(), b = seeder.next_u64();
-        P.s0[k] = uint32_t(a), P.s1[k] = uint32_t(a >> 32), P.s2[k] = uint32_t(b), P.s3[k] = uint32_t(b >> 32) | 1;
+        uint32_t st[4];
+        stream_state(1, uint64_t(first + k), st);
+        P.s0[k] = st[0], P.s1[k] = st[1], P.s2[k] = st[2], P.s3[k] = st[3];
         P.tx[k] = float(f.t[0]), P.ty[k] = float(f.t[1]), P.tz[k] = float(f.t[2]);
         P.bx[k] = float(f.b[0]), P.by[k] = float(f.b[1]), P.bz[k] = float(f.b[2]);
         P.nx[k] = float(f.n[0]), P.ny[k] = float(f.n[1]), P.nz[k] = float(f.n[2]);
@@ -234,12 +268,122 @@ void run(long steps, const float hgc[4]) {
                 (unsigned long long)h);
 }
 
+// ---- the seed tissue, whole (mode seed): scripts/lane_step_f32_bench.cpp's seed run at any lane count ----
+// The lanes' budgets at their points: min(the ball's inner radius less the distance to the centre, the depth
+// less the surface's allowance).
+template <int W>
+inline typename V<W>::f fresh_budget(const Packets<W>& P) {
+    const auto dx = P.px - P.cx, dy = P.py - P.cy, dz = P.pz - P.cz;
+    return vmin(kInner - vsqrt(dot3(dx, dy, dz, dx, dy, dz)), P.pz - kLo);
+}
+template <int W>
+__attribute__((noinline)) void surface(Packets<W>& lanes, typename V<W>::i out, typename V<W>::f& rd_lanes) {
+    Packets<W> P = lanes;
+    auto rd = rd_lanes;
+    for (int k = 0; k < W; ++k) {
+        if (!out[k]) continue;
+        if (double(xoshiro128_next(P.s0[k], P.s1[k], P.s2[k], P.s3[k])) * 0x1.0p-32 < fresnel_out(-double(P.nz[k]))) {
+            P.pz[k] = -P.pz[k], P.nz[k] = -P.nz[k], P.tz[k] = -P.tz[k], P.bz[k] = -P.bz[k];
+            P.budget[k] = 0;
+        } else {
+            rd[k] += P.w[k];
+            P.w[k] = 0;
+        }
+    }
+    lanes = P, rd_lanes = rd;
+}
+// Lanes under the roulette's threshold: survival, or a new packet.
+template <int W>
+__attribute__((noinline)) void roulette(Packets<W>& lanes, typename V<W>::i low, SeedRun& run,
+                                        typename V<W>::f& absorbed_lanes, typename V<W>::f& rd_lanes) {
+    Packets<W> P = lanes;
+    auto absorbed = absorbed_lanes, rd = rd_lanes;
+    for (int k = 0; k < W; ++k) {
+        if (!low[k]) continue;
+        if (P.w[k] > 0 && double(xoshiro128_next(P.s0[k], P.s1[k], P.s2[k], P.s3[k])) * 0x1.0p-32 < kSurvive)
+            P.w[k] = float(P.w[k] / kSurvive);
+        else
+            refill_lane(P, k, run, absorbed, rd);
+    }
+    lanes = P, absorbed_lanes = absorbed, rd_lanes = rd;
+}
+
+template <int W>
+SeedRun seed_run(long packets, uint64_t seed, const float hgc[4]) {
+    using F = typename V<W>::f;
+    using I = typename V<W>::i;
+    SeedRun run;
+    run.seed = seed, run.packets = packets;
+    Packets<W> P;
+    std::memset(&P, 0, sizeof P);
+    F absorbed{}, rd{};     // this packet's captures and escapes, per lane
+    I renewed{}, tested{};  // lanes renewed, lanes that tested the surface (counts per lane)
+    for (int k = 0; k < W; ++k) refill_lane(P, k, run, absorbed, rd);
+    P.tau = neg_log_u24<W>(next_u32(P));
+    for (;; ++run.iterations) {
+        const F s = P.tau * float(1 / kMutCm);
+        P.px += P.nx * s, P.py += P.ny * s, P.pz += P.nz * s;
+        P.budget -= s + float(kSlack);
+        const I spent = P.budget <= 0.0f;
+        if (any(spent)) {  // renew the lanes whose budget ran out
+            ++run.renewals;
+            renewed -= spent;  // a true lane is -1
+            P.budget = spent ? fresh_budget(P) : P.budget;
+            const I gone = spent & (P.budget <= 0.0f);
+            tested -= gone;
+            const I moved = gone & (P.pz >= kLo);  // out of the ball, not past the surface: a hop (scalar)
+            if (any(moved)) {
+                for (int k = 0; k < W; ++k)
+                    if (moved[k]) ++run.hops, hop_lane(P, k);
+                P.budget = gone ? fresh_budget(P) : P.budget;
+            }
+            const I out = gone & (P.pz < 0.0f);
+            if (any(out)) surface(P, out, rd);
+        }
+        const F dw = P.w * float(kLoss);
+        P.w -= dw;
+        absorbed += dw;
+        scatter<W>(P, hgc);
+        const I low = P.w < float(kRoulette);
+        if (any(low)) {  // the roulette, and new packets in the lanes whose packet ended
+            roulette(P, low, run, absorbed, rd);
+            if (!any(P.w > 0.0f) && run.launched == run.packets) break;
+        }
+        P.tau = neg_log_u24<W>(next_u32(P));
+    }
+    for (int k = 0; k < W; ++k) {  // flush the last packets
+        refill_lane(P, k, run, absorbed, rd);
+        run.lanes_renewed += renewed[k], run.tests += tested[k];
+    }
+    run.iterations += 1;
+    return run;
+}
+
+double process_cpu_s() {
+    timespec t;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+template <int W>
+void seed_mode(long packets, uint64_t seed, const float hgc[4]) {
+    const double t0 = process_cpu_s();
+    const SeedRun r = seed_run<W>(packets, seed, hgc);
+    print_seed_run(r, process_cpu_s() - t0, W);
+}
 }  // namespace
 
 int main(int argc, char** argv) {
     const long steps = argc > 1 ? std::atol(argv[1]) : 500000;
     const std::string mode = argc > 2 ? argv[2] : "8";
     const float hgc[4] = {float(1 - kG * kG), float(1 - kG), float(2 * kG), float(1 + kG * kG)};
+    const uint64_t seed = argc > 4 ? std::strtoull(argv[4], nullptr, 10) : 1;
+    if (mode == "seed" && argc > 3) {  // steps = packets here; argv[3] = lanes
+        const int lanes = std::atoi(argv[3]);
+        if (lanes == 4) seed_mode<4>(steps, seed, hgc);
+        if (lanes == 8) seed_mode<8>(steps, seed, hgc);
+        if (lanes == 16) seed_mode<16>(steps, seed, hgc);
+        return 0;
+    }
     if (mode == "8") run<8>(steps, hgc);
     if (mode == "16") run<16>(steps, hgc);
     if (mode == "4") run<4>(steps, hgc);
