@@ -98,6 +98,7 @@ def _with_openblas(env: dict) -> dict:
     return env
 
 
+@pytest.mark.slow  # two subprocesses build every case's inputs: about 1.7 s
 def test_inputs_have_the_same_bits_on_an_old_machine():
     here, old = _digests(_with_openblas({})), _digests(_with_openblas(OLD_MACHINE))
     # The guards: the old machine's environment is in force (where this processor is newer).
