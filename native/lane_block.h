@@ -38,7 +38,7 @@ struct LaneBlock {
     alignas(64) uint32_t s0[kSlots], s1[kSlots], s2[kSlots], s3[kSlots];
     alignas(64) uint32_t count[kSlots], steps[kSlots], room[kSlots];
     // Position relative to the zone's centre (scene units), the frame (t, b, n
-    // = direction), weight, the free path left (dimensionless), the deepest
+    // = direction), weight (a factor of the weight handed over), the free path left (dimensionless), the deepest
     // point (scene units along entry_in, from the entry point), the clearance
     // budget (scene units). The weight captured is the walk's: the weight
     // handed over less the weight taken back.
@@ -48,7 +48,8 @@ struct LaneBlock {
     alignas(64) float w[kSlots], tau[kSlots], depth[kSlots], budget[kSlots];
     // The medium of each slot: 1 / (mu_t in scene units^-1), mua / mu_t, HG's
     // constants (MCML's form 1 - g^2, 1 - g, 2g, 1 + g^2, 1 / (2g); g itself
-    // for the small-|g| form), and the roulette's threshold.
+    // for the small-|g| form), and the roulette's threshold (as a factor of
+    // the weight handed over).
     alignas(64) float inv_mut[kSlots], loss[kSlots];
     alignas(64) float hg0[kSlots], hg1[kSlots], hg2[kSlots], hg3[kSlots], hg_inv2g[kSlots], g[kSlots];
     alignas(64) int32_t small_g[kSlots];  // -1: |g| < 1/4, the form without cancellation

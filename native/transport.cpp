@@ -376,8 +376,10 @@ void PacketWalk<kSpectral, kGrids>::to_lane(LaneBlock& B, int k, const ClearStep
     B.tx[k] = float(f.t[0]), B.ty[k] = float(f.t[1]), B.tz[k] = float(f.t[2]);
     B.bx[k] = float(f.b[0]), B.by[k] = float(f.b[1]), B.bz[k] = float(f.b[2]);
     B.nx[k] = float(f.n[0]), B.ny[k] = float(f.n[1]), B.nz[k] = float(f.n[2]);
+    // The lane's weight is a factor of the weight handed over (exactly 1 at
+    // the start), so a step that captures nothing changes no bit of it.
     lane_w_in_ = st.W;
-    B.w[k] = float(st.W), B.tau[k] = float(st.tau), B.depth[k] = -1e30f, B.budget[k] = 0;
+    B.w[k] = 1, B.tau[k] = float(st.tau), B.depth[k] = -1e30f, B.budget[k] = 0;
     B.steps[k] = 0;
     B.room[k] = uint32_t(std::min<uint64_t>(max_events_ - st.events, UINT32_MAX));
     const Float mut_cm = st.med.mut * unit_cm_, g = st.med.g;
@@ -385,7 +387,7 @@ void PacketWalk<kSpectral, kGrids>::to_lane(LaneBlock& B, int k, const ClearStep
     B.small_g[k] = std::fabs(g) < 0.25 ? -1 : 0;
     B.g[k] = float(g), B.hg0[k] = float(1 - g * g), B.hg1[k] = float(1 - g), B.hg2[k] = float(2 * g);
     B.hg3[k] = float(1 + g * g), B.hg_inv2g[k] = B.small_g[k] ? 0.f : float(1 / (2 * g));
-    B.threshold[k] = float(cfg_.roulette_threshold);
+    B.threshold[k] = float(cfg_.roulette_threshold / st.W);  // W >= 1e-30 (lane_ready)
     const Float r = zone.inner(), widen = 4e-6 * r + 4e-16 * zone.scale(), inner = std::max(r - widen, Float(0));
     B.inner[k] = float(inner), B.inner_r2[k] = float(inner * inner), B.slack[k] = float(1e-6 * r);
     const int planes = int(zone.plane_count());
@@ -405,9 +407,10 @@ void PacketWalk<kSpectral, kGrids>::to_lane(LaneBlock& B, int k, const ClearStep
 }
 
 // Takes the packet back from slot k: the position in scene coordinates, the
-// direction renormalised in double with a new frame about it, the weight
-// captured (in double: the weight handed over less the weight left, so the
-// balance closes to double rounding), the steps counted as interactions.
+// direction renormalised in double with a new frame about it, the weight (the
+// weight handed over times the lane's factor) and the weight captured (in
+// double: the weight handed over less the weight left, so the balance closes
+// to double rounding), the steps counted as interactions.
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::from_lane(const LaneBlock& B, int k, const ClearSteps& zone) {
     PacketState& st = st_;
@@ -420,7 +423,7 @@ void PacketWalk<kSpectral, kGrids>::from_lane(const LaneBlock& B, int k, const C
     const Vec3 n(Float(B.nx[k]), Float(B.ny[k]), Float(B.nz[k]));
     st.d = n * (1 / std::sqrt(dot(n, n)));
     st.frame = DirectionFrame(st.d);
-    st.W = Float(B.w[k]);
+    st.W = lane_w_in_ * Float(B.w[k]);
     st.absorbed += lane_w_in_ - st.W;
     st.events += steps;
     st.interactions += steps;
