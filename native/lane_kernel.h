@@ -62,7 +62,9 @@ inline F lane_dot(F ax, F ay, F az, F bx, F by, F bz) {
 template <class F>
 inline F lane_sqrt(F x) {
 #if defined(__AVX512F__)
-    if constexpr (sizeof(F) == 64) return F(_mm512_sqrt_ps(__m512(x)));
+    // The zero-masked form: the plain one starts from _mm512_undefined_ps,
+    // which GCC 12 takes for an uninitialised read (-Wmaybe-uninitialized).
+    if constexpr (sizeof(F) == 64) return F(_mm512_maskz_sqrt_ps(__mmask16(0xFFFF), __m512(x)));
 #endif
 #if defined(__AVX__)
     if constexpr (sizeof(F) == 32) return F(_mm256_sqrt_ps(__m256(x)));

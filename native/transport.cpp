@@ -161,6 +161,7 @@ class PacketWalk {
     }
     bool enter_zone(ClearSteps& zone, const TriangleCache& cache, const Vec3& p) const;
     bool hop_zone(ClearSteps& zone, const Vec3& p, const Vec3& ahead);
+    bool start_zone(ClearSteps& zone);
     void flush_absorbed();
     void launch(uint64_t index);
     bool locate_start();
@@ -344,9 +345,7 @@ bool PacketWalk<kSpectral, kGrids>::lane_ready() {
     if (!(st.med.mus > 0) || !(std::fabs(st.med.g) < 1) || !(st.W >= 1e-30)) return false;
     // Steps of at most 17 / mu_t: finite, and tiny against float's range.
     if (!(st.med.mut * unit_cm_ > 1e-20)) return false;
-    ClearSteps& zone = *lane_zone_;
-    if (!enter_zone(zone, *local_.cell, st.p) && !(zone.beyond_ball(st.p) && hop_zone(zone, st.p, st.p)))
-        return false;
+    if (!start_zone(*lane_zone_)) return false;
     if (st.need_tau) {
         st.tau = neg_log_lattice(rng_.lattice_open_low());  // seed eq. (2), as in walk
         st.need_tau = false;
@@ -518,6 +517,14 @@ inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::enter_
     return zone.start(cache, p, max_back);
 }
 
+// The zone of the packet's position in its last cube's cache, or else (the
+// position outside that ball) in the cache of the cube it is in; false when
+// neither holds it clear.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::start_zone(ClearSteps& zone) {
+    return enter_zone(zone, *local_.cell, st_.p) || (zone.beyond_ball(st_.p) && hop_zone(zone, st_.p, st_.p));
+}
+
 // Moves the zone, starting at p, to the cache of the cube `ahead` is in (the
 // end of the step that left the ball: the packet heads that way, so the
 // zone lasts longer there than in p's cube; callgrind, colon_polyp: 72.5k ->
@@ -552,8 +559,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearStep
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     ClearSteps zone;
-    if (!enter_zone(zone, *local_.cell, st_.p) && !(zone.beyond_ball(st_.p) && hop_zone(zone, st_.p, st_.p)))
-        return true;
+    if (!start_zone(zone)) return true;
     ZoneExit exit;
     // The camera tally's loop is a copy of its own: runs without one keep
     // the loop as it was.
