@@ -65,6 +65,7 @@ struct LaneBlock {
     alignas(64) int32_t active[kSlots];  // -1: the slot steps
     alignas(64) int32_t reason[kSlots];  // LaneExit of a slot that left
     int n_planes = 0;                    // the largest plane count of any slot so far
+    bool track_depth = false;            // the run records exits, so the lanes keep each packet's depth
 
     LaneBlock();  // no slot active, every plane unused
 };

@@ -187,7 +187,7 @@ struct LaneConstants {
     F ex, ey, ez, ix, iy, iz;
     U room;
     I small_g;
-    bool any_small, any_large;
+    bool any_small, any_large, track_depth;
     LaneConstants(const LaneBlock& B, int o) {
         inv_mut = lane_load<F>(B.inv_mut + o), loss = lane_load<F>(B.loss + o);
         hg0 = lane_load<F>(B.hg0 + o), hg1 = lane_load<F>(B.hg1 + o), hg2 = lane_load<F>(B.hg2 + o);
@@ -201,6 +201,7 @@ struct LaneConstants {
         const I act = lane_load<I>(B.active + o);
         any_small = lane_bits(act & small_g) != 0;
         any_large = lane_bits(act & ~small_g) != 0;
+        track_depth = B.track_depth;
     }
 };
 
@@ -269,8 +270,10 @@ inline void lane_interact(LaneGroup<W>& P, const LaneConstants<W>& c, typename L
     using I = typename LaneTypes<W>::I;
     P.qx = lane_pick<kAll>(go, bx, P.qx), P.qy = lane_pick<kAll>(go, by, P.qy), P.qz = lane_pick<kAll>(go, bz, P.qz);
     P.budget = lane_pick<kAll>(go, budget, P.budget);
-    const F d = lane_dot(P.qx - c.ex, P.qy - c.ey, P.qz - c.ez, c.ix, c.iy, c.iz);
-    P.depth = lane_pick<kAll>(go, lane_max(P.depth, d), P.depth);
+    if (c.track_depth) {
+        const F d = lane_dot(P.qx - c.ex, P.qy - c.ey, P.qz - c.ez, c.ix, c.iy, c.iz);
+        P.depth = lane_pick<kAll>(go, lane_max(P.depth, d), P.depth);
+    }
     const F dw = P.w * c.loss;
     P.w = lane_pick<kAll>(go, P.w - dw, P.w);
     P.steps -= U(go);  // go is -1 where true

@@ -1679,6 +1679,7 @@ bool Tracer::trace_lanes(uint64_t first, uint64_t end, UnitOutput& out, const st
     };
     LaneBlock& B = *lane_block_;
     for (int k = 0; k < LaneBlock::kSlots; ++k) B.active[k] = 0;
+    B.track_depth = cfg_.record_escapes;
     Slot slots[LaneBlock::kSlots];
     // Ended packets' outputs waiting for the packets before them: entry i is
     // packet merge + i's (null while it is in flight).

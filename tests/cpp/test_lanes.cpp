@@ -233,8 +233,10 @@ TEST(Lanes, EveryInstructionSetGivesTheSameBits) {
             B.threshold[k] = 1e-4f, B.room[k] = 40 + uint32_t(k);
             B.planes[k] = 1;
             B.pnx[0][k] = 0.6f, B.pny[0][k] = 0, B.pnz[0][k] = 0.8f, B.poff[0][k] = -0.1f;
+            B.ez[k] = 0.05f, B.ix[k] = 0.6f, B.iz[k] = -0.8f;  // the depth below an entry point
         }
         B.n_planes = 1;
+        B.track_depth = true;
     };
     auto slot_bytes = [](const LaneBlock& B, int k, std::vector<uint8_t>& out) {
         const float f[] = {B.qx[k], B.qy[k], B.qz[k], B.tx[k], B.ty[k], B.tz[k], B.bx[k], B.by[k],
