@@ -310,6 +310,8 @@ def sections(R):
         + frozen("grids_time")
         + "\n## 28. Packets in float32 lanes (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("lanes_f32")
+        + "\n## 29. The float32 lanes in the engine (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("lanes_engine")
     )  # fmt: skip
 
 
