@@ -86,7 +86,8 @@ def throughput(R):
     )
     return (
         "## 1. Throughput and peak memory\n\nConfigs: `seed_tissue` (`examples/seed_tissue.json`: n 1.1, mua 20, mus 200, "
-        "g 0.9, semi-infinite box, pencil), `mcml_slab` (`examples/mcml_slab.json`, oracles §1), `colon` "
+        "g 0.9, semi-infinite box, pencil), `seed_tissue_lanes` (the same with `lanes: true`: its plain interior steps "
+        "in float32 lanes, docs/numerics.md \"Float32 lanes\"), `mcml_slab` (`examples/mcml_slab.json`, oracles §1), `colon` "
         "(`bench/scenes/colon.json`: a folded tube with a polyp, the rig at β 20°, fluorescence of collagen and "
         "photofrin), `colon+grids` (+ absorbed/fluorescence grids at 0.2 mm), `colon_lumen_off` (`lumen: false`: every "
         "packet ends at its first exit, the engine before issue 9). packets/s = packets / the run's `seconds` (engine "
@@ -309,6 +310,8 @@ def sections(R):
         + frozen("grids_time")
         + "\n## 28. Packets in float32 lanes (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("lanes_f32")
+        + "\n## 29. The float32 lanes in the engine (issue 39; frozen, 2026-12-07)\n\n"
+        + frozen("lanes_engine")
     )  # fmt: skip
 
 

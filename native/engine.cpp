@@ -389,7 +389,13 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     const StatsScope counting(cfg.stats ? &out->stats : nullptr);
     tracer.begin_unit();
-    for (uint64_t k = first; k < end; ++k) {
+    if (tracer.lanes()) {
+        if (!tracer.trace_lanes(first, end, *out, [&](uint64_t k) { return bool(tick(k)); })) {
+            if (staging) staging->clear_keep_capacity();
+            return nullptr;
+        }
+    }
+    for (uint64_t k = first; k < end && !tracer.lanes(); ++k) {
         if (!tick(k)) {
             if (staging) staging->clear_keep_capacity();
             return nullptr;
@@ -709,6 +715,7 @@ RunResult UnitReducer::finish(int threads, bool cancelled) {
         cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
     const Scene& scene = impl_->scene;
     result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+    if (lanes_serve(scene, cfg)) result.lanes = lane_isa_name(lane_isa());
     if (result.packets == 0)
         result.warnings.push_back(
             "no work unit finished before the run stopped: the result holds no estimate "

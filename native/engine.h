@@ -86,6 +86,7 @@ struct RunResult {
     bool cancelled = false;
     bool target_reached = false;
     bool spectral = false;
+    std::string lanes;  // the lane kernel's instruction set where the float32 lanes served the run, else empty
     bool store_reached = false;
     StopReason stop = StopReason::kNone;
     uint64_t capped_packets = 0;        // packets that ended at the step or path cap (their weight is `cut`)

@@ -46,6 +46,11 @@ struct RunConfig {
     int batches = 50;          // batches for the batch-means standard errors
     // Use the closest-surface distance to skip ray queries deep inside regions.
     bool safe_distance = true;
+    // The plain interior steps in float32 lanes, 16 packets at once
+    // (lane_block.h; issue 39): runs that are not spectral and have no grids,
+    // no camera tally and no path cap. Another sample of the same physics, not
+    // the scalar walk's bits (docs/numerics.md, "Float32 lanes").
+    bool lanes = false;
     // Light crosses the lumen (issue 9): exits go on through the ambient and the
     // rig head is a body. false = every exit ends its packet, as before (benchmarks).
     bool lumen = true;

@@ -63,6 +63,22 @@ void UnitTally::record_packet() {
         move_to(emitted_by_fluorophore[k], emitted_by_fluorophore_m[k]);
 }
 
+void UnitTally::take_packet(UnitTally& p) {
+    auto take = [](double& to, double& from) {  // as move_to: zeros skipped
+        if (from == 0) return;
+        to += from;
+        from = 0;
+    };
+    packets += p.packets;
+    p.packets = 0;
+    for (int k = 0; k < kScalarTallies; ++k) take(scalar[k], p.scalar[k]);
+    for (int k = 0; k < kEnergyTallies; ++k) take(energy[k], p.energy[k]);
+    for (size_t k = 0; k < absorbed_by_region.size(); ++k) take(absorbed_by_region[k], p.absorbed_by_region[k]);
+    for (size_t k = 0; k < emitted_by_fluorophore.size(); ++k)
+        take(emitted_by_fluorophore[k], p.emitted_by_fluorophore[k]);
+    record_packet();
+}
+
 double per_packet_stderr(uint64_t n, double sum, double sum_sq) {
     if (n == 0) return 0;
     const double dn = double(n);

@@ -88,6 +88,10 @@ struct UnitTally {
     // Ends one packet: its contribution (the running sums) goes to the moments,
     // and the running sums are cleared for the next packet.
     void record_packet();
+    // Ends one packet traced into `packet`'s running sums instead (the
+    // lanes' packets in flight, Tracer::trace_lanes): adds them to these,
+    // clears them, and records the packet.
+    void take_packet(UnitTally& packet);
 };
 
 // Mean per launched packet and its standard error.

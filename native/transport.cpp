@@ -2,11 +2,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
+#include <optional>
 
 #include "det_math.h"
 #include "eem.h"
 #include "fast_log.h"
 #include "fresnel.h"
+#include "lane_block.h"
 #include "phase.h"
 #include "rng.h"
 #include "voxel_grid.h"
@@ -121,8 +124,21 @@ class PacketWalk {
 
     void run(uint64_t index);
 
+    // The walk with its plain interior steps in float32 lanes (lane_block.h,
+    // Tracer::trace_lanes): it stops where they can go on in the lanes, in
+    // `zone`. Walk::kLanes: to_lane() hands the packet over; after the lanes,
+    // after_lanes() takes it back and walks on. kEnded: finish() flushes it.
+    enum class Walk { kEnded, kLanes };
+    Walk begin(uint64_t index, ClearSteps* zone);
+    void to_lane(LaneBlock& block, int k, const ClearSteps& zone, bool seed_stream);
+    Walk after_lanes(const LaneBlock& block, int k, ClearSteps& zone, bool* hopped);
+    void finish();
+
   private:
     void walk(uint64_t index);
+    Walk steps_from_here();
+    bool lane_ready();
+    void from_lane(const LaneBlock& block, int k, const ClearSteps& zone);
     bool interior_ready() const;
     bool interior_steps();
     // How zone_steps ended: the packet ended, its next step needs the general
@@ -145,6 +161,7 @@ class PacketWalk {
     }
     bool enter_zone(ClearSteps& zone, const TriangleCache& cache, const Vec3& p) const;
     bool hop_zone(ClearSteps& zone, const Vec3& p, const Vec3& ahead);
+    bool start_zone(ClearSteps& zone);
     void flush_absorbed();
     void launch(uint64_t index);
     bool locate_start();
@@ -217,11 +234,21 @@ class PacketWalk {
     Rng camera_rng_{0, 0};  // the camera tally's depth roulette (its own stream)
     PacketState st_;
     mutable std::vector<Hit> probe_hits_;  // inside_just_ahead's own query (rare)
+    // The lanes (begin): where the walk stops for them, the next step the
+    // general loop's (a step the lanes found blocked), the weight handed over.
+    ClearSteps* lane_zone_ = nullptr;
+    bool skip_lanes_ = false;
+    Float lane_w_in_ = 0;
 };
 
 template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::run(uint64_t index) {
     walk(index);
+    finish();
+}
+
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::finish() {
     flush_absorbed();
     out_.tally.scalar[kInteractions] += Float(st_.interactions);
     EP_STAT_ADD(interactions, st_.interactions);
@@ -240,9 +267,23 @@ template <bool kSpectral, bool kGrids>
 void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
     launch(index);
     if (!locate_start()) return;
+    steps_from_here();
+}
+
+// walk()'s loop, from the packet's state (st_). With lanes (lane_zone_ set)
+// it returns kLanes where the lanes can take the packet's next steps.
+template <bool kSpectral, bool kGrids>
+typename PacketWalk<kSpectral, kGrids>::Walk PacketWalk<kSpectral, kGrids>::steps_from_here() {
     PacketState& st = st_;
+    constexpr Walk kEnded = Walk::kEnded;
     while (true) {
-        if (interior_ready() && !interior_steps()) return;
+        if (interior_ready()) {
+            if (!lane_zone_) {
+                if (!interior_steps()) return kEnded;
+            } else if (lane_ready()) {
+                return Walk::kLanes;
+            }
+        }
         if (st.need_tau) {
             st.tau = neg_log_lattice(rng_.lattice_open_low());  // seed eq. (2): s = -ln(xi)/mu_t
             st.need_tau = false;
@@ -250,14 +291,14 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
         const Float s = st.med.mut > 0 ? st.tau / (st.med.mut * unit_cm_) : kInf;
         find_crossings(s);
         const Crossing c = cross_interfaces(s);
-        if (c == Crossing::kEnded) return;
+        if (c == Crossing::kEnded) return kEnded;
         if (over_caps()) {
             add(kCut, st.W);
-            return;
+            return kEnded;
         }
         if (c == Crossing::kBoundary) {
             // Clear absorbing regions lose weight at boundaries only.
-            if (!survives_roulette()) return;
+            if (!survives_roulette()) return kEnded;
             continue;
         }
         if (!std::isfinite(s)) {
@@ -272,10 +313,150 @@ void PacketWalk<kSpectral, kGrids>::walk(uint64_t index) {
                 // impossible for a closed mesh; count it as cut, never lose it.
                 add(kCut, st.W);
             }
-            return;
+            return kEnded;
         }
-        if (!interact(s)) return;
+        if (!interact(s)) return kEnded;
     }
+}
+
+// ---- the plain interior steps in float32 lanes (lane_block.h; Tracer::trace_lanes) ----
+
+// Launches packet `index` and walks it to its first stop: the end, or where
+// the lanes take it (in `zone`).
+template <bool kSpectral, bool kGrids>
+typename PacketWalk<kSpectral, kGrids>::Walk PacketWalk<kSpectral, kGrids>::begin(uint64_t index, ClearSteps* zone) {
+    lane_zone_ = zone;
+    launch(index);
+    if (!locate_start()) return Walk::kEnded;
+    return steps_from_here();
+}
+
+// Where interior_ready() holds, whether the lanes can take the next steps:
+// a scattering region of HG with |g| < 1 (|g| = 1 are deltas: the walk's),
+// weight within float's range, the packet clear in a zone (interior_steps()'s
+// start, hop included), and its free path drawn (as zone_steps draws it).
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::lane_ready() {
+    PacketState& st = st_;
+    if (skip_lanes_) {
+        skip_lanes_ = false;
+        return false;
+    }
+    if (!(st.med.mus > 0) || !(std::fabs(st.med.g) < 1) || !(st.W >= 1e-30)) return false;
+    // Steps of at most 17 / mu_t: finite, and tiny against float's range.
+    if (!(st.med.mut * unit_cm_ > 1e-20)) return false;
+    if (!start_zone(*lane_zone_)) return false;
+    if (st.need_tau) {
+        st.tau = neg_log_lattice(rng_.lattice_open_low());  // seed eq. (2), as in walk
+        st.need_tau = false;
+    }
+    return true;
+}
+
+// Hands the packet to slot k of the lanes, its position relative to the
+// zone's centre. seed_stream: the packet's first time in the lanes; its
+// xoshiro128++ stream is keyed by two draws of its own generator (so by
+// (seed, packet index), whatever the slot), and kept in the slot after.
+// The zone is narrowed for float32's rounding: 4e-6 of the radius (a
+// position's rounding is 6e-8 of it, a distance's a few of those), and each
+// step pays a slack of 1e-6 of it (docs/numerics.md, "Float32 lanes").
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::to_lane(LaneBlock& B, int k, const ClearSteps& zone, bool seed_stream) {
+    const PacketState& st = st_;
+    if (seed_stream) {
+        const uint64_t a = rng_.next_u64(), b = rng_.next_u64();
+        B.s0[k] = uint32_t(a), B.s1[k] = uint32_t(a >> 32), B.s2[k] = uint32_t(b);
+        B.s3[k] = uint32_t(b >> 32) | 1u;  // never the all-zero state
+        B.count[k] = 0;
+    }
+    const Vec3 c = zone.center(), q = st.p - c;
+    const DirectionFrame f = st.frame.about(st.d) ? st.frame : DirectionFrame(st.d);
+    B.qx[k] = float(q.x), B.qy[k] = float(q.y), B.qz[k] = float(q.z);
+    B.tx[k] = float(f.t[0]), B.ty[k] = float(f.t[1]), B.tz[k] = float(f.t[2]);
+    B.bx[k] = float(f.b[0]), B.by[k] = float(f.b[1]), B.bz[k] = float(f.b[2]);
+    B.nx[k] = float(f.n[0]), B.ny[k] = float(f.n[1]), B.nz[k] = float(f.n[2]);
+    // The lane's weight is a factor of the weight handed over (exactly 1 at
+    // the start), so a step that captures nothing changes no bit of it.
+    lane_w_in_ = st.W;
+    B.w[k] = 1, B.tau[k] = float(st.tau), B.depth[k] = -1e30f, B.budget[k] = 0;
+    B.steps[k] = 0;
+    B.room[k] = uint32_t(std::min<uint64_t>(max_events_ - st.events, UINT32_MAX));
+    const Float mut_cm = st.med.mut * unit_cm_, g = st.med.g;
+    B.inv_mut[k] = float(1 / mut_cm), B.loss[k] = float(st.med.mua / st.med.mut);
+    B.small_g[k] = std::fabs(g) < 0.25 ? -1 : 0;
+    B.g[k] = float(g), B.hg0[k] = float(1 - g * g), B.hg1[k] = float(1 - g), B.hg2[k] = float(2 * g);
+    B.hg3[k] = float(1 + g * g), B.hg_inv2g[k] = B.small_g[k] ? 0.f : float(1 / (2 * g));
+    B.threshold[k] = float(cfg_.roulette_threshold / st.W);  // W >= 1e-30 (lane_ready)
+    const Float r = zone.inner(), widen = 4e-6 * r + 4e-16 * zone.scale(), inner = std::max(r - widen, Float(0));
+    B.inner[k] = float(inner), B.inner_r2[k] = float(inner * inner), B.slack[k] = float(1e-6 * r);
+    const int planes = int(zone.plane_count());
+    for (int j = 0; j < std::max(planes, B.planes[k]); ++j) {
+        const bool used = j < planes;
+        const Vec3 n = used ? zone.plane_normal(size_t(j)) : Vec3(0, 0, 0);
+        B.pnx[j][k] = float(n.x), B.pny[j][k] = float(n.y), B.pnz[j][k] = float(n.z);
+        B.poff[j][k] = used ? float(zone.plane_offset(size_t(j)) - dot(n, c) + widen) : -1e30f;
+    }
+    B.planes[k] = planes;
+    B.n_planes = std::max(B.n_planes, planes);
+    const bool depth = st.entered && cfg_.record_escapes;
+    const Vec3 e = st.entry_p - c, in = depth ? st.entry_in : Vec3(0, 0, 0);
+    B.ex[k] = float(e.x), B.ey[k] = float(e.y), B.ez[k] = float(e.z);
+    B.ix[k] = float(in.x), B.iy[k] = float(in.y), B.iz[k] = float(in.z);
+    B.active[k] = -1, B.reason[k] = 0;
+}
+
+// Takes the packet back from slot k: the position in scene coordinates, the
+// direction renormalised in double with a new frame about it, the weight (the
+// weight handed over times the lane's factor) and the weight captured (in
+// double: the weight handed over less the weight left, so the balance closes
+// to double rounding), the steps counted as interactions.
+template <bool kSpectral, bool kGrids>
+void PacketWalk<kSpectral, kGrids>::from_lane(const LaneBlock& B, int k, const ClearSteps& zone) {
+    PacketState& st = st_;
+    const uint32_t steps = B.steps[k];
+    if (steps == 0) return;  // nothing changed
+    // A blocked slot's next step is its drawn free path; a slow one draws anew.
+    st.need_tau = B.reason[k] != kLaneBlocked;
+    if (!st.need_tau) st.tau = Float(B.tau[k]);
+    st.p = zone.center() + Vec3(Float(B.qx[k]), Float(B.qy[k]), Float(B.qz[k]));
+    const Vec3 n(Float(B.nx[k]), Float(B.ny[k]), Float(B.nz[k]));
+    st.d = n * (1 / std::sqrt(dot(n, n)));
+    st.frame = DirectionFrame(st.d);
+    st.W = lane_w_in_ * Float(B.w[k]);
+    st.absorbed += lane_w_in_ - st.W;
+    st.events += steps;
+    st.interactions += steps;
+    st.scatterings += steps;
+    if (st.entered && cfg_.record_escapes) st.max_depth = std::max(st.max_depth, Float(B.depth[k]) * unit_cm_);
+}
+
+// After the lanes: roulette and the caps where they were due, the hop to
+// another cube's zone (at most once a blocked step, as zone_steps hops), else
+// the general loop for the blocked step; then the walk goes on.
+template <bool kSpectral, bool kGrids>
+typename PacketWalk<kSpectral, kGrids>::Walk PacketWalk<kSpectral, kGrids>::after_lanes(const LaneBlock& B, int k,
+                                                                                          ClearSteps& zone,
+                                                                                          bool* hopped) {
+    const bool stepped = B.steps[k] > 0, slow = B.reason[k] == kLaneSlow;
+    from_lane(B, k, zone);
+    if (stepped) *hopped = false;
+    if (slow) {
+        if (!survives_roulette()) return Walk::kEnded;
+        if (over_caps()) {
+            add(kCut, st_.W);
+            return Walk::kEnded;
+        }
+        return steps_from_here();
+    }
+    const Float s = st_.tau / (st_.med.mut * unit_cm_);
+    const Vec3 b = st_.p + st_.d * s;
+    if (!*hopped && zone.beyond_ball(b) && hop_zone(zone, st_.p, b)) {
+        *hopped = true;
+        return Walk::kLanes;
+    }
+    *hopped = false;
+    skip_lanes_ = true;
+    return steps_from_here();
 }
 
 // The interior steps (issue 11) run where a packet spends most of its steps:
@@ -336,6 +517,14 @@ inline __attribute__((always_inline)) bool PacketWalk<kSpectral, kGrids>::enter_
     return zone.start(cache, p, max_back);
 }
 
+// The zone of the packet's position in its last cube's cache, or else (the
+// position outside that ball) in the cache of the cube it is in; false when
+// neither holds it clear.
+template <bool kSpectral, bool kGrids>
+bool PacketWalk<kSpectral, kGrids>::start_zone(ClearSteps& zone) {
+    return enter_zone(zone, *local_.cell, st_.p) || (zone.beyond_ball(st_.p) && hop_zone(zone, st_.p, st_.p));
+}
+
 // Moves the zone, starting at p, to the cache of the cube `ahead` is in (the
 // end of the step that left the ball: the packet heads that way, so the
 // zone lasts longer there than in p's cube; callgrind, colon_polyp: 72.5k ->
@@ -370,8 +559,7 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearStep
 template <bool kSpectral, bool kGrids>
 bool PacketWalk<kSpectral, kGrids>::interior_steps() {
     ClearSteps zone;
-    if (!enter_zone(zone, *local_.cell, st_.p) && !(zone.beyond_ball(st_.p) && hop_zone(zone, st_.p, st_.p)))
-        return true;
+    if (!start_zone(zone)) return true;
     ZoneExit exit;
     // The camera tally's loop is a copy of its own: runs without one keep
     // the loop as it was.
@@ -1414,6 +1602,13 @@ bool in_closed_pocket(const Scene& scene, const Light& l, std::vector<Hit>& hits
 
 }  // namespace
 
+bool lanes_serve(const Scene& scene, const RunConfig& cfg) {
+    // Tracer's own tests of the run: spectral_, grids_ and local_.enabled.
+    const bool spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+    const bool grids = cfg.grid_voxel_size > 0 && (cfg.grid_absorbed || cfg.grid_fluorescent_light);
+    return cfg.lanes && !spectral && !grids && !cfg.camera_view && !(cfg.max_path_cm > 0) && cfg.safe_distance;
+}
+
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
     : scene_(scene), source_(source), halton_(halton), cfg_(cfg) {
     spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
@@ -1426,6 +1621,11 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     // triangle count.
     local_.enabled = cfg.safe_distance;
     shortcuts_.entry_planes.build(scene);
+    lanes_ = lanes_serve(scene, cfg);
+    if (lanes_) {
+        lane_isa();  // ENDOPHOTON_LANE_ISA checked before any packet
+        lane_block_ = std::make_unique<LaneBlock>();
+    }
     for (const Light& l : source.lights()) {
         enclosed_.push_back(in_closed_pocket(scene, l, hits_) ? 1 : 0);
         LaunchMemo& memo = shortcuts_.launch.emplace_back();
@@ -1462,6 +1662,91 @@ void Tracer::trace(uint64_t index, UnitOutput& out) {
         else
             walk(F{}, F{});
     }
+}
+
+bool Tracer::trace_lanes(uint64_t first, uint64_t end, UnitOutput& out, const std::function<bool(uint64_t)>& tick) {
+    using Walk = PacketWalk<false, false>;
+    // A slot's packet: its walk, its zone and last cube (LocalGeometry's, per
+    // packet: each starts with none, so which steps a cube answers depends on
+    // the packet alone), its output until it is merged in index order.
+    struct Slot {
+        std::optional<Walk> walk;
+        ClearSteps zone;
+        const TriangleCache* cell = nullptr;
+        std::unique_ptr<UnitOutput> out;
+        uint64_t index = 0;
+        bool hopped = false, seeded = false;
+    };
+    LaneBlock& B = *lane_block_;
+    for (int k = 0; k < LaneBlock::kSlots; ++k) B.active[k] = 0;
+    B.track_depth = cfg_.record_escapes;
+    Slot slots[LaneBlock::kSlots];
+    // Ended packets' outputs waiting for the packets before them: entry i is
+    // packet merge + i's (null while it is in flight).
+    std::deque<std::unique_ptr<UnitOutput>> done;
+    std::vector<std::unique_ptr<UnitOutput>> spare;
+    uint64_t next = first, merge = first;
+    auto new_output = [&] {
+        if (spare.empty()) {
+            auto o = std::make_unique<UnitOutput>();
+            o->tally.reset(out.tally.absorbed_by_region.size(), out.tally.emitted_by_fluorophore.size());
+            return o;
+        }
+        auto o = std::move(spare.back());
+        spare.pop_back();
+        return o;
+    };
+    auto end_packet = [&](Slot& sl) {
+        sl.walk->finish();
+        sl.walk.reset();
+        const size_t i = size_t(sl.index - merge);
+        if (done.size() <= i) done.resize(i + 1);
+        done[i] = std::move(sl.out);
+        for (; !done.empty() && done.front(); done.pop_front(), ++merge) {
+            UnitOutput& o = *done.front();
+            out.tally.take_packet(o.tally);
+            if (o.records.size()) {
+                out.records.append(o.records);
+                o.records.clear();
+            }
+            spare.push_back(std::move(done.front()));
+        }
+    };
+    // Slot k's packet after the lanes (resume), or none: walks it on, and
+    // starts the next packets there while they end before reaching the lanes.
+    auto serve = [&](int k, bool resume) {
+        Slot& sl = slots[k];
+        std::optional<Walk::Walk> w;
+        if (resume) {
+            local_.cell = sl.cell;
+            w = sl.walk->after_lanes(B, k, sl.zone, &sl.hopped);
+        }
+        while (true) {
+            if (w) {
+                sl.cell = local_.cell;
+                if (*w == Walk::Walk::kLanes) {
+                    sl.walk->to_lane(B, k, sl.zone, !sl.seeded);
+                    sl.seeded = true;
+                    return true;
+                }
+                end_packet(sl);
+            }
+            if (next == end) return true;
+            if (!tick(next)) return false;
+            sl.index = next++;
+            sl.out = new_output();
+            sl.walk.emplace(scene_, source_, halton_, cfg_, hits_, cuts_, enclosed_, local_, shortcuts_, *sl.out);
+            sl.hopped = sl.seeded = false;
+            local_.cell = nullptr;
+            w = sl.walk->begin(sl.index, &sl.zone);
+        }
+    };
+    for (int k = 0; k < LaneBlock::kSlots; ++k)
+        if (!serve(k, false)) return false;
+    while (uint32_t left = run_lanes(B))
+        for (; left; left &= left - 1)
+            if (!serve(__builtin_ctz(left), true)) return false;
+    return true;
 }
 
 }  // namespace ep

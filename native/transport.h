@@ -10,12 +10,14 @@
 // scattering region, interior_steps runs the same steps in a tight loop.
 #pragma once
 #include <cstring>
+#include <functional>
 #include <memory>
 #include <vector>
 
 #include "camera_tally.h"
 #include "entry_planes.h"
 #include "halton.h"
+#include "lane_block.h"
 #include "records.h"
 #include "run_config.h"
 #include "scene.h"
@@ -95,6 +97,11 @@ struct RayShortcuts {
     EntryPlanes entry_planes;        // exits that enter nothing (small scenes)
 };
 
+// Whether the float32 lanes serve a run of `scene` under `config`
+// (Tracer::lanes): RunConfig::lanes, and a plain run -- not spectral, no
+// grids taking deposits, no camera tally, no path cap, the local caches on.
+bool lanes_serve(const Scene& scene, const RunConfig& config);
+
 class Tracer {
   public:
     Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& config);
@@ -102,6 +109,15 @@ class Tracer {
     void begin_unit();
     // Traces packet `index` and adds its contributions to `out`.
     void trace(uint64_t index, UnitOutput& out);
+    // Whether trace_lanes serves this run (lanes_serve).
+    bool lanes() const { return lanes_; }
+    // Traces packets [first, end) with their plain interior steps in float32
+    // lanes, 16 packets in flight (lane_block.h), and adds each packet's
+    // contributions to `out` in index order, as trace() and record_packet()
+    // would packet by packet: a packet's bits depend on its index alone, never
+    // on its slot or the lane width. tick(k) is called before packet k
+    // starts; false stops the unit (the return is then false).
+    bool trace_lanes(uint64_t first, uint64_t end, UnitOutput& out, const std::function<bool(uint64_t)>& tick);
     bool spectral() const { return spectral_; }
     bool grids() const { return grids_; }
 
@@ -111,6 +127,8 @@ class Tracer {
     const Halton& halton_;
     const RunConfig& cfg_;
     bool spectral_, grids_;
+    bool lanes_ = false;
+    std::unique_ptr<LaneBlock> lane_block_;  // trace_lanes' slots
     std::vector<Hit> hits_;
     std::vector<Float> cuts_;
     LocalGeometry local_;  // voxel-face crossings of a clear segment (grids)

@@ -224,6 +224,7 @@ class ClearSteps {
         const auto& planes = cache.planes();
         c_ = cache.center();
         const Float scale = max_abs_component(c_) + cache.radius();
+        scale_ = scale;
         // Per step: the rounding of b = p + d s (a few ulps of |b| and of
         // s <= 2 r) and of the distances a budget is made of.
         slack_ = 1e-13 * scale;
@@ -281,6 +282,16 @@ class ClearSteps {
         return !(dot(dx, dx) < inner_r2_);
     }
 
+    // The zone as the float32 lanes take it (lane_block.h): its centre, the
+    // scale of its coordinates, the inner radius, and plane k, clear where
+    // plane_normal(k) . x - plane_offset(k) > 0.
+    const Vec3& center() const { return c_; }
+    Float scale() const { return scale_; }
+    Float inner() const { return inner_; }
+    size_t plane_count() const { return n_planes_; }
+    Vec3 plane_normal(size_t k) const { return Vec3(n_[k][0], n_[k][1], n_[k][2]); }
+    Float plane_offset(size_t k) const { return off_[k] + lo_[k]; }
+
   private:
     // Tests x and gives it its budget; false when x is not clear.
     bool renew(const Vec3& x) {
@@ -298,7 +309,7 @@ class ClearSteps {
     }
 
     Vec3 c_;
-    Float inner_ = 0, inner_r2_ = 0, slack_ = 0, budget_ = 0;
+    Float scale_ = 0, inner_ = 0, inner_r2_ = 0, slack_ = 0, budget_ = 0;
     size_t n_planes_ = 0;
     // Plain arrays, not Vec3 (whose members start at 0): a zone is made at
     // every loop entry, and only the first n_planes_ entries are ever set.

@@ -4,14 +4,15 @@ MCML's source is not in this repository. Build its transport with the driver bes
 
     # mcmlgo.c and mcml.h of MCML 1.2 (Wang & Jacques, 1993; e.g. the bipy/MCML copy on GitHub) in $MCML
     gcc -O3 -I"$MCML" -o /tmp/mcml_seed scripts/mcml_driver.c "$MCML"/mcmlgo.c -lm
-    /usr/bin/python3 scripts/mcml_side_by_side.py /tmp/mcml_seed [pairs] [photons]
+    /usr/bin/python3 scripts/mcml_side_by_side.py /tmp/mcml_seed [pairs] [photons] [--lanes]
 
 Each pair runs MCML and `python3 -m endophoton run examples/seed_tissue.json --threads 1 --stats` (its order
 alternating from pair to pair). CPU time is user + system time of the whole process (os.wait4), for both; the
 engine's process includes Python's start-up and import, so the engine's own figure (`run_cpu_seconds`: the run,
 scene build included) is printed beside it. MCML's layer is the region of examples/seed_tissue.json (its medium,
 and its box's depth as the thickness; the box is 10 cm wide, MCML's layer unbounded). MCML seeds itself from the
-clock, so its runs are independent; the engine's use seeds 1, 2, ... Prints a line per pair and the medians as
+clock, so its runs are independent; the engine's use seeds 1, 2, ... With --lanes the engine runs the same scene with
+`run.lanes` on (its plain interior steps in float32 lanes, native/lane_block.h), from a copy of the file. Prints a line per pair and the medians as
 JSON (at least 2 pairs: the MCML Rd's standard error comes from their spread).
 """
 from __future__ import annotations
@@ -55,8 +56,21 @@ def mcml(binary, photons, layer):
     return json.loads(out), cpu
 
 
-def engine(photons, seed):
-    cmd = [sys.executable, "-m", "endophoton", "run", SCENE, "--photons", str(photons), "--threads", "1",
+def lanes_scene():
+    """A copy of the seed tissue's file with ``run.lanes`` on, in the system's temporary directory."""
+    import tempfile
+
+    with open(SCENE, encoding="utf-8") as fh:
+        doc = json.load(fh)
+    doc["run"]["lanes"] = True
+    fd, path = tempfile.mkstemp(prefix="seed_tissue_lanes_", suffix=".json")
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        json.dump(doc, fh)
+    return path
+
+
+def engine(photons, seed, scene=SCENE):
+    cmd = [sys.executable, "-m", "endophoton", "run", scene, "--photons", str(photons), "--threads", "1",
            "--seed", str(seed), "--stats"]  # fmt: skip
     out, cpu = timed(cmd, dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python")))
     return json.loads(out), cpu
@@ -65,9 +79,12 @@ def engine(photons, seed):
 def main(argv):
     if len(argv) < 2:
         raise SystemExit(__doc__)
+    lanes = "--lanes" in argv
+    argv = [a for a in argv if a != "--lanes"]
     binary = argv[1]
     pairs = int(argv[2]) if len(argv) > 2 else 7
     photons = int(argv[3]) if len(argv) > 3 else 1_000_000
+    scene = lanes_scene() if lanes else SCENE
     if pairs < 2 or photons < 1:
         raise SystemExit(f"pairs must be >= 2 (got {pairs}) and photons >= 1 (got {photons})")
     layer = mcml_layer()
@@ -75,7 +92,7 @@ def main(argv):
     for k in range(pairs):
         runs = {}
         for who in ("mcml", "engine") if k % 2 == 0 else ("engine", "mcml"):
-            runs[who] = mcml(binary, photons, layer) if who == "mcml" else engine(photons, k + 1)
+            runs[who] = mcml(binary, photons, layer) if who == "mcml" else engine(photons, k + 1, scene)
         (m, m_cpu), (e, e_cpu) = runs["mcml"], runs["engine"]
         e_run = e["stats"]["process"]["run_cpu_seconds"]
         rows.append(dict(mcml_cpu_s=m_cpu, engine_cpu_s=e_cpu, engine_run_cpu_s=e_run, ratio=m_cpu / e_cpu,
@@ -90,7 +107,10 @@ def main(argv):
     mcml_rd, mcml_se = statistics.mean(rd), statistics.stdev(rd) / len(rd) ** 0.5
     eng_rd = statistics.mean(r["engine_rd"] for r in rows)
     eng_se = statistics.mean(r["engine_rd_se"] for r in rows) / len(rows) ** 0.5
+    if lanes:
+        os.unlink(scene)
     summary = dict(
+        lanes=lanes,
         photons=photons,
         pairs=pairs,
         ratio_median=statistics.median(r["ratio"] for r in rows),

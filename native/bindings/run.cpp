@@ -119,6 +119,7 @@ void bind_config(py::module_& m) {
         .def_readwrite("unit_size", &RunConfig::unit_size)
         .def_readwrite("batches", &RunConfig::batches)
         .def_readwrite("safe_distance", &RunConfig::safe_distance)
+        .def_readwrite("lanes", &RunConfig::lanes)
         .def_readwrite("lumen", &RunConfig::lumen)
         .def_readwrite("stats", &RunConfig::stats)
         .def_property(
@@ -175,6 +176,7 @@ py::dict result_dict(RunResult&& r, const Scene& scene, bool with_records) {
     d["warnings"] = r.warnings;
     d["seconds"] = r.seconds;
     d["spectral"] = r.spectral;
+    d["lanes"] = r.lanes.empty() ? py::object(py::none()) : py::object(py::str(r.lanes));
     d["unit_size"] = r.unit_size;
     d["threads"] = r.threads;
     if (!r.unit_stats.empty()) d["stats"] = stats_dict(r.unit_stats);

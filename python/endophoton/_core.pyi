@@ -120,6 +120,7 @@ class RunConfig:
     unit_size: int
     batches: int
     safe_distance: bool
+    lanes: bool
     lumen: bool
     stats: bool
     camera_view: CameraView | None

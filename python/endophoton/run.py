@@ -161,7 +161,7 @@ def _check_arguments(a: SimpleNamespace) -> None:
     check_real("roulette_chance", a.roulette_chance, 0.0, 1.0, lo_open=True)
     check_real("max_path_cm", a.max_path_cm, 0.0, math.inf)
     check_real("time_budget_s", a.time_budget_s, 0.0, math.inf)
-    for name in ("record_escapes", "fluorescent_only", "safe_distance", "stats"):
+    for name in ("record_escapes", "fluorescent_only", "safe_distance", "lanes", "stats"):
         check_bool(name, getattr(a, name))
     if a.stats and a.client is not None:
         raise ValueError("stats = True counts the events of a local run; a run on a Dask client (client=) has none")
@@ -321,6 +321,8 @@ def _native_options(a: SimpleNamespace) -> dict:
         opts["time_budget_s"] = float(a.time_budget_s)
     if not a.lumen:
         opts["lumen"] = False
+    if a.lanes:
+        opts["lanes"] = True
     if a.stats:
         opts["stats"] = True
     if a.spectral:
@@ -358,6 +360,7 @@ def run(
     batches: int = 50,
     spectral: bool | None = None,
     safe_distance: bool = True,
+    lanes: bool = False,
     unit_size: int = 0,
     quality: str | None = None,
     progress=None,
@@ -399,6 +402,12 @@ def run(
     crossings, triangle-cache hits and misses, full ray queries) per work unit;
     the result's ``stats`` holds the totals and ``stats["per_unit"]`` the counts
     of each merged unit (native/stats.h). Local runs only.
+    ``lanes`` (default False): the plain interior steps -- deep in one scattering region, crossing
+    nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h). It serves runs that
+    are not spectral and have no grids, no camera tally and no path cap; ``result.lanes`` names the
+    instruction set of the lanes where they served the run ("sse2", "avx2", "avx512"), else None. The result is another sample of the same physics, the same bits
+    for a seed on any processor and thread count, but not the bits of the default double walk
+    (docs/numerics.md, "Float32 lanes").
     ``view`` (None: off): True or a dict (endophoton.view.nee.view_request) makes the run tally the
     camera's image by next-event estimation (docs/render.md), which ``ep.render_view(result)`` then
     renders (estimator "nee"). It needs a fixed ``photons`` count, a spectral run and no ``client``.

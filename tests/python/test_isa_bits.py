@@ -7,8 +7,8 @@ vectors of vecmath.h run in 256-bit registers; a build for baseline x86-64 runs 
 pairs), the libm variant glibc picks at load time (with or without FMA), and the kernels Embree
 picks (SSE2 to AVX-512). This test builds the engine twice more, for baseline x86-64 and with
 AVX-512 (where this processor has it), and runs one set of cases (isa_digest.py: seed tissue, the
-MCML slab, a disk-and-cone source over a clear layer, the colon with grids and records on 1 and 2
-threads, the colon's camera tally) with
+MCML slab, a disk-and-cone source over a clear layer, the seed tissue in float32 lanes with records,
+the colon with grids and records on 1 and 2 threads, the colon's camera tally) with
 
 - this build, this machine's libm and Embree's best kernels (the reference),
 - this build with glibc's pre-AVX libm (GLIBC_TUNABLES below: the libm of an old machine),
@@ -42,8 +42,9 @@ BUILDS = os.path.join(ROOT, "build", "isa")
 # glibc's tunable that hides these processor features from its own dispatch: libm then runs its
 # SSE2 code, as on an x86-64 machine without AVX and FMA.
 OLD_LIBM = {"GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA,-AVX512F,-AVX,-FMA4"}
-# An old machine: that libm, and Embree's SSE2 kernels (native/embree_device.h).
-OLD_MACHINE = dict(OLD_LIBM, ENDOPHOTON_EMBREE_ISA="sse2")
+# An old machine: that libm, Embree's SSE2 kernels (native/embree_device.h) and the 4-lane SSE2 kernel of
+# the float32 lanes (native/lane_block.h).
+OLD_MACHINE = dict(OLD_LIBM, ENDOPHOTON_EMBREE_ISA="sse2", ENDOPHOTON_LANE_ISA="sse2")
 
 # Arguments whose glibc exp differs by one unit between the FMA and the SSE2 variant (glibc 2.36,
 # found by scanning 300,000 arguments): where this machine has FMA, they show that OLD_LIBM is in

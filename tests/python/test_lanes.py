@@ -1,0 +1,291 @@
+"""The float32 lanes (``run(lanes=True)``, native/lane_block.h; issue 39).
+
+A lane run is another sample of the same physics, so it is checked as the double walk is: against
+van de Hulst, Giovanelli, Chandrasekhar's H-function and MCML's three layers (oracles §1-§3), with
+the suite's family-wise threshold, and its standard errors against the scatter of 64 seeds. Its
+bits do not depend on the thread count, the lane kernel's instruction set (sse2, avx2, avx512:
+4, 8, 16 lanes), or a Dask cluster. The lanes' sampling laws themselves are checked in
+tests/cpp/test_lanes.cpp.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import endophoton as ep
+from endophoton import _core
+from physics_helpers import (
+    K_SIGMA,
+    P_COMPARISON,
+    assert_energy_conserved,
+    assert_no_nan,
+    assert_within,
+    mc_reference_sigma,
+    semi_infinite_isotropic_reflectance,
+)
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.abspath(ep.__file__)))  # the package under test
+DOWN = ep.PencilSource(position=(0.0, 0.0, 1.0), direction=(0.0, 0.0, -1.0))
+VDH_RD, VDH_TT, VDH_UNC = 0.09739, 0.66096, 0.5e-5  # van de Hulst (oracles §1), to 5 decimals
+GIOVANELLI, GIOVANELLI_UNC = 0.2600, 0.5e-4  # Rsp + Rd, semi-infinite, n 1.5, albedo 0.9, g 0 (oracles §2)
+
+
+def slab(g=0.75):
+    scene = ep.Scene(unit="cm", ambient_n=1.0)
+    scene.add_box("slab", min=(-100, -100, -0.02), max=(100, 100, 0.0), medium=ep.Medium(mua=10.0, mus=90.0, g=g))
+    return scene
+
+
+def semi_infinite(mua, mus, g, n, unit="cm", scale=1.0, offset=(0.0, 0.0, 0.0)):
+    """A box 10 cm deep and 200 cm wide (in ``unit``, times ``scale``), its top face at z = 0 + offset."""
+    scene = ep.Scene(unit=unit, ambient_n=1.0)
+    o = np.asarray(offset)
+    scene.add_box(
+        "tissue",
+        min=tuple(o + scale * np.array([-100, -100, -10])),
+        max=tuple(o + scale * np.array([100, 100, 0])),
+        medium=ep.Medium(mua=mua, mus=mus, g=g, n=n),
+    )
+    return scene
+
+
+def down_from(offset=(0.0, 0.0, 0.0), height=1.0):
+    return ep.PencilSource(position=(offset[0], offset[1], offset[2] + height), direction=(0.0, 0.0, -1.0))
+
+
+def giovanelli(res):
+    assert_energy_conserved(res)
+    assert res.lanes is not None
+    sigma = res.specular_reflectance_stderr + res.diffuse_reflectance_stderr
+    total = res.specular_reflectance + res.diffuse_reflectance
+    assert_within("Rsp + Rd (Giovanelli)", total, sigma, GIOVANELLI, GIOVANELLI_UNC)
+
+
+def test_lanes_serve_plain_runs_only():
+    scene = semi_infinite(10.0, 90.0, 0.9, 1.4)
+    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True).lanes in ("sse2", "avx2", "avx512")
+    assert ep.run(scene, DOWN, photons=2000, threads=1).lanes is None  # off by default
+    # Where they cannot serve, the double walk traces the run, and the result says so.
+    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, max_path_cm=50.0).lanes is None
+    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, safe_distance=False).lanes is None
+    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, spectral=True).lanes is None
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_lanes_must_be_a_bool(bad):
+    with pytest.raises(ValueError, match="lanes"):
+        ep.run(slab(), DOWN, photons=100, lanes=bad)
+
+
+def test_slab_matches_van_de_hulst():
+    res = ep.run(slab(), DOWN, photons=1_000_000, seed=20240602, threads=0, record_escapes=True, lanes=True)
+    assert_energy_conserved(res)
+    assert_no_nan(res)
+    assert res.lanes is not None and res.missed == 0.0 and res.cut == 0.0
+    assert_within("Rd (van de Hulst)", res.diffuse_reflectance, res.diffuse_reflectance_stderr, VDH_RD, VDH_UNC)
+    assert_within("Tt (van de Hulst)", res.transmittance, res.transmittance_stderr, VDH_TT, VDH_UNC)
+    # The unscattered packets (exp(-mu_t d) = exp(-2) of them) never enter the lanes: weight exactly 1.
+    esc = res.escapes
+    unscattered = (esc["scatterings"] == 0) & (esc["kind"] == 1)
+    assert np.all(esc["weight"][unscattered] == 1.0)
+    p = math.exp(-2.0)
+    frac = esc["weight"][unscattered].sum() / res.photons
+    assert_within("unscattered Tt", frac, math.sqrt(p * (1 - p) / res.photons), p)
+    # The records add up to the tallies, and the lanes' deepest points lie inside the slab.
+    assert esc["weight"][esc["kind"] == 0].sum() / res.photons == pytest.approx(res.diffuse_reflectance, abs=1e-9)
+    assert np.all((esc["max_depth"] >= 0) & (esc["max_depth"] <= 0.02 + 1e-6))
+
+
+def test_giovanelli_isotropic_n15():
+    giovanelli(ep.run(semi_infinite(10.0, 90.0, 0.0, 1.5), DOWN, photons=500_000, seed=8, threads=0, lanes=True))
+
+
+def test_chandrasekhar_matched_isotropic():
+    res = ep.run(semi_infinite(10.0, 90.0, 0.0, 1.0), DOWN, photons=300_000, seed=12, threads=0, lanes=True)
+    assert_energy_conserved(res)
+    ref = semi_infinite_isotropic_reflectance(10.0, 90.0)
+    assert_within("Rd (Chandrasekhar)", res.diffuse_reflectance, res.diffuse_reflectance_stderr, ref, 1e-6)
+
+
+@pytest.mark.slow
+def test_three_layers_match_mcml():
+    """MCML's Table 6.7 sample (oracles §3): three touching regions, g 0.9, 0 and 0.7, n 1.37 -- the
+    lanes' zones hold the layers' planes."""
+    layers = [(1.0, 100.0, 0.9, 0.1), (1.0, 10.0, 0.0, 0.1), (2.0, 10.0, 0.7, 0.2)]
+    scene = ep.layered_slab(
+        [(ep.Medium(mua=a, mus=s, g=g, n=1.37), d) for a, s, g, d in layers], unit="cm", width=1e3, ambient_n=1.0
+    )
+    res = ep.run(scene, DOWN, photons=400_000, seed=5, threads=0, lanes=True)
+    assert_energy_conserved(res)
+    for name, ref in (("diffuse_reflectance", 0.237544), ("transmittance", 0.096490), ("absorbed", 0.641594)):
+        sigma = math.hypot(getattr(res, name + "_stderr"), mc_reference_sigma(ref, 1_000_000))
+        assert_within(name + " (MCML)", getattr(res, name), sigma, ref)
+
+
+def test_scale_free_and_far_away():
+    """A semi-infinite medium's Rd depends on albedo, g and n only: the same Giovanelli value with mu
+    scaled 100x (steps 100x shorter), in a scene in mm, and 1e4 cm from the origin (the lanes hold
+    positions relative to their zone's centre)."""
+    giovanelli(ep.run(semi_infinite(1000.0, 9000.0, 0.0, 1.5), DOWN, photons=200_000, seed=9, threads=0, lanes=True))
+    mm = semi_infinite(1.0, 9.0, 0.0, 1.5, unit="mm", scale=10.0)
+    giovanelli(ep.run(mm, down_from(height=10.0), photons=200_000, seed=10, threads=0, lanes=True))
+    far = (1e4, -2e4, 5e3)
+    giovanelli(ep.run(semi_infinite(10.0, 90.0, 0.0, 1.5, offset=far), down_from(far), photons=200_000, seed=13,
+                      threads=0, lanes=True))  # fmt: skip
+
+
+def test_no_absorption_captures_nothing():
+    """mua = 0: the lanes capture exactly nothing, and every packet leaves (a slab of 20 mean free paths)."""
+    scene = ep.Scene(unit="cm", ambient_n=1.0)
+    scene.add_box("slab", min=(-100, -100, -0.2), max=(100, 100, 0.0), medium=ep.Medium(mua=0.0, mus=100.0, g=0.9, n=1.4))
+    res = ep.run(scene, DOWN, photons=20_000, seed=3, threads=0, lanes=True)
+    assert res.absorbed == 0.0 and res.roulette == 0.0 and res.cut == 0.0
+    assert_energy_conserved(res)
+
+
+@pytest.mark.parametrize("g", [0.9999, -0.9999, 1e-4])
+def test_extreme_g_conserves_and_agrees_with_the_double_walk(g):
+    """g -> +-1 and g -> 0 (both HG forms of the lanes): the balance closes and Rd agrees with the
+    double walk's within their standard errors (the sampling law itself: tests/cpp/test_lanes.cpp)."""
+    scene = semi_infinite(1.0, 100.0, g, 1.4)
+    a = ep.run(scene, DOWN, photons=40_000, seed=21, threads=0, lanes=True)
+    b = ep.run(scene, DOWN, photons=40_000, seed=22, threads=0)
+    assert_energy_conserved(a)
+    assert_no_nan(a)
+    se = math.hypot(a.diffuse_reflectance_stderr, b.diffuse_reflectance_stderr)
+    assert abs(a.diffuse_reflectance - b.diffuse_reflectance) < K_SIGMA * se
+
+
+@pytest.mark.slow
+def test_standard_errors_describe_the_scatter_over_seeds():
+    """As test_mcml's check of the double walk: z = (Rd - van de Hulst) / stderr over 64 seeds of
+    10k packets has mean 0 and the variance of Student's t49."""
+    from scipy import stats
+
+    z = []
+    for seed in range(2000, 2064):
+        r = ep.run(slab(), DOWN, photons=10_000, seed=seed, threads=0, record_escapes=False, lanes=True)
+        z.append((r.diffuse_reflectance - VDH_RD) / r.diffuse_reflectance_stderr)
+    z = np.asarray(z)
+    var_t49, n = 49 / 47, len(z)
+    assert abs(z.mean()) < K_SIGMA * math.sqrt(var_t49 / n), z.mean()
+    lo = var_t49 * stats.chi2.ppf(P_COMPARISON / 2, n - 1) / (n - 1)
+    hi = var_t49 * stats.chi2.isf(P_COMPARISON / 2, n - 1) / (n - 1)
+    assert lo < z.var(ddof=1) < hi, z.var(ddof=1)
+
+
+def _digest(res) -> str:
+    d = {k: v for k, v in res.to_dict().items() if k not in ("seconds", "threads", "lanes")}
+    h = hashlib.sha256(json.dumps(d, sort_keys=True).encode())
+    for k in sorted(res.escapes or {}):
+        h.update(k.encode())
+        h.update(np.ascontiguousarray(res.escapes[k]).tobytes())
+    return h.hexdigest()
+
+
+def _seed_tissue_run(threads, unit_size=0):
+    scene = semi_infinite(20.0, 200.0, 0.9, 1.1)
+    return ep.run(scene, DOWN, photons=30_000, seed=5, threads=threads, unit_size=unit_size, lanes=True)
+
+
+def test_same_bits_on_any_thread_count_and_unit_size():
+    ref = _digest(_seed_tissue_run(1))
+    assert _digest(_seed_tissue_run(2)) == ref
+    assert _digest(_seed_tissue_run(0)) == ref
+    # A unit is traced by one thread from its first packet; units of another size are other units,
+    # so only their packets' sums may regroup -- the packets themselves are the same.
+    a, b = _seed_tissue_run(1, unit_size=1000), _seed_tissue_run(2, unit_size=333)
+    assert a.interactions == pytest.approx(b.interactions, rel=1e-12)
+    assert np.array_equal(np.sort(a.escapes["weight"]), np.sort(b.escapes["weight"]))
+
+
+CASE = """
+import hashlib, json, sys
+sys.path.insert(0, {tests!r})
+import endophoton as ep
+from test_lanes import _digest, _seed_tissue_run
+r = _seed_tissue_run(2)
+print(json.dumps({{"lanes": r.lanes, "digest": _digest(r)}}))
+"""
+
+
+def _cpu_flags() -> set:
+    with open("/proc/cpuinfo") as f:
+        for line in f:
+            if line.startswith("flags"):
+                return set(line.split(":", 1)[1].split())
+    return set()
+
+
+def _in_process(isa: str | None) -> dict:
+    env = dict(os.environ, PYTHONPATH=PACKAGE_PARENT)
+    env.pop("ENDOPHOTON_LANE_ISA", None)
+    if isa:
+        env["ENDOPHOTON_LANE_ISA"] = isa
+    code = CASE.format(tests=os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    return json.loads(p.stdout)
+
+
+@pytest.mark.slow
+def test_same_bits_from_every_instruction_set():
+    flags = _cpu_flags()
+    isas = ["sse2"] + (["avx2"] if "avx2" in flags else []) + (["avx512"] if {"avx512f", "avx512vl", "avx512dq"} <= flags else [])
+    runs = {isa: _in_process(isa) for isa in isas}
+    for isa, r in runs.items():
+        assert r["lanes"] == isa
+    assert len({r["digest"] for r in runs.values()}) == 1, runs
+    assert _in_process(None)["digest"] == runs["sse2"]["digest"]  # the default: the widest
+
+
+@pytest.mark.parametrize("value", ["avx1024", "SSE2", ""])
+def test_unknown_instruction_set_is_named(tmp_path, value):
+    """The CLI names the variable and its value, no traceback."""
+    doc = json.load(open(os.path.join(ROOT, "examples", "seed_tissue.json")))
+    doc["run"].update(lanes=True, photons=100)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(doc))
+    env = dict(os.environ, ENDOPHOTON_LANE_ISA=value, PYTHONPATH=PACKAGE_PARENT)
+    p = subprocess.run([sys.executable, "-m", "endophoton", "run", str(path)], env=env, capture_output=True,
+                       text=True, timeout=120)  # fmt: skip
+    assert p.returncode != 0, (p.returncode, p.stderr)
+    assert f"ENDOPHOTON_LANE_ISA = '{value}'" in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
+@pytest.mark.slow
+def test_same_bits_on_a_dask_cluster():
+    pytest.importorskip("distributed")
+    from endophoton import distributed
+
+    scene = semi_infinite(20.0, 200.0, 0.9, 1.1)
+    local = ep.run(scene, DOWN, photons=20_000, seed=6, threads=1, lanes=True, unit_size=500)
+    with distributed.connect("local:2") as c:
+        dist = ep.run(scene, DOWN, photons=20_000, seed=6, client=c, chunk_units=7, lanes=True, unit_size=500)
+    assert dist.lanes is not None
+    assert _digest(dist) == _digest(local)
+
+
+def test_a_cancel_mid_unit_keeps_the_whole_units_before_it():
+    """The engine's cancel reaches the lanes before each packet starts (RunConfig.test_cancel_at_packet,
+    deterministic): the result is that of a run cancelled after the units before it, bit for bit."""
+    scene = semi_infinite(20.0, 200.0, 0.9, 1.1)
+    src = _core.Source(DOWN.native_lights(scene.unit_cm))
+
+    def raw(**hook):
+        config = _core.RunConfig(photons=20_000, unit_size=400, seed=5, threads=1, lanes=True, **hook)
+        return _core.run(scene.to_native(), src, config)
+
+    mid, after = raw(test_cancel_at_packet=3 * 400 + 200), raw(test_cancel_after_units=3)
+    assert mid["cancelled"] and mid["photons"] == 3 * 400 and mid["lanes"] is not None
+    for k in mid:
+        if k not in ("seconds", "escapes"):
+            assert mid[k] == after[k], k
