@@ -86,8 +86,8 @@ def throughput(R):
     )
     return (
         "## 1. Throughput and peak memory\n\nConfigs: `seed_tissue` (`examples/seed_tissue.json`: n 1.1, mua 20, mus 200, "
-        "g 0.9, semi-infinite box, pencil), `seed_tissue_lanes` (the same with `lanes: true`: its plain interior steps "
-        "in float32 lanes, docs/numerics.md \"Float32 lanes\"), `mcml_slab` (`examples/mcml_slab.json`, oracles §1), `colon` "
+        "g 0.9, semi-infinite box, pencil; its plain interior steps in float32 lanes, the default, docs/numerics.md "
+        "\"Float32 lanes\"), `seed_tissue_double` (the same with `lanes: false`: the double walk), `mcml_slab` (`examples/mcml_slab.json`, oracles §1), `colon` "
         "(`bench/scenes/colon.json`: a folded tube with a polyp, the rig at β 20°, fluorescence of collagen and "
         "photofrin), `colon+grids` (+ absorbed/fluorescence grids at 0.2 mm), `colon_lumen_off` (`lumen: false`: every "
         "packet ends at its first exit, the engine before issue 9). packets/s = packets / the run's `seconds` (engine "

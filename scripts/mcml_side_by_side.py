@@ -4,15 +4,16 @@ MCML's source is not in this repository. Build its transport with the driver bes
 
     # mcmlgo.c and mcml.h of MCML 1.2 (Wang & Jacques, 1993; e.g. the bipy/MCML copy on GitHub) in $MCML
     gcc -O3 -I"$MCML" -o /tmp/mcml_seed scripts/mcml_driver.c "$MCML"/mcmlgo.c -lm
-    /usr/bin/python3 scripts/mcml_side_by_side.py /tmp/mcml_seed [pairs] [photons] [--lanes]
+    /usr/bin/python3 scripts/mcml_side_by_side.py /tmp/mcml_seed [pairs] [photons] [--double]
 
 Each pair runs MCML and `python3 -m endophoton run examples/seed_tissue.json --threads 1 --stats` (its order
 alternating from pair to pair). CPU time is user + system time of the whole process (os.wait4), for both; the
 engine's process includes Python's start-up and import, so the engine's own figure (`run_cpu_seconds`: the run,
 scene build included) is printed beside it. MCML's layer is the region of examples/seed_tissue.json (its medium,
 and its box's depth as the thickness; the box is 10 cm wide, MCML's layer unbounded). MCML seeds itself from the
-clock, so its runs are independent; the engine's use seeds 1, 2, ... With --lanes the engine runs the same scene with
-`run.lanes` on (its plain interior steps in float32 lanes, native/lane_block.h), from a copy of the file. Prints a line per pair and the medians as
+clock, so its runs are independent; the engine's use seeds 1, 2, ... The engine takes its plain interior steps in
+float32 lanes (native/lane_block.h), its default; with --double it runs the same scene with `run.lanes` off (the
+double walk), from a copy of the file. Prints a line per pair and the medians as
 JSON (at least 2 pairs: the MCML Rd's standard error comes from their spread).
 """
 from __future__ import annotations
@@ -56,14 +57,14 @@ def mcml(binary, photons, layer):
     return json.loads(out), cpu
 
 
-def lanes_scene():
-    """A copy of the seed tissue's file with ``run.lanes`` on, in the system's temporary directory."""
+def double_scene():
+    """A copy of the seed tissue's file with ``run.lanes`` off, in the system's temporary directory."""
     import tempfile
 
     with open(SCENE, encoding="utf-8") as fh:
         doc = json.load(fh)
-    doc["run"]["lanes"] = True
-    fd, path = tempfile.mkstemp(prefix="seed_tissue_lanes_", suffix=".json")
+    doc["run"]["lanes"] = False
+    fd, path = tempfile.mkstemp(prefix="seed_tissue_double_", suffix=".json")
     with os.fdopen(fd, "w", encoding="utf-8") as fh:
         json.dump(doc, fh)
     return path
@@ -79,12 +80,12 @@ def engine(photons, seed, scene=SCENE):
 def main(argv):
     if len(argv) < 2:
         raise SystemExit(__doc__)
-    lanes = "--lanes" in argv
-    argv = [a for a in argv if a != "--lanes"]
+    double = "--double" in argv
+    argv = [a for a in argv if a != "--double"]
     binary = argv[1]
     pairs = int(argv[2]) if len(argv) > 2 else 7
     photons = int(argv[3]) if len(argv) > 3 else 1_000_000
-    scene = lanes_scene() if lanes else SCENE
+    scene = double_scene() if double else SCENE
     if pairs < 2 or photons < 1:
         raise SystemExit(f"pairs must be >= 2 (got {pairs}) and photons >= 1 (got {photons})")
     layer = mcml_layer()
@@ -107,10 +108,10 @@ def main(argv):
     mcml_rd, mcml_se = statistics.mean(rd), statistics.stdev(rd) / len(rd) ** 0.5
     eng_rd = statistics.mean(r["engine_rd"] for r in rows)
     eng_se = statistics.mean(r["engine_rd_se"] for r in rows) / len(rows) ** 0.5
-    if lanes:
+    if double:
         os.unlink(scene)
     summary = dict(
-        lanes=lanes,
+        lanes=not double,
         photons=photons,
         pairs=pairs,
         ratio_median=statistics.median(r["ratio"] for r in rows),

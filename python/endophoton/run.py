@@ -360,7 +360,7 @@ def run(
     batches: int = 50,
     spectral: bool | None = None,
     safe_distance: bool = True,
-    lanes: bool = False,
+    lanes: bool = True,
     unit_size: int = 0,
     quality: str | None = None,
     progress=None,
@@ -402,11 +402,12 @@ def run(
     crossings, triangle-cache hits and misses, full ray queries) per work unit;
     the result's ``stats`` holds the totals and ``stats["per_unit"]`` the counts
     of each merged unit (native/stats.h). Local runs only.
-    ``lanes`` (default False): the plain interior steps -- deep in one scattering region, crossing
-    nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h). It serves runs that
+    ``lanes`` (default True): the plain interior steps -- deep in one scattering region, crossing
+    nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h). They serve runs that
     are not spectral and have no grids, no camera tally and no path cap; ``result.lanes`` names the
-    instruction set of the lanes where they served the run ("sse2", "avx2", "avx512"), else None. The result is another sample of the same physics, the same bits
-    for a seed on any processor and thread count, but not the bits of the default double walk
+    lanes' instruction set where they served the run ("sse2", "avx2", "avx512"), else None. The
+    result is another sample of the same physics, the same bits for a seed on any processor, thread
+    count or cluster, but not the bits of the double walk that ``lanes=False`` gives
     (docs/numerics.md, "Float32 lanes").
     ``view`` (None: off): True or a dict (endophoton.view.nee.view_request) makes the run tally the
     camera's image by next-event estimation (docs/render.md), which ``ep.render_view(result)`` then

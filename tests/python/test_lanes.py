@@ -71,8 +71,8 @@ def giovanelli(res):
 
 def test_lanes_serve_plain_runs_only():
     scene = semi_infinite(10.0, 90.0, 0.9, 1.4)
-    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True).lanes in ("sse2", "avx2", "avx512")
-    assert ep.run(scene, DOWN, photons=2000, threads=1).lanes is None  # off by default
+    assert ep.run(scene, DOWN, photons=2000, threads=1).lanes in ("sse2", "avx2", "avx512")  # the default
+    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=False).lanes is None
     # Where they cannot serve, the double walk traces the run, and the result says so.
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, max_path_cm=50.0).lanes is None
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, safe_distance=False).lanes is None
@@ -157,7 +157,7 @@ def test_extreme_g_conserves_and_agrees_with_the_double_walk(g):
     double walk's within their standard errors (the sampling law itself: tests/cpp/test_lanes.cpp)."""
     scene = semi_infinite(1.0, 100.0, g, 1.4)
     a = ep.run(scene, DOWN, photons=40_000, seed=21, threads=0, lanes=True)
-    b = ep.run(scene, DOWN, photons=40_000, seed=22, threads=0)
+    b = ep.run(scene, DOWN, photons=40_000, seed=22, threads=0, lanes=False)
     assert_energy_conserved(a)
     assert_no_nan(a)
     se = math.hypot(a.diffuse_reflectance_stderr, b.diffuse_reflectance_stderr)
