@@ -176,7 +176,7 @@ void validate_config(const RunConfig& c, const Scene& scene, bool grid_file) {
             throw std::invalid_argument("camera_view.packets = " + std::to_string(c.camera_view->packets) +
                                         " must equal photons = " + std::to_string(c.photons));
         c.camera_view->check();
-        if (!(c.force_spectral || scene.has_fluorophores() || scene.has_spectral_media()))
+        if (!spectral_run(scene, c))
             throw std::invalid_argument(
                 "camera_view needs a spectral run (spectral=True): its colours need wavelengths");
     }
@@ -389,19 +389,19 @@ std::unique_ptr<UnitOutput> trace_unit(Tracer& tracer, const Scene& scene, const
     const uint64_t first = u * plan.unit_size, end = std::min(plan.limit, first + plan.unit_size);
     const StatsScope counting(cfg.stats ? &out->stats : nullptr);
     tracer.begin_unit();
-    if (tracer.lanes()) {
-        if (!tracer.trace_lanes(first, end, *out, [&](uint64_t k) { return bool(tick(k)); })) {
-            if (staging) staging->clear_keep_capacity();
-            return nullptr;
+    // Packet by packet, or 16 in flight in the float32 lanes; false: the tick stopped the unit.
+    auto traced = [&] {
+        if (tracer.lanes()) return tracer.trace_lanes(first, end, *out, [&](uint64_t k) { return bool(tick(k)); });
+        for (uint64_t k = first; k < end; ++k) {
+            if (!tick(k)) return false;
+            tracer.trace(k, *out);
+            out->tally.record_packet();
         }
-    }
-    for (uint64_t k = first; k < end && !tracer.lanes(); ++k) {
-        if (!tick(k)) {
-            if (staging) staging->clear_keep_capacity();
-            return nullptr;
-        }
-        tracer.trace(k, *out);
-        out->tally.record_packet();
+        return true;
+    };
+    if (!traced()) {
+        if (staging) staging->clear_keep_capacity();
+        return nullptr;
     }
     if (out->grids) out->grids->packets += out->tally.packets;
     if (staging && out->grids == staging && staging->packets >= flush_packets) {
@@ -714,7 +714,7 @@ RunResult UnitReducer::finish(int threads, bool cancelled) {
     result.packets_traced =
         cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
     const Scene& scene = impl_->scene;
-    result.spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+    result.spectral = spectral_run(scene, cfg);
     if (lanes_serve(scene, cfg)) result.lanes = lane_isa_name(lane_isa());
     if (result.packets == 0)
         result.warnings.push_back(

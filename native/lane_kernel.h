@@ -228,9 +228,9 @@ inline typename LaneTypes<W>::F lane_hg_cos(const LaneConstants<W>& c, typename 
 
 // The frame's renormalisation (DirectionFrame::renormalize in float32: one
 // Newton step for 1/|n|, then orthonormal_basis, Duff et al. 2017) in the
-// lanes where `due`.
-template <int W>
-inline void lane_renormalize(LaneGroup<W>& P, typename LaneTypes<W>::I due) {
+// lanes where `due`; P: any packets with the frame's lanes tx ... nz.
+template <int W, class Packets>
+inline void lane_renormalize(Packets& P, typename LaneTypes<W>::I due) {
     using F = typename LaneTypes<W>::F;
     using I = typename LaneTypes<W>::I;
     const F k = 1.5f - 0.5f * lane_dot(P.nx, P.ny, P.nz, P.nx, P.ny, P.nz);

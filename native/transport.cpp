@@ -1602,19 +1602,24 @@ bool in_closed_pocket(const Scene& scene, const Light& l, std::vector<Hit>& hits
 
 }  // namespace
 
+bool spectral_run(const Scene& scene, const RunConfig& cfg) {
+    return cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
+}
+
+bool deposits_grids(const RunConfig& cfg) {
+    return cfg.grid_voxel_size > 0 && (cfg.grid_absorbed || cfg.grid_fluorescent_light);
+}
+
 bool lanes_serve(const Scene& scene, const RunConfig& cfg) {
-    // Tracer's own tests of the run: spectral_, grids_ and local_.enabled.
-    const bool spectral = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
-    const bool grids = cfg.grid_voxel_size > 0 && (cfg.grid_absorbed || cfg.grid_fluorescent_light);
-    return cfg.lanes && !spectral && !grids && !cfg.camera_view && !(cfg.max_path_cm > 0) && cfg.safe_distance;
+    // local_.enabled is cfg.safe_distance.
+    return cfg.lanes && !spectral_run(scene, cfg) && !deposits_grids(cfg) && !cfg.camera_view &&
+           !(cfg.max_path_cm > 0) && cfg.safe_distance;
 }
 
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
     : scene_(scene), source_(source), halton_(halton), cfg_(cfg) {
-    spectral_ = cfg.force_spectral || scene.has_fluorophores() || scene.has_spectral_media();
-    // The walk with per-interaction deposits only for the grids that take
-    // them: a run asking for emission grids alone pays nothing per step.
-    grids_ = cfg.grid_voxel_size > 0 && (cfg.grid_absorbed || cfg.grid_fluorescent_light);
+    spectral_ = spectral_run(scene, cfg);
+    grids_ = deposits_grids(cfg);
     hits_.reserve(64);
     // The local triangle caches serve every scene: each is gathered once
     // through the uniform grid (triangle_grid.h), O(local) whatever the

@@ -97,6 +97,12 @@ struct RayShortcuts {
     EntryPlanes entry_planes;        // exits that enter nothing (small scenes)
 };
 
+// Whether a run of `scene` under `config` is spectral (packets carry a
+// wavelength): forced, or a fluorophore or a spectral medium in the scene.
+bool spectral_run(const Scene& scene, const RunConfig& config);
+// Whether the run's walk deposits into grids at its interactions: the
+// absorbed or fluorescent-light grid (emission grids alone cost nothing a step).
+bool deposits_grids(const RunConfig& config);
 // Whether the float32 lanes serve a run of `scene` under `config`
 // (Tracer::lanes): RunConfig::lanes, and a plain run -- not spectral, no
 // grids taking deposits, no camera tally, no path cap, the local caches on.

@@ -4,7 +4,9 @@
 // one source that compiles to 4 lanes of SSE2 on an old machine, 8 of AVX2 here and 16 of AVX-512 where that
 // pays. This times one step at 4, 8 or 16 lanes (a lane count wider than the build's registers is slow), and
 // prints a digest of every packet's state after the steps: the digest must be the same in every build and at
-// every lane count. Throwaway measurement, not part of the build; with
+// every lane count. Since the lanes went into the engine (§29) it takes the engine's lane helpers
+// (native/lane_kernel.h) and keeps its own packets, step and seed run. Throwaway measurement, not part of the
+// build; with
 // FLAGS="-O3 -ffp-contract=off -Wno-psabi -std=c++17 -Inative":
 //   g++ $FLAGS -mavx2 scripts/lane_step_vext_bench.cpp -o /tmp/vext_avx2
 //   g++ $FLAGS -march=x86-64 scripts/lane_step_vext_bench.cpp -o /tmp/vext_sse2
@@ -22,17 +24,20 @@
 #include <ctime>
 #include <string>
 
+#include "lane_kernel.h"
 #include "lane_step_scalar.h"
 
 using namespace lane_bench;
 
 namespace {
 
+// The engine's lane helpers (native/lane_kernel.h): the types, xoshiro128++, -ln u, the azimuth, the
+// square root, the mask test and the frame's renormalisation, so that this bench times the engine's code.
 template <int W>
 struct V {
-    typedef float f __attribute__((vector_size(4 * W)));
-    typedef uint32_t u __attribute__((vector_size(4 * W)));
-    typedef int32_t i __attribute__((vector_size(4 * W)));
+    using f = typename LaneTypes<W>::F;
+    using u = typename LaneTypes<W>::U;
+    using i = typename LaneTypes<W>::I;
 };
 
 // W packets, one a lane: xoshiro128++ state, position, frame, weight, free path, absorbed weight, depth,
@@ -46,127 +51,22 @@ struct Packets {
     F cx, cy, cz;  // the centre of the lane's zone (mode seed)
 };
 
-template <class U>
-inline U rotl(U x, int k) {
-    return (x << k) | (x >> (32 - k));
-}
-// xoshiro128++ 1.0 (Blackman & Vigna 2021), one 32-bit output a lane.
 template <int W>
 inline typename V<W>::u next_u32(Packets<W>& P) {
-    const auto out = rotl(P.s0 + P.s3, 7) + P.s0;
-    const auto t = P.s1 << 9;
-    P.s2 ^= P.s0;
-    P.s3 ^= P.s1;
-    P.s1 ^= P.s2;
-    P.s0 ^= P.s3;
-    P.s2 ^= t;
-    P.s3 = rotl(P.s3, 11);
-    return out;
+    return lane_next(P.s0, P.s1, P.s2, P.s3);
 }
-
 template <class F>
 inline F splat(float x) {
-    return F{} + x;
+    return lane_splat<F>(x);
 }
-// Lane-wise square root and "any lane set": GCC's vector extensions have neither, and its vectoriser made
-// element-by-element code of the loops (insertps, pextrd: a third of the seed run's time). So the register
-// width's instruction where the build has it (both are exact, so the bits do not depend on which runs), else
-// the loop.
-template <class F>
-inline F vsqrt(F x) {
-#if defined(__AVX512F__)
-    if constexpr (sizeof(F) == 64) return F(_mm512_sqrt_ps(__m512(x)));
-#endif
-#if defined(__AVX__)
-    if constexpr (sizeof(F) == 32) return F(_mm256_sqrt_ps(__m256(x)));
-#endif
-    if constexpr (sizeof(F) == 16) return F(_mm_sqrt_ps(__m128(x)));
-    F r = x;
-    for (unsigned k = 0; k < sizeof(F) / sizeof(float); ++k) r[k] = __builtin_sqrtf(x[k]);
-    return r;
-}
-// True when any lane of the mask m (lanes of 0 or -1) is set.
 template <class M>
 inline bool any(M m) {
-#if defined(__AVX512F__)
-    if constexpr (sizeof(M) == 64) return _mm512_cmpneq_epi32_mask(__m512i(m), _mm512_setzero_si512()) != 0;
-#endif
-#if defined(__AVX__)
-    if constexpr (sizeof(M) == 32) return !_mm256_testz_si256(__m256i(m), __m256i(m));
-#endif
-    if constexpr (sizeof(M) == 16) return _mm_movemask_ps(__m128(m)) != 0;
-    bool a = false;
-    for (unsigned k = 0; k < sizeof(M) / sizeof(m[0]); ++k) a |= m[k] != 0;
-    return a;
+    return lane_bits(m) != 0;
 }
-template <class F>
-inline F vmin(F a, F b) {
-    return a < b ? a : b;
-}
-template <class F>
-inline F vmax(F a, F b) {
-    return a > b ? a : b;
-}
-
-// -ln u for u = (k + 1) 2^-24 from the top 24 bits (scripts/lane_step_f32_bench.cpp's neg_log_u24).
 template <int W>
 inline typename V<W>::f neg_log_u24(typename V<W>::u x) {
-    using F = typename V<W>::f;
-    using I = typename V<W>::i;
-    const F u = __builtin_convertvector(I((x >> 8) + 1), F) * 0x1.0p-24f;
-    const I bits = I(u);
-    const I e = (bits - 0x3F3504F3) >> 23;  // arithmetic: sqrt(1/2)'s bits
-    const F m = F(bits - (e << 23));
-    const F r = m - 1.0f, r2 = r * r;
-    F q = splat<F>(0.08787265419960022f);
-    const float c[] = {-0.1415964663028717f,  0.148347869515419f,  -0.16588488221168518f, 0.19972050189971924f,
-                       -0.25001147389411926f, 0.3333367109298706f, -0.4999999701976776f};
-    for (float k : c) q = q * r + k;
-    return 0.0f - (__builtin_convertvector(e, F) * 0.6931471805599453f + (r + r2 * q));
+    return lane_neg_log<W>(x);
 }
-
-// (cos phi, sin phi) of phi = 2 pi x 2^-32 (scripts/lane_step_f32_bench.cpp's azimuth8).
-template <int W>
-inline void azimuth(typename V<W>::u x, typename V<W>::f* cos_phi, typename V<W>::f* sin_phi) {
-    using F = typename V<W>::f;
-    using I = typename V<W>::i;
-    const auto q = (x + (1u << 29)) >> 30;
-    const F a = __builtin_convertvector(I(x - (q << 30)), F) * float(2 * kPi * 0x1.0p-32);
-    const F a2 = a * a;
-    const F s = a + (a * a2) * (-1.0f / 6 + a2 * (1.0f / 120 + a2 * (-1.0f / 5040 + a2 * (1.0f / 362880))));
-    const F c = 1.0f + a2 * (-0.5f + a2 * (1.0f / 24 + a2 * (-1.0f / 720 + a2 * (1.0f / 40320))));
-    const I odd = I(q & 1) != 0;
-    const F cs = odd ? s : c, sn = odd ? c : s;
-    *cos_phi = ((q + 1) & 2) != 0 ? -cs : cs;
-    *sin_phi = (q & 2) != 0 ? -sn : sn;
-}
-
-template <class F>
-inline F dot3(F ax, F ay, F az, F bx, F by, F bz) {
-    return (ax * bx + ay * by) + az * bz;
-}
-
-// DirectionFrame::renormalize in the lanes where `due` (orthonormal_basis, Duff et al. 2017).
-template <int W>
-inline void renormalize(Packets<W>& P, typename V<W>::i due) {
-    using F = typename V<W>::f;
-    using I = typename V<W>::i;
-    const F k = 1.5f - 0.5f * dot3(P.nx, P.ny, P.nz, P.nx, P.ny, P.nz);
-    const F x = P.nx * k, y = P.ny * k, z = P.nz * k;
-    const F sign = F((I(z) & int32_t(0x80000000u)) | I(splat<F>(1.0f)));  // +-1 with z's sign
-    const F a = -1.0f / (sign + z);
-    const F c = x * y * a, sx = sign * x;
-    P.tx = due ? 1.0f + sx * x * a : P.tx;
-    P.ty = due ? sign * c : P.ty;
-    P.tz = due ? -sign * x : P.tz;
-    P.bx = due ? c : P.bx;
-    P.by = due ? sign + y * y * a : P.by;
-    P.bz = due ? -y : P.bz;
-    P.nx = due ? x : P.nx;
-    P.ny = due ? y : P.ny;
-    P.nz = due ? z : P.nz;
-}
-
 // The scattering of every lane: the HG cosine (MCML's form, one division), the azimuth, the frame's turn
 // and, every 16th scattering, its renormalisation.
 template <int W>
@@ -175,10 +75,10 @@ inline void scatter(Packets<W>& P, const float hgc[4]) {
     using I = typename V<W>::i;
     const F u = __builtin_convertvector(I(next_u32(P) >> 8), F) * 0x1.0p-24f;
     const F sq = hgc[0] / (hgc[1] + u * hgc[2]);
-    const F ct = vmax(vmin((hgc[3] - sq * sq) * (1.0f / hgc[2]), splat<F>(1.0f)), splat<F>(-1.0f));
-    const F st = vsqrt((1.0f - ct) * (1.0f + ct));
+    const F ct = lane_max(lane_min((hgc[3] - sq * sq) * (1.0f / hgc[2]), splat<F>(1.0f)), splat<F>(-1.0f));
+    const F st = lane_sqrt((1.0f - ct) * (1.0f + ct));
     F cp, sp;
-    azimuth<W>(next_u32(P), &cp, &sp);
+    lane_azimuth<W>(next_u32(P), &cp, &sp);
     const F e1x = P.tx * cp + P.bx * sp, e1y = P.ty * cp + P.by * sp, e1z = P.tz * cp + P.bz * sp;
     P.bx = P.bx * cp - P.tx * sp;
     P.by = P.by * cp - P.ty * sp;
@@ -191,7 +91,7 @@ inline void scatter(Packets<W>& P, const float hgc[4]) {
     P.nz = P.nz * ct + e1z * st;
     P.count += 1;
     const I due = I((P.count & (DirectionFrame::kRenormalizeEvery - 1)) == 0);
-    if (__builtin_expect(any(due), 0)) renormalize<W>(P, due);
+    if (__builtin_expect(any(due), 0)) lane_renormalize<W>(P, due);
 }
 
 // One step of every lane: §28's float32 step (the HG form of MCML; one division).
@@ -204,7 +104,7 @@ inline void step(Packets<W>& P, const float hgc[4]) {
     P.pz += P.nz * s;
     const F left = P.budget - (s + float(kSlack));
     P.budget = left > 0.0f ? left : splat<F>(1e30f);
-    P.depth = vmax(-P.pz, P.depth);  // the entry (0, 0, 0) facing -z
+    P.depth = lane_max(-P.pz, P.depth);  // the entry (0, 0, 0) facing -z
     const F dw = P.w * float(kLoss);
     P.w -= dw;
     P.absorbed += dw;
@@ -274,7 +174,7 @@ void run(long steps, const float hgc[4]) {
 template <int W>
 inline typename V<W>::f fresh_budget(const Packets<W>& P) {
     const auto dx = P.px - P.cx, dy = P.py - P.cy, dz = P.pz - P.cz;
-    return vmin(kInner - vsqrt(dot3(dx, dy, dz, dx, dy, dz)), P.pz - kLo);
+    return lane_min(kInner - lane_sqrt(lane_dot(dx, dy, dz, dx, dy, dz)), P.pz - kLo);
 }
 template <int W>
 __attribute__((noinline)) void surface(Packets<W>& lanes, typename V<W>::i out, typename V<W>::f& rd_lanes) {

@@ -1,5 +1,6 @@
 """The canonical bytes of nested results, for digests that compare bits across builds and machines
-(isa_digest.py, det_inputs_digest.py)."""
+(isa_digest.py, det_inputs_digest.py), and this processor's feature flags (which builds and kernels
+it can run: test_isa_bits.py, test_lanes.py)."""
 from __future__ import annotations
 
 import hashlib
@@ -32,3 +33,12 @@ def sha256(value) -> str:
     h = hashlib.sha256()
     feed(h, value)
     return h.hexdigest()
+
+
+def cpu_flags() -> set:
+    """The feature flags of this processor (/proc/cpuinfo's first ``flags`` line)."""
+    with open("/proc/cpuinfo") as f:
+        for line in f:
+            if line.startswith("flags"):
+                return set(line.split(":", 1)[1].split())
+    return set()

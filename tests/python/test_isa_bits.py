@@ -32,6 +32,7 @@ import sys
 import pytest
 
 import endophoton as ep
+from bit_digest import cpu_flags
 
 pytestmark = pytest.mark.slow
 
@@ -59,14 +60,6 @@ VARIANTS = {
         "env": {},
     },
 }
-
-
-def _cpu_flags() -> set:
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("flags"):
-                return set(line.split(":", 1)[1].split())
-    return set()
 
 
 @functools.lru_cache(maxsize=None)
@@ -138,7 +131,7 @@ def reference(tmp_path_factory):
 def test_old_libm_is_in_force():
     """Where this processor has FMA, OLD_LIBM makes glibc's exp give other bits at the probes:
     the runs below under OLD_LIBM use the other libm."""
-    if "fma" not in _cpu_flags():
+    if "fma" not in cpu_flags():
         pytest.skip("this processor has no FMA: its own libm is already the old machine's")
     assert _exp_bits({}) != _exp_bits(OLD_LIBM)
 
@@ -160,7 +153,7 @@ def test_the_old_machines_embree_kernels_give_the_same_bits(reference, tmp_path)
 @pytest.mark.parametrize("name", sorted(VARIANTS))
 def test_other_builds_give_the_same_bits(name, reference, tmp_path):
     v = VARIANTS[name]
-    missing = [f for f in v["cpu"] if f not in _cpu_flags()]
+    missing = [f for f in v["cpu"] if f not in cpu_flags()]
     if missing:
         pytest.skip(f"this processor lacks {', '.join(missing)}: the {name} build cannot run here")
     assert _digests(_build(name), v["env"], tmp_path, name) == reference

@@ -9,7 +9,6 @@ tests/cpp/test_lanes.cpp.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -21,6 +20,8 @@ import pytest
 
 import endophoton as ep
 from endophoton import _core
+from bit_digest import cpu_flags
+from isa_digest import digest  # every tally, stderr and record; not the kernel's name (NOT_ARITHMETIC)
 from physics_helpers import (
     K_SIGMA,
     P_COMPARISON,
@@ -182,24 +183,15 @@ def test_standard_errors_describe_the_scatter_over_seeds():
     assert lo < z.var(ddof=1) < hi, z.var(ddof=1)
 
 
-def _digest(res) -> str:
-    d = {k: v for k, v in res.to_dict().items() if k not in ("seconds", "threads", "lanes")}
-    h = hashlib.sha256(json.dumps(d, sort_keys=True).encode())
-    for k in sorted(res.escapes or {}):
-        h.update(k.encode())
-        h.update(np.ascontiguousarray(res.escapes[k]).tobytes())
-    return h.hexdigest()
-
-
 def _seed_tissue_run(threads, unit_size=0):
     scene = semi_infinite(20.0, 200.0, 0.9, 1.1)
     return ep.run(scene, DOWN, photons=30_000, seed=5, threads=threads, unit_size=unit_size, lanes=True)
 
 
 def test_same_bits_on_any_thread_count_and_unit_size():
-    ref = _digest(_seed_tissue_run(1))
-    assert _digest(_seed_tissue_run(2)) == ref
-    assert _digest(_seed_tissue_run(0)) == ref
+    ref = digest(_seed_tissue_run(1))
+    assert digest(_seed_tissue_run(2)) == ref
+    assert digest(_seed_tissue_run(0)) == ref
     # A unit is traced by one thread from its first packet; units of another size are other units,
     # so only their packets' sums may regroup -- the packets themselves are the same.
     a, b = _seed_tissue_run(1, unit_size=1000), _seed_tissue_run(2, unit_size=333)
@@ -208,21 +200,13 @@ def test_same_bits_on_any_thread_count_and_unit_size():
 
 
 CASE = """
-import hashlib, json, sys
+import json, sys
 sys.path.insert(0, {tests!r})
-import endophoton as ep
-from test_lanes import _digest, _seed_tissue_run
+from isa_digest import digest
+from test_lanes import _seed_tissue_run
 r = _seed_tissue_run(2)
-print(json.dumps({{"lanes": r.lanes, "digest": _digest(r)}}))
+print(json.dumps({{"lanes": r.lanes, "digest": digest(r)}}))
 """
-
-
-def _cpu_flags() -> set:
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("flags"):
-                return set(line.split(":", 1)[1].split())
-    return set()
 
 
 def _in_process(isa: str | None) -> dict:
@@ -238,7 +222,7 @@ def _in_process(isa: str | None) -> dict:
 
 @pytest.mark.slow
 def test_same_bits_from_every_instruction_set():
-    flags = _cpu_flags()
+    flags = cpu_flags()
     isas = ["sse2"] + (["avx2"] if "avx2" in flags else []) + (["avx512"] if {"avx512f", "avx512vl", "avx512dq"} <= flags else [])
     runs = {isa: _in_process(isa) for isa in isas}
     for isa, r in runs.items():
@@ -250,7 +234,8 @@ def test_same_bits_from_every_instruction_set():
 @pytest.mark.parametrize("value", ["avx1024", "SSE2", ""])
 def test_unknown_instruction_set_is_named(tmp_path, value):
     """The CLI names the variable and its value, no traceback."""
-    doc = json.load(open(os.path.join(ROOT, "examples", "seed_tissue.json")))
+    with open(os.path.join(ROOT, "examples", "seed_tissue.json"), encoding="utf-8") as f:
+        doc = json.load(f)
     doc["run"].update(lanes=True, photons=100)
     path = tmp_path / "scene.json"
     path.write_text(json.dumps(doc))
@@ -271,7 +256,7 @@ def test_same_bits_on_a_dask_cluster():
     with distributed.connect("local:2") as c:
         dist = ep.run(scene, DOWN, photons=20_000, seed=6, client=c, chunk_units=7, lanes=True, unit_size=500)
     assert dist.lanes is not None
-    assert _digest(dist) == _digest(local)
+    assert digest(dist) == digest(local)
 
 
 def test_a_cancel_mid_unit_keeps_the_whole_units_before_it():
