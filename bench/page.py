@@ -89,7 +89,8 @@ def throughput(R):
         "g 0.9, semi-infinite box, pencil; its plain interior steps in float32 lanes, the default, docs/numerics.md "
         "\"Float32 lanes\"), `seed_tissue_double` (the same with `lanes: false`: the double walk), `mcml_slab` (`examples/mcml_slab.json`, oracles §1), `colon` "
         "(`bench/scenes/colon.json`: a folded tube with a polyp, the rig at β 20°, fluorescence of collagen and "
-        "photofrin), `colon+grids` (+ absorbed/fluorescence grids at 0.2 mm), `colon_lumen_off` (`lumen: false`: every "
+        "photofrin; its plain interior steps in the lanes, fluorescence trials included), `colon_double` (the same "
+        "with `lanes: false`), `colon+grids` (+ absorbed/fluorescence grids at 0.2 mm), `colon_lumen_off` (`lumen: false`: every "
         "packet ends at its first exit, the engine before issue 9). packets/s = packets / the run's `seconds` (engine "
         "wall clock), best of the repeats; packets per CPU-s uses the CPU time of the `ep.run` call the CLI makes (`stats.process.run_cpu_seconds`, the engine scene's build included), "
         "which shows the parallel efficiency when the shared machine does not give a run two whole cores. No warm-up: "
@@ -312,6 +313,8 @@ def sections(R):
         + frozen("lanes_f32")
         + "\n## 29. The float32 lanes in the engine (issue 39; frozen, 2026-12-07)\n\n"
         + frozen("lanes_engine")
+        + "\n## 30. Fluorescence trials in the lanes (issue 39; frozen, 2026-12-08)\n\n"
+        + frozen("lanes_spectral")
     )  # fmt: skip
 
 

@@ -105,6 +105,7 @@ THROUGHPUT = [  # (config, scene, run defaults, packets, quick packets)
     ("seed_tissue_double", "seed_tissue", {"lanes": False}, 600_000, 200_000),
     ("mcml_slab", "mcml_slab", None, 3_000_000, 1_000_000),
     ("colon", "colon", None, 150_000, 50_000),
+    ("colon_double", "colon", {"lanes": False}, 150_000, 50_000),
     ("colon+grids", "colon", {"grids": {"voxel_size": 0.0002, "path": os.path.join(TMP, "g.vdb")}}, 150_000, 50_000),
     ("colon_lumen_off", "colon", {"lumen": False}, 150_000, 50_000),
 ]

@@ -1,9 +1,10 @@
 // Packets in float32 lanes (issue 39; docs/performance.md §28, §29): the plain
-// interior steps of 16 packets at once -- free path, move, capture, HG
-// scattering -- in single precision, structure of arrays, one vector lane a
-// packet. The walk (transport.cpp) hands a packet to a slot where its next
-// steps cross nothing (a zone of ClearSteps, triangle_cache.h) and takes it
-// back where a step may cross something, or roulette or the caps are due.
+// interior steps of 16 packets at once -- free path, move, capture,
+// fluorescence trials, HG scattering -- in single precision, structure of
+// arrays, one vector lane a packet. The walk (transport.cpp) hands a packet
+// to a slot where its next steps cross nothing (a zone of ClearSteps,
+// triangle_cache.h) and takes it back where a step may cross something, a
+// trial fires, or roulette or the caps are due.
 //
 // The block is plain data and the kernel (lane_kernel.h) is compiled once per
 // instruction set (lane_steps_sse2/avx2/avx512.cpp: 4, 8 or 16 lanes). Every
@@ -26,11 +27,14 @@ enum class LaneIsa : int { kSse2 = 0, kAvx2 = 1, kAvx512 = 2 };
 enum LaneExit : int32_t {
     kLaneBlocked = 1,  // its next step (tau, unchanged) may cross something: the walk takes it
     kLaneSlow = 2,     // a step was taken and roulette or a cap is due (its free path is not drawn)
+    kLaneFluoresced = 3,  // a step was taken, its capture done, and fluorophore `fired` fluoresced there:
+                          // the walk finishes that interaction (fluoresce_with, scatter_and_survive)
 };
 
 struct LaneBlock {
     static constexpr int kSlots = 16;
     static constexpr int kMaxPlanes = 16;  // ClearSteps::kMaxPlanes
+    static constexpr int kMaxTrials = 4;   // fluorophores a slot tries (PacketWalk::LoopTrials::kMax)
 
     // The packets: xoshiro128++ state (Blackman & Vigna 2021), scatterings in
     // the lanes (the frame is renormalised every 16th), steps taken since the
@@ -62,9 +66,20 @@ struct LaneBlock {
     // The entry point relative to the centre, and the entry direction (depth).
     alignas(64) float ex[kSlots], ey[kSlots], ez[kSlots], ix[kSlots], iy[kSlots], iz[kSlots];
     alignas(64) int32_t planes[kSlots];  // planes set for each slot (those above are n = 0, off = -1e30)
+    // Spectral packets: fluoresce()'s trials at every interaction (seed §4),
+    // fixed while the packet is in the lanes (its wavelength, so d under the
+    // "eem" rule, changes only at an event, which ends its stay): how many
+    // fluorophores it tries (0: none, as after its fluorescence under the
+    // paper's rule), their d and c, the trials taken since the load, and the
+    // fluorophore that fired (reason kLaneFluoresced).
+    alignas(64) int32_t trials[kSlots];
+    alignas(64) float trial_d[kMaxTrials][kSlots], trial_c[kMaxTrials][kSlots];
+    alignas(64) uint32_t tried[kSlots];
+    alignas(64) int32_t fired[kSlots];
     alignas(64) int32_t active[kSlots];  // -1: the slot steps
     alignas(64) int32_t reason[kSlots];  // LaneExit of a slot that left
     int n_planes = 0;                    // the largest plane count of any slot so far
+    int max_trials = 0;                  // the largest trial count of any slot so far
     bool track_depth = false;            // the run records exits, so the lanes keep each packet's depth
 
     LaneBlock();  // no slot active, every plane unused

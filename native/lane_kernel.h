@@ -187,7 +187,7 @@ struct LaneConstants {
     F ex, ey, ez, ix, iy, iz;
     U room;
     I small_g;
-    bool any_small, any_large, track_depth;
+    bool any_small, any_large, track_depth, any_trials;
     LaneConstants(const LaneBlock& B, int o) {
         inv_mut = lane_load<F>(B.inv_mut + o), loss = lane_load<F>(B.loss + o);
         hg0 = lane_load<F>(B.hg0 + o), hg1 = lane_load<F>(B.hg1 + o), hg2 = lane_load<F>(B.hg2 + o);
@@ -202,6 +202,7 @@ struct LaneConstants {
         any_small = lane_bits(act & small_g) != 0;
         any_large = lane_bits(act & ~small_g) != 0;
         track_depth = B.track_depth;
+        any_trials = B.max_trials > 0;
     }
 };
 
@@ -256,18 +257,15 @@ inline V lane_pick(M go, V a, V b) {
     return go ? a : b;
 }
 
-// interact() of the lanes where `go`, the step to b taken: the move, the
-// depth, the capture, three draws (the cosine, the azimuth, the next free
-// path), HG's scattering with the frame turned about n (DirectionFrame::turn,
-// seed §4). Lanes where not `go` keep every bit of their state. kAll: all W
-// lanes go (the common case: no blends).
+// The first part of interact() in the lanes where `go`, the step to b
+// taken: the move, the depth, the capture (seed eq. 3). Lanes where not `go`
+// keep every bit of their state. kAll: all W lanes go (no blends).
 template <int W, bool kAll>
-inline void lane_interact(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go,
-                          typename LaneTypes<W>::F bx, typename LaneTypes<W>::F by, typename LaneTypes<W>::F bz,
-                          typename LaneTypes<W>::F budget) {
+inline void lane_move(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go,
+                      typename LaneTypes<W>::F bx, typename LaneTypes<W>::F by, typename LaneTypes<W>::F bz,
+                      typename LaneTypes<W>::F budget) {
     using F = typename LaneTypes<W>::F;
     using U = typename LaneTypes<W>::U;
-    using I = typename LaneTypes<W>::I;
     P.qx = lane_pick<kAll>(go, bx, P.qx), P.qy = lane_pick<kAll>(go, by, P.qy), P.qz = lane_pick<kAll>(go, bz, P.qz);
     P.budget = lane_pick<kAll>(go, budget, P.budget);
     if (c.track_depth) {
@@ -277,6 +275,51 @@ inline void lane_interact(LaneGroup<W>& P, const LaneConstants<W>& c, typename L
     const F dw = P.w * c.loss;
     P.w = lane_pick<kAll>(go, P.w - dw, P.w);
     P.steps -= U(go);  // go is -1 where true
+}
+
+// fluoresce()'s trials (seed §4) in the lanes where `go` and the weight is
+// left: fluorophore j fires where u1 < d_j and u2 < c_j, two draws of the
+// slot's own stream, and the first that fires ends them. A lane draws only
+// for its own trials, so its stream does not depend on its neighbours'.
+// Returns the lanes that fired; B.tried counts the trials, B.fired names the
+// fluorophore.
+template <int W>
+inline typename LaneTypes<W>::I lane_trials(LaneBlock& B, int o, LaneGroup<W>& P, typename LaneTypes<W>::I go) {
+    using F = typename LaneTypes<W>::F;
+    using U = typename LaneTypes<W>::U;
+    using I = typename LaneTypes<W>::I;
+    const I n = lane_load<I>(B.trials + o);
+    const I trying = go & (P.w > 0.0f) & (n > 0);
+    if (lane_bits(trying) == 0) return I{};
+    U tried = lane_load<U>(B.tried + o);
+    I fired{}, which = lane_load<I>(B.fired + o);
+    for (int j = 0; j < B.max_trials; ++j) {
+        const I t = trying & (lane_splat<I>(j) < n) & ~fired;
+        if (lane_bits(t) == 0) break;
+        U s0 = P.s0, s1 = P.s1, s2 = P.s2, s3 = P.s3;
+        const U x1 = lane_next(s0, s1, s2, s3), x2 = lane_next(s0, s1, s2, s3);
+        P.s0 = t ? s0 : P.s0, P.s1 = t ? s1 : P.s1, P.s2 = t ? s2 : P.s2, P.s3 = t ? s3 : P.s3;
+        tried -= U(t);
+        const F u1 = __builtin_convertvector(I(x1 >> 8), F) * 0x1.0p-24f;
+        const F u2 = __builtin_convertvector(I(x2 >> 8), F) * 0x1.0p-24f;
+        const I hit = t & (u1 < lane_load<F>(B.trial_d[j] + o)) & (u2 < lane_load<F>(B.trial_c[j] + o));
+        fired |= hit;
+        which = hit ? lane_splat<I>(j) : which;
+    }
+    lane_store(B.tried + o, tried);
+    lane_store(B.fired + o, which);
+    return fired;
+}
+
+// The rest of interact() in the lanes where `go`: three draws (the cosine,
+// the azimuth, the next free path), HG's scattering with the frame turned
+// about n (DirectionFrame::turn, seed §4). Lanes where not `go` keep every
+// bit of their state. kAll: all W lanes go (the common case: no blends).
+template <int W, bool kAll>
+inline void lane_scatter(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go) {
+    using F = typename LaneTypes<W>::F;
+    using U = typename LaneTypes<W>::U;
+    using I = typename LaneTypes<W>::I;
     U s0 = P.s0, s1 = P.s1, s2 = P.s2, s3 = P.s3;
     const U x_cos = lane_next(s0, s1, s2, s3), x_phi = lane_next(s0, s1, s2, s3);
     const U x_tau = lane_next(s0, s1, s2, s3);
@@ -342,17 +385,30 @@ uint32_t run_group(LaneBlock& B, int o) {
             budget = spent ? fresh - c.slack : left;
             blocked = spent & ~ok;
         }
+        // interact(): the move and capture, the fluorescence trials of
+        // spectral packets (an event leaves the lanes unscattered), the
+        // scattering of the rest.
         const I go = act & ~blocked;
-        if (lane_bits(go) == kFull)
-            lane_interact<W, true>(P, c, go, bx, by, bz, budget);
+        const bool all = lane_bits(go) == kFull;
+        if (all)
+            lane_move<W, true>(P, c, go, bx, by, bz, budget);
         else
-            lane_interact<W, false>(P, c, go, bx, by, bz, budget);
+            lane_move<W, false>(P, c, go, bx, by, bz, budget);
+        I fired{};
+        if (c.any_trials) fired = lane_trials<W>(B, o, P, go);
+        const I on = go & ~fired;
+        if (all && lane_bits(fired) == 0)
+            lane_scatter<W, true>(P, c, on);
+        else
+            lane_scatter<W, false>(P, c, on);
         // Roulette and the caps are the walk's (survives_roulette, over_caps).
-        const I slow = go & ((P.w < c.threshold) | I(P.steps >= c.room));
-        const I leave = (act & blocked) | slow;
+        const I slow = on & ((P.w < c.threshold) | I(P.steps >= c.room));
+        const I leave = (act & blocked) | slow | fired;
         if (__builtin_expect(lane_bits(leave) != 0, 0)) {
             I reason = lane_load<I>(B.reason + o);
-            reason = blocked ? lane_splat<I>(int32_t(kLaneBlocked)) : (slow ? lane_splat<I>(int32_t(kLaneSlow)) : reason);
+            reason = blocked ? lane_splat<I>(int32_t(kLaneBlocked))
+                             : (slow ? lane_splat<I>(int32_t(kLaneSlow))
+                                     : (fired ? lane_splat<I>(int32_t(kLaneFluoresced)) : reason));
             act &= ~leave;
             P.store(B, o);
             lane_store(B.active + o, act);

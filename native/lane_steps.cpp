@@ -42,7 +42,8 @@ LaneIsa choose() {
 
 LaneBlock::LaneBlock() {
     for (int k = 0; k < kSlots; ++k) {
-        active[k] = 0, reason[k] = 0, planes[k] = 0;
+        active[k] = 0, reason[k] = 0, planes[k] = 0, trials[k] = 0, tried[k] = 0, fired[k] = 0;
+        for (int j = 0; j < kMaxTrials; ++j) trial_d[j][k] = trial_c[j][k] = 0;
         for (int j = 0; j < kMaxPlanes; ++j) pnx[j][k] = pny[j][k] = pnz[j][k] = 0, poff[j][k] = -1e30f;
     }
 }

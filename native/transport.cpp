@@ -402,6 +402,14 @@ void PacketWalk<kSpectral, kGrids>::to_lane(LaneBlock& B, int k, const ClearStep
     const Vec3 e = st.entry_p - c, in = depth ? st.entry_in : Vec3(0, 0, 0);
     B.ex[k] = float(e.x), B.ey[k] = float(e.y), B.ez[k] = float(e.z);
     B.ix[k] = float(in.x), B.iy[k] = float(in.y), B.iz[k] = float(in.z);
+    B.trials[k] = 0, B.tried[k] = 0;
+    if constexpr (kSpectral) {
+        const LoopTrials t = loop_trials();
+        static_assert(LoopTrials::kMax == size_t(LaneBlock::kMaxTrials), "the lanes hold the loop's trials");
+        for (int j = 0; j < t.n; ++j) B.trial_d[j][k] = float(t.d[j]), B.trial_c[j][k] = float(t.c[j]);
+        B.trials[k] = t.n;
+        B.max_trials = std::max(B.max_trials, t.n);
+    }
     B.active[k] = -1, B.reason[k] = 0;
 }
 
@@ -424,6 +432,12 @@ void PacketWalk<kSpectral, kGrids>::from_lane(const LaneBlock& B, int k, const C
     st.frame = DirectionFrame(st.d);
     st.W = lane_w_in_ * Float(B.w[k]);
     st.absorbed += lane_w_in_ - st.W;
+    if constexpr (kSpectral) {
+        // The energy captured at the packet's one wavelength in the lanes, and
+        // its trials (a sum of ones: exact).
+        out_.tally.energy[kEnergyAbsorbed] += (lane_w_in_ - st.W) * st.energy_per_weight;
+        out_.tally.scalar[kFluorescenceTrials] += Float(B.tried[k]);
+    }
     st.events += steps;
     st.interactions += steps;
     st.scatterings += steps;
@@ -440,6 +454,14 @@ typename PacketWalk<kSpectral, kGrids>::Walk PacketWalk<kSpectral, kGrids>::afte
     const bool stepped = B.steps[k] > 0, slow = B.reason[k] == kLaneSlow;
     from_lane(B, k, zone);
     if (stepped) *hopped = false;
+    if constexpr (kSpectral) {
+        if (B.reason[k] == kLaneFluoresced) {
+            // interact()'s rest after an event, as zone_steps finishes it.
+            fluoresce_with(scene_.region(size_t(st_.med.region)).fluorophores[size_t(B.fired[k])]);
+            if (!scatter_and_survive()) return Walk::kEnded;
+            return steps_from_here();
+        }
+    }
     if (slow) {
         if (!survives_roulette()) return Walk::kEnded;
         if (over_caps()) {
@@ -1612,8 +1634,10 @@ bool deposits_grids(const RunConfig& cfg) {
 
 bool lanes_serve(const Scene& scene, const RunConfig& cfg) {
     // local_.enabled is cfg.safe_distance.
-    return cfg.lanes && !spectral_run(scene, cfg) && !deposits_grids(cfg) && !cfg.camera_view &&
-           !(cfg.max_path_cm > 0) && cfg.safe_distance;
+    // Spectral runs take no grids at all: a fluorescence event's emission
+    // deposit goes to its unit's grids, which a packet's own output lacks.
+    const bool grids = spectral_run(scene, cfg) ? cfg.grid_voxel_size > 0 : deposits_grids(cfg);
+    return cfg.lanes && !grids && !cfg.camera_view && !(cfg.max_path_cm > 0) && cfg.safe_distance;
 }
 
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
@@ -1670,7 +1694,12 @@ void Tracer::trace(uint64_t index, UnitOutput& out) {
 }
 
 bool Tracer::trace_lanes(uint64_t first, uint64_t end, UnitOutput& out, const std::function<bool(uint64_t)>& tick) {
-    using Walk = PacketWalk<false, false>;
+    return spectral_ ? trace_lanes_as<true>(first, end, out, tick) : trace_lanes_as<false>(first, end, out, tick);
+}
+
+template <bool kSpectral>
+bool Tracer::trace_lanes_as(uint64_t first, uint64_t end, UnitOutput& out, const std::function<bool(uint64_t)>& tick) {
+    using Walk = PacketWalk<kSpectral, false>;
     // A slot's packet: its walk, its zone and last cube (LocalGeometry's, per
     // packet: each starts with none, so which steps a cube answers depends on
     // the packet alone), its output until it is merged in index order.
@@ -1721,7 +1750,7 @@ bool Tracer::trace_lanes(uint64_t first, uint64_t end, UnitOutput& out, const st
     // starts the next packets there while they end before reaching the lanes.
     auto serve = [&](int k, bool resume) {
         Slot& sl = slots[k];
-        std::optional<Walk::Walk> w;
+        std::optional<typename Walk::Walk> w;
         if (resume) {
             local_.cell = sl.cell;
             w = sl.walk->after_lanes(B, k, sl.zone, &sl.hopped);

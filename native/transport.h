@@ -104,8 +104,8 @@ bool spectral_run(const Scene& scene, const RunConfig& config);
 // absorbed or fluorescent-light grid (emission grids alone cost nothing a step).
 bool deposits_grids(const RunConfig& config);
 // Whether the float32 lanes serve a run of `scene` under `config`
-// (Tracer::lanes): RunConfig::lanes, and a plain run -- not spectral, no
-// grids taking deposits, no camera tally, no path cap, the local caches on.
+// (Tracer::lanes): RunConfig::lanes, no grids taking deposits (a spectral
+// run: no grids at all), no camera tally, no path cap, the local caches on.
 bool lanes_serve(const Scene& scene, const RunConfig& config);
 
 class Tracer {
@@ -128,6 +128,9 @@ class Tracer {
     bool grids() const { return grids_; }
 
   private:
+    template <bool kSpectral>
+    bool trace_lanes_as(uint64_t first, uint64_t end, UnitOutput& out, const std::function<bool(uint64_t)>& tick);
+
     const Scene& scene_;
     const Source& source_;
     const Halton& halton_;

@@ -403,8 +403,9 @@ def run(
     the result's ``stats`` holds the totals and ``stats["per_unit"]`` the counts
     of each merged unit (native/stats.h). Local runs only.
     ``lanes`` (default True): the plain interior steps -- deep in one scattering region, crossing
-    nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h). They serve runs that
-    are not spectral and have no grids, no camera tally and no path cap; ``result.lanes`` names the
+    nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h), fluorescence trials
+    included. They serve runs without grids taking deposits (a spectral run: without any grid), a
+    camera tally or a path cap; ``result.lanes`` names the
     lanes' instruction set where they served the run ("sse2", "avx2", "avx512"), else None. The
     result is another sample of the same physics, the same bits for a seed on any processor, thread
     count or cluster, but not the bits of the double walk that ``lanes=False`` gives

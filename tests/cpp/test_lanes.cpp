@@ -220,6 +220,61 @@ TEST(Lanes, RouletteIsDueWhereTheWeightFallsBelowTheThreshold) {
     EXPECT_EQ(ep::run_lanes(B), 0u);  // none active
 }
 
+TEST(Lanes, FluorescenceTrialsFireWithTheirChances) {
+    // Slots 0-11 try three fluorophores at every interaction (seed §4: j
+    // fires where u1 < d_j and u2 < c_j, the first that fires ends them), no
+    // capture, an endless ball: each stay ends at its first event. Per
+    // interaction: none with chance prod (1 - p_j), j with prod_{i<j} (1 -
+    // p_i) p_j, p_j = d_j c_j; chi-square over the four outcomes. The trials
+    // counted are exact: 3 for a step without an event, j + 1 for an event
+    // of j. Slots 12-15 try none (the paper's rule after an event) and leave
+    // at their step cap with no trial and no event.
+    const float d[3] = {0.2f, 0.1f, 0.5f}, c[3] = {0.4f, 0.33f, 0.5f};
+    double p[3], none = 1;
+    for (int j = 0; j < 3; ++j) p[j] = double(d[j]) * double(c[j]);
+    double outcome_p[4];
+    for (int j = 0; j < 3; ++j) outcome_p[j + 1] = none * p[j], none *= 1 - p[j];
+    outcome_p[0] = none;
+    for (const auto& run : kernels()) {
+        LaneBlock B;
+        for (int k = 0; k < kSlots; ++k) {
+            set_slot(B, k, 0.9, 1e-3f, 0.f, 1e6f, uint32_t(k * 7 + 1));
+            B.room[k] = k < 12 ? 1000000 : 50;
+            B.trials[k] = k < 12 ? 3 : 0;
+            for (int j = 0; j < 3; ++j) B.trial_d[j][k] = d[j], B.trial_c[j][k] = c[j];
+        }
+        B.max_trials = 3;
+        std::vector<double> outcomes;  // 0: none, j + 1: fluorophore j fired
+        int stays[kSlots] = {};
+        while (const uint32_t left = run(B)) {
+            for (int k = 0; k < kSlots; ++k) {
+                if (!(left >> k & 1)) continue;
+                const uint32_t steps = B.steps[k];
+                if (k < 12) {
+                    ASSERT_EQ(B.reason[k], ep::kLaneFluoresced);
+                    ASSERT_GE(B.fired[k], 0);
+                    ASSERT_LT(B.fired[k], 3);
+                    EXPECT_EQ(B.tried[k], 3 * (steps - 1) + uint32_t(B.fired[k]) + 1);
+                    outcomes.insert(outcomes.end(), steps - 1, 0.5);
+                    outcomes.push_back(B.fired[k] + 1.5);
+                } else {
+                    EXPECT_EQ(B.reason[k], ep::kLaneSlow);
+                    EXPECT_EQ(B.tried[k], 0u);
+                    EXPECT_EQ(steps, 50u);
+                }
+                EXPECT_EQ(B.w[k], 1.f);  // no capture
+                B.steps[k] = 0, B.tried[k] = 0;
+                B.active[k] = ++stays[k] < 3000 ? -1 : 0;
+            }
+        }
+        size_t i = 0;
+        ep_test::expect_chi_square_fit([&](std::mt19937_64&) { return outcomes[i++]; },
+                                       [&](double a, double) { return outcome_p[int(a)]; }, 0, 4, 4,
+                                       int(outcomes.size()), 1);
+        std::printf("[ lanes    ] %zu interactions, %.0f events\n", outcomes.size(), 12.0 * 3000);
+    }
+}
+
 TEST(Lanes, EveryInstructionSetGivesTheSameBits) {
     // 16 slots of mixed media (both HG forms), a plane, roulette and the step
     // cap, each stepped to 300 exits by each kernel. A kernel returns when a
@@ -234,14 +289,20 @@ TEST(Lanes, EveryInstructionSetGivesTheSameBits) {
             B.planes[k] = 1;
             B.pnx[0][k] = 0.6f, B.pny[0][k] = 0, B.pnz[0][k] = 0.8f, B.poff[0][k] = -0.1f;
             B.ez[k] = 0.05f, B.ix[k] = 0.6f, B.iz[k] = -0.8f;  // the depth below an entry point
+            if (k % 2 == 0) {  // fluorescence trials of two fluorophores
+                B.trials[k] = 2;
+                B.trial_d[0][k] = 0.2f, B.trial_c[0][k] = 0.4f, B.trial_d[1][k] = 0.1f, B.trial_c[1][k] = 0.33f;
+            }
         }
         B.n_planes = 1;
+        B.max_trials = 2;
         B.track_depth = true;
     };
     auto slot_bytes = [](const LaneBlock& B, int k, std::vector<uint8_t>& out) {
         const float f[] = {B.qx[k], B.qy[k], B.qz[k], B.tx[k], B.ty[k], B.tz[k], B.bx[k], B.by[k],
                            B.bz[k], B.nx[k], B.ny[k], B.nz[k], B.w[k],  B.tau[k], B.depth[k], B.budget[k]};
-        const uint32_t u[] = {B.s0[k], B.s1[k], B.s2[k], B.s3[k], B.count[k], B.steps[k], uint32_t(B.reason[k])};
+        const uint32_t u[] = {B.s0[k],    B.s1[k],    B.s2[k], B.s3[k], B.count[k], B.steps[k], uint32_t(B.reason[k]),
+                              B.tried[k], uint32_t(B.fired[k])};
         out.insert(out.end(), reinterpret_cast<const uint8_t*>(f), reinterpret_cast<const uint8_t*>(f) + sizeof f);
         out.insert(out.end(), reinterpret_cast<const uint8_t*>(u), reinterpret_cast<const uint8_t*>(u) + sizeof u);
     };
@@ -259,7 +320,7 @@ TEST(Lanes, EveryInstructionSetGivesTheSameBits) {
                 slot_bytes(B, k, per_slot[k]);
                 if (B.reason[k] == ep::kLaneSlow) B.w[k] = 1;  // roulette survived, the cap renewed
                 if (B.reason[k] == ep::kLaneBlocked) B.qx[k] = B.qy[k] = B.qz[k] = 0, B.budget[k] = 0, B.tau[k] = 1;
-                B.steps[k] = 0;
+                B.steps[k] = 0, B.tried[k] = 0;
                 B.active[k] = ++exits[k] < 300 ? -1 : 0;
             }
         }

@@ -13,6 +13,27 @@ def pixel_chi2(a, sa, b, sb, rel=0.25):
     return float(np.sum((a - b)[ok] ** 2 / (sa[ok] ** 2 + sb[ok] ** 2))), int(ok.sum())
 
 
+def assert_sees_scale_error(a, sa, b, sb, scale=1.2, power=0.9, rel=0.25):
+    """Power of the agreement check (pixel_chi2 against chi2_limit): were ``a`` off by ``scale``, the
+    check would fail with probability >= ``power``. Under that error the chi-square is noncentral, with
+    the converged pixels' dof and noncentrality sum ((scale - 1) mu)^2 / (scale^2 sa^2 + sb^2), mu the
+    two images' mean: a statement about the errors, not about one draw of the scaled image (which a
+    changed random stream would turn over whenever the power is marginal). Arrays of one element test
+    one value (dof 1: z against K_SIGMA)."""
+    from scipy import stats
+
+    from physics_helpers import chi2_limit
+
+    a, sa, b, sb = (np.atleast_1d(np.asarray(x, dtype=float)) for x in (a, sa, b, sb))
+    ok = (sa < rel * a) & (sb < rel * b)
+    mu = 0.5 * (a + b)[ok]
+    lam = float(np.sum(((scale - 1) * mu) ** 2 / (scale**2 * sa[ok] ** 2 + sb[ok] ** 2)))
+    dof = int(ok.sum())
+    assert dof >= 1, "no converged pixel"
+    caught = float(stats.ncx2.sf(chi2_limit(dof), dof, lam))
+    assert caught >= power, f"a {scale - 1:.0%} scale error is caught with probability {caught:.3f} (dof {dof}, noncentrality {lam:.1f})"
+
+
 def aperture_region_chi2(view, other, regions, keys=("white", "fluorescence")):
     """Chi-square of ``view``'s regions' mean radiances against ``other``'s aperture image (the mean of its
     pixels in the region; its stderr from the pixels' stderrs, independent pixels); a region and image with no

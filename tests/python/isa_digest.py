@@ -98,6 +98,7 @@ def cases(out_dir: str):
         ("seed_tissue/2", plain(seed, 20000, 2)),
         ("mcml_slab/2", plain(slab, 50000, 2)),
         ("seed_tissue_lanes_records/2", plain(seed, 20000, 2, lanes=True, record_escapes=True)),
+        ("colon_lanes_records/2", plain((colon, rig), 3000, 2, lanes=True, record_escapes=True)),  # spectral lanes
         ("colon_grids_records/1", colon_grids(1)),
         ("colon_grids_records/2", colon_grids(2)),
         ("colon_camera/2", lambda: (ep.run(colon, rig, photons=2000, seed=7, threads=2, view=True), None)),

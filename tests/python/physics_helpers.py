@@ -56,6 +56,18 @@ K_SIGMA = Z_FAMILY
 P_COMPARISON = math.erfc(Z_FAMILY / math.sqrt(2.0))
 
 
+def k_sigma_for_batches(batches: int) -> float:
+    """The threshold in sigmas for a batch-means sigma of ``batches`` batches: K_SIGMA at the
+    engine's default of 50 or more, else Student t with batches - 1 degrees of freedom at the
+    same two-sided tail as t49 at K_SIGMA (4.2e-5). A run of few work units has few batches and a
+    very uncertain sigma: at 2 batches (t1) the threshold is about 15,000 sigma, as it must be."""
+    if batches >= 50:
+        return K_SIGMA
+    from scipy import stats
+
+    return float(stats.t.isf(stats.t.sf(K_SIGMA, 49), max(1, batches - 1)))
+
+
 def chi2_limit(dof):
     """Rejection threshold of a chi-square statistic with ``dof`` degrees of
     freedom at the suite's per-comparison false-alarm probability P_COMPARISON."""
@@ -67,6 +79,10 @@ def chi2_limit(dof):
 # ----------------------------------------------------------------------------
 # Assertions
 # ----------------------------------------------------------------------------
+def _has(res, key):
+    return key in res if isinstance(res, dict) else hasattr(res, key)
+
+
 def _get(res, key):
     if isinstance(res, dict):
         return res[key]
@@ -89,7 +105,9 @@ def assert_energy_conserved(res, tol=1e-9):
     -0.01 (no bias) but standard deviation 1.42, with |z| > 3 in 3 runs. The
     allowance is the tally's granularity (one boosted weight is threshold/m
     per launched packet at most); it is negligible next to 3 sigma as soon as
-    the run has many roulette events.
+    the run has many roulette events. A run of fewer work units than batches
+    (a cancelled one, say) has fewer batches, and K_SIGMA becomes the Student t
+    threshold of that many (k_sigma_for_batches).
     """
     total = 0.0
     for k in BALANCE_KEYS:
@@ -105,9 +123,13 @@ def assert_energy_conserved(res, tol=1e-9):
     chance = float(opts.get("roulette_chance", 0.1))
     photons = max(1, int(_get(res, "photons")))
     allowance = 5.0 * threshold / (chance * photons)
+    k = K_SIGMA
+    unit = int(_get(res, "unit_size")) if _has(res, "unit_size") else 0
+    if unit > 0:  # the batches of the sigma: the units merged, at most the run's batches
+        k = k_sigma_for_batches(min(-(-photons // unit), int(opts.get("batches", 50))))
     assert (
-        abs(r) < K_SIGMA * rs + allowance + 1e-12
-    ), f"roulette = {r} is not within {K_SIGMA:g} sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
+        abs(r) < k * rs + allowance + 1e-12
+    ), f"roulette = {r} is not within {k:g} sigma ({rs}) + {allowance:.3g} of 0: biased roulette"
     for k in ("absorbed", "specular_reflectance", "diffuse_reflectance", "transmittance", "missed", "cut"):
         assert _get(res, k) >= -1e-12, f"{k} = {_get(res, k)} is negative"
     a_reg = _get(res, "absorbed_by_region")

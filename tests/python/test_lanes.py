@@ -20,6 +20,7 @@ import pytest
 
 import endophoton as ep
 from endophoton import _core
+from endophoton.view.camera import Camera
 from bit_digest import cpu_flags
 from isa_digest import digest  # every tally, stderr and record; not the kernel's name (NOT_ARITHMETIC)
 from physics_helpers import (
@@ -70,14 +71,79 @@ def giovanelli(res):
     assert_within("Rsp + Rd (Giovanelli)", total, sigma, GIOVANELLI, GIOVANELLI_UNC)
 
 
-def test_lanes_serve_plain_runs_only():
+def fluorescent(mua=20.0, mus=200.0, g=0.9, n=1.1, thickness=10.0):
+    """The seed tissue (or another medium) with collagen and photofrin, the polyp's pair (seed §5), a
+    box ``thickness`` cm deep under z = 0."""
+    scene = ep.Scene(unit="cm", ambient_n=1.0)
+    scene.add_box(
+        "tissue",
+        min=(-100, -100, -thickness),
+        max=(100, 100, 0),
+        medium=ep.Medium(mua=mua, mus=mus, g=g, n=n),
+        fluorophores=[ep.Fluorophore("collagen", 0.2, 0.4), ep.Fluorophore("photofrin", 0.1, 0.33)],
+    )
+    return scene
+
+
+def test_lanes_serve_runs_without_grids_camera_or_path_cap(tmp_path):
     scene = semi_infinite(10.0, 90.0, 0.9, 1.4)
     assert ep.run(scene, DOWN, photons=2000, threads=1).lanes in ("sse2", "avx2", "avx512")  # the default
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=False).lanes is None
+    # Spectral runs too: fluorescence, or a forced wavelength.
+    assert ep.run(fluorescent(), DOWN, photons=2000, threads=1).lanes is not None
+    assert ep.run(scene, DOWN, photons=2000, threads=1, spectral=True).lanes is not None
     # Where they cannot serve, the double walk traces the run, and the result says so.
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, max_path_cm=50.0).lanes is None
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, safe_distance=False).lanes is None
-    assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, spectral=True).lanes is None
+    # A spectral run with grids, even the emission grids alone (their deposits are the unit's).
+    alone = ep.GridRequest(voxel_size=0.05, path=str(tmp_path / "e.vdb"), absorbed=False, fluorescent_light=False)
+    assert ep.run(fluorescent(), DOWN, photons=2000, threads=1, grids=alone).lanes is None
+    cam = Camera.look_at((0, 0, 2.0), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    assert ep.run(fluorescent(), DOWN, photons=500, threads=1, view=dict(camera=cam, width=4, height=4)).lanes is None
+
+
+def test_fluorescence_fires_with_chance_d_times_c():
+    """Seed §4's trials, exactly: with no absorption and matched indices every weight stays 1, so the
+    tallies count. Each interaction tries collagen (chance p1 = d c = 0.08), then, if it did not
+    fire, photofrin (p2 = 0.033); under the paper's rule a packet stops trying after its event.
+    The trials T = n1 + n2 with n2 = n1 - E1, so n1 = (T + E1) / 2, and by Wald's identity the
+    events are E1 = p1 n1 and E2 = p2 n2 in expectation, binomial about it."""
+    res = ep.run(fluorescent(mua=0.0, mus=100.0, n=1.0, thickness=0.2), DOWN, photons=20_000, seed=4,
+                 threads=0, fluorescence_rule="paper")  # fmt: skip
+    assert res.lanes is not None
+    assert res.absorbed == 0.0 and res.roulette == 0.0 and res.stokes_loss > 0
+    assert_energy_conserved(res)
+    N = res.photons
+    T = res.fluorescence_trials * N
+    e1, e2 = (res.emitted_by_fluorophore[k] * N for k in ("collagen", "photofrin"))
+    assert abs(e1 - round(e1)) < 1e-6 and abs(e2 - round(e2)) < 1e-6  # counts: every weight is 1
+    assert abs(T - round(T)) < 1e-6 and res.fluorescence_events * N == pytest.approx(e1 + e2, abs=1e-6)
+    T, e1, e2 = round(T), round(e1), round(e2)
+    n1 = (T + e1) / 2
+    for events, trials, p in ((e1, n1, 0.2 * 0.4), (e2, n1 - e1, 0.1 * 0.33)):
+        assert trials > 10_000
+        assert abs(events - p * trials) < K_SIGMA * math.sqrt(trials * p * (1 - p)), (events, trials, p)
+
+
+@pytest.mark.parametrize("rule", ["paper", "eem"])
+def test_fluorescent_tissue_agrees_with_the_double_walk(rule):
+    """The seed tissue with collagen and photofrin under both rules: every tally of the light and of
+    the fluorescence agrees with the double walk's within their standard errors, and the energy
+    balance closes."""
+    scene = fluorescent()
+    a = ep.run(scene, DOWN, photons=40_000, seed=31, threads=0, fluorescence_rule=rule)
+    b = ep.run(scene, DOWN, photons=40_000, seed=32, threads=0, fluorescence_rule=rule, lanes=False)
+    assert a.lanes is not None and b.lanes is None
+    assert_energy_conserved(a)
+    assert_no_nan(a)
+    for key in ("diffuse_reflectance", "fluorescent_escaped", "absorbed_energy", "stokes_loss",
+                "fluorescence_events", "fluorescence_trials", "escaped_energy"):  # fmt: skip
+        va, vb = getattr(a, key), getattr(b, key)
+        se = math.hypot(getattr(a, key + "_stderr"), getattr(b, key + "_stderr"))
+        assert abs(va - vb) < K_SIGMA * se, (key, va, vb, se)
+    for name in ("collagen", "photofrin"):
+        se = math.hypot(a.emitted_by_fluorophore_stderr[name], b.emitted_by_fluorophore_stderr[name])
+        assert abs(a.emitted_by_fluorophore[name] - b.emitted_by_fluorophore[name]) < K_SIGMA * se, name
 
 
 @pytest.mark.parametrize("bad", ["yes", 1, None])
@@ -183,15 +249,16 @@ def test_standard_errors_describe_the_scatter_over_seeds():
     assert lo < z.var(ddof=1) < hi, z.var(ddof=1)
 
 
-def _seed_tissue_run(threads, unit_size=0):
-    scene = semi_infinite(20.0, 200.0, 0.9, 1.1)
+def _seed_tissue_run(threads, unit_size=0, fluorophores=False):
+    scene = fluorescent() if fluorophores else semi_infinite(20.0, 200.0, 0.9, 1.1)
     return ep.run(scene, DOWN, photons=30_000, seed=5, threads=threads, unit_size=unit_size, lanes=True)
 
 
-def test_same_bits_on_any_thread_count_and_unit_size():
-    ref = digest(_seed_tissue_run(1))
-    assert digest(_seed_tissue_run(2)) == ref
-    assert digest(_seed_tissue_run(0)) == ref
+@pytest.mark.parametrize("fluorophores", [False, True])
+def test_same_bits_on_any_thread_count_and_unit_size(fluorophores):
+    ref = digest(_seed_tissue_run(1, fluorophores=fluorophores))
+    assert digest(_seed_tissue_run(2, fluorophores=fluorophores)) == ref
+    assert digest(_seed_tissue_run(0, fluorophores=fluorophores)) == ref
     # A unit is traced by one thread from its first packet; units of another size are other units,
     # so only their packets' sums may regroup -- the packets themselves are the same.
     a, b = _seed_tissue_run(1, unit_size=1000), _seed_tissue_run(2, unit_size=333)
@@ -204,8 +271,8 @@ import json, sys
 sys.path.insert(0, {tests!r})
 from isa_digest import digest
 from test_lanes import _seed_tissue_run
-r = _seed_tissue_run(2)
-print(json.dumps({{"lanes": r.lanes, "digest": digest(r)}}))
+r, f = _seed_tissue_run(2), _seed_tissue_run(2, fluorophores=True)
+print(json.dumps({{"lanes": r.lanes, "digest": [digest(r), digest(f)]}}))
 """
 
 
@@ -227,7 +294,7 @@ def test_same_bits_from_every_instruction_set():
     runs = {isa: _in_process(isa) for isa in isas}
     for isa, r in runs.items():
         assert r["lanes"] == isa
-    assert len({r["digest"] for r in runs.values()}) == 1, runs
+    assert len({tuple(r["digest"]) for r in runs.values()}) == 1, runs
     assert _in_process(None)["digest"] == runs["sse2"]["digest"]  # the default: the widest
 
 

@@ -23,7 +23,7 @@ from endophoton.view.render import render_view
 from physics_helpers import K_SIGMA, chi2_limit
 
 from _synth import polyp_box_scene
-from _view_checks import aperture_region_chi2, colon_scene, pixel_chi2
+from _view_checks import aperture_region_chi2, assert_sees_scale_error, colon_scene, pixel_chi2
 
 B = 20
 
@@ -403,11 +403,11 @@ def test_no_tissue_pixel_is_zero_and_most_converge():
     assert np.any(k.images["white"]["radiance"][tissue] == 0)
 
 
-def _cross_check(scene, source, cam, size, regions, photons, min_pixels):
-    """The exitance image of one run against the aperture image of an independent one (300,000 packets):
+def _cross_check(scene, source, cam, size, regions, photons, min_pixels, other_photons=300_000):
+    """The exitance image of one run against the aperture image of an independent one (``other_photons``):
     pixels and regions within the suite's chi-square limit."""
     view = render_view(ep.run(scene, source, photons, seed=1, spectral=True), cam, size, size, estimator="exitance")
-    other = render_view(ep.run(scene, source, 300_000, seed=2, spectral=True), cam, size, size, estimator="kernel")
+    other = render_view(ep.run(scene, source, other_photons, seed=2, spectral=True), cam, size, size, estimator="kernel")
     for image in ("white", "fluorescence"):
         a, b = view.images[image], other.aperture[image]
         chi, dof = pixel_chi2(a["radiance"], a["radiance_stderr"], b["radiance"], b["radiance_stderr"])
@@ -428,10 +428,10 @@ def test_flat_field_agrees_with_aperture():
     scene.add_box("tissue", (-5, -5, -2), (5, 5, 0), ep.Medium(mua=1.0, mus=30.0, g=0.8, n=1.4))
     src = ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=0.4)
     cam = Camera.look_at((0.3, 0, 2.0), (0, 0, 0), up=(0, 1, 0), fov_deg=20, aperture_radius=0.4)
-    view, other = _cross_check(scene, src, cam, 6, ("tissue",), 150_000, 20)
+    # 600,000 aperture packets: the power of 0.9 below needs them (at 300,000 it was 0.8)
+    view, other = _cross_check(scene, src, cam, 6, ("tissue",), 150_000, 20, other_photons=600_000)
     a, b = view.images["white"], other.aperture["white"]
-    bad, dof = pixel_chi2(1.2 * a["radiance"], 1.2 * a["radiance_stderr"], b["radiance"], b["radiance_stderr"])
-    assert bad > chi2_limit(dof), (bad, dof)
+    assert_sees_scale_error(a["radiance"], a["radiance_stderr"], b["radiance"], b["radiance_stderr"])
 
 
 @pytest.mark.slow

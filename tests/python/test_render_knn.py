@@ -19,6 +19,7 @@ from endophoton.view.render import render_view
 from physics_helpers import K_SIGMA, chi2_limit
 
 from _synth import RecordsResult, lambertian_records, polyp_box_scene
+from _view_checks import assert_sees_scale_error
 
 
 def _plane_scene():
@@ -211,23 +212,23 @@ def _nee_view(scene, src, cam, size, photons):
 def test_flat_field_agrees_with_next_event_estimate():
     """Uniform slab (n 1.4, g 0.8), 0.4 cm beam, oblique camera (test_render_nee's flat field): the k-nearest
     image of one run and the next-event image of another agree pixel by pixel (chi-square at the reported errors)
-    and in the region mean, which would see a 20 % scale error."""
+    and in the region mean, which would see a 30 % scale error with a chance of 0.8 or more (the k-nearest
+    region error levels off near 3 % of the mean: 0.0019-0.0025 over seeds at 600,000 packets and at
+    1,200,000, so a 20 % error is seen only about half the time)."""
     scene = ep.Scene(unit="cm")
     scene.add_box("tissue", (-5, -5, -2), (5, 5, 0), ep.Medium(mua=1.0, mus=30.0, g=0.8, n=1.4))
     src = ep.DiskSource(position=(0, 0, 1), direction=(0, 0, -1), radius=0.4)
     cam = Camera.look_at((0.3, 0, 2.0), (0, 0, 0), up=(0, 1, 0), fov_deg=20)
     nee = _nee_view(scene, src, cam, 6, 30_000)
-    knn = render_view(ep.run(scene, src, 300_000, seed=2, spectral=True), cam, 6, 6, estimator="knn")
+    knn = render_view(ep.run(scene, src, 600_000, seed=2, spectral=True), cam, 6, 6, estimator="knn")
     chi, dof = _pixel_chi2(knn, nee)
     assert dof >= 20 and chi < chi2_limit(dof), (chi, dof)
     z, _ = _region_z(knn, nee, "tissue", "white")
     assert abs(z) < K_SIGMA, z
-    # power: the region mean sees a 20 % scale error (each pixel, at ~1 / sqrt(k - 1) noise, hardly does)
+    # power: the region mean sees a 30 % scale error (each pixel, at ~1 / sqrt(k - 1) noise, hardly does)
     r, n = knn.regions()["tissue"], nee.regions()["tissue"]
-    z = (1.2 * r["white_radiance"] - n["white_radiance"]) / math.hypot(
-        1.2 * r["white_radiance_stderr"], n["white_radiance_stderr"]
-    )
-    assert z > K_SIGMA, z
+    assert_sees_scale_error(r["white_radiance"], r["white_radiance_stderr"], n["white_radiance"],
+                            n["white_radiance_stderr"], scale=1.3, power=0.8)  # fmt: skip
 
 
 @pytest.mark.slow

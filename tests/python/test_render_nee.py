@@ -17,7 +17,7 @@ from endophoton.view.render import render_view
 from physics_helpers import K_SIGMA, chi2_limit
 
 from _synth import polyp_box_scene
-from _view_checks import aperture_region_chi2, colon_scene, pixel_chi2
+from _view_checks import aperture_region_chi2, assert_sees_scale_error, colon_scene, pixel_chi2
 
 
 def _slab(mua=1.0, mus=10.0, g=0.0, n=1.0):
@@ -46,7 +46,8 @@ def _region_chi2(va, vb, keys=("white", "fluorescence")):
 
 def _assert_agree(nee, other, image="white", min_pixels=20, power=True):
     """nee's image against the other view's (its aperture image if it has one, else its main image):
-    chi-square over pixels, and over regions, within the suite's per-comparison limit."""
+    chi-square over pixels, and over regions, within the suite's per-comparison limit; with ``power``, a 20 %
+    scale error of nee's image would fail that check with a chance of 0.9 or more (assert_sees_scale_error)."""
     img = other.aperture[image] if other.aperture is not None else other.images[image]
     n = nee.images[image]
     chi, dof = pixel_chi2(n["radiance"], n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
@@ -54,9 +55,7 @@ def _assert_agree(nee, other, image="white", min_pixels=20, power=True):
     assert chi < chi2_limit(dof), (chi, dof)
     if not power:
         return
-    # power: a 20 % scale error is seen
-    bad, dof_bad = pixel_chi2(1.2 * n["radiance"], 1.2 * n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
-    assert bad > chi2_limit(dof_bad), (bad, dof_bad)
+    assert_sees_scale_error(n["radiance"], n["radiance_stderr"], img["radiance"], img["radiance_stderr"])
 
 
 # ---------------------------------------------------------------- fast checks
@@ -251,7 +250,8 @@ def test_look_back_with_a_dropped_ratio_is_seen(monkeypatch):
 def test_flat_field_agrees_with_aperture_and_kernel(look_back):
     """Uniform slab (n 1.4, g 0.8: refraction at the surface) under a 0.4 cm beam, seen obliquely: the
     next-event image of one run and the aperture and kernel images of another (seed) agree pixel by pixel
-    (the kernel's estimated bias added to its noise), and a 20 % scale error would be seen."""
+    (the kernel's estimated bias added to its noise), and a 20 % scale error would be seen (a chance of 0.9
+    or more: 600,000 aperture packets; at 300,000 it was 0.8)."""
     scene = _slab(mua=1.0, mus=30.0, g=0.8, n=1.4)
     src = _disk(0.4)
     cam = Camera.look_at((0.3, 0, 2.0), (0, 0, 0), up=(0, 1, 0), fov_deg=20, aperture_radius=0.4)
@@ -266,7 +266,7 @@ def test_flat_field_agrees_with_aperture_and_kernel(look_back):
     )
     nee = render_view(run, cam, 6, 6)
     assert nee.estimator == "nee" and nee.aperture is None  # no records: no aperture image
-    other = render_view(ep.run(scene, src, photons=300_000, seed=2, spectral=True), cam, 6, 6, estimator="kernel")
+    other = render_view(ep.run(scene, src, photons=600_000, seed=2, spectral=True), cam, 6, 6, estimator="kernel")
     _assert_agree(nee, other)
     k = other.images["white"]
     chi, dof = pixel_chi2(
@@ -297,9 +297,9 @@ def test_polyp_scene_agrees_with_aperture(look_back):
     )
     nee = render_view(run, cam, 8, 8)
     other = render_view(
-        ep.run(polyp_box_scene(), src, photons=300_000, seed=2, spectral=True), cam, 8, 8, estimator="kernel"
+        ep.run(polyp_box_scene(), src, photons=600_000, seed=2, spectral=True), cam, 8, 8, estimator="kernel"
     )
-    _assert_agree(nee, other)
+    _assert_agree(nee, other)  # its power of 0.9 needs the 600,000 (at 300,000 it was 0.54)
     chi, dof = aperture_region_chi2(nee, other, ("wall", "polyp"))
     assert chi < chi2_limit(dof), (chi, dof)
 
@@ -339,7 +339,9 @@ def test_pixel_colour_sums_add_up_to_the_region_sums(estimator):
     src = ep.DiskSource(position=(0, 0, 2), direction=(0, 0, -1), radius=1.5)
     cam = Camera.look_at((0, 0, 2.5), (0, 0, 0), up=(0, 1, 0), fov_deg=50)
     view = dict(camera=cam, width=12, height=12) if estimator == "nee" else None
-    res = ep.run(polyp_box_scene(), src, photons=2000, seed=1, spectral=True, view=view, threads=1)
+    # 10,000 packets: at 2,000 the surround's green light can come from one batch alone (the
+    # contrast is then None by design, visibility.jackknife), as it did for one seed in three.
+    res = ep.run(polyp_box_scene(), src, photons=10000, seed=1, spectral=True, view=view, threads=1)
     v = render_view(res, cam, 12, 12, estimator=estimator, kernel_radius=0.3)
     for name in ("polyp", "wall"):
         i = v.region_index(name)
