@@ -140,6 +140,8 @@ class PacketWalk {
     bool lane_ready();
     void from_lane(const LaneBlock& block, int k, const ClearSteps& zone);
     bool interior_ready() const;
+    const TriangleCache& cube_at(const Vec3& x, const TriangleCache* keep);
+    static bool same_cube(const TriangleCache* a, const TriangleCache* b);
     bool interior_steps();
     // How zone_steps ended: the packet ended, its next step needs the general
     // loop, or it fluoresced where the zone holds it clear and goes on there.
@@ -562,18 +564,42 @@ __attribute__((noinline)) bool PacketWalk<kSpectral, kGrids>::hop_zone(ClearStep
     // The lookups inline (built_cell_cache), cell_cache's call only to build
     // (callgrind, colon_polyp at 30,000 packets: 48.6k -> 48.3k instructions
     // a packet; cell_cache itself inline cost the other scenes ~1%).
-    auto cache_of = [&](const Vec3& x) {
-        const TriangleCache* c = scene_.built_cell_cache(x);
-        return c ? c : &scene_.cell_cache(x);
-    };
-    const TriangleCache* own = cache_of(ahead);
-    if (own == local_.cell || !enter_zone(zone, *own, p)) {
+    const TriangleCache* own = &cube_at(ahead, nullptr);
+    if (same_cube(own, local_.cell) || !enter_zone(zone, *own, p)) {
         const TriangleCache* first = own;  // tried already (p's cube when `ahead` is in it)
-        own = cache_of(p);
-        if (own == local_.cell || own == first || !enter_zone(zone, *own, p)) return false;
+        own = &cube_at(p, first);
+        if (same_cube(own, local_.cell) || same_cube(own, first) || !enter_zone(zone, *own, p)) return false;
     }
     local_.cell = own;
     return true;
+}
+
+// The cache of the cube x is in (the store's, built if need be). In the
+// lanes, a cube the full store does not keep is gathered into one of the
+// slot's own caches (SlotCaches), not the one the walk holds nor `keep`.
+template <bool kSpectral, bool kGrids>
+inline const TriangleCache& PacketWalk<kSpectral, kGrids>::cube_at(const Vec3& x, const TriangleCache* keep) {
+    if (const TriangleCache* c = scene_.built_cell_cache(x)) return *c;
+    if (!local_.own) return scene_.cell_cache(x);
+    // The gather's mailbox (a stamp per scene triangle) is the thread's; the
+    // slot keeps a copy of the content.
+    thread_local TriangleCacheBuilder gather;
+    const TriangleCache& c = scene_.cube_cache(x, gather);
+    if (&c != &gather) return c;  // the store's, or none (x outside the grid)
+    TriangleCacheBuilder& mine = local_.own->spare(local_.cell, keep);
+    mine = gather;
+    return mine;
+}
+
+// Whether two caches are one cube's: the same cache, or (a slot's own caches)
+// the same centre (a cube's centre is its own; a cache that covers nothing
+// has radius 0).
+template <bool kSpectral, bool kGrids>
+inline bool PacketWalk<kSpectral, kGrids>::same_cube(const TriangleCache* a, const TriangleCache* b) {
+    if (a == b) return true;
+    if (!a || !b || !(a->radius() > 0) || !(b->radius() > 0)) return false;
+    const Vec3 ca = a->center(), cb = b->center();
+    return ca.x == cb.x && ca.y == cb.y && ca.z == cb.z;
 }
 
 // The interior steps from the cube the packet is in; false when the packet
@@ -902,11 +928,11 @@ bool PacketWalk<kSpectral, kGrids>::cached_crossings(Float s) {
     const Vec3 a = st.p - st.d * back, b = st.p + st.d * s;
     const TriangleCache* cache = local_.cell;
     if (!cache || !cache->covers(a, b)) {
-        cache = &scene_.cell_cache(st.p);
+        cache = &cube_at(st.p, nullptr);
         // A step too long for the ball of the cube it starts in may fit in
         // the ball of the cube of its midpoint (any cache that covers a step
         // lists its crossings).
-        if (!cache->covers(a, b)) cache = &scene_.cell_cache((a + b) * Float(0.5));
+        if (!cache->covers(a, b)) cache = &cube_at((a + b) * Float(0.5), cache);
         if (!cache->covers(a, b)) {
             EP_STAT(cache_misses);
             return false;
@@ -1654,6 +1680,7 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     if (lanes_) {
         lane_isa();  // ENDOPHOTON_LANE_ISA checked before any packet
         lane_block_ = std::make_unique<LaneBlock>();
+        slot_caches_.resize(LaneBlock::kSlots);
     }
     for (const Light& l : source.lights()) {
         enclosed_.push_back(in_closed_pocket(scene, l, hits_) ? 1 : 0);
@@ -1751,6 +1778,7 @@ bool Tracer::trace_lanes_as(uint64_t first, uint64_t end, UnitOutput& out, const
     auto serve = [&](int k, bool resume) {
         Slot& sl = slots[k];
         std::optional<typename Walk::Walk> w;
+        local_.own = &slot_caches_[size_t(k)];
         if (resume) {
             local_.cell = sl.cell;
             w = sl.walk->after_lanes(B, k, sl.zone, &sl.hopped);
@@ -1775,6 +1803,10 @@ bool Tracer::trace_lanes_as(uint64_t first, uint64_t end, UnitOutput& out, const
             w = sl.walk->begin(sl.index, &sl.zone);
         }
     };
+    struct NoOwnCaches {  // the slots' caches serve this call only
+        LocalGeometry& local;
+        ~NoOwnCaches() { local.own = nullptr; }
+    } no_own_caches{local_};
     for (int k = 0; k < LaneBlock::kSlots; ++k)
         if (!serve(k, false)) return false;
     while (uint32_t left = run_lanes(B))

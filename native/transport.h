@@ -59,11 +59,29 @@ struct UnitOutput {
     }
 };
 
+// A lane slot's own caches (Tracer::trace_lanes). Where the full cube store
+// keeps no cache for a cube, a walk in the lanes gathers that cube into one
+// of these (Scene::cube_cache) instead of taking the full query: a packet
+// enters the lanes where a cube's cache gives it a zone, so what it meets
+// must never depend on which cubes the store took first (the threads'
+// timing). Three: the one the walk holds (LocalGeometry::cell) and a pair of
+// candidates (cached_crossings' and hop_zone's).
+struct SlotCaches {
+    TriangleCacheBuilder cache[3];
+    // One that is neither a nor b.
+    TriangleCacheBuilder& spare(const TriangleCache* a, const TriangleCache* b) {
+        for (TriangleCacheBuilder& c : cache)
+            if (&c != a && &c != b) return c;
+        return cache[0];  // unreachable: three caches, two excluded
+    }
+};
+
 // The local triangle cache this thread used last (Scene::cell_cache); the
 // geometry is static, so it stays valid from one packet to the next.
 struct LocalGeometry {
     bool enabled = false;                 // chosen per scene (Tracer's constructor)
     const TriangleCache* cell = nullptr;  // the cache of the last cached step
+    SlotCaches* own = nullptr;            // the lanes' slot's own caches (trace_lanes), else none
 };
 
 // A light without disk or cone (a pencil beam) emits every packet along the
@@ -138,6 +156,7 @@ class Tracer {
     bool spectral_, grids_;
     bool lanes_ = false;
     std::unique_ptr<LaneBlock> lane_block_;  // trace_lanes' slots
+    std::vector<SlotCaches> slot_caches_;    // and their own caches (LaneBlock::kSlots)
     std::vector<Hit> hits_;
     std::vector<Float> cuts_;
     LocalGeometry local_;  // voxel-face crossings of a clear segment (grids)

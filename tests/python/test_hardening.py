@@ -116,15 +116,18 @@ def test_bad_cache_store_budget_is_refused(value):
         ep.run(scene, DOWN, photons=10)
 
 
-def test_a_zero_cache_store_budget_still_runs():
-    """No caches at all: every step takes the full query, with the same results. (The double walk:
-    without caches no zone holds a step, so the float32 lanes, which need one, never serve.)"""
+@pytest.mark.parametrize("lanes", [False, True])
+def test_a_zero_cache_store_budget_still_runs(lanes):
+    """No stored caches at all: every step of the double walk takes the full query, and a walk in
+    the float32 lanes gathers each cube into its slot's own caches; the same results either way."""
     runs = []
     for mb in (None, 0):
         ep.forget_native_scenes()
         scene = slab(1.0)
         scene.cache_store_mb = mb
-        runs.append(run_physics(ep.run(scene, DOWN, photons=2000, seed=3, lanes=False)))
+        res = ep.run(scene, DOWN, photons=2000, seed=3, lanes=lanes)
+        assert (res.lanes is not None) == lanes
+        runs.append(run_physics(res))
         assert (scene.to_native().cache_store_bytes > 0) == (mb != 0)
     assert runs[0] == runs[1]
     ep.forget_native_scenes()

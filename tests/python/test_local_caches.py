@@ -87,14 +87,15 @@ def test_interior_steps_deposit_the_grids_of_the_general_loop(colon, tmp_path):
         assert np.count_nonzero(values) > 50, name
 
 
-def test_a_full_cache_store_changes_nothing_on_the_colon():
+@pytest.mark.parametrize("lanes", [False, True])
+def test_a_full_cache_store_changes_nothing_on_the_colon(lanes):
     """The cube store's budget (``cache_store_cap_bytes``) bounds its memory: once the store
-    holds it, cubes not cached yet take the full ray query. Same answers, so a run on a store
-    capped at 256 kB, at 2 threads, equals a run on an uncapped store at 1 thread bit for bit,
-    and the capped store stays within its budget plus one chunk a thread."""
-    # The double walk: a packet enters the float32 lanes only where a cube's cache gives it a zone,
-    # so their bits depend on the cubes the store holds (docs/numerics.md, "Float32 lanes").
-    kwargs = dict(photons=3000, seed=5, record_escapes=True, lanes=False)
+    holds it, cubes not cached yet take the full ray query (the double walk) or are gathered
+    into the lane slot's own caches (a packet enters the float32 lanes only where a cube's
+    cache gives it a zone). Same answers, so a run on a store capped at 256 kB, at 2 threads,
+    equals a run on an uncapped store at 1 thread bit for bit, and the capped store stays
+    within its budget plus one chunk a thread."""
+    kwargs = dict(photons=3000, seed=5, record_escapes=True, lanes=lanes)
     ep.forget_native_scenes()
     scene, rig = bench_scene("colon")
     free = ep.run(scene, rig, threads=1, **kwargs)
@@ -114,5 +115,6 @@ def test_a_full_cache_store_changes_nothing_on_the_colon():
     # chunk before it saw the store full (64 kB: chunks are huge pages only past 2 MiB).
     assert cap <= native.cache_store_bytes <= cap + 2 * 65536, native.cache_store_bytes
     assert len(free.escapes["weight"]) > 100
+    assert (free.lanes is not None) == lanes and (capped.lanes is not None) == lanes
     assert run_physics(free) == run_physics(capped)
     ep.forget_native_scenes()
