@@ -187,7 +187,7 @@ struct LaneConstants {
     F ex, ey, ez, ix, iy, iz;
     U room;
     I small_g;
-    bool any_small, any_large, track_depth, any_trials;
+    bool any_small, any_large, track_depth;
     LaneConstants(const LaneBlock& B, int o) {
         inv_mut = lane_load<F>(B.inv_mut + o), loss = lane_load<F>(B.loss + o);
         hg0 = lane_load<F>(B.hg0 + o), hg1 = lane_load<F>(B.hg1 + o), hg2 = lane_load<F>(B.hg2 + o);
@@ -202,7 +202,6 @@ struct LaneConstants {
         any_small = lane_bits(act & small_g) != 0;
         any_large = lane_bits(act & ~small_g) != 0;
         track_depth = B.track_depth;
-        any_trials = B.max_trials > 0;
     }
 };
 
@@ -259,9 +258,12 @@ inline V lane_pick(M go, V a, V b) {
 
 // The first part of interact() in the lanes where `go`, the step to b
 // taken: the move, the depth, the capture (seed eq. 3). Lanes where not `go`
-// keep every bit of their state. kAll: all W lanes go (no blends).
+// keep every bit of their state. kAll: all W lanes go (no blends). This and
+// lane_scatter are always inlined: called from four places, GCC kept
+// lane_scatter out of line, and the packets' state then went through
+// memory (seed tissue: 7 % slower).
 template <int W, bool kAll>
-inline void lane_move(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go,
+inline __attribute__((always_inline)) void lane_move(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go,
                       typename LaneTypes<W>::F bx, typename LaneTypes<W>::F by, typename LaneTypes<W>::F bz,
                       typename LaneTypes<W>::F budget) {
     using F = typename LaneTypes<W>::F;
@@ -316,7 +318,7 @@ inline typename LaneTypes<W>::I lane_trials(LaneBlock& B, int o, LaneGroup<W>& P
 // about n (DirectionFrame::turn, seed §4). Lanes where not `go` keep every
 // bit of their state. kAll: all W lanes go (the common case: no blends).
 template <int W, bool kAll>
-inline void lane_scatter(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go) {
+inline __attribute__((always_inline)) void lane_scatter(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go) {
     using F = typename LaneTypes<W>::F;
     using U = typename LaneTypes<W>::U;
     using I = typename LaneTypes<W>::I;
@@ -347,10 +349,11 @@ inline void lane_scatter(LaneGroup<W>& P, const LaneConstants<W>& c, typename La
 }
 
 // Steps group [o, o + W) until one of its active slots leaves; returns the
-// mask of those that left (bits o ...). The slots' steps are independent:
+// mask of those that left (bits o ...). kTrials: spectral packets, whose
+// fluorescence trials come between the capture and the scattering. The slots' steps are independent:
 // each reads and writes its own lane only, so a packet's bits do not depend
 // on its slot, its neighbours or the width.
-template <int W>
+template <int W, bool kTrials>
 uint32_t run_group(LaneBlock& B, int o) {
     using F = typename LaneTypes<W>::F;
     using I = typename LaneTypes<W>::I;
@@ -390,17 +393,25 @@ uint32_t run_group(LaneBlock& B, int o) {
         // scattering of the rest.
         const I go = act & ~blocked;
         const bool all = lane_bits(go) == kFull;
-        if (all)
+        I fired{}, on = go;
+        if constexpr (kTrials) {
+            if (all)
+                lane_move<W, true>(P, c, go, bx, by, bz, budget);
+            else
+                lane_move<W, false>(P, c, go, bx, by, bz, budget);
+            fired = lane_trials<W>(B, o, P, go);
+            on = go & ~fired;
+            if (all && lane_bits(fired) == 0)
+                lane_scatter<W, true>(P, c, on);
+            else
+                lane_scatter<W, false>(P, c, on);
+        } else if (all) {  // the plain runs' loop, without the trials' branches
             lane_move<W, true>(P, c, go, bx, by, bz, budget);
-        else
+            lane_scatter<W, true>(P, c, go);
+        } else {
             lane_move<W, false>(P, c, go, bx, by, bz, budget);
-        I fired{};
-        if (c.any_trials) fired = lane_trials<W>(B, o, P, go);
-        const I on = go & ~fired;
-        if (all && lane_bits(fired) == 0)
-            lane_scatter<W, true>(P, c, on);
-        else
-            lane_scatter<W, false>(P, c, on);
+            lane_scatter<W, false>(P, c, go);
+        }
         // Roulette and the caps are the walk's (survives_roulette, over_caps).
         const I slow = on & ((P.w < c.threshold) | I(P.steps >= c.room));
         const I leave = (act & blocked) | slow | fired;
@@ -421,7 +432,9 @@ uint32_t run_group(LaneBlock& B, int o) {
 template <int W>
 uint32_t run_lanes_w(LaneBlock& B) {
     uint32_t left = 0;
-    for (int o = 0; o < LaneBlock::kSlots; o += W) left |= run_group<W>(B, o);
+    // Spectral packets' trials (B.max_trials > 0) in a loop of their own.
+    const bool trials = B.max_trials > 0;
+    for (int o = 0; o < LaneBlock::kSlots; o += W) left |= trials ? run_group<W, true>(B, o) : run_group<W, false>(B, o);
     return left;
 }
 

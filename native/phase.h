@@ -64,7 +64,10 @@ constexpr SectorTable kSectors{};
 // delta^5 (remainders below 2e-20 and 9e-18), and the angle-addition formulas
 // add the offset, written as a small correction to the centre's (cos, sin).
 // Max error against std::cos / std::sin: see tests/cpp/test_phase.cpp.
-inline void azimuth_from_bits(uint32_t v, Float* sin_phi, Float* cos_phi) {
+// Always inline, as DirectionFrame's constructor and TriangleCache::covers:
+// when the lanes' walk for spectral packets joined transport.cpp, GCC kept
+// these three out of line, and the seed tissue ran 4 % slower.
+inline __attribute__((always_inline)) void azimuth_from_bits(uint32_t v, Float* sin_phi, Float* cos_phi) {
     const azimuth_detail::CosSin& a = azimuth_detail::kSectors.at[v >> 24];
     const Float delta = Float(int32_t(v & 0xFFFFFFu) - (int32_t(1) << 23)) * (2 * kPi * 0x1.0p-32);
     const Float w = delta * delta;

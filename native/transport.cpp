@@ -141,6 +141,7 @@ class PacketWalk {
     void from_lane(const LaneBlock& block, int k, const ClearSteps& zone);
     bool interior_ready() const;
     const TriangleCache& cube_at(const Vec3& x, const TriangleCache* keep);
+    const TriangleCache& own_cube(const Vec3& x, const TriangleCache* keep);
     static bool same_cube(const TriangleCache* a, const TriangleCache* b);
     bool interior_steps();
     // How zone_steps ended: the packet ended, its next step needs the general
@@ -581,6 +582,14 @@ template <bool kSpectral, bool kGrids>
 inline const TriangleCache& PacketWalk<kSpectral, kGrids>::cube_at(const Vec3& x, const TriangleCache* keep) {
     if (const TriangleCache* c = scene_.built_cell_cache(x)) return *c;
     if (!local_.own) return scene_.cell_cache(x);
+    return own_cube(x, keep);
+}
+
+// cube_at's gather into the slot's own caches, out of line (the walks
+// without lanes never call it).
+template <bool kSpectral, bool kGrids>
+__attribute__((noinline)) const TriangleCache& PacketWalk<kSpectral, kGrids>::own_cube(const Vec3& x,
+                                                                                      const TriangleCache* keep) {
     // The gather's mailbox (a stamp per scene triangle) is the thread's; the
     // slot keeps a copy of the content.
     thread_local TriangleCacheBuilder gather;

@@ -59,7 +59,7 @@ class TriangleCache {
 
     // True when the segment from a to b lies inside the ball (a ball is convex:
     // both ends inside suffices).
-    bool covers(const Vec3& a, const Vec3& b) const {
+    __attribute__((always_inline)) bool covers(const Vec3& a, const Vec3& b) const {
         const Vec3 da = a - center_, db = b - center_;
         const Float r2 = radius_ * radius_;
         return (dot(da, da) < r2) & (dot(db, db) < r2);  // & of bools: no branch on the first

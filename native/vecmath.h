@@ -144,7 +144,7 @@ struct DirectionFrame {
 
     DirectionFrame() = default;
     // The frame of orthonormal_basis about the unit vector dir.
-    explicit DirectionFrame(const Vec3& dir) : n(to_lanes(dir)) {
+    __attribute__((always_inline)) explicit DirectionFrame(const Vec3& dir) : n(to_lanes(dir)) {
         Vec3 t3, b3;
         orthonormal_basis(dir, &t3, &b3);
         t = to_lanes(t3);
