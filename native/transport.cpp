@@ -443,7 +443,8 @@ void PacketWalk<kSpectral, kGrids>::from_lane(const LaneBlock& B, int k, const C
     }
     st.events += steps;
     st.interactions += steps;
-    st.scatterings += steps;
+    // A slot that fluoresced did not scatter at its last step: the walk does.
+    st.scatterings += B.reason[k] == kLaneFluoresced ? steps - 1 : steps;
     if (st.entered && cfg_.record_escapes) st.max_depth = std::max(st.max_depth, Float(B.depth[k]) * unit_cm_);
 }
 

@@ -109,11 +109,15 @@ def test_fluorescence_fires_with_chance_d_times_c():
     The trials T = n1 + n2 with n2 = n1 - E1, so n1 = (T + E1) / 2, and by Wald's identity the
     events are E1 = p1 n1 and E2 = p2 n2 in expectation, binomial about it."""
     res = ep.run(fluorescent(mua=0.0, mus=100.0, n=1.0, thickness=0.2), DOWN, photons=20_000, seed=4,
-                 threads=0, fluorescence_rule="paper")  # fmt: skip
+                 threads=0, fluorescence_rule="paper", record_escapes=True)  # fmt: skip
     assert res.lanes is not None
     assert res.absorbed == 0.0 and res.roulette == 0.0 and res.stokes_loss > 0
     assert_energy_conserved(res)
     N = res.photons
+    # Every packet leaves once (no reflection at n 1, no capture), and every interaction scatters
+    # once, a fluorescent one too (the walk scatters it after the lanes).
+    assert len(res.escapes["weight"]) == N
+    assert int(np.sum(res.escapes["scatterings"])) == round(res.interactions * N)
     T = res.fluorescence_trials * N
     e1, e2 = (res.emitted_by_fluorophore[k] * N for k in ("collagen", "photofrin"))
     assert abs(e1 - round(e1)) < 1e-6 and abs(e2 - round(e2)) < 1e-6  # counts: every weight is 1
