@@ -25,8 +25,8 @@ enum class LaneIsa : int { kSse2 = 0, kAvx2 = 1, kAvx512 = 2 };
 
 // Why a slot left the lanes (LaneBlock::reason).
 enum LaneExit : int32_t {
-    kLaneBlocked = 1,  // its next step (tau, unchanged) may cross something: the walk takes it
-    kLaneSlow = 2,     // a step was taken and roulette or a cap is due (its free path is not drawn)
+    kLaneBlocked = 1,     // its next step (tau, unchanged) may cross something: the walk takes it
+    kLaneSlow = 2,        // a step was taken and roulette or a cap is due (its free path is not drawn)
     kLaneFluoresced = 3,  // a step was taken, its capture done, and fluorophore `fired` fluoresced there:
                           // the walk finishes that interaction (fluoresce_with, scatter_and_survive)
 };

@@ -263,9 +263,10 @@ inline V lane_pick(M go, V a, V b) {
 // lane_scatter out of line, and the packets' state then went through
 // memory (seed tissue: 7 % slower).
 template <int W, bool kAll>
-inline __attribute__((always_inline)) void lane_move(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go,
-                      typename LaneTypes<W>::F bx, typename LaneTypes<W>::F by, typename LaneTypes<W>::F bz,
-                      typename LaneTypes<W>::F budget) {
+inline __attribute__((always_inline)) void lane_move(LaneGroup<W>& P, const LaneConstants<W>& c,
+                                                     typename LaneTypes<W>::I go, typename LaneTypes<W>::F bx,
+                                                     typename LaneTypes<W>::F by, typename LaneTypes<W>::F bz,
+                                                     typename LaneTypes<W>::F budget) {
     using F = typename LaneTypes<W>::F;
     using U = typename LaneTypes<W>::U;
     P.qx = lane_pick<kAll>(go, bx, P.qx), P.qy = lane_pick<kAll>(go, by, P.qy), P.qz = lane_pick<kAll>(go, bz, P.qz);
@@ -318,7 +319,8 @@ inline typename LaneTypes<W>::I lane_trials(LaneBlock& B, int o, LaneGroup<W>& P
 // about n (DirectionFrame::turn, seed §4). Lanes where not `go` keep every
 // bit of their state. kAll: all W lanes go (the common case: no blends).
 template <int W, bool kAll>
-inline __attribute__((always_inline)) void lane_scatter(LaneGroup<W>& P, const LaneConstants<W>& c, typename LaneTypes<W>::I go) {
+inline __attribute__((always_inline)) void lane_scatter(LaneGroup<W>& P, const LaneConstants<W>& c,
+                                                        typename LaneTypes<W>::I go) {
     using F = typename LaneTypes<W>::F;
     using U = typename LaneTypes<W>::U;
     using I = typename LaneTypes<W>::I;
@@ -350,9 +352,10 @@ inline __attribute__((always_inline)) void lane_scatter(LaneGroup<W>& P, const L
 
 // Steps group [o, o + W) until one of its active slots leaves; returns the
 // mask of those that left (bits o ...). kTrials: spectral packets, whose
-// fluorescence trials come between the capture and the scattering. The slots' steps are independent:
-// each reads and writes its own lane only, so a packet's bits do not depend
-// on its slot, its neighbours or the width.
+// fluorescence trials come between the capture and the scattering (plain
+// runs keep a loop without them). The slots' steps are independent: each
+// reads and writes its own lane only, so a packet's bits do not depend on
+// its slot, its neighbours or the width.
 template <int W, bool kTrials>
 uint32_t run_group(LaneBlock& B, int o) {
     using F = typename LaneTypes<W>::F;
@@ -379,8 +382,8 @@ uint32_t run_group(LaneBlock& B, int o) {
             const F q2 = lane_dot(bx, by, bz, bx, by, bz);
             F fresh = c.inner - lane_sqrt(q2);
             for (int k = 0; k < n_planes; ++k) {
-                const F m = lane_dot(lane_load<F>(B.pnx[k] + o), lane_load<F>(B.pny[k] + o),
-                                     lane_load<F>(B.pnz[k] + o), bx, by, bz) -
+                const F m = lane_dot(lane_load<F>(B.pnx[k] + o), lane_load<F>(B.pny[k] + o), lane_load<F>(B.pnz[k] + o),
+                                     bx, by, bz) -
                             lane_load<F>(B.poff[k] + o);
                 fresh = lane_min(fresh, m);
             }
@@ -393,25 +396,17 @@ uint32_t run_group(LaneBlock& B, int o) {
         // scattering of the rest.
         const I go = act & ~blocked;
         const bool all = lane_bits(go) == kFull;
-        I fired{}, on = go;
-        if constexpr (kTrials) {
-            if (all)
-                lane_move<W, true>(P, c, go, bx, by, bz, budget);
-            else
-                lane_move<W, false>(P, c, go, bx, by, bz, budget);
-            fired = lane_trials<W>(B, o, P, go);
-            on = go & ~fired;
-            if (all && lane_bits(fired) == 0)
-                lane_scatter<W, true>(P, c, on);
-            else
-                lane_scatter<W, false>(P, c, on);
-        } else if (all) {  // the plain runs' loop, without the trials' branches
+        if (all)
             lane_move<W, true>(P, c, go, bx, by, bz, budget);
-            lane_scatter<W, true>(P, c, go);
-        } else {
+        else
             lane_move<W, false>(P, c, go, bx, by, bz, budget);
-            lane_scatter<W, false>(P, c, go);
-        }
+        I fired{};
+        if constexpr (kTrials) fired = lane_trials<W>(B, o, P, go);
+        const I on = go & ~fired;
+        if (all && (!kTrials || lane_bits(fired) == 0))
+            lane_scatter<W, true>(P, c, on);
+        else
+            lane_scatter<W, false>(P, c, on);
         // Roulette and the caps are the walk's (survives_roulette, over_caps).
         const I slow = on & ((P.w < c.threshold) | I(P.steps >= c.room));
         const I leave = (act & blocked) | slow | fired;
@@ -434,7 +429,8 @@ uint32_t run_lanes_w(LaneBlock& B) {
     uint32_t left = 0;
     // Spectral packets' trials (B.max_trials > 0) in a loop of their own.
     const bool trials = B.max_trials > 0;
-    for (int o = 0; o < LaneBlock::kSlots; o += W) left |= trials ? run_group<W, true>(B, o) : run_group<W, false>(B, o);
+    for (int o = 0; o < LaneBlock::kSlots; o += W)
+        left |= trials ? run_group<W, true>(B, o) : run_group<W, false>(B, o);
     return left;
 }
 

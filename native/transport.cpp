@@ -453,8 +453,8 @@ void PacketWalk<kSpectral, kGrids>::from_lane(const LaneBlock& B, int k, const C
 // the general loop for the blocked step; then the walk goes on.
 template <bool kSpectral, bool kGrids>
 typename PacketWalk<kSpectral, kGrids>::Walk PacketWalk<kSpectral, kGrids>::after_lanes(const LaneBlock& B, int k,
-                                                                                          ClearSteps& zone,
-                                                                                          bool* hopped) {
+                                                                                        ClearSteps& zone,
+                                                                                        bool* hopped) {
     const bool stepped = B.steps[k] > 0, slow = B.reason[k] == kLaneSlow;
     from_lane(B, k, zone);
     if (stepped) *hopped = false;
@@ -590,7 +590,7 @@ inline const TriangleCache& PacketWalk<kSpectral, kGrids>::cube_at(const Vec3& x
 // without lanes never call it).
 template <bool kSpectral, bool kGrids>
 __attribute__((noinline)) const TriangleCache& PacketWalk<kSpectral, kGrids>::own_cube(const Vec3& x,
-                                                                                      const TriangleCache* keep) {
+                                                                                       const TriangleCache* keep) {
     // The gather's mailbox (a stamp per scene triangle) is the thread's; the
     // slot keeps a copy of the content.
     thread_local TriangleCacheBuilder gather;

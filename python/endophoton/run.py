@@ -405,11 +405,10 @@ def run(
     ``lanes`` (default True): the plain interior steps -- deep in one scattering region, crossing
     nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h), fluorescence trials
     included. They serve runs without grids taking deposits (a spectral run: without any grid), a
-    camera tally or a path cap; ``result.lanes`` names the
-    lanes' instruction set where they served the run ("sse2", "avx2", "avx512"), else None. The
-    result is another sample of the same physics, the same bits for a seed on any processor, thread
-    count or cluster, but not the bits of the double walk that ``lanes=False`` gives
-    (docs/numerics.md, "Float32 lanes").
+    camera tally or a path cap; ``result.lanes`` names the lanes' instruction set where they served
+    the run ("sse2", "avx2", "avx512"), else None. The result is another sample of the same
+    physics, the same bits for a seed on any processor, thread count or cluster, but not the bits of
+    the double walk that ``lanes=False`` gives (docs/numerics.md, "Float32 lanes").
     ``view`` (None: off): True or a dict (endophoton.view.nee.view_request) makes the run tally the
     camera's image by next-event estimation (docs/render.md), which ``ep.render_view(result)`` then
     renders (estimator "nee"). It needs a fixed ``photons`` count, a spectral run and no ``client``.

@@ -289,7 +289,7 @@ TEST(Lanes, EveryInstructionSetGivesTheSameBits) {
             B.planes[k] = 1;
             B.pnx[0][k] = 0.6f, B.pny[0][k] = 0, B.pnz[0][k] = 0.8f, B.poff[0][k] = -0.1f;
             B.ez[k] = 0.05f, B.ix[k] = 0.6f, B.iz[k] = -0.8f;  // the depth below an entry point
-            if (k % 2 == 0) {  // fluorescence trials of two fluorophores
+            if (k % 2 == 0) {                                  // fluorescence trials of two fluorophores
                 B.trials[k] = 2;
                 B.trial_d[0][k] = 0.2f, B.trial_c[0][k] = 0.4f, B.trial_d[1][k] = 0.1f, B.trial_c[1][k] = 0.33f;
             }
@@ -299,10 +299,10 @@ TEST(Lanes, EveryInstructionSetGivesTheSameBits) {
         B.track_depth = true;
     };
     auto slot_bytes = [](const LaneBlock& B, int k, std::vector<uint8_t>& out) {
-        const float f[] = {B.qx[k], B.qy[k], B.qz[k], B.tx[k], B.ty[k], B.tz[k], B.bx[k], B.by[k],
+        const float f[] = {B.qx[k], B.qy[k], B.qz[k], B.tx[k], B.ty[k], B.tz[k],  B.bx[k],    B.by[k],
                            B.bz[k], B.nx[k], B.ny[k], B.nz[k], B.w[k],  B.tau[k], B.depth[k], B.budget[k]};
-        const uint32_t u[] = {B.s0[k],    B.s1[k],    B.s2[k], B.s3[k], B.count[k], B.steps[k], uint32_t(B.reason[k]),
-                              B.tried[k], uint32_t(B.fired[k])};
+        const uint32_t reason = uint32_t(B.reason[k]), fired = uint32_t(B.fired[k]);
+        const uint32_t u[] = {B.s0[k], B.s1[k], B.s2[k], B.s3[k], B.count[k], B.steps[k], reason, B.tried[k], fired};
         out.insert(out.end(), reinterpret_cast<const uint8_t*>(f), reinterpret_cast<const uint8_t*>(f) + sizeof f);
         out.insert(out.end(), reinterpret_cast<const uint8_t*>(u), reinterpret_cast<const uint8_t*>(u) + sizeof u);
     };

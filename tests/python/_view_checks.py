@@ -31,7 +31,9 @@ def assert_sees_scale_error(a, sa, b, sb, scale=1.2, power=0.9, rel=0.25):
     dof = int(ok.sum())
     assert dof >= 1, "no converged pixel"
     caught = float(stats.ncx2.sf(chi2_limit(dof), dof, lam))
-    assert caught >= power, f"a {scale - 1:.0%} scale error is caught with probability {caught:.3f} (dof {dof}, noncentrality {lam:.1f})"
+    assert (
+        caught >= power
+    ), f"a {scale - 1:.0%} scale error is caught with probability {caught:.3f} (dof {dof}, noncentrality {lam:.1f})"
 
 
 def aperture_region_chi2(view, other, regions, keys=("white", "fluorescence")):

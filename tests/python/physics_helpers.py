@@ -60,12 +60,13 @@ def k_sigma_for_batches(batches: int) -> float:
     """The threshold in sigmas for a batch-means sigma of ``batches`` batches: K_SIGMA at the
     engine's default of 50 or more, else Student t with batches - 1 degrees of freedom at the
     same two-sided tail as t49 at K_SIGMA (4.2e-5). A run of few work units has few batches and a
-    very uncertain sigma: at 2 batches (t1) the threshold is about 15,000 sigma, as it must be."""
-    if batches >= 50:
+    very uncertain sigma: at 2 batches (t1) the threshold is about 15,000 sigma, as it must be. Below
+    2 batches (one unit) the engine's sigma is the per-packet one, and K_SIGMA holds."""
+    if batches >= 50 or batches < 2:
         return K_SIGMA
     from scipy import stats
 
-    return float(stats.t.isf(stats.t.sf(K_SIGMA, 49), max(1, batches - 1)))
+    return float(stats.t.isf(stats.t.sf(K_SIGMA, 49), batches - 1))
 
 
 def chi2_limit(dof):

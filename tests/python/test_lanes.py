@@ -216,7 +216,9 @@ def test_scale_free_and_far_away():
 def test_no_absorption_captures_nothing():
     """mua = 0: the lanes capture exactly nothing, and every packet leaves (a slab of 20 mean free paths)."""
     scene = ep.Scene(unit="cm", ambient_n=1.0)
-    scene.add_box("slab", min=(-100, -100, -0.2), max=(100, 100, 0.0), medium=ep.Medium(mua=0.0, mus=100.0, g=0.9, n=1.4))
+    scene.add_box(
+        "slab", min=(-100, -100, -0.2), max=(100, 100, 0.0), medium=ep.Medium(mua=0.0, mus=100.0, g=0.9, n=1.4)
+    )
     res = ep.run(scene, DOWN, photons=20_000, seed=3, threads=0, lanes=True)
     assert res.absorbed == 0.0 and res.roulette == 0.0 and res.cut == 0.0
     assert_energy_conserved(res)
@@ -294,7 +296,11 @@ def _in_process(isa: str | None) -> dict:
 @pytest.mark.slow
 def test_same_bits_from_every_instruction_set():
     flags = cpu_flags()
-    isas = ["sse2"] + (["avx2"] if "avx2" in flags else []) + (["avx512"] if {"avx512f", "avx512vl", "avx512dq"} <= flags else [])
+    isas = (
+        ["sse2"]
+        + (["avx2"] if "avx2" in flags else [])
+        + (["avx512"] if {"avx512f", "avx512vl", "avx512dq"} <= flags else [])
+    )
     runs = {isa: _in_process(isa) for isa in isas}
     for isa, r in runs.items():
         assert r["lanes"] == isa

@@ -407,7 +407,9 @@ def _cross_check(scene, source, cam, size, regions, photons, min_pixels, other_p
     """The exitance image of one run against the aperture image of an independent one (``other_photons``):
     pixels and regions within the suite's chi-square limit."""
     view = render_view(ep.run(scene, source, photons, seed=1, spectral=True), cam, size, size, estimator="exitance")
-    other = render_view(ep.run(scene, source, other_photons, seed=2, spectral=True), cam, size, size, estimator="kernel")
+    other = render_view(
+        ep.run(scene, source, other_photons, seed=2, spectral=True), cam, size, size, estimator="kernel"
+    )
     for image in ("white", "fluorescence"):
         a, b = view.images[image], other.aperture[image]
         chi, dof = pixel_chi2(a["radiance"], a["radiance_stderr"], b["radiance"], b["radiance_stderr"])
