@@ -315,6 +315,8 @@ def sections(R):
         + frozen("lanes_engine")
         + "\n## 30. Fluorescence trials in the lanes (issue 39; frozen, 2026-12-08)\n\n"
         + frozen("lanes_spectral")
+        + "\n## 31. The emission grids in the lanes; the colon's hops fetched ahead (issue 39; frozen, 2026-12-08)\n\n"
+        + frozen("lanes_emission")
     )  # fmt: skip
 
 

@@ -47,8 +47,9 @@ struct RunConfig {
     // Use the closest-surface distance to skip ray queries deep inside regions.
     bool safe_distance = true;
     // The plain interior steps in float32 lanes, 16 packets at once
-    // (lane_block.h; issue 39): runs without grids taking deposits (spectral
-    // runs: without any grid), camera tally or path cap (lanes_serve). Another
+    // (lane_block.h; issue 39): runs without grids taking per-interaction
+    // deposits (the emission grids alone are served), camera tally or path
+    // cap (lanes_serve). Another
     // sample of the same physics, not the scalar walk's bits (docs/numerics.md,
     // "Float32 lanes").
     bool lanes = false;

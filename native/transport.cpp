@@ -1669,11 +1669,10 @@ bool deposits_grids(const RunConfig& cfg) {
 }
 
 bool lanes_serve(const Scene& scene, const RunConfig& cfg) {
-    // local_.enabled is cfg.safe_distance.
-    // Spectral runs take no grids at all: a fluorescence event's emission
-    // deposit goes to its unit's grids, which a packet's own output lacks.
-    const bool grids = spectral_run(scene, cfg) ? cfg.grid_voxel_size > 0 : deposits_grids(cfg);
-    return cfg.lanes && !grids && !cfg.camera_view && !(cfg.max_path_cm > 0) && cfg.safe_distance;
+    // local_.enabled is cfg.safe_distance. The lanes make no per-interaction
+    // deposit; the emission grids take theirs at fluorescence events, which
+    // the walk finishes (after_lanes), into the unit's grids.
+    return cfg.lanes && !deposits_grids(cfg) && !cfg.camera_view && !(cfg.max_path_cm > 0) && cfg.safe_distance;
 }
 
 Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, const RunConfig& cfg)
@@ -1739,7 +1738,9 @@ bool Tracer::trace_lanes_as(uint64_t first, uint64_t end, UnitOutput& out, const
     using Walk = PacketWalk<kSpectral, false>;
     // A slot's packet: its walk, its zone and last cube (LocalGeometry's, per
     // packet: each starts with none, so which steps a cube answers depends on
-    // the packet alone), its output until it is merged in index order.
+    // the packet alone), its output until it is merged in index order (its
+    // tallies and records; its deposits go straight to the unit's grids,
+    // whose sums are exact in any order).
     struct Slot {
         std::optional<Walk> walk;
         ClearSteps zone;
@@ -1761,6 +1762,7 @@ bool Tracer::trace_lanes_as(uint64_t first, uint64_t end, UnitOutput& out, const
         if (spare.empty()) {
             auto o = std::make_unique<UnitOutput>();
             o->tally.reset(out.tally.absorbed_by_region.size(), out.tally.emitted_by_fluorophore.size());
+            o->deposit_into(out.grids);
             return o;
         }
         auto o = std::move(spare.back());

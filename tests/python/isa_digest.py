@@ -92,6 +92,11 @@ def cases(out_dir: str):
         grids = ep.GridRequest(voxel_size=5e-4, path=path)
         return lambda: (ep.run(colon, rig, photons=3000, seed=7, threads=threads, grids=grids), path)
 
+    def colon_emission(threads):  # the emission grids alone: the spectral lanes serve the run
+        path = os.path.join(out_dir, f"colon_emission_{threads}.vdb")
+        grids = ep.GridRequest(voxel_size=5e-4, path=path, absorbed=False, fluorescent_light=False)
+        return lambda: (ep.run(colon, rig, photons=3000, seed=7, threads=threads, grids=grids), path)
+
     return [
         ("cone_over_clear_layer/2", plain(cone_over_clear_layer(), 20000, 2)),
         ("seed_tissue/1", plain(seed, 20000, 1)),
@@ -99,6 +104,7 @@ def cases(out_dir: str):
         ("mcml_slab/2", plain(slab, 50000, 2)),
         ("seed_tissue_lanes_records/2", plain(seed, 20000, 2, lanes=True, record_escapes=True)),
         ("colon_lanes_records/2", plain((colon, rig), 3000, 2, lanes=True, record_escapes=True)),  # spectral lanes
+        ("colon_lanes_emission/2", colon_emission(2)),
         ("colon_grids_records/1", colon_grids(1)),
         ("colon_grids_records/2", colon_grids(2)),
         ("colon_camera/2", lambda: (ep.run(colon, rig, photons=2000, seed=7, threads=2, view=True), None)),

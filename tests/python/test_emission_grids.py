@@ -7,6 +7,7 @@ import pytest
 
 import endophoton as ep
 from endophoton import vdb
+from physics_helpers import K_SIGMA
 
 pytest.importorskip("pyopenvdb")
 
@@ -91,6 +92,41 @@ def test_emission_grids_and_tallies_are_the_same_bits_on_any_thread_count(tmp_pa
         a, oa, ha = vdb.grid_to_numpy(one.grid_path, name)
         b, ob, hb = vdb.grid_to_numpy(two.grid_path, name)
         assert oa == ob and ha == hb and np.array_equal(a, b), name
+
+
+def _emission_alone(tmp_path, name, threads=1, photons=20_000, seed=3, lanes=True):
+    src = ep.PencilSource((0.3, 0.0, 1.0), (0, 0, -1))
+    grids = ep.GridRequest(voxel_size=H, path=str(tmp_path / f"{name}.vdb"), absorbed=False, fluorescent_light=False)
+    return ep.run(lesion_scene(), src, photons=photons, seed=seed, threads=threads, grids=grids, lanes=lanes)
+
+
+def test_the_emission_grids_alone_take_the_lanes(tmp_path):
+    """A run asking for the emission grids alone takes the float32 lanes (issue 39): its deposits
+    come at fluorescence events, which the walk finishes, straight into the unit's grids. Each grid
+    sums exactly to its fluorophore's tally, photofrin's lies in the lesion, the bits do not depend
+    on the thread count, and the tallies agree with the double walk's."""
+    one = _emission_alone(tmp_path, "l1")
+    assert one.lanes is not None
+    assert one.grid_names == ["emission_collagen", "emission_photofrin"]
+    summary = vdb.read_grid_summary(one.grid_path)["grids"]
+    for name in ("collagen", "photofrin"):
+        tally = one.emitted_by_fluorophore[name]
+        assert tally > 10 * one.emitted_by_fluorophore_stderr[name] > 0, name
+        assert summary[f"emission_{name}"]["metadata"]["accumulator_sum"] == pytest.approx(tally, rel=1e-12), name
+    centres, values = _voxel_centres(one.grid_path, "emission_photofrin")
+    assert len(values) > 0 and np.all(_overlaps_lesion(centres))
+    two = _emission_alone(tmp_path, "l2", threads=2)
+    assert one.emitted_by_fluorophore == two.emitted_by_fluorophore
+    for name in one.grid_names:
+        a, oa, ha = vdb.grid_to_numpy(one.grid_path, name)
+        b, ob, hb = vdb.grid_to_numpy(two.grid_path, name)
+        assert oa == ob and ha == hb and np.array_equal(a, b), name
+    double = _emission_alone(tmp_path, "d", seed=4, lanes=False)
+    assert double.lanes is None
+    for name in ("collagen", "photofrin"):
+        a, b = one.emitted_by_fluorophore[name], double.emitted_by_fluorophore[name]
+        sigma = math.hypot(one.emitted_by_fluorophore_stderr[name], double.emitted_by_fluorophore_stderr[name])
+        assert abs(a - b) < K_SIGMA * sigma, (name, a, b, sigma)
 
 
 def test_a_scene_without_fluorophores_makes_no_emission_grid(tmp_path):

@@ -1,6 +1,8 @@
 """A run tallies and writes only the grids it is asked for (GridRequest's absorbed, fluorescent_light and
 emission switches): the file holds exactly those grids, each the same voxels as in a run that writes them
-all, and the tallies do not change. Bad requests are refused by name, before any tracing."""
+all (in the double walk: with the float32 lanes, the default, a run asking for the emission grids alone
+takes the lanes, another sample; test_emission_grids.py), and the tallies do not change. Bad requests
+are refused by name, before any tracing."""
 import json
 import math
 import pathlib
@@ -21,11 +23,13 @@ EMISSION = ["emission_collagen", "emission_photofrin"]
 ALL = ["absorbed", "fluorescent_light"] + PER_FLUOROPHORE + EMISSION
 
 
-def _run(tmp_path, name, scene=None, threads=2, **asked):
+def _run(tmp_path, name, scene=None, threads=2, lanes=False, **asked):
+    # The double walk by default: every grid request takes it, so their voxels compare bit for bit.
     path = tmp_path / f"{name}.vdb"
     grids = ep.GridRequest(voxel_size=H, path=str(path), **asked)
     src = ep.PencilSource((0.3, 0.0, 1.0), (0, 0, -1))
-    return ep.run(scene or lesion_scene(), src, photons=800, seed=4, threads=threads, grids=grids, record_escapes=False)
+    return ep.run(scene or lesion_scene(), src, photons=800, seed=4, threads=threads, grids=grids,
+                  record_escapes=False, lanes=lanes)  # fmt: skip
 
 
 def _tallies(res):
@@ -76,7 +80,9 @@ def test_a_store_run_keeps_only_the_asked_for_grids_of_the_units_it_merges(tmp_p
     runs = []
     for label, asked in (("all", {}), ("emission", dict(absorbed=False, fluorescent_light=False))):
         grids = ep.GridRequest(voxel_size=H, path=str(tmp_path / f"{label}.vdb"), **asked)
-        runs.append(ep.run(lesion_scene(), src, store=300, fluorescent_only=True, seed=2, threads=2, grids=grids))
+        runs.append(
+            ep.run(lesion_scene(), src, store=300, fluorescent_only=True, seed=2, threads=2, grids=grids, lanes=False)
+        )
     full, part = runs
     assert part.stop_reason == full.stop_reason == "store" and part.packets_traced == full.packets_traced
     assert part.grid_names == EMISSION

@@ -8,7 +8,8 @@ pairs), the libm variant glibc picks at load time (with or without FMA), and the
 picks (SSE2 to AVX-512). This test builds the engine twice more, for baseline x86-64 and with
 AVX-512 (where this processor has it), and runs one set of cases (isa_digest.py: seed tissue, the
 MCML slab, a disk-and-cone source over a clear layer, the seed tissue in float32 lanes with records,
-the colon with grids and records on 1 and 2 threads, the colon's camera tally) with
+the colon with grids and records on 1 and 2 threads, the colon's emission grids alone (in the
+spectral lanes), the colon's camera tally) with
 
 - this build, this machine's libm and Embree's best kernels (the reference),
 - this build with glibc's pre-AVX libm (GLIBC_TUNABLES below: the libm of an old machine),

@@ -95,9 +95,16 @@ def test_lanes_serve_runs_without_grids_camera_or_path_cap(tmp_path):
     # Where they cannot serve, the double walk traces the run, and the result says so.
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, max_path_cm=50.0).lanes is None
     assert ep.run(scene, DOWN, photons=2000, threads=1, lanes=True, safe_distance=False).lanes is None
-    # A spectral run with grids, even the emission grids alone (their deposits are the unit's).
+    # Grids taking a deposit at every interaction go to the double walk; the emission grids alone
+    # (deposits at fluorescence events, which the walk finishes) are served.
+    for absorbed, light in ((True, False), (False, True), (True, True)):
+        grids = ep.GridRequest(
+            voxel_size=0.05, path=str(tmp_path / "g.vdb"), absorbed=absorbed, fluorescent_light=light
+        )
+        assert ep.run(fluorescent(), DOWN, photons=2000, threads=1, grids=grids).lanes is None
+        assert ep.run(scene, DOWN, photons=2000, threads=1, grids=grids).lanes is None
     alone = ep.GridRequest(voxel_size=0.05, path=str(tmp_path / "e.vdb"), absorbed=False, fluorescent_light=False)
-    assert ep.run(fluorescent(), DOWN, photons=2000, threads=1, grids=alone).lanes is None
+    assert ep.run(fluorescent(), DOWN, photons=2000, threads=1, grids=alone).lanes is not None
     cam = Camera.look_at((0, 0, 2.0), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
     assert ep.run(fluorescent(), DOWN, photons=500, threads=1, view=dict(camera=cam, width=4, height=4)).lanes is None
 
