@@ -107,6 +107,20 @@ THROUGHPUT = [  # (config, scene, run defaults, packets, quick packets)
     ("colon", "colon", None, 150_000, 50_000),
     ("colon_double", "colon", {"lanes": False}, 150_000, 50_000),
     ("colon+grids", "colon", {"grids": {"voxel_size": 0.0002, "path": os.path.join(TMP, "g.vdb")}}, 150_000, 50_000),
+    (
+        "colon+emission",
+        "colon",
+        {
+            "grids": {
+                "voxel_size": 0.0002,
+                "path": os.path.join(TMP, "e.vdb"),
+                "absorbed": False,
+                "fluorescent_light": False,
+            }
+        },
+        150_000,
+        50_000,
+    ),
     ("colon_lumen_off", "colon", {"lumen": False}, 150_000, 50_000),
 ]
 
