@@ -715,7 +715,7 @@ RunResult UnitReducer::finish(int threads, bool cancelled) {
         cfg.store > 0 && result.records.size() > 0 ? result.records.packet.back() + 1 : result.packets;
     const Scene& scene = impl_->scene;
     result.spectral = spectral_run(scene, cfg);
-    if (lanes_serve(scene, cfg)) result.lanes = lane_isa_name(lane_isa());
+    if (lanes_serve(cfg)) result.lanes = lane_isa_name(lane_isa());
     if (result.packets == 0)
         result.warnings.push_back(
             "no work unit finished before the run stopped: the result holds no estimate "

@@ -49,9 +49,8 @@ struct RunConfig {
     // The plain interior steps in float32 lanes, 16 packets at once
     // (lane_block.h; issue 39): runs without grids taking per-interaction
     // deposits (the emission grids alone are served), camera tally or path
-    // cap (lanes_serve). Another
-    // sample of the same physics, not the scalar walk's bits (docs/numerics.md,
-    // "Float32 lanes").
+    // cap (lanes_serve). Another sample of the same physics, not the scalar
+    // walk's bits (docs/numerics.md, "Float32 lanes").
     bool lanes = false;
     // Light crosses the lumen (issue 9): exits go on through the ambient and the
     // rig head is a body. false = every exit ends its packet, as before (benchmarks).

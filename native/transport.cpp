@@ -1668,7 +1668,7 @@ bool deposits_grids(const RunConfig& cfg) {
     return cfg.grid_voxel_size > 0 && (cfg.grid_absorbed || cfg.grid_fluorescent_light);
 }
 
-bool lanes_serve(const Scene& scene, const RunConfig& cfg) {
+bool lanes_serve(const RunConfig& cfg) {
     // local_.enabled is cfg.safe_distance. The lanes make no per-interaction
     // deposit; the emission grids take theirs at fluorescence events, which
     // the walk finishes (after_lanes), into the unit's grids.
@@ -1685,7 +1685,7 @@ Tracer::Tracer(const Scene& scene, const Source& source, const Halton& halton, c
     // triangle count.
     local_.enabled = cfg.safe_distance;
     shortcuts_.entry_planes.build(scene);
-    lanes_ = lanes_serve(scene, cfg);
+    lanes_ = lanes_serve(cfg);
     if (lanes_) {
         lane_isa();  // ENDOPHOTON_LANE_ISA checked before any packet
         lane_block_ = std::make_unique<LaneBlock>();

@@ -121,10 +121,11 @@ bool spectral_run(const Scene& scene, const RunConfig& config);
 // Whether the run's walk deposits into grids at its interactions: the
 // absorbed or fluorescent-light grid (emission grids alone cost nothing a step).
 bool deposits_grids(const RunConfig& config);
-// Whether the float32 lanes serve a run of `scene` under `config`
-// (Tracer::lanes): RunConfig::lanes, no grids taking deposits (a spectral
-// run: no grids at all), no camera tally, no path cap, the local caches on.
-bool lanes_serve(const Scene& scene, const RunConfig& config);
+// Whether the float32 lanes serve a run under `config` (Tracer::lanes):
+// RunConfig::lanes, no grids taking a deposit at every interaction (the
+// emission grids alone are served), no camera tally, no path cap, the local
+// caches on.
+bool lanes_serve(const RunConfig& config);
 
 class Tracer {
   public:
