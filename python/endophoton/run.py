@@ -405,8 +405,9 @@ def run(
     ``lanes`` (default True): the plain interior steps -- deep in one scattering region, crossing
     nothing -- in float32 vector lanes, 16 packets at once (native/lane_block.h), fluorescence trials
     included. They serve runs without a camera tally, a path cap or grids taking a deposit at every
-    interaction (``absorbed``, ``fluorescent_light``: the ``emission`` grids alone are served); ``result.lanes`` names the lanes' instruction set where they served
-    the run ("sse2", "avx2", "avx512"), else None. The result is another sample of the same
+    interaction (``absorbed``, ``fluorescent_light``: the ``emission`` grids alone are served);
+    ``result.lanes`` names the lanes' instruction set where they served the run ("sse2", "avx2",
+    "avx512"), else None. The result is another sample of the same
     physics, the same bits for a seed on any processor, thread count or cluster, but not the bits of
     the double walk that ``lanes=False`` gives (docs/numerics.md, "Float32 lanes").
     ``view`` (None: off): True or a dict (endophoton.view.nee.view_request) makes the run tally the
