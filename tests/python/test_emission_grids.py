@@ -31,12 +31,14 @@ def lesion_scene():
     return s
 
 
-def _run(tmp_path, name, threads=1, photons=3000):
+def _run(tmp_path, name, threads=1, photons=3000, seed=3, lanes=True, **asked):
+    """The lesion scene with grids: every grid, per fluorophore too, unless ``asked`` says otherwise."""
     # An oblique pencil entering at the lesion's edge: light reaches both the lesion and the wall.
     src = ep.PencilSource((0.3, 0.0, 1.0), (0, 0, -1))
     path = tmp_path / f"{name}.vdb"
-    grids = ep.GridRequest(voxel_size=H, path=str(path), per_fluorophore=True)
-    return ep.run(lesion_scene(), src, photons=photons, seed=3, threads=threads, grids=grids, record_escapes=False)
+    grids = ep.GridRequest(voxel_size=H, path=str(path), **{"per_fluorophore": True, **asked})
+    return ep.run(lesion_scene(), src, photons=photons, seed=seed, threads=threads, grids=grids,
+                  record_escapes=False, lanes=lanes)  # fmt: skip
 
 
 def _voxel_centres(path, name):
@@ -94,10 +96,9 @@ def test_emission_grids_and_tallies_are_the_same_bits_on_any_thread_count(tmp_pa
         assert oa == ob and ha == hb and np.array_equal(a, b), name
 
 
-def _emission_alone(tmp_path, name, threads=1, photons=20_000, seed=3, lanes=True):
-    src = ep.PencilSource((0.3, 0.0, 1.0), (0, 0, -1))
-    grids = ep.GridRequest(voxel_size=H, path=str(tmp_path / f"{name}.vdb"), absorbed=False, fluorescent_light=False)
-    return ep.run(lesion_scene(), src, photons=photons, seed=seed, threads=threads, grids=grids, lanes=lanes)
+def _emission_alone(tmp_path, name, threads=1, seed=3, lanes=True):
+    alone = dict(per_fluorophore=False, absorbed=False, fluorescent_light=False)
+    return _run(tmp_path, name, threads=threads, photons=20_000, seed=seed, lanes=lanes, **alone)
 
 
 def test_the_emission_grids_alone_take_the_lanes(tmp_path):
